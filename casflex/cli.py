@@ -1,0 +1,115 @@
+"""The ``casflex`` command line.
+
+Every verb lives in its own module under :mod:`casflex.commands` and exposes
+
+``HELP``
+    one-line description,
+``add_arguments(parser)``
+    adds the verb's arguments to an :class:`argparse.ArgumentParser`,
+``run(args, log)``
+    does the work and returns a JSON-serialisable ``dict`` (SI units). ``log`` is a
+    callable that writes a human-readable line to stderr.
+
+With ``--json`` the returned dict is printed as exactly one JSON object on stdout and
+nothing else is written there; human-readable output and progress bars go to stderr.
+Errors derived from :class:`casflex.errors.CasflexError` are reported in one line on
+stderr with exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+
+import numpy as np
+
+from casflex.errors import CasflexError
+
+#: verb name -> module under casflex.commands
+VERBS = {
+    "modes": "modes",
+    "sweep": "sweep",
+    "shaper": "shaper",
+}
+
+
+def _jsonable(obj):
+    """Convert numpy scalars/arrays inside ``obj`` to plain Python for :mod:`json`."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def _available_verbs():
+    verbs = {}
+    for verb, module in VERBS.items():
+        try:
+            verbs[verb] = importlib.import_module(f"casflex.commands.{module}")
+        except ModuleNotFoundError as exc:  # verb not shipped yet in this build
+            if exc.name != f"casflex.commands.{module}":
+                raise
+    return verbs
+
+
+def build_parser():
+    """Return the :class:`argparse.ArgumentParser` of the ``casflex`` command.
+
+    Examples
+    --------
+    >>> parser = build_parser()
+    >>> parser.prog
+    'casflex'
+    """
+    parser = argparse.ArgumentParser(
+        prog="casflex",
+        description="Modeling, estimation and control of flexible serial robot arms.",
+    )
+    from casflex import __version__
+
+    parser.add_argument("--version", action="version", version=f"casflex {__version__}")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB")
+    sub.required = True
+    for verb, module in _available_verbs().items():
+        p = sub.add_parser(verb, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.add_argument(
+            "--json", action="store_true", help="print exactly one JSON object on stdout"
+        )
+        p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv=None):
+    """Entry point of the ``casflex`` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+
+    def log(message):
+        print(message, file=sys.stderr, flush=True)
+
+    try:
+        result = args._module.run(args, log)
+    except CasflexError as exc:
+        print(f"casflex {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"casflex {args.verb}: interrupted", file=sys.stderr)
+        return 130
+    if args.json:
+        sys.stdout.write(json.dumps(_jsonable(result)) + "\n")
+        sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

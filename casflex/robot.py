@@ -1,0 +1,614 @@
+"""Robot descriptions: DH rows, flexible link sections, materials, tip bodies.
+
+A robot is a serial chain of *rows* in the modified (Craig) Denavit–Hartenberg
+convention used by the dissertation (Table 8): row ``i`` carries
+``(theta_i, d_i, a_{i-1}, alpha_{i-1})`` and the homogeneous transform from frame
+``i-1`` to frame ``i`` is
+
+    T_{i-1,i} = Rx(alpha_{i-1}) · Tx(a_{i-1}) · Rz(theta_i) · Tz(d_i).
+
+A row may be *flexible*: it then carries a uniform Euler–Bernoulli beam whose length is
+the row's translation, either ``a_{i-1}`` (the beam runs along ``x_{i-1}`` and ends at the
+axis of joint ``i``) or ``d_i`` (the beam starts at joint ``i`` and runs along ``z_i``);
+a flexible row with both ``a`` and ``d`` non-zero cannot be placed (§3.2.4).
+
+Local beam frames (the frame the section, mode shapes and tip bodies refer to): ``z``
+points along the beam; for a ``d`` beam ``x``/``y`` are the DH ``x_i``/``y_i``; for an
+``a`` beam ``y`` is the axis of joint ``i`` (``z_i``) and ``x = y × z`` (= ``y_{i-1}``
+after the twist), so that the section's ``a`` side lies along the joint axis as in the
+dissertation's Fig. 24.  A non-zero
+``section_angle`` rotates the section about the beam axis.  A rigid row's local frame is
+DH frame ``i``.
+
+Units: metres, kilograms, seconds, radians, pascals.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from casflex.errors import ProblemFileError
+
+__all__ = [
+    "Section",
+    "Material",
+    "TipBody",
+    "Link",
+    "Robot",
+    "load",
+    "loads",
+    "rectangle_torsion_constant",
+]
+
+_ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
+
+
+def rectangle_torsion_constant(a, b, terms=50):
+    """St-Venant torsion constant of a solid ``a × b`` rectangle [m^4].
+
+    Uses the series solution of the Prandtl stress function,
+    ``J = (1/3) h t^3 [1 - (192 t)/(pi^5 h) sum_{n odd} tanh(n pi h / (2 t)) / n^5]``
+    with ``h = max(a, b)`` and ``t = min(a, b)``.
+
+    Parameters
+    ----------
+    a, b : float
+        Side lengths [m].
+    terms : int
+        Number of odd terms of the series (50 gives machine precision).
+
+    Returns
+    -------
+    float
+        Torsion constant J [m^4].
+
+    Examples
+    --------
+    >>> round(rectangle_torsion_constant(1.0, 1.0), 5)  # square: 0.1406 a^4
+    0.14058
+    """
+    h, t = max(a, b), min(a, b)
+    n = np.arange(1, 2 * terms, 2, dtype=float)
+    series = np.sum(np.tanh(n * np.pi * h / (2.0 * t)) / n**5)
+    return float(h * t**3 / 3.0 * (1.0 - 192.0 * t / (np.pi**5 * h) * series))
+
+
+@dataclass(frozen=True)
+class Section:
+    """Cross-section properties of a uniform beam, in the local beam frame.
+
+    Attributes
+    ----------
+    A : float
+        Area [m^2].
+    Ix : float
+        Second moment of area about local x, ``∫ y² dA`` [m^4]; resists deflection w_y.
+    Iy : float
+        Second moment of area about local y, ``∫ x² dA`` [m^4]; resists deflection w_x.
+    J : float
+        St-Venant torsion constant [m^4] (torsional stiffness G·J).
+    Ip : float
+        Polar moment of area ``Ix + Iy`` [m^4] (torsional inertia ρ·Ip).
+    kind : str
+        ``"rectangle"``, ``"tube"`` or ``"explicit"`` (informative).
+    """
+
+    A: float
+    Ix: float
+    Iy: float
+    J: float
+    Ip: float
+    kind: str = "explicit"
+
+    @classmethod
+    def rectangle(cls, a, b):
+        """Solid rectangle, ``a`` along local y and ``b`` along local x [m].
+
+        Examples
+        --------
+        >>> s = Section.rectangle(0.005, 0.007)
+        >>> round(s.Ix / s.Iy, 4)   # (b a^3) / (a b^3) = (a/b)^2
+        0.5102
+        """
+        return cls(
+            A=a * b,
+            Ix=b * a**3 / 12.0,
+            Iy=a * b**3 / 12.0,
+            J=rectangle_torsion_constant(a, b),
+            Ip=a * b * (a**2 + b**2) / 12.0,
+            kind="rectangle",
+        )
+
+    @classmethod
+    def tube(cls, outer_diameter, wall):
+        """Circular tube by outer diameter and wall thickness [m]; ``J = Ip``.
+
+        Examples
+        --------
+        >>> s = Section.tube(0.0127, 0.00041)
+        >>> s.J == s.Ip
+        True
+        """
+        ro = outer_diameter / 2.0
+        ri = ro - wall
+        i = math.pi / 4.0 * (ro**4 - ri**4)
+        return cls(A=math.pi * (ro**2 - ri**2), Ix=i, Iy=i, J=2 * i, Ip=2 * i, kind="tube")
+
+
+@dataclass(frozen=True)
+class Material:
+    """Isotropic material: Young's modulus ``E`` [Pa], shear modulus ``G`` [Pa], density ``rho`` [kg/m^3]."""
+
+    E: float
+    G: float
+    rho: float
+
+
+@dataclass(frozen=True)
+class TipBody:
+    """A rigid body attached at the distal end of a row.
+
+    Attributes
+    ----------
+    mass : float
+        Mass [kg].
+    inertia : tuple of 3 float
+        Principal moments ``(Ixx, Iyy, Izz)`` about the centre of mass, along the local
+        link frame axes [kg m^2].
+    com_offset : tuple of 3 float
+        Centre of mass relative to the row's end point, in the local link frame [m].
+    """
+
+    mass: float = 0.0
+    inertia: tuple = (0.0, 0.0, 0.0)
+    com_offset: tuple = (0.0, 0.0, 0.0)
+
+    @property
+    def is_empty(self):
+        """True when the body has neither mass nor inertia."""
+        return self.mass == 0.0 and not any(self.inertia)
+
+
+@dataclass(frozen=True)
+class Link:
+    """One DH row and what is attached to it.
+
+    Attributes
+    ----------
+    theta : float
+        Constant part of the joint angle θ_i [rad] (the joint variable adds to it).
+    d : float
+        Joint offset d_i along z_i [m].
+    a : float
+        Common normal a_{i-1} along x_{i-1} [m].
+    alpha : float
+        Twist α_{i-1} about x_{i-1} [rad].
+    joint : str
+        ``"revolute"`` (θ_i = theta + q_k) or ``"fixed"``.
+    name : str
+        Label used in messages and plots.
+    section, material : Section, Material or None
+        Both given for a flexible row, both ``None`` for a rigid one.
+    section_angle : float
+        Rotation of the section about the beam axis from the default local frame [rad].
+    tip : TipBody
+        Rigid body at the row's distal end.
+    motor_inertia : float
+        Rotor inertia reflected through the gear to joint i [kg m^2]. It enters M_qq of the
+        rigid-body dynamics only: the transfer-matrix modes lock the joints at the motors.
+    joint_stiffness : float or None
+        Torsional spring at joint i between motor and outboard structure [Nm/rad]; ``None``
+        for a rigid joint.
+    """
+
+    theta: float = 0.0
+    d: float = 0.0
+    a: float = 0.0
+    alpha: float = 0.0
+    joint: str = "fixed"
+    name: str = ""
+    section: Section | None = None
+    material: Material | None = None
+    section_angle: float = 0.0
+    tip: TipBody = field(default_factory=TipBody)
+    motor_inertia: float = 0.0
+    joint_stiffness: float | None = None
+
+    @property
+    def flexible(self):
+        """True when the row carries a beam."""
+        return self.section is not None
+
+    @property
+    def beam_along(self):
+        """``"a"`` or ``"d"`` for a flexible row (which translation the beam spans), else None."""
+        if not self.flexible:
+            return None
+        return "a" if self.a != 0.0 else "d"
+
+    @property
+    def length(self):
+        """Beam length [m] of a flexible row (0 for a rigid row)."""
+        if not self.flexible:
+            return 0.0
+        return abs(self.a) if self.a != 0.0 else abs(self.d)
+
+    @property
+    def mass_per_length(self):
+        """Distributed mass ρA [kg/m] (0 for a rigid row)."""
+        return self.material.rho * self.section.A if self.flexible else 0.0
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A validated serial robot description.
+
+    Attributes
+    ----------
+    links : tuple of Link
+        The DH rows, base first.
+    name : str
+    gravity : numpy.ndarray
+        Gravity vector in the base frame [m/s^2].
+    damping_ratio : float
+        Modal damping ratio applied to every flexible mode.
+    source : str or None
+        File the description was read from.
+
+    Examples
+    --------
+    >>> robot = load("problems/arm2link.toml")
+    >>> robot.n_joints, [link.name for link in robot.flexible_links]
+    (3, ['link1', 'link2'])
+    """
+
+    links: tuple
+    name: str = "robot"
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    damping_ratio: float = 0.0
+    source: str | None = None
+    description: str = ""
+
+    @property
+    def n_joints(self):
+        """Number of joint variables (revolute rows)."""
+        return sum(1 for link in self.links if link.joint == "revolute")
+
+    @property
+    def joint_rows(self):
+        """Row index of every joint variable, in order."""
+        return tuple(i for i, link in enumerate(self.links) if link.joint == "revolute")
+
+    @property
+    def flexible_links(self):
+        """The flexible rows, base first."""
+        return tuple(link for link in self.links if link.flexible)
+
+    def joint_angles(self, q):
+        """DH angles θ_i of every row for joint variables ``q`` [rad].
+
+        Examples
+        --------
+        >>> robot = load("problems/arm2link.toml")
+        >>> robot.joint_angles([0.1, 0.2, 0.3]).tolist()
+        [0.1, 0.2, 0.3, 0.0]
+        """
+        q = self.check_q(q)
+        theta = np.array([link.theta for link in self.links], dtype=float)
+        theta[list(self.joint_rows)] += q
+        return theta
+
+    def check_q(self, q):
+        """Return ``q`` as a float array of length ``n_joints`` or raise ModelError."""
+        from casflex.errors import ModelError
+
+        q = np.atleast_1d(np.asarray(q, dtype=float))
+        if q.shape != (self.n_joints,):
+            raise ModelError(
+                f"robot '{self.name}' has {self.n_joints} joint variables; got q of shape "
+                f"{q.shape}"
+            )
+        if not np.all(np.isfinite(q)):
+            raise ModelError(f"joint variables must be finite; got q = {q.tolist()}")
+        return q
+
+    def frames(self, q):
+        """Homogeneous transforms ``T_0i`` of every DH frame ``i = 1..n`` (n, 4, 4).
+
+        Examples
+        --------
+        >>> robot = load("problems/arm2link.toml")
+        >>> robot.frames([0, 0, 0])[-1][:3, 3].round(6).tolist()   # tip of the L-shaped arm
+        [1.0, 0.0, -1.0]
+        """
+        theta = self.joint_angles(q)
+        out = np.empty((len(self.links), 4, 4))
+        T = np.eye(4)
+        for i, link in enumerate(self.links):
+            T = T @ dh_transform(link.alpha, link.a, theta[i], link.d)
+            out[i] = T
+        return out
+
+    def with_joint_stiffness(self, stiffness):
+        """Return a copy with the joint stiffness of every revolute row replaced [Nm/rad]."""
+        stiffness = list(stiffness)
+        links = list(self.links)
+        for row, k in zip(self.joint_rows, stiffness, strict=True):
+            links[row] = replace(links[row], joint_stiffness=k)
+        return replace(self, links=tuple(links))
+
+
+def dh_transform(alpha, a, theta, d):
+    """Modified-DH transform ``Rx(alpha) Tx(a) Rz(theta) Tz(d)`` as a 4x4 array.
+
+    Parameters
+    ----------
+    alpha : float
+        Twist α_{i-1} [rad].
+    a : float
+        Common normal a_{i-1} [m].
+    theta : float
+        Joint angle θ_i [rad].
+    d : float
+        Offset d_i [m].
+
+    Examples
+    --------
+    >>> dh_transform(0.0, 1.0, 0.0, 0.0)[:3, 3].tolist()
+    [1.0, 0.0, 0.0]
+    """
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    ct, st = math.cos(theta), math.sin(theta)
+    return np.array(
+        [
+            [ct, -st, 0.0, a],
+            [st * ca, ct * ca, -sa, -sa * d],
+            [st * sa, ct * sa, ca, ca * d],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+
+
+# --------------------------------------------------------------------------- loading
+
+
+class _Reader:
+    """Checks one TOML table: known keys, types, finiteness; collects errors with context."""
+
+    def __init__(self, path, table, prefix):
+        self.path = path
+        self.table = table
+        self.prefix = prefix
+        self.used = set()
+
+    def _field(self, key):
+        return f"{self.prefix}.{key}" if self.prefix else key
+
+    def error(self, key, value, rule):
+        return ProblemFileError(self.path, self._field(key), value, rule)
+
+    def has(self, key):
+        return key in self.table
+
+    def number(self, key, default=None, *, required=False, angle=False, positive=False,
+               nonnegative=False):
+        self.used.add(key)
+        if key not in self.table:
+            if required:
+                raise self.error(key, None, "is required but missing")
+            return default
+        raw = self.table[key]
+        value = raw
+        if angle and isinstance(raw, dict):
+            unknown = set(raw) - {"value", "unit"}
+            if unknown or "value" not in raw:
+                raise self.error(key, raw, "an angle is a number [rad] or {value = ..., "
+                                           "unit = \"deg\"|\"rad\"}")
+            unit = raw.get("unit", "rad")
+            if unit not in _ANGLE_UNITS:
+                raise self.error(key, raw, f"unknown angle unit {unit!r}; use 'rad' or 'deg'")
+            value = raw["value"]
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise self.error(key, raw, "must be a number")
+            value = float(value) * _ANGLE_UNITS[unit]
+        elif isinstance(raw, bool) or not isinstance(raw, (int, float)):
+            raise self.error(key, raw, "must be a number")
+        value = float(value)
+        if not math.isfinite(value):
+            raise self.error(key, raw, "must be finite (no NaN or inf)")
+        if positive and value <= 0.0:
+            raise self.error(key, raw, "must be > 0")
+        if nonnegative and value < 0.0:
+            raise self.error(key, raw, "must be >= 0")
+        return value
+
+    def vector(self, key, n, default):
+        self.used.add(key)
+        if key not in self.table:
+            return tuple(default)
+        raw = self.table[key]
+        if not isinstance(raw, list) or len(raw) != n:
+            raise self.error(key, raw, f"must be a list of {n} numbers")
+        out = []
+        for v in raw:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise self.error(key, raw, f"must be a list of {n} numbers")
+            if not math.isfinite(float(v)):
+                raise self.error(key, raw, "must be finite (no NaN or inf)")
+            out.append(float(v))
+        return tuple(out)
+
+    def string(self, key, default=None, choices=None):
+        self.used.add(key)
+        if key not in self.table:
+            return default
+        raw = self.table[key]
+        if not isinstance(raw, str):
+            raise self.error(key, raw, "must be a string")
+        if choices is not None and raw not in choices:
+            raise self.error(key, raw, f"must be one of {sorted(choices)}")
+        return raw
+
+    def table_(self, key):
+        self.used.add(key)
+        if key not in self.table:
+            return None
+        raw = self.table[key]
+        if not isinstance(raw, dict):
+            raise self.error(key, raw, "must be a table")
+        return _Reader(self.path, raw, self._field(key))
+
+    def finish(self):
+        unknown = sorted(set(self.table) - self.used)
+        if unknown:
+            key = unknown[0]
+            raise self.error(key, self.table[key],
+                             f"unknown key; known keys here are {sorted(self.used)}")
+
+
+def _read_section(r):
+    shape = r.string("shape", choices={"rectangle", "tube", "explicit"})
+    if shape is None:
+        raise r.error("shape", None, "is required: 'rectangle', 'tube' or 'explicit'")
+    if shape == "rectangle":
+        a = r.number("a", required=True, positive=True)
+        b = r.number("b", required=True, positive=True)
+        section = Section.rectangle(a, b)
+    elif shape == "tube":
+        od = r.number("outer_diameter", required=True, positive=True)
+        wall = r.number("wall", required=True, positive=True)
+        if wall >= od / 2.0:
+            raise r.error("wall", wall, f"must be smaller than the outer radius {od / 2.0} m")
+        section = Section.tube(od, wall)
+    else:
+        vals = {k: r.number(k, required=True, positive=True) for k in ("A", "Ix", "Iy", "J")}
+        ip = r.number("Ip", default=vals["Ix"] + vals["Iy"], positive=True)
+        section = Section(A=vals["A"], Ix=vals["Ix"], Iy=vals["Iy"], J=vals["J"], Ip=ip)
+    r.finish()
+    return section
+
+
+def _read_link(path, raw, index):
+    r = _Reader(path, raw, f"link[{index}]")
+    name = r.string("name", default=f"row{index + 1}")
+    joint = r.string("joint", default="fixed", choices={"revolute", "fixed"})
+    theta = r.number("theta", 0.0, angle=True)
+    d = r.number("d", 0.0)
+    a = r.number("a", 0.0)
+    alpha = r.number("alpha", 0.0, angle=True)
+    section_angle = r.number("section_angle", 0.0, angle=True)
+    motor_inertia = r.number("motor_inertia", 0.0, nonnegative=True)
+    joint_stiffness = r.number("joint_stiffness", None, positive=True)
+    if joint_stiffness is not None and joint != "revolute":
+        raise r.error("joint_stiffness", joint_stiffness,
+                      "a joint spring needs a revolute joint in this row")
+    if motor_inertia and joint != "revolute":
+        raise r.error("motor_inertia", motor_inertia,
+                      "a motor inertia needs a revolute joint in this row")
+
+    sec_r, mat_r = r.table_("section"), r.table_("material")
+    section = material = None
+    if (sec_r is None) != (mat_r is None):
+        missing = "material" if mat_r is None else "section"
+        raise r.error(missing, None,
+                      "a flexible link needs both [link.section] and [link.material]")
+    if sec_r is not None:
+        section = _read_section(sec_r)
+        material = Material(
+            E=mat_r.number("E", required=True, positive=True),
+            G=mat_r.number("G", required=True, positive=True),
+            rho=mat_r.number("rho", required=True, positive=True),
+        )
+        mat_r.finish()
+        if a == 0.0 and d == 0.0:
+            raise r.error("a", a, "a flexible link needs a non-zero length: set a or d (> 0)")
+        if a != 0.0 and d != 0.0:
+            raise r.error("d", d, "a flexible link must lie along a or along d, not both "
+                                  f"(a = {a}); split it into two rows")
+        if a < 0.0:
+            raise r.error("a", a, "the length of a flexible link must be > 0")
+        if d < 0.0:
+            raise r.error("d", d, "the length of a flexible link must be > 0")
+
+    tip = TipBody()
+    tip_r = r.table_("tip")
+    if tip_r is not None:
+        tip = TipBody(
+            mass=tip_r.number("mass", 0.0, nonnegative=True),
+            inertia=tip_r.vector("inertia", 3, (0.0, 0.0, 0.0)),
+            com_offset=tip_r.vector("com_offset", 3, (0.0, 0.0, 0.0)),
+        )
+        if min(tip.inertia) < 0.0:
+            raise tip_r.error("inertia", list(tip.inertia), "moments of inertia must be >= 0")
+        tip_r.finish()
+    r.finish()
+    return Link(theta=theta, d=d, a=a, alpha=alpha, joint=joint, name=name, section=section,
+                material=material, section_angle=section_angle, tip=tip,
+                motor_inertia=motor_inertia, joint_stiffness=joint_stiffness)
+
+
+def loads(text, path=None):
+    """Read a robot description from TOML text (see :func:`load`)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ProblemFileError(path, "<toml>", None, f"is not valid TOML: {exc}") from exc
+    return _from_dict(data, path)
+
+
+def load(path):
+    """Read and validate a robot description file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        TOML file with ``[[link]]`` tables (see ``problems/README.md``).
+
+    Returns
+    -------
+    Robot
+
+    Raises
+    ------
+    ProblemFileError
+        Naming file, field, value and rule for anything malformed.
+
+    Examples
+    --------
+    >>> robot = load("problems/arm2link.toml")
+    >>> robot.flexible_links[0].length
+    1.0
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
+    return loads(text, path)
+
+
+def _from_dict(data, path):
+    r = _Reader(path, data, "")
+    name = r.string("name", default=Path(path).stem if path else "robot")
+    description = r.string("description", default="")
+    gravity = np.array(r.vector("gravity", 3, (0.0, 0.0, -9.81)))
+    damping = r.number("damping_ratio", 0.0, nonnegative=True)
+    if damping >= 1.0:
+        raise r.error("damping_ratio", damping, "must be < 1 (underdamped modes)")
+    r.used.add("link")
+    raw_links = data.get("link")
+    if raw_links is None:
+        raise r.error("link", None, "is required: at least one [[link]] table")
+    if not isinstance(raw_links, list) or not all(isinstance(x, dict) for x in raw_links):
+        raise r.error("link", raw_links, "must be an array of tables ([[link]])")
+    r.finish()
+    links = tuple(_read_link(path, raw, i) for i, raw in enumerate(raw_links))
+    if not any(link.joint == "revolute" for link in links):
+        raise ProblemFileError(path, "link", len(links), "needs at least one revolute joint")
+    return Robot(links=links, name=name, gravity=gravity, damping_ratio=damping,
+                 source=None if path is None else str(path), description=description)
