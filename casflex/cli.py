@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import re
 import sys
 
 import numpy as np
@@ -61,6 +62,10 @@ def _available_verbs():
     return verbs
 
 
+# Negative values such as "-1.5", "-1e-3" or "-45deg" are values, not options.
+_NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(deg|rad)?$")
+
+
 def build_parser():
     """Return the :class:`argparse.ArgumentParser` of the ``casflex`` command.
 
@@ -76,11 +81,13 @@ def build_parser():
     )
     from casflex import __version__
 
+    parser._negative_number_matcher = _NEGATIVE_VALUE  # argparse's hook for "-1"-like values
     parser.add_argument("--version", action="version", version=f"casflex {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
     for verb, module in _available_verbs().items():
         p = sub.add_parser(verb, help=module.HELP, description=module.HELP)
+        p._negative_number_matcher = _NEGATIVE_VALUE
         module.add_arguments(p)
         p.add_argument(
             "--json", action="store_true", help="print exactly one JSON object on stdout"

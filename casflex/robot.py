@@ -142,7 +142,7 @@ class Section:
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic material: Young's modulus ``E`` [Pa], shear modulus ``G`` [Pa], density ``rho`` [kg/m^3]."""
+    """Isotropic material: moduli ``E``, ``G`` [Pa] and density ``rho`` [kg/m^3]."""
 
     E: float
     G: float

@@ -418,8 +418,17 @@ class ModeShapes:
         (m, n_beams, n_points) ``w_z'`` [-].
     body_state : numpy.ndarray
         (m, n_bodies, 6) ``[u, θ]`` of every tip body's attachment point, base frame.
+    body_state_local : numpy.ndarray
+        (m, n_bodies, 6) the same in each body's local frame.
     body_position : numpy.ndarray
         (n_bodies, 3) attachment points [m].
+    body_rows : tuple of int
+        DH row of each tip body.
+    spring_rotation : numpy.ndarray
+        (m, n_springs) rotation of the outboard side relative to the inboard side of every
+        joint spring [rad].
+    spring_rows : tuple of int
+        DH row of each joint spring.
     """
 
     omega: np.ndarray
@@ -437,7 +446,11 @@ class ModeShapes:
     twist_rate: np.ndarray
     axial_strain: np.ndarray
     body_state: np.ndarray
+    body_state_local: np.ndarray
     body_position: np.ndarray
+    body_rows: tuple
+    spring_rotation: np.ndarray
+    spring_rows: tuple
 
     @property
     def displacement_global(self):
@@ -499,7 +512,8 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
     s = np.array([frac * b.params["length"] for b in beams]).reshape(nb, n_points)
     local = np.zeros((m, nb, n_points, 12))
     position = np.zeros((nb, n_points, 3))
-    body_state, body_position = [], []
+    body_state, body_local, body_position, body_rows = [], [], [], []
+    spring_rotation, spring_rows = [], []
     ib = 0
     for element in chain.elements:
         if element.kind == "beam":
@@ -518,7 +532,14 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
         else:
             if element.kind == "body":
                 body_state.append(z[:, :6].copy())
+                R6t = np.kron(np.eye(2), element.R.T)
+                body_local.append(z[:, :6] @ R6t.T)
                 body_position.append(element.start)
+                body_rows.append(element.row)
+            elif element.kind == "spring":
+                P = element.params
+                spring_rotation.append(z[:, 6:9] @ P["axis"] / P["stiffness"])
+                spring_rows.append(element.row)
             z = np.einsum("mij,mj->mi", element_transfer(element, omega), z)
 
     disp = local[..., 0:3]
@@ -535,6 +556,9 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
     twist_rate = mom[..., 2] / GJ[None, :, None]
     axial_strain = frc[..., 2] / EA[None, :, None]
     body_state = np.stack(body_state, axis=1) if body_state else np.zeros((m, 0, 6))
+    body_local = np.stack(body_local, axis=1) if body_local else np.zeros((m, 0, 6))
+    spring_rotation = (np.stack(spring_rotation, axis=1) if spring_rotation
+                       else np.zeros((m, 0)))
 
     # scale: unit peak displacement, largest component positive
     flat = disp.reshape(m, -1)
@@ -552,7 +576,9 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
         displacement=sc(disp), rotation=sc(rot), moment=sc(mom), force=sc(frc),
         slope=sc(slope), curvature=sc(curvature), twist_rate=sc(twist_rate),
         axial_strain=sc(axial_strain), body_state=sc(body_state),
-        body_position=np.array(body_position).reshape(-1, 3),
+        body_state_local=sc(body_local), body_position=np.array(body_position).reshape(-1, 3),
+        body_rows=tuple(body_rows), spring_rotation=sc(spring_rotation),
+        spring_rows=tuple(spring_rows),
     )
 
 

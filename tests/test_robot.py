@@ -1,0 +1,138 @@
+"""Robot descriptions: loading, geometry, and every ProblemFileError rule."""
+
+import math
+
+import numpy as np
+import pytest
+
+from casflex.errors import ModelError, ProblemFileError
+from casflex.robot import Section, load, loads, rectangle_torsion_constant
+
+FLEX = """
+[[link]]
+joint = "revolute"
+d = 1.0
+[link.section]
+shape = "rectangle"
+a = 0.005
+b = 0.007
+[link.material]
+E = 69e9
+G = 26.9e9
+rho = 2700.0
+"""
+
+
+def test_shipped_problem_files_load():
+    arm = load("problems/arm2link.toml")
+    assert arm.n_joints == 3
+    assert [link.length for link in arm.flexible_links] == [1.0, 1.0]
+    assert arm.flexible_links[0].beam_along == "a"
+    assert arm.flexible_links[1].beam_along == "d"
+    bed = load("problems/testbed.toml")
+    assert [link.joint_stiffness for link in bed.links[:3]] == [120.0, 100.0, 90.0]
+    tube = bed.flexible_links[0].section
+    assert tube.kind == "tube" and tube.J == tube.Ip
+
+
+def test_frames_follow_modified_dh():
+    """Tip of the Table 8 arm by hand: link 1 along x0, link 2 hanging down at q = 0."""
+    arm = load("problems/arm2link.toml")
+    np.testing.assert_allclose(arm.frames([0, 0, 0])[-1][:3, 3], [1, 0, -1], atol=1e-15)
+    # q1 rotates about the vertical; q2 lifts link 1 (z2 = y0 at q1 = 0)
+    T = arm.frames([math.pi / 2, 0, 0])[-1]
+    np.testing.assert_allclose(T[:3, 3], [0, 1, -1], atol=1e-12)
+    T = arm.frames([0, 0, -math.pi / 2])[-1]  # elbow folds link 2 along +x
+    np.testing.assert_allclose(T[:3, 3], [2, 0, 0], atol=1e-12)
+
+
+def test_rectangle_section_and_torsion_constant():
+    s = Section.rectangle(0.005, 0.007)  # a along y, b along x
+    assert s.Ix == pytest.approx(0.007 * 0.005**3 / 12)
+    assert s.Iy == pytest.approx(0.005 * 0.007**3 / 12)
+    assert s.Ip == pytest.approx(s.Ix + s.Iy)
+    # St-Venant constants of rectangles (Timoshenko & Goodier table: k1 a b^3)
+    for ratio, k1 in [(1.0, 0.1406), (2.0, 0.2287), (4.0, 0.2808), (10.0, 0.3123)]:
+        assert rectangle_torsion_constant(ratio, 1.0) == pytest.approx(k1 * ratio, rel=2e-3)
+    # thin strip tends to a b^3 / 3 (1 - 0.630 b/a)
+    assert rectangle_torsion_constant(100.0, 1.0) == pytest.approx(
+        100.0 / 3.0 * (1 - 0.630 / 100.0), rel=1e-3)
+
+
+def test_angles_accept_units():
+    r = loads('[[link]]\njoint = "revolute"\nalpha = { value = 90, unit = "deg" }\n')
+    assert r.links[0].alpha == pytest.approx(math.pi / 2)
+
+
+def _err(text, match):
+    with pytest.raises(ProblemFileError, match=match) as info:
+        loads(text, path="robot.toml")
+    assert "robot.toml" in str(info.value)
+    return info.value
+
+
+def test_unknown_and_missing_keys():
+    e = _err(FLEX.replace('d = 1.0', 'd = 1.0\nlenght = 2.0'), "unknown key")
+    assert e.field == "link[0].lenght"
+    _err("name = 'x'\n", "link.*required")
+    _err(FLEX.replace('rho = 2700.0', ''), r"link\[0\]\.material\.rho.*required")
+    _err(FLEX.replace('[link.material]\nE = 69e9\nG = 26.9e9\nrho = 2700.0', ''),
+         "needs both")
+    _err(FLEX.replace('shape = "rectangle"', 'shape = "hexagon"'), "must be one of")
+    _err("bogus = 1\n" + FLEX, "field 'bogus'.*unknown key")
+
+
+def test_lengths_and_moduli_rules():
+    e = _err(FLEX.replace("d = 1.0", "d = 0.0"), "non-zero length")
+    assert e.value == 0.0
+    _err(FLEX.replace("d = 1.0", "d = -1.0"), "must be > 0")
+    for key in ("E", "G", "rho"):
+        old = {"E": "E = 69e9", "G": "G = 26.9e9", "rho": "rho = 2700.0"}[key]
+        e = _err(FLEX.replace(old, f"{key} = 0.0"), "must be > 0")
+        assert e.field == f"link[0].material.{key}"
+        _err(FLEX.replace(old, f"{key} = -5.0"), "must be > 0")
+
+
+def test_nan_and_inf_rejected():
+    e = _err(FLEX.replace("E = 69e9", "E = nan"), "finite")
+    assert e.field == "link[0].material.E"
+    _err(FLEX.replace("d = 1.0", "d = inf"), "finite")
+    _err('[[link]]\njoint = "revolute"\n[link.tip]\nmass = 1.0\ninertia = [0, nan, 0]\n',
+         "finite")
+    _err("gravity = [0, 0, inf]\n" + FLEX, "finite")
+
+
+def test_tube_wall_rule():
+    tube = FLEX.replace('shape = "rectangle"\na = 0.005\nb = 0.007',
+                        'shape = "tube"\nouter_diameter = 0.0127\nwall = 0.00635')
+    e = _err(tube, "smaller than the outer radius")
+    assert e.field == "link[0].section.wall"
+    ok = loads(tube.replace("wall = 0.00635", "wall = 0.00041"))
+    assert ok.flexible_links[0].section.kind == "tube"
+
+
+def test_flexible_link_that_cannot_be_placed():
+    """A beam must lie along a or along d (the TMM assembly of §3.2.4), not both."""
+    e = _err(FLEX.replace("d = 1.0", "d = 1.0\na = 0.5"), "along a or along d")
+    assert e.field == "link[0].d"
+
+
+def test_other_rules():
+    _err('[[link]]\njoint = "fixed"\n', "at least one revolute")
+    _err('[[link]]\njoint = "prismatic"\n', "must be one of")
+    _err('[[link]]\njoint = "fixed"\njoint_stiffness = 10.0\n', "needs a revolute joint")
+    _err('[[link]]\njoint = "revolute"\njoint_stiffness = -1.0\n', "must be > 0")
+    _err('[[link]]\njoint = "revolute"\n[link.tip]\nmass = -1.0\n', "must be >= 0")
+    _err('[[link]]\njoint = "revolute"\nd = "one"\n', "must be a number")
+    _err("damping_ratio = 1.5\n" + FLEX, "must be < 1")
+    _err("this is not toml", "not valid TOML")
+    with pytest.raises(ProblemFileError, match="cannot be read"):
+        load("problems/does-not-exist.toml")
+
+
+def test_q_is_checked():
+    arm = load("problems/arm2link.toml")
+    with pytest.raises(ModelError, match="3 joint variables"):
+        arm.frames([0.0, 0.0])
+    with pytest.raises(ModelError, match="finite"):
+        arm.frames([0.0, np.nan, 0.0])
