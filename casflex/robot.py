@@ -367,8 +367,8 @@ def dh_transform(alpha, a, theta, d):
     return np.array(
         [
             [ct, -st, 0.0, a],
-            [st * ca, ct * ca, -sa, -sa * d],
-            [st * sa, ct * sa, ca, ca * d],
+            [st * ca, ct * ca, -sa, -sa * d + 0.0],
+            [st * sa, ct * sa, ca, ca * d + 0.0],
             [0.0, 0.0, 0.0, 1.0],
         ]
     )

@@ -104,16 +104,13 @@ def _merge_impulses(times, amplitudes, atol):
     amplitudes = np.asarray(amplitudes, dtype=float)[order]
     out_t = [times[0]]
     out_a = [amplitudes[0]]
-    weight_t = [times[0] * amplitudes[0]]
     for t, a in zip(times[1:], amplitudes[1:], strict=True):
+        # keep the first time of a merged group (the times only differ by round-off)
         if t - out_t[-1] <= atol:
             out_a[-1] += a
-            weight_t[-1] += t * a
         else:
             out_t.append(t)
             out_a.append(a)
-            weight_t.append(t * a)
-    # keep the first time of a merged group (impulse times must stay put for exactness)
     return np.array(out_t), np.array(out_a)
 
 
@@ -242,7 +239,10 @@ def residual_vibration(shaper, omega, zeta=0.0):
     ``V = exp(-ζ ω t_n) * sqrt(C² + S²)`` with
     ``C = Σ A_i exp(ζ ω t_i) cos(ω sqrt(1-ζ²) t_i)`` and ``S`` the same with ``sin``: the
     amplitude of the residual oscillation of a mode of natural frequency ``ω`` and damping
-    ``ζ`` after the last impulse, relative to the response to a single unit impulse at t = 0.
+    ``ζ`` at the last impulse time, relative to the amplitude of the response to a single
+    unit impulse at the moment it is applied (the normalisation of eq. 187: with damping,
+    the shaped residual is compared with an unshaped one of the same age, not at the same
+    absolute time).
     The dissertation calls it the percentage residual vibration (PRV); here it is a fraction
     (0.05 means 5 %).
 
@@ -485,8 +485,6 @@ def _undamped_features(tau, amp, centre):
     idx = np.arange(1, nu.size - 1)
     zeros = [nu[i] for i in idx[is_min] if v[i] < 1e-3 and abs(nu[i] - 1.0) > 1e-3]
     humps = [nu[i] for i in idx[is_max] if abs(nu[i] - 1.0) > 1e-3 and v[i] < 0.999]
-    if centre == "hump":
-        zeros = [z for z in zeros]
     return zeros, humps
 
 
@@ -956,14 +954,21 @@ class SISample:
         Returns
         -------
         SISample
+
+        Examples
+        --------
+        >>> SISample.from_ranges([FrequencyRange(1.0, 2.0, 0.0, 0.1)], 2).omega.tolist()
+        [1.0, 2.0]
         """
         counts = np.broadcast_to(np.asarray(per_range, dtype=int), (len(ranges),))
         w, z, v, idx = [], [], [], []
         for i, (r, m) in enumerate(zip(ranges, counts, strict=True)):
             if r.vtol >= 1.0:
                 continue
-            pts = [r.omega_min] if r.omega_max == r.omega_min else np.linspace(
-                r.omega_min, r.omega_max, max(2, int(m))
+            pts = (
+                [r.omega_min]
+                if r.omega_max == r.omega_min
+                else np.linspace(r.omega_min, r.omega_max, max(2, int(m)))
             )
             w.extend(pts)
             z.extend([r.zeta] * len(pts))
@@ -972,7 +977,26 @@ class SISample:
         return cls(np.array(w, float), np.array(z, float), np.array(v, float), np.array(idx, int))
 
     def with_points(self, omega, range_index, ranges):
-        """Return a copy with extra sample frequencies added to the given ranges."""
+        """Return a copy with extra sample frequencies added to the given ranges.
+
+        Parameters
+        ----------
+        omega : array_like
+            New sample frequencies, rad/s.
+        range_index : array_like of int
+            Range each new frequency belongs to (its zeta and vtol are used).
+        ranges : list of FrequencyRange
+
+        Returns
+        -------
+        SISample
+
+        Examples
+        --------
+        >>> r = [FrequencyRange(1.0, 2.0, 0.0, 0.1)]
+        >>> len(SISample.from_ranges(r, 2).with_points([1.5], [0], r))
+        3
+        """
         z = [ranges[i].zeta for i in range_index]
         v = [ranges[i].vtol for i in range_index]
         return SISample(
@@ -1145,7 +1169,12 @@ def solve_si_nlp(samples, guess, method="ipopt", options=None):
         opts.update(options or {})
         t1 = time.perf_counter()
         res = optimize.minimize(
-            fobj, x0, jac=True, method="SLSQP", bounds=bounds, constraints=constraints,
+            fobj,
+            x0,
+            jac=True,
+            method="SLSQP",
+            bounds=bounds,
+            constraints=constraints,
             options=opts,
         )
         t2 = time.perf_counter()
@@ -1444,6 +1473,8 @@ def si_shaper(
     (True, True)
     """
     ranges = _as_ranges(ranges)
+    if int(max_solves) < 1:
+        raise ProblemFileError(None, "max_solves", max_solves, "must be >= 1")
     active = [r for r in ranges if r.vtol < 1.0]
     if not active:
         trivial = Shaper([0.0], [1.0])

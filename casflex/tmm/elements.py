@@ -27,6 +27,8 @@ All functions accept an array of ω and return stacked matrices of shape (N, 12,
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 __all__ = [
@@ -92,53 +94,29 @@ def beam_field(s, omega, EA, EIx, EIy, GJ, rho_A, rho_Ip):
     (12, 12)
     """
     s, omega = np.broadcast_arrays(np.asarray(s, dtype=float), np.asarray(omega, dtype=float))
-    out = np.zeros(s.shape + (12, 12))
+    shape = s.shape
+    s, omega = s.ravel(), omega.ravel()
+    table = _layout(float(EA), float(EIx), float(EIy), float(GJ))
 
-    # axial: u_z' = F_z/EA, F_z' = -ω² ρA u_z
-    k = omega * np.sqrt(rho_A / EA)
-    ks = k * s
-    c, sn = np.cos(ks), np.sin(ks)
-    out[..., 2, 2] = c
-    out[..., 2, 11] = _sinc_ratio(sn, k, s) / EA
-    out[..., 11, 2] = -EA * k * sn
-    out[..., 11, 11] = c
+    # axial (u_z' = F_z/EA, F_z' = -ω² ρA u_z) and torsion (θ_z' = M_z/GJ,
+    # M_z' = -ω² ρIp θ_z), stacked as two rows
+    stiff = np.array([[EA], [GJ]])
+    k = omega * np.sqrt(np.array([[rho_A / EA], [rho_Ip / GJ]]))
+    c, sn = np.cos(k * s), np.sin(k * s)
+    if np.all(k != 0.0):
+        sinc = sn / k
+    else:
+        sinc = np.where(k == 0.0, s, sn / np.where(k == 0.0, 1.0, k))
+    wave = np.stack([c, sinc / stiff, -stiff * k * sn, c], axis=-1)  # (2, P, 4)
 
-    # torsion: θ_z' = M_z/GJ, M_z' = -ω² ρIp θ_z
-    k = omega * np.sqrt(rho_Ip / GJ)
-    ks = k * s
-    c, sn = np.cos(ks), np.sin(ks)
-    out[..., 5, 5] = c
-    out[..., 5, 8] = _sinc_ratio(sn, k, s) / GJ
-    out[..., 8, 5] = -GJ * k * sn
-    out[..., 8, 8] = c
-
-    # bending in the x–z plane, y = [u_x, u_x', u_x'', u_x''']:
-    #   u_x = y0, θ_y = y1, M_y = EIy y2, F_x = -EIy y3
-    _bending(out, s, omega, rho_A, EIy, idx=(0, 4, 7, 9), signs=(1.0, 1.0, EIy, -EIy))
-    # bending in the y–z plane: u_y = y0, θ_x = -y1, M_x = -EIx y2, F_y = -EIx y3
-    _bending(out, s, omega, rho_A, EIx, idx=(1, 3, 6, 10), signs=(1.0, -1.0, -EIx, -EIx))
-    return out
-
-
-def _sinc_ratio(sn, k, s):
-    """sin(k s)/k, continuous at k = 0 (→ s)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = sn / k
-    return np.where(k == 0.0, s, r)
-
-
-def _bending(out, s, omega, rho_A, EI, idx, signs):
-    """Fill one Euler–Bernoulli bending block (Krylov–Duncan functions S, T, U, V).
-
-    With y = (w, dw, d2w, d3w), y(s) = K y(0); the state entries are signs * y.
-    """
-    lam = np.sqrt(omega) * (rho_A / EI) ** 0.25  # λ⁴ = ω² ρA / EI
+    # bending in the x–z (EIy) and y–z (EIx) planes, stacked as two rows: with
+    # y = (w, dw, d2w, d3w), y(s) = K y(0), K_ab = λ^(a-b) F_(a-b) of the Krylov–Duncan
+    # functions S, T, U, V
+    lam = np.sqrt(omega) * (rho_A / np.array([[EIy], [EIx]])) ** 0.25  # λ⁴ = ω² ρA / EI
     x = lam * s
     ch, sh, co, si = np.cosh(x), np.sinh(x), np.cos(x), np.sin(x)
-    S = 0.5 * (ch + co)
-    T = 0.5 * (sh + si)
-    U = 0.5 * (ch - co)
-    V = 0.5 * (sh - si)
+    S, T = 0.5 * (ch + co), 0.5 * (sh + si)
+    U, V = 0.5 * (ch - co), 0.5 * (sh - si)
     if np.all(lam > 0.0):
         t1, u2, v3 = T / lam, U / lam**2, V / lam**3
     else:  # ω = 0: the static limits T/λ → s, U/λ² → s²/2, V/λ³ → s³/6
@@ -147,12 +125,33 @@ def _bending(out, s, omega, rho_A, EI, idx, signs):
         t1 = np.where(small, s, T / ls)
         u2 = np.where(small, s**2 / 2.0, U / ls**2)
         v3 = np.where(small, s**3 / 6.0, V / ls**3)
-    lv, l2u, l3t = lam * V, lam**2 * U, lam**3 * T
-    K = ((S, t1, u2, v3), (lv, S, t1, u2), (l2u, lv, S, t1), (l3t, l2u, lv, S))
-    for a in range(4):
-        for b in range(4):
-            ratio = signs[a] / signs[b]
-            out[..., idx[a], idx[b]] = K[a][b] if ratio == 1.0 else ratio * K[a][b]
+    F = np.stack([S, t1, u2, v3, lam * V, lam**2 * U, lam**3 * T], axis=-1)  # (2, P, 7)
+    bend = F[:, :, _KRYLOV] * table["ratio"][:, None, :]  # (2, P, 16)
+
+    out = np.zeros((s.size, 144))
+    out[:, table["flat"]] = np.concatenate(
+        [wave[0], wave[1], bend[0], bend[1]], axis=1)
+    return out.reshape(shape + (12, 12))
+
+
+#: Krylov–Duncan block K_ab in terms of F = (S, T/λ, U/λ², V/λ³, λV, λ²U, λ³T)
+_KRYLOV = np.array([0, 1, 2, 3, 4, 0, 1, 2, 5, 4, 0, 1, 6, 5, 4, 0])
+#: state indices of (w, dw, d2w, d3w) and the factor mapping y to the state:
+#: x–z plane: u_x = y0, θ_y = y1, M_y = EIy y2, F_x = -EIy y3
+#: y–z plane: u_y = y0, θ_x = -y1, M_x = -EIx y2, F_y = -EIx y3
+_BEND_XZ, _BEND_YZ = (0, 4, 7, 9), (1, 3, 6, 10)
+_WAVE = ((2, 2), (2, 11), (11, 2), (11, 11), (5, 5), (5, 8), (8, 5), (8, 8))
+
+
+@functools.lru_cache(maxsize=256)
+def _layout(EA, EIx, EIy, GJ):
+    """Flat indices of the 40 non-zero entries and the bending sign ratios."""
+    signs = (np.array([1.0, 1.0, EIy, -EIy]), np.array([1.0, -1.0, -EIx, -EIx]))
+    ratio = np.array([np.outer(sg, 1.0 / sg).ravel() for sg in signs])
+    flat = [12 * r + c for r, c in _WAVE]
+    for idx in (_BEND_XZ, _BEND_YZ):
+        flat += [12 * idx[a] + idx[b] for a in range(4) for b in range(4)]
+    return {"flat": np.array(flat), "ratio": ratio}
 
 
 def beam_matrix(length, omega, section, material):
@@ -223,16 +222,20 @@ def point_body_matrix(omega, mass_matrix):
     omega : float or array_like
         [rad/s].
     mass_matrix : numpy.ndarray
-        6 × 6 from :func:`body_mass_matrix`, in the frame of the state.
+        6 × 6 from :func:`body_mass_matrix`, in the frame of the state, or a stack
+        (N, 6, 6) of one per frequency.
 
     Examples
     --------
-    >>> point_body_matrix(1.0, body_mass_matrix(1.0, [0, 0, 0], [0, 0, 0]))[0, 9, 0]
+    >>> float(point_body_matrix(1.0, body_mass_matrix(1.0, [0, 0, 0], [0, 0, 0]))[0, 9, 0])
     -1.0
     """
     w2 = _omega(omega) ** 2
     out = np.broadcast_to(np.eye(12), (w2.size, 12, 12)).copy()
-    out[:, 6:12, 0:6] = -w2[:, None, None] * mass_matrix[None]
+    # M d gives [force; moment]; the state holds [M; F]
+    M = np.broadcast_to(mass_matrix, (w2.size, 6, 6))
+    out[:, 6:9, 0:6] = -w2[:, None, None] * M[:, 3:6]
+    out[:, 9:12, 0:6] = -w2[:, None, None] * M[:, 0:3]
     return out
 
 
@@ -243,7 +246,7 @@ def offset_matrix(r):
 
     Examples
     --------
-    >>> offset_matrix([0.0, 0.0, 1.0])[0, 4]   # u_x grows with θ_y along z
+    >>> float(offset_matrix([0.0, 0.0, 1.0])[0, 4])   # u_x grows with θ_y along z
     1.0
     """
     R = skew(np.asarray(r, dtype=float))
@@ -319,7 +322,7 @@ def rotation_z(angle):
 
     Examples
     --------
-    >>> rotation_z(np.pi / 2)[0, 1].round(12)
+    >>> float(rotation_z(np.pi / 2)[0, 1].round(12))
     1.0
     """
     return rotation_matrix(_rot(2, angle))
@@ -333,7 +336,7 @@ def joint_spring_matrix(stiffness, axis=(0.0, 0.0, 1.0)):
 
     Examples
     --------
-    >>> joint_spring_matrix(100.0)[5, 8]
+    >>> float(joint_spring_matrix(100.0)[5, 8])   # θ_z jumps by M_z / k
     0.01
     """
     e = np.asarray(axis, dtype=float)

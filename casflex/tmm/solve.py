@@ -36,6 +36,7 @@ __all__ = [
     "frequency_determinant",
     "count_below",
     "natural_frequencies",
+    "sweep_frequencies",
     "ModeShapes",
     "mode_shapes",
     "modes",
@@ -46,6 +47,120 @@ def _as_chain(chain_or_robot, q):
     if isinstance(chain_or_robot, Chain):
         return chain_or_robot
     return build_chain(chain_or_robot, q)
+
+
+class _Stack:
+    """The elements of one robot at C configurations, stacked for batched evaluation.
+
+    Every chain of a robot has the same element sequence (kinds and parameters); only
+    the poses change with q. Points are evaluated in batches ``(cfg, omega)`` where
+    ``cfg`` picks the configuration of each point, so that a whole sweep costs about as
+    many numpy calls as one configuration.
+    """
+
+    def __init__(self, chains):
+        first = chains[0]
+        signature = [(e.kind, e.row) for e in first.elements]
+        for chain in chains[1:]:
+            if [(e.kind, e.row) for e in chain.elements] != signature:
+                raise ValueError("chains of different structures cannot be stacked")
+        self.size = len(chains)
+        self.cap = _omega_cap(first)
+        # lowest cantilever frequency of the whole length with the softest section: a
+        # scale for the first search grid [rad/s]
+        total = sum(b.params["length"] for b in first.beams) or 1.0
+        soft = [b.params["material"].E * min(b.params["section"].Ix, b.params["section"].Iy)
+                / (b.params["material"].rho * b.params["section"].A) for b in first.beams]
+        self.reference_frequency = (1.875 / total) ** 2 * np.sqrt(min(soft)) if soft else 1.0
+        self.items = []
+        for j, e in enumerate(first.elements):
+            same = [chain.elements[j] for chain in chains]
+            data = {"element": e}
+            if e.kind == "beam":
+                R = np.array([x.R for x in same])
+                data["R12"] = np.array([x.rotation12 for x in same])
+                data["R6"] = np.einsum("ab,cij->caibj", np.eye(2), R).reshape(-1, 6, 6)
+            elif e.kind == "body":
+                data["M"] = np.array([body_mass_global(x) for x in same])
+            elif e.kind == "offset":
+                data["T"] = np.array([el.offset_matrix(x.params["r"]) for x in same])
+                G = np.broadcast_to(np.eye(6), (len(same), 6, 6)).copy()
+                G[:, 0:3, 3:6] = -np.array([el.skew(x.params["r"]) for x in same])
+                data["G"] = G
+            else:  # spring
+                k = e.params["stiffness"]
+                data["T"] = np.array([el.joint_spring_matrix(k, x.params["axis"])
+                                      for x in same])
+                data["axis"] = np.array([x.params["axis"] for x in same])
+            self.items.append(data)
+
+    def transfer(self, data, cfg, omega):
+        """Base-frame transfer matrices of one element at the points, (P, 12, 12)."""
+        e = data["element"]
+        if e.kind == "beam":
+            P = e.params
+            U = el.beam_matrix(P["length"], omega, P["section"], P["material"])
+            Rb = data["R12"][cfg]
+            return Rb @ U @ np.swapaxes(Rb, 1, 2)
+        if e.kind == "body":
+            return el.point_body_matrix(omega, data["M"][cfg])
+        return data["T"][cfg]
+
+    def system(self, cfg, omega):
+        """Columns 6–11 of the system matrix (base reactions → tip state), (P, 12, 6)."""
+        U = np.zeros((omega.size, 12, 6))
+        U[:, 6:12, :] = np.eye(6)
+        for data in self.items:
+            e = data["element"]
+            if e.kind == "beam":  # rotate the 12 x 6 block, not the 12 x 12 matrix
+                P = e.params
+                Rb = data["R12"][cfg]
+                B = el.beam_matrix(P["length"], omega, P["section"], P["material"])
+                U = Rb @ (B @ (np.swapaxes(Rb, 1, 2) @ U))
+            else:
+                U = self.transfer(data, cfg, omega) @ U
+        return U
+
+    def det(self, cfg, omega):
+        """Row-scaled ``det subU``: same zeros and sign, no overflow (eq. 60)."""
+        sub = self.system(cfg, omega)[:, 6:12, :]
+        scale = np.max(np.abs(sub), axis=2, keepdims=True)
+        return np.linalg.det(sub / np.where(scale > 0.0, scale, 1.0))
+
+    def count(self, cfg, omega):
+        """Wittrick–Williams count of natural frequencies below each point's ω."""
+        n = omega.size
+        Z = np.zeros((n, 6, 6))
+        count = np.zeros(n)
+        w2 = omega**2
+        for data in reversed(self.items):
+            e = data["element"]
+            if e.kind == "body":
+                Z = Z - w2[:, None, None] * data["M"][cfg]
+            elif e.kind == "offset":
+                G = data["G"][cfg]
+                Z = np.swapaxes(G, 1, 2) @ Z @ G
+            elif e.kind == "spring":
+                ev = np.zeros((n, 6))
+                ev[:, 3:6] = data["axis"][cfg]
+                Ze = np.einsum("pij,pj->pi", Z, ev)
+                p = np.einsum("pi,pi->p", Ze, ev) + e.params["stiffness"]
+                count += p < 0.0
+                Z = Z - Ze[:, :, None] * Ze[:, None, :] / p[:, None, None]
+            else:  # condense the beam's distal node in the beam's local frame
+                R6 = data["R6"][cfg]
+                R6t = np.swapaxes(R6, 1, 2)
+                K00, K01, K10, K11 = _beam_stiffness(e, omega)
+                pivot = K11 + R6t @ Z @ R6
+                count += _negatives(pivot)
+                Z = R6 @ (K00 - K01 @ _solve(pivot, K10)) @ R6t
+                count += _beam_j0(e, omega)
+        return count.astype(int)
+
+
+def _single(chain, omega):
+    omega = np.atleast_1d(np.asarray(omega, dtype=float))
+    return _Stack([chain]), np.zeros(omega.size, dtype=int), omega
 
 
 def system_matrix(chain, omega):
@@ -73,7 +188,7 @@ def system_matrix(chain, omega):
 
 
 def frequency_determinant(chain, omega):
-    """``det subU(ω)``: zero exactly at the natural frequencies (eq. 60).
+    """``det subU(ω)`` with rows scaled to unit peak: zero exactly at the natural frequencies.
 
     Examples
     --------
@@ -83,10 +198,8 @@ def frequency_determinant(chain, omega):
     >>> frequency_determinant(chain, [1.0]).shape
     (1,)
     """
-    sub = system_matrix(chain, omega)[:, 6:12, 6:12]
-    # rows scaled to unit peak: same zeros and sign, no overflow at high frequency
-    scale = np.max(np.abs(sub), axis=2, keepdims=True)
-    return np.linalg.det(sub / np.where(scale > 0.0, scale, 1.0))
+    stack, cfg, omega = _single(chain, omega)
+    return stack.det(cfg, omega)
 
 
 # ------------------------------------------------------------------ Wittrick–Williams
@@ -115,10 +228,6 @@ def _negatives(A):
     return np.sum(np.linalg.eigvalsh(A) < 0.0, axis=-1)
 
 
-#: state permutation [u, θ, M, F] -> [u, θ, F, M]
-_CONJUGATE = np.array([0, 1, 2, 3, 4, 5, 9, 10, 11, 6, 7, 8])
-
-
 def _solve(A, B):
     try:
         return np.linalg.solve(A, B)
@@ -126,23 +235,28 @@ def _solve(A, B):
         return np.linalg.pinv(A) @ B
 
 
-def _beam_stiffness(element, omega):
-    """Dynamic stiffness blocks of a beam, base-frame components, DOFs ``[u, θ]`` per end.
+#: state permutation [u, θ, M, F] -> [u, θ, F, M]
+_CONJUGATE = np.array([0, 1, 2, 3, 4, 5, 9, 10, 11, 6, 7, 8])
 
-    Built from the local transfer matrix (whose blocks do not mix the large bending
-    entries into the axial and torsional ones) and rotated afterwards.
+
+def _beam_stiffness(element, omega):
+    """Dynamic stiffness blocks of a beam in its local frame, DOFs ``[u, θ]`` per end.
+
+    Built from the local transfer matrix, whose blocks do not mix the large bending
+    entries into the axial and torsional ones.
     """
     P = element.params
     T = el.beam_matrix(P["length"], omega, P["section"], P["material"])
     T = T[:, _CONJUGATE][:, :, _CONJUGATE]  # forces as [F, M], work-conjugate to [u, θ]
     Tdd, Tdf, Tfd, Tff = T[:, :6, :6], T[:, :6, 6:], T[:, 6:, :6], T[:, 6:, 6:]
-    Tdf_inv = np.linalg.pinv(Tdf) if np.any(np.linalg.det(Tdf) == 0.0) else np.linalg.inv(Tdf)
+    try:
+        Tdf_inv = np.linalg.inv(Tdf)
+    except np.linalg.LinAlgError:
+        Tdf_inv = np.linalg.pinv(Tdf)
     K00 = Tdf_inv @ Tdd
-    K01 = -Tdf_inv
     K10 = Tfd - Tff @ K00
     K11 = Tff @ Tdf_inv
-    R6 = np.kron(np.eye(2), element.R)
-    return (R6 @ K00 @ R6.T, R6 @ K01 @ R6.T, R6 @ K10 @ R6.T, R6 @ K11 @ R6.T)
+    return K00, -Tdf_inv, K10, K11
 
 
 def count_below(chain, omega):
@@ -163,36 +277,11 @@ def count_below(chain, omega):
     >>> from casflex.robot import load
     >>> from casflex.tmm.chain import build_chain
     >>> chain = build_chain(load("problems/arm2link.toml"), [0, 0, 0])
-    >>> count_below(chain, [1.0, 10.0, 20.0]).tolist()   # 8.26 and 11.9 rad/s lie between
+    >>> count_below(chain, [1.0, 10.0, 20.0]).tolist()   # 8.31 and 11.97 rad/s lie between
     [0, 1, 2]
     """
-    omega = np.atleast_1d(np.asarray(omega, dtype=float))
-    n = omega.size
-    Z = np.zeros((n, 6, 6))
-    count = np.zeros(n)
-    w2 = omega**2
-    for element in reversed(chain.elements):
-        kind = element.kind
-        if kind == "body":
-            Z = Z - w2[:, None, None] * body_mass_global(element)[None]
-        elif kind == "offset":
-            G = np.eye(6)
-            G[0:3, 3:6] = -el.skew(element.params["r"])
-            Z = G.T @ Z @ G
-        elif kind == "spring":
-            e = np.zeros(6)
-            e[3:6] = element.params["axis"]
-            Ze = Z @ e
-            p = Ze @ e + element.params["stiffness"]
-            count += p < 0.0
-            Z = Z - Ze[:, :, None] * Ze[:, None, :] / p[:, None, None]
-        else:  # beam: dynamic stiffness from the transfer blocks
-            K00, K01, K10, K11 = _beam_stiffness(element, omega)
-            pivot = K11 + Z
-            count += _negatives(pivot)
-            Z = K00 - K01 @ _solve(pivot, K10)
-            count += _beam_j0(element, omega)
-    return count.astype(int)
+    stack, cfg, omega = _single(chain, omega)
+    return stack.count(cfg, omega)
 
 
 # ------------------------------------------------------------------ root search
@@ -201,9 +290,10 @@ def count_below(chain, omega):
 def _ridders(f, lo, hi, flo, fhi, rtol=1e-12, max_iter=60):
     """Vectorised Ridders' method on brackets with ``flo * fhi < 0``.
 
-    Ridders fits an exponential through the bracket ends and the midpoint, which suits
-    the exponentially growing determinant of beam transfer matrices; each iteration
-    costs two batched evaluations and keeps a valid bracket.
+    ``f(idx, x)`` evaluates the function of brackets ``idx`` at ``x``. Ridders fits an
+    exponential through the bracket ends and the midpoint, which suits the
+    exponentially growing determinant of beam transfer matrices; each iteration costs
+    two batched evaluations and keeps a valid bracket.
     """
     lo, hi, flo, fhi = (np.array(a, dtype=float) for a in (lo, hi, flo, fhi))
     x = 0.5 * (lo + hi)
@@ -214,12 +304,12 @@ def _ridders(f, lo, hi, flo, fhi, rtol=1e-12, max_iter=60):
             break
         a, b, fa, fb = lo[idx], hi[idx], flo[idx], fhi[idx]
         m = 0.5 * (a + b)
-        fm = f(m)
+        fm = f(idx, m)
         root = np.sqrt(np.maximum(fm * fm - fa * fb, 0.0))
         with np.errstate(invalid="ignore", divide="ignore"):
             xn = m + (m - a) * np.sign(fa - fb) * fm / root
         xn = np.where(np.isfinite(xn) & (xn > a) & (xn < b), xn, m)
-        fx = f(xn)
+        fx = f(idx, xn)
         # new bracket from the four points a < (m, xn) < b with a sign change
         pts = np.stack([a, np.minimum(m, xn), np.maximum(m, xn), b], axis=1)
         fpts = np.stack([fa, np.where(m <= xn, fm, fx), np.where(m <= xn, fx, fm), fb], axis=1)
@@ -231,8 +321,30 @@ def _ridders(f, lo, hi, flo, fhi, rtol=1e-12, max_iter=60):
         step = np.abs(xn - x[idx])
         x[idx] = xn
         exact = fx == 0.0
-        active[idx] = ~exact & (hi[idx] - lo[idx] > rtol * hi[idx]) & (step > rtol * xn)
+        # from a bracket narrower than sqrt(rtol) the quadratic step has converged
+        converged = (b - a) <= np.sqrt(rtol) * b
+        active[idx] = (~exact & ~converged & (hi[idx] - lo[idx] > rtol * hi[idx])
+                       & (step > rtol * xn))
     return np.where(hi - lo <= rtol * hi, 0.5 * (lo + hi), x)
+
+
+def _subdivide(stack, cfg, a, b, fa, fb, points=24, rounds=2):
+    """Narrow sign-change brackets by evaluating ``det`` at interior points in one batch.
+
+    Each round shrinks every bracket ``points + 1`` times for one batched call, which
+    costs far less than the sequential iterations it saves Ridders' method.
+    """
+    frac = np.arange(1, points + 1) / (points + 1.0)
+    for _ in range(rounds):
+        x = a[:, None] + (b - a)[:, None] * frac[None, :]
+        fx = stack.det(np.repeat(cfg, points), x.ravel()).reshape(x.shape)
+        xs = np.concatenate([a[:, None], x, b[:, None]], axis=1)
+        fs = np.concatenate([fa[:, None], fx, fb[:, None]], axis=1)
+        change = np.sign(fs[:, :-1]) != np.sign(fs[:, 1:])
+        k = np.argmax(change, axis=1)
+        r = np.arange(a.size)
+        a, b, fa, fb = xs[r, k], xs[r, k + 1], fs[r, k], fs[r, k + 1]
+    return a, b, fa, fb
 
 
 def _omega_cap(chain, lambda_l=80.0):
@@ -243,6 +355,106 @@ def _omega_cap(chain, lambda_l=80.0):
         ei = mat.E * min(sec.Ix, sec.Iy)
         cap = min(cap, (lambda_l / L) ** 2 * np.sqrt(ei / (mat.rho * sec.A)))
     return cap
+
+
+def _roots(stack, count, omega_max, double_tol, rtol):
+    """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
+    C = stack.size
+    if omega_max is None:
+        ref = stack.reference_frequency
+        grid = np.geomspace(1e-3 * ref, 1e2 * ref, 36)
+    else:
+        grid = np.geomspace(min(1e-2, omega_max / 10.0), omega_max, 32)
+    cfg_all = np.repeat(np.arange(C), grid.size)
+    counts = stack.count(cfg_all, np.tile(grid, C)).reshape(C, grid.size)
+    if omega_max is None:
+        while counts[:, -1].min() < count and grid[-1] < stack.cap:
+            more = np.geomspace(grid[-1] * 2.0, min(grid[-1] * 256.0, stack.cap), 8)
+            extra = stack.count(np.repeat(np.arange(C), more.size), np.tile(more, C))
+            grid = np.concatenate([grid, more])
+            counts = np.concatenate([counts, extra.reshape(C, more.size)], axis=1)
+        if counts[:, -1].min() < count:
+            c = int(np.argmin(counts[:, -1]))
+            raise SolverError(
+                f"configuration {c}: fewer than {count} natural frequencies below "
+                f"{grid[-1]:g} rad/s, the highest frequency at which the beam transfer "
+                "matrices stay accurate")
+        want = np.full(C, count)
+    else:
+        want = counts[:, -1] if count is None else np.minimum(count, counts[:, -1])
+
+    # brackets between consecutive grid points, per configuration
+    lo = np.tile(np.concatenate([[0.0], grid[:-1]]), C)
+    hi = np.tile(grid, C)
+    nlo = np.concatenate([np.zeros((C, 1), int), counts[:, :-1]], axis=1).ravel()
+    nhi = counts.ravel()
+    cfg = np.repeat(np.arange(C), grid.size)
+
+    simple, multiples = [], []
+    while lo.size:
+        keep = (nhi > nlo) & (nlo < want[cfg])
+        lo, hi, nlo, nhi, cfg = lo[keep], hi[keep], nlo[keep], nhi[keep], cfg[keep]
+        if not lo.size:
+            break
+        one = nhi - nlo == 1
+        narrow = (hi - lo) <= double_tol * hi
+        simple.append((lo[one], hi[one], cfg[one]))
+        multi = ~one & narrow
+        multiples.append((0.5 * (lo[multi] + hi[multi]), nhi[multi] - nlo[multi], cfg[multi]))
+        split = ~one & ~narrow
+        lo, hi, nlo, nhi, cfg = lo[split], hi[split], nlo[split], nhi[split], cfg[split]
+        if not lo.size:
+            break
+        mid = 0.5 * (lo + hi)
+        nmid = stack.count(cfg, mid)
+        lo, hi = np.concatenate([lo, mid]), np.concatenate([mid, hi])
+        nlo, nhi = np.concatenate([nlo, nmid]), np.concatenate([nmid, nhi])
+        cfg = np.concatenate([cfg, cfg])
+
+    a = np.concatenate([s[0] for s in simple]) if simple else np.zeros(0)
+    b = np.concatenate([s[1] for s in simple]) if simple else np.zeros(0)
+    scfg = np.concatenate([s[2] for s in simple]) if simple else np.zeros(0, int)
+    a = np.maximum(a, 1e-12 * b)
+    r = a.copy()
+    if a.size:
+        both = stack.det(np.concatenate([scfg, scfg]), np.concatenate([a, b]))
+        fa, fb = both[: a.size], both[a.size :]
+        bad = ~(fa * fb < 0.0)
+        for i in np.flatnonzero(bad):
+            # a degenerate bracket end (det exactly 0 or underflow): bisect on counts
+            lo_i, hi_i = a[i], b[i]
+            n_i = stack.count(scfg[i : i + 1], np.array([lo_i]))[0]
+            while hi_i - lo_i > rtol * hi_i:
+                m = 0.5 * (lo_i + hi_i)
+                if stack.count(scfg[i : i + 1], np.array([m]))[0] > n_i:
+                    hi_i = m
+                else:
+                    lo_i = m
+            r[i] = 0.5 * (lo_i + hi_i)
+        good = np.flatnonzero(~bad)
+        if good.size:
+            gcfg = scfg[good]
+            a[good], b[good], fa[good], fb[good] = _subdivide(
+                stack, gcfg, a[good], b[good], fa[good], fb[good])
+            r[good] = _ridders(lambda idx, x: stack.det(gcfg[idx], x),
+                               a[good], b[good], fa[good], fb[good], rtol=rtol)
+    roots = np.concatenate([r] + [m[0] for m in multiples])
+    mult = np.concatenate([np.ones(r.size, int)] + [m[1] for m in multiples]).astype(int)
+    rcfg = np.concatenate([scfg] + [m[2] for m in multiples]).astype(int)
+
+    out = []
+    for c in range(C):
+        sel = rcfg == c
+        order = np.argsort(roots[sel])
+        rc, mc = roots[sel][order], mult[sel][order]
+        values, multiplicity = np.repeat(rc, mc), np.repeat(mc, mc)
+        if count is not None:
+            values, multiplicity = values[:count], multiplicity[:count]
+        if omega_max is not None:
+            keep = values <= omega_max
+            values, multiplicity = values[keep], multiplicity[keep]
+        out.append((values, multiplicity))
+    return out
 
 
 def natural_frequencies(chain_or_robot, q=None, count=None, omega_max=None, *,
@@ -274,107 +486,48 @@ def natural_frequencies(chain_or_robot, q=None, count=None, omega_max=None, *,
     --------
     >>> from casflex.robot import load
     >>> natural_frequencies(load("problems/arm2link.toml"), [0, 0, 0], count=3).round(2)
-    array([ 8.26, 11.94, 23.36])
+    array([ 8.31, 11.97, 22.75])
     """
     if count is None and omega_max is None:
         raise ValueError("give count, omega_max or both")
     chain = _as_chain(chain_or_robot, q)
-
-    def N(w):
-        return count_below(chain, w)
-
-    cap = _omega_cap(chain)
-    if omega_max is None:
-        grid = np.geomspace(1e-2, 1e2, 13)
-        counts = N(grid)
-        while counts[-1] < count and grid[-1] < cap:
-            more = np.geomspace(grid[-1] * 2.0, min(grid[-1] * 256.0, cap), 8)
-            grid, counts = np.concatenate([grid, more]), np.concatenate([counts, N(more)])
-        reach = np.flatnonzero(counts >= count)
-        if reach.size == 0:
-            raise SolverError(
-                f"fewer than {count} natural frequencies below {grid[-1]:g} rad/s, the "
-                "highest frequency at which the beam transfer matrices stay accurate")
-        last = reach[0]
-    else:
-        top = float(omega_max)
-        grid = np.geomspace(min(1e-2, top / 10.0), top, 24)
-        counts = N(grid)
-        last = grid.size - 1
-    want = counts[last] if count is None else min(count, counts[last])
-    lo = np.concatenate([[0.0], grid[:last]])
-    hi = grid[: last + 1]
-    nlo = np.concatenate([[0], counts[:last]])
-    nhi = counts[: last + 1]
-
-    simple_lo, simple_hi, multiples = [], [], []
-    while lo.size:
-        keep = (nhi > nlo) & (nlo < want)
-        lo, hi, nlo, nhi = lo[keep], hi[keep], nlo[keep], nhi[keep]
-        if not lo.size:
-            break
-        one = nhi - nlo == 1
-        narrow = (hi - lo) <= double_tol * hi
-        simple_lo.extend(lo[one])
-        simple_hi.extend(hi[one])
-        multi = ~one & narrow
-        for a, b, k in zip(lo[multi], hi[multi], nhi[multi] - nlo[multi], strict=True):
-            multiples.append((0.5 * (a + b), int(k)))
-        split = ~one & ~narrow
-        lo, hi, nlo, nhi = lo[split], hi[split], nlo[split], nhi[split]
-        if not lo.size:
-            break
-        mid = 0.5 * (lo + hi)
-        nmid = N(mid)
-        lo, hi = np.concatenate([lo, mid]), np.concatenate([mid, hi])
-        nlo, nhi = np.concatenate([nlo, nmid]), np.concatenate([nmid, nhi])
-
-    roots, mult = [], []
-    if simple_lo:
-        a, b = np.array(simple_lo), np.array(simple_hi)
-        a = np.maximum(a, 1e-12 * b)
-
-        def det(w):
-            return frequency_determinant(chain, w)
-
-        fa, fb = det(a), det(b)
-        bad = ~(fa * fb < 0.0)
-        if bad.any():
-            # a degenerate bracket end (det exactly 0 or tiny underflow): bisect on counts
-            for i in np.flatnonzero(bad):
-                lo_i, hi_i, n_i = a[i], b[i], N([a[i]])[0]
-                for _ in range(200):
-                    m = 0.5 * (lo_i + hi_i)
-                    if N([m])[0] > n_i:
-                        hi_i = m
-                    else:
-                        lo_i = m
-                    if hi_i - lo_i <= rtol * hi_i:
-                        break
-                a[i] = b[i] = 0.5 * (lo_i + hi_i)
-            fa[bad], fb[bad] = -1.0, 1.0
-        good = ~bad
-        r = np.where(good, 0.0, a)
-        if good.any():
-            r[good] = _ridders(det, a[good], b[good], fa[good], fb[good], rtol=rtol)
-        roots.extend(r)
-        mult.extend([1] * r.size)
-    for w, k in multiples:
-        roots.append(w)
-        mult.append(k)
-    order = np.argsort(roots)
-    roots = np.asarray(roots)[order]
-    mult = np.asarray(mult, dtype=int)[order]
-    values = np.repeat(roots, mult)
-    multiplicity = np.repeat(mult, mult)
-    if count is not None:
-        values, multiplicity = values[:count], multiplicity[:count]
-    if omega_max is not None:
-        keep = values <= omega_max
-        values, multiplicity = values[keep], multiplicity[keep]
+    values, multiplicity = _roots(_Stack([chain]), count, omega_max, double_tol, rtol)[0]
     if return_multiplicity:
         return values, multiplicity
     return values
+
+
+def sweep_frequencies(robot, qs, count, *, double_tol=1e-9, rtol=1e-12):
+    """The ``count`` lowest natural frequencies at many configurations at once [rad/s].
+
+    All configurations are solved together: every numpy call of the root search works
+    on the points of every configuration, so a sweep costs little more than one
+    configuration.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    qs : array_like
+        (k, n_joints) configurations [rad].
+    count : int
+        Frequencies per configuration (a double root counts twice).
+
+    Returns
+    -------
+    numpy.ndarray
+        (k, count) ascending frequencies per configuration.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> w = sweep_frequencies(load("problems/arm2link.toml"), [[0, 0, 0], [0, 0, -1]], 2)
+    >>> w.round(2)
+    array([[ 8.31, 11.97],
+           [ 6.61,  9.31]])
+    """
+    chains = [build_chain(robot, q) for q in np.atleast_2d(np.asarray(qs, dtype=float))]
+    roots = _roots(_Stack(chains), count, None, double_tol, rtol)
+    return np.array([values for values, _ in roots])
 
 
 # ------------------------------------------------------------------ mode shapes
@@ -606,7 +759,7 @@ def modes(robot, q, count=5, omega_max=None, n_points=51):
     >>> from casflex.robot import load
     >>> shapes = modes(load("problems/arm2link.toml"), [0.0, 0.0, 0.0], count=3)
     >>> (shapes.omega / (2 * np.pi)).round(3)
-    array([1.315, 1.9  , 3.718])
+    array([1.322, 1.905, 3.62 ])
     """
     chain = build_chain(robot, q)
     w, mult = natural_frequencies(chain, count=count, omega_max=omega_max,
