@@ -8,6 +8,7 @@ from casflex.tmm.solve import (
     mode_shapes,
     modes,
     natural_frequencies,
+    sweep_frequencies,
     system_matrix,
 )
 
@@ -21,5 +22,6 @@ __all__ = [
     "mode_shapes",
     "modes",
     "natural_frequencies",
+    "sweep_frequencies",
     "system_matrix",
 ]
