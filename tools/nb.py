@@ -1,0 +1,39 @@
+"""Write a notebook from a plain Python file with ``# %%`` cell markers.
+
+Notebooks in ``notebooks/`` are kept as ``.py`` sources (``# %% [markdown]`` cells hold
+Markdown in comment lines) and written to ``.ipynb`` without outputs; the test suite
+executes the ``.ipynb`` files.
+
+Usage: ``python tools/nb.py notebooks/01_tmm.py`` writes ``notebooks/01_tmm.ipynb``.
+"""
+
+import sys
+from pathlib import Path
+
+import nbformat
+
+
+def convert(path):
+    """Convert one ``# %%`` source file to an unexecuted notebook next to it."""
+    text = Path(path).read_text()
+    cells = []
+    for chunk in text.split("# %%")[1:]:
+        header, _, body = chunk.partition("\n")
+        body = body.strip("\n")
+        if header.strip().startswith("[markdown]"):
+            lines = [line[2:] if line.startswith("# ") else line.lstrip("#")
+                     for line in body.splitlines()]
+            cells.append(nbformat.v4.new_markdown_cell("\n".join(lines)))
+        else:
+            cells.append(nbformat.v4.new_code_cell(body))
+    nb = nbformat.v4.new_notebook(cells=cells)
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
+                                 "language": "python"}
+    out = Path(path).with_suffix(".ipynb")
+    nbformat.write(nb, out)
+    return out
+
+
+if __name__ == "__main__":
+    for p in sys.argv[1:]:
+        print(convert(p))
