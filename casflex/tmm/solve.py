@@ -95,13 +95,8 @@ class _Stack:
             self.items.append(data)
 
     def transfer(self, data, cfg, omega):
-        """Base-frame transfer matrices of one element at the points, (P, 12, 12)."""
+        """Base-frame transfer matrices of a body, offset or spring at the points (P, 12, 12)."""
         e = data["element"]
-        if e.kind == "beam":
-            P = e.params
-            U = el.beam_matrix(P["length"], omega, P["section"], P["material"])
-            Rb = data["R12"][cfg]
-            return Rb @ U @ np.swapaxes(Rb, 1, 2)
         if e.kind == "body":
             return el.point_body_matrix(omega, data["M"][cfg])
         return data["T"][cfg]
