@@ -589,8 +589,12 @@ class ModeShapes:
 
 
 def _null_vectors(subU):
-    """Right singular vectors of row-scaled ``subU`` (m, 6, 6), smallest singular value last."""
-    scale = np.max(np.abs(subU), axis=2, keepdims=True)
+    """Right singular vectors of ``subU`` (m, 6, 6), smallest singular value last.
+
+    Each matrix is scaled as a whole: scaling its rows separately would blow up rows that
+    vanish at a multiple root (their noise becomes of unit size) and spoil the null space.
+    """
+    scale = np.max(np.abs(subU), axis=(1, 2), keepdims=True)
     _, _, vt = np.linalg.svd(subU / np.where(scale > 0.0, scale, 1.0))
     return vt
 
@@ -671,6 +675,25 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
                 spring_rotation.append(z[:, 6:9] @ P["axis"] / P["stiffness"])
                 spring_rows.append(element.row)
             z = np.einsum("mij,mj->mi", element_transfer(element, omega), z)
+
+    # a k-fold root: the SVD basis is orthonormal in base-reaction space, but the map to
+    # shapes can be far from isometric (the shapes of two basis vectors nearly parallel).
+    # Recombine each group so that its sampled [u, θ] fields are orthonormal instead.
+    j = 0
+    while j < m:
+        k = int(mult[j])
+        if k > 1:
+            S = local[j : j + k, ..., 0:6].reshape(k, -1)
+            U_, sig, _ = np.linalg.svd(S, full_matrices=False)
+            A = (U_ / sig[None, :]).T  # rows of A @ S are orthonormal
+            local[j : j + k] = np.einsum("ab,b...->a...", A, local[j : j + k])
+            body_state = [np.concatenate([b[:j], A @ b[j : j + k], b[j + k :]])
+                          for b in body_state]
+            body_local = [np.concatenate([b[:j], A @ b[j : j + k], b[j + k :]])
+                          for b in body_local]
+            spring_rotation = [np.concatenate([v[:j], A @ v[j : j + k], v[j + k :]])
+                               for v in spring_rotation]
+        j += k
 
     disp = local[..., 0:3]
     rot = local[..., 3:6]

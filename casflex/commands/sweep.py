@@ -1,0 +1,198 @@
+"""``casflex sweep``: natural frequencies while one joint moves (dissertation Fig. 25/26).
+
+``casflex sweep ROBOT.toml --joint K --from A --to B --step S [--track] [--count N]
+[--q Q1 Q2 ...] [--plot FILE.png] [--json]``
+
+Joint ``K`` (1-based) takes the values ``A, A + S, ...`` up to ``B`` (included when it
+falls on the step, within 1e-9 of a step); the other joints stay at 0 or at ``--q``
+(whose K-th entry is ignored). Angles are in rad, or in degrees with a ``deg`` suffix
+(``--step 1.5deg``); a negative value with a suffix can also be written ``--from=-180deg``.
+
+By default the frequencies are the sorted roots at every configuration (Fig. 25); with
+``--track`` the modes are followed by the modified MAC with continuous sign
+(:func:`casflex.modal.tracking.track`, Fig. 26), computing two more modes than ``--count``
+so that modes crossing in from above are followed, and ``omega[i][j]`` is then mode ``j``
+(numbered by frequency at the first point) at ``q[i]``.
+
+JSON: ``{"joint": K, "q": [...], "omega": [[...], ...]}`` (rad, rad/s).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+
+import numpy as np
+
+from casflex.commands.common import parse_angle
+from casflex.errors import ModelError
+from casflex.robot import load
+
+HELP = "natural frequencies while one joint sweeps a range (raw or tracked by MAC)"
+
+#: refuse sweeps longer than this (a typo in --step)
+MAX_POINTS = 100_000
+
+
+def add_arguments(parser):
+    """Add the ``sweep`` arguments to ``parser``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> a = p.parse_args(["r.toml", "--joint", "3", "--from", "-180deg", "--to", "pi",
+    ...                   "--step", "1.5deg"])
+    >>> a.joint, a.start, a.stop, a.step
+    (3, '-180deg', 'pi', '1.5deg')
+    """
+    if hasattr(parser, "_negative_number_matcher"):
+        # let "-pi", "-0.5pi", "-180deg" through as values (argparse knows "-3.1" only)
+        parser._negative_number_matcher = re.compile(
+            r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(deg|rad)?$|^-(\d*\.?\d*\*?)pi$")
+    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
+    parser.add_argument("--joint", type=int, required=True, metavar="K",
+                        help="joint to sweep, 1-based")
+    parser.add_argument("--from", dest="start", required=True, metavar="A",
+                        help="first value, rad (or with a 'deg' suffix, or '-pi'/'pi')")
+    parser.add_argument("--to", dest="stop", required=True, metavar="B",
+                        help="last value, rad (or 'deg' suffix, or '-pi'/'pi')")
+    parser.add_argument("--step", required=True, metavar="S",
+                        help="increment > 0, rad (or with a 'deg' suffix)")
+    parser.add_argument("--track", action="store_true",
+                        help="follow the modes by MAC with continuous sign (Fig. 26) "
+                             "instead of sorting the frequencies (Fig. 25)")
+    parser.add_argument("--count", type=int, default=5, metavar="N",
+                        help="number of modes (default 5)")
+    parser.add_argument("--q", nargs="+", default=None, metavar="Q",
+                        help="values of the other joints, rad or 'deg' suffix (default 0)")
+    parser.add_argument("--processes", type=int, default=None, metavar="P",
+                        help="worker processes (default: all CPUs; 1 = no pool)")
+    parser.add_argument("--plot", metavar="FILE.png", default=None,
+                        help="write frequency vs joint angle")
+
+
+def _angle(text, option):
+    raw = str(text).strip().lower()
+    sign = 1.0
+    if raw.startswith(("-", "+")):
+        sign, raw = (-1.0 if raw[0] == "-" else 1.0), raw[1:]
+    if raw.endswith("pi"):
+        factor = raw[:-2].rstrip("*") or "1"
+        return sign * parse_angle(factor, option) * math.pi
+    return sign * parse_angle(raw, option)
+
+
+def sweep_values(start, stop, step):
+    """The joint values ``start, start + step, ...`` up to ``stop`` [rad].
+
+    Examples
+    --------
+    >>> np.degrees(sweep_values(0.0, np.radians(3.0), np.radians(1.5))).round(6).tolist()
+    [0.0, 1.5, 3.0]
+    """
+    if not step > 0.0:
+        raise ModelError(f"--step: must be > 0; got {step} rad")
+    if start > stop:
+        raise ModelError(f"--from {start} rad is greater than --to {stop} rad; the step is "
+                         "positive, so give the smaller value first")
+    n = int(math.floor((stop - start) / step + 1e-9)) + 1
+    if n > MAX_POINTS:
+        raise ModelError(f"--step: {n} points from {start} to {stop} rad; at most "
+                         f"{MAX_POINTS} (check the step's unit)")
+    return start + step * np.arange(n)
+
+
+def _frequencies(robot, q, count):
+    from casflex.tmm import natural_frequencies
+
+    return natural_frequencies(robot, q, count=count)
+
+
+def _plot(values, omega, joint, tracked, robot_name, filename):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 4.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.degrees(values)
+    for j in range(omega.shape[1]):
+        ax.plot(x, omega[:, j] / (2 * math.pi), ".-", ms=2.5, lw=1.0, label=f"mode {j + 1}")
+    ax.set_xlabel(f"q{joint} (deg)")
+    ax.set_ylabel("natural frequency (Hz)")
+    kind = "tracked by MAC" if tracked else "sorted"
+    ax.set_title(f"{robot_name}: natural frequencies vs q{joint} ({kind})")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    fig.tight_layout()
+    fig.savefig(filename, dpi=120)
+
+
+def run(args, log):
+    """Sweep the joint; return ``{"joint", "q", "omega"}`` (rad, rad/s).
+
+    Examples
+    --------
+    >>> import argparse
+    >>> a = argparse.Namespace(robot="problems/arm2link.toml", joint=3, start="0",
+    ...                        stop="2deg", step="1deg", track=False, count=2, q=None,
+    ...                        processes=1, plot=None)
+    >>> out = run(a, lambda m: None)
+    >>> len(out["q"]), len(out["omega"][0])
+    (3, 2)
+    """
+    from casflex.modal.tables import compute_modes, parallel_map
+    from casflex.modal.tracking import track
+
+    robot = load(args.robot)
+    k = args.joint
+    if not 1 <= k <= robot.n_joints:
+        raise ModelError(f"--joint: robot '{robot.name}' has joints 1..{robot.n_joints}; "
+                         f"got {k}")
+    if args.count < 1:
+        raise ModelError(f"--count: must be >= 1; got {args.count}")
+    if args.processes is not None and args.processes < 1:
+        raise ModelError(f"--processes: must be >= 1; got {args.processes}")
+    values = sweep_values(_angle(args.start, "--from"), _angle(args.stop, "--to"),
+                          _angle(args.step, "--step"))
+    if args.q is None:
+        base = np.zeros(robot.n_joints)
+    else:
+        base = np.array([_angle(v, "--q") for v in args.q])
+        if base.size != robot.n_joints:
+            raise ModelError(f"--q: robot '{robot.name}' has {robot.n_joints} joints; got "
+                             f"{base.size} values")
+    qs = np.repeat(base[None, :], values.size, axis=0)
+    qs[:, k - 1] = values
+    kind = "tracked" if args.track else "sorted"
+    log(f"{robot.name}: sweeping q{k} from {values[0]:.6g} to {values[-1]:.6g} rad "
+        f"({values.size} points), {args.count} modes, {kind}")
+    progress = values.size >= 20 and sys.stderr.isatty()
+    if args.track:
+        along = np.zeros(robot.n_joints)
+        along[k - 1] = 1.0  # a multiple root is stepped off along the swept joint
+        seq = compute_modes(robot, qs, args.count + 2, processes=args.processes,
+                            progress=progress, directions=[along, -along])
+        tr = track(seq, count=args.count, robot=robot)
+        omega = tr.omega(seq)
+        worst = float(np.nanmin(tr.mac)) if np.isfinite(tr.mac).any() else 1.0
+        log(f"  lowest MAC between tracked neighbours: {worst:.4f}")
+        if worst < 0.9:
+            log("  warning: a tracked mode changes fast between neighbours; use a smaller "
+                "--step")
+    else:
+        omega = np.empty((values.size, args.count))
+        jobs = [(i, (robot, q, args.count)) for i, q in enumerate(qs)]
+        for i, w in parallel_map(_frequencies, jobs, processes=args.processes,
+                                 progress=progress, desc="TMM"):
+            omega[i] = w
+    for j in range(args.count):
+        col = omega[:, j] / (2 * math.pi)
+        log(f"  mode {j + 1}: {col.min():10.5f} .. {col.max():10.5f} Hz")
+    if args.plot:
+        _plot(values, omega, k, args.track, robot.name, args.plot)
+        log(f"wrote {args.plot}")
+    return {"joint": k, "q": values, "omega": omega}

@@ -1,0 +1,1038 @@
+"""Modal tables over a grid of shape joints: parallel TMM, tracking, cache, interpolants.
+
+The flexible part of the model (118) depends on the configuration only through the mode
+shapes, and those depend only on the joints that change the *shape* of the structure
+(§3.3.6.2: "all of the modes can be computed a-priori based on the joint configuration
+space"). This module tabulates them:
+
+1. :func:`shape_joints` finds those joints (the rule is written there).
+2. :func:`build_table` runs the TMM (:func:`casflex.tmm.modes`) at every point of a grid of
+   the shape joints — in parallel, on a local process pool or a Dask cluster — then tracks
+   identity and sign sequentially (:mod:`casflex.modal.tracking`), then evaluates the
+   per-configuration model quantities (by default
+   :func:`casflex.modal.integrals.configuration_quantities` after
+   :func:`casflex.modal.normalize.mass_normalize`).
+3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the
+   shape-joint values with ``casadi.interpolant`` (B-spline by default), which is what the
+   dynamics consumes (``shape_joints`` + ``function(name)``).
+
+Multiple roots
+--------------
+Where the TMM reports a multiple root (the Table 8 arm folded at q3 = 90°) the modes are
+taken "from the direct vicinity" (§3.3.6.1): the point's frequencies are kept and the
+shapes are computed at ``q + ε`` along a shape joint (ε = 1e-4, 1e-3 or 1e-2 rad, the
+first at which every root is simple). The tracker then treats the point like any other.
+(The degenerate-subspace fit of :func:`casflex.modal.tracking.track` is the fallback when
+no such ε is found.)
+
+Cache
+-----
+Results are cached on disk under ``cache_dir`` (default ``$CASFLEX_CACHE`` or
+``~/.cache/casflex``) in two directories:
+
+``modes-<key>/``
+    one ``.npz`` per grid point with the raw TMM modes, written atomically (temporary
+    file + ``os.replace``) as each point finishes; key = SHA-256 of the robot's parameters
+    (every field of every link: DH row, joint, section, material, tip body, motor inertia,
+    joint spring; gravity and damping — not its name, description or file path), the
+    shape joints and the fixed joints' values, the grid, the number of modes, the sample
+    points per beam, ``casflex.__version__`` and a digest of the TMM source files.
+``table-<key>/``
+    one ``.npz`` per point with the quantities and the consolidated ``table.npz``; key =
+    the modes key plus the tracking settings and the quantity function's identity (module,
+    name, version attribute, digest of its source).
+
+Every file stores its key and is verified on reading; a file that does not verify (stale,
+foreign, truncated) is recomputed and overwritten, so a stale cache is never used. A build
+that is interrupted resumes where it stopped: finished points are skipped on restart.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import inspect
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import casflex
+from casflex.errors import ModelError
+from casflex.modal import tracking as trk
+
+__all__ = [
+    "shape_joints",
+    "compute_modes",
+    "parallel_map",
+    "build_table",
+    "ModalTable",
+    "default_quantities",
+    "robot_fingerprint",
+    "default_cache_dir",
+]
+
+FORMAT_VERSION = 1
+#: modes computed beyond the requested count so that modes crossing in from above are seen
+EXTRA_MODES = 2
+#: shifts [rad] tried, in order, to step off a configuration with a multiple root
+DEGENERATE_SHIFTS = (1e-4, 1e-3, 1e-2)
+TWO_PI = 2.0 * math.pi
+#: below this MAC between tracked grid neighbours build_table warns (RuntimeWarning)
+MIN_MAC = 0.8
+
+
+# ------------------------------------------------------------------ shape joints
+
+
+def _collinear(p1, a1, p2, a2, tol=1e-9):
+    """True when the lines ``p1 + t a1`` and ``p2 + t a2`` coincide."""
+    a1 = a1 / np.linalg.norm(a1)
+    a2 = a2 / np.linalg.norm(a2)
+    if np.linalg.norm(np.cross(a1, a2)) > tol:
+        return False
+    d = p2 - p1
+    return np.linalg.norm(d - np.dot(d, a1) * a1) <= tol * max(1.0, np.linalg.norm(d))
+
+
+def shape_joints(robot, samples=3):
+    """Indices (0-based) of the joints that change the shape of the structure.
+
+    Rule: rotating joint ``k`` moves everything outboard of it rigidly about the joint's
+    axis line. If nothing inboard of that rotation could tell — every element the chain
+    walk (:func:`casflex.tmm.chain.build_chain`) meets before joint ``k``'s rotation is a
+    massless rigid offset, or a joint spring whose axis line coincides with joint ``k``'s
+    axis line (a spring is invariant under rotations about its own axis) — the whole
+    structure including the clamp is congruent for every value of ``q_k``, so its natural
+    frequencies and its mode shapes in the link frames do not depend on ``q_k``. Any
+    beam or tip body inboard (or a spring about another line) makes ``q_k`` a shape joint.
+    The test is made at ``q = 0`` and at ``samples`` fixed pseudo-random configurations
+    (the geometry of the inboard springs may depend on other joints).
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    samples : int
+        Extra configurations checked besides ``q = 0``.
+
+    Returns
+    -------
+    tuple of int
+        Joint indices (0-based, i.e. ``q[k]``) in increasing order.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> shape_joints(load("problems/arm2link.toml"))   # only the elbow q3
+    (2,)
+    >>> shape_joints(load("problems/testbed.toml"))    # joint springs: q2 and q3
+    (1, 2)
+    """
+    from casflex.tmm.chain import build_chain
+
+    rng = np.random.default_rng(12345)
+    configs = [np.zeros(robot.n_joints)]
+    configs += [rng.uniform(-math.pi, math.pi, robot.n_joints) for _ in range(samples)]
+    rows = robot.joint_rows
+    out = set()
+    for q in configs:
+        chain = build_chain(robot, q)
+        frames = robot.frames(q)
+        for k, row in enumerate(rows):
+            point, axis = frames[row][:3, 3], frames[row][:3, 2]
+            link = robot.links[row]
+            for e in chain.elements:
+                inboard = e.row < row or (
+                    e.row == row and link.beam_along == "a" and e.kind in ("beam", "body"))
+                if not inboard or e.kind == "offset":
+                    continue
+                if e.kind == "spring" and _collinear(e.start, e.params["axis"], point, axis):
+                    continue
+                out.add(k)
+                break
+    return tuple(sorted(out))
+
+
+# ------------------------------------------------------------------ per-point work
+
+
+def _point_modes(robot, q, count, n_points, directions):
+    """Raw TMM modes at ``q`` as a dict of arrays (run in worker processes)."""
+    from casflex.tmm import modes
+
+    shapes = modes(robot, q, count=count, n_points=n_points)
+    shift = np.zeros(len(q))
+    if np.any(np.asarray(shapes.multiplicity) > 1):
+        done = False
+        for eps in DEGENERATE_SHIFTS:
+            for d in directions:
+                near = modes(robot, np.asarray(q) + eps * d, count=count, n_points=n_points)
+                if np.all(np.asarray(near.multiplicity) == 1):
+                    # shapes (local components) from q + eps·d; frequencies and geometry of q
+                    shapes = dataclasses.replace(
+                        shapes, multiplicity=np.ones_like(near.multiplicity),
+                        **{f: getattr(near, f) for f in trk.MODE_FIELDS})
+                    shift = eps * np.asarray(d, dtype=float)
+                    done = True
+                    break
+            if done:
+                break
+    out = _shapes_to_arrays(shapes)
+    out["shift"] = shift
+    return out
+
+
+def _shapes_to_arrays(shapes):
+    out = {}
+    for f in dataclasses.fields(shapes):
+        v = getattr(shapes, f.name)
+        out[f.name] = np.asarray(v, dtype=int if isinstance(v, tuple) else None)
+    return out
+
+
+def _arrays_to_shapes(arrays):
+    from casflex.tmm.solve import ModeShapes
+
+    kw = {}
+    for f in dataclasses.fields(ModeShapes):
+        v = arrays[f.name]
+        kw[f.name] = tuple(int(x) for x in np.ravel(v)) if f.name.endswith("rows") else v
+    return ModeShapes(**kw)
+
+
+def default_quantities(robot, q, shapes):
+    """Mass-normalise the tracked shapes and evaluate the model quantities at ``q``.
+
+    ``casflex.modal.integrals.configuration_quantities(robot, q,
+    casflex.modal.normalize.mass_normalize(...))``; the normalisation must scale every mode
+    by a positive factor so that the tracked sign survives.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    q : numpy.ndarray
+        Joint variables [rad].
+    shapes : ModeShapes
+        Tracked, sign-corrected modes.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+    """
+    from casflex.modal.integrals import configuration_quantities
+    from casflex.modal.normalize import mass_normalize
+
+    return configuration_quantities(robot, q, mass_normalize(robot, shapes))
+
+
+def _default_available():
+    try:
+        import casflex.modal.integrals  # noqa: F401
+        import casflex.modal.normalize  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _point_quantities(func, robot, q, arrays):
+    """Quantities of one point from the tracked shape arrays (run in worker processes)."""
+    values = func(robot, np.asarray(q, dtype=float), _arrays_to_shapes(arrays))
+    if not isinstance(values, dict):
+        raise ModelError(f"the quantity function must return a dict; got {type(values)}")
+    return {str(k): np.asarray(v, dtype=float) for k, v in values.items()}
+
+
+# ------------------------------------------------------------------ parallel map
+
+
+def _executor(processes):
+    """Process pool: ``fork`` while this process has a single thread (works in scripts
+    without a ``__main__`` guard and starts fast), ``forkserver`` when other threads run
+    (forking a threaded process can deadlock), the platform default elsewhere."""
+    import multiprocessing
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+
+    methods = multiprocessing.get_all_start_methods()
+    if "fork" in methods and threading.active_count() == 1:
+        method = "fork"
+    elif "forkserver" in methods:
+        method = "forkserver"
+    else:
+        method = None
+    ctx = multiprocessing.get_context(method)
+    if method == "forkserver":
+        ctx.set_forkserver_preload(["casflex.modal.tables"])
+    return ProcessPoolExecutor(max_workers=processes, mp_context=ctx)
+
+
+def _run_chunk(func, arg_list):
+    """Worker side of a chunk: ``[func(*args) for args in arg_list]``."""
+    return [func(*args) for args in arg_list]
+
+
+def parallel_map(func, jobs, *, client=None, processes=None, progress=False, desc="",
+                 chunksize=None):
+    """Run ``func(*args)`` for every ``(tag, args)`` in ``jobs``; yield ``(tag, result)``
+    as results arrive.
+
+    Parameters
+    ----------
+    func : callable
+        A picklable (module-level) function.
+    jobs : iterable of (object, tuple)
+        A tag (returned with the result) and the positional arguments of each call.
+    client : dask.distributed.Client, optional
+        Submit to this cluster (``client.submit``, gathered as completed).
+    processes : int, optional
+        Size of the local process pool (default ``os.cpu_count()``); ``1`` runs the
+        calls in this process.
+    progress : bool
+        tqdm progress bar on stderr.
+    desc : str
+        Label of the progress bar.
+    chunksize : int, optional
+        Calls per task sent to a worker. The per-point work is short (tens of ms), so
+        single calls would be dominated by scheduling and transfer; by default a chunk
+        is ``ceil(N / (4 workers))`` calls, at most 16 (1 when running in-process).
+
+    Yields
+    ------
+    (tag, result)
+        In completion order (a chunk's results together). An exception in a call is
+        raised here; the remaining tasks are cancelled.
+
+    Examples
+    --------
+    >>> sorted(parallel_map(abs, [(i, (-i,)) for i in range(3)], processes=1))
+    [(0, 0), (1, 1), (2, 2)]
+    """
+    from concurrent.futures import as_completed as cf_completed
+
+    from tqdm.auto import tqdm
+
+    jobs = list(jobs)
+    if not jobs:
+        return
+    if processes is None:
+        processes = os.cpu_count() or 1
+    pool = None
+    if client is None and processes > 1 and len(jobs) > 1:
+        pool = _executor(min(processes, len(jobs)))  # before tqdm starts its monitor thread
+    if client is not None:
+        workers = max(1, sum(client.nthreads().values()))
+    else:
+        workers = processes if pool is not None else 0
+    if chunksize is None:
+        chunksize = 1 if workers == 0 else max(1, min(16, -(-len(jobs) // (4 * workers))))
+    chunks = [jobs[i:i + chunksize] for i in range(0, len(jobs), chunksize)]
+    bar = tqdm(total=len(jobs), desc=desc, file=sys.stderr, disable=not progress,
+               leave=False, dynamic_ncols=True)
+    try:
+        if client is not None:
+            from distributed import as_completed
+
+            futures = [client.submit(_run_chunk, func, [a for _, a in c], pure=False)
+                       for c in chunks]
+            tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
+            try:
+                for fut in as_completed(futures):
+                    results = fut.result()
+                    bar.update(len(results))
+                    yield from zip(tags[fut.key], results, strict=True)
+            finally:
+                client.cancel([f for f in futures if not f.done()])
+        elif pool is None:
+            for tag, args in jobs:
+                result = func(*args)
+                bar.update(1)
+                yield tag, result
+        else:
+            futures = {pool.submit(_run_chunk, func, [a for _, a in c]): [t for t, _ in c]
+                       for c in chunks}
+            for fut in cf_completed(futures):
+                results = fut.result()
+                bar.update(len(results))
+                yield from zip(futures[fut], results, strict=True)
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def compute_modes(robot, qs, count, *, n_points=51, client=None, processes=None,
+                  progress=False, directions=None):
+    """Raw TMM modes at many configurations, in parallel, in the order of ``qs``.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    qs : array_like
+        (N, n_joints) joint variables [rad].
+    count : int
+        Modes per configuration.
+    n_points : int
+        Sample points per beam.
+    client : dask.distributed.Client, optional
+        Map over this cluster instead of a local process pool.
+    processes : int, optional
+        Local worker processes (default ``os.cpu_count()``; ``1`` runs in this process).
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    directions : sequence of array_like, optional
+        Unit joint-space directions tried to step off a multiple root (see the module
+        notes); default ``±e_k`` for every shape joint (:func:`shape_joints`).
+
+    Returns
+    -------
+    list of ModeShapes
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> out = compute_modes(robot, [[0, 0, 0.0], [0, 0, 0.1]], 3, processes=1)
+    >>> [s.omega.size for s in out]
+    [3, 3]
+    """
+    qs = np.atleast_2d(np.asarray(qs, dtype=float))
+    if directions is None:
+        eye = np.eye(robot.n_joints)
+        directions = [s * eye[k] for k in (shape_joints(robot) or range(robot.n_joints))
+                      for s in (1.0, -1.0)]
+    jobs = [(i, (robot, q, count, n_points, directions)) for i, q in enumerate(qs)]
+    out = [None] * len(qs)
+    for i, arrays in parallel_map(_point_modes, jobs, client=client, processes=processes,
+                               progress=progress, desc="TMM"):
+        out[i] = _arrays_to_shapes(arrays)
+    return out
+
+
+# ------------------------------------------------------------------ keys and files
+
+
+def _canonical(obj):
+    """JSON-able canonical form (floats exact via ``float.hex``)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _canonical(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, dict):
+        return {str(k): _canonical(v) for k, v in sorted(obj.items())}
+    if isinstance(obj, (list, tuple)):
+        return [_canonical(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_canonical(v) for v in obj.tolist()]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj).hex()
+    if obj is None or isinstance(obj, str):
+        return obj
+    raise TypeError(f"cannot fingerprint {type(obj)}")
+
+
+def robot_fingerprint(robot):
+    """Canonical description of everything in ``robot`` that changes its dynamics.
+
+    Every field of every link (DH row, joint type, section, material, section angle,
+    tip body, motor inertia, joint stiffness), the gravity vector and the damping ratio;
+    not the name, description or source file.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> import dataclasses
+    >>> other = dataclasses.replace(robot, name="renamed", source=None)
+    >>> robot_fingerprint(robot) == robot_fingerprint(other)
+    True
+    """
+    return json.dumps({
+        "links": _canonical(robot.links),
+        "gravity": _canonical(np.asarray(robot.gravity, dtype=float)),
+        "damping_ratio": _canonical(robot.damping_ratio),
+    }, sort_keys=True)
+
+
+def _source_digest(*objects):
+    h = hashlib.sha256()
+    for obj in objects:
+        try:
+            src = inspect.getsource(obj)
+        except (OSError, TypeError):
+            src = getattr(obj, "__qualname__", repr(type(obj)))
+        h.update(src.encode())
+    return h.hexdigest()
+
+
+def _tmm_digest():
+    import casflex.robot
+    import casflex.tmm.chain
+    import casflex.tmm.elements
+    import casflex.tmm.solve
+
+    return _source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
+                          casflex.robot)
+
+
+def _function_identity(func):
+    if func is default_quantities:
+        import casflex.modal.integrals
+        import casflex.modal.normalize
+
+        return {"name": "casflex.modal.tables.default_quantities",
+                "digest": _source_digest(default_quantities, casflex.modal.normalize,
+                                         casflex.modal.integrals)}
+    if func is None:
+        return None
+    if isinstance(func, functools.partial):
+        return {"partial": _function_identity(func.func),
+                "args": _canonical(list(func.args)),
+                "keywords": _canonical(dict(func.keywords))}
+    return {
+        "name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
+        "version": str(getattr(func, "version", getattr(func, "__version__", ""))),
+        "digest": _source_digest(func),
+    }
+
+
+def _sha(obj):
+    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
+
+
+def default_cache_dir():
+    """``$CASFLEX_CACHE`` if set, else ``~/.cache/casflex``.
+
+    Examples
+    --------
+    >>> isinstance(default_cache_dir(), Path)
+    True
+    """
+    env = os.environ.get("CASFLEX_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "casflex"
+
+
+def _atomic_savez(path, **arrays):
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _atomic_write_text(path, text):
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+
+
+def _load_verified(path, key):
+    """The arrays of ``path`` if it exists and carries ``key``, else None."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["__key__"]) != key:
+                return None
+            return {k: data[k] for k in data.files if k != "__key__"}
+    except Exception:  # missing, truncated, foreign: recompute
+        return None
+
+
+# ------------------------------------------------------------------ the table
+
+
+def _is_periodic_axis(axis):
+    """``"closed"`` (ends 2π apart), ``"open"`` (uniform, last + step = first + 2π) or None."""
+    if axis.size < 3:
+        return None
+    span = axis[-1] - axis[0]
+    if abs(span - TWO_PI) <= 1e-9 * TWO_PI:
+        return "closed"
+    steps = np.diff(axis)
+    if np.allclose(steps, steps[0], rtol=1e-9, atol=0.0) and abs(
+            span + steps[0] - TWO_PI) <= 1e-9 * TWO_PI:
+        return "open"
+    return None
+
+
+@dataclass(frozen=True)
+class ModalTable:
+    """Tabulated modal quantities over a grid of shape joints.
+
+    Attributes
+    ----------
+    grid : tuple of numpy.ndarray
+        One strictly increasing axis per shape joint [rad].
+    shape_joints : tuple of int
+        0-based joint index of each grid axis.
+    values : dict of str to numpy.ndarray
+        ``grid_shape + value_shape`` arrays; always holds ``"omega"``.
+    omega : numpy.ndarray
+        ``grid_shape + (n_modes,)`` tracked natural frequencies [rad/s].
+    q_fixed : numpy.ndarray
+        Values of the other joints used in the computation [rad] (they do not change the
+        tabulated quantities).
+    periodic : tuple of bool
+        Per axis: spans a full turn and the tracked modes close up consistently (identity
+        and sign), so :meth:`function` wraps that input periodically.
+    info : dict
+        Build information: keys, computed/cached point counts, tracking quality, timing.
+
+    Examples
+    --------
+    >>> t = ModalTable(grid=(np.linspace(0, 1, 5),), shape_joints=(2,),
+    ...                values={"omega": np.outer(np.arange(5.0), [1.0, 2.0])},
+    ...                omega=np.outer(np.arange(5.0), [1.0, 2.0]))
+    >>> t.function("omega")(0.5).full().ravel().round(6).tolist()
+    [2.0, 4.0]
+    """
+
+    grid: tuple
+    shape_joints: tuple
+    values: dict
+    omega: np.ndarray
+    q_fixed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    periodic: tuple = ()
+    info: dict = field(default_factory=dict)
+
+    @property
+    def shape(self):
+        """Grid shape."""
+        return tuple(a.size for a in self.grid)
+
+    @property
+    def names(self):
+        """Names of the tabulated quantities."""
+        return sorted(self.values)
+
+    def q(self, index):
+        """Full joint vector [rad] of the grid point ``index``."""
+        q = np.array(self.q_fixed, dtype=float)
+        for axis, k, i in zip(self.grid, self.shape_joints, index, strict=True):
+            q[k] = axis[i]
+        return q
+
+    def function(self, name, method="bspline"):
+        """``casadi.Function`` interpolating quantity ``name`` over the grid.
+
+        Parameters
+        ----------
+        name : str
+            A key of ``values`` (``"omega"`` included).
+        method : {"bspline", "linear"}
+            ``casadi.interpolant`` plugin; B-splines (cubic, interpolating, needing at
+            least 4 points per axis) give smooth derivatives for the dynamics.
+
+        Returns
+        -------
+        casadi.Function
+            ``f(q_shape) -> value`` with ``q_shape`` the vector of the shape joints'
+            values (in the order of ``shape_joints``, rad). Scalars and vectors come out
+            as column vectors, matrices with their shape, higher arrays flattened in C
+            order. Periodic axes are wrapped into the grid's period; outside a
+            non-periodic axis the spline is extrapolated (stay inside the grid).
+
+        Examples
+        --------
+        >>> t = ModalTable(grid=(np.linspace(0, 3, 7),), shape_joints=(0,),
+        ...                values={"m": np.arange(7.0)[:, None, None] * np.ones((7, 2, 2))},
+        ...                omega=np.ones((7, 1)))
+        >>> t.function("m")(1.0).shape
+        (2, 2)
+        """
+        import casadi as ca
+
+        if method not in ("bspline", "linear"):
+            raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}")
+        if name == "omega" and "omega" not in self.values:
+            data = np.asarray(self.omega, dtype=float)
+        elif name in self.values:
+            data = np.asarray(self.values[name], dtype=float)
+        else:
+            raise ModelError(f"no quantity {name!r} in the table; it has {self.names}")
+        gshape = self.shape
+        nd = len(gshape)
+        vshape = data.shape[nd:]
+        flat = _flatten_values(data, nd)
+        axes = [np.asarray(a, dtype=float) for a in self.grid]
+        periodic = self.periodic or (False,) * nd
+        wrap = []
+        for ax in range(nd):
+            kind = _is_periodic_axis(axes[ax]) if periodic[ax] else None
+            if kind is None:
+                wrap.append(None)
+                continue
+            axes[ax], flat = _pad_periodic(axes[ax], flat, ax, kind)
+            wrap.append((float(self.grid[ax][0]), TWO_PI))
+        need = 4 if method == "bspline" else 2
+        for ax, a in enumerate(axes):
+            if a.size < need:
+                raise ModelError(f"axis {ax} of the table has {a.size} points; the "
+                                 f"{method!r} interpolant needs at least {need}")
+        x = ca.MX.sym("q_shape", nd)
+        if flat.shape[-1] == 0:  # e.g. no joint springs: an empty quantity
+            empty = ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1)))
+            return ca.Function(name, [x], [ca.MX(empty)], ["q_shape"], [name])
+        coeffs = np.moveaxis(flat, -1, 0).ravel(order="F")
+        interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes], coeffs)
+        parts = []
+        for ax in range(nd):
+            xi = x[ax]
+            if wrap[ax] is not None:
+                lo, period = wrap[ax]
+                xi = xi - period * ca.floor((xi - lo) / period)
+            parts.append(xi)
+        out = interp(ca.vertcat(*parts))
+        if len(vshape) == 2:
+            out = ca.reshape(out, vshape[0], vshape[1])
+        return ca.Function(name, [x], [out], ["q_shape"], [name])
+
+
+def _flatten_values(data, nd):
+    """grid_shape + value_shape -> grid_shape + (n,), matrices column-major (casadi)."""
+    gshape = data.shape[:nd]
+    vshape = data.shape[nd:]
+    if len(vshape) == 2:
+        moved = np.swapaxes(data, nd, nd + 1)  # column-major flattening of each matrix
+        return moved.reshape(gshape + (-1,))
+    return data.reshape(gshape + (-1,))
+
+
+def _pad_periodic(axis, flat, ax, kind, pad=3):
+    """Extend a full-turn axis (and the data along it) by ``pad`` points on each side."""
+    if kind == "closed":
+        base_axis = axis[:-1]
+        base = np.take(flat, np.arange(axis.size - 1), axis=ax)
+    else:
+        base_axis, base = axis, flat
+    n = base_axis.size
+    pad = min(pad, n)
+    left_axis = base_axis[n - pad:] - TWO_PI
+    right_axis = base_axis[:pad] + TWO_PI
+    new_axis = np.concatenate([left_axis, base_axis, right_axis])
+    left = np.take(base, np.arange(n - pad, n), axis=ax)
+    right = np.take(base, np.arange(pad), axis=ax)
+    return new_axis, np.concatenate([left, base, right], axis=ax)
+
+
+def _check_grid(robot, grid, joints):
+    if len(joints) == 1 and np.ndim(grid) == 1 and not isinstance(grid[0], (list, tuple,
+                                                                           np.ndarray)):
+        grid = [grid]
+    grid = [np.asarray(a, dtype=float) for a in grid]
+    if len(grid) != len(joints):
+        raise ModelError(f"the grid has {len(grid)} axes but the shape joints are "
+                         f"{[k + 1 for k in joints]} (1-based); give one axis per shape joint")
+    for i, a in enumerate(grid):
+        if a.ndim != 1 or a.size < 1:
+            raise ModelError(f"grid axis {i} must be a non-empty 1-D array; got shape "
+                             f"{a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ModelError(f"grid axis {i} must be finite")
+        if a.size > 1 and np.any(np.diff(a) <= 0.0):
+            raise ModelError(f"grid axis {i} must be strictly increasing")
+    for k in joints:
+        if not 0 <= k < robot.n_joints:
+            raise ModelError(f"shape joint index {k} out of range for a robot with "
+                             f"{robot.n_joints} joints")
+    return tuple(grid)
+
+
+def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=None,
+                processes=None, progress=False, *, joints=None, q_fixed=None,
+                extra_modes=EXTRA_MODES, n_points=51, weighting=None):
+    """Tabulate tracked modes and model quantities over a grid of the shape joints.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    grid : array_like or sequence of array_like
+        One strictly increasing axis [rad] per shape joint (a single 1-D array when there
+        is one). An axis spanning a full turn (ends 2π apart, or uniform with the next
+        step closing the turn) is extended periodically by :meth:`ModalTable.function`.
+    n_modes : int
+        Number of tracked modes to tabulate.
+    quantities : callable or False, optional
+        ``quantities(robot, q, tracked_shapes) -> dict[str, array]`` evaluated at every
+        point (must be picklable for the process pool: a module-level function). Default:
+        :func:`default_quantities` when :mod:`casflex.modal.normalize` and
+        :mod:`casflex.modal.integrals` are importable; ``False`` (or those modules
+        missing) tabulates ω and the tracked shape fields (unit peak displacement).
+    cache_dir : str or Path or False, optional
+        Cache directory (default :func:`default_cache_dir`); ``False`` disables caching.
+    client : dask.distributed.Client, optional
+        Map the per-point work over this cluster instead of a local process pool.
+    processes : int, optional
+        Local worker processes (default ``os.cpu_count()``; ``1`` runs in-process).
+    progress : bool
+        tqdm progress bars on stderr (off by default; the CLI turns them on).
+    joints : sequence of int, optional
+        Shape joints (0-based) to tabulate over; default :func:`shape_joints`.
+    q_fixed : array_like, optional
+        Values of the other joints [rad] (default 0).
+    extra_modes : int
+        Modes computed beyond ``n_modes`` so that modes crossing in from above are tracked.
+    n_points : int
+        Sample points per beam of the TMM shapes.
+    weighting : {"mass", "uniform"}, optional
+        MAC weighting (see :mod:`casflex.modal.tracking`); default ``"mass"``.
+
+    Returns
+    -------
+    ModalTable
+
+    Raises
+    ------
+    ModelError
+        Bad grid, joints or counts.
+
+    Warns
+    -----
+    RuntimeWarning
+        When a tracked mode's MAC between grid neighbours falls below ``MIN_MAC`` (grid
+        too coarse, or a requested mode left the computed set).
+
+    Notes
+    -----
+    The per-point work is short (≈ 20–50 ms), so it is sent to workers in chunks (see
+    :func:`parallel_map`). Dask's nanny starts workers with
+    ``MALLOC_TRIM_THRESHOLD_=65536`` (``distributed.nanny.pre-spawn-environ``), which
+    makes the TMM about twice as slow in a worker; for table builds start the cluster
+    under ``dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
+    2**27})``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> table = build_table(robot, np.radians([0.0, 10.0, 20.0, 30.0]), 3, quantities=False,
+    ...                     cache_dir=tempfile.mkdtemp(), processes=1)
+    >>> table.shape_joints, table.omega.shape
+    ((2,), (4, 3))
+    >>> f = table.function("omega")
+    >>> bool(np.allclose(f(np.radians(10.0)).full().ravel(), table.omega[1]))
+    True
+    """
+    t_start = time.perf_counter()
+    if not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
+        raise ModelError(f"n_modes must be a positive integer; got {n_modes!r}")
+    joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
+    if not joints:
+        raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
+                         "modes are the same in every configuration; use casflex.tmm.modes")
+    grid = _check_grid(robot, grid, joints)
+    q_fixed = (np.zeros(robot.n_joints) if q_fixed is None
+               else robot.check_q(q_fixed).astype(float))
+    count = int(n_modes) + int(extra_modes)
+    if quantities is None:
+        quantities = default_quantities if _default_available() else False
+    gshape = tuple(a.size for a in grid)
+    indices = list(np.ndindex(gshape))
+
+    def q_at(idx):
+        q = q_fixed.copy()
+        for a, k, i in zip(grid, joints, idx, strict=True):
+            q[k] = a[i]
+        return q
+
+    modes_key = _sha({
+        "format": FORMAT_VERSION, "casflex": casflex.__version__, "tmm": _tmm_digest(),
+        "robot": robot_fingerprint(robot), "joints": list(joints),
+        "q_fixed": _canonical(q_fixed), "grid": [_canonical(a) for a in grid],
+        "count": count, "n_points": int(n_points), "shifts": _canonical(DEGENERATE_SHIFTS),
+        "point": _source_digest(_point_modes, _shapes_to_arrays),
+    })
+    table_key = _sha({
+        "modes": modes_key, "n_modes": int(n_modes), "weighting": weighting,
+        "tracking": _source_digest(trk), "quantities": _function_identity(
+            quantities if quantities else None),
+        "tables": _source_digest(build_table, ModalTable, _pad_periodic),
+    })
+    use_cache = cache_dir is not False
+    root = Path(default_cache_dir() if cache_dir is None else cache_dir) if use_cache else None
+    info = {"modes_key": modes_key, "key": table_key, "grid_shape": list(gshape),
+            "n_points_total": len(indices)}
+    if use_cache:
+        tdir = root / f"table-{table_key[:32]}"
+        cached = _load_verified(tdir / "table.npz", table_key)
+        if cached is not None:
+            table = _table_from_arrays(cached)
+            table.info.update(computed_modes=0, cached_modes=0, computed_quantities=0,
+                              from_cache=True, seconds=time.perf_counter() - t_start)
+            return table
+        mdir = root / f"modes-{modes_key[:32]}"
+        _atomic_write_text(mdir / "key.json", json.dumps({"key": modes_key}))
+
+    # ---- stage 1: raw modes at every point (parallel, cached per point)
+    raw = np.empty(gshape, dtype=object)
+    missing = []
+    for flat, idx in enumerate(indices):
+        arrays = _load_verified(mdir / f"p{flat:07d}.npz", modes_key) if use_cache else None
+        if arrays is None:
+            missing.append(flat)
+        else:
+            raw[idx] = arrays
+    directions = []
+    for k in joints:
+        e = np.zeros(robot.n_joints)
+        e[k] = 1.0
+        directions += [e, -e]
+    jobs = [(flat, (robot, q_at(indices[flat]), count, n_points, directions))
+            for flat in missing]
+    for flat, arrays in parallel_map(_point_modes, jobs, client=client, processes=processes,
+                                  progress=progress, desc="TMM"):
+        if use_cache:
+            _atomic_savez(mdir / f"p{flat:07d}.npz", __key__=np.array(modes_key), **arrays)
+        raw[indices[flat]] = arrays
+    info.update(computed_modes=len(missing), cached_modes=len(indices) - len(missing))
+    t_modes = time.perf_counter()
+    shifted = np.zeros(gshape, dtype=bool)
+    shapes = np.empty(gshape, dtype=object)
+    for idx in indices:
+        shifted[idx] = bool(np.any(raw[idx]["shift"] != 0.0))
+        shapes[idx] = _arrays_to_shapes(raw[idx])
+    del raw
+
+    # ---- stage 2: tracking (sequential)
+    gt = trk.track_grid(shapes, robot=robot, weighting=weighting)
+    tracked = gt.apply(shapes)
+    for idx in indices:
+        t = tracked[idx]
+        keep = slice(0, int(n_modes))
+        tracked[idx] = dataclasses.replace(t, **{
+            "omega": t.omega[keep], "multiplicity": t.multiplicity[keep],
+            **{f: getattr(t, f)[keep] for f in trk.MODE_FIELDS}})
+    omega = np.array([tracked[idx].omega for idx in indices]).reshape(gshape + (n_modes,))
+    mac = gt.mac[..., :n_modes]
+    edge = gt.edge_correlation[..., :n_modes]
+    periodic = _periodic_flags(grid, tracked, robot, weighting)
+    worst = float(np.nanmin(mac)) if np.isfinite(mac).any() else 1.0
+    if worst < MIN_MAC:
+        warnings.warn(f"modal table of '{robot.name}': a tracked mode changes fast between "
+                      f"grid neighbours (lowest MAC {worst:.3f} < {MIN_MAC}); refine the grid "
+                      "or raise extra_modes", RuntimeWarning, stacklevel=2)
+    info.update(
+        min_mac=worst,
+        min_edge_correlation=(float(np.nanmin(edge)) if np.isfinite(edge).any() else 1.0),
+        degenerate_points=int(gt.degenerate.sum()), shifted_points=int(shifted.sum()),
+        periodic=list(periodic), joints=list(joints))
+
+    t_tracking = time.perf_counter()
+
+    # ---- stage 3: quantities (parallel, cached per point)
+    values = {"omega": omega}
+    if quantities:
+        per_point = [None] * len(indices)
+        missing = []
+        for flat in range(len(indices)):
+            got = (_load_verified(tdir / f"q{flat:07d}.npz", table_key) if use_cache
+                   else None)
+            if got is None:
+                missing.append(flat)
+            else:
+                per_point[flat] = got
+        jobs = [(flat, (quantities, robot, q_at(indices[flat]),
+                        _shapes_to_arrays(tracked[indices[flat]]))) for flat in missing]
+        for flat, result in parallel_map(_point_quantities, jobs, client=client,
+                                      processes=processes, progress=progress,
+                                      desc="quantities"):
+            if use_cache:
+                _atomic_savez(tdir / f"q{flat:07d}.npz", __key__=np.array(table_key),
+                              **result)
+            per_point[flat] = result
+        info["computed_quantities"] = len(missing)
+        names = sorted(per_point[0])
+        for name in names:
+            if name == "omega":
+                continue
+            stack = [np.asarray(p[name], dtype=float) for p in per_point]
+            if any(s.shape != stack[0].shape for s in stack):
+                raise ModelError(f"quantity {name!r} changes shape across the grid")
+            values[name] = np.array(stack).reshape(gshape + stack[0].shape)
+    else:
+        info["computed_quantities"] = 0
+        for name in trk.MODE_FIELDS:
+            values[name] = np.array([getattr(tracked[idx], name) for idx in indices]
+                                    ).reshape(gshape + getattr(tracked[indices[0]],
+                                                                name).shape)
+    t_end = time.perf_counter()
+    info.update(from_cache=False, seconds=t_end - t_start, seconds_modes=t_modes - t_start,
+                seconds_tracking=t_tracking - t_modes, seconds_quantities=t_end - t_tracking)
+    table = ModalTable(grid=grid, shape_joints=joints, values=values, omega=omega,
+                       q_fixed=q_fixed, periodic=tuple(periodic), info=info)
+    if use_cache:
+        _atomic_savez(tdir / "table.npz", __key__=np.array(table_key),
+                      **_table_to_arrays(table))
+    return table
+
+
+def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
+    """Per axis: full turn with tracked modes closing up in identity and sign."""
+    flags = []
+    gshape = tracked.shape
+    for ax, a in enumerate(grid):
+        kind = _is_periodic_axis(a)
+        if kind is None:
+            flags.append(False)
+            continue
+        ok = True
+        for idx in np.ndindex(gshape[:ax] + gshape[ax + 1:]):
+            first = idx[:ax] + (0,) + idx[ax:]
+            last = idx[:ax] + (gshape[ax] - 1,) + idx[ax:]
+            c = np.diag(trk.correlation(tracked[first], tracked[last], robot, weighting))
+            if kind == "closed":
+                good = np.all(c > threshold) and np.allclose(
+                    tracked[first].omega, tracked[last].omega, rtol=1e-6)
+            else:
+                good = np.all(c > threshold)
+            if not good:
+                ok = False
+                break
+        flags.append(bool(ok))
+    return flags
+
+
+def _table_to_arrays(table):
+    out = {"__info__": np.array(json.dumps(table.info)),
+           "__joints__": np.array(table.shape_joints, dtype=int),
+           "__q_fixed__": np.asarray(table.q_fixed, dtype=float),
+           "__periodic__": np.array(table.periodic, dtype=bool),
+           "__omega__": table.omega}
+    for i, a in enumerate(table.grid):
+        out[f"__axis{i}__"] = a
+    for name, v in table.values.items():
+        out[f"v:{name}"] = v
+    return out
+
+
+def _table_from_arrays(arrays):
+    joints = tuple(int(k) for k in arrays["__joints__"])
+    grid = tuple(np.asarray(arrays[f"__axis{i}__"]) for i in range(len(joints)))
+    values = {k[2:]: np.asarray(v) for k, v in arrays.items() if k.startswith("v:")}
+    return ModalTable(grid=grid, shape_joints=joints, values=values,
+                      omega=np.asarray(arrays["__omega__"]),
+                      q_fixed=np.asarray(arrays["__q_fixed__"]),
+                      periodic=tuple(bool(x) for x in arrays["__periodic__"]),
+                      info=json.loads(str(arrays["__info__"])))
