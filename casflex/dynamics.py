@@ -1,0 +1,589 @@
+"""Symbolic rigid–flexible equations of motion of a serial arm (dissertation §3.3).
+
+The model has joint variables ``q`` (n) and mass-normalised modal amplitudes ``δ`` (m),
+``X = [q; δ]``, and follows eq. 118:
+
+``M(X) Ẍ + C(X, Ẋ) Ẋ + G(X) + D Ẋ = [τ; 0]``
+
+with ``M = [[M_qq, M_qδ], [M_qδᵀ, M_δδ]]``, ``M_δδ = I`` at δ = 0 (eq. 114), ``C``
+from the Christoffel symbols of ``M`` (eq. 106), ``G = ∂V/∂X`` from the gravitational
+and elastic potential (eq. 107–109, ``K_δδ = Ω²``) and modal damping
+``D = diag(0, 2ζΩ)``. Everything is built with CasADi ``SX``; the configuration-dependent
+modal quantities come from a *provider*.
+
+Kinematics (eq. 63–65, Book-style)
+----------------------------------
+The walk over the DH rows is the one of :mod:`casflex.tmm.chain`, with the elastic
+transforms inserted: a flexible row's beam is replaced by its base pose ``T_b`` (the
+local beam frame, z along the neutral axis — the role of the dissertation's modified
+``A_i``) followed by the end transform ``E_b(δ) = [[I + [ϑ_b(δ)×], L e_z + w_b(δ)],
+[0, 1]]`` (:mod:`casflex.modal.integrals`), and a joint spring adds its rotation
+``φ(δ)`` to the joint angle. ``A_i(q, δ)`` is the transform of row ``i`` and
+``T_i = A_1 ⋯ A_i`` the pose of DH frame ``i`` (at the end of row ``i``, deflections
+included). The joint axes of the motors are the DH ``z_i`` axes carried by the
+deflected structure.
+
+Kinetic energy and mass matrix (eq. 66–95, 102–105)
+---------------------------------------------------
+Every piece (flexible link with its tip body, or tip body of a rigid row) has a base pose
+``T`` and, in that frame, pseudo-inertia integrals ``C0``, ``C1_j``, ``C2_jk``
+(:mod:`casflex.modal.integrals`). With ``Ψ(δ) = C0 + Σ δ_j (C1_j + C1_jᵀ) + Σ δ_j δ_k C2_jk``
+and ``D_k(δ) = C1_k + Σ_j δ_j C2_jk`` the kinetic energy ``½ Σ ∫ Tr(Ḟ J Ḟᵀ)`` (eq. 72)
+gives, with ``∂_a = ∂/∂X_a``,
+
+``M_ab = Σ Tr(∂_aT Ψ ∂_bTᵀ) + Tr(∂_aT D_b Tᵀ) + Tr(T D_aᵀ ∂_bTᵀ) + Tr(T C2_ab Tᵀ)``
+
+(the ``D`` terms only for modal ``b`` resp. ``a``, the last term for modal ``a`` and
+``b``), plus the motor inertias on the diagonal of ``M_qq`` (eq. 67; the rotor turns with
+``q̇_i``). This is the dissertation's eq. 90–92 written with Jacobians of the poses (eq.
+85–88 are the chain rule of ``T``) and with ``∂T/∂δ`` included, because the base of an
+outboard link moves with the deflection of the inboard ones.
+
+The model keeps ``M`` to **first order in δ** (``delta_order=1``, default):
+``M(q, δ) ≈ M(q, 0) + Σ δ_j ∂M/∂δ_j(q, 0)``, the terms the Christoffel symbols need
+(eq. 106: "although δ is assumed to be negligible, its derivatives ... must be
+included"); ``delta_order=0`` gives the dissertation's ``M(q)``. The modal block
+(``modal_mass``) is
+
+* ``"first_order"`` (default): ``M_δδ = I + Σ δ_j ∂M_δδ/∂δ_j`` — eq. 114 at δ = 0, plus
+  the first-order terms that come from the end transforms of the inboard links. They are
+  of the same order as the first-order terms of ``M_qq`` and ``M_qδ``; dropping them
+  while keeping those (``"identity"``) can make ``M`` indefinite already at small δ,
+  because with locked-joint modes the residual joint inertia
+  ``M_qq − M_qδ M_qδᵀ`` is small (3e-4 kg m² against 0.2 kg m² for the Table 8 arm
+  without motor inertia, four modes);
+* ``"identity"``: ``M_δδ ≡ I``, eq. 118 literally (exact with ``delta_order=0``);
+* ``"kinematic"``: the block the kinematics compute, ``M_δδ(q, 0)`` included. At a
+  configuration where the tables are exact this is the TMM's modal mass, i.e. the
+  identity up to quadrature round-off (the tests use it to check the link-local
+  deflections and end transforms); with shapes frozen at another configuration
+  (:class:`ConstantProvider`) it is the only choice that keeps ``M`` a true kinetic
+  energy.
+
+The modal quantities must belong to the configuration at which the model is evaluated
+(tables over the shape joints): the identity of eq. 114 holds only there.
+
+Potential energy
+----------------
+``V = −gᵀ Σ T Ψ e_4 + ½ δᵀ Ω(q)² δ`` (eq. 97, 99), the gravitational part kept to the
+same order in δ as ``M``. ``G = ∂V/∂X`` gives ``g_q`` (eq. 107), ``g_δ`` (eq. 108) and
+``Ω² δ``; its ``q`` rows also contain ``½ δᵀ ∂Ω²/∂q δ`` (second order, omitted in eq.
+112), kept so that ``T + V`` is conserved when Ω depends on the configuration.
+
+Provider interface
+------------------
+An object with ``shape_joints`` (indices into ``q`` of the joints the modal quantities
+depend on) and ``function(name) -> casadi.Function`` mapping the vector of those joint
+values to the quantity ``name`` of :func:`casflex.modal.integrals.configuration_quantities`,
+returned as a column vector holding the array flattened in C (row-major) order.
+:class:`ConstantProvider` and :class:`PointwiseProvider` are the simple ones; the modal
+tables provide B-spline interpolants. The interpolants are called on SX symbols; the
+resulting graph is never built in MX and expanded.
+
+Modes follow the configuration through the tables only: velocities contain no
+``∂w/∂q q̇ δ`` terms (eq. 70), as in the dissertation.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from casflex.errors import ModelError
+from casflex.modal.integrals import (
+    QUANTITY_KEYS,
+    configuration_quantities,
+    quantity_shapes,
+    rigid_pseudo_inertias,
+)
+
+__all__ = ["ConstantProvider", "PointwiseProvider", "FlexibleModel", "rigid_provider"]
+
+
+class ConstantProvider:
+    """Modal quantities that do not change with the configuration.
+
+    Parameters
+    ----------
+    quantities : dict of str to array_like
+        As returned by :func:`casflex.modal.integrals.configuration_quantities`.
+    shape_joints : sequence of int
+        Joint indices the (constant) functions take as input.
+
+    Examples
+    --------
+    >>> p = ConstantProvider({"omega": [2.0, 3.0]}, shape_joints=(2,))
+    >>> p.function("omega")([0.1])
+    DM([2, 3])
+    """
+
+    def __init__(self, quantities, shape_joints=()):
+        self.quantities = {k: np.asarray(v, dtype=float) for k, v in quantities.items()}
+        self.shape_joints = tuple(int(j) for j in shape_joints)
+
+    def function(self, name):
+        """casadi.Function ``q_shape -> name`` (C-order flattened array, column vector)."""
+        if name not in self.quantities:
+            raise ModelError(f"provider has no quantity {name!r}; it has "
+                             f"{sorted(self.quantities)}")
+        x = ca.SX.sym("q_shape", len(self.shape_joints))
+        v = self.quantities[name].ravel()
+        out = ca.DM(v) if v.size else ca.DM.zeros(0, 1)
+        return ca.Function(name, [x], [out], ["q_shape"], [name])
+
+
+class PointwiseProvider(ConstantProvider):
+    """Quantities of one configuration, computed with the TMM (for tests and studies).
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    q : array_like
+        Configuration [rad] at which the structure's shape is frozen.
+    count : int
+        Number of modes.
+    points : sequence of (int, float), optional
+        Sensor points (see :func:`~casflex.modal.integrals.configuration_quantities`).
+    shape_joints : sequence of int
+        Joint indices reported as inputs (the values do not depend on them).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> p = PointwiseProvider(load("problems/arm2link.toml"), [0.0, 0.0, 0.5], count=2)
+    >>> np.asarray(p.function("omega")([])).ravel().round(2)
+    array([10.42, 15.11])
+    """
+
+    def __init__(self, robot, q, count=5, points=None, shape_joints=()):
+        from casflex.modal.normalize import mass_normalize
+        from casflex.tmm import modes
+
+        shapes = mass_normalize(robot, modes(robot, q, count=count))
+        self.shapes = shapes
+        super().__init__(configuration_quantities(robot, q, shapes, points=points),
+                         shape_joints)
+
+
+def rigid_provider(robot):
+    """A provider with zero modes: the model reduces to the rigid-body dynamics.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> rigid_provider(load("problems/arm2link.toml")).function("C2").size1_out(0)
+    0
+    """
+    return ConstantProvider({k: np.zeros(s) for k, s in quantity_shapes(robot, 0).items()})
+
+
+# ------------------------------------------------------------------ symbolic helpers
+
+
+def _rx(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.blockcat([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
+
+
+def _rz(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.blockcat([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+def _trans(v):
+    T = ca.SX.eye(4)
+    T[0, 3], T[1, 3], T[2, 3] = v[0], v[1], v[2]
+    return T
+
+
+def _rot4(R):
+    T = np.eye(4)
+    T[:3, :3] = R
+    return ca.DM(T)
+
+
+def _skew(v):
+    return ca.blockcat([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def _mat4(v, offset):
+    """4 × 4 SX from 16 C-order entries of the column vector ``v`` at ``offset``."""
+    return ca.reshape(v[offset:offset + 16], 4, 4).T
+
+
+def _vec(A):
+    return ca.reshape(A, -1, 1)
+
+
+def _taylor(expr, delta, order):
+    """Taylor polynomial of ``expr`` in ``delta`` about 0, of degree ``order`` (0, 1 or 2)."""
+    base = ca.substitute(expr, delta, ca.SX.zeros(delta.shape))
+    if order == 0 or delta.numel() == 0:
+        return base
+    eps = ca.SX.sym("eps")
+    scaled = ca.substitute(expr, delta, eps * delta)
+    d1 = ca.jacobian(_vec(scaled), eps)
+    out = base + ca.reshape(ca.substitute(d1, eps, 0), expr.shape)
+    if order >= 2:
+        d2 = ca.jacobian(d1, eps)
+        out += 0.5 * ca.reshape(ca.substitute(d2, eps, 0), expr.shape)
+    return out
+
+
+_GRAVITY_DEFAULT = "robot"
+
+
+class FlexibleModel:
+    """Rigid–flexible model of a serial arm built from a robot and a modal provider.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    provider : object
+        ``shape_joints`` and ``function(name)`` (module docstring).
+    gravity : array_like, None or "robot"
+        Gravity vector in the base frame [m/s²]; ``"robot"`` (default) takes
+        ``robot.gravity``; ``None`` switches gravity off.
+    damping_ratio : float, optional
+        Modal damping ratio ζ (default ``robot.damping_ratio``).
+    delta_order : {1, 0}
+        Order in δ kept in ``M`` and in the gravitational potential (module docstring).
+    modal_mass : {"first_order", "identity", "kinematic"}
+        The modal block of ``M`` (module docstring).
+
+    Attributes
+    ----------
+    n, m : int
+        Number of joints and of modes.
+    q, dq, delta, ddelta, tau : casadi.SX
+        Symbols: joint variables [rad], rates [rad/s], modal amplitudes [√kg m], their
+        rates, joint torques [N m].
+    M, C, G, K, D : casadi.SX
+        Mass matrix (n+m, n+m), Coriolis matrix (n+m, n+m), generalised potential
+        forces ∂V/∂X (n+m,), modal stiffness Ω² (m, m), modal damping 2ζΩ (m, m).
+    gravity_forces : casadi.SX
+        ∂V_g/∂X (eq. 107–108) alone.
+    kinetic, potential : casadi.SX
+        Energies [J].
+    A, T : list of casadi.SX
+        Row transforms A_i(q, δ) and poses T_i(q, δ) of the DH frames (4 × 4).
+    bodies : list of dict
+        Every inertial piece: ``kind``, ``row``, base pose ``T``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0.5], count=2),
+    ...                       gravity=None)
+    >>> f = model.functions()
+    >>> M = f["mass"]([0.1, 0.2, 0.5], [0, 0]).full()
+    >>> M.shape, bool(np.allclose(M[3:, 3:], np.eye(2)))
+    ((5, 5), True)
+    >>> f["tip"]([0, 0, 0], [0, 0]).full().ravel().round(6).tolist()
+    [1.0, 0.0, -1.0]
+    """
+
+    def __init__(self, robot, provider, gravity=_GRAVITY_DEFAULT, damping_ratio=None,
+                 delta_order=1, modal_mass="first_order"):
+        if delta_order not in (0, 1):
+            raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
+        self.robot = robot
+        self.provider = provider
+        n = self.n = robot.n_joints
+        shape_joints = tuple(provider.shape_joints)
+        for j in shape_joints:
+            if not 0 <= j < n:
+                raise ModelError(f"provider shape joint {j} out of range: robot "
+                                 f"'{robot.name}' has {n} joints")
+        m = self.m = int(provider.function("omega").size1_out(0))
+        if gravity is None:
+            g = np.zeros(3)
+        elif isinstance(gravity, str) and gravity == _GRAVITY_DEFAULT:
+            g = np.asarray(robot.gravity, dtype=float)
+        else:
+            g = np.asarray(gravity, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ModelError(f"gravity must be a finite 3-vector [m/s^2]; got {gravity!r}")
+        self.gravity = g
+        zeta = robot.damping_ratio if damping_ratio is None else float(damping_ratio)
+        if not 0.0 <= zeta < 1.0:
+            raise ModelError(f"damping_ratio must lie in [0, 1); got {zeta}")
+        self.damping_ratio = zeta
+        self.delta_order = delta_order
+        if modal_mass not in ("first_order", "identity", "kinematic"):
+            raise ModelError("modal_mass must be 'first_order', 'identity' or 'kinematic'; "
+                             f"got {modal_mass!r}")
+        self.modal_mass = modal_mass
+
+        self.q = ca.SX.sym("q", n)
+        self.dq = ca.SX.sym("dq", n)
+        self.delta = ca.SX.sym("delta", m)
+        self.ddelta = ca.SX.sym("ddelta", m)
+        self.tau = ca.SX.sym("tau", n)
+        self.X = ca.vertcat(self.q, self.delta)
+        self.dX = ca.vertcat(self.dq, self.ddelta)
+        self.q_shape = ca.vertcat(*[self.q[j] for j in shape_joints]) if shape_joints \
+            else ca.SX(0, 1)
+
+        self._quantities(provider)
+        self._kinematics()
+        self._dynamics()
+
+    # -------------------------------------------------------------- provider data
+
+    def _quantities(self, provider):
+        expected = quantity_shapes(self.robot, self.m)
+        self.Q = {}
+        values = []
+        for name in QUANTITY_KEYS:
+            f = provider.function(name)
+            size = int(np.prod(expected[name]))
+            if f.numel_out(0) != size:
+                raise ModelError(f"provider quantity {name!r} has {f.numel_out(0)} entries; "
+                                 f"expected shape {expected[name]} ({size} entries) for "
+                                 f"robot '{self.robot.name}' with {self.m} modes")
+            # the kinematics use placeholders: pose Jacobians must not differentiate the
+            # tables (eq. 70 has no ∂w/∂q q̇ δ term); the values go in afterwards, so that
+            # the Christoffel symbols do see M's dependence on the shape joints
+            self.Q[name] = ca.SX.sym(name, size)
+            values.append(ca.SX(f(self.q_shape)) if size else ca.SX(0, 1))
+        self._placeholders = ca.vertcat(*[self.Q[k] for k in QUANTITY_KEYS])
+        self._values = ca.vertcat(*values)
+        self.omega = values[QUANTITY_KEYS.index("omega")]
+
+    def _fill(self, expr):
+        """Replace the table placeholders by the provider's functions of the shape joints."""
+        return ca.substitute(expr, self._placeholders, self._values)
+
+    # -------------------------------------------------------------- kinematics
+
+    def _beam_end(self, b, L):
+        """End transform E_b(δ) of beam b in its local frame."""
+        m, Q, d = self.m, self.Q, self.delta
+        u = ca.SX.zeros(3)
+        th = ca.SX.zeros(3)
+        for j in range(m):
+            k = (b * m + j) * 3
+            u += d[j] * Q["end_u"][k:k + 3]
+            th += d[j] * Q["end_theta"][k:k + 3]
+        E = ca.SX.eye(4)
+        E[:3, :3] = ca.SX.eye(3) + _skew(th)
+        E[0, 3], E[1, 3], E[2, 3] = u[0], u[1], L + u[2]
+        return E
+
+    def _kinematics(self):
+        robot, m, Q = self.robot, self.m, self.Q
+        pseudo = {row: (kind, J) for kind, row, J in rigid_pseudo_inertias(robot)}
+        joint_of_row = {row: k for k, row in enumerate(robot.joint_rows)}
+        T_prev = ca.SX.eye(4)
+        self.A, self.T, self.bodies = [], [], []
+        ib = isp = 0
+        for row, link in enumerate(robot.links):
+            A = _rx(link.alpha)  # the row's own factors, T_i = T_{i-1} A_i
+            if link.beam_along == "a":
+                P = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+                P4 = _rot4(P @ _rz_np(link.section_angle))
+                self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
+                                              ib))
+                A = A @ P4 @ self._beam_end(ib, link.length) @ P4.T
+                ib += 1
+            elif link.a != 0.0:
+                A = A @ _trans([link.a, 0.0, 0.0])
+            theta = link.theta
+            if row in joint_of_row:
+                theta = theta + self.q[joint_of_row[row]]
+            if link.joint_stiffness is not None:
+                phi = 0
+                for j in range(m):
+                    phi += self.delta[j] * Q["spring_phi"][isp * m + j]
+                theta = theta + phi
+                isp += 1
+            A = A @ _rz(theta)
+            if link.beam_along == "d":
+                P4 = _rot4(_rz_np(link.section_angle))
+                self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
+                                              ib))
+                A = A @ P4 @ self._beam_end(ib, link.length) @ P4.T
+                ib += 1
+            elif link.d != 0.0:
+                A = A @ _trans([0.0, 0.0, link.d])
+            T = T_prev @ A
+            if not link.flexible and row in pseudo:
+                self.bodies.append(self._body("body", row, T, pseudo[row][1], None))
+            self.A.append(A)
+            self.T.append(T)
+            T_prev = T
+        self.tip = T[:3, 3]
+
+    def _body(self, kind, row, T, J0, b):
+        m, Q = self.m, self.Q
+        body = {"kind": kind, "row": row, "T": T, "C0": ca.DM(J0), "beam": b}
+        if b is not None and m:
+            body["C1"] = [_mat4(Q["C1"], (b * m + j) * 16) for j in range(m)]
+            body["C2"] = [[_mat4(Q["C2"], ((b * m + j) * m + k) * 16) for k in range(m)]
+                          for j in range(m)]
+        else:
+            body["C1"], body["C2"] = [], []
+        return body
+
+    # -------------------------------------------------------------- dynamics
+
+    def _energy_terms(self):
+        """Mass matrix and gravitational potential, with the pieces that cannot contribute
+        to order ``delta_order`` left out (the caller truncates the rest)."""
+        n, m = self.n, self.m
+        N = n + m
+        X, d = self.X, self.delta
+        M = ca.SX.zeros(N, N)
+        Vg = ca.SX(0)
+        gh = ca.DM(np.r_[self.gravity, 0.0])
+        order = self.delta_order
+        for body in self.bodies:
+            # the pose to one order more than M: ∂T/∂δ must be right to `order`
+            T = _taylor(body["T"], d, order + 1)
+            C0, C1, C2 = body["C0"], body["C1"], body["C2"]
+            Psi = ca.SX(C0)
+            D = []
+            for k in range(len(C1)):
+                Dk = ca.SX(C1[k])
+                if order:
+                    Psi += d[k] * (C1[k] + C1[k].T)  # the δ² part of Ψ is second order
+                    for j in range(len(C1)):
+                        Dk += d[j] * C2[j][k]
+                D.append(Dk)
+            # Tr(A Ψ Bᵀ) = Σ_r A[r, :] Ψ B[r, :]ᵀ over the three rows of a pose derivative
+            # (the last row of a homogeneous transform is constant)
+            for r in range(3):
+                Tr_ = T[r, :].T  # 4 x 1
+                JT = ca.jacobian(Tr_, X)  # 4 x N
+                M += JT.T @ Psi @ JT
+                if D:
+                    B = JT.T @ ca.horzcat(*[Dk @ Tr_ for Dk in D])  # N x m
+                    M[:, n:] += B
+                    M[n:, :] += B.T
+                    for j in range(m):
+                        for k in range(m):
+                            M[n + j, n + k] += Tr_.T @ C2[j][k] @ Tr_
+            Vg -= gh.T @ T @ Psi[:, 3]
+        for k, row in enumerate(self.robot.joint_rows):
+            M[k, k] += self.robot.links[row].motor_inertia
+        return M, Vg
+
+    def _dynamics(self):
+        n, m = self.n, self.m
+        X, dX, d = self.X, self.dX, self.delta
+        M, Vg = self._energy_terms()
+        M, Vg = self._fill(M), self._fill(Vg)
+        self.A = [self._fill(A) for A in self.A]
+        self.T = [self._fill(T) for T in self.T]
+        self.tip = self._fill(self.tip)
+        for body in self.bodies:
+            body["T"] = self._fill(body["T"])
+        M = _taylor(M, d, self.delta_order)
+        M = 0.5 * (M + M.T)
+        if self.modal_mass == "identity":
+            M[n:, n:] = ca.SX.eye(m)
+        elif self.modal_mass == "first_order":
+            M[n:, n:] = M[n:, n:] - ca.substitute(M[n:, n:], d, ca.SX.zeros(m)) + ca.SX.eye(m)
+        Vg = _taylor(Vg, d, self.delta_order)
+        w2 = self.omega**2
+        self.K = ca.diag(w2) if m else ca.SX(0, 0)
+        self.D = ca.diag(2.0 * self.damping_ratio * self.omega) if m else ca.SX(0, 0)
+        Ve = 0.5 * ca.dot(w2, d**2) if m else ca.SX(0)
+        self.M = M
+        self.gravity_forces = ca.gradient(Vg, X)
+        self.potential = Vg + Ve
+        self.G = ca.gradient(self.potential, X)
+        self.kinetic = 0.5 * dX.T @ M @ dX
+        N = n + m
+        Mdot = ca.reshape(ca.jacobian(_vec(M), X) @ dX, N, N)
+        Jac = ca.jacobian(M @ dX, X)
+        self.C = 0.5 * (Mdot + Jac - Jac.T)
+        # C Ẋ without forming C: d/dt(M Ẋ) at Ẍ = 0 minus ∂T/∂X (the same Christoffel sum)
+        Cdx = ca.jtimes(M @ dX, X, dX) - ca.gradient(self.kinetic, X)
+        damp = ca.vertcat(ca.SX.zeros(n), self.D @ self.ddelta) if m else ca.SX.zeros(n)
+        self.h = Cdx + self.G + damp  # everything but M Ẍ and the input
+        rhs = ca.vertcat(self.tau, ca.SX.zeros(m)) - self.h
+        self.ddX = self._solve(M, rhs)
+        # prescribed joint motion: given q̈, solve the δ rows for δ̈, then τ (eq. 118)
+        self.ddq = ca.SX.sym("ddq", n)
+        h_q, h_d = self.h[:n], self.h[n:]
+        Mqq, Mqd, Mdd = M[:n, :n], M[:n, n:], M[n:, n:]
+        r = -(Mqd.T @ self.ddq) - h_d
+        dddelta = r if self.modal_mass == "identity" else ca.solve(Mdd, r)
+        self.prescribed_dddelta = dddelta
+        self.prescribed_tau = Mqq @ self.ddq + Mqd @ dddelta + h_q
+
+    def _solve(self, M, rhs):
+        n, m = self.n, self.m
+        if not (self.modal_mass == "identity" and m):
+            return ca.solve(M, rhs)
+        Mqq, Mqd = M[:n, :n], M[:n, n:]
+        rq, rd = rhs[:n], rhs[n:]
+        ddq = ca.solve(Mqq - Mqd @ Mqd.T, rq - Mqd @ rd)
+        return ca.vertcat(ddq, rd - Mqd.T @ ddq)
+
+    # -------------------------------------------------------------- functions
+
+    def functions(self):
+        """The model as named casadi Functions.
+
+        Returns
+        -------
+        dict of str to casadi.Function
+            ``mass (q, delta) -> M``; ``coriolis (q, delta, dq, ddelta) -> C``;
+            ``gravity (q, delta) -> g`` (∂V_g/∂X, eq. 107–108); ``potential_forces
+            (q, delta) -> G``; ``stiffness (q) -> K``; ``damping (q) -> D``;
+            ``forward (q, dq, delta, ddelta, tau) -> (ddq, dddelta)``;
+            ``ode (x, tau) -> xdot`` with ``x = [q; delta; dq; ddelta]``;
+            ``prescribed (q, dq, ddq, delta, ddelta) -> (tau, dddelta)``;
+            ``energy (q, dq, delta, ddelta) -> (kinetic, potential, energy)``;
+            ``frames (q, delta) -> (T1, ..., Tn_rows)``; ``tip (q, delta) -> p``.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> robot = load("problems/arm2link.toml")
+        >>> f = FlexibleModel(robot, rigid_provider(robot), gravity=None).functions()
+        >>> f["forward"].name_in()
+        ['q', 'dq', 'delta', 'ddelta', 'tau']
+        """
+        q, dq, d, dd, tau = self.q, self.dq, self.delta, self.ddelta, self.tau
+        n = self.n
+        x = ca.vertcat(q, d, dq, dd)
+        rows = [f"T{i + 1}" for i in range(len(self.T))]
+        return {
+            "mass": ca.Function("mass", [q, d], [self.M], ["q", "delta"], ["M"]),
+            "coriolis": ca.Function("coriolis", [q, d, dq, dd], [self.C],
+                                    ["q", "delta", "dq", "ddelta"], ["C"]),
+            "gravity": ca.Function("gravity", [q, d], [self.gravity_forces],
+                                   ["q", "delta"], ["g"]),
+            "potential_forces": ca.Function("potential_forces", [q, d], [self.G],
+                                            ["q", "delta"], ["G"]),
+            "stiffness": ca.Function("stiffness", [q], [self.K], ["q"], ["K"]),
+            "damping": ca.Function("damping", [q], [self.D], ["q"], ["D"]),
+            "forward": ca.Function("forward", [q, dq, d, dd, tau],
+                                   [self.ddX[:n], self.ddX[n:]],
+                                   ["q", "dq", "delta", "ddelta", "tau"],
+                                   ["ddq", "dddelta"]),
+            "ode": ca.Function("ode", [x, tau], [ca.vertcat(dq, dd, self.ddX)],
+                               ["x", "tau"], ["xdot"]),
+            "prescribed": ca.Function("prescribed", [q, dq, self.ddq, d, dd],
+                                      [self.prescribed_tau, self.prescribed_dddelta],
+                                      ["q", "dq", "ddq", "delta", "ddelta"],
+                                      ["tau", "dddelta"]),
+            "energy": ca.Function("energy", [q, dq, d, dd],
+                                  [self.kinetic, self.potential,
+                                   self.kinetic + self.potential],
+                                  ["q", "dq", "delta", "ddelta"],
+                                  ["kinetic", "potential", "energy"]),
+            "frames": ca.Function("frames", [q, d], list(self.T), ["q", "delta"], rows),
+            "tip": ca.Function("tip", [q, d], [self.tip], ["q", "delta"], ["p"]),
+        }
+
+
+def _rz_np(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
