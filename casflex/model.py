@@ -1,0 +1,131 @@
+"""One call from a robot to its configuration-dependent symbolic model.
+
+:func:`build_model` tabulates the tracked, mass-normalised modes over a grid of the joints
+that change the structure's shape (:mod:`casflex.modal.tables`, cached on disk), wraps
+the table in B-spline interpolants (:class:`TableProvider`) and builds the CasADi model
+(:class:`casflex.dynamics.FlexibleModel`) on them.
+
+Examples
+--------
+>>> from casflex.robot import load
+>>> robot = load("problems/arm2link.toml")
+>>> model, table = build_model(robot, n_modes=3, step=np.radians(15), cache_dir=False,
+...                            processes=1)
+>>> table.shape_joints, model.m
+((2,), 3)
+"""
+
+from __future__ import annotations
+
+import functools
+
+import casadi as ca
+import numpy as np
+
+from casflex.errors import ModelError
+
+__all__ = ["TableProvider", "default_grid", "build_model", "sensor_quantities"]
+
+
+class TableProvider:
+    """The provider interface of :mod:`casflex.dynamics` on top of a :class:`ModalTable`.
+
+    ``function(name)`` returns ``q_shape -> value`` with the value flattened in C order as
+    a column vector (the contract of :class:`casflex.dynamics.ConstantProvider`), by
+    interpolating the table with ``method`` (B-splines by default, so that the model is
+    differentiable and code-generates to C).
+
+    Parameters
+    ----------
+    table : casflex.modal.tables.ModalTable
+    method : {"bspline", "linear"}
+    """
+
+    def __init__(self, table, method="bspline"):
+        self.table = table
+        self.method = method
+        self.shape_joints = tuple(table.shape_joints)
+        self._functions = {}
+
+    def function(self, name):
+        """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``."""
+        if name in self._functions:
+            return self._functions[name]
+        f = self.table.function(name, method=self.method)
+        x = ca.SX.sym("q_shape", len(self.shape_joints))
+        y = f(x)
+        if y.size1() > 1 and y.size2() > 1:  # matrices come back shaped: flatten row-major
+            y = ca.vec(y.T)
+        self._functions[name] = ca.Function(name, [x], [ca.vec(y)], ["q_shape"], [name])
+        return self._functions[name]
+
+
+def default_grid(robot, joints, step=None):
+    """A full-turn grid per shape joint [rad]: 1.5° for one joint, 6° for more.
+
+    Examples
+    --------
+    >>> len(default_grid(None, (2,))[0])
+    240
+    """
+    if step is None:
+        step = np.radians(1.5) if len(joints) == 1 else np.radians(6.0)
+    n = int(round(2.0 * np.pi / step))
+    if n < 8:
+        raise ModelError(f"grid step {step} rad is too coarse: a full turn needs >= 8 points")
+    axis = -np.pi + 2.0 * np.pi * np.arange(n) / n
+    return [axis] * len(joints)
+
+
+def sensor_quantities(robot, q, shapes, points=()):
+    """Model quantities plus mode values at sensor ``points`` (picklable for the pool)."""
+    from casflex.modal.integrals import configuration_quantities
+    from casflex.modal.normalize import mass_normalize
+
+    return configuration_quantities(robot, q, mass_normalize(robot, shapes),
+                                    points=list(points) or None)
+
+
+def build_model(robot, n_modes=5, *, step=None, grid=None, points=(), gravity="robot",
+                damping_ratio=None, method="bspline", cache_dir=None, client=None,
+                processes=None, progress=False, **model_options):
+    """Tabulate the modes of ``robot`` and build its symbolic model.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    n_modes : int
+        Number of tracked modes in the model.
+    step : float, optional
+        Grid step of the shape joints [rad] (see :func:`default_grid`).
+    grid : sequence of array_like, optional
+        Explicit axes [rad], one per shape joint (overrides ``step``).
+    points : sequence of (int, float)
+        Sensor points ``(row, s)`` whose mode values are tabulated too (row: DH row index
+        of a flexible link, s: arc length from the link's start [m]).
+    gravity, damping_ratio, **model_options
+        Passed to :class:`casflex.dynamics.FlexibleModel`.
+    method : {"bspline", "linear"}
+        Interpolation of the tables.
+    cache_dir, client, processes, progress
+        Passed to :func:`casflex.modal.tables.build_table`.
+
+    Returns
+    -------
+    model : casflex.dynamics.FlexibleModel
+    table : casflex.modal.tables.ModalTable
+    """
+    from casflex.dynamics import FlexibleModel
+    from casflex.modal.tables import build_table, shape_joints
+
+    joints = shape_joints(robot)
+    if grid is None:
+        grid = default_grid(robot, joints, step)
+    quantities = functools.partial(sensor_quantities, points=tuple(points)) if points \
+        else None
+    table = build_table(robot, grid if len(joints) != 1 else grid[0], n_modes,
+                        quantities=quantities, cache_dir=cache_dir, client=client,
+                        processes=processes, progress=progress, joints=joints)
+    model = FlexibleModel(robot, TableProvider(table, method), gravity=gravity,
+                          damping_ratio=damping_ratio, **model_options)
+    return model, table

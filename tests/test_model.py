@@ -1,0 +1,23 @@
+"""build_model: tables + B-spline provider + symbolic model agree with a pointwise model."""
+
+import numpy as np
+
+from casflex.dynamics import FlexibleModel, PointwiseProvider
+from casflex.model import build_model
+from casflex.robot import load
+
+
+def test_tabulated_model_matches_pointwise(tmp_path):
+    robot = load("problems/arm2link.toml")
+    model, table = build_model(robot, n_modes=3, step=np.radians(7.5), cache_dir=tmp_path,
+                               processes=1, gravity=None)
+    assert table.shape_joints == (2,)
+    f = model.functions()
+    for q3, tol in [(table.grid[0][30], 1e-9), (0.5, 1e-6)]:  # a grid point, then between
+        q = [0.3, -0.2, q3]
+        ref = FlexibleModel(robot, PointwiseProvider(robot, q, count=3), gravity=None)
+        fr = ref.functions()
+        np.testing.assert_allclose(f["mass"](q, [0, 0, 0]).full(),
+                                   fr["mass"](q, [0, 0, 0]).full(), atol=tol)
+        np.testing.assert_allclose(f["stiffness"](q).full(), fr["stiffness"](q).full(),
+                                   rtol=tol)
