@@ -1,6 +1,7 @@
 """Modal tables: shape joints, cache keys, resumable builds, Dask, interpolants."""
 
 import dataclasses
+import functools
 import os
 import subprocess
 import sys
@@ -118,9 +119,14 @@ def test_stale_or_foreign_point_file_is_never_read(arm, tmp_path):
     np.testing.assert_allclose(again.omega, first.omega, rtol=1e-12)
 
 
-def counting_quantities(robot, q, shapes):
-    """Test quantity function: counts its calls in files, fails on demand."""
-    count_dir = Path(os.environ["CASFLEX_TEST_COUNT_DIR"])
+def counting_quantities(robot, q, shapes, count_dir=None):
+    """Test quantity function: counts its calls in files, fails on demand.
+
+    ``count_dir`` can be bound with functools.partial for runs in worker processes (a
+    forkserver started earlier in the session does not see variables set by a test); the
+    failure point comes from the environment and is only used in-process.
+    """
+    count_dir = Path(count_dir or os.environ["CASFLEX_TEST_COUNT_DIR"])
     fail_after = int(os.environ.get("CASFLEX_TEST_FAIL_AFTER", "-1"))
     done = len(list(count_dir.glob("call-*")))
     if 0 <= fail_after <= done:
@@ -193,8 +199,8 @@ def test_killed_build_resumes_where_it_stopped(arm, tmp_path):
 def test_dask_cluster_gives_the_same_table_as_the_process_pool(arm, tmp_path, monkeypatch):
     distributed = pytest.importorskip("distributed")
     grid = np.radians(np.arange(60.0, 121.0, 7.5))  # through the double root at 90 deg
-    monkeypatch.setenv("CASFLEX_TEST_COUNT_DIR", str(tmp_path))
-    kw = dict(quantities=counting_quantities, cache_dir=False)
+    kw = dict(quantities=functools.partial(counting_quantities, count_dir=str(tmp_path)),
+              cache_dir=False)
     pool = build_table(arm, grid, 4, processes=2, **kw)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, \
