@@ -33,6 +33,8 @@ VERBS = {
     "modes": "modes",
     "sweep": "sweep",
     "shaper": "shaper",
+    "simulate": "simulate",
+    "codegen": "codegen",
 }
 
 

@@ -601,6 +601,7 @@ def _from_dict(data, path):
     if damping >= 1.0:
         raise r.error("damping_ratio", damping, "must be < 1 (underdamped modes)")
     r.used.add("link")
+    r.used.add("sensor")  # [[sensor]] tables are read and validated by casflex.sensors
     raw_links = data.get("link")
     if raw_links is None:
         raise r.error("link", None, "is required: at least one [[link]] table")

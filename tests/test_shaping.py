@@ -407,4 +407,4 @@ def test_cli_plot_and_robot_form(tmp_path, capsys):
     assert cli.main(["shaper", str(robot), "--json"]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert "not available yet" in captured.err
+    assert "--move FILE:NAME" in captured.err  # the robot form needs the planned move

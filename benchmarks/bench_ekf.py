@@ -1,0 +1,176 @@
+"""Time one EKF step for the Table 8 arm (3 modes, two three-axis accelerometers).
+
+Three implementations of the same step (casflex.estimation.ekf_step_function):
+
+* ``c_step_us``: the generated C code in the casflex.codegen harness, timed inside C
+  (median over all steps of all repetitions, fed-back x and P);
+* ``python_step_us``: the CasADi function called from Python (median per call);
+* ``numpy_step_us``: a plain numpy EKF step with the same equations; the plant
+  coefficients, the measurement and its Jacobian come from CasADi functions evaluated
+  numerically.
+
+Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def numpy_step_factory(plant, sensors, Q, R, dt):
+    """A numpy EKF step ``(x, P, u, y, mask) -> (x_next, P_next, x_post)``."""
+    from casflex.sensors import kinematic_measurement
+
+    m = plant.m
+    nx = 2 * m
+    coef = plant.function()
+    hk = kinematic_measurement(plant.model, sensors)
+    xs, us, acs = ca.SX.sym("x", nx), ca.SX.sym("u", 3 * plant.n), ca.SX.sym("a", m)
+    hs = hk(xs, us, acs)
+    hjac = ca.Function("hjac", [xs, us, acs],
+                       [hs, ca.jtimes(hs, ca.vertcat(xs, acs), ca.SX.eye(hs.numel()),
+                                      True).T])
+    Qd = Q * dt * np.eye(nx)
+    Rm = np.asarray(R, dtype=float) * np.eye(sensors.n_outputs) if np.ndim(R) == 0 else R
+    eye = np.eye(nx)
+
+    def step(x, P, u, y, mask):
+        r0, Jd, Jv = (np.asarray(v) for v in coef(u))
+        r0 = r0.ravel()
+        F = np.zeros((nx, nx))
+        F[:m, m:] = np.eye(m)
+        F[m:, :m], F[m:, m:] = Jd, Jv
+        b = np.r_[np.zeros(m), r0]
+        acc = r0 + Jd @ x[:m] + Jv @ x[m:]
+        h, Jxa = (np.asarray(v) for v in hjac(x, u, acc))
+        h = h.ravel()
+        H = Jxa[:, :nx] + Jxa[:, nx:] @ np.hstack([Jd, Jv])
+        valid = mask > 0.5
+        e = np.where(valid, y - h, 0.0)
+        Hm = H * valid[:, None]
+        Rv = Rm * np.outer(valid, valid) + np.diag(~valid)
+        S = Hm @ P @ Hm.T + Rv
+        L = np.linalg.cholesky(S)
+        K = np.linalg.solve(L.T, np.linalg.solve(L, Hm @ P)).T
+        xp = x + K @ e
+        IKH = eye - K @ Hm
+        Pp = IKH @ P @ IKH.T + K @ Rv @ K.T
+        Pp = 0.5 * (Pp + Pp.T)
+        hF = dt * F
+        Phi = eye + hF @ (eye + hF / 2 @ (eye + hF / 3 @ (eye + hF / 4)))
+        G = dt * (eye + hF / 2 @ (eye + hF / 3 @ (eye + hF / 4)))
+        xn = Phi @ xp + G @ b
+        Pn = Phi @ Pp @ Phi.T + Qd
+        return xn, 0.5 * (Pn + Pn.T), xp
+
+    return step
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--step-deg", type=float, default=7.5,
+                        help="grid step of the modal tables, deg")
+    args = parser.parse_args(argv)
+
+    from casflex import codegen
+    from casflex.estimation import (
+        ekf_step_function,
+        run_ekf,
+        simulate_data,
+        tabulate_plant,
+    )
+    from casflex.model import build_model
+    from casflex.moves import load_move
+    from casflex.robot import load
+    from casflex.sensors import load_sensors
+
+    def log(msg):
+        if not args.json:
+            print(msg, file=sys.stderr)
+
+    robot = load(ROOT / "problems/arm2link.toml")
+    sensors = load_sensors(ROOT / "problems/sensors/arm2link_accel.toml", robot)
+    model, _ = build_model(robot, n_modes=3, step=np.radians(args.step_deg), cache_dir=False,
+                           processes=1, points=sensors.points, gravity=None)
+    t0 = time.perf_counter()
+    plant = tabulate_plant(model)
+    log(f"plant tabulated in {time.perf_counter() - t0:.1f} s: {plant.info}")
+    Q, R, dt = 5e-6, (250e-6 * 9.8) ** 2, 1e-3
+    step = ekf_step_function(plant, sensors, Q, R, dt)
+    move = load_move(str(ROOT / "problems/moves.toml") + ":move1")
+    data = simulate_data(model, sensors, move, dt=dt, t_end=args.steps * dt - dt)
+    N = data.u.shape[0]
+    x0, P0 = np.zeros(6), 1e-6 * np.eye(6)
+    mask = np.ones_like(data.y)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        bundle = codegen.generate([step], tmp, name="bench_ekf")
+        res = codegen.run_harness(bundle, "ekf_step", {"u": data.u, "y": data.y, "mask": mask},
+                                  {"x": x0, "P": P0}, feedback={"x_next": "x", "P_next": "P"},
+                                  repeat=args.repeat)
+        c_us = res.timing["median_step_ns"] / 1e3
+        ref = run_ekf(step, data.u, data.y, x0, P0)
+        c_dev = float(np.max(np.abs(res.outputs["x_post"] - ref.x)) / np.max(np.abs(ref.x)))
+
+    calls = min(N, 300)
+    times = []
+    x, P = x0, P0
+    for k in range(calls):
+        t = time.perf_counter()
+        out = step(x, P, data.u[k], data.y[k], mask[k])
+        times.append(time.perf_counter() - t)
+        x, P = out[0], out[1]
+    py_us = float(np.median(times)) * 1e6
+
+    npstep = numpy_step_factory(plant, sensors, Q, R, dt)
+    times = []
+    x, P = x0, P0
+    dev = 0.0
+    for k in range(calls):
+        t = time.perf_counter()
+        xn, Pn, xp = npstep(x, P, data.u[k], data.y[k], mask[k])
+        times.append(time.perf_counter() - t)
+        dev = max(dev, float(np.max(np.abs(xp - ref.x[k])) / np.max(np.abs(ref.x))))
+        x, P = xn, Pn
+    np_us = float(np.median(times)) * 1e6
+
+    info = bundle.functions[0]
+    out = {
+        "c_step_us": c_us,
+        "python_step_us": py_us,
+        "numpy_step_us": np_us,
+        "states": 6,
+        "outputs": sensors.n_outputs,
+        "sx_instructions": int(step.n_instructions()),
+        "sz_w": info.sz_w,
+        "c_vs_python_max_rel_dev": c_dev,
+        "numpy_vs_casadi_max_rel_dev": dev,
+        "steps": N,
+        "repeat": args.repeat,
+        "nproc": os.cpu_count(),
+        "load_avg_1min": os.getloadavg()[0],
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k:28s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""Benchmark of the model pipeline: tables, CasADi model, simulation of move 1, Dask grid.
+
+``tables_s``
+    :func:`casflex.modal.tables.build_table` of the Table 8 arm (``problems/arm2link.toml``):
+    q3 over [-π, π) every 1.5° (240 points, the default grid of
+    :func:`casflex.model.default_grid`), 5 modes, default quantities, empty cache, local
+    process pool over all CPUs.
+``model_build_s``
+    :func:`casflex.model.build_model` on the table just built (read from the cache):
+    B-spline interpolants + symbolic model + ``functions()``; gravity neglected.
+``simulate_move1_s``, ``simulate_move1_warm_s``
+    :func:`casflex.simulate.simulate_prescribed` of Table 9 move 1 (5 modes, 5 s, 1 ms
+    steps, RK4): first call on the model (builds the RK4 step and ``mapaccum`` Functions)
+    and a second call (warm). Nothing is compiled: CasADi's VM evaluates the step.
+``dask_1_worker_s``, ``dask_2_workers_s``, ``dask_speedup_2_workers``
+    the testbed 10 × 12 grid of ``bench_tables.py`` (same settings, reused from there).
+``cpu_capacity_2_processes``
+    speed-up of a pure-Python loop on 2 processes over 1, before and after (what the shared
+    machine offered at the time).
+
+Usage::
+
+    python benchmarks/bench_model.py [--json] [--skip-dask]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_tables import _cpu_model, bench_dask, cpu_capacity  # noqa: E402
+
+
+def bench(skip_dask=False):
+    from casflex.modal.tables import build_table
+    from casflex.model import build_model, default_grid
+    from casflex.moves import load_move
+    from casflex.robot import load
+    from casflex.simulate import simulate_prescribed
+
+    robot = load(ROOT / "problems/arm2link.toml")
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        grid = default_grid(robot, (2,))[0]
+        t0 = time.perf_counter()
+        table = build_table(robot, grid, 5, cache_dir=cache)
+        out["tables_s"] = time.perf_counter() - t0
+        out["table_points"] = int(table.omega.shape[0])
+        t0 = time.perf_counter()
+        model, _ = build_model(robot, 5, cache_dir=cache, gravity=None)
+        f = model.functions()
+        out["model_build_s"] = time.perf_counter() - t0
+    out["sx_instructions"] = {k: int(f[k].n_instructions())
+                              for k in ("mass", "ode", "prescribed", "tip")}
+    move = load_move(ROOT / "problems/moves.toml:move1")
+    t0 = time.perf_counter()
+    r = simulate_prescribed(model, move, dt=1e-3)
+    out["simulate_move1_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    r = simulate_prescribed(model, move, dt=1e-3)
+    out["simulate_move1_warm_s"] = time.perf_counter() - t0
+    out["move1_steps"] = int(r.info["steps"])
+    out["move1_max_tip_deflection"] = r.max_tip_deflection
+    out["move1_residual_tip_deflection"] = r.residual_tip_deflection
+    out["move1_torque_peak"] = r.torque_peak.tolist()
+    if not skip_dask:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # coarse 2-D grid: low MAC
+            times, same, _ = bench_dask(1)
+        out["dask_1_worker_s"] = times[1]
+        out["dask_2_workers_s"] = times[2]
+        out["dask_speedup_2_workers"] = times[1] / times[2]
+        out["dask_tables_identical"] = bool(same)
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--skip-dask", action="store_true", help="leave the Dask part out")
+    args = parser.parse_args(argv)
+    before = cpu_capacity()
+    result = bench(args.skip_dask)
+    result["cpu_capacity_2_processes"] = [before, cpu_capacity()]
+    result.update({"nproc": os.cpu_count(), "cpu": _cpu_model(),
+                   "python": platform.python_version(),
+                   "loadavg_1min": os.getloadavg()[0]})
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for k, v in result.items():
+            print(f"{k:32s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

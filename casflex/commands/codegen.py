@@ -1,0 +1,127 @@
+"""``casflex codegen``: C code of the real-time estimator (EKF) and of the model.
+
+Writes two bundles (:mod:`casflex.codegen`), each in its own directory with its header,
+README and Makefile: ``DIR/<name>_ekf`` with ``ekf_step``, ``plant``, ``measurement``,
+``rigid_signals`` (:func:`casflex.rtcode.ekf_bundle`) and, unless ``--no-model``,
+``DIR/<name>_model`` with the model's ``forward`` dynamics.
+
+Extending the verb (e.g. a controller and an ``rt_step``): :func:`rt_functions` returns the
+named CasADi functions of the bundle; add yours to that dict (and their units) before
+:func:`run` generates it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from casflex.errors import ModelError
+
+HELP = "generate C code of the EKF (and the forward dynamics) for a robot and its sensors"
+
+
+def add_arguments(parser):
+    """Arguments of ``casflex codegen``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> p.parse_args(["r.toml", "--sensors", "s.toml", "--out", "d"]).modes
+    3
+    """
+    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
+    parser.add_argument("--sensors", required=True, metavar="SENSORS.toml",
+                        help="sensor file with [[sensor]] tables (or a robot file with them)")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    parser.add_argument("--modes", type=int, default=3, help="number of modes (default 3)")
+    parser.add_argument("--name", default="casflex", help="bundle name prefix")
+    parser.add_argument("--dt", type=float, default=1e-3, help="sample time, s (default 1e-3)")
+    parser.add_argument("--Q", type=float, default=5e-6,
+                        help="process-noise intensity on [delta; ddelta] (default 5e-6)")
+    parser.add_argument("--R", type=float, default=None,
+                        help="signal variance (default: the sensors' noise^2)")
+    parser.add_argument("--step", type=float, default=None, metavar="DEG",
+                        help="grid step of the modal tables, deg (default: casflex default)")
+    parser.add_argument("--prefilter", action="store_true",
+                        help="high-pass prefilter one decade below the lowest frequency")
+    parser.add_argument("--sqrt", action="store_true", help="square-root covariance form")
+    parser.add_argument("--no-model", action="store_true",
+                        help="skip the forward-dynamics bundle")
+    parser.add_argument("--no-gravity", action="store_true", help="model without gravity")
+
+
+def rt_functions(model, sensors, args, plant=None):
+    """The named functions and units of the estimator bundle for ``args``.
+
+    Returns
+    -------
+    functions : dict of str to casadi.Function
+    units : dict
+    """
+    from casflex.estimation import (
+        ekf_functions,
+        ekf_step_function,
+        highpass_cutoff,
+        tabulate_plant,
+    )
+    from casflex.rtcode import ekf_units
+
+    R = args.R
+    if R is None:
+        std = sensors.noise_std
+        if not np.all(np.isfinite(std)):
+            missing = [n for n, s in zip(sensors.output_names, std, strict=True)
+                       if not np.isfinite(s)]
+            raise ModelError(f"--R not given and the sensor file gives no noise for "
+                             f"{missing}; set 'noise' in the file or pass --R")
+        R = std**2
+    if plant is None:
+        plant = tabulate_plant(model)
+    funcs = ekf_functions(model, sensors, args.Q, R, args.dt, plant=plant, sqrt=args.sqrt)
+    if args.prefilter:
+        wc = highpass_cutoff(model, np.zeros(model.n))
+        funcs["ekf_step"] = ekf_step_function(plant, sensors, args.Q, R, args.dt,
+                                              sqrt=args.sqrt, prefilter=wc)
+    return funcs, ekf_units(sensors)
+
+
+def run(args, log):
+    """Generate the bundles; return ``{"files": [...], "functions": [...]}``."""
+    from casflex import codegen
+    from casflex.model import build_model
+    from casflex.robot import load
+    from casflex.rtcode import model_bundle
+    from casflex.sensors import load_sensors
+
+    if args.modes < 1:
+        raise ModelError(f"--modes: must be >= 1; got {args.modes}")
+    if not args.dt > 0:
+        raise ModelError(f"--dt: must be > 0 s; got {args.dt}")
+    robot = load(args.robot)
+    sensors = load_sensors(args.sensors, robot)
+    step = None if args.step is None else np.radians(args.step)
+    log(f"building the model of '{robot.name}' with {args.modes} modes ...")
+    model, _ = build_model(robot, n_modes=args.modes, step=step, points=sensors.points,
+                           gravity=None if args.no_gravity else "robot")
+    log("tabulating the flexible plant for the EKF ...")
+    funcs, units = rt_functions(model, sensors, args)
+    order = ["ekf_step", "plant", "measurement", "rigid_signals"]
+    names = order + [k for k in funcs if k not in order]
+    from pathlib import Path
+
+    out = Path(args.out)
+    bundle = codegen.generate([funcs[k] for k in names], out / f"{args.name}_ekf",
+                              name=f"{args.name}_ekf",
+                              units={k: v for k, v in units.items() if k in names})
+    bundles = [bundle]
+    if not args.no_model:
+        bundles.append(model_bundle(model, out / f"{args.name}_model",
+                                    name=f"{args.name}_model"))
+    files, functions = [], []
+    for b in bundles:
+        files += [str(p) for p in (b.source, b.header, b.readme, b.makefile, b.manifest)
+                  if p is not None]
+        functions += [f.name for f in b.functions]
+        log(f"wrote {b.source} and {b.header}")
+    return {"files": files, "functions": functions}

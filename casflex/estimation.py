@@ -1,0 +1,1054 @@
+"""Extended Kalman filter for the modal states of a flexible arm (dissertation §5.4–5.5).
+
+The joint motion ``u = [q; q̇; q̈]`` is measured (encoders, eq. 158); the filter estimates
+``x = Δ = [δ; δ̇]`` from accelerometer or strain signals (:mod:`casflex.sensors`).
+
+The flexible plant (eq. 157–162)
+--------------------------------
+The flexible rows of the model, ``M_δq q̈ + M_δδ δ̈ + (C Ẋ)_δ + G_δ + D δ̇ = 0``, solved
+for ``δ̈`` (:attr:`casflex.dynamics.FlexibleModel.prescribed_dddelta`), are a large
+expression (~45 000 SX operations for the Table 8 arm with three modes; its Jacobian
+~160 000). The filter uses its **first-order expansion in Δ about Δ = 0**, which is the
+dissertation's linear time-varying plant (eq. 159, 162):
+
+``δ̈ = r₀(u) + J_δ(u) δ + J_δ̇(u) δ̇``
+
+Every coefficient is a polynomial of degree ≤ 2 in ``(q̇, q̈)`` — monomials ``1, q̈_a,
+q̇_a, q̇_a q̇_b`` — whose coefficients depend on ``q`` only. :func:`tabulate_plant`
+extracts them *exactly* from the model (polynomial interpolation over 1 + 2n + n(n+1)/2
+designs of ``(q̇, q̈)``, central differences in Δ), and stores them over the model's
+shape joints as periodic cubic B-splines (the model's own modal tables are B-splines on
+the same kind of grid) and as Fourier series of degree ``K`` in the other joints they
+depend on (rigid-body kinematics make that dependence a trigonometric polynomial; the
+degree is checked). Joints the coefficients do not depend on (e.g. a base joint about
+the gravity axis) are detected and left out. The result (:class:`FlexiblePlant`) costs a
+few thousand flops instead of ~200 000.
+
+Discretisation and filter
+-------------------------
+One step of :func:`ekf_step_function` takes the prior ``x̂_{k|k−1}``, ``P_{k|k−1}``, the
+inputs ``u_k`` and the signals ``y_k`` and
+
+1. evaluates the plant coefficients at ``u_k`` (held over the step);
+2. **update** with ``y_k``: ``h(x, u_k)`` is the kinematic measurement model with ``δ̈``
+   from the plant; ``H = ∂h/∂x`` by CasADi differentiation; ``S = H P Hᵀ + R`` is
+   factored by an unrolled Cholesky; ``K = P Hᵀ S⁻¹``; ``x̂⁺ = x̂ + K (y − h)``; Joseph
+   form ``P⁺ = (I − KH) P (I − KH)ᵀ + K R Kᵀ``, symmetrised;
+3. **prediction** over ``dt`` by one classical RK4 step of the plant;
+   ``Φ = ∂x_{k+1}/∂x̂⁺`` by CasADi differentiation through that RK4 step;
+   ``P_{k+1|k} = Φ P⁺ Φᵀ + Q dt``, symmetrised.
+
+``Q`` is the continuous-time process-noise intensity of eq. 179 (``Ṗ = AP + PAᵀ + Q``),
+applied as ``Q·dt`` per step; ``R`` is the covariance of one sample of the signals (eq.
+185–186). Sensor dropouts: the ``mask`` input (1 valid, 0 missing) zeroes that channel's
+row of ``H`` and its innovation (NaN-safe: the masked ``y`` is never used in arithmetic)
+and replaces its variance by 1 with no correlation, so the gain column of that channel is
+exactly zero — the update of that channel is skipped without branches, in Python and in C.
+
+The square-root form (§5.4.4.1, ``sqrt=True``) carries ``S`` with ``P = S Sᵀ`` and
+replaces both covariance steps by triangularisations of the array algorithms,
+``[√R, H S; 0, S] → [S_e, 0; K̄, S⁺]`` and ``[Φ S⁺, √(Q dt)] → [S_{k+1}, 0]`` (QR of the
+transposed arrays); ``P`` stays symmetric positive semi-definite by construction.
+
+Examples
+--------
+>>> from casflex.robot import load
+>>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+>>> from casflex.sensors import SensorSet, StrainPair
+>>> robot = load("problems/arm2link.toml")
+>>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3), name="sg")])
+>>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+>>> plant = tabulate_plant(model)
+>>> step = ekf_step_function(plant, ss, Q=5e-6, R=9e-14, dt=1e-3)
+>>> step.name_in(), step.name_out()
+(['x', 'P', 'u', 'y', 'mask'], ['x_next', 'P_next', 'x_post'])
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from casflex.errors import ModelError
+
+__all__ = [
+    "FlexiblePlant",
+    "tabulate_plant",
+    "exact_plant_function",
+    "ekf_step_function",
+    "ekf_functions",
+    "EKFResult",
+    "run_ekf",
+    "highpass",
+    "highpass_cutoff",
+    "prefilter_initial",
+    "rigid_signal_function",
+    "SimulatedData",
+    "simulate_data",
+]
+
+
+# ----------------------------------------------------------------------------- plant
+
+
+def exact_plant_function(model):
+    """``casadi.Function`` ``(u, x) -> dddelta``: the model's flexible rows solved for δ̈.
+
+    Exact but large (the reference the tabulated plant is checked against).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> f = exact_plant_function(model)
+    >>> round(float(f(np.zeros(9), [1e-3, 0.0])), 6)   # -ω₁² δ₁ at rest (ω₁ = 8.31 rad/s)
+    -0.069012
+    """
+    u = ca.vertcat(model.q, model.dq, model.ddq)
+    x = ca.vertcat(model.delta, model.ddelta)
+    return ca.Function("flex_exact", [u, x], [model.prescribed_dddelta], ["u", "x"],
+                       ["dddelta"])
+
+
+def _monomials(n):
+    """Monomial list of (q̇, q̈): ('1',), ('a', i) for q̈_i, ('v', i), ('vv', i, j)."""
+    out = [("1",)]
+    out += [("a", i) for i in range(n)]
+    out += [("v", i) for i in range(n)]
+    out += [("vv", i, j) for i in range(n) for j in range(i, n)]
+    return out
+
+
+def _designs(n):
+    """(q̇, q̈) design points whose monomial matrix is square and invertible."""
+    d = [(np.zeros(n), np.zeros(n))]
+    eye = np.eye(n)
+    d += [(np.zeros(n), eye[i]) for i in range(n)]
+    d += [(eye[i], np.zeros(n)) for i in range(n)]
+    d += [(-eye[i], np.zeros(n)) for i in range(n)]
+    d += [(eye[i] + eye[j], np.zeros(n)) for i in range(n) for j in range(i + 1, n)]
+    return d
+
+
+def _monomial_values(mono, dq, ddq):
+    out = []
+    for mo in mono:
+        if mo[0] == "1":
+            out.append(1.0 + 0 * dq[0] if not isinstance(dq, np.ndarray) else 1.0)
+        elif mo[0] == "a":
+            out.append(ddq[mo[1]])
+        elif mo[0] == "v":
+            out.append(dq[mo[1]])
+        else:
+            out.append(dq[mo[1]] * dq[mo[2]])
+    return out
+
+
+def _fourier_basis(theta, K):
+    out = [1.0 + 0 * theta]
+    for k in range(1, K + 1):
+        out += [ca.cos(k * theta) if not isinstance(theta, float) else np.cos(k * theta),
+                ca.sin(k * theta) if not isinstance(theta, float) else np.sin(k * theta)]
+    return out
+
+
+@dataclass
+class FlexiblePlant:
+    """The flexible rows to first order in Δ, ``δ̈ = r₀(u) + J_δ(u) δ + J_δ̇(u) δ̇``.
+
+    Built by :func:`tabulate_plant`. Coefficient array layout: ``coef[k, i, c]`` for
+    monomial ``k`` of ``(q̇, q̈)`` (:attr:`monomials`), mode row ``i`` and column ``c``
+    (0: r₀, 1..m: J_δ, m+1..2m: J_δ̇).
+
+    Attributes
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    monomials : list of tuple
+    shape_joints, fourier_joints : tuple of int
+        Joints tabulated with B-splines, joints expanded in Fourier series.
+    degree : int
+        Fourier degree K.
+    table : casflex.modal.tables.ModalTable or None
+        The spline table (``None`` without shape joints).
+    constant : numpy.ndarray or None
+        ``(L, nnz)`` Fourier coefficients when there is no shape joint.
+    pattern : numpy.ndarray of bool
+        Structurally non-zero entries of ``coef`` (the only ones evaluated).
+    info : dict
+        Build statistics: ``samples``, ``evaluations``, ``seconds``, ``check_rel_error``.
+    """
+
+    model: object
+    monomials: list
+    shape_joints: tuple
+    fourier_joints: tuple
+    degree: int
+    table: object
+    constant: object
+    pattern: np.ndarray
+    info: dict = field(default_factory=dict)
+
+    @property
+    def n(self):
+        """Number of joints."""
+        return self.model.n
+
+    @property
+    def m(self):
+        """Number of modes."""
+        return self.model.m
+
+    def coefficients(self, q, dq, ddq, coriolis=True, stiffness_scale=1.0):
+        """SX coefficients ``(r0, Jd, Jv)`` at ``(q, q̇, q̈)`` (SX or numbers).
+
+        Parameters
+        ----------
+        coriolis : bool
+            ``False`` drops every term with ``q̇`` (Coriolis and centrifugal forcing,
+            gyroscopic coupling and centrifugal stiffening).
+        stiffness_scale : float
+            Multiplies the modal stiffness ``K = Ω²`` inside ``J_δ`` (robustness studies).
+        """
+        m = self.m
+        q = ca.SX(ca.vertcat(*[q[i] for i in range(self.n)]))
+        L = (2 * self.degree + 1) ** len(self.fourier_joints)
+        nnz = int(self.pattern.sum())
+        if self.table is not None:
+            qs = ca.vertcat(*[q[j] for j in self.shape_joints])
+            vals = ca.SX(self.table.function("coef")(qs))
+            A = ca.reshape(vals, nnz, L)  # stored column-major: nnz fastest
+        else:
+            A = ca.SX(ca.DM(self.constant.T))
+        phi = ca.SX.ones(1)
+        for j in self.fourier_joints:
+            phi = ca.vec(ca.vertcat(*_fourier_basis(q[j], self.degree)) @ phi.T)
+        entries = A @ phi if L > 1 else A[:, 0]
+        mono = _monomial_values(self.monomials, [dq[i] for i in range(self.n)],
+                                [ddq[i] for i in range(self.n)])
+        out = [[ca.SX(0) for _ in range(2 * m + 1)] for _ in range(m)]
+        idx = 0
+        for k, i, c in zip(*np.nonzero(self.pattern), strict=True):
+            mo = self.monomials[k]
+            if not coriolis and mo[0] in ("v", "vv"):
+                idx += 1
+                continue
+            out[i][c] = out[i][c] + mono[k] * entries[idx]
+            idx += 1
+        C = ca.SX(m, 2 * m + 1)
+        for i in range(m):
+            for c in range(2 * m + 1):
+                C[i, c] = out[i][c]
+        r0, Jd, Jv = C[:, 0], C[:, 1:m + 1], C[:, m + 1:]
+        if stiffness_scale != 1.0:
+            K = ca.substitute(self.model.K, self.model.q, q)
+            Jd = Jd - (float(stiffness_scale) - 1.0) * K
+        return r0, Jd, Jv
+
+    def function(self, coriolis=True, stiffness_scale=1.0):
+        """``casadi.Function`` ``u -> (r0, Jd, Jv)``.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> f = tabulate_plant(model).function()
+        >>> round(float(f(np.zeros(9))[1]), 3)   # J_δ = -ω₁² at rest
+        -69.012
+        """
+        n = self.n
+        u = ca.SX.sym("u", 3 * n)
+        r0, Jd, Jv = self.coefficients(u[:n], u[n:2 * n], u[2 * n:], coriolis,
+                                       stiffness_scale)
+        return ca.Function("flex_coefficients", [u], [r0, Jd, Jv], ["u"],
+                           ["r0", "Jd", "Jv"])
+
+    def rhs_function(self, coriolis=True, stiffness_scale=1.0):
+        """``casadi.Function`` ``(u, x) -> dddelta`` of the tabulated plant."""
+        n, m = self.n, self.m
+        u = ca.SX.sym("u", 3 * n)
+        x = ca.SX.sym("x", 2 * m)
+        r0, Jd, Jv = self.coefficients(u[:n], u[n:2 * n], u[2 * n:], coriolis,
+                                       stiffness_scale)
+        return ca.Function("flex_lean", [u, x], [r0 + Jd @ x[:m] + Jv @ x[m:]], ["u", "x"],
+                           ["dddelta"])
+
+
+def _depends(fexact, n, m, joints, rng):
+    """Joints among ``joints`` whose value changes the exact plant (numerically)."""
+    out = []
+    for j in joints:
+        diffs, scale = 0.0, 0.0
+        for _ in range(3):
+            u = rng.normal(size=3 * n)
+            x = 1e-3 * rng.normal(size=2 * m)
+            u2 = u.copy()
+            u2[j] += rng.uniform(0.5, 2.5)
+            a = np.asarray(fexact(u, x)).ravel()
+            b = np.asarray(fexact(u2, x)).ravel()
+            diffs = max(diffs, float(np.max(np.abs(a - b))))
+            scale = max(scale, float(np.max(np.abs(a))))
+        if diffs > 1e-10 * max(scale, 1e-300):
+            out.append(j)
+    return tuple(out)
+
+
+def tabulate_plant(model, *, grid=None, step=None, degree=2, eps=1e-4, check=True,
+                   seed=0):
+    """Tabulate the first-order flexible plant of ``model`` (module docstring).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    grid : sequence of array_like, optional
+        Axes over the shape joints [rad]; default the model's table grid when the provider
+        is a :class:`casflex.model.TableProvider`, else :func:`casflex.model.default_grid`
+        with ``step``.
+    step : float, optional
+        Grid step [rad] when no grid is known.
+    degree : int
+        Fourier degree in the other joints (2 is exact for rigid-body kinematics).
+    eps : float
+        Central-difference step in Δ [√kg m, √kg m/s].
+    check : bool
+        Compare with the exact plant at random points; the largest relative error goes to
+        ``info["check_rel_error"]``.
+    seed : int
+        Random seed of the dependence detection and the check.
+
+    Returns
+    -------
+    FlexiblePlant
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> plant = tabulate_plant(model)
+    >>> plant.fourier_joints, plant.info["check_rel_error"] < 1e-6
+    ((1, 2), True)
+    """
+    import time
+
+    from casflex.modal.tables import ModalTable
+    from casflex.model import default_grid
+
+    t0 = time.perf_counter()
+    n, m = model.n, model.m
+    rng = np.random.default_rng(seed)
+    fexact = exact_plant_function(model)
+    shape = tuple(model.provider.shape_joints)
+    others = [j for j in range(n) if j not in shape]
+    fourier = _depends(fexact, n, m, others, rng)
+    mono = _monomials(n)
+    designs = _designs(n)
+    Dm = np.array([_monomial_values(mono, dq, ddq) for dq, ddq in designs])
+    Dinv = np.linalg.inv(Dm)
+    L1 = 2 * degree + 1
+    thetas = 2.0 * np.pi * np.arange(L1) / L1
+    B1 = np.array([[float(v) for v in _fourier_basis(float(t), degree)] for t in thetas])
+    Bf = np.ones((1, 1))
+    for _ in fourier:
+        Bf = np.kron(Bf, B1)  # rows: sample combos (first joint slowest)
+    Binv = np.linalg.inv(Bf)
+
+    table_grid, periodic = None, ()
+    if shape:
+        if grid is None and hasattr(model.provider, "table"):
+            table_grid = tuple(np.asarray(a, dtype=float) for a in model.provider.table.grid)
+            periodic = tuple(model.provider.table.periodic)
+        else:
+            table_grid = tuple(np.asarray(a, dtype=float) for a in (
+                grid if grid is not None else default_grid(model.robot, shape, step)))
+            periodic = (True,) * len(shape)
+    gpoints = list(itertools.product(*[range(a.size) for a in table_grid])) if shape else [()]
+    fsamples = list(itertools.product(range(L1), repeat=len(fourier)))
+
+    # all (q, u, x) evaluation points
+    xdes = [np.zeros(2 * m)]
+    for i in range(2 * m):
+        e = np.zeros(2 * m)
+        e[i] = eps
+        xdes += [e, -e]
+    Us, Xs = [], []
+    for gp in gpoints:
+        for fs in fsamples:
+            q = np.zeros(n)
+            for ax, j in enumerate(shape):
+                q[j] = table_grid[ax][gp[ax]]
+            for a, j in enumerate(fourier):
+                q[j] = thetas[fs[a]]
+            for dq, ddq in designs:
+                for x in xdes:
+                    Us.append(np.r_[q, dq, ddq])
+                    Xs.append(x)
+    U = np.array(Us).T
+    X = np.array(Xs).T
+    N = U.shape[1]
+    R = np.asarray(fexact.map(N)(U, X))  # (m, N)
+    nd, nx = len(designs), len(xdes)
+    R = R.reshape(m, len(gpoints), len(fsamples), nd, nx)
+    cols = np.empty((m, len(gpoints), len(fsamples), nd, 2 * m + 1))
+    cols[..., 0] = R[..., 0]
+    for i in range(2 * m):
+        cols[..., 1 + i] = (R[..., 1 + 2 * i] - R[..., 2 + 2 * i]) / (2.0 * eps)
+    # monomial coefficients, then Fourier coefficients
+    coef = np.einsum("kd,igfdc->gfkic", Dinv, cols)  # (G, F, mono, m, 2m+1)
+    coef = np.einsum("lf,gfkic->glkic", Binv, coef)  # (G, L, mono, m, 2m+1)
+    scale = np.max(np.abs(coef), axis=(0, 1), keepdims=True)
+    big = np.max(np.abs(coef))
+    pattern = (scale[0, 0] > 1e-11 * big)
+    nnz_idx = np.nonzero(pattern)
+    vals = coef[:, :, nnz_idx[0], nnz_idx[1], nnz_idx[2]]  # (G, L, nnz)
+    table, constant = None, None
+    if shape:
+        gshape = tuple(a.size for a in table_grid)
+        # per grid point the (nnz, L) matrix, column-major (nnz fastest) = vals[g] in C order
+        flat = vals.reshape((len(gpoints), -1)).reshape(gshape + (-1,))
+        table = ModalTable(grid=table_grid, shape_joints=shape, values={"coef": flat},
+                           omega=np.zeros(gshape + (1,)), periodic=periodic)
+    else:
+        constant = vals[0]  # (L, nnz)
+    plant = FlexiblePlant(model=model, monomials=mono, shape_joints=shape,
+                          fourier_joints=fourier, degree=degree, table=table,
+                          constant=constant, pattern=pattern,
+                          info={"samples": len(gpoints) * len(fsamples), "evaluations": N,
+                                "nonzeros": int(pattern.sum())})
+    if check:
+        plant.info["check_rel_error"] = _check_plant(plant, fexact, rng)
+    plant.info["seconds"] = time.perf_counter() - t0
+    return plant
+
+
+def _check_plant(plant, fexact, rng, count=6):
+    """Largest relative error of the tabulated plant at random points (Δ small)."""
+    n, m = plant.n, plant.m
+    lean = plant.rhs_function()
+    worst = 0.0
+    for _ in range(count):
+        u = np.r_[rng.uniform(-np.pi, np.pi, n), rng.normal(size=n), rng.normal(size=n)]
+        x = 1e-4 * rng.normal(size=2 * m)
+        a = np.asarray(fexact(u, x)).ravel()
+        b = np.asarray(lean(u, x)).ravel()
+        worst = max(worst, float(np.max(np.abs(a - b)) / max(np.max(np.abs(a)), 1e-300)))
+    return worst
+
+
+# ----------------------------------------------------------------------------- filter
+
+
+def _chol(S):
+    """Unrolled Cholesky factor (lower) of a symmetric positive definite SX matrix."""
+    r = S.shape[0]
+    L = ca.SX(r, r)
+    for j in range(r):
+        s = S[j, j]
+        for k in range(j):
+            s = s - L[j, k] ** 2
+        L[j, j] = ca.sqrt(s)
+        for i in range(j + 1, r):
+            t = S[i, j]
+            for k in range(j):
+                t = t - L[i, k] * L[j, k]
+            L[i, j] = t / L[j, j]
+    return L
+
+
+def _lower_solve(L, B):
+    """Solve L X = B by forward substitution (L lower triangular)."""
+    r = L.shape[0]
+    rows = []
+    for i in range(r):
+        t = B[i, :]
+        for k in range(i):
+            t = t - L[i, k] * rows[k]
+        rows.append(t / L[i, i])
+    return ca.vertcat(*rows)
+
+
+def _upper_solve(U, B):
+    """Solve U X = B by back substitution (U upper triangular)."""
+    r = U.shape[0]
+    rows = [None] * r
+    for i in reversed(range(r)):
+        t = B[i, :]
+        for k in range(i + 1, r):
+            t = t - U[i, k] * rows[k]
+        rows[i] = t / U[i, i]
+    return ca.vertcat(*rows)
+
+
+def _tria(A):
+    """Lower-triangular L with L Lᵀ = A Aᵀ (QR of Aᵀ), shape rows(A) × rows(A)."""
+    _, R = ca.qr(A.T)
+    return R.T[:, :A.shape[0]]
+
+
+def _as_cov(value, size, what):
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 0:
+        a = a * np.eye(size)
+    elif a.ndim == 1:
+        a = np.diag(a)
+    if a.shape != (size, size) or not np.all(np.isfinite(a)):
+        raise ModelError(f"{what} must be a scalar, a vector of {size} variances or a "
+                         f"{size} x {size} matrix; got shape {np.shape(value)}")
+    if not np.allclose(a, a.T) or np.min(np.linalg.eigvalsh(0.5 * (a + a.T))) < 0:
+        raise ModelError(f"{what} must be symmetric positive semi-definite")
+    return a
+
+
+def ekf_step_function(plant, sensors, Q, R, dt, *, sqrt=False, coriolis=True,
+                      stiffness_scale=1.0, rigid_removed=False, linear_measurement=False,
+                      prefilter=None, name="ekf_step"):
+    """One EKF step as an SX ``casadi.Function`` (module docstring).
+
+    Parameters
+    ----------
+    plant : FlexiblePlant
+    sensors : casflex.sensors.SensorSet
+        The model of ``plant`` must tabulate ``sensors.points``.
+    Q : float, array_like
+        Continuous process-noise intensity on ``[δ; δ̇]`` (scalar × I, diagonal or
+        matrix), applied as ``Q dt`` per step.
+    R : float, array_like
+        Covariance of one sample of the signals.
+    dt : float
+        Sample time [s].
+    sqrt : bool
+        Square-root form: the covariance input/outputs are ``S`` (``P = S Sᵀ``), named
+        ``S``, ``S_next``.
+    coriolis, stiffness_scale
+        Estimator-model variations (:meth:`FlexiblePlant.coefficients`).
+    rigid_removed : bool
+        The signals given are ``y − y_rigid(u)`` (rigid-motion part of the accelerometers
+        removed, e.g. before a high-pass prefilter); the model subtracts it as well.
+    linear_measurement : bool
+        Use the measurement model linearised at Δ = 0 (eq. 164–167) instead of the full
+        kinematic one (default). Cheaper, but the neglected second-order terms (e.g. the
+        centripetal acceleration of the flexible rotation rates) reach 0.5 m/s² for the
+        Table 8 arm, whose tip deflects by several cm: the velocity estimates fail.
+    prefilter : float, optional
+        Cut-off ω_c [rad/s] of a first-order high-pass applied to the signals against
+        offsets (§5.5.1.1; :func:`highpass_cutoff` gives one decade below the lowest
+        natural frequency). The same filter is applied to the predicted signals
+        ``h(x̂⁻, u)`` and the innovation is the difference of the two filtered signals:
+        filtering the measurements alone (the dissertation's set-up) also removes the
+        low-frequency part of the flexible signals during a move, which biases the
+        velocity estimates. Adds the input ``f`` and output ``f_next`` (filter state,
+        4 r numbers, start at 0: the filter at rest).
+    name : str
+
+    Returns
+    -------
+    casadi.Function
+        ``(x, P, u, y, mask[, f]) -> (x_next, P_next, x_post[, f_next])``: the prior of the
+        next step, its covariance, and the filtered estimate ``x̂_{k|k}``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> f = ekf_step_function(tabulate_plant(model), ss, 5e-6, 9e-14, 1e-3)
+    >>> x1, P1, xp = f([1e-3, 0], np.eye(2) * 1e-4, np.zeros(9), [0, 0], [1, 1])
+    >>> bool(abs(float(xp[0])) < 1e-4)   # strain zero: the estimate moves toward δ = 0
+    True
+    """
+    from casflex.sensors import kinematic_measurement
+
+    model = plant.model
+    n, m = model.n, model.m
+    nx = 2 * m
+    ny = sensors.n_outputs
+    dt = float(dt)
+    if not dt > 0:
+        raise ModelError(f"dt must be > 0 [s]; got {dt}")
+    Qc = _as_cov(Q, nx, "Q")
+    Rm_ = _as_cov(R, ny, "R")
+    hkin = kinematic_measurement(model, sensors)
+    x = ca.SX.sym("x", nx)
+    Pin = ca.SX.sym("S" if sqrt else "P", nx, nx)
+    u = ca.SX.sym("u", 3 * n)
+    y = ca.SX.sym("y", ny)
+    mask = ca.SX.sym("mask", ny)
+    filt = ca.SX.sym("f", 4 * ny)
+    q, dq, ddq = u[:n], u[n:2 * n], u[2 * n:]
+    # placeholders: no derivative ever flows into the coefficient tables (AD through the
+    # spline call nodes would evaluate their derivative splines for nothing)
+    coef = plant.coefficients(q, dq, ddq, coriolis, stiffness_scale)
+    r0, Jd, Jv = ca.SX.sym("r0", m), ca.SX.sym("Jd", m, m), ca.SX.sym("Jv", m, m)
+    holders = ca.vertcat(r0, ca.vec(Jd), ca.vec(Jv))
+    values = ca.vertcat(coef[0], ca.vec(coef[1]), ca.vec(coef[2]))
+
+    def accel(xx):
+        return r0 + Jd @ xx[:m] + Jv @ xx[m:]
+
+    def f(xx):
+        return ca.vertcat(xx[m:], accel(xx))
+
+    if linear_measurement:
+        # eq. 164: y = h0(u) + ∂h/∂x x + ∂h/∂δ̈ δ̈ at Δ = 0, δ̈ from the plant
+        xs, acs = ca.SX.sym("xs", nx), ca.SX.sym("acs", m)
+        hs = hkin(xs, u, acs)
+        zero = ca.DM.zeros(nx + m)
+        Jx = ca.substitute(ca.jacobian(hs, ca.vertcat(xs, acs)), ca.vertcat(xs, acs), zero)
+        h0 = ca.substitute(hs, ca.vertcat(xs, acs), zero)
+        hx = h0 + Jx @ ca.vertcat(x, accel(x))
+        H = ca.jacobian(hx, x)
+    else:
+        # ∂h/∂[x; δ̈] in reverse mode (ny adjoint sweeps: much leaner than forward mode
+        # here), then the chain rule through δ̈ = r0 + Jd δ + Jv δ̇
+        xs, acs = ca.SX.sym("xs", nx), ca.SX.sym("acs", m)
+        hs = hkin(xs, u, acs)
+        Js = ca.jtimes(hs, ca.vertcat(xs, acs), ca.SX.eye(ny), True).T
+        sub = ca.vertcat(xs, acs)
+        val = ca.vertcat(x, accel(x))
+        hx = ca.substitute(hs, sub, val)
+        Jxa = ca.substitute(Js, sub, val)
+        H = Jxa[:, :nx] + Jxa[:, nx:] @ ca.horzcat(Jd, Jv)
+    if rigid_removed:
+        hx = hx - rigid_signal_function(model, sensors)(u)
+    valid = ca.vertcat(*[mask[i] > 0.5 for i in range(ny)])
+    if prefilter is not None:
+        # the same first-order high-pass (Tustin) on the signals and on the predicted
+        # signals; the innovation compares the two (offsets and the low-frequency part
+        # drop out of both). State f = [y_prev, hp_y, h_prev, hp_h]; a missing sample
+        # holds the filter of its channel.
+        wc = float(prefilter)
+        if not wc > 0:
+            raise ModelError(f"prefilter cut-off must be > 0 [rad/s]; got {prefilter}")
+        fa = (2.0 - wc * dt) / (2.0 + wc * dt)
+        fb = 2.0 / (2.0 + wc * dt)
+        yprev, hpy, hprev, hph = (filt[i * ny:(i + 1) * ny] for i in range(4))
+        yin = ca.vertcat(*[ca.if_else(valid[i], y[i], yprev[i]) for i in range(ny)])
+        hin = ca.vertcat(*[ca.if_else(valid[i], hx[i], hprev[i]) for i in range(ny)])
+        hpy_n = fa * hpy + fb * (yin - yprev)
+        hph_n = fa * hph + fb * (hin - hprev)
+        f_next = ca.vertcat(yin, hpy_n, hin, hph_n)
+        e = ca.vertcat(*[ca.if_else(valid[i], hpy_n[i] - hph_n[i], 0) for i in range(ny)])
+    else:
+        e = ca.vertcat(*[ca.if_else(valid[i], y[i] - hx[i], 0) for i in range(ny)])
+    Mv = ca.diag(valid)
+    Hm = Mv @ H
+    Rm = Mv @ ca.DM(Rm_) @ Mv + ca.diag(1 - valid)
+    I = ca.SX.eye(nx)
+    if not sqrt:
+        P = 0.5 * (Pin + Pin.T)
+        PHt = P @ Hm.T
+        Sinn = Hm @ PHt + Rm
+        Ls = _chol(Sinn)
+        Kt = _upper_solve(Ls.T, _lower_solve(Ls, PHt.T))  # K^T = S^-1 H P
+        K = Kt.T
+        xp = x + K @ e
+        IKH = I - K @ Hm
+        Pp = IKH @ P @ IKH.T + K @ Rm @ K.T
+        Pp = 0.5 * (Pp + Pp.T)
+    else:
+        S = Pin
+        sqR = _chol(Rm)
+        pre = ca.blockcat([[sqR, Hm @ S], [ca.SX(nx, ny), S]])
+        post = _tria(pre)
+        Se, Kbar, Sp = post[:ny, :ny], post[ny:, :ny], post[ny:, ny:]
+        xp = x + Kbar @ _lower_solve(Se, e)
+    # prediction: one RK4 step of the (affine) plant, coefficients held at u_k
+    xs = ca.SX.sym("xs", nx)
+    k1 = f(xs)
+    k2 = f(xs + 0.5 * dt * k1)
+    k3 = f(xs + 0.5 * dt * k2)
+    k4 = f(xs + dt * k3)
+    xn_s = xs + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    Phi_s = ca.jacobian(xn_s, xs)
+    xn = ca.substitute(xn_s, xs, xp)
+    Phi = ca.substitute(Phi_s, xs, xp)
+    Qd = Qc * dt
+    if not sqrt:
+        Pn = Phi @ Pp @ Phi.T + ca.DM(Qd)
+        Pn = 0.5 * (Pn + Pn.T)
+    else:
+        sqQ = ca.DM(np.linalg.cholesky(Qd) if np.all(np.linalg.eigvalsh(Qd) > 0)
+                    else _psd_sqrt(Qd))
+        Pn = _tria(ca.horzcat(Phi @ Sp, sqQ))
+    cov = "S" if sqrt else "P"
+    ins, names_in = [x, Pin, u, y, mask], ["x", cov, "u", "y", "mask"]
+    outs, names_out = [xn, Pn, xp], ["x_next", cov + "_next", "x_post"]
+    if prefilter is not None:
+        ins.append(filt)
+        names_in.append("f")
+        outs.append(f_next)
+        names_out.append("f_next")
+    outs = ca.substitute(outs, [holders], [values])
+    return ca.Function(name, ins, outs, names_in, names_out)
+
+
+def _psd_sqrt(A):
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    return V @ np.diag(np.sqrt(np.clip(w, 0, None)))
+
+
+def rigid_signal_function(model, sensors):
+    """``u -> y_rigid``: the rigid-motion part contained in the signals (zero for strain
+    gauges and for accelerometers declared with ``rigid = false``).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, Accelerometer
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, axes="z")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> float(rigid_signal_function(model, ss)(np.zeros(9)))  # local z points down
+    -9.81
+    """
+    from casflex.sensors import kinematic_measurement
+
+    return kinematic_measurement(model, sensors, name="y_rigid", rigid_part=True)
+
+
+def ekf_functions(model, sensors, Q, R, dt, *, plant=None, sqrt=False, coriolis=True,
+                  stiffness_scale=1.0, rigid_removed=False, prefix=""):
+    """The named functions of a real-time estimator, ready to combine or generate.
+
+    Returns
+    -------
+    dict of str to casadi.Function
+        ``ekf_step`` (:func:`ekf_step_function`), ``measurement`` ``(x, u, dddelta) -> y``
+        (kinematic model), ``plant`` ``u -> (r0, Jd, Jv)``, ``rigid_signals`` ``u ->
+        y_rigid``. Names get ``prefix``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> sorted(ekf_functions(model, ss, 5e-6, 9e-14, 1e-3))
+    ['ekf_step', 'measurement', 'plant', 'rigid_signals']
+    """
+    from casflex.sensors import kinematic_measurement
+
+    if plant is None:
+        plant = tabulate_plant(model)
+    step = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt, coriolis=coriolis,
+                             stiffness_scale=stiffness_scale, rigid_removed=rigid_removed,
+                             name=prefix + "ekf_step")
+
+    def rename(f, new):
+        return ca.Function(new, f.sx_in(), f.call(f.sx_in()), f.name_in(), f.name_out())
+
+    return {
+        "ekf_step": step,
+        "measurement": rename(kinematic_measurement(model, sensors), prefix + "measurement"),
+        "plant": rename(plant.function(coriolis, stiffness_scale), prefix + "plant"),
+        "rigid_signals": rename(rigid_signal_function(model, sensors),
+                                prefix + "rigid_signals"),
+    }
+
+
+# ----------------------------------------------------------------------------- runs
+
+
+@dataclass
+class EKFResult:
+    """Estimates over a run.
+
+    Attributes
+    ----------
+    x : numpy.ndarray
+        (N, 2m) filtered estimates ``x̂_{k|k}``.
+    x_prior : numpy.ndarray
+        (N + 1, 2m) priors ``x̂_{k|k−1}`` (row 0: the initial guess).
+    P : numpy.ndarray
+        (N + 1, 2m, 2m) prior covariances (``S Sᵀ`` for the square-root form).
+    """
+
+    x: np.ndarray
+    x_prior: np.ndarray
+    P: np.ndarray
+
+
+def prefilter_initial(plant, sensors, x0, u0, y0):
+    """Prefilter state in steady state at the first sample: ``[y0, 0, h(x̂0, u0), 0]``.
+
+    The difference between the first signals and their prediction is taken as an offset
+    and removed from the start (a filter started at rest would let it decay with
+    ``1/ω_c`` instead).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> prefilter_initial(tabulate_plant(model), ss, [0, 0], np.zeros(9), [1e-6, 0]).size
+    8
+    """
+    from casflex.sensors import kinematic_measurement
+
+    n, m = plant.n, plant.m
+    u0 = np.asarray(u0, dtype=float)
+    x0 = np.asarray(x0, dtype=float)
+    r0, Jd, Jv = (np.asarray(v) for v in plant.function()(u0))
+    acc = r0.ravel() + Jd @ x0[:m] + Jv @ x0[m:]
+    h0 = np.asarray(kinematic_measurement(plant.model, sensors)(x0, u0, acc)).ravel()
+    y0 = np.asarray(y0, dtype=float).ravel()
+    y0 = np.where(np.isfinite(y0), y0, h0)
+    del n
+    return np.concatenate([y0, np.zeros_like(y0), h0, np.zeros_like(h0)])
+
+
+def highpass_cutoff(model, q):
+    """Cut-off one decade below the lowest natural frequency at ``q`` [rad/s] (§5.5.1.1).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> round(highpass_cutoff(model, [0, 0, 0]), 3)
+    0.831
+    """
+    w = ca.Function("w", [model.q], [model.omega])(np.asarray(q, dtype=float))
+    return float(np.min(np.asarray(w))) / 10.0
+
+
+def highpass(signal, dt, omega_c, start="rest"):
+    """First-order high-pass filter ``s / (s + ω_c)`` (Tustin) of sampled signals.
+
+    Parameters
+    ----------
+    signal : array_like
+        (N,) or (N, channels).
+    dt : float
+        Sample time [s].
+    omega_c : float
+        Cut-off [rad/s].
+    start : {"rest", "first"}
+        ``"rest"``: the filter is at rest and the input zero before the first sample (an
+        offset present from the start is a step that decays with ``1/ω_c``);
+        ``"first"``: the input was the first sample forever (the first sample is
+        removed at once — right for a pure offset, wrong when the first sample carries
+        signal).
+
+    Examples
+    --------
+    >>> y = highpass(np.full(2000, 0.5), 1e-3, 1.0, start="first")
+    >>> float(abs(y).max())
+    0.0
+    >>> round(float(highpass(np.full(2000, 0.5), 1e-3, 1.0)[-1]), 4)   # 0.5 exp(-2)
+    0.0677
+    """
+    x = np.asarray(signal, dtype=float)
+    if start not in ("rest", "first"):
+        raise ModelError(f"start must be 'rest' or 'first'; got {start!r}")
+    a = (2.0 - omega_c * dt) / (2.0 + omega_c * dt)
+    b = 2.0 / (2.0 + omega_c * dt)
+    out = np.empty_like(x)
+    prev_x = x[0] if start == "first" else np.zeros_like(x[0])
+    prev_y = np.zeros_like(x[0])
+    for k in range(x.shape[0]):
+        prev_y = a * prev_y + b * (x[k] - prev_x)
+        prev_x = x[k]
+        out[k] = prev_y
+    return out
+
+
+def run_ekf(step, u, y, x0, P0, mask=None, f0=None):
+    """Run an EKF step function over recorded arrays (one CasADi ``mapaccum`` call).
+
+    Parameters
+    ----------
+    step : casadi.Function
+        From :func:`ekf_step_function` (plain or square-root form; give ``P0`` as ``S0``
+        for the latter).
+    u : array_like
+        (N, 3n) measured ``[q, q̇, q̈]``.
+    y : array_like
+        (N, r) signals; NaN marks a missing sample.
+    x0, P0 : array_like
+        Initial guess and its covariance (or square root).
+    mask : array_like, optional
+        (N, r) 1/0 validity; default ``isfinite(y)``.
+    f0 : array_like, optional
+        Initial prefilter state (steps with ``prefilter``); default 0, the filter at rest.
+        :func:`prefilter_initial` starts it in steady state on the first samples.
+
+    Returns
+    -------
+    EKFResult
+
+    Examples
+    --------
+    >>> import casadi as ca
+    >>> x, P, u, y, k = [ca.SX.sym(s) for s in "xPuyk"]
+    >>> f = ca.Function("s", [x, P, u, y, k], [x + 1, P, x], ["x", "P", "u", "y", "mask"],
+    ...                 ["x_next", "P_next", "x_post"])
+    >>> run_ekf(f, np.zeros((3, 1)), np.zeros((3, 1)), [0.0], [[1.0]]).x.ravel().tolist()
+    [0.0, 1.0, 2.0]
+    """
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    y = np.asarray(y, dtype=float)
+    if y.ndim == 1:
+        y = y[:, None]
+    N = u.shape[0]
+    if y.shape[0] != N:
+        raise ModelError(f"u has {N} samples but y has {y.shape[0]}")
+    valid = np.isfinite(y)
+    if mask is not None:
+        valid &= np.asarray(mask, dtype=bool)
+    yc = np.where(valid, y, 0.0)
+    nx = step.size1_in(0)
+    args = [np.asarray(x0, dtype=float).reshape(nx, 1), np.asarray(P0, dtype=float),
+            u.T, yc.T, valid.astype(float).T]
+    if step.n_in() == 6:  # prefilter state
+        F = step.mapaccum("ekf_run", N, [0, 1, 5], [0, 1, 3])
+        args.append(np.zeros(step.size1_in(5)) if f0 is None else np.asarray(f0, float))
+    else:
+        F = step.mapaccum("ekf_run", N, [0, 1], [0, 1])
+    out = F(*args)
+    xn = np.asarray(out[0]).T
+    Pn = np.asarray(out[1]).reshape(nx, N, nx).transpose(1, 0, 2)
+    xp = np.asarray(out[2]).T
+    sqrt = step.name_in(1) == "S"
+    if sqrt:
+        Pn = np.einsum("nij,nkj->nik", Pn, Pn)
+        S0 = np.asarray(P0, dtype=float)
+        P0m = S0 @ S0.T
+    else:
+        P0m = np.asarray(P0, dtype=float)
+    return EKFResult(x=xp, x_prior=np.vstack([np.asarray(x0, dtype=float).ravel(), xn]),
+                     P=np.concatenate([P0m[None], Pn]))
+
+
+# ----------------------------------------------------------------------------- data
+
+
+@dataclass
+class SimulatedData:
+    """Simulated sensor data of a prescribed joint motion (:func:`simulate_data`).
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        (N,) sample times [s].
+    u : numpy.ndarray
+        (N, 3n) exact ``[q, q̇, q̈]``.
+    x : numpy.ndarray
+        (N, 2m) true ``[δ, δ̇]``.
+    y_clean, y : numpy.ndarray
+        (N, r) exact signals and signals with noise (and offset).
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    x: np.ndarray
+    y_clean: np.ndarray
+    y: np.ndarray
+
+
+def simulate_data(model, sensors, move, dt=1e-3, t_end=None, noise=None, offset=0.0,
+                  seed=0, x0=None):
+    """Integrate the model's flexible rows along a move and sample the sensors.
+
+    The truth uses the exact (nonlinear) flexible rows of the model
+    (:func:`exact_plant_function`) with classical RK4 at step ``dt``, the joint motion
+    evaluated at the RK4 stage times, and the exact measurement model
+    (:func:`casflex.sensors.measurement_function`).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    sensors : casflex.sensors.SensorSet
+    move : casflex.moves.Move
+    dt : float
+        Sample and integration step [s].
+    t_end : float, optional
+        Default ``move.t_end``.
+    noise : float or array_like, optional
+        Standard deviation(s) of white noise added per sample (default the sensors'
+        ``noise``, 0 where none is given).
+    offset : float or array_like
+        Constant offset added to every signal (sensor bias).
+    seed : int
+    x0 : array_like, optional
+        Initial flexible state (default 0).
+
+    Returns
+    -------
+    SimulatedData
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None)
+    >>> d = simulate_data(model, ss, Move([0, 0, 0], [0, -1, 0], 0.2), t_end=0.05)
+    >>> d.x.shape, d.y.shape
+    ((51, 2), (51, 2))
+    """
+    from casflex.sensors import measurement_function
+
+    n, m = model.n, model.m
+    t_end = move.t_end if t_end is None else float(t_end)
+    N = int(round(t_end / dt)) + 1
+    t = np.arange(N) * dt
+    fex = exact_plant_function(model)
+    ut = ca.SX.sym("ut", 3 * n, 3)  # inputs at t, t + dt/2, t + dt
+    xs = ca.SX.sym("x", 2 * m)
+
+    def f(xx, uu):
+        return ca.vertcat(xx[m:], fex(uu, xx))
+
+    k1 = f(xs, ut[:, 0])
+    k2 = f(xs + 0.5 * dt * k1, ut[:, 1])
+    k3 = f(xs + 0.5 * dt * k2, ut[:, 1])
+    k4 = f(xs + dt * k3, ut[:, 2])
+    step = ca.Function("rk4", [xs, ut], [xs + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)])
+
+    def sample(times):
+        q, qd, qdd = move.sample(times)
+        return np.hstack([q, qd, qdd])
+
+    u0 = sample(t[:-1])
+    uh = sample(t[:-1] + 0.5 * dt)
+    u1 = sample(t[1:])
+    U = np.stack([u0, uh, u1], axis=2)  # (N-1, 3n, 3)
+    # mapaccum takes the per-step (3n x 3) inputs side by side
+    Ucat = np.hstack([U[k] for k in range(N - 1)]) if N > 1 else np.zeros((3 * n, 0))
+    xinit = np.zeros(2 * m) if x0 is None else np.asarray(x0, dtype=float)
+    if N > 1:
+        X = np.asarray(step.mapaccum("sim", N - 1)(xinit, Ucat)).T
+        X = np.vstack([xinit, X])
+    else:
+        X = xinit[None]
+    u = sample(t)
+    h = measurement_function(model, sensors)
+    Y = np.asarray(h.map(N)(X.T, u.T)[len(sensors)]).T
+    rng = np.random.default_rng(seed)
+    std = sensors.noise_std if noise is None else np.broadcast_to(
+        np.asarray(noise, dtype=float), (sensors.n_outputs,))
+    std = np.nan_to_num(std, nan=0.0)
+    Yn = Y + rng.normal(size=Y.shape) * std + np.asarray(offset, dtype=float)
+    return SimulatedData(t=t, u=u, x=X, y_clean=Y, y=Yn)

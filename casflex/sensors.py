@@ -1,0 +1,706 @@
+"""Accelerometer and strain-gauge models of a flexible arm (dissertation §5.3, §5.4.2–5.4.3).
+
+A sensor sits at arc length ``s`` [m] from the start of a flexible link (DH row ``row``).
+The measurement model is a :class:`casadi.Function` ``h(x, u)`` of the flexible state
+``x = [δ; δ̇]`` and the measured joint motion ``u = [q; q̇; q̈]`` (eq. 168–169, 174), with
+one named output per sensor (and ``y``, all of them stacked in declaration order).
+
+Accelerometers (eq. 145–153, 163–169)
+-------------------------------------
+The sensor point is ``p = T_b(q, δ) [s e_z + Σ_j δ_j w_j(s) + (I + [ϑ(s)δ ×]) o; 1]``
+with ``T_b`` the pose of the link's base frame (local beam frame at ``s = 0``: ``z``
+along the neutral axis, ``x``, ``y`` the section's principal axes, see
+:mod:`casflex.robot`), ``w_j``, ``ϑ_j`` the link-local deflection and rotation of mode
+``j`` (:mod:`casflex.modal.integrals`) and ``o`` an optional offset of the sensing
+element from the neutral axis, in the local beam frame [m]. The acceleration is the
+exact second time derivative of this position for the model's kinematics,
+
+``p̈ = J_X(p) Ẍ + (d/dt J_X(p)) Ẋ``,   ``X = [q; δ]``,
+
+which is eq. 148 (``T̈ r + 2 Ṫ ṙ + T r̈``) with the deflection of the inboard links in
+``T_b`` included, and with ``δ̈`` eliminated through the flexible rows of the equations of
+motion (eq. 157–158, :attr:`casflex.dynamics.FlexibleModel.prescribed_dddelta`).
+
+* ``frame = "sensor"`` (default): components along the axes of the deflected link at the
+  sensor, ``R = R_b (I + [ϑ(s)δ ×])`` (eq. 153); ``"inertial"``: base-frame components.
+* ``gravity = True`` (default, MEMS and other DC-coupled sensors): the sensor measures the
+  specific force ``p̈ − g`` (g the model's gravity vector); ``False``: ``p̈``.
+* ``rigid = True`` (default): the full signal; ``False``: the signal minus the one the same
+  sensor would give on the rigid arm (``δ = δ̇ = δ̈ = 0``), the adjusted acceleration of
+  eq. 163 (with gravity and frame applied consistently).
+
+Strain-gauge pairs (eq. 170–174)
+--------------------------------
+Bending strain at the surface of the link, ``ε = −c κ``, with ``κ_x = w_x''``,
+``κ_y = w_y''`` the curvatures of the link-local deflection (``w'' = d²w/ds²``,
+:mod:`casflex.modal.integrals` key ``point_curvature``) and ``c`` the distance [m] of the
+gauge from the neutral axis. Sign convention: ``ε_x`` is the axial strain of the gauge on
+the **+x face** of the section (tension positive): a deflection curving toward +x
+(``w_x'' > 0``) compresses that face. A half-bridge pair (gauges on the +x and −x faces)
+reports this value. The dissertation's eq. 170 writes ``ε = a_x w_x''``, the strain of the
+−x face; the sign does not matter to the estimator. ``ε_y`` likewise for the +y face.
+Axial and torsional strains are not modelled (eq. 170: insignificant for serial arms).
+The default ``c`` is the half depth of the section along that axis (rectangle and tube).
+
+Sensor files
+------------
+``[[sensor]]`` tables, in a sensor file or in the robot file; format in
+``problems/sensors/README.md`` (:func:`load_sensors`).
+
+Examples
+--------
+>>> import casadi as ca
+>>> from casflex.robot import load
+>>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+>>> robot = load("problems/arm2link.toml")
+>>> sensors = SensorSet([Accelerometer(3, 1.0, name="tip")])
+>>> provider = PointwiseProvider(robot, [0, 0, 0], count=2, points=sensors.points)
+>>> model = FlexibleModel(robot, provider, gravity=None)
+>>> h = measurement_function(model, sensors)
+>>> h.name_out()
+['tip', 'y']
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from casflex.errors import ModelError, ProblemFileError
+
+__all__ = [
+    "Accelerometer",
+    "StrainPair",
+    "SensorSet",
+    "load_sensors",
+    "sensors_from_tables",
+    "measurement_function",
+    "kinematic_measurement",
+    "point_position_function",
+    "default_strain_distance",
+]
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class Accelerometer:
+    """A (up to) three-axis accelerometer on a flexible link.
+
+    Parameters
+    ----------
+    row : int
+        DH row (0-based) of the flexible link.
+    s : float
+        Arc length from the link's start [m], ``0 <= s <= L``.
+    name : str
+        Output name (a C identifier); default ``acc<row>_<s>``.
+    offset : tuple of 3 float
+        Sensing element relative to the neutral axis at ``s``, local beam frame [m].
+    frame : {"sensor", "inertial"}
+        Components along the deflected link's axes or the base frame.
+    gravity : bool
+        Measure the specific force ``p̈ − g`` (MEMS) instead of ``p̈``.
+    rigid : bool
+        Keep the rigid-motion part (``False``: eq. 163, adjusted acceleration).
+    axes : str
+        Measured axes, a subset of ``"xyz"`` in order.
+    noise : float or None
+        Standard deviation of one sample [m/s²] (for the filter's ``R``).
+
+    Examples
+    --------
+    >>> Accelerometer(2, 1.0).outputs
+    ('acc2_1_x', 'acc2_1_y', 'acc2_1_z')
+    """
+
+    row: int
+    s: float
+    name: str = ""
+    offset: tuple = (0.0, 0.0, 0.0)
+    frame: str = "sensor"
+    gravity: bool = True
+    rigid: bool = True
+    axes: str = "xyz"
+    noise: float | None = None
+    kind: str = field(default="accelerometer", init=False)
+
+    def __post_init__(self):
+        if not self.name:
+            object.__setattr__(self, "name", _default_name("acc", self.row, self.s))
+        if self.frame not in ("sensor", "inertial"):
+            raise ModelError(f"accelerometer '{self.name}': frame must be 'sensor' or "
+                             f"'inertial'; got {self.frame!r}")
+        _check_axes(self.axes, "xyz", self.name)
+        object.__setattr__(self, "offset", tuple(float(v) for v in self.offset))
+
+    @property
+    def outputs(self):
+        """Names of the scalar signals, ``<name>_<axis>``."""
+        return tuple(f"{self.name}_{a}" for a in self.axes)
+
+
+@dataclass(frozen=True)
+class StrainPair:
+    """Bending strain-gauge pairs at one section of a flexible link.
+
+    Parameters
+    ----------
+    row : int
+        DH row (0-based) of the flexible link.
+    s : float
+        Arc length from the link's start [m].
+    distance : tuple of 2 float
+        Distance of the gauges from the neutral axis along local x and y [m] (the gauges
+        on the ±x faces measure bending ``w_x``, those on ±y bending ``w_y``).
+    name : str
+        Output name; default ``sg<row>_<s>``.
+    axes : str
+        Bending planes measured, a subset of ``"xy"``.
+    noise : float or None
+        Standard deviation of one sample [-].
+
+    Examples
+    --------
+    >>> StrainPair(2, 0.05, distance=(0.0035, 0.0025)).outputs
+    ('sg2_0p05_x', 'sg2_0p05_y')
+    """
+
+    row: int
+    s: float
+    distance: tuple = (0.0, 0.0)
+    name: str = ""
+    axes: str = "xy"
+    noise: float | None = None
+    kind: str = field(default="strain", init=False)
+
+    def __post_init__(self):
+        if not self.name:
+            object.__setattr__(self, "name", _default_name("sg", self.row, self.s))
+        _check_axes(self.axes, "xy", self.name)
+        object.__setattr__(self, "distance", tuple(float(v) for v in self.distance))
+
+    @property
+    def outputs(self):
+        """Names of the scalar signals, ``<name>_<axis>``."""
+        return tuple(f"{self.name}_{a}" for a in self.axes)
+
+
+def _default_name(prefix, row, s):
+    text = f"{float(s):g}".replace(".", "p").replace("-", "m")
+    return f"{prefix}{int(row)}_{text}"
+
+
+def _check_axes(axes, allowed, name):
+    if not isinstance(axes, str) or not axes or any(a not in allowed for a in axes) or \
+            "".join(sorted(set(axes))) != axes:
+        raise ModelError(f"sensor '{name}': axes must be a non-empty, ordered subset of "
+                         f"{allowed!r}; got {axes!r}")
+
+
+class SensorSet:
+    """An ordered set of sensors; the measurement vector stacks their axes in this order.
+
+    Parameters
+    ----------
+    sensors : sequence of Accelerometer or StrainPair
+    source : str, optional
+        File the sensors were read from.
+    points : sequence of (int, float), optional
+        The points the model tabulates, when they are more than (or ordered differently
+        from) the sensors' own points, e.g. one model for several sensor sets.
+
+    Attributes
+    ----------
+    sensors : tuple
+    points : list of (int, float)
+        The distinct sensor points ``(row, s)``, to pass as ``points`` to
+        :func:`casflex.model.build_model` / :class:`~casflex.dynamics.PointwiseProvider`.
+
+    Examples
+    --------
+    >>> ss = SensorSet([Accelerometer(2, 1.0, name="a"), StrainPair(2, 0.05, (1e-3, 1e-3),
+    ...                                                             name="b")])
+    >>> ss.n_outputs, ss.points
+    (5, [(2, 1.0), (2, 0.05)])
+    """
+
+    def __init__(self, sensors, source=None, points=None):
+        self.sensors = tuple(sensors)
+        self.source = source
+        names = set()
+        for k, sen in enumerate(self.sensors):
+            if not isinstance(sen, (Accelerometer, StrainPair)):
+                raise ModelError(f"sensors[{k}] is a {type(sen).__name__}, not an "
+                                 "Accelerometer or StrainPair")
+            if sen.name in names or sen.name == "y":
+                raise ModelError(f"sensor name {sen.name!r} is used twice (or is the "
+                                 "reserved output 'y')")
+            names.add(sen.name)
+        self.points = [] if points is None else [(int(r), float(s)) for r, s in points]
+        given = points is not None
+        for sen in self.sensors:
+            key = (int(sen.row), float(sen.s))
+            if key not in self.points:
+                if given:
+                    raise ModelError(f"sensor '{sen.name}' at (row {key[0]}, s = {key[1]} m) "
+                                     f"is not among the given points {self.points}")
+                self.points.append(key)
+
+    def __len__(self):
+        return len(self.sensors)
+
+    def __iter__(self):
+        return iter(self.sensors)
+
+    @property
+    def n_outputs(self):
+        """Length of the stacked measurement vector."""
+        return sum(len(s.axes) for s in self.sensors)
+
+    @property
+    def output_names(self):
+        """Names of the scalar signals in stacking order."""
+        return tuple(n for s in self.sensors for n in s.outputs)
+
+    @property
+    def noise_std(self):
+        """Per-signal standard deviations (NaN where a sensor gives none)."""
+        out = []
+        for s in self.sensors:
+            out += [np.nan if s.noise is None else float(s.noise)] * len(s.axes)
+        return np.array(out)
+
+    def point_index(self, sensor):
+        """Index of ``sensor``'s point in :attr:`points`."""
+        return self.points.index((int(sensor.row), float(sensor.s)))
+
+    def with_options(self, **changes):
+        """A copy with the given fields changed on every accelerometer (e.g. ``rigid``).
+
+        Examples
+        --------
+        >>> ss = SensorSet([Accelerometer(2, 1.0)]).with_options(rigid=False)
+        >>> ss.sensors[0].rigid
+        False
+        """
+        from dataclasses import replace
+
+        out = []
+        for s in self.sensors:
+            ok = {k: v for k, v in changes.items() if hasattr(s, k)}
+            out.append(replace(s, **ok) if ok else s)
+        return SensorSet(out, self.source, self.points)
+
+
+def default_strain_distance(section):
+    """Half depths ``(c_x, c_y)`` [m] of a rectangle or tube section (NaN otherwise).
+
+    Examples
+    --------
+    >>> from casflex.robot import Section
+    >>> [round(v, 6) for v in default_strain_distance(Section.rectangle(0.005, 0.007))]
+    [0.0035, 0.0025]
+    """
+    if section.kind == "rectangle":
+        return (math.sqrt(3.0 * section.Iy / section.A), math.sqrt(3.0 * section.Ix / section.A))
+    if section.kind == "tube":
+        ro = math.sqrt(0.5 * (4.0 * section.Ix / section.A + section.A / math.pi))
+        return (ro, ro)
+    return (float("nan"), float("nan"))
+
+
+# ------------------------------------------------------------------ file reading
+
+
+def _err(path, field_, value, rule):
+    return ProblemFileError(path, field_, value, rule)
+
+
+def _number(path, raw, key, fld, default=None, required=False):
+    if key not in raw:
+        if required:
+            raise _err(path, fld, None, "is required but missing")
+        return default
+    v = raw[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise _err(path, fld, v, "must be a finite number")
+    return float(v)
+
+
+def _resolve_row(path, robot, value, fld):
+    if isinstance(value, bool):
+        raise _err(path, fld, value, "must be a link name or a 0-based DH row index")
+    if isinstance(value, int):
+        if not 0 <= value < len(robot.links):
+            raise _err(path, fld, value, f"row index out of range: robot '{robot.name}' "
+                                         f"has rows 0..{len(robot.links) - 1}")
+        row = value
+    elif isinstance(value, str):
+        names = [link.name for link in robot.links]
+        if value not in names:
+            raise _err(path, fld, value, f"unknown link; robot '{robot.name}' has links "
+                                         f"{names}")
+        row = names.index(value)
+    else:
+        raise _err(path, fld, value, "must be a link name or a 0-based DH row index")
+    if not robot.links[row].flexible:
+        flex = [link.name for link in robot.links if link.flexible]
+        raise _err(path, fld, value, f"link '{robot.links[row].name}' is rigid; sensors sit "
+                                     f"on flexible links {flex}")
+    return row
+
+
+_ACC_KEYS = {"name", "type", "link", "s", "offset", "frame", "gravity", "rigid", "axes",
+             "noise"}
+_SG_KEYS = {"name", "type", "link", "s", "distance", "axes", "noise"}
+
+
+def sensors_from_tables(tables, robot, path=None):
+    """Build a :class:`SensorSet` from parsed ``[[sensor]]`` tables.
+
+    Parameters
+    ----------
+    tables : list of dict
+        The ``sensor`` array of a TOML file (format in ``problems/sensors/README.md``).
+    robot : casflex.robot.Robot
+        The robot the sensors are mounted on (links, lengths and sections are checked).
+    path : str, optional
+        File name for error messages.
+
+    Returns
+    -------
+    SensorSet
+
+    Raises
+    ------
+    ProblemFileError
+        Unknown keys, links or types; a point beyond the link length; bad values.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = sensors_from_tables([{"type": "strain", "link": "link1", "s": 0.05}], robot)
+    >>> [round(c, 4) for c in ss.sensors[0].distance]
+    [0.0035, 0.0025]
+    """
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise _err(path, "sensor", tables, "must be an array of tables ([[sensor]])")
+    if not tables:
+        raise _err(path, "sensor", tables, "declare at least one [[sensor]]")
+    out = []
+    for i, raw in enumerate(tables):
+        pre = f"sensor[{i}]"
+        kind = raw.get("type")
+        if kind not in ("accelerometer", "strain"):
+            raise _err(path, f"{pre}.type", kind, "must be 'accelerometer' or 'strain'")
+        allowed = _ACC_KEYS if kind == "accelerometer" else _SG_KEYS
+        unknown = sorted(set(raw) - allowed)
+        if unknown:
+            raise _err(path, f"{pre}.{unknown[0]}", raw[unknown[0]],
+                       f"unknown key for a {kind}; known keys are {sorted(allowed)}")
+        if "link" not in raw:
+            raise _err(path, f"{pre}.link", None, "is required: a link name or row index")
+        row = _resolve_row(path, robot, raw["link"], f"{pre}.link")
+        link = robot.links[row]
+        s = _number(path, raw, "s", f"{pre}.s", required=True)
+        if not 0.0 <= s <= link.length * (1 + 1e-12):
+            raise _err(path, f"{pre}.s", s, f"must lie on the link: 0 <= s <= {link.length} m "
+                                            f"(length of '{link.name}')")
+        name = raw.get("name", "")
+        if not isinstance(name, str) or (name and not name.isidentifier()):
+            raise _err(path, f"{pre}.name", name, "must be a C identifier "
+                                                  "([A-Za-z_][A-Za-z0-9_]*)")
+        axes = raw.get("axes", "xyz" if kind == "accelerometer" else "xy")
+        noise = _number(path, raw, "noise", f"{pre}.noise")
+        if noise is not None and noise <= 0:
+            raise _err(path, f"{pre}.noise", noise, "must be > 0 (a standard deviation)")
+        try:
+            if kind == "accelerometer":
+                off = raw.get("offset", [0.0, 0.0, 0.0])
+                if not (isinstance(off, list) and len(off) == 3 and all(
+                        isinstance(v, (int, float)) and not isinstance(v, bool)
+                        and math.isfinite(v) for v in off)):
+                    raise _err(path, f"{pre}.offset", off, "must be a list of 3 finite "
+                                                           "numbers [m]")
+                flags = {}
+                for key in ("gravity", "rigid"):
+                    v = raw.get(key, True)
+                    if not isinstance(v, bool):
+                        raise _err(path, f"{pre}.{key}", v, "must be true or false")
+                    flags[key] = v
+                frame = raw.get("frame", "sensor")
+                if frame not in ("sensor", "inertial"):
+                    raise _err(path, f"{pre}.frame", frame, "must be 'sensor' or 'inertial'")
+                sen = Accelerometer(row, s, name=name, offset=tuple(off), frame=frame,
+                                    axes=axes, noise=noise, **flags)
+            else:
+                dist = raw.get("distance")
+                default = default_strain_distance(link.section)
+                if dist is None:
+                    if not all(math.isfinite(c) for c in default):
+                        raise _err(path, f"{pre}.distance", None,
+                                   "is required for an 'explicit' section (no depth known)")
+                    dist = default
+                elif isinstance(dist, (int, float)) and not isinstance(dist, bool):
+                    dist = (float(dist), float(dist))
+                if not (isinstance(dist, (list, tuple)) and len(dist) == 2 and all(
+                        isinstance(v, (int, float)) and not isinstance(v, bool)
+                        and math.isfinite(v) and v > 0 for v in dist)):
+                    raise _err(path, f"{pre}.distance", dist,
+                               "must be a positive number or [c_x, c_y] in m")
+                sen = StrainPair(row, s, distance=tuple(dist), name=name, axes=axes,
+                                 noise=noise)
+        except ModelError as exc:
+            raise _err(path, f"{pre}.axes", axes, str(exc)) from exc
+        out.append(sen)
+    try:
+        return SensorSet(out, source=None if path is None else str(path))
+    except ModelError as exc:
+        raise _err(path, "sensor", [s.name for s in out], str(exc)) from exc
+
+
+def load_sensors(path, robot):
+    """Read the ``[[sensor]]`` tables of a sensor file (or of a robot file).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        TOML file; other top-level keys allowed: ``description``, ``robot`` (path of the
+        robot file, relative to this file; informative) and, in a robot file, the robot's
+        own keys.
+    robot : casflex.robot.Robot
+
+    Returns
+    -------
+    SensorSet
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> load_sensors("problems/sensors/arm2link_accel.toml", robot).output_names[:3]
+    ('tip1_x', 'tip1_y', 'tip1_z')
+    """
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise _err(path, "<file>", str(path), f"cannot be read: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise _err(path, "<toml>", None, f"is not valid TOML: {exc}") from exc
+    if "sensor" not in data:
+        raise _err(path, "sensor", None, "is required: at least one [[sensor]] table")
+    if "link" not in data:  # a sensor file: nothing else allowed
+        unknown = sorted(set(data) - {"sensor", "description", "robot"})
+        if unknown:
+            raise _err(path, unknown[0], data[unknown[0]],
+                       "unknown key; a sensor file has 'description', 'robot' and "
+                       "[[sensor]] tables")
+    return sensors_from_tables(data["sensor"], robot, path)
+
+
+# ------------------------------------------------------------------ symbolic models
+
+
+def _beam_body(model, row):
+    for body in model.bodies:
+        if body["kind"] == "beam" and body["row"] == row:
+            return body
+    flex = [b["row"] for b in model.bodies if b["kind"] == "beam"]
+    raise ModelError(f"row {row} carries no flexible link in the model; flexible rows are "
+                     f"{flex}")
+
+
+def _point_data(model, sensors):
+    """Provider's point quantities as SX of q (filled), checked against the sensor points."""
+    P = len(sensors.points)
+    m = model.m
+    data = {}
+    for key, width in (("point_u", 3), ("point_theta", 3), ("point_curvature", 2)):
+        try:
+            f = model.provider.function(key)
+        except Exception as exc:  # noqa: BLE001  (provider-specific error types)
+            raise ModelError(f"the model's provider has no {key!r}: build it with "
+                             f"points={sensors.points} (e.g. build_model(..., points=...))"
+                             ) from exc
+        if f.numel_out(0) != P * m * width:
+            raise ModelError(f"the provider tabulates {f.numel_out(0) // max(m * width, 1)} "
+                             f"sensor points; the sensors need {P}: {sensors.points} (build "
+                             "the model with points=sensors.points)")
+        data[key] = ca.SX(f(model.q_shape)) if P * m else ca.SX.zeros(P * m * width)
+    return data
+
+
+def _point_pose(model, sensors, data, sensor):
+    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ)."""
+    m = model.m
+    i = sensors.point_index(sensor)
+    T = _beam_body(model, sensor.row)["T"]
+    d = model.delta
+    w = ca.SX.zeros(3)
+    th = ca.SX.zeros(3)
+    for j in range(m):
+        k = (i * m + j) * 3
+        w += d[j] * data["point_u"][k:k + 3]
+        th += d[j] * data["point_theta"][k:k + 3]
+    Rl = ca.SX.eye(3) + ca.skew(th)
+    off = ca.DM(list(getattr(sensor, "offset", (0.0, 0.0, 0.0))))
+    local = ca.vertcat(0, 0, sensor.s) + w + Rl @ off
+    p = T[:3, :3] @ local + T[:3, 3]
+    return p, T[:3, :3] @ Rl
+
+
+def point_position_function(model, sensors):
+    """``casadi.Function`` ``(q, delta) -> (p_<name>, ...)``: sensor positions [m] in the base
+    frame, the model's kinematics (for independent checks of the accelerometer model).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> point_position_function(model, ss)([0, 0, 0], [0]).full().ravel().round(6).tolist()
+    [1.0, 0.0, -1.0]
+    """
+    data = _point_data(model, sensors)
+    outs = [_point_pose(model, sensors, data, s)[0] for s in sensors]
+    return ca.Function("sensor_positions", [model.q, model.delta], outs, ["q", "delta"],
+                       [f"p_{s.name}" for s in sensors])
+
+
+def _rigid_substitute(expr, model, extra=None):
+    syms = [model.delta, model.ddelta] + ([extra] if extra is not None else [])
+    v = ca.vertcat(*syms)
+    return ca.substitute(expr, v, ca.DM.zeros(v.numel()))
+
+
+def measurement_function(model, sensors, name="h"):
+    """The measurement model ``h(x, u)`` of a sensor set (eq. 169, 174), exact for the model.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+        Built with ``points=sensors.points`` (the provider must tabulate the sensor points).
+    sensors : SensorSet
+    name : str
+        Function name.
+
+    Returns
+    -------
+    casadi.Function
+        Inputs ``x = [δ; δ̇]`` (2m) and ``u = [q; q̇; q̈]`` (3n); one output per sensor
+        (its axes, in m/s² or strain) and ``y``, all stacked.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip", axes="z")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> h = measurement_function(model, ss)
+    >>> float(h(np.zeros(2), np.zeros(9))[0])   # at rest: g along the link's z (downward)
+    -9.81
+    """
+    dddelta = model.prescribed_dddelta
+    outs = _exact_signals(model, sensors, dddelta)
+    return _wrap(model, sensors, outs, name)
+
+
+def _exact_signals(model, sensors, dddelta):
+    acc = ca.SX.sym("acc_dd", model.m)
+    outs = _kin_signals(model, sensors, acc)
+    return [ca.substitute(o, acc, dddelta) for o in outs]
+
+
+def _kin_signals(model, sensors, acc):
+    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked."""
+    q, dq, ddq, d, dd = model.q, model.dq, model.ddq, model.delta, model.ddelta
+    X = ca.vertcat(q, d)
+    dX = ca.vertcat(dq, dd)
+    data = _point_data(model, sensors)
+    g = ca.DM(model.gravity)
+    outs = []
+    for sen in sensors:
+        i = sensors.point_index(sen)
+        if sen.kind == "strain":
+            kap = ca.SX.zeros(2)
+            for j in range(model.m):
+                k = (i * model.m + j) * 2
+                kap += d[j] * data["point_curvature"][k:k + 2]
+            eps = ca.vertcat(-sen.distance[0] * kap[0], -sen.distance[1] * kap[1])
+            outs.append(ca.vertcat(*[eps[_AXES[a]] for a in sen.axes]))
+            continue
+        p, R = _point_pose(model, sensors, data, sen)
+        v = ca.jtimes(p, X, dX)
+        a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ca.vertcat(ddq, acc))
+        if sen.gravity:
+            a = a - g
+        y = R.T @ a if sen.frame == "sensor" else a
+        if not sen.rigid:
+            y = y - _rigid_substitute(y, model, acc)
+        outs.append(ca.vertcat(*[y[_AXES[c]] for c in sen.axes]))
+    return outs
+
+
+def _wrap(model, sensors, outs, name):
+    x = ca.vertcat(model.delta, model.ddelta)
+    u = ca.vertcat(model.q, model.dq, model.ddq)
+    y = ca.vertcat(*outs) if outs else ca.SX(0, 1)
+    return ca.Function(name, [x, u], [*outs, y], ["x", "u"],
+                       [s.name for s in sensors] + ["y"])
+
+
+def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False):
+    """The measurement with ``δ̈`` as an input: ``(x, u, dddelta) -> y``.
+
+    The estimator substitutes its own (lean) model of the flexible accelerations; with
+    ``δ̈`` from eq. 158 it equals :func:`measurement_function`.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    sensors : SensorSet
+    name : str
+    rigid_part : bool
+        Return instead ``u -> y_rigid``: the signals of the same sensors on the rigid arm
+        (``δ = δ̇ = δ̈ = 0``), i.e. what ``rigid = False`` subtracts.
+
+    Returns
+    -------
+    casadi.Function
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> kinematic_measurement(model, ss).name_in()
+    ['x', 'u', 'dddelta']
+    """
+    acc = ca.SX.sym("dddelta", model.m)
+    x = ca.vertcat(model.delta, model.ddelta)
+    u = ca.vertcat(model.q, model.dq, model.ddq)
+    if rigid_part:
+        full = sensors.with_options(rigid=True)
+        outs = _kin_signals(model, full, acc)
+        keep = []
+        for sen, o in zip(sensors, outs, strict=True):
+            if sen.kind == "accelerometer" and sen.rigid:
+                keep.append(_rigid_substitute(o, model, acc))
+            else:
+                keep.append(ca.DM.zeros(o.numel()))
+        return ca.Function(name, [u], [ca.vertcat(*keep)], ["u"], ["y_rigid"])
+    y = ca.vertcat(*_kin_signals(model, sensors, acc))
+    return ca.Function(name, [x, u, acc], [y], ["x", "u", "dddelta"], ["y"])

@@ -1,0 +1,140 @@
+"""Generated C of the EKF and of the model: built, loaded back, compared with Python."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from casflex import codegen
+from casflex.cli import main
+from casflex.estimation import ekf_step_function, run_ekf, simulate_data, tabulate_plant
+from casflex.model import build_model
+from casflex.moves import load_move
+from casflex.robot import load
+from casflex.rtcode import covariance_run, ekf_bundle, model_bundle
+from casflex.sensors import load_sensors
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
+Q, R, DT = 5e-6, (250e-6 * 9.8) ** 2, 1e-3
+
+
+@pytest.fixture(scope="module")
+def setup():
+    robot = load(ROOT / "problems/arm2link.toml")
+    sensors = load_sensors(ROOT / "problems/sensors/arm2link_accel.toml", robot)
+    model, _ = build_model(robot, n_modes=3, step=np.radians(30), cache_dir=False,
+                           processes=1, points=sensors.points, gravity=None)
+    plant = tabulate_plant(model, check=False)
+    return model, sensors, plant
+
+
+@pytest.fixture(scope="module")
+def ekf_lib(setup, tmp_path_factory):
+    model, sensors, plant = setup
+    bundle = ekf_bundle(model, sensors, tmp_path_factory.mktemp("ekf"), Q, R, DT, plant=plant)
+    return bundle, codegen.build(bundle, flags=("-O1",))
+
+
+def _rel(a, b):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+def test_ekf_step_c_equals_python(setup, ekf_lib):
+    model, sensors, plant = setup
+    bundle, lib = ekf_lib
+    rng = np.random.default_rng(0)
+    step_py = ekf_step_function(plant, sensors, Q, R, DT)
+    step_c = codegen.load(lib, "ekf_step")
+    for _ in range(5):
+        A = rng.normal(size=(6, 6))
+        args = [1e-3 * rng.normal(size=6), 1e-4 * (A @ A.T + np.eye(6)),
+                np.r_[rng.uniform(-3, 3, 3), rng.normal(size=6)], rng.normal(size=6),
+                (rng.uniform(size=6) > 0.2).astype(float)]
+        for a, b in zip(step_c(*args), step_py(*args), strict=True):
+            assert _rel(a, b) < 1e-10
+    meas_c = codegen.load(lib, "measurement")
+    from casflex.sensors import kinematic_measurement
+
+    meas_py = kinematic_measurement(model, sensors)
+    args = [1e-3 * rng.normal(size=6), rng.normal(size=9), rng.normal(size=3)]
+    assert _rel(meas_c(*args), meas_py(*args)) < 1e-10
+    plant_c = codegen.load(lib, "plant")
+    u = rng.normal(size=9)
+    for a, b in zip(plant_c(u), plant.function()(u), strict=True):
+        assert _rel(a, b) < 1e-10
+    text = bundle.readme.read_text()
+    assert "reentrant" in text and "ekf_step_SZ_W" in text
+    assert bundle.reentrant
+
+
+def test_forward_dynamics_c_equals_python(setup, tmp_path):
+    model, _, _ = setup
+    bundle = model_bundle(model, tmp_path)
+    f_c = codegen.load(codegen.build(bundle, flags=("-O0",)), "forward")
+    f_py = model.functions()["forward"]
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        args = [rng.uniform(-3, 3, 3), rng.normal(size=3), 1e-3 * rng.normal(size=3),
+                1e-2 * rng.normal(size=3), rng.normal(size=3)]
+        for a, b in zip(f_c(*args), f_py(*args), strict=True):
+            assert _rel(a, b) < 1e-10
+
+
+@pytest.fixture(scope="module")
+def recorded(setup):
+    model, sensors, _ = setup
+    move = load_move(str(ROOT / "problems/moves.toml") + ":move1")
+    return simulate_data(model, sensors, move, dt=DT, t_end=0.4)
+
+
+def test_c_harness_run_equals_python_run(setup, ekf_lib, recorded):
+    _, sensors, plant = setup
+    bundle, _ = ekf_lib
+    d = recorded
+    y = d.y.copy()
+    y[50:60, 2] = np.nan  # a dropout: skipped in both
+    mask = np.isfinite(y).astype(float)
+    x0, P0 = np.zeros(6), 1e-6 * np.eye(6)
+    res = codegen.run_harness(bundle, "ekf_step",
+                              {"u": d.u, "y": np.nan_to_num(y), "mask": mask},
+                              {"x": x0, "P": P0}, feedback={"x_next": "x", "P_next": "P"},
+                              flags=("-O1",), timing=False)
+    py = run_ekf(ekf_step_function(plant, sensors, Q, R, DT), d.u, y, x0, P0)
+    assert _rel(res.outputs["x_post"], py.x) < 1e-9
+    assert _rel(res.outputs["P_next"], py.P[1:]) < 1e-9
+
+
+def test_million_steps_covariance_stays_spd(ekf_lib, recorded):
+    bundle, _ = ekf_lib
+    d = recorded
+    out = covariance_run(bundle, d.u, d.y, np.zeros(6), 1e-6 * np.eye(6), 1_000_000)
+    assert out["steps"] == 1_000_000
+    assert out["not_positive_definite"] == 0 and out["not_finite"] == 0
+    assert out["max_rel_asymmetry"] == 0.0  # symmetrised every step
+    assert out["min_rel_cholesky_pivot"] > 1e-12
+    assert np.all(np.isfinite(out["x_final"]))
+
+
+def test_cli_codegen_json(tmp_path, capsys):
+    status = main(["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
+                   str(ROOT / "problems/sensors/arm2link_strain.toml"), "--out",
+                   str(tmp_path), "--step", "30", "--no-model", "--json"])
+    assert status == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"files", "functions"}
+    assert out["functions"] == ["ekf_step", "plant", "measurement", "rigid_signals"]
+    assert all(Path(f).exists() for f in out["files"])
+    assert any(f.endswith(".h") for f in out["files"])
+
+
+def test_cli_codegen_bad_sensor_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[sensor]]\ntype = "strain"\nlink = "link1"\ns = 3.0\n')
+    status = main(["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors", str(bad),
+                   "--out", str(tmp_path), "--json"])
+    assert status == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and "sensor[0].s" in captured.err
