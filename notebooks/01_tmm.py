@@ -168,8 +168,7 @@ for j in range(6):
 rows = [[j + 1, f"{wf:.4f}", f"{wt:.4f}", f"{(wt - wf) / wf:+.1e}", f"{m:.6f}"]
         for j, (wf, wt, m) in enumerate(zip(w_fem, shapes.omega, mac, strict=True))]
 table(rows, ["mode", "FE [rad/s]", "casflex [rad/s]", "rel. diff.", "MAC"])
-fig = plot_modes(spatial, q, shapes, n_modes=3)
-fig
+plot_modes(spatial, q, shapes, n_modes=3)
 
 # %% [markdown]
 # ## 1.3 The case-study arm (Table 8)
