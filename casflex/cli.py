@@ -33,6 +33,8 @@ VERBS = {
     "modes": "modes",
     "sweep": "sweep",
     "shaper": "shaper",
+    "check": "check",
+    "accessibility": "accessibility",
     "simulate": "simulate",
     "codegen": "codegen",
 }

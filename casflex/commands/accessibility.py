@@ -1,0 +1,72 @@
+"""``casflex accessibility``: maps of the modal accessibility indexes (eq. 204)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from casflex.commands.common import parse_angle
+from casflex.errors import ModelError
+from casflex.robot import load
+
+HELP = "accessibility indexes of the modes over a grid of two joints (eq. 204)"
+
+
+def add_arguments(parser):
+    """Arguments of ``casflex accessibility``."""
+    parser.add_argument("robot", help="robot description (TOML)")
+    parser.add_argument("--joints", nargs=2, type=int, default=[2, 3], metavar="J",
+                        help="the two joints varied, 1-based (default 2 3)")
+    parser.add_argument("--step", default="5deg", help="grid step (default 5deg)")
+    parser.add_argument("--q", nargs="+", default=None, metavar="Q",
+                        help="values of the other joints, rad or 'deg' (default zeros)")
+    parser.add_argument("--modes", type=int, default=3, help="number of modes (default 3)")
+    parser.add_argument("--plot", metavar="FILE.png", help="draw the maps")
+    parser.add_argument("--no-cache", action="store_true", help="do not cache the tables")
+
+
+def run(args, log):
+    """Compute the maps; return ``{"joints", "grid", "index"}`` (1-based joints, rad)."""
+    from casflex import control
+    from casflex.modal.tables import shape_joints
+    from casflex.model import build_model, default_grid
+
+    robot = load(args.robot)
+    n = robot.n_joints
+    joints = [int(j) for j in args.joints]
+    for j in joints:
+        if not 1 <= j <= n:
+            raise ModelError(f"--joints: {j} is not a joint of '{robot.name}' (1..{n})")
+    if joints[0] == joints[1]:
+        raise ModelError(f"--joints: two different joints are needed; got {joints}")
+    if args.modes < 1:
+        raise ModelError(f"--modes: must be >= 1; got {args.modes}")
+    step = parse_angle(args.step, "--step")
+    count = int(round(2 * math.pi / step)) if step > 0 else 0
+    if count < 8:
+        raise ModelError(f"--step: {args.step} must be > 0 and give at least 8 points per "
+                         "turn")
+    axis = -math.pi + 2 * math.pi * np.arange(count) / count
+    q = np.zeros(n)
+    if args.q is not None:
+        q = np.array([parse_angle(v, "--q") for v in args.q])
+        if q.size != n:
+            raise ModelError(f"--q: robot '{robot.name}' has {n} joints; got {q.size} values")
+    sj = shape_joints(robot)
+    grid = default_grid(robot, sj, step)
+    # shape joints that are mapped are tabulated on the map's own axis: no interpolation
+    grid = [axis if (k + 1) in joints else g for k, g in zip(sj, grid, strict=True)]
+    log(f"tabulating {args.modes} modes of {robot.name} over joints "
+        f"{[k + 1 for k in sj]} ({count} points per turn)")
+    model, _ = build_model(robot, args.modes, grid=grid, gravity=None, delta_order=0,
+                           cache_dir=False if args.no_cache else None)
+    axes, index = control.accessibility_map(model, joints=(joints[0] - 1, joints[1] - 1),
+                                            axes=(axis, axis), q=q)
+    for k in range(index.shape[0]):
+        log(f"  mode {k + 1}: a in [{index[k].min():.4g}, {index[k].max():.4g}] sqrt(kg) m")
+    if args.plot:
+        fig = control.plot_accessibility(axes, index, joints=tuple(joints))
+        fig.savefig(args.plot, dpi=120)
+        log(f"wrote {args.plot}")
+    return {"joints": joints, "grid": [a for a in axes], "index": index}

@@ -1,0 +1,90 @@
+"""``casflex check``: stability of a controller along a planned move (§6.2.2.1, §6.2.3.1)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from casflex.commands.common import parse_angle
+from casflex.errors import ModelError
+from casflex.robot import load
+
+HELP = ("stability of the inversion (eq. 226) or composite (fast loop Hurwitz) controller "
+        "along a move")
+
+
+def add_arguments(parser):
+    """Arguments of ``casflex check``."""
+    parser.add_argument("robot", help="robot description (TOML)")
+    parser.add_argument("--move", required=True, metavar="FILE:NAME",
+                        help="planned move, e.g. problems/moves.toml:move1")
+    parser.add_argument("--controller", required=True, choices=("inversion", "composite"))
+    parser.add_argument("--modes", type=int, default=3, help="number of modes (default 3)")
+    parser.add_argument("--step", default="6deg",
+                        help="grid step of the modal tables (default 6deg)")
+    parser.add_argument("--dt", type=float, default=1e-2,
+                        help="time step of the check along the move [s] (default 0.01)")
+    parser.add_argument("--kp", type=float, default=1.0, help="K_p (default 1)")
+    parser.add_argument("--alpha", type=float, default=None,
+                        help="alpha of eq. 216 [1/s] (inversion; default zeta*omega_min, "
+                             "or sqrt(Kp) without damping)")
+    parser.add_argument("--q-weight", type=float, default=1.0, help="LQR Q = w I (default 1)")
+    parser.add_argument("--r-weight", type=float, default=10.0,
+                        help="LQR R = w I (default 10)")
+    parser.add_argument("--schedule", action="store_true",
+                        help="composite: gains scheduled over the configuration grid "
+                             "(default: fixed gains at the end of the move)")
+    parser.add_argument("--no-cache", action="store_true", help="do not cache the tables")
+
+
+def run(args, log):
+    """Run the check; return ``{"stable", "worst_margin", "worst_time", ...}`` (SI)."""
+    from casflex import control
+    from casflex.model import build_model
+    from casflex.moves import load_move
+
+    robot = load(args.robot)
+    move = load_move(args.move)
+    if move.n_joints != robot.n_joints:
+        raise ModelError(f"--move: {args.move} has {move.n_joints} joints; robot "
+                         f"'{robot.name}' has {robot.n_joints}")
+    if args.modes < 1:
+        raise ModelError(f"--modes: must be >= 1; got {args.modes}")
+    if not args.dt > 0:
+        raise ModelError(f"--dt: must be > 0 [s]; got {args.dt}")
+    step = parse_angle(args.step, "--step")
+    if not step > 0:
+        raise ModelError(f"--step: must be > 0; got {args.step}")
+    log(f"building the model of {robot.name} ({args.modes} modes, table step "
+        f"{np.degrees(step):g} deg)")
+    model, table = build_model(robot, args.modes, step=step, gravity=None, delta_order=0,
+                               cache_dir=False if args.no_cache else None,
+                               progress=False)
+    if args.controller == "inversion":
+        r = control.inversion_stability(model, move, alpha=args.alpha, Kp=args.kp,
+                                        dt=args.dt)
+        log(f"eq. 226 along {move.name}: worst margin {r['worst_margin']:.6g} 1/s^3 at "
+            f"t = {r['worst_time']:.3f} s; alpha = {r['alpha']:.4g} 1/s; "
+            f"gamma = {r['gamma']:.4g} 1/s; move may run {r['time_scale_max']:.4g}x faster")
+        if not r["damping_condition"]:
+            log("note: D - alpha I is not positive definite (no modal damping): eq. 225 "
+                "does not hold, the zero dynamics are not exponentially stable")
+        return {"stable": r["stable"], "worst_margin": r["worst_margin"],
+                "worst_time": r["worst_time"], "worst_q": r["worst_q"],
+                "alpha": r["alpha"], "gamma": r["gamma"],
+                "damping_condition": r["damping_condition"],
+                "time_scale_max": r["time_scale_max"]}
+    eps = control.perturbation_parameter(model, table=table)
+    if args.schedule:
+        gain = control.gain_schedule(model, Q=args.q_weight, R=args.r_weight, epsilon=eps,
+                                     table=table)
+    else:
+        gain, _, _ = control.fast_gain(model, move.qf, Q=args.q_weight, R=args.r_weight,
+                                       epsilon=eps)
+    r = control.composite_stability(model, move, gain=gain, epsilon=eps, dt=args.dt)
+    log(f"fast closed loop along {move.name}: largest real part {r['worst_real']:.6g} 1/s "
+        f"at t = {r['worst_time']:.3f} s, q = {np.round(r['worst_q'], 4).tolist()} rad "
+        f"(epsilon = {eps:.4g} s)")
+    return {"stable": r["stable"], "worst_margin": r["worst_margin"],
+            "worst_time": r["worst_time"], "worst_real": r["worst_real"],
+            "worst_q": r["worst_q"], "epsilon": eps,
+            "gains": "scheduled" if args.schedule else "end of move"}
