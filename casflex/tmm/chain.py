@@ -169,33 +169,6 @@ def build_chain(robot, q):
     return Chain(elements=tuple(out), q=np.asarray(q, dtype=float), beam_rows=beam_rows)
 
 
-def element_transfer(element, omega):
-    """Transfer matrix of ``element`` in base-frame components, shape (N, 12, 12).
-
-    Examples
-    --------
-    >>> from casflex.robot import load
-    >>> chain = build_chain(load("problems/arm2link.toml"), [0.0, 0.0, 0.0])
-    >>> element_transfer(chain.elements[0], [5.0, 6.0]).shape
-    (2, 12, 12)
-    """
-    omega = np.atleast_1d(np.asarray(omega, dtype=float))
-    kind, P = element.kind, element.params
-    if kind == "beam":
-        Rb = element.rotation12
-        U = el.beam_matrix(P["length"], omega, P["section"], P["material"])
-        return Rb @ U @ Rb.T
-    if kind == "body":
-        M = body_mass_global(element)
-        return el.point_body_matrix(omega, M)
-    if kind == "offset":
-        return np.broadcast_to(el.offset_matrix(P["r"]), (omega.size, 12, 12))
-    if kind == "spring":
-        return np.broadcast_to(el.joint_spring_matrix(P["stiffness"], P["axis"]),
-                               (omega.size, 12, 12))
-    raise ValueError(f"unknown element kind {kind!r}")
-
-
 def body_mass_global(element):
     """6 × 6 mass matrix of a ``body`` element about its attachment point, base frame."""
     P = element.params

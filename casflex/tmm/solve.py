@@ -29,7 +29,7 @@ import numpy as np
 
 from casflex.errors import SolverError
 from casflex.tmm import elements as el
-from casflex.tmm.chain import Chain, body_mass_global, build_chain, element_transfer
+from casflex.tmm.chain import Chain, body_mass_global, build_chain
 
 __all__ = [
     "system_matrix",
@@ -101,10 +101,14 @@ class _Stack:
             return el.point_body_matrix(omega, data["M"][cfg])
         return data["T"][cfg]
 
-    def system(self, cfg, omega):
-        """Columns 6–11 of the system matrix (base reactions → tip state), (P, 12, 6)."""
-        U = np.zeros((omega.size, 12, 6))
-        U[:, 6:12, :] = np.eye(6)
+    def system(self, cfg, omega, columns=slice(6, 12)):
+        """Columns of the system matrix (eq. 59), (P, 12, k).
+
+        By default columns 6–11, the ones that multiply the base reactions of a clamped
+        base; ``columns=slice(None)`` gives the whole 12 × 12 matrix.
+        """
+        start = np.eye(12)[:, columns]
+        U = np.broadcast_to(start, (omega.size,) + start.shape).copy()
         for data in self.items:
             e = data["element"]
             if e.kind == "beam":  # rotate the 12 x 6 block, not the 12 x 12 matrix
@@ -179,11 +183,8 @@ def system_matrix(chain, omega):
     >>> system_matrix(chain, [1.0, 2.0]).shape
     (2, 12, 12)
     """
-    omega = np.atleast_1d(np.asarray(omega, dtype=float))
-    U = np.broadcast_to(np.eye(12), (omega.size, 12, 12))
-    for element in chain.elements:
-        U = element_transfer(element, omega) @ U
-    return U
+    stack, cfg, omega = _single(chain, omega)
+    return stack.system(cfg, omega, columns=slice(None))
 
 
 def frequency_determinant(chain, omega):
@@ -631,7 +632,8 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
     # base reactions f0 of every mode; a k-fold root contributes k basis vectors
     f0 = np.empty((m, 6))
     stack = _Stack([chain])
-    vt = _null_vectors(stack.system(np.zeros(m, dtype=int), omega)[:, 6:12, :])
+    cfg = np.zeros(m, dtype=int)
+    vt = _null_vectors(stack.system(cfg, omega)[:, 6:12, :])
     j = 0
     while j < m:
         k = int(mult[j])
@@ -649,7 +651,7 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
     body_state, body_local, body_position, body_rows = [], [], [], []
     spring_rotation, spring_rows = [], []
     ib = 0
-    for element in chain.elements:
+    for element, data in zip(chain.elements, stack.items, strict=True):
         if element.kind == "beam":
             P = element.params
             sec, mat = P["section"], P["material"]
@@ -674,7 +676,7 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
                 P = element.params
                 spring_rotation.append(z[:, 6:9] @ P["axis"] / P["stiffness"])
                 spring_rows.append(element.row)
-            z = np.einsum("mij,mj->mi", element_transfer(element, omega), z)
+            z = np.einsum("mij,mj->mi", stack.transfer(data, cfg, omega), z)
 
     # a k-fold root: the SVD basis is orthonormal in base-reaction space, but the map to
     # shapes can be far from isometric (the shapes of two basis vectors nearly parallel).
