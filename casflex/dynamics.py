@@ -97,7 +97,40 @@ from casflex.modal.integrals import (
     rigid_pseudo_inertias,
 )
 
-__all__ = ["ConstantProvider", "PointwiseProvider", "FlexibleModel", "rigid_provider"]
+__all__ = ["ConstantProvider", "PointwiseProvider", "FlexibleModel", "rigid_provider",
+           "zero_entries"]
+
+
+ZERO_TOLERANCE = 1e-12
+
+
+def zero_entries(values, leading=0):
+    """Entries of a quantity that are zero wherever it is known, as a flat C-order mask.
+
+    An entry counts as zero when its magnitude never exceeds ``ZERO_TOLERANCE`` (1e-12)
+    times the largest magnitude of the whole quantity: structural zeros (a planar mode's
+    out-of-plane displacement, the translational row of a pseudo-inertia) come out of the
+    transfer-matrix solution as round-off of that size. The model replaces them by
+    constant zeros, which removes the products they feed from the symbolic expressions;
+    the change this makes is below the tables' own accuracy.
+
+    Parameters
+    ----------
+    values : array_like
+        The quantity, with ``leading`` grid axes first.
+    leading : int
+        Number of leading axes (grid points) to reduce over.
+
+    Examples
+    --------
+    >>> zero_entries([[1.0, 0.0], [2.0, 1e-15]], leading=1)
+    array([False,  True])
+    """
+    v = np.abs(np.asarray(values, dtype=float))
+    if v.size == 0:
+        return np.zeros(int(np.prod(v.shape[leading:])), dtype=bool)
+    peak = v.reshape(int(np.prod(v.shape[:leading])), -1).max(axis=0)
+    return peak <= ZERO_TOLERANCE * v.max()
 
 
 class ConstantProvider:
@@ -120,6 +153,10 @@ class ConstantProvider:
     def __init__(self, quantities, shape_joints=()):
         self.quantities = {k: np.asarray(v, dtype=float) for k, v in quantities.items()}
         self.shape_joints = tuple(int(j) for j in shape_joints)
+
+    def zero_entries(self, name):
+        """Mask (C order) of the entries of ``name`` that vanish (see :func:`zero_entries`)."""
+        return zero_entries(self.quantities[name])
 
     def function(self, name):
         """casadi.Function ``q_shape -> name`` (C-order flattened array, column vector)."""
@@ -230,6 +267,17 @@ def _taylor(expr, delta, order):
     return out
 
 
+def _zero_mask(provider, name, size):
+    """Boolean mask of the entries of quantity ``name`` that are identically zero."""
+    report = getattr(provider, "zero_entries", None)
+    mask = np.zeros(size, dtype=bool) if report is None else \
+        np.asarray(report(name), dtype=bool).ravel()
+    if mask.shape != (size,):
+        raise ModelError(f"provider.zero_entries({name!r}) has {mask.size} entries; "
+                         f"expected {size}")
+    return mask
+
+
 _GRAVITY_DEFAULT = "robot"
 
 
@@ -335,7 +383,7 @@ class FlexibleModel:
     def _quantities(self, provider):
         expected = quantity_shapes(self.robot, self.m)
         self.Q = {}
-        values = []
+        placeholders, values = [], []
         for name in QUANTITY_KEYS:
             f = provider.function(name)
             size = int(np.prod(expected[name]))
@@ -346,11 +394,22 @@ class FlexibleModel:
             # the kinematics use placeholders: pose Jacobians must not differentiate the
             # tables (eq. 70 has no ∂w/∂q q̇ δ term); the values go in afterwards, so that
             # the Christoffel symbols do see M's dependence on the shape joints
-            self.Q[name] = ca.SX.sym(name, size)
-            values.append(ca.SX(f(self.q_shape)) if size else ca.SX(0, 1))
-        self._placeholders = ca.vertcat(*[self.Q[k] for k in QUANTITY_KEYS])
+            # entries the provider reports as zero over its whole domain (a planar mode
+            # has no out-of-plane displacement, C2 has no translational row, ...) enter as
+            # constant zeros: CasADi drops the products they would feed (5 modes, Table 8
+            # arm: 80 % of C2, 70 % of C1)
+            zero = _zero_mask(provider, name, size)
+            symbols = ca.SX.sym(name, size)
+            self.Q[name] = ca.vertcat(*[0 if zero[i] else symbols[i] for i in range(size)]) \
+                if size else symbols
+            keep = np.flatnonzero(~zero)
+            placeholders.append(symbols[keep.tolist()] if keep.size else ca.SX(0, 1))
+            value = ca.SX(f(self.q_shape)) if size else ca.SX(0, 1)
+            values.append(value[keep.tolist()] if keep.size else ca.SX(0, 1))
+            if name == "omega":
+                self.omega = value
+        self._placeholders = ca.vertcat(*placeholders)
         self._values = ca.vertcat(*values)
-        self.omega = values[QUANTITY_KEYS.index("omega")]
 
     def _fill(self, expr):
         """Replace the table placeholders by the provider's functions of the shape joints."""
@@ -482,6 +541,13 @@ class FlexibleModel:
             body["T"] = self._fill(body["T"])
         M = _taylor(M, d, self.delta_order)
         M = 0.5 * (M + M.T)
+        if n and 0 not in self.provider.shape_joints:
+            # Joint 1 turns the whole moving structure about an axis fixed in the base (it is
+            # not a shape joint: nothing massive or elastic lies inboard of it), and kinetic
+            # energy is invariant under that rotation, so M does not depend on q1. Setting
+            # q1 = 0 removes its trigonometric terms (they cancel only numerically) and the
+            # Christoffel symbols' derivatives with respect to it.
+            M = ca.substitute(M, self.q[0], 0)
         if self.modal_mass == "identity":
             M[n:, n:] = ca.SX.eye(m)
         elif self.modal_mass == "first_order":

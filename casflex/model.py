@@ -47,16 +47,31 @@ class TableProvider:
         self.shape_joints = tuple(table.shape_joints)
         self._functions = {}
 
+    def zero_entries(self, name):
+        """Mask (C order) of the entries of ``name`` that vanish over the whole grid.
+
+        See :func:`casflex.dynamics.zero_entries`.
+        """
+        from casflex.dynamics import zero_entries
+
+        if name == "omega" and "omega" not in self.table.values:
+            data = self.table.omega
+        else:
+            data = self.table.values[name]
+        return zero_entries(data, leading=len(self.table.shape))
+
     def function(self, name):
         """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``."""
         if name in self._functions:
             return self._functions[name]
-        f = self.table.function(name, method=self.method)
         x = ca.SX.sym("q_shape", len(self.shape_joints))
-        y = f(x)
-        if y.size1() > 1 and y.size2() > 1:  # matrices come back shaped: flatten row-major
-            y = ca.vec(y.T)
-        self._functions[name] = ca.Function(name, [x], [ca.vec(y)], ["q_shape"], [name])
+        zero = self.zero_entries(name)
+        keep = np.flatnonzero(~zero)
+        y = ca.SX.zeros(zero.size)
+        if keep.size:  # only the entries that do not vanish everywhere are interpolated
+            f = self.table.function(name, method=self.method, entries=keep)
+            y[keep.tolist()] = f(x)
+        self._functions[name] = ca.Function(name, [x], [y], ["q_shape"], [name])
         return self._functions[name]
 
 

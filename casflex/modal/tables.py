@@ -633,7 +633,7 @@ class ModalTable:
             q[k] = axis[i]
         return q
 
-    def function(self, name, method="bspline"):
+    def function(self, name, method="bspline", entries=None):
         """``casadi.Function`` interpolating quantity ``name`` over the grid.
 
         Parameters
@@ -643,6 +643,10 @@ class ModalTable:
         method : {"bspline", "linear"}
             ``casadi.interpolant`` plugin; B-splines (cubic, interpolating, needing at
             least 4 points per axis) give smooth derivatives for the dynamics.
+        entries : sequence of int, optional
+            Interpolate only these entries of the value (indices into the value flattened
+            in C order); the output is then the column vector of those entries. The
+            model uses it to leave out entries that vanish everywhere.
 
         Returns
         -------
@@ -673,6 +677,13 @@ class ModalTable:
             raise ModelError(f"no quantity {name!r} in the table; it has {self.names}")
         gshape = self.shape
         nd = len(gshape)
+        if entries is not None:
+            cols = np.asarray(entries, dtype=int).ravel()
+            size = int(np.prod(data.shape[nd:]))
+            if cols.size and (cols.min() < 0 or cols.max() >= size):
+                raise ModelError(f"entries of {name!r} must lie in [0, {size}); got "
+                                 f"{cols.min()}..{cols.max()}")
+            data = data.reshape(gshape + (size,))[..., cols]
         vshape = data.shape[nd:]
         flat = _flatten_values(data, nd)
         axes = [np.asarray(a, dtype=float) for a in self.grid]
