@@ -37,6 +37,7 @@ VERBS = {
     "accessibility": "accessibility",
     "simulate": "simulate",
     "codegen": "codegen",
+    "design": "design",
 }
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from casflex.errors import ProblemFileError
 
-__all__ = ["Move", "load_moves", "load_move"]
+__all__ = ["Move", "ShapedMove", "load_moves", "load_move"]
 
 _PROFILES = ("bang-bang",)
 
@@ -130,7 +130,189 @@ class Move:
         return q, qd, qdd
 
     def time_grid(self, dt):
-        """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included)."""
+        """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
+
+        Parameters
+        ----------
+        dt : float
+            Time step [s]; ``t_end / dt`` is rounded to a whole number of steps.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``0, dt, 2 dt, ...`` up to about ``t_end`` [s].
+
+        Examples
+        --------
+        >>> m = Move(q0=[0.0], qf=[1.0], duration=1.0, settle=0.5)
+        >>> m.time_grid(0.25).tolist()
+        [0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5]
+        """
+        n = int(round(self.t_end / dt))
+        return np.arange(n + 1) * dt
+
+
+@dataclass(frozen=True)
+class ShapedMove:
+    """A move convolved with an input shaper, in closed form.
+
+    ``q(t) = Σ A_i q_move(t − t_i)`` (and likewise for the rates): the shaped reference
+    of a bang-bang move is a sum of shifted bang-bang moves, so it can be sampled exactly
+    at any time and written as a CasADi function of time (for the closed-loop
+    simulations and the generated controllers). The shaper's amplitudes sum to 1, so the
+    shaped move ends at ``qf``, ``shaper.duration`` later than the move.
+
+    Parameters
+    ----------
+    move : Move
+        The planned (unshaped) move.
+    shaper : casflex.shaping.Shaper
+        Impulse times [s] (from 0) and amplitudes.
+
+    Examples
+    --------
+    >>> from casflex.shaping import Shaper
+    >>> s = ShapedMove(Move([0.0], [-1.0], 2.0), Shaper([0.0, 0.5], [0.5, 0.5]))
+    >>> s.duration, s.t_end
+    (2.5, 5.5)
+    >>> [round(float(v), 6) for v in s.sample(2.25)[0]], float(s.sample(2.5)[0][0])
+    ([-0.984375], -1.0)
+    """
+
+    move: Move
+    shaper: object
+
+    def __post_init__(self):
+        amplitudes = np.asarray(self.shaper.amplitudes, dtype=float)
+        if not abs(amplitudes.sum() - 1.0) < 1e-9:
+            raise ProblemFileError(None, "shaper.amplitudes", amplitudes.tolist(),
+                                   "must sum to 1 to reach the move's end values")
+
+    @property
+    def q0(self):
+        """Start joint values [rad]."""
+        return self.move.q0
+
+    @property
+    def qf(self):
+        """End joint values [rad]."""
+        return self.move.qf
+
+    @property
+    def n_joints(self):
+        """Number of joints."""
+        return self.move.n_joints
+
+    @property
+    def duration(self):
+        """Time until the shaped reference comes to rest [s]: move plus shaper."""
+        return self.move.duration + float(self.shaper.duration)
+
+    @property
+    def settle(self):
+        """Time simulated after the shaped move ends [s] (the move's ``settle``)."""
+        return self.move.settle
+
+    @property
+    def t_end(self):
+        """End of the simulated interval [s]."""
+        return self.duration + self.settle
+
+    @property
+    def name(self):
+        """The move's name with a ``+shaper`` suffix."""
+        return f"{self.move.name}+shaper"
+
+    @property
+    def description(self):
+        """Human-readable description."""
+        return (f"{self.move.description or self.move.name}, shaped by "
+                f"{len(self.shaper.times)} impulses over {self.shaper.duration:.4g} s")
+
+    @property
+    def breakpoints(self):
+        """Times [s] where the shaped acceleration jumps (sorted, unique)."""
+        T = self.move.duration
+        pts = [t + k * T / 2.0 for t in np.asarray(self.shaper.times, dtype=float)
+               for k in (0, 1, 2)]
+        return np.unique(np.round(pts, 15))
+
+    def sample(self, t):
+        """Shaped position, velocity and acceleration at times ``t`` (see :meth:`Move.sample`).
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times [s] from the start of the shaped move.
+
+        Returns
+        -------
+        q, qd, qdd : numpy.ndarray
+            Each of shape ``(len(t), n_joints)`` [rad, rad/s, rad/s²]
+            (``(n_joints,)`` for a scalar ``t``).
+
+        Examples
+        --------
+        >>> from casflex.shaping import Shaper
+        >>> s = ShapedMove(Move([0.0], [-1.0], 2.0), Shaper([0.0], [1.0]))
+        >>> [a.ravel().tolist() for a in s.sample([1.0])]
+        [[-0.5], [-1.0], [1.0]]
+        """
+        scalar = np.ndim(t) == 0
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        q = np.zeros((t.size, self.n_joints))
+        qd, qdd = np.zeros_like(q), np.zeros_like(q)
+        for ti, ai in zip(self.shaper.times, self.shaper.amplitudes, strict=True):
+            a, b, c = self.move.sample(t - ti)
+            q += ai * a
+            qd += ai * b
+            qdd += ai * c
+        if scalar:
+            return q[0], qd[0], qdd[0]
+        return q, qd, qdd
+
+    def casadi_reference(self):
+        """``reference (t) -> (qd, dqd, ddqd)`` as a CasADi function, equal to :meth:`sample`.
+
+        Examples
+        --------
+        >>> from casflex.shaping import Shaper
+        >>> s = ShapedMove(Move([0.0], [-1.0], 2.0), Shaper([0.0, 0.5], [0.5, 0.5]))
+        >>> round(float(s.casadi_reference()(2.25)[0]), 6)
+        -0.984375
+        """
+        import casadi as ca
+
+        from casflex.control import reference_function
+
+        base = reference_function(self.move)
+        t = ca.SX.sym("t")
+        out = [0, 0, 0]
+        for ti, ai in zip(self.shaper.times, self.shaper.amplitudes, strict=True):
+            parts = base(t - float(ti))
+            out = [o + float(ai) * p for o, p in zip(out, parts, strict=True)]
+        return ca.Function("reference", [t], out, ["t"], ["qd", "dqd", "ddqd"])
+
+    def time_grid(self, dt):
+        """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
+
+        Parameters
+        ----------
+        dt : float
+            Time step [s]; ``t_end / dt`` is rounded to a whole number of steps.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``0, dt, 2 dt, ...`` up to about ``t_end`` [s] (the shaper's duration included).
+
+        Examples
+        --------
+        >>> from casflex.shaping import Shaper
+        >>> s = ShapedMove(Move([0.0], [1.0], 1.0, settle=0.5), Shaper([0.0, 0.5], [0.5, 0.5]))
+        >>> s.time_grid(0.5).tolist()
+        [0.0, 0.5, 1.0, 1.5, 2.0]
+        """
         n = int(round(self.t_end / dt))
         return np.arange(n + 1) * dt
 
@@ -210,6 +392,20 @@ def load_moves(path):
 
 def load_move(spec):
     """Read one move given as ``FILE:NAME`` (or a file holding exactly one move).
+
+    Parameters
+    ----------
+    spec : str or pathlib.Path
+        ``"path/to/moves.toml:name"``, or just the path of a file with one move.
+
+    Returns
+    -------
+    Move
+
+    Raises
+    ------
+    ProblemFileError
+        Unreadable or malformed file, unknown name, or no name for a file of several moves.
 
     Examples
     --------

@@ -197,7 +197,8 @@ def _as_reference(reference, n):
     """Return ``(sampler, t_start, t_last, t_move_end)`` for a Move or a sampled tuple."""
     from casflex.moves import Move
 
-    if isinstance(reference, Move):
+    if isinstance(reference, Move) or hasattr(reference, "casadi_reference"):
+        # a Move or a closed-form shaped move (casflex.moves.ShapedMove)
         if reference.n_joints != n:
             raise ModelError(f"move '{reference.name}' has {reference.n_joints} joints; the "
                              f"model has {n}")
@@ -336,7 +337,7 @@ def sample_reference(reference, dt=1e-3, t_end=None, n_joints=None):
     from casflex.moves import Move
 
     if n_joints is None:
-        n_joints = reference.n_joints if isinstance(reference, Move) else \
+        n_joints = reference.n_joints if hasattr(reference, "n_joints") else \
             np.atleast_2d(np.asarray(reference[1]).T).T.shape[1]
     sampler, t0, t_last, t_move_end = _as_reference(reference, n_joints)
     t, _ = _time_grid(t0, t_last if t_end is None else float(t_end), float(dt))
@@ -456,7 +457,9 @@ def _integrate_prescribed(model, f, reference, t, z0, method, options):
     m = model.m
     z = ca.SX.sym("z", 2 * m)
     tt = ca.SX.sym("t")
-    if isinstance(reference, Move):
+    if hasattr(reference, "casadi_reference"):  # a shaped move in closed form
+        q, dq, ddq = reference.casadi_reference()(tt)
+    elif isinstance(reference, Move):
         T, a = reference.duration, ca.DM(reference.peak_acceleration)
         q0, qf = ca.DM(reference.q0), ca.DM(reference.qf)
         tc = ca.fmin(ca.fmax(tt, 0.0), T)
@@ -476,12 +479,16 @@ def _integrate_prescribed(model, f, reference, t, z0, method, options):
     dae = {"x": z, "t": tt, "ode": ode}
     # restart at the switches of a bang-bang move (the right-hand side jumps there)
     cuts = [float(t[0])]
-    if isinstance(reference, Move):
-        for tc in (0.5 * reference.duration, reference.duration):
+    if isinstance(reference, Move) or hasattr(reference, "breakpoints"):
+        switches = getattr(reference, "breakpoints", None)
+        if switches is None:
+            switches = (0.5 * reference.duration, reference.duration)
+        for tc in switches:
             k = int(np.argmin(np.abs(t - tc)))
             if abs(t[k] - tc) < 1e-9 and t[0] < t[k] < t[-1]:
                 cuts.append(float(t[k]))
     cuts.append(float(t[-1]))
+    cuts = sorted(set(cuts))
     Z = [z0]
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
         grid = t[(t > a + 1e-12) & (t <= b + 1e-12)]

@@ -1,0 +1,150 @@
+"""The design job (casflex/design.py, `casflex design`)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from casflex import design
+from casflex.cli import main
+from casflex.errors import ProblemFileError
+from casflex.shaping import residual_vibration
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
+
+
+def _study_copy(tmp_path, replace=None, append=""):
+    """The bundled study copied next to copies of the files it names, edited."""
+    pdir = tmp_path / "problems"
+    (pdir / "studies").mkdir(parents=True)
+    (pdir / "sensors").mkdir()
+    for name in ("arm2link.toml", "moves.toml", "sensors/arm2link_accel.toml"):
+        shutil.copy(ROOT / "problems" / name, pdir / name)
+    text = STUDY.read_text()
+    for old, new in (replace or {}).items():
+        assert old in text
+        text = text.replace(old, new)
+    path = pdir / "studies" / "study.toml"
+    path.write_text(text + append)
+    return path
+
+
+@pytest.fixture()
+def no_heavy_work(monkeypatch):
+    """Fail the test if the job gets as far as tabulating the model."""
+    import casflex.model
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("heavy work started before the study was validated")
+
+    monkeypatch.setattr(casflex.model, "build_model", refuse)
+
+
+@pytest.mark.parametrize("replace, append, field, rule", [
+    ({'robot = "../arm2link.toml"': 'robot = "../nothere.toml"'}, "", "robot", "must exist"),
+    ({'move = "../moves.toml:move1"': 'move = "../moves.toml:move9"'}, "", "move9", ""),
+    ({'move = "../moves.toml:move1"': 'move = "../gone.toml:move1"'}, "", "move",
+     "must exist"),
+    ({"vtol = 0.05": "vtol = 0.0"}, "", "shaper.vtol", "must be > 0"),
+    ({"vtol = 0.05": "vtol = 1.5"}, "", "shaper.vtol", "must be <= 1"),
+    ({"margin = 0.20": "margin = 1.0"}, "", "shaper.margin", "must be < 1"),
+    ({"modes = 3": "modes = 0"}, "", "model.modes", ">= 1"),
+    ({'law = "composite"': 'law = "pid"'}, "", "controller.law", "must be one of"),
+    ({}, "\n[shaper2]\nvtol = 0.1\n", "shaper2", "unknown key"),
+    ({"dt = 0.001": "dt = 0.5"}, "", "simulation.dt", "<= 0.01"),
+])
+def test_bad_studies_fail_before_heavy_work(tmp_path, no_heavy_work, replace, append, field,
+                                            rule):
+    path = _study_copy(tmp_path, replace, append)
+    with pytest.raises(ProblemFileError) as info:
+        design.run_design(path, tmp_path / "out")
+    message = str(info.value)
+    assert field in message and rule in message
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_unknown_sensor_link_names_the_sensor_file(tmp_path, no_heavy_work):
+    path = _study_copy(tmp_path)
+    sensors = path.parent.parent / "sensors" / "arm2link_accel.toml"
+    sensors.write_text(sensors.read_text().replace('link = "link2"', 'link = "link7"'))
+    with pytest.raises(ProblemFileError) as info:
+        design.load_study(path)
+    assert "arm2link_accel.toml" in str(info.value) and "link7" in str(info.value)
+
+
+def test_cli_error_is_one_line_exit_2(tmp_path, capsys, no_heavy_work):
+    path = _study_copy(tmp_path, {"vtol = 0.05": "vtol = -1"})
+    assert main(["design", str(path), "--out", str(tmp_path / "o"), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert "shaper.vtol" in captured.err and "-1" in captured.err
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("design")
+    cache = tmp_path_factory.mktemp("cache")
+    result = design.run_design(STUDY, out, cache_dir=cache, processes=2)
+    return result, out, cache
+
+
+def test_design_job_outputs(first_run):
+    result, out, _ = first_run
+    s = json.loads((out / "summary.json").read_text())
+    assert s == result.summary
+    for key in ("shaper_duration", "frequency_ranges", "contributions", "residual_reduction",
+                "stable", "c_files"):
+        assert key in s
+    for name in ("report.md", "frequencies.png", "prv.png", "tip_deflection.png",
+                 "estimation.png", "accessibility.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 1000, name
+    report = (out / "report.md").read_text()
+    for figure in ("frequencies.png", "prv.png", "tip_deflection.png", "estimation.png",
+                   "accessibility.png"):
+        assert f"({figure})" in report
+    assert {"arm2link.c", "arm2link.h", "README.md"} <= set(s["c_files"])
+    assert s["c_compiled"] is True and (out / "c" / "libarm2link.so").is_file()
+    assert "ekf_step" in s["c_functions"]
+
+
+def test_shaper_meets_its_tolerances_on_the_ranges(first_run):
+    """Independent check: V(ω) of the returned impulses on a dense grid of every range."""
+    s = first_run[0].summary
+    from casflex.shaping import Shaper
+
+    shaper = Shaper(s["shaper"]["times"], s["shaper"]["amplitudes"])
+    assert abs(shaper.duration - s["shaper_duration"]) < 1e-12
+    for (lo, hi), vtol in zip(s["frequency_ranges"], s["tolerances"], strict=True):
+        w = np.linspace(lo, hi, 2000)
+        assert residual_vibration(shaper, w).max() <= vtol * (1 + 1e-6)
+    # the ranges contain the frequency spans along the move, widened by the margin
+    for (lo, hi), (a, b) in zip(s["frequency_ranges"], s["frequency_span"], strict=True):
+        assert lo == pytest.approx(0.8 * a, rel=1e-9) and hi == pytest.approx(1.2 * b,
+                                                                               rel=1e-9)
+
+
+def test_shaping_reduces_the_residual_deflection(first_run):
+    s = first_run[0].summary
+    assert s["residual_unshaped"] > 0.05  # m: move 1 leaves the tip swinging by cm
+    assert 0.0 < s["residual_reduction"] < 1.0
+    assert s["residual_reduction"] == pytest.approx(
+        1 - s["residual_shaped"] / s["residual_unshaped"], rel=1e-12)
+    # with three modes in ranges of ±20 % the shaped residual is a few percent at most
+    assert s["residual_reduction"] > 0.8
+
+
+def test_second_run_reuses_cache_and_build(first_run, tmp_path):
+    result, out, cache = first_run
+    again = design.run_design(STUDY, out, cache_dir=cache, processes=2)
+    s = again.summary
+    assert s["table_from_cache"] is True
+    assert s["c_compiled"] == "reused"
+    assert s["shaper_duration"] == result.summary["shaper_duration"]
+    assert s["residual_reduction"] == result.summary["residual_reduction"]
+    assert s["timings_s"]["model_s"] < 0.5 * max(result.summary["timings_s"]["model_s"], 1.0) \
+        or result.summary["table_from_cache"]
