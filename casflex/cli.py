@@ -102,7 +102,31 @@ def build_parser():
 
 
 def main(argv=None):
-    """Entry point of the ``casflex`` console script; returns the exit status."""
+    """Entry point of the ``casflex`` console script; returns the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments after ``casflex`` (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        0 on success, 2 after a :class:`casflex.errors.CasflexError` (reported in one line
+        on stderr), 130 when interrupted.
+
+    Examples
+    --------
+    >>> import contextlib, io, json
+    >>> out = io.StringIO()
+    >>> with contextlib.redirect_stdout(out):
+    ...     status = main(["modes", "problems/arm2link.toml", "--count", "2", "--json"])
+    >>> result = json.loads(out.getvalue())
+    >>> status, sorted(result), [round(w, 3) for w in result["omega"]]
+    (0, ['frequency_hz', 'omega', 'q'], [8.307, 11.97])
+    >>> main(["modes", "problems/arm2link.toml", "--count", "0"])   # error on stderr
+    2
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
 

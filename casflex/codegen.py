@@ -105,11 +105,34 @@ _HELPER_SUFFIXES = (
 
 
 class CodegenError(CasflexError, ValueError):
-    """A code-generation request that cannot be honoured (unknown function, wrong sizes...)."""
+    """A code-generation request that cannot be honoured (unknown function, wrong sizes...).
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = generate([ca.Function("sq", [x], [x * x])], tempfile.mkdtemp(), name="demo_e")
+    >>> b.function("cube")
+    Traceback (most recent call last):
+        ...
+    casflex.codegen.CodegenError: bundle 'demo_e' has no function 'cube' (it has: sq)
+    """
 
 
 class BuildError(CasflexError, RuntimeError):
-    """The C compiler is missing or failed, or a compiled program failed to run."""
+    """The C compiler is missing or failed, or a compiled program failed to run.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = generate([ca.Function("sq", [x], [x * x])], tempfile.mkdtemp(), name="demo_be")
+    >>> try:
+    ...     build(b, compiler="no-such-cc")
+    ... except BuildError as exc:
+    ...     print(str(exc).split(";")[0])
+    no C compiler: 'no-such-cc' (from argument 'compiler') is not an executable on this system
+    """
 
 
 # --------------------------------------------------------------------------------------
@@ -131,6 +154,16 @@ class Port:
         CasADi's compressed pattern ``(rows, cols, colind..., row...)``.
     unit : str or None
         Unit given to :func:`generate` through ``units``.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x", 3)
+    >>> f = ca.Function("scale", [x], [0.5 * x], ["x"], ["y"])
+    >>> b = generate([f], tempfile.mkdtemp(), name="demo_p", units={"scale": {"y": "m"}})
+    >>> port = b.functions[0].outputs[0]
+    >>> port.name, port.rows, port.cols, port.nnz, port.unit, port.numpy_shape
+    ('y', 3, 1, 3, 'm', (3,))
     """
 
     name: str
@@ -154,7 +187,16 @@ class Port:
         return (self.rows,) if self.cols == 1 else (self.rows, self.cols)
 
     def nonzero_index(self):
-        """Column-major linear indices (into ``rows * cols``) of the nonzeros, as an array."""
+        """Column-major linear indices (into ``rows * cols``) of the nonzeros, as an array.
+
+        Examples
+        --------
+        >>> import casadi as ca
+        >>> sp = ca.Sparsity.diag(2)   # 2x2 with nonzeros at (0, 0) and (1, 1)
+        >>> p = Port("D", 2, 2, sp.nnz(), tuple(int(v) for v in sp.compress()))
+        >>> p.nonzero_index().tolist(), p.dense
+        ([0, 3], False)
+        """
         nrow, ncol = self.sparsity[0], self.sparsity[1]
         colind = self.sparsity[2 : 3 + ncol]
         row = np.asarray(self.sparsity[3 + ncol :], dtype=np.int64)
@@ -168,6 +210,17 @@ class FunctionInfo:
 
     ``sz_arg``, ``sz_res``, ``sz_iw``, ``sz_w`` are the values of the ``<name>_SZ_ARG``,
     ``<name>_SZ_RES``, ``<name>_SZ_IW`` and ``<name>_SZ_W`` macros of the header.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x, u = ca.SX.sym("x"), ca.SX.sym("u")
+    >>> f = ca.Function("acc", [x, u], [x + u], ["x", "u"], ["x_next"])
+    >>> info = generate([f], tempfile.mkdtemp(), name="demo_fi").functions[0]
+    >>> info.name, [p.name for p in info.inputs], [p.name for p in info.outputs]
+    ('acc', ['x', 'u'], ['x_next'])
+    >>> info.sz_arg, info.sz_res
+    (2, 1)
     """
 
     name: str
@@ -179,7 +232,36 @@ class FunctionInfo:
     sz_w: int
 
     def port(self, which, kind="input"):
-        """Return ``(index, Port)`` of an input (``kind="input"``) or output by name or index."""
+        """Return ``(index, Port)`` of an input (``kind="input"``) or output by name or index.
+
+        Parameters
+        ----------
+        which : str or int
+            Port name, or its 0-based index.
+        kind : {"input", "output"}, optional
+            Which side to look on.
+
+        Returns
+        -------
+        tuple of (int, Port)
+
+        Raises
+        ------
+        CodegenError
+            No such port.
+
+        Examples
+        --------
+        >>> import tempfile, casadi as ca
+        >>> x, u = ca.SX.sym("x"), ca.SX.sym("u")
+        >>> f = ca.Function("acc", [x, u], [x + u], ["x", "u"], ["x_next"])
+        >>> info = generate([f], tempfile.mkdtemp(), name="demo_port").functions[0]
+        >>> index, port = info.port("u")
+        >>> index, port.name
+        (1, 'u')
+        >>> info.port(0, kind="output")[1].name
+        'x_next'
+        """
         ports = self.inputs if kind == "input" else self.outputs
         if isinstance(which, (int, np.integer)) and not isinstance(which, bool):
             if not 0 <= which < len(ports):
@@ -214,6 +296,14 @@ class Bundle:
     static_state : tuple of str
         Declarations of mutable ``static`` data found in the generated source (empty for
         stateless functions).
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = generate([ca.Function("sq", [x], [x * x])], tempfile.mkdtemp(), name="demo_bd")
+    >>> b.name, b.source.name, b.library.stem, b.reentrant
+    ('demo_bd', 'demo_bd.c', 'libdemo_bd', True)
     """
 
     name: str
@@ -239,7 +329,25 @@ class Bundle:
         return self.out_dir / f"lib{self.name}{_shared_suffix()}"
 
     def function(self, name):
-        """Return the :class:`FunctionInfo` called ``name`` or raise :class:`CodegenError`."""
+        """Return the :class:`FunctionInfo` called ``name`` or raise :class:`CodegenError`.
+
+        Parameters
+        ----------
+        name : str
+            Function name.
+
+        Returns
+        -------
+        FunctionInfo
+
+        Examples
+        --------
+        >>> import tempfile, casadi as ca
+        >>> x = ca.SX.sym("x", 2)
+        >>> b = generate([ca.Function("sq", [x], [x * x])], tempfile.mkdtemp(), name="demo_fn")
+        >>> b.function("sq").inputs[0].rows
+        2
+        """
         for info in self.functions:
             if info.name == name:
                 return info
@@ -261,6 +369,16 @@ class HarnessResult:
         ``None`` with ``timing=False``.
     executable : pathlib.Path
         The compiled harness.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = generate([ca.Function("sq", [x], [x * x], ["x"], ["y"])], tempfile.mkdtemp(),
+    ...              name="demo_hr")
+    >>> r = run_harness(b, "sq", {"x": [1.0, 2.0]}, timing=False, flags=("-O1",))
+    >>> r.outputs["y"].tolist(), r.timing, r.executable.name
+    ([1.0, 4.0], None, 'harness_sq')
     """
 
     outputs: dict

@@ -6,7 +6,19 @@ the file (where there is one), the field, the offending value and the rule it br
 
 
 class CasflexError(Exception):
-    """Base class of every error casflex raises on purpose."""
+    """Base class of every error casflex raises on purpose.
+
+    Catch it to handle every deliberate casflex failure in one place (the CLI does).
+
+    Examples
+    --------
+    >>> from casflex.robot import loads
+    >>> try:
+    ...     loads("name = 'empty'")
+    ... except CasflexError as exc:
+    ...     print(type(exc).__name__)
+    ProblemFileError
+    """
 
 
 class ProblemFileError(CasflexError, ValueError):
@@ -22,6 +34,14 @@ class ProblemFileError(CasflexError, ValueError):
         The offending value.
     rule : str
         The rule the value broke, in words.
+
+    Examples
+    --------
+    >>> err = ProblemFileError("arm.toml", "link[0].material.E", -1.0, "must be > 0")
+    >>> str(err)
+    "arm.toml: field 'link[0].material.E' = -1.0: must be > 0"
+    >>> err.field, err.value, isinstance(err, ValueError)
+    ('link[0].material.E', -1.0, True)
     """
 
     def __init__(self, path, field, value, rule):
@@ -34,8 +54,26 @@ class ProblemFileError(CasflexError, ValueError):
 
 
 class SolverError(CasflexError, RuntimeError):
-    """A numerical solver (root search, Ipopt, integrator) failed or did not converge."""
+    """A numerical solver (root search, Ipopt, integrator) failed or did not converge.
+
+    Examples
+    --------
+    >>> try:
+    ...     raise SolverError("Ipopt: Maximum_Iterations_Exceeded after 3000 iterations")
+    ... except CasflexError as exc:
+    ...     print(exc, isinstance(exc, RuntimeError))
+    Ipopt: Maximum_Iterations_Exceeded after 3000 iterations True
+    """
 
 
 class ModelError(CasflexError, ValueError):
-    """A request the model cannot answer (wrong sizes, unknown link, out-of-range point)."""
+    """A request the model cannot answer (wrong sizes, unknown link, out-of-range point).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> load("problems/arm2link.toml").check_q([0.0, 0.0])
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: robot 'arm2link' has 3 joint variables; got q of shape (2,)
+    """

@@ -39,6 +39,18 @@ class TableProvider:
     ----------
     table : casflex.modal.tables.ModalTable
     method : {"bspline", "linear"}
+
+    Examples
+    --------
+    >>> from casflex.modal.tables import build_table
+    >>> from casflex.robot import load
+    >>> table = build_table(load("problems/arm2link.toml"), np.radians([0, 10, 20, 30]), 1,
+    ...                     cache_dir=False, processes=1)
+    >>> provider = TableProvider(table)
+    >>> provider.shape_joints
+    (2,)
+    >>> float(provider.function("omega")(np.radians(10)).full().round(3)[0, 0])   # rad/s
+    8.901
     """
 
     def __init__(self, table, method="bspline"):
@@ -51,6 +63,26 @@ class TableProvider:
         """Mask (C order) of the entries of ``name`` that vanish over the whole grid.
 
         See :func:`casflex.dynamics.zero_entries`.
+
+        Parameters
+        ----------
+        name : str
+            A tabulated quantity (``"omega"``, ``"C1"``, ...).
+
+        Returns
+        -------
+        numpy.ndarray of bool
+            One flag per entry of the value flattened in C order.
+
+        Examples
+        --------
+        >>> from casflex.modal.tables import build_table
+        >>> from casflex.robot import load
+        >>> table = build_table(load("problems/arm2link.toml"), np.radians([0, 10, 20, 30]),
+        ...                     1, cache_dir=False, processes=1)
+        >>> mask = TableProvider(table).zero_entries("C1")   # (1 mode, 2 beams, 4, 4)
+        >>> mask.shape, int(mask.sum())
+        ((32,), 22)
         """
         from casflex.dynamics import zero_entries
 
@@ -61,7 +93,32 @@ class TableProvider:
         return zero_entries(data, leading=len(self.table.shape))
 
     def function(self, name):
-        """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``."""
+        """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``.
+
+        Parameters
+        ----------
+        name : str
+            A tabulated quantity (``"omega"``, ``"C1"``, ...).
+
+        Returns
+        -------
+        casadi.Function
+            ``name(q_shape) -> value`` flattened in C order as a column vector; entries
+            that vanish over the whole grid are exact zeros (not interpolated). Cached
+            per name.
+
+        Examples
+        --------
+        >>> from casflex.modal.tables import build_table
+        >>> from casflex.robot import load
+        >>> table = build_table(load("problems/arm2link.toml"), np.radians([0, 10, 20, 30]),
+        ...                     1, cache_dir=False, processes=1)
+        >>> f = TableProvider(table).function("C1")
+        >>> f.name_in(), f.size_out(0)
+        (['q_shape'], (32, 1))
+        >>> int(np.count_nonzero(f(np.radians(15)).full()))   # 22 entries vanish everywhere
+        10
+        """
         if name in self._functions:
             return self._functions[name]
         x = ca.SX.sym("q_shape", len(self.shape_joints))
@@ -78,6 +135,20 @@ class TableProvider:
 def default_grid(robot, joints, step=None):
     """A full-turn grid per shape joint [rad]: 1.5° for one joint, 6° for more.
 
+    Parameters
+    ----------
+    robot : casflex.robot.Robot or None
+        Unused (kept for a uniform signature).
+    joints : sequence of int
+        The shape joints (0-based), one axis each.
+    step : float, optional
+        Grid step [rad]; a full turn needs at least 8 points.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        One axis per shape joint, from −π (included) to π (excluded) [rad].
+
     Examples
     --------
     >>> len(default_grid(None, (2,))[0])
@@ -93,7 +164,33 @@ def default_grid(robot, joints, step=None):
 
 
 def sensor_quantities(robot, q, shapes, points=()):
-    """Model quantities plus mode values at sensor ``points`` (picklable for the pool)."""
+    """Model quantities plus mode values at sensor ``points`` (picklable for the pool).
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    q : array_like
+        Joint variables the shapes were computed at [rad].
+    shapes : casflex.tmm.ModeShapes
+        Tracked, sign-corrected modes (not yet mass-normalised).
+    points : sequence of (int, float)
+        Sensor points ``(row, s)``: DH row of a flexible link, arc length [m].
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        As :func:`casflex.modal.integrals.configuration_quantities`.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> q = [0.0, 0.0, 0.5]
+    >>> values = sensor_quantities(robot, q, modes(robot, q, count=1), points=[(3, 1.0)])
+    >>> values["point_u"].shape   # (points, modes, 3)
+    (1, 1, 3)
+    """
     from casflex.modal.integrals import configuration_quantities
     from casflex.modal.normalize import mass_normalize
 
@@ -129,6 +226,17 @@ def build_model(robot, n_modes=5, *, step=None, grid=None, points=(), gravity="r
     -------
     model : casflex.dynamics.FlexibleModel
     table : casflex.modal.tables.ModalTable
+
+    Examples
+    --------
+    A one-mode model tabulated over a small range of the elbow joint (no cache):
+
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model, table = build_model(robot, n_modes=1, grid=[np.radians([0, 10, 20, 30])],
+    ...                            cache_dir=False, processes=1)
+    >>> model.m, table.shape_joints, table.omega.ravel().round(3).tolist()
+    (1, (2,), [8.307, 8.901, 9.639, 10.553])
     """
     from casflex.dynamics import FlexibleModel
     from casflex.modal.tables import build_table, shape_joints

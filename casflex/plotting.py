@@ -16,6 +16,17 @@ __all__ = ["plot_modes", "plot_sweep", "skeleton"]
 def skeleton(robot, q):
     """Points of the undeformed arm in the base frame, base to tip [m], shape (k, 3).
 
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    q : array_like
+        Joint variables [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (k, 3)
+        The base, then the end of every beam or rigid offset (repeated points dropped).
+
     Examples
     --------
     >>> from casflex.robot import load

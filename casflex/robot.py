@@ -96,6 +96,14 @@ class Section:
         Polar moment of area ``Ix + Iy`` [m^4] (torsional inertia ρ·Ip).
     kind : str
         ``"rectangle"``, ``"tube"`` or ``"explicit"`` (informative).
+
+    Examples
+    --------
+    >>> s = Section(A=1e-4, Ix=2e-9, Iy=3e-9, J=4e-9, Ip=5e-9)
+    >>> s.kind, s.Ix + s.Iy == s.Ip
+    ('explicit', True)
+    >>> Section.rectangle(0.01, 0.02).A
+    0.0002
     """
 
     A: float
@@ -108,6 +116,17 @@ class Section:
     @classmethod
     def rectangle(cls, a, b):
         """Solid rectangle, ``a`` along local y and ``b`` along local x [m].
+
+        Parameters
+        ----------
+        a : float
+            Side along the local y axis [m].
+        b : float
+            Side along the local x axis [m].
+
+        Returns
+        -------
+        Section
 
         Examples
         --------
@@ -128,6 +147,17 @@ class Section:
     def tube(cls, outer_diameter, wall):
         """Circular tube by outer diameter and wall thickness [m]; ``J = Ip``.
 
+        Parameters
+        ----------
+        outer_diameter : float
+            Outer diameter [m].
+        wall : float
+            Wall thickness [m], smaller than the outer radius.
+
+        Returns
+        -------
+        Section
+
         Examples
         --------
         >>> s = Section.tube(0.0127, 0.00041)
@@ -142,7 +172,23 @@ class Section:
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic material: moduli ``E``, ``G`` [Pa] and density ``rho`` [kg/m^3]."""
+    """Isotropic material: moduli ``E``, ``G`` [Pa] and density ``rho`` [kg/m^3].
+
+    Attributes
+    ----------
+    E : float
+        Young's modulus [Pa].
+    G : float
+        Shear modulus [Pa].
+    rho : float
+        Density [kg/m^3].
+
+    Examples
+    --------
+    >>> aluminium = Material(E=69e9, G=26.9e9, rho=2700.0)
+    >>> round(aluminium.E / (2 * aluminium.G) - 1, 3)   # Poisson's ratio
+    0.283
+    """
 
     E: float
     G: float
@@ -162,6 +208,14 @@ class TipBody:
         link frame axes [kg m^2].
     com_offset : tuple of 3 float
         Centre of mass relative to the row's end point, in the local link frame [m].
+
+    Examples
+    --------
+    >>> TipBody().is_empty
+    True
+    >>> tip = TipBody(mass=0.5, inertia=(1e-4, 1e-4, 2e-4), com_offset=(0.0, 0.0, 0.02))
+    >>> tip.mass, tip.is_empty
+    (0.5, False)
     """
 
     mass: float = 0.0
@@ -204,6 +258,16 @@ class Link:
     joint_stiffness : float or None
         Torsional spring at joint i between motor and outboard structure [Nm/rad]; ``None``
         for a rigid joint.
+
+    Examples
+    --------
+    >>> link = load("problems/arm2link.toml").links[2]
+    >>> link.name, link.joint, link.flexible, link.beam_along, link.length
+    ('link1', 'revolute', True, 'a', 1.0)
+    >>> round(link.mass_per_length, 4)   # rho * A [kg/m]
+    0.0945
+    >>> Link(d=0.3, joint="revolute").flexible
+    False
     """
 
     theta: float = 0.0
@@ -292,6 +356,16 @@ class Robot:
     def joint_angles(self, q):
         """DH angles θ_i of every row for joint variables ``q`` [rad].
 
+        Parameters
+        ----------
+        q : array_like, shape (n_joints,)
+            Joint variables [rad].
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_rows,)
+            ``theta`` of each row plus the joint variable of the revolute rows [rad].
+
         Examples
         --------
         >>> robot = load("problems/arm2link.toml")
@@ -304,7 +378,32 @@ class Robot:
         return theta
 
     def check_q(self, q):
-        """Return ``q`` as a float array of length ``n_joints`` or raise ModelError."""
+        """Return ``q`` as a float array of length ``n_joints`` or raise ModelError.
+
+        Parameters
+        ----------
+        q : array_like
+            Joint variables [rad]; a scalar is accepted for a one-joint robot.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_joints,)
+
+        Raises
+        ------
+        ModelError
+            Wrong length, or a non-finite value.
+
+        Examples
+        --------
+        >>> robot = load("problems/arm2link.toml")
+        >>> robot.check_q([0, 1, 2])
+        array([0., 1., 2.])
+        >>> robot.check_q([0.0, float("nan"), 0.0])
+        Traceback (most recent call last):
+            ...
+        casflex.errors.ModelError: joint variables must be finite; got q = [0.0, nan, 0.0]
+        """
         from casflex.errors import ModelError
 
         q = np.atleast_1d(np.asarray(q, dtype=float))
@@ -319,6 +418,16 @@ class Robot:
 
     def frames(self, q):
         """Homogeneous transforms ``T_0i`` of every DH frame ``i = 1..n`` (n, 4, 4).
+
+        Parameters
+        ----------
+        q : array_like, shape (n_joints,)
+            Joint variables [rad].
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_rows, 4, 4)
+            Base-to-frame transforms, one per DH row (positions in m).
 
         Examples
         --------
@@ -335,7 +444,24 @@ class Robot:
         return out
 
     def with_joint_stiffness(self, stiffness):
-        """Return a copy with the joint stiffness of every revolute row replaced [Nm/rad]."""
+        """Return a copy with the joint stiffness of every revolute row replaced [Nm/rad].
+
+        Parameters
+        ----------
+        stiffness : sequence of float or None
+            One value per joint variable, in order [Nm/rad]; ``None`` makes a joint rigid.
+
+        Returns
+        -------
+        Robot
+
+        Examples
+        --------
+        >>> robot = load("problems/arm2link.toml")
+        >>> soft = robot.with_joint_stiffness([None, 2000.0, 500.0])
+        >>> [soft.links[row].joint_stiffness for row in soft.joint_rows]
+        [None, 2000.0, 500.0]
+        """
         stiffness = list(stiffness)
         links = list(self.links)
         for row, k in zip(self.joint_rows, stiffness, strict=True):
@@ -553,7 +679,42 @@ def _read_link(path, raw, index):
 
 
 def loads(text, path=None):
-    """Read a robot description from TOML text (see :func:`load`)."""
+    """Read a robot description from TOML text (see :func:`load`).
+
+    Parameters
+    ----------
+    text : str
+        TOML text with ``[[link]]`` tables (see ``problems/README.md``).
+    path : str or pathlib.Path, optional
+        File name used in error messages and stored as ``Robot.source``.
+
+    Returns
+    -------
+    Robot
+
+    Raises
+    ------
+    ProblemFileError
+        Naming file, field, value and rule for anything malformed.
+
+    Examples
+    --------
+    >>> robot = loads('''
+    ... name = "pendulum"
+    ... [[link]]
+    ... joint = "revolute"
+    ... [[link]]
+    ... a = 0.5
+    ... tip = { mass = 1.0 }
+    ... ''')
+    >>> robot.name, robot.n_joints, robot.links[1].tip.mass
+    ('pendulum', 1, 1.0)
+    >>> try:
+    ...     loads('link = [{joint = "prismatic"}]')
+    ... except ProblemFileError as exc:
+    ...     print(exc.field, "=", repr(exc.value), exc.rule)
+    link[0].joint = 'prismatic' must be one of ['fixed', 'revolute']
+    """
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

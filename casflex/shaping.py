@@ -1041,6 +1041,13 @@ class NLPSolution:
         Wall time of the solver call only, s.
     build_time : float
         Wall time spent building the problem (CasADi graph and solver instance), s.
+
+    Examples
+    --------
+    >>> r = FrequencyRange(2 * math.pi * 0.81, 2 * math.pi * 1.19, 0.0, 0.05)
+    >>> sol = solve_si_nlp(SISample.from_ranges([r], 9), ei(2 * math.pi))
+    >>> sol.success, sol.status, len(sol.shaper), float(sol.shaper.amplitudes.sum())
+    (True, 'Solve_Succeeded', 3, 1.0)
     """
 
     shaper: Shaper
@@ -1290,6 +1297,15 @@ class SIShaperResult:
         Start point of the last solve (pruned/merged result of the previous one).
     initial_guess : Shaper
         The start of the first solve (convolved EI shapers).
+
+    Examples
+    --------
+    >>> hz = 2 * math.pi
+    >>> res = si_shaper([FrequencyRange(0.9 * hz, 1.1 * hz, 0.0, 0.05)])
+    >>> res.iterations, res.statuses, len(res.shaper)
+    (1, ['Solve_Succeeded'], 3)
+    >>> res.max_prv.round(4).tolist(), round(res.duration, 3)
+    ([0.05], 0.888)
     """
 
     shaper: Shaper
@@ -2026,6 +2042,23 @@ class MoveShaperResult:
         Relative margin added to the spans.
     si : SIShaperResult
         The full SI design result (verified maximum PRV per range, solver statuses).
+
+    Examples
+    --------
+    Two modes of the arm frozen at one configuration, so each range is a single frequency:
+
+    >>> from casflex.moves import load_move
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=2),
+    ...                       gravity=None)
+    >>> res = shaper_for_move(model, load_move("problems/moves.toml:move3"), margin=0.0,
+    ...                       n_samples=50)
+    >>> res.contributions.round(3).tolist(), res.tolerances.round(3).tolist()
+    ([1.0, 0.0], [0.05, 1.0])
+    >>> res.omega_min.round(3).tolist(), round(res.duration, 3)
+    ([8.307, 11.97], 0.366)
     """
 
     shaper: Shaper

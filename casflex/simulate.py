@@ -334,8 +334,6 @@ def sample_reference(reference, dt=1e-3, t_end=None, n_joints=None):
     >>> t.tolist(), q.ravel().tolist(), tm
     ([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0], [0.0, -0.125, -0.5, -0.875, -1.0, -1.0, -1.0], 2.0)
     """
-    from casflex.moves import Move
-
     if n_joints is None:
         n_joints = reference.n_joints if hasattr(reference, "n_joints") else \
             np.atleast_2d(np.asarray(reference[1]).T).T.shape[1]

@@ -14,7 +14,22 @@ HELP = "accessibility indexes of the modes over a grid of two joints (eq. 204)"
 
 
 def add_arguments(parser):
-    """Arguments of ``casflex accessibility``."""
+    """Arguments of ``casflex accessibility``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> a = p.parse_args(["problems/arm2link.toml", "--step", "45deg", "--modes", "1"])
+    >>> a.joints, a.step, a.modes, a.no_cache
+    ([2, 3], '45deg', 1, False)
+    """
     parser.add_argument("robot", help="robot description (TOML)")
     parser.add_argument("--joints", nargs=2, type=int, default=[2, 3], metavar="J",
                         help="the two joints varied, 1-based (default 2 3)")
@@ -27,7 +42,41 @@ def add_arguments(parser):
 
 
 def run(args, log):
-    """Compute the maps; return ``{"joints", "grid", "index"}`` (1-based joints, rad)."""
+    """Compute the maps; return ``{"joints", "grid", "index"}`` (1-based joints, rad).
+
+    Tabulates the modes over the two joints (a few seconds even for a coarse grid), so
+    the example below only shows the argument checks; ``casflex accessibility
+    problems/arm2link.toml --step 45deg --modes 1 --json`` gives an ``index`` of shape
+    (1, 8, 8).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        ``{"joints": [j1, j2] (1-based), "grid": [axis1, axis2] (rad), "index": (modes,
+        n1, n2) accessibility indexes (sqrt(kg) m)}``.
+
+    Raises
+    ------
+    ModelError
+        Invalid joints, step, ``--q`` or ``--modes``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> run(p.parse_args(["problems/arm2link.toml", "--joints", "1", "4"]), print)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --joints: 4 is not a joint of 'arm2link' (1..3)
+    """
     from casflex import control
     from casflex.modal.tables import shape_joints
     from casflex.model import build_model, default_grid

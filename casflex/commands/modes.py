@@ -12,7 +12,22 @@ HELP = "natural frequencies and mode shapes of a robot at one configuration (TMM
 
 
 def add_arguments(parser):
-    """Arguments of ``casflex modes``."""
+    """Arguments of ``casflex modes``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> a = p.parse_args(["problems/arm2link.toml", "--q", "0", "0", "90deg"])
+    >>> a.q, a.count, a.plot
+    (['0', '0', '90deg'], 5, None)
+    """
     parser.add_argument("robot", help="robot description (TOML)")
     parser.add_argument("--q", nargs="+", default=None, metavar="Q",
                         help="joint values, rad (or with a 'deg' suffix); zeros if omitted")
@@ -21,7 +36,30 @@ def add_arguments(parser):
 
 
 def run(args, log):
-    """Compute the modes; return ``{"q", "omega", "frequency_hz"}`` (rad, rad/s, Hz)."""
+    """Compute the modes; return ``{"q", "omega", "frequency_hz"}`` (rad, rad/s, Hz).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        ``{"q": (n_joints,) rad, "omega": (count,) rad/s, "frequency_hz": (count,) Hz}``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> args = p.parse_args(["problems/arm2link.toml", "--count", "2"])
+    >>> out = run(args, lambda message: None)
+    >>> out["q"].tolist(), out["omega"].round(3).tolist(), out["frequency_hz"].round(3).tolist()
+    ([0.0, 0.0, 0.0], [8.307, 11.97], [1.322, 1.905])
+    """
     from casflex.tmm import modes
 
     robot = load(args.robot)

@@ -52,6 +52,11 @@ HELP = ("Design a specified-insensitivity input shaper from a shaper problem fil
 def add_arguments(parser):
     """Add the ``shaper`` arguments to ``parser``.
 
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
     Examples
     --------
     >>> import argparse
@@ -140,6 +145,13 @@ def _plot(result, filename):
 
 def run(args, log):
     """Design the shaper of ``args.problem``; return impulses and per-range checks.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
 
     Returns
     -------

@@ -27,6 +27,11 @@ HELP = "simulate a planned move with perfect joint tracking (tip deflection, tor
 def add_arguments(parser):
     """Arguments of ``casflex simulate``.
 
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
     Examples
     --------
     >>> import argparse
@@ -55,7 +60,41 @@ def add_arguments(parser):
 
 
 def run(args, log):
-    """Build the model, simulate the move, return the JSON summary (SI units)."""
+    """Build the model, simulate the move, return the JSON summary (SI units).
+
+    Building the model takes seconds, so the example below only shows the argument
+    checks; see the module docstring for a full command line and the JSON keys.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        ``{"t_end": s, "max_tip_deflection": m, "residual_tip_deflection": m,
+        "torque_peak": [N m per joint]}``.
+
+    Raises
+    ------
+    ModelError
+        A move for another number of joints, ``--modes < 1`` or a bad ``--dt``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> args = p.parse_args(["problems/arm2link.toml", "--move", "problems/moves.toml:move1",
+    ...                      "--dt", "-0.01"])
+    >>> run(args, print)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --dt: must be a positive step in s; got -0.01
+    """
     from casflex.model import build_model
     from casflex.moves import load_move
     from casflex.simulate import plot_result, simulate_prescribed

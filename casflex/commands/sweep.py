@@ -38,6 +38,11 @@ MAX_POINTS = 100_000
 def add_arguments(parser):
     """Add the ``sweep`` arguments to ``parser``.
 
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
     Examples
     --------
     >>> import argparse
@@ -88,6 +93,23 @@ def _angle(text, option):
 def sweep_values(start, stop, step):
     """The joint values ``start, start + step, ...`` up to ``stop`` [rad].
 
+    Parameters
+    ----------
+    start, stop : float
+        First and last value [rad], ``start <= stop``; ``stop`` is included when it lies
+        on the grid (to 1e-9 steps).
+    step : float
+        Increment [rad], > 0.
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Raises
+    ------
+    ModelError
+        Non-positive step, ``start > stop``, or more than ``MAX_POINTS`` values.
+
     Examples
     --------
     >>> np.degrees(sweep_values(0.0, np.radians(3.0), np.radians(1.5))).round(6).tolist()
@@ -133,6 +155,18 @@ def _plot(values, omega, joint, tracked, robot_name, filename):
 
 def run(args, log):
     """Sweep the joint; return ``{"joint", "q", "omega"}`` (rad, rad/s).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        ``{"joint": K (1-based), "q": [rad, ...], "omega": [[rad/s per mode], ...]}``.
 
     Examples
     --------

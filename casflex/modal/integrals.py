@@ -169,6 +169,20 @@ def section_pseudo_inertia(link):
 
     Translational mass and torsional inertia only (module docstring) [kg/m, kg m].
 
+    Parameters
+    ----------
+    link : casflex.robot.Link
+        A flexible row.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 4)
+
+    Raises
+    ------
+    ModelError
+        The row is rigid.
+
     Examples
     --------
     >>> from casflex.robot import load

@@ -226,6 +226,19 @@ def default_quantities(robot, q, shapes):
     Returns
     -------
     dict of str to numpy.ndarray
+        Keys, shapes and units as in :mod:`casflex.modal.integrals`.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> q = np.zeros(3)
+    >>> values = default_quantities(robot, q, modes(robot, q, count=2))
+    >>> sorted(values)
+    ['C1', 'C2', 'N', 'end_theta', 'end_u', 'eps', 'omega', 'spring_phi']
+    >>> values["omega"].round(3), values["C2"].shape
+    (array([ 8.307, 11.97 ]), (2, 2, 2, 4, 4))
     """
     from casflex.modal.integrals import configuration_quantities
     from casflex.modal.normalize import mass_normalize
@@ -447,6 +460,15 @@ def robot_fingerprint(robot):
     tip body, motor inertia, joint stiffness), the gravity vector and the damping ratio;
     not the name, description or source file.
 
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+
+    Returns
+    -------
+    str
+        Canonical JSON text (part of the cache key of the modal tables).
+
     Examples
     --------
     >>> from casflex.robot import load
@@ -627,7 +649,26 @@ class ModalTable:
         return sorted(self.values)
 
     def q(self, index):
-        """Full joint vector [rad] of the grid point ``index``."""
+        """Full joint vector [rad] of the grid point ``index``.
+
+        Parameters
+        ----------
+        index : tuple of int
+            One index per grid axis.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_joints,)
+            ``q_fixed`` with the shape joints set to the grid values [rad].
+
+        Examples
+        --------
+        >>> t = ModalTable(grid=(np.linspace(0, 1, 5),), shape_joints=(2,),
+        ...                values={"omega": np.ones((5, 1))}, omega=np.ones((5, 1)),
+        ...                q_fixed=np.array([0.1, 0.2, 0.0]))
+        >>> t.q((3,)).tolist()
+        [0.1, 0.2, 0.75]
+        """
         q = np.array(self.q_fixed, dtype=float)
         for axis, k, i in zip(self.grid, self.shape_joints, index, strict=True):
             q[k] = axis[i]

@@ -372,6 +372,16 @@ class Tracking:
     degenerate : numpy.ndarray
         (n_steps,) True where the step had a multiple root and was fitted from its
         neighbours.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> seq = [modes(robot, [0, 0, x], count=4) for x in np.radians([50.0, 55.0])]
+    >>> tr = track(seq, count=3, robot=robot)
+    >>> tr.order.tolist(), tr.degenerate.tolist()
+    ([[0, 1, 2], [0, 2, 1]], [False, False])
     """
 
     transform: tuple
@@ -381,12 +391,53 @@ class Tracking:
     degenerate: np.ndarray
 
     def apply(self, sequence):
-        """The tracked, sign-corrected ModeShapes of every step of ``sequence``."""
+        """The tracked, sign-corrected ModeShapes of every step of ``sequence``.
+
+        Parameters
+        ----------
+        sequence : sequence of ModeShapes
+            The raw modes that were passed to :func:`track`.
+
+        Returns
+        -------
+        list of ModeShapes
+            Modes in tracked order and sign, ``count`` per step.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.tmm import modes
+        >>> robot = load("problems/arm2link.toml")
+        >>> seq = [modes(robot, [0, 0, x], count=4) for x in np.radians([50.0, 55.0])]
+        >>> tracked = track(seq, count=3, robot=robot).apply(seq)
+        >>> seq[1].omega[:3].round(2), tracked[1].omega.round(2)   # modes 2, 3 swapped
+        (array([13.79, 18.61, 19.82]), array([13.79, 19.82, 18.61]))
+        """
         return [combine(s, T, o) for s, T, o in
                 zip(sequence, self.transform, self.order, strict=True)]
 
     def omega(self, sequence):
-        """(n_steps, n) tracked natural frequencies [rad/s]."""
+        """(n_steps, n) tracked natural frequencies [rad/s].
+
+        Parameters
+        ----------
+        sequence : sequence of ModeShapes
+            The raw modes that were passed to :func:`track`.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_steps, n)
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.tmm import modes
+        >>> robot = load("problems/arm2link.toml")
+        >>> seq = [modes(robot, [0, 0, x], count=4) for x in np.radians([50.0, 55.0])]
+        >>> track(seq, count=3, robot=robot).omega(seq).round(2)
+        array([[13.04, 18.79, 18.8 ],
+               [13.79, 19.82, 18.61]])
+        """
         return np.array([np.asarray(s.omega)[o] for s, o in
                          zip(sequence, self.order, strict=True)])
 
@@ -542,6 +593,16 @@ class GridTracking:
         mode at the previous index along each axis (NaN at index 0), for *every* grid edge
         including those outside the spanning tree; a value near +1 is a consistent edge, a
         negative one a sign inconsistency, a small one an identity jump.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> grid = [[modes(robot, [0, a, b], count=3) for b in (0.2, 0.3)] for a in (0.0, 0.5)]
+    >>> gt = track_grid(grid, count=2, robot=robot)
+    >>> gt.order.shape, gt.edge_correlation.shape, bool(gt.degenerate.any())
+    ((2, 2, 2), (2, 2, 2, 2), False)
     """
 
     transform: np.ndarray
@@ -552,7 +613,31 @@ class GridTracking:
     edge_correlation: np.ndarray
 
     def apply(self, shapes):
-        """Object array of tracked ModeShapes for a grid of raw ModeShapes."""
+        """Object array of tracked ModeShapes for a grid of raw ModeShapes.
+
+        Parameters
+        ----------
+        shapes : numpy.ndarray of ModeShapes
+            Object array of the grid's shape (the raw modes given to :func:`track_grid`).
+
+        Returns
+        -------
+        numpy.ndarray of ModeShapes
+            Object array of the grid's shape, ``count`` tracked modes per point.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.tmm import modes
+        >>> robot = load("problems/arm2link.toml")
+        >>> raw = np.empty((2, 2), dtype=object)
+        >>> for i, a in enumerate((0.0, 0.5)):
+        ...     for j, b in enumerate((0.2, 0.3)):
+        ...         raw[i, j] = modes(robot, [0, a, b], count=3)
+        >>> tracked = track_grid(raw, count=2, robot=robot).apply(raw)
+        >>> tracked.shape, tracked[1, 1].omega.shape
+        ((2, 2), (2,))
+        """
         out = np.empty(self.transform.shape, dtype=object)
         for idx in np.ndindex(self.transform.shape):
             out[idx] = combine(shapes[idx], self.transform[idx], self.order[idx])

@@ -49,6 +49,17 @@ class Element:
         Kind-specific data: beam — ``length``, ``section``, ``material``; body — ``mass``,
         ``inertia``, ``com_offset`` (local); offset — ``r`` (base frame); spring —
         ``stiffness``, ``axis`` (base frame).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> beam = build_chain(load("problems/arm2link.toml"), [0.0, 0.0, 0.0]).elements[1]
+    >>> beam.kind, beam.row, beam.params["length"]
+    ('beam', 3, 1.0)
+    >>> beam.start.tolist(), beam.end.round(6).tolist()   # hangs down from the elbow
+    ([1.0, 0.0, 0.0], [1.0, 0.0, -1.0])
+    >>> beam.rotation12.shape
+    (12, 12)
     """
 
     kind: str
@@ -83,6 +94,13 @@ class Chain:
         Joint variables [rad].
     beam_rows : tuple of int
         DH row index of each beam element, base first.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> chain = build_chain(load("problems/arm2link.toml"), [0.0, 0.5, 0.0])
+    >>> chain.beam_rows, len(chain.beams), chain.q.tolist()
+    ((2, 3), 2, [0.0, 0.5, 0.0])
     """
 
     elements: tuple

@@ -55,6 +55,16 @@ DISSERTATION_ORDER = np.array([0, 3, 6, 9, 1, 4, 7, 10, 2, 5, 8, 11])
 def skew(v):
     """Cross-product matrix ``[v]×`` with ``[v]× w = v × w``.
 
+    Parameters
+    ----------
+    v : array_like, shape (3,)
+        The vector.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        Skew-symmetric matrix.
+
     Examples
     --------
     >>> skew([0.0, 0.0, 1.0]) @ [1.0, 0.0, 0.0]
@@ -244,6 +254,15 @@ def offset_matrix(r):
 
     ``u_B = u_A + θ × r``, ``θ_B = θ_A``, ``F_B = F_A``, ``M_B = M_A − r × F_A``.
 
+    Parameters
+    ----------
+    r : array_like, shape (3,)
+        Offset from A to B [m], in the state's frame.
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
+
     Examples
     --------
     >>> float(offset_matrix([0.0, 0.0, 1.0])[0, 4])   # u_x grows with θ_y along z
@@ -263,6 +282,23 @@ def rigid_body_matrix(omega, mass, inertia, com_offset, length):
     ``com_offset`` from the link's start) rides on a massless rigid segment from z = 0 to
     z = ``length``. The dissertation's eq. 53–55 are the case ``com_offset = (0, 0, r)``.
 
+    Parameters
+    ----------
+    omega : array_like, shape (N,)
+        Frequencies [rad/s].
+    mass : float
+        Body mass [kg].
+    inertia : array_like, shape (3,)
+        Principal moments about the centre of mass, local axes [kg m^2].
+    com_offset : array_like, shape (3,)
+        Centre of mass from the link's start, local frame [m].
+    length : float
+        Length of the rigid segment along local z [m].
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, 12, 12)
+
     Examples
     --------
     >>> U = rigid_body_matrix([1.0], 1.0, [0, 0, 0], [0, 0, 0.5], 1.0)
@@ -277,6 +313,15 @@ def rotation_matrix(R):
     """12 × 12 frame change ``blockdiag(R, R, R, R)``: components in frame A → frame B.
 
     ``R`` maps A-components to B-components (``v_B = R v_A``).
+
+    Parameters
+    ----------
+    R : array_like, shape (3, 3)
+        Rotation matrix.
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
 
     Examples
     --------
@@ -298,6 +343,15 @@ def _rot(axis, angle):
 def rotation_x(angle):
     """Eq. 58: components in a frame rotated by ``angle`` [rad] about x (12 × 12).
 
+    Parameters
+    ----------
+    angle : float
+        Rotation of the new frame about x [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
+
     Examples
     --------
     >>> np.allclose(rotation_x(0.3) @ rotation_x(-0.3), np.eye(12))
@@ -309,6 +363,15 @@ def rotation_x(angle):
 def rotation_y(angle):
     """Eq. 57: frame rotated by ``angle`` [rad] about y (12 × 12).
 
+    Parameters
+    ----------
+    angle : float
+        Rotation of the new frame about y [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
+
     Examples
     --------
     >>> np.allclose(rotation_y(0.3).T, rotation_y(-0.3))
@@ -319,6 +382,15 @@ def rotation_y(angle):
 
 def rotation_z(angle):
     """Eq. 56: frame rotated by ``angle`` [rad] about z (12 × 12).
+
+    Parameters
+    ----------
+    angle : float
+        Rotation of the new frame about z [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
 
     Examples
     --------
@@ -333,6 +405,17 @@ def joint_spring_matrix(stiffness, axis=(0.0, 0.0, 1.0)):
 
     The outboard side rotates relative to the inboard side by ``φ = (axis · M)/k``;
     every other quantity is continuous.
+
+    Parameters
+    ----------
+    stiffness : float
+        Spring stiffness k [Nm/rad], > 0.
+    axis : array_like, shape (3,), optional
+        Joint axis in the state's frame (normalised here); default z.
+
+    Returns
+    -------
+    numpy.ndarray, shape (12, 12)
 
     Examples
     --------

@@ -190,6 +190,18 @@ def system_matrix(chain, omega):
 def frequency_determinant(chain, omega):
     """``det subU(ω)`` with rows scaled to unit peak: zero exactly at the natural frequencies.
 
+    Parameters
+    ----------
+    chain : Chain
+        From :func:`casflex.tmm.chain.build_chain`.
+    omega : array_like, shape (N,)
+        Frequencies [rad/s].
+
+    Returns
+    -------
+    numpy.ndarray, shape (N,)
+        Scaled determinants (dimensionless).
+
     Examples
     --------
     >>> from casflex.robot import load
@@ -197,6 +209,10 @@ def frequency_determinant(chain, omega):
     >>> chain = build_chain(load("problems/arm2link.toml"), [0, 0, 0])
     >>> frequency_determinant(chain, [1.0]).shape
     (1,)
+    >>> w1 = natural_frequencies(chain, count=1)[0]           # a root of the determinant
+    >>> d = frequency_determinant(chain, [0.9 * w1, 1.1 * w1])
+    >>> bool(d[0] * d[1] < 0)
+    True
     """
     stack, cfg, omega = _single(chain, omega)
     return stack.det(cfg, omega)
@@ -560,6 +576,17 @@ class ModeShapes:
         joint spring [rad].
     spring_rows : tuple of int
         DH row of each joint spring.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> shapes = modes(load("problems/arm2link.toml"), [0.0, 0.0, 0.0], count=2)
+    >>> shapes.omega.round(3), shapes.rows
+    (array([ 8.307, 11.97 ]), (2, 3))
+    >>> shapes.s.shape, shapes.displacement.shape   # (beams, points), (modes, beams, points, 3)
+    ((2, 51), (2, 2, 51, 3))
+    >>> float(np.abs(shapes.displacement).max().round(12))   # unit peak displacement
+    1.0
     """
 
     omega: np.ndarray
