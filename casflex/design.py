@@ -71,6 +71,12 @@ class Study:
     model, shaper, simulation, controller, estimator, codegen : dict
         The settings of every step, defaults filled in (units as in ``problems/README.md``;
         ``model["grid_step"]`` is converted to rad).
+
+    Examples
+    --------
+    >>> s = load_study("problems/studies/arm2link_move1.toml")
+    >>> s.robot_path.name, round(s.model["grid_step"], 6), s.estimator["Q"]
+    ('arm2link.toml', 0.05236, 5e-06)
     """
 
     path: Path
@@ -255,6 +261,12 @@ class DesignResult:
     out_dir : pathlib.Path
     files : list of pathlib.Path
         Every file written (report, figures, summary, C bundle).
+
+    Examples
+    --------
+    >>> r = DesignResult(summary={"stable": True}, out_dir=Path("out"), files=[])
+    >>> r.summary["stable"], r.out_dir.name
+    (True, 'out')
     """
 
     summary: dict
@@ -294,6 +306,26 @@ def run_design(study, out_dir, *, progress=False, log=None, cache_dir=None, proc
         ``[[lo, hi], ...]`` per mode, margin included], ``contributions`` (normalised, max
         1), ``residual_reduction`` (fraction of the unshaped residual tip deflection that
         shaping removes, 0–1), ``stable`` and ``c_files``.
+
+    Examples
+    --------
+    The bundled study made small (one mode, a 30° grid, a 5 ms step, the inversion-based
+    controller, C generated but not compiled) so that it runs in seconds:
+
+    >>> import tempfile
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> text = Path("problems/studies/arm2link_move1.toml").read_text()
+    >>> for old, new in [('"../', f'"{Path.cwd()}/problems/'), ("modes = 3 ", "modes = 1 "),
+    ...                  ("grid_step = 3.0", "grid_step = 30.0"), ("dt = 0.001", "dt = 0.005"),
+    ...                  ("settle = 3.0", "settle = 0.5"), ('"composite"', '"inversion"'),
+    ...                  ("compile = true", "compile = false")]:
+    ...     text = text.replace(old, new)
+    >>> _ = (tmp / "small.toml").write_text(text)
+    >>> r = run_design(tmp / "small.toml", tmp / "out", cache_dir=tmp / "cache", processes=1)
+    >>> 0.5 < r.summary["residual_reduction"] < 1.0, r.summary["stable"]
+    (True, True)
+    >>> sorted(p.name for p in r.files if p.suffix == ".png")[:2]
+    ['accessibility.png', 'estimation.png']
     """
     from casflex import control, shaping
     from casflex.estimation import ekf_step_function, tabulate_plant

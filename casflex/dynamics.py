@@ -155,11 +155,34 @@ class ConstantProvider:
         self.shape_joints = tuple(int(j) for j in shape_joints)
 
     def zero_entries(self, name):
-        """Mask (C order) of the entries of ``name`` that vanish (see :func:`zero_entries`)."""
+        """Mask (C order) of the entries of ``name`` that vanish (see :func:`zero_entries`).
+
+        Parameters
+        ----------
+        name : str
+            A quantity of :func:`casflex.modal.integrals.configuration_quantities`.
+
+        Examples
+        --------
+        >>> ConstantProvider({"omega": [2.0, 0.0]}).zero_entries("omega").tolist()
+        [False, True]
+        """
         return zero_entries(self.quantities[name])
 
     def function(self, name):
-        """casadi.Function ``q_shape -> name`` (C-order flattened array, column vector)."""
+        """casadi.Function ``q_shape -> name`` (C-order flattened array, column vector).
+
+        Parameters
+        ----------
+        name : str
+            A quantity of :func:`casflex.modal.integrals.configuration_quantities`.
+
+        Examples
+        --------
+        >>> p = ConstantProvider({"end_u": np.ones((1, 2, 3))}, shape_joints=(2,))
+        >>> p.function("end_u").size1_out(0)
+        6
+        """
         if name not in self.quantities:
             raise ModelError(f"provider has no quantity {name!r}; it has "
                              f"{sorted(self.quantities)}")
@@ -204,6 +227,10 @@ class PointwiseProvider(ConstantProvider):
 
 def rigid_provider(robot):
     """A provider with zero modes: the model reduces to the rigid-body dynamics.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
 
     Examples
     --------

@@ -64,14 +64,6 @@ PENDING: frozenset[str] = frozenset({
     "casflex.sensors.SensorSet.with_options",  # Parameters only
     "casflex.sensors.default_strain_distance",  # Parameters only
     "casflex.sensors.point_position_function",  # Parameters only
-    # casflex.design
-    "casflex.design.DesignResult",
-    "casflex.design.Study",
-    "casflex.design.run_design",
-    # casflex.dynamics
-    "casflex.dynamics.ConstantProvider.function",
-    "casflex.dynamics.ConstantProvider.zero_entries",
-    "casflex.dynamics.rigid_provider",  # Parameters only
     # casflex.commands.codegen
     "casflex.commands.codegen.add_arguments",  # Parameters only
     "casflex.commands.codegen.rt_functions",
@@ -79,9 +71,6 @@ PENDING: frozenset[str] = frozenset({
     # casflex.commands.check
     "casflex.commands.check.add_arguments",
     "casflex.commands.check.run",
-    # casflex.commands.design
-    "casflex.commands.design.add_arguments",  # Parameters only
-    "casflex.commands.design.run",
 })
 
 _EXAMPLES = re.compile(r"^Examples\n-{3,}\n", re.MULTILINE)

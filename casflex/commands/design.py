@@ -25,6 +25,10 @@ HELP = "run the design job of a study: shaper, simulations, stability, C bundle,
 def add_arguments(parser):
     """Arguments of ``casflex design``.
 
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+
     Examples
     --------
     >>> import argparse
@@ -43,7 +47,36 @@ def add_arguments(parser):
 
 
 def run(args, log):
-    """Validate the study, run the job, return the summary (SI units)."""
+    """Validate the study, run the job, return the summary (SI units).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        From :func:`add_arguments`.
+    log : callable
+        ``log(message)`` writes one line to stderr.
+
+    Returns
+    -------
+    dict
+        :attr:`casflex.design.DesignResult.summary`.
+
+    Examples
+    --------
+    A study with a tolerance outside ``(0, 1]`` fails before any heavy work:
+
+    >>> import argparse, tempfile
+    >>> from pathlib import Path
+    >>> bad = Path(tempfile.mkdtemp()) / "bad.toml"
+    >>> _ = bad.write_text(Path("problems/studies/arm2link_move1.toml").read_text()
+    ...                    .replace("vtol = 0.05", "vtol = 2.0")
+    ...                    .replace('"../', f'"{Path.cwd()}/problems/'))
+    >>> run(argparse.Namespace(study=str(bad), out="o", cache_dir=None, processes=None),
+    ...     print)
+    Traceback (most recent call last):
+    ...
+    casflex.errors.ProblemFileError: ...shaper.vtol...must be <= 1...
+    """
     from casflex.design import load_study, run_design
     from casflex.errors import ModelError
 
