@@ -372,6 +372,8 @@ def reference_function(move):
     >>> [float(v) for v in r(1.5)]
     [-0.875, -0.5, 1.0]
     """
+    if hasattr(move, "casadi_reference"):  # e.g. casflex.moves.ShapedMove
+        return move.casadi_reference()
     t = ca.SX.sym("t")
     T = float(move.duration)
     q0, qf = ca.DM(move.q0), ca.DM(move.qf)
@@ -1007,7 +1009,12 @@ def simulate_closed_loop(model, controller, move, x0=None, t_end=None, dt=1e-3,
     ``substeps`` classical RK4 steps per ``dt`` instead (one ``mapaccum``; the reference
     is evaluated just inside each step so its jumps fall between steps). With
     ``sampled=True`` (always with an estimator) the law runs at ``t_k = k·dt`` and its
-    torque is held until ``t_{k+1}``, as in the real-time loop, with RK4.
+    torque is held until ``t_{k+1}``, as in the real-time loop, with RK4. Sampling has a
+    limit on the Table 8 model: where the residual joint inertia ``M_qq − M_qδ M_qδᵀ``
+    nearly vanishes (mid ``control_move1``, smallest eigenvalue 2e-5 kg·m²) the
+    computed-torque loops on ``M_qq`` have real poles beyond −1300 1/s and a 1 ms (even
+    0.2 ms) zero-order hold diverges, for the slow law alone too; ``control_move3`` runs
+    sampled at 1 ms.
 
     Parameters
     ----------
@@ -1031,10 +1038,16 @@ def simulate_closed_loop(model, controller, move, x0=None, t_end=None, dt=1e-3,
         Zero-order hold of the torque over each ``dt``.
     estimator : dict, optional
         Output feedback: ``{"step": ekf_step, "sensors": SensorSet, "P0": P0,
-        "x0": x̂0, "R": R (noise covariance, optional), "seed": 0}`` — the EKF of
-        :func:`casflex.estimation.ekf_step_function` fed with ``u = [q, q̇, q̈]`` (q̈ of
-        the previous sample) and the exact signals (plus noise of covariance ``R``);
-        the controller gets ``[q, δ̂, q̇, δ̂̇]``. (Not yet exercised by the tests.)
+        "x0": x̂0, "R": R (noise covariance, optional), "seed": 0, "noise": array
+        (optional), "ddq": "plant" | "difference"}``. At every sample ``t_k`` the exact
+        signals of the plant (its acceleration just before ``t_k``, under the torque of
+        the previous sample) plus noise — the rows of ``noise`` ((N + 1, r) samples, if
+        given) or draws of covariance ``R`` — go to the EKF of
+        :func:`casflex.estimation.ekf_step_function` with ``u = [q, q̇, q̈]``: ``q̈`` is
+        the plant's (``"plant"``, default) or the backward difference of the joint rates
+        ``(q̇_k − q̇_{k−1})/dt`` (``"difference"``, what the real-time ``rt_step`` of
+        :mod:`casflex.rtloop` computes from the encoders). The controller gets
+        ``[q, δ̂, q̇, δ̂̇]`` with the filtered estimate ``x̂_{k|k}``.
     rtol, atol : float
         CVODES tolerances.
 
@@ -1109,7 +1122,7 @@ def simulate_closed_loop(model, controller, move, x0=None, t_end=None, dt=1e-3,
         for k0, k1, jump in segments:
             if jump is not None:
                 xc = _impulse_jump(model, xc, jump)
-                X[-1] = xc[None]
+                X[-1] = np.vstack([X[-1][:-1], xc[None]])  # the state at t_d: after the jump
             if k1 > k0:
                 Xs, Us = step.mapaccum("cl", k1 - k0)(xc, t[k0:k1][None, :])
                 Xs, Us = np.asarray(Xs).T, np.asarray(Us).T
@@ -1201,6 +1214,16 @@ def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, impulse, es
     h = measurement_function(model, sensors)
     ny = sensors.n_outputs
     rng = np.random.default_rng(est.get("seed", 0))
+    ddq_source = est.get("ddq", "plant")
+    if ddq_source not in ("plant", "difference"):
+        raise ModelError(f"estimator['ddq'] must be 'plant' or 'difference'; got "
+                         f"{ddq_source!r}")
+    noise = est.get("noise")
+    if noise is not None:
+        noise = np.asarray(noise, dtype=float)
+        if noise.shape != (t.size, ny):
+            raise ModelError(f"estimator['noise']: expected shape {(t.size, ny)} (one row "
+                             f"of {ny} signals per sample); got {noise.shape}")
     Rn = est.get("R")
     Lr = None if Rn is None else np.linalg.cholesky(
         np.atleast_2d(np.asarray(Rn, dtype=float)) * np.eye(ny) if np.ndim(Rn) < 2
@@ -1233,8 +1256,13 @@ def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, impulse, es
         X[k] = x
         u = np.r_[x[:n], x[n + m:2 * n + m], ddq_prev]
         y = np.asarray(h(np.r_[x[n:n + m], x[2 * n + m:]], u)[-1]).ravel()
-        if Lr is not None:
+        if noise is not None:
+            y = y + noise[k]
+        elif Lr is not None:
             y = y + Lr @ rng.standard_normal(ny)
+        if ddq_source == "difference":
+            dq_k = x[n + m:2 * n + m]
+            u = np.r_[x[:n], dq_k, (dq_k - (X[k - 1, n + m:2 * n + m] if k else dq_k)) / dt]
         xprior_next, P, xpost = ekf(xprior, P, u, y, mask)
         xpost = np.asarray(xpost).ravel()
         XH[k] = xpost
@@ -1413,6 +1441,33 @@ def composite_stability(model, move, gain=None, epsilon=None, Q=1.0, R=10.0, t=N
         ``t``, ``real`` (largest real part of the fast closed-loop eigenvalues per time,
         real time [1/s]), ``worst_real``, ``worst_time``, ``worst_q``,
         ``worst_margin`` (``−worst_real``), ``stable``, ``epsilon``.
+
+    Notes
+    -----
+    With the gains fixed at the end of ``control_move1`` (the dissertation's choice) the
+    Table 8 model reports the fast loop unstable over the first ~0.5 s (largest real
+    part +87 1/s at ``q0 = [0, 1, 6.2]``, 70 at 0.2 s, 27 at 0.4 s; 3-mode table, 15°
+    grid), while gains scheduled over the grid keep it Hurwitz. This is the model, not
+    the boundary-layer formula (frames, signs and the ε scaling were checked: the
+    eigenvalues are invariant to ε up to the gain it implies, and ``A_f, B_f`` follow
+    from ``M(q, 0)⁻¹``): independently of this function,
+
+    * the full 12-state linearisation of the model under the composite law (finite
+      differences of :func:`closed_loop`) at ``q0`` has an eigenvalue at +26 1/s with the
+      end gains (+19 at 0.2 s, +8 at 0.4 s, stable from 0.6 s), −0.75 1/s with the
+      schedule;
+    * holding ``q0`` from a deflection of 1e-5 the state grows by ~5·10⁵ in 0.4 s with the
+      end gains and stays bounded with the schedule; along move 1 the joints leave the
+      plan by 5.6 rad within 0.6 s (0.04 rad with the schedule);
+
+    (``tests/test_control.py::test_end_gains_instability_is_in_the_model_not_the_boundary_layer``).
+    The cause is the small residual joint inertia of this arm, ``M_qq − M_qδ M_qδᵀ``
+    (smallest eigenvalue 4.5e-4 kg·m² at ``q0``, 2.1e-5 at mid-move, against 0.016–0.26
+    for ``M_qq``): ``B_f = [0; H_δq]`` is large and turns with the configuration
+    (‖B_f‖ = 340 at ``q0``, 1000 at ``qf``), the LQR at ``qf`` is high-gain (fast poles
+    −2025 and −1124 1/s) and the same gain with the ``B_f`` of ``q0`` has a real
+    eigenvalue in the right half-plane. The dissertation's arm may differ in its motor
+    inertias; for this model use :func:`gain_schedule`.
 
     Examples
     --------

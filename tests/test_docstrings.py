@@ -56,9 +56,6 @@ PENDING: frozenset[str] = frozenset({
     "casflex.rtcode.ekf_bundle",
     "casflex.rtcode.ekf_units",  # Parameters only
     "casflex.rtcode.model_bundle",  # Parameters only
-    # casflex.rtloop
-    "casflex.rtloop.closed_loop_bundle",  # Parameters only
-    "casflex.rtloop.rt_units",  # Parameters only
     # casflex.sensors
     "casflex.sensors.SensorSet.point_index",
     "casflex.sensors.SensorSet.with_options",  # Parameters only

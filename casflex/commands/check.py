@@ -84,6 +84,10 @@ def run(args, log):
     log(f"fast closed loop along {move.name}: largest real part {r['worst_real']:.6g} 1/s "
         f"at t = {r['worst_time']:.3f} s, q = {np.round(r['worst_q'], 4).tolist()} rad "
         f"(epsilon = {eps:.4g} s)")
+    if not r["stable"] and not args.schedule:
+        log("note: with gains fixed at the end of the move the fast loop of this model is "
+            "not Hurwitz along the move (a property of the model: small residual joint "
+            "inertia, see casflex.control.composite_stability); try --schedule")
     return {"stable": r["stable"], "worst_margin": r["worst_margin"],
             "worst_time": r["worst_time"], "worst_real": r["worst_real"],
             "worst_q": r["worst_q"], "epsilon": eps,

@@ -5,9 +5,14 @@ README and Makefile: ``DIR/<name>_ekf`` with ``ekf_step``, ``plant``, ``measurem
 ``rigid_signals`` (:func:`casflex.rtcode.ekf_bundle`) and, unless ``--no-model``,
 ``DIR/<name>_model`` with the model's ``forward`` dynamics.
 
-Extending the verb (e.g. a controller and an ``rt_step``): :func:`rt_functions` returns the
-named CasADi functions of the bundle; add yours to that dict (and their units) before
-:func:`run` generates it.
+With ``--controller composite|inversion`` the EKF bundle also gets ``rt_step``
+(:func:`casflex.rtloop.rt_step_function`): encoder readings, reference and accelerometer
+sample to the joint torques and the updated estimator state in one call. The model is then
+built as in the control studies (``delta_order=0``, the dissertation's ``M(q)``); the
+composite law uses fast gains scheduled over the configuration grid.
+
+Extending the verb: :func:`rt_functions` returns the named CasADi functions of the bundle;
+add yours to that dict (and their units) before :func:`run` generates it.
 """
 
 from __future__ import annotations
@@ -49,6 +54,14 @@ def add_arguments(parser):
     parser.add_argument("--no-model", action="store_true",
                         help="skip the forward-dynamics bundle")
     parser.add_argument("--no-gravity", action="store_true", help="model without gravity")
+    parser.add_argument("--controller", choices=("composite", "inversion"), default=None,
+                        help="add rt_step: EKF and this controller in one call")
+    parser.add_argument("--kp", type=float, default=1.0, help="K_p [1/s^2] (default 1)")
+    parser.add_argument("--kd", type=float, default=2.0, help="K_d [1/s] (default 2)")
+    parser.add_argument("--q-weight", type=float, default=1.0,
+                        help="composite: LQR Q = w I (default 1)")
+    parser.add_argument("--r-weight", type=float, default=10.0,
+                        help="composite: LQR R = w I (default 10)")
 
 
 def rt_functions(model, sensors, args, plant=None):
@@ -83,7 +96,19 @@ def rt_functions(model, sensors, args, plant=None):
         wc = highpass_cutoff(model, np.zeros(model.n))
         funcs["ekf_step"] = ekf_step_function(plant, sensors, args.Q, R, args.dt,
                                               sqrt=args.sqrt, prefilter=wc)
-    return funcs, ekf_units(sensors)
+    units = ekf_units(sensors)
+    if getattr(args, "controller", None):
+        from casflex import rtloop
+
+        ctrl = rtloop.make_controller(model, args.controller, Kp=args.kp, Kd=args.kd,
+                                      Q=args.q_weight, R=args.r_weight)
+        step = funcs["ekf_step"]
+        funcs["rt_step"] = rtloop.rt_step_function(step, ctrl, args.dt)
+        rt = rtloop.rt_units(sensors, cov=step.name_in(1))
+        if step.n_in() > 5:
+            rt["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
+        units.update(rt)
+    return funcs, units
 
 
 def run(args, log):
@@ -102,11 +127,15 @@ def run(args, log):
     sensors = load_sensors(args.sensors, robot)
     step = None if args.step is None else np.radians(args.step)
     log(f"building the model of '{robot.name}' with {args.modes} modes ...")
+    options = {"delta_order": 0} if args.controller else {}
     model, _ = build_model(robot, n_modes=args.modes, step=step, points=sensors.points,
-                           gravity=None if args.no_gravity else "robot")
-    log("tabulating the flexible plant for the EKF ...")
+                           gravity=None if args.no_gravity else "robot", **options)
+    log("tabulating the flexible plant for the EKF"
+        + (f" and building the {args.controller} controller ..." if args.controller
+           else " ..."))
     funcs, units = rt_functions(model, sensors, args)
     order = ["ekf_step", "plant", "measurement", "rigid_signals"]
+    order += ["rt_step"] if "rt_step" in funcs else []
     names = order + [k for k in funcs if k not in order]
     from pathlib import Path
 

@@ -1,0 +1,124 @@
+"""Time one ``rt_step`` (EKF + controller in one generated C call) for the Table 8 arm.
+
+The arm of ``problems/arm2link.toml`` with 3 modes (``delta_order=0``, no gravity, as in
+the control studies), two three-axis accelerometers
+(``problems/sensors/arm2link_accel.toml``), EKF with Q = 5e-6 I, R = (250e-6 g)² I,
+dt = 1 ms, and the composite controller (slow computed torque + fast LQR gains scheduled
+over the configuration grid; ``--controller inversion`` for the inversion law).
+
+The inputs are those of a real closed loop: first the whole loop (plant RK4, sensors with
+noise, ``rt_step``) runs in C over move 3 (``casflex.rtloop.run_closed_loop_c``); then
+``rt_step`` alone runs in the ``casflex.codegen`` harness over the recorded encoder,
+reference and accelerometer samples, with ``x``, ``P`` and ``dq_prev`` fed back, each call
+timed inside C (``clock_gettime``); ``rt_step_us`` is the median over all calls.
+
+Usage: ``python benchmarks/bench_rt.py [--json] [--steps 3000] [--repeat 5] [--step-deg 7.5]
+[--controller composite|inversion]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--step-deg", type=float, default=7.5,
+                        help="grid step of the modal tables, deg")
+    parser.add_argument("--controller", choices=("composite", "inversion"),
+                        default="composite")
+    parser.add_argument("--flags", default="-O2", help="C compiler flags of the timed step")
+    args = parser.parse_args(argv)
+
+    import warnings
+
+    from casflex import codegen, rtloop
+    from casflex.estimation import ekf_step_function, tabulate_plant
+    from casflex.model import build_model
+    from casflex.moves import load_move
+    from casflex.robot import load
+    from casflex.sensors import load_sensors
+
+    warnings.filterwarnings("ignore", message="modal table of")
+
+    def log(msg):
+        print(msg, file=sys.stderr)
+
+    dt, Q, R = 1e-3, 5e-6, (250e-6 * 9.8) ** 2
+    robot = load(ROOT / "problems/arm2link.toml")
+    sensors = load_sensors(ROOT / "problems/sensors/arm2link_accel.toml", robot)
+    t0 = time.perf_counter()
+    model, _ = build_model(robot, n_modes=3, step=np.radians(args.step_deg), processes=1,
+                           points=sensors.points, gravity=None, delta_order=0)
+    plant = tabulate_plant(model, check=False)
+    ekf = ekf_step_function(plant, sensors, Q, R, dt)
+    ctrl = rtloop.make_controller(model, args.controller)
+    rt = rtloop.rt_step_function(ekf, ctrl, dt)
+    log(f"model, plant, controller in {time.perf_counter() - t0:.1f} s; rt_step: "
+        f"{rt.n_instructions()} SX instructions (ekf_step {ekf.n_instructions()}, "
+        f"controller {ctrl.n_instructions()})")
+    move = load_move(str(ROOT / "problems/moves.toml") + ":control_move3")
+    N = args.steps
+    noise = np.random.default_rng(0).normal(size=(N, sensors.n_outputs)) * np.sqrt(R)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        loop = rtloop.closed_loop_bundle(model, sensors, rt, dt, Path(tmp) / "loop")
+        run = rtloop.run_closed_loop_c(loop, move, N, dt, noise=noise, flags=("-O1",))
+        log(f"closed loop in C ({N} samples, plant included) in "
+            f"{time.perf_counter() - t0:.1f} s (build and run)")
+        x = run["x"]
+        n, m = model.n, model.m
+        t = run["t"][:-1]
+        qd, dqd, ddqd = move.sample(t)
+        inputs = {"q": x[:-1, :n], "dq": x[:-1, n + m:2 * n + m], "qd": qd, "dqd": dqd,
+                  "ddqd": ddqd, "y": run["y"], "mask": np.ones_like(run["y"])}
+        bundle = rtloop.rt_bundle(ekf, ctrl, sensors, dt, Path(tmp) / "rt")
+        t0 = time.perf_counter()
+        res = codegen.run_harness(
+            bundle, "rt_step", inputs,
+            {"x": np.zeros(2 * m), "P": 1e-4 * np.eye(2 * m), "dq_prev": x[0, n + m:2 * n + m]},
+            feedback={"x_next": "x", "P_next": "P", "dq_next": "dq_prev"},
+            repeat=args.repeat, flags=tuple(args.flags.split()))
+        log(f"rt_step harness built and run in {time.perf_counter() - t0:.1f} s")
+        dev = float(np.max(np.abs(res.outputs["tau"] - run["tau"]))
+                    / np.max(np.abs(run["tau"])))
+        info = bundle.function("rt_step")
+    out = {
+        "rt_step_us": res.timing["median_step_ns"] / 1e3,
+        "rt_step_mean_us": res.timing["mean_step_ns"] / 1e3,
+        "rt_step_min_us": res.timing["min_step_ns"] / 1e3,
+        "loop_sample_us": run["timing"]["median_step_ns"] / 1e3,
+        "controller": args.controller,
+        "steps": N,
+        "repeat": args.repeat,
+        "flags": args.flags,
+        "instructions": {"rt_step": rt.n_instructions(), "ekf_step": ekf.n_instructions(),
+                         "controller": ctrl.n_instructions()},
+        "sz_w": info.sz_w,
+        "tau_rel_deviation_vs_loop": dev,
+        "load_average": os.getloadavg()[0],
+        "timer_overhead_ns": res.timing["timer_overhead_ns"],
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k:28s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,476 @@
+"""One C function for the real-time loop: estimator and controller in a single call.
+
+:func:`rt_step_function` combines an EKF step (:func:`casflex.estimation.ekf_step_function`)
+and a tracking controller (:mod:`casflex.control`) into ``rt_step``; :func:`rt_bundle`
+generates its C bundle (:mod:`casflex.codegen`). One call per sample ``t_k``::
+
+    rt_step(x[2m], P[2m x 2m], dq_prev[n], q[n], dq[n], qd[n], dqd[n], ddqd[n], y[r],
+            mask[r] (, f[4r]))
+        -> tau[n], x_next[2m], P_next[2m x 2m], dq_next[n], x_post[2m] (, f_next[4r])
+
+1. the joint acceleration the EKF needs (``u = [q; q̇; q̈]``, eq. 158) is the backward
+   difference of the joint rates, ``q̈_k = (q̇_k − q̇_{k−1}) / dt`` (encoders and
+   tachometers give ``q`` and ``q̇`` only; the dissertation differentiates the encoder
+   signal, §5.6);
+2. the EKF updates the prior ``(x, P)`` with the accelerometer sample ``y`` (``mask``: 1
+   valid, 0 missing) and predicts the next prior ``(x_next, P_next)``;
+3. the controller computes the torque from the reference and ``[q; δ̂; q̇; δ̂̇]`` with the
+   filtered estimate ``x_post`` = ``x̂_{k|k}``.
+
+The state carried from one call to the next is ``(x, P, dq_prev)`` (feed ``x_next``,
+``P_next``, ``dq_next`` back); start with ``dq_prev = dq`` of the first sample. This is
+exactly the loop of :func:`casflex.control.simulate_closed_loop` with
+``estimator={..., "ddq": "difference"}``.
+
+Closing the loop in C
+---------------------
+:func:`loop_step_function` wraps ``rt_step`` with the plant: the sensor sample at
+``t_k`` (the kinematic accelerometer model with the plant's accelerations just before
+``t_k``, under the torque of the previous sample, plus given noise), ``rt_step``, and
+``substeps`` RK4 steps of the model's ``ode`` under the held torque. Its C code runs in
+the :func:`casflex.codegen.run_harness` program with the plant state, the previous torque
+and the estimator state fed back (:func:`run_closed_loop_c`): the whole closed loop runs
+in C, with the reference and the noise read from the data file.
+
+Examples
+--------
+>>> from casflex.robot import load
+>>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+>>> from casflex.sensors import SensorSet, Accelerometer
+>>> from casflex.estimation import tabulate_plant, ekf_step_function
+>>> from casflex import control
+>>> robot = load("problems/arm2link.toml")
+>>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+>>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+...                       gravity=None, delta_order=0)
+>>> ekf = ekf_step_function(tabulate_plant(model, check=False), ss, 5e-6, 6e-6, 1e-3)
+>>> f = rt_step_function(ekf, control.inversion_controller(model), 1e-3)
+>>> f.name_out()
+['tau', 'x_next', 'P_next', 'dq_next', 'x_post']
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from casflex import codegen
+from casflex.errors import ModelError
+
+__all__ = [
+    "make_controller",
+    "rt_step_function",
+    "rt_units",
+    "rt_bundle",
+    "loop_step_function",
+    "closed_loop_bundle",
+    "run_closed_loop_c",
+]
+
+_CONTROLLERS = ("composite", "inversion")
+
+
+def make_controller(model, kind, Kp=1.0, Kd=2.0, Q=1.0, R=10.0, gain=None, epsilon=None):
+    """The controller of the real-time loop by name.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    kind : {"composite", "inversion"}
+        ``"composite"``: :func:`casflex.control.composite_controller` with the fast
+        gains scheduled over the configuration grid (:func:`casflex.control.gain_schedule`,
+        B-spline interpolated, so they code-generate) unless ``gain`` is given;
+        ``"inversion"``: :func:`casflex.control.inversion_controller`.
+    Kp, Kd : float or array_like
+        Joint gains [1/s², 1/s].
+    Q, R : float or array_like
+        LQR weights of the fast part (composite).
+    gain : array_like or casflex.control.GainSchedule, optional
+        Fast gain instead of the schedule (composite).
+    epsilon : float, optional
+        Perturbation parameter [s] (default :func:`casflex.control.perturbation_parameter`).
+
+    Returns
+    -------
+    casadi.Function
+        ``(qd, dqd, ddqd, x) -> tau`` [N·m].
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, rigid_provider
+    >>> model = FlexibleModel(load("problems/arm2link.toml"), rigid_provider(
+    ...     load("problems/arm2link.toml")), gravity=None)
+    >>> make_controller(model, "inversion").name()
+    'inversion'
+    >>> make_controller(model, "pid")
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: controller 'pid' is unknown; use one of ('composite', 'inversion')
+    """
+    from casflex import control
+
+    if kind not in _CONTROLLERS:
+        raise ModelError(f"controller {kind!r} is unknown; use one of {_CONTROLLERS}")
+    if kind == "inversion":
+        return control.inversion_controller(model, Kp=Kp, Kd=Kd)
+    if gain is None:
+        gain = control.gain_schedule(model, Q=Q, R=R, epsilon=epsilon)
+    return control.composite_controller(model, Kp=Kp, Kd=Kd, gain=gain, epsilon=epsilon)
+
+
+def rt_step_function(ekf_step, controller, dt, name="rt_step"):
+    """Estimator and controller in one SX function (module docstring).
+
+    Parameters
+    ----------
+    ekf_step : casadi.Function
+        ``(x, P, u, y, mask[, f]) -> (x_next, P_next, x_post[, f_next])`` from
+        :func:`casflex.estimation.ekf_step_function` (plain or square-root form, with or
+        without prefilter; the covariance ports keep their names, ``P`` or ``S``).
+    controller : casadi.Function
+        ``(qd, dqd, ddqd, x) -> tau`` with ``x = [q; δ; q̇; δ̇]``.
+    dt : float
+        Sample time [s] (the backward difference of the joint rates).
+    name : str
+
+    Returns
+    -------
+    casadi.Function
+        Inputs ``x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask[, f]``; outputs ``tau,
+        x_next, P_next, dq_next, x_post[, f_next]`` (``dq_next`` = ``dq``).
+
+    Raises
+    ------
+    ModelError
+        Sizes of the EKF and of the controller do not fit, or ``dt <= 0``.
+
+    Examples
+    --------
+    A toy "EKF" (one joint, one mode) that adds q̈ to its state, and a controller
+    ``τ = q + 10 δ̂``:
+
+    >>> x, P, u = ca.SX.sym("x", 2), ca.SX.sym("P", 2, 2), ca.SX.sym("u", 3)
+    >>> y, k = ca.SX.sym("y"), ca.SX.sym("k")
+    >>> ekf = ca.Function("e", [x, P, u, y, k], [x + u[2], P, x],
+    ...                   ["x", "P", "u", "y", "mask"], ["x_next", "P_next", "x_post"])
+    >>> q = [ca.SX.sym(s) for s in ("qd", "dqd", "ddqd")]
+    >>> xc = ca.SX.sym("xc", 4)
+    >>> ctrl = ca.Function("c", [*q, xc], [xc[0] + 10 * xc[1]])
+    >>> f = rt_step_function(ekf, ctrl, 0.5)
+    >>> out = f([0.1, 0.0], np.eye(2), 1.0, 2.0, 2.0, 0, 0, 0, 0, 1)  # q̈ = (2 − 1)/0.5
+    >>> [np.asarray(v).ravel().tolist() for v in (out[0], out[1], out[3], out[4])]
+    [[3.0], [2.1, 2.0], [2.0], [0.1, 0.0]]
+    """
+    dt = float(dt)
+    if not dt > 0:
+        raise ModelError(f"rt_step_function: dt must be > 0 [s]; got {dt}")
+    nx = ekf_step.size1_in(0)
+    n = controller.size1_in(0)
+    m = nx // 2
+    if ekf_step.size1_in(2) != 3 * n or controller.size1_in(3) != 2 * (n + m):
+        raise ModelError(f"rt_step_function: the EKF takes u of {ekf_step.size1_in(2)} and "
+                         f"x of {nx} values, the controller {n} joints and a state of "
+                         f"{controller.size1_in(3)}; they must be 3n, 2m and 2(n + m)")
+    cov = ekf_step.name_in(1)
+    x = ca.SX.sym("x", nx)
+    P = ca.SX.sym(cov, ekf_step.size1_in(1), ekf_step.size2_in(1))
+    dq_prev, q, dq, qd, dqd, ddqd = (ca.SX.sym(s, n) for s in
+                                     ("dq_prev", "q", "dq", "qd", "dqd", "ddqd"))
+    r = ekf_step.size1_in(3)
+    y, mask = ca.SX.sym("y", r), ca.SX.sym("mask", r)
+    extra = [ca.SX.sym("f", ekf_step.size1_in(5))] if ekf_step.n_in() > 5 else []
+    u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
+    outs = ekf_step(x, P, u, y, mask, *extra)
+    xn, Pn, xp = outs[:3]
+    xc = ca.vertcat(q, xp[:m], dq, xp[m:])
+    tau = controller(qd, dqd, ddqd, xc)
+    ins = [x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask, *extra]
+    names_in = ["x", cov, "dq_prev", "q", "dq", "qd", "dqd", "ddqd", "y", "mask"]
+    names_in += ["f"] if extra else []
+    res = [tau, xn, Pn, dq, xp] + ([outs[3]] if extra else [])
+    names_out = ["tau", "x_next", cov + "_next", "dq_next", "x_post"]
+    names_out += ["f_next"] if extra else []
+    return ca.Function(name, ins, res, names_in, names_out, {"cse": True})
+
+
+def rt_units(sensors, cov="P"):
+    """Units of the ``rt_step`` ports for the bundle README.
+
+    Parameters
+    ----------
+    sensors : casflex.sensors.SensorSet
+        The signals' unit comes from the sensor kinds.
+    cov : {"P", "S"}
+        Name of the covariance port (``"S"``: square-root form).
+
+    Returns
+    -------
+    dict
+        ``{"rt_step": {port: unit}}``.
+
+    Examples
+    --------
+    >>> from casflex.sensors import SensorSet, Accelerometer
+    >>> rt_units(SensorSet([Accelerometer(2, 1.0)]))["rt_step"]["tau"]
+    'N m'
+    """
+    from casflex.rtcode import ekf_units
+
+    e = ekf_units(sensors)["ekf_step"]
+    xu = e["x"]
+    return {"rt_step": {"x": xu, "x_next": xu, "x_post": xu, "y": e["y"],
+                        "mask": e["mask"], "dq_prev": "rad/s", "dq_next": "rad/s",
+                        "q": "rad", "dq": "rad/s", "qd": "rad", "dqd": "rad/s",
+                        "ddqd": "rad/s^2", "tau": "N m",
+                        cov: "covariance of x" if cov == "P" else "square root of P",
+                        cov + "_next": "covariance of x_next" if cov == "P"
+                        else "square root of P_next"}}
+
+
+def rt_bundle(ekf_step, controller, sensors, dt, out_dir, *, name="casflex_rt",
+              extra=()):
+    """Generate the C bundle of ``rt_step`` (and optionally other functions).
+
+    Parameters
+    ----------
+    ekf_step, controller, dt
+        As for :func:`rt_step_function`.
+    sensors : casflex.sensors.SensorSet
+        For the units.
+    out_dir : str or pathlib.Path
+    name : str
+        Bundle name.
+    extra : sequence of casadi.Function
+        More functions for the same bundle (e.g. the controller alone).
+
+    Returns
+    -------
+    casflex.codegen.Bundle
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> x, P, u = ca.SX.sym("x", 2), ca.SX.sym("P", 2, 2), ca.SX.sym("u", 3)
+    >>> y, k = ca.SX.sym("y"), ca.SX.sym("k")
+    >>> ekf = ca.Function("e", [x, P, u, y, k], [x + u[2], P, x],
+    ...                   ["x", "P", "u", "y", "mask"], ["x_next", "P_next", "x_post"])
+    >>> q = [ca.SX.sym(s) for s in ("qd", "dqd", "ddqd")]
+    >>> xc = ca.SX.sym("xc", 4)
+    >>> ctrl = ca.Function("c", [*q, xc], [xc[0]])
+    >>> from casflex.sensors import SensorSet, Accelerometer
+    >>> b = rt_bundle(ekf, ctrl, SensorSet([Accelerometer(2, 1.0, axes="x")]), 1e-3,
+    ...               tempfile.mkdtemp())
+    >>> [f.name for f in b.functions], b.function("rt_step").outputs[0].unit
+    (['rt_step'], 'N m')
+    """
+    f = rt_step_function(ekf_step, controller, dt)
+    units = rt_units(sensors, cov=ekf_step.name_in(1))
+    if ekf_step.n_in() > 5:
+        units["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
+    return codegen.generate([f, *extra], out_dir, name=name, units=units)
+
+
+def loop_step_function(model, sensors, rt_step, dt, substeps=1, name="rt_loop_step"):
+    """One sample of the closed loop: plant, sensors and ``rt_step`` (module docstring).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+        The plant (its ``ode``), built with ``points=sensors.points``.
+    sensors : casflex.sensors.SensorSet
+    rt_step : casadi.Function
+        From :func:`rt_step_function` (plain EKF form, no prefilter).
+    dt : float
+        Sample time [s].
+    substeps : int
+        RK4 steps of the plant per sample.
+    name : str
+
+    Returns
+    -------
+    casadi.Function
+        An MX function (the model's ``ode`` and ``rt_step`` are called, not inlined, so
+        their C code appears once): inputs ``xs`` (plant state ``[q; δ; q̇; δ̇]``),
+        ``tau_prev``, ``x``, ``P``, ``dq_prev``, ``qd``, ``dqd``, ``ddqd``, ``noise`` (added
+        to the exact signals), ``mask``; outputs ``xs_next``, ``tau``, ``x_next``,
+        ``P_next``, ``dq_next``, ``x_post``, ``y``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, Accelerometer
+    >>> from casflex.estimation import tabulate_plant, ekf_step_function
+    >>> from casflex import control
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None, delta_order=0)
+    >>> ekf = ekf_step_function(tabulate_plant(model, check=False), ss, 5e-6, 6e-6, 1e-3)
+    >>> rt = rt_step_function(ekf, control.inversion_controller(model), 1e-3)
+    >>> loop_step_function(model, ss, rt, 1e-3).name_out()[:2]
+    ['xs_next', 'tau']
+    """
+    from casflex.sensors import kinematic_measurement
+
+    n, m = model.n, model.m
+    if rt_step.n_in() != 10 or rt_step.size1_in(3) != n or rt_step.size1_in(0) != 2 * m:
+        raise ModelError("loop_step_function: rt_step must be the plain form (10 inputs, "
+                         f"no prefilter) for {n} joints and {m} modes")
+    if int(substeps) < 1:
+        raise ModelError(f"loop_step_function: substeps must be >= 1; got {substeps}")
+    ode = model.functions()["ode"]
+    kin = kinematic_measurement(model, sensors)
+    r = sensors.n_outputs
+    nx = 2 * (n + m)
+    xs = ca.MX.sym("xs", nx)
+    tau_prev = ca.MX.sym("tau_prev", n)
+    x = ca.MX.sym("x", 2 * m)
+    P = ca.MX.sym("P", 2 * m, 2 * m)
+    dq_prev, qd, dqd, ddqd = (ca.MX.sym(s, n) for s in ("dq_prev", "qd", "dqd", "ddqd"))
+    noise, mask = ca.MX.sym("noise", r), ca.MX.sym("mask", r)
+    q, d, dq, dd = xs[:n], xs[n:n + m], xs[n + m:nx - m], xs[nx - m:]
+    acc = ode(xs, tau_prev)[n + m:]  # accelerations just before t_k
+    y = kin(ca.vertcat(d, dd), ca.vertcat(q, dq, acc[:n]), acc[n:]) + noise
+    tau, xn, Pn, dqn, xp = rt_step(x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask)
+    h = float(dt) / int(substeps)
+    xnext = xs
+    for _ in range(int(substeps)):
+        k1 = ode(xnext, tau)
+        k2 = ode(xnext + 0.5 * h * k1, tau)
+        k3 = ode(xnext + 0.5 * h * k2, tau)
+        k4 = ode(xnext + h * k3, tau)
+        xnext = xnext + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return ca.Function(name, [xs, tau_prev, x, P, dq_prev, qd, dqd, ddqd, noise, mask],
+                       [xnext, tau, xn, Pn, dqn, xp, y],
+                       ["xs", "tau_prev", "x", "P", "dq_prev", "qd", "dqd", "ddqd", "noise",
+                        "mask"],
+                       ["xs_next", "tau", "x_next", "P_next", "dq_next", "x_post", "y"])
+
+
+def closed_loop_bundle(model, sensors, rt_step, dt, out_dir, *, substeps=1,
+                       name="casflex_rtloop"):
+    """Generate the bundle of :func:`loop_step_function` (plant + sensors + ``rt_step``).
+
+    Parameters
+    ----------
+    model, sensors, rt_step, dt, substeps
+        As for :func:`loop_step_function`.
+    out_dir : str or pathlib.Path
+    name : str
+        Bundle name.
+
+    Returns
+    -------
+    casflex.codegen.Bundle
+        With the one function ``rt_loop_step`` (run it with :func:`run_closed_loop_c`).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, Accelerometer
+    >>> from casflex.estimation import tabulate_plant, ekf_step_function
+    >>> from casflex import control
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None, delta_order=0)
+    >>> ekf = ekf_step_function(tabulate_plant(model, check=False), ss, 5e-6, 6e-6, 1e-3)
+    >>> rt = rt_step_function(ekf, control.inversion_controller(model), 1e-3)
+    >>> closed_loop_bundle(model, ss, rt, 1e-3, tempfile.mkdtemp()).functions[0].name
+    'rt_loop_step'
+    """
+    f = loop_step_function(model, sensors, rt_step, dt, substeps=substeps)
+    return codegen.generate([f], out_dir, name=name)
+
+
+_FEEDBACK = {"xs_next": "xs", "tau": "tau_prev", "x_next": "x", "P_next": "P",
+             "dq_next": "dq_prev"}
+
+
+def run_closed_loop_c(bundle, move, steps, dt, *, x0=None, xhat0=None, P0=None, noise=None,
+                      repeat=1, flags=("-O1",), compiler=None):
+    """Run the closed loop in C (the harness of ``rt_loop_step``) over a move.
+
+    Parameters
+    ----------
+    bundle : casflex.codegen.Bundle
+        From :func:`closed_loop_bundle`.
+    move : casflex.moves.Move
+        Reference, sampled at ``t_k = k dt`` (:meth:`casflex.moves.Move.sample`).
+    steps : int
+        Number of samples ``N``.
+    dt : float
+    x0 : array_like, optional
+        Plant state ``[q; δ; q̇; δ̇]`` at ``t_0`` (default at rest at ``move.q0``).
+    xhat0, P0 : array_like, optional
+        EKF prior (default 0 and ``1e-4 I``, as :func:`casflex.control.simulate_closed_loop`).
+    noise : array_like, optional
+        ``(N, r)`` noise added to the signals (default none).
+    repeat : int
+        Repetitions of the whole run (timing).
+    flags, compiler
+        As for :func:`casflex.codegen.build`.
+
+    Returns
+    -------
+    dict
+        ``t`` (N + 1), ``x`` (N + 1, 2(n+m)) plant states, ``tau`` (N, n), ``x_hat``
+        (N, 2m) filtered estimates, ``y`` (N, r) signals, ``timing`` (harness JSON: the
+        median time of one closed-loop sample inside C, plant included).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, Accelerometer
+    >>> from casflex.estimation import tabulate_plant, ekf_step_function
+    >>> from casflex import control
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None, delta_order=0)
+    >>> ekf = ekf_step_function(tabulate_plant(model, check=False), ss, 5e-6, 6e-6, 1e-3)
+    >>> rt = rt_step_function(ekf, control.inversion_controller(model), 1e-3)
+    >>> b = closed_loop_bundle(model, ss, rt, 1e-3, tempfile.mkdtemp())
+    >>> r = run_closed_loop_c(b, Move([0, 0, 0], [0.1, 0, 0], 0.2), 300, 1e-3,
+    ...                       flags=("-O0",))
+    >>> r["x"].shape, bool(abs(r["x"][-1, 0] - 0.1) < 5e-3)   # q1 near 0.1 rad
+    ((301, 8), True)
+    """
+    info = bundle.function("rt_loop_step")
+    nx = info.inputs[0].rows
+    n = info.inputs[1].rows
+    m2 = info.inputs[2].rows
+    r = info.inputs[8].rows
+    steps = int(steps)
+    if steps < 1:
+        raise ModelError(f"run_closed_loop_c: steps must be >= 1; got {steps}")
+    t = np.arange(steps + 1) * float(dt)
+    qd, dqd, ddqd = move.sample(t[:-1])
+    if x0 is None:
+        x0 = np.r_[move.q0, np.zeros(nx - n)]
+    x0 = np.asarray(x0, dtype=float).ravel()
+    if x0.size != nx:
+        raise ModelError(f"run_closed_loop_c: x0 needs {nx} values; got {x0.size}")
+    noise = np.zeros((steps, r)) if noise is None else np.asarray(noise, dtype=float)
+    if noise.shape != (steps, r):
+        raise ModelError(f"run_closed_loop_c: noise must have shape {(steps, r)}; got "
+                         f"{noise.shape}")
+    initial = {"xs": x0, "tau_prev": np.zeros(n),
+               "x": np.zeros(m2) if xhat0 is None else np.asarray(xhat0, dtype=float),
+               "P": 1e-4 * np.eye(m2) if P0 is None else np.asarray(P0, dtype=float),
+               "dq_prev": x0[n + m2 // 2:2 * n + m2 // 2]}
+    res = codegen.run_harness(bundle, "rt_loop_step",
+                              {"qd": qd, "dqd": dqd, "ddqd": ddqd, "noise": noise,
+                               "mask": np.ones((steps, r))},
+                              initial, feedback=_FEEDBACK, repeat=repeat, flags=flags,
+                              compiler=compiler)
+    out = res.outputs
+    return {"t": t, "x": np.vstack([x0, out["xs_next"]]), "tau": out["tau"],
+            "x_hat": out["x_post"], "y": out["y"], "timing": res.timing}
