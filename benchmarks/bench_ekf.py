@@ -9,7 +9,15 @@ Three implementations of the same step (casflex.estimation.ekf_step_function):
   coefficients, the measurement and its Jacobian come from CasADi functions evaluated
   numerically.
 
-Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]``
+The step is that of the second-order plant (``tabulate_plant(order=2)``) with
+``jacobians="first_order"``, compiled with ``-O3 -march=native -ffp-contract=off``
+(no FMA contraction: within 1e-10 of Python, tests/test_codegen_ekf.py; options below).
+``--compare`` also times, in the same run, the configurations listed in
+``VARIANTS`` (the previous first-order step at ``-O2`` among them): key ``variants``.
+
+Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
+[--order 2] [--jacobians first_order] [--flags "-O3 -march=native -ffp-contract=off"]
+[--compare]``
 """
 
 from __future__ import annotations
@@ -27,14 +35,32 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# (label, plant order, jacobians, cse, compiler flags)
+VARIANTS = [
+    ("before: order 1, exact, no cse, -O2", 1, "exact", False, "-O2"),
+    ("order 1, exact, cse, -O2", 1, "exact", True, "-O2"),
+    ("order 2, exact, cse, -O2", 2, "exact", True, "-O2"),
+    ("order 2, first_order, cse, -O2", 2, "first_order", True, "-O2"),
+    ("order 2, first_order, cse, -O3", 2, "first_order", True, "-O3"),
+    ("order 2, exact, cse, -O3 -march=native -ffp-contract=off", 2, "exact", True,
+     "-O3 -march=native -ffp-contract=off"),
+    ("order 2, first_order, cse, -O3 -march=native -ffp-contract=off", 2, "first_order",
+     True, "-O3 -march=native -ffp-contract=off"),
+    # FMA contraction: faster still, but 2e-7 from Python on random inputs (not 1e-10)
+    ("order 2, first_order, cse, -O3 -march=native (FMA)", 2, "first_order", True,
+     "-O3 -march=native"),
+]
+
 
 def numpy_step_factory(plant, sensors, Q, R, dt):
-    """A numpy EKF step ``(x, P, u, y, mask) -> (x_next, P_next, x_post)``."""
+    """A numpy EKF step ``(x, P, u, y, mask) -> (x_next, P_next, x_post)`` (the equations
+    of ``ekf_step_function(..., jacobians="first_order")``)."""
     from casflex.sensors import kinematic_measurement
 
     m = plant.m
     nx = 2 * m
     coef = plant.function()
+    pairs = plant.pairs
     hk = kinematic_measurement(plant.model, sensors)
     xs, us, acs = ca.SX.sym("x", nx), ca.SX.sym("u", 3 * plant.n), ca.SX.sym("a", m)
     hs = hk(xs, us, acs)
@@ -46,13 +72,21 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
     eye = np.eye(nx)
 
     def step(x, P, u, y, mask):
-        r0, Jd, Jv = (np.asarray(v) for v in coef(u))
-        r0 = r0.ravel()
-        F = np.zeros((nx, nx))
+        c = [np.asarray(v) for v in coef(u)]
+        r0, Jd, Jv = c[0].ravel(), c[1], c[2]
+        W = c[3] if pairs else np.zeros((m, 0))
+
+        def accel(z):
+            quad = np.array([z[a] * z[b] for a, b in pairs])
+            return r0 + Jd @ z[:m] + Jv @ z[m:] + (W @ quad if pairs else 0.0)
+
+        def rhs(z):
+            return np.r_[z[m:], accel(z)]
+
+        F = np.zeros((nx, nx))  # first-order part (jacobians="first_order")
         F[:m, m:] = np.eye(m)
         F[m:, :m], F[m:, m:] = Jd, Jv
-        b = np.r_[np.zeros(m), r0]
-        acc = r0 + Jd @ x[:m] + Jv @ x[m:]
+        acc = accel(x)
         h, Jxa = (np.asarray(v) for v in hjac(x, u, acc))
         h = h.ravel()
         H = Jxa[:, :nx] + Jxa[:, nx:] @ np.hstack([Jd, Jv])
@@ -69,8 +103,11 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
         Pp = 0.5 * (Pp + Pp.T)
         hF = dt * F
         Phi = eye + hF @ (eye + hF / 2 @ (eye + hF / 3 @ (eye + hF / 4)))
-        G = dt * (eye + hF / 2 @ (eye + hF / 3 @ (eye + hF / 4)))
-        xn = Phi @ xp + G @ b
+        k1 = rhs(xp)
+        k2 = rhs(xp + 0.5 * dt * k1)
+        k3 = rhs(xp + 0.5 * dt * k2)
+        k4 = rhs(xp + dt * k3)
+        xn = xp + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
         Pn = Phi @ Pp @ Phi.T + Qd
         return xn, 0.5 * (Pn + Pn.T), xp
 
@@ -84,6 +121,13 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--step-deg", type=float, default=7.5,
                         help="grid step of the modal tables, deg")
+    parser.add_argument("--order", type=int, default=2, help="plant order in Δ (1 or 2)")
+    parser.add_argument("--jacobians", default="first_order",
+                        choices=["exact", "first_order"])
+    parser.add_argument("--flags", default="-O3 -march=native -ffp-contract=off",
+                        help="C compiler flags")
+    parser.add_argument("--compare", action="store_true",
+                        help="also time the configurations of VARIANTS in this run")
     args = parser.parse_args(argv)
 
     from casflex import codegen
@@ -107,24 +151,41 @@ def main(argv=None):
     model, _ = build_model(robot, n_modes=3, step=np.radians(args.step_deg), cache_dir=False,
                            processes=1, points=sensors.points, gravity=None)
     t0 = time.perf_counter()
-    plant = tabulate_plant(model)
-    log(f"plant tabulated in {time.perf_counter() - t0:.1f} s: {plant.info}")
+    plants = {o: tabulate_plant(model, order=o) for o in {1, 2, args.order}}
+    plant = plants[args.order]
+    log(f"plants tabulated in {time.perf_counter() - t0:.1f} s: {plant.info}")
     Q, R, dt = 5e-6, (250e-6 * 9.8) ** 2, 1e-3
-    step = ekf_step_function(plant, sensors, Q, R, dt)
+    step = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians)
     move = load_move(str(ROOT / "problems/moves.toml") + ":move1")
     data = simulate_data(model, sensors, move, dt=dt, t_end=args.steps * dt - dt)
     N = data.u.shape[0]
     x0, P0 = np.zeros(6), 1e-6 * np.eye(6)
     mask = np.ones_like(data.y)
 
-    with tempfile.TemporaryDirectory() as tmp:
-        bundle = codegen.generate([step], tmp, name="bench_ekf")
-        res = codegen.run_harness(bundle, "ekf_step", {"u": data.u, "y": data.y, "mask": mask},
-                                  {"x": x0, "P": P0}, feedback={"x_next": "x", "P_next": "P"},
-                                  repeat=args.repeat)
-        c_us = res.timing["median_step_ns"] / 1e3
-        ref = run_ekf(step, data.u, data.y, x0, P0)
-        c_dev = float(np.max(np.abs(res.outputs["x_post"] - ref.x)) / np.max(np.abs(ref.x)))
+    def time_c(stp, flags):
+        with tempfile.TemporaryDirectory() as tmp:
+            bundle = codegen.generate([stp], tmp, name="bench_ekf")
+            res = codegen.run_harness(bundle, "ekf_step",
+                                      {"u": data.u, "y": data.y, "mask": mask},
+                                      {"x": x0, "P": P0},
+                                      feedback={"x_next": "x", "P_next": "P"},
+                                      repeat=args.repeat, flags=tuple(flags.split()))
+            ref = run_ekf(stp, data.u, data.y, x0, P0)
+            dev = float(np.max(np.abs(res.outputs["x_post"] - ref.x)) / np.max(np.abs(ref.x)))
+            return res.timing["median_step_ns"] / 1e3, dev, bundle.functions[0].sz_w
+
+    variants = {}
+    if args.compare:
+        for label, order, jac, cse, flags in VARIANTS:
+            stp = ekf_step_function(plants.setdefault(order, tabulate_plant(model, order=order)),
+                                    sensors, Q, R, dt, jacobians=jac, cse=cse)
+            us, dev, _ = time_c(stp, flags)
+            variants[label] = {"c_step_us": us, "sx_instructions": int(stp.n_instructions()),
+                               "c_vs_python_max_rel_dev": dev,
+                               "load_avg_1min": os.getloadavg()[0]}
+            log(f"{label:48s} {us:7.2f} us  {stp.n_instructions()} instr  dev {dev:.1e}")
+    c_us, c_dev, sz_w = time_c(step, args.flags)
+    ref = run_ekf(step, data.u, data.y, x0, P0)
 
     calls = min(N, 300)
     times = []
@@ -148,7 +209,6 @@ def main(argv=None):
         x, P = xn, Pn
     np_us = float(np.median(times)) * 1e6
 
-    info = bundle.functions[0]
     out = {
         "c_step_us": c_us,
         "python_step_us": py_us,
@@ -156,7 +216,10 @@ def main(argv=None):
         "states": 6,
         "outputs": sensors.n_outputs,
         "sx_instructions": int(step.n_instructions()),
-        "sz_w": info.sz_w,
+        "sz_w": sz_w,
+        "order": args.order,
+        "jacobians": args.jacobians,
+        "flags": args.flags,
         "c_vs_python_max_rel_dev": c_dev,
         "numpy_vs_casadi_max_rel_dev": dev,
         "steps": N,
@@ -164,6 +227,8 @@ def main(argv=None):
         "nproc": os.cpu_count(),
         "load_avg_1min": os.getloadavg()[0],
     }
+    if variants:
+        out["variants"] = variants
     if args.json:
         print(json.dumps(out))
     else:

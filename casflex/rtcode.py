@@ -57,20 +57,25 @@ def ekf_units(sensors, prefix=""):
     return {
         prefix + "ekf_step": {"x": xu, "u": uu, "y": yu, "mask": "1 valid / 0 missing",
                               "x_next": xu, "x_post": xu},
-        prefix + "plant": {"u": uu, "r0": "sqrt(kg) m/s^2", "Jd": "1/s^2", "Jv": "1/s"},
+        prefix + "plant": {"u": uu, "r0": "sqrt(kg) m/s^2", "Jd": "1/s^2", "Jv": "1/s",
+                           "W": "coefficients of x_a x_b (a <= b, row-major): "
+                                "1/(sqrt(kg) m s^2) | 1/(sqrt(kg) m s) | 1/(sqrt(kg) m)"},
         prefix + "measurement": {"x": xu, "u": uu, "dddelta": "sqrt(kg) m/s^2", "y": yu},
         prefix + "rigid_signals": {"u": uu, "y_rigid": yu},
     }
 
 
 def ekf_bundle(model, sensors, out_dir, Q, R, dt, *, name="casflex_ekf", plant=None,
-               sqrt=False, prefilter=None, coriolis=True, stiffness_scale=1.0, prefix=""):
+               sqrt=False, prefilter=None, coriolis=True, stiffness_scale=1.0, prefix="",
+               jacobians="exact"):
     """Generate the EKF bundle (C source, header, README, Makefile, manifest).
 
     Parameters
     ----------
-    model, sensors, Q, R, dt, plant, sqrt, coriolis, stiffness_scale
-        As for :func:`casflex.estimation.ekf_functions`.
+    model, sensors, Q, R, dt, plant, sqrt, coriolis, stiffness_scale, jacobians
+        As for :func:`casflex.estimation.ekf_functions` (``jacobians="first_order"``: the
+        leaner step for second-order plants, same accuracy on the Table 9 moves, see
+        ``benchmarks/README_ekf.md``).
     out_dir : str or pathlib.Path
     name : str
         Bundle name.
@@ -88,12 +93,14 @@ def ekf_bundle(model, sensors, out_dir, Q, R, dt, *, name="casflex_ekf", plant=N
     if plant is None:
         plant = tabulate_plant(model)
     funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
-                          coriolis=coriolis, stiffness_scale=stiffness_scale, prefix=prefix)
+                          coriolis=coriolis, stiffness_scale=stiffness_scale, prefix=prefix,
+                          jacobians=jacobians)
     if prefilter is not None:
         funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
                                               coriolis=coriolis,
                                               stiffness_scale=stiffness_scale,
-                                              prefilter=prefilter, name=prefix + "ekf_step")
+                                              prefilter=prefilter, name=prefix + "ekf_step",
+                                              jacobians=jacobians)
     order = ["ekf_step", "plant", "measurement", "rigid_signals"]
     units = ekf_units(sensors, prefix)
     if sqrt:

@@ -306,7 +306,7 @@ def test_composite_with_ekf_in_the_loop(sensor_model):
     from casflex.estimation import ekf_step_function, tabulate_plant
 
     model, table, sensors = sensor_model
-    n, m = model.n, model.m
+    m = model.m
     dt, R = 1e-3, (250e-6 * 9.8) ** 2
     ekf = ekf_step_function(tabulate_plant(model, check=False), sensors, 5e-6, R, dt)
     eps = control.perturbation_parameter(model, table=table)

@@ -6,6 +6,7 @@ RMS over time of the vector of modal amplitudes (resp. velocities), compared wit
 of the true vector.
 """
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from casflex.errors import ModelError
 from casflex.estimation import (
     ekf_step_function,
     exact_plant_function,
+    full_state_step_function,
     highpass,
     highpass_cutoff,
     prefilter_initial,
@@ -37,7 +39,7 @@ P0 = 1e-6 * np.eye(6)
 
 
 @pytest.fixture(scope="module")
-def study():
+def study(tmp_path_factory):
     robot = load(ROOT / "problems/arm2link.toml")
     acc = load_sensors(ROOT / "problems/sensors/arm2link_accel.toml", robot)
     sg = load_sensors(ROOT / "problems/sensors/arm2link_strain.toml", robot)
@@ -46,7 +48,7 @@ def study():
     both = SensorSet(acc.sensors + sg.sensors, points=points)
     model, _ = build_model(robot, n_modes=3, step=np.radians(15), cache_dir=False,
                            processes=1, points=points, gravity=None)
-    plant = tabulate_plant(model)
+    plant = tabulate_plant(model, cache_dir=tmp_path_factory.mktemp("plant"))
     data = {}
     for name, t_end in (("move1", 4.0), ("move2", 3.0), ("move3", 3.0)):
         move = load_move(str(ROOT / "problems/moves.toml") + f":{name}")
@@ -72,32 +74,123 @@ def test_plant_tabulation(study):
     plant = study["plant"]
     assert plant.shape_joints == (2,) and plant.fourier_joints == (1,)  # q1 ∥ gravity axis
     assert plant.info["check_rel_error"] < 2e-2  # 15° grid; 8e-5 on a 7.5° grid
-    # first order in Δ: the residual of the exact plant is quadratic in Δ
+    assert plant.order == 2 and not plant.info["from_cache"]
+    # the residual of the exact plant is quadratic in Δ for the first-order part and
+    # cubic for the second-order plant, and much smaller
     model = study["model"]
-    fex, lean = exact_plant_function(model), plant.rhs_function()
+    fex = exact_plant_function(model)
+    lin, quad = plant.rhs_function(quadratic=False), plant.rhs_function()
     u = np.r_[0.3, -0.4, 0.0, 0.5, -0.2, 0.3, 1.0, -1.0, 0.5]  # q3 on a grid node
     x = np.array([1e-3, -2e-3, 5e-4, 1e-2, 2e-2, -1e-2])
-    e1 = np.abs(np.asarray(fex(u, x) - lean(u, x))).max()
-    e2 = np.abs(np.asarray(fex(u, 2 * x) - lean(u, 2 * x))).max()
-    assert 3.0 < e2 / e1 < 5.0
+
+    def res(f, s):
+        return np.abs(np.asarray(fex(u, s * x) - f(u, s * x))).max()
+
+    assert 3.0 < res(lin, 2) / res(lin, 1) < 5.0
+    assert 6.0 < res(quad, 2) / res(quad, 1) < 10.0
+    assert res(quad, 1) < 0.02 * res(lin, 1)
+
+
+def test_plant_cache(study, tmp_path):
+    """A cached plant is read back; a changed model parameter forces a rebuild."""
+    from casflex.dynamics import FlexibleModel, PointwiseProvider
+
+    robot = load(ROOT / "problems/arm2link.toml")
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    first = tabulate_plant(model, cache_dir=tmp_path)
+    again = tabulate_plant(model, cache_dir=tmp_path)
+    assert not first.info["from_cache"] and again.info["from_cache"]
+    u, x = np.r_[0.1, 0.2, 0.3, 0.4, -0.5, 0.6, 0.7, 0.8, -0.9], np.array([1e-2, -3e-2])
+    assert float(again.rhs_function()(u, x)) == float(first.rhs_function()(u, x))
+    assert len(list(tmp_path.glob("plant-*.npz"))) == 1
+    # stiffer second link (E × 1.21): ω₁ changes, the cache must not be used
+    links = list(robot.links)
+    mat = links[2].material
+    links[2] = dataclasses.replace(links[2], material=dataclasses.replace(mat, E=1.21 * mat.E))
+    stiff = dataclasses.replace(robot, links=tuple(links))
+    model2 = FlexibleModel(stiff, PointwiseProvider(stiff, [0, 0, 0], 1), gravity=None)
+    changed = tabulate_plant(model2, cache_dir=tmp_path)
+    assert not changed.info["from_cache"]
+    jd = [float(p.function()(np.zeros(9))[1]) for p in (first, changed)]
+    w2 = [10.0 * highpass_cutoff(mo, [0, 0, 0]) for mo in (model, model2)]  # ω₁ [rad/s]
+    assert jd == pytest.approx([-w2[0] ** 2, -w2[1] ** 2], rel=1e-6)  # J_δ = -ω₁² at rest
+    assert w2[1] > 1.02 * w2[0]
+    # other options are part of the key as well; a foreign file is never read
+    assert not tabulate_plant(model, cache_dir=tmp_path, order=1).info["from_cache"]
+    for f in tmp_path.glob("plant-*.npz"):
+        f.write_bytes(b"not a cache file")
+    assert not tabulate_plant(model, cache_dir=tmp_path).info["from_cache"]
+    assert tabulate_plant(model, cache_dir=tmp_path).info["from_cache"]
 
 
 @pytest.mark.parametrize("kind", ["acc", "sg"])
 @pytest.mark.parametrize("move", ["move1", "move2", "move3"])
 def test_nominal(study, kind, move):
-    if kind == "sg" and move != "move1":
-        pytest.skip("strain feedback on moves 2 and 3: notebooks/03_estimation")
+    """The issue's requirement: RMS errors of δ and δ̇ at least 100x below the states.
+
+    Measured (15° tables): acc 1400/230, 800/230, 2700/430; strain 520/530, 280/480,
+    760/440 (δ/δ̇, moves 1-3). A first-order plant reaches only ~25-200x for δ̇: its
+    neglected products of Δ are ~1 % of δ̈ on these moves."""
     u, y, x = _split(study["data"][move], kind)
     step = ekf_step_function(study["plant"], study[kind], Q, R_ACC if kind == "acc" else R_SG,
                              DT)
     res = run_ekf(step, u, y, np.zeros(6), P0)
     r_delta, r_rate = _ratios(x, res.x)
-    assert r_delta > 100, (r_delta, r_rate)
-    # modal velocities: ~100x with accelerometers on moves 1 and 2; strain gauges measure
-    # δ only, and move 3 (q1 through π, up to 3.1 rad/s) has large gyroscopic
-    # terms: there the first-order plant limits the velocity error to ~25-50x
-    floor = {"acc": {"move1": 80, "move2": 80, "move3": 20}, "sg": {"move1": 30}}
-    assert r_rate > floor[kind][move], (r_delta, r_rate)
+    assert r_delta > 100 and r_rate > 100, (r_delta, r_rate)
+
+
+def test_first_order_plant_limits_velocities(study):
+    """The cause of the old shortfall: without the second-order terms the δ̇ error on
+    move 3 is several times larger (~25x instead of ~430x below the states)."""
+    u, y, x = _split(study["data"]["move3"], "acc")
+    lin = dataclasses.replace(study["plant"], order=1)  # drops the products x_a x_b
+    assert lin.pairs == []
+    res = run_ekf(ekf_step_function(lin, study["acc"], Q, R_ACC, DT), u, y, np.zeros(6), P0)
+    r_delta, r_rate = _ratios(x, res.x)
+    assert r_rate < 60, (r_delta, r_rate)
+
+
+def test_first_order_jacobians_same_accuracy(study):
+    """``jacobians="first_order"`` (the lean C step) estimates as well as the exact one."""
+    u, y, x = _split(study["data"]["move3"], "acc")
+    plant, acc = study["plant"], study["acc"]
+    lean = run_ekf(ekf_step_function(plant, acc, Q, R_ACC, DT, jacobians="first_order"), u,
+                   y, np.zeros(6), P0)
+    r_delta, r_rate = _ratios(x, lean.x)
+    assert r_delta > 100 and r_rate > 100, (r_delta, r_rate)
+    with pytest.raises(ModelError, match="jacobians"):
+        ekf_step_function(plant, acc, Q, R_ACC, DT, jacobians="none")
+
+
+@pytest.mark.parametrize("move", ["move1", "move3"])
+def test_full_state_from_encoders_and_accelerometers(study, move):
+    """Full state [q, q̇, q̈, δ, δ̇] from encoder angles (noise 1e-4 rad) and the two
+    accelerometers, started with q̇ = q̈ = 0 and δ = 0: converges and tracks."""
+    d = study["data"][move]
+    u, y, x = _split(d, "acc")
+    rng = np.random.default_rng(3)
+    n = 3
+    enc = u[:, :n] + 1e-4 * rng.normal(size=(u.shape[0], n))
+    step = full_state_step_function(study["plant"], study["acc"], Q, R_ACC, DT, Q_jerk=10.0,
+                                    R_encoder=1e-8)
+    z0 = np.zeros(3 * n + 6)
+    Pz = np.diag([1e-6] * n + [1e-4] * n + [1e-2] * n + [1e-6] * 6)
+    res = run_ekf(step, None, np.hstack([enc, y]), z0, Pz)
+    assert np.all(np.isfinite(res.x))
+
+    def rms(a):
+        return np.sqrt(np.mean(a**2, axis=0))
+
+    err = res.x[:, :3 * n] - u
+    assert rms(err[:, :n]).max() < 5e-5  # below the encoder noise
+    assert rms(err[:, n:2 * n]).max() < 0.02 * rms(u[:, n:2 * n]).max()  # q̇
+    r_delta, r_rate = _ratios(x, res.x[:, 3 * n:])
+    # δ as well as with measured q̇, q̈; δ̇ limited by the q̈ steps of the bang-bang moves,
+    # which the jerk model follows only within ~0.2 rad/s² RMS (measured: 640/70, 1200/100)
+    assert r_delta > 100 and r_rate > 50, (r_delta, r_rate)
+    with pytest.raises(ModelError, match="R_encoder"):
+        full_state_step_function(study["plant"], study["acc"], Q, R_ACC, DT, Q_jerk=10.0,
+                                 R_encoder=np.ones(2))
 
 
 @pytest.mark.parametrize("kind", ["acc", "sg"])
