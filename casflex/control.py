@@ -654,6 +654,58 @@ class GainSchedule:
     filled: int = 0
     info: dict = field(default_factory=dict)
 
+    @classmethod
+    def from_gains(cls, joints, grid, gains, epsilon, n_joints, method="bspline", filled=0,
+                   info=None):
+        """Build a schedule (its interpolating ``function``) from tabulated gains.
+
+        Parameters
+        ----------
+        joints : sequence of int
+            0-based joints of the grid axes.
+        grid : sequence of array_like
+            One full-turn axis [rad] per joint.
+        gains : array_like
+            ``grid_shape + (n, 2m)`` gains.
+        epsilon : float
+            Perturbation parameter the gains were computed with [s].
+        n_joints : int
+            Number of joints of the model (length of the ``q`` input).
+        method : {"bspline", "linear"}
+        filled : int
+        info : dict, optional
+
+        Returns
+        -------
+        GainSchedule
+
+        Examples
+        --------
+        >>> ax = np.linspace(-np.pi, np.pi, 8, endpoint=False)
+        >>> G = np.ones((8, 1, 2)) * np.arange(8.0)[:, None, None]
+        >>> s = GainSchedule.from_gains((0,), [ax], G, 0.1, n_joints=1)
+        >>> s.function([ax[3]]).full().round(9).tolist()
+        [[3.0, 3.0]]
+        """
+        from casflex.modal.tables import ModalTable
+
+        joints = tuple(int(j) for j in joints)
+        grid = tuple(np.asarray(a, dtype=float).ravel() for a in grid)
+        G = np.asarray(gains, dtype=float)
+        shape = tuple(a.size for a in grid)
+        n, m2 = G.shape[-2], G.shape[-1]
+        if G.shape != shape + (n, m2) or len(joints) != len(grid):
+            raise ModelError(f"gains of shape {G.shape} do not fit the grid {shape} of "
+                             f"joints {joints}")
+        tab = ModalTable(grid=grid, shape_joints=joints, values={"gain": G},
+                         omega=np.zeros(shape + (1,)), periodic=(True,) * len(joints))
+        fg = tab.function("gain", method=method)
+        qs = ca.SX.sym("q", int(n_joints))
+        Kq = fg(ca.vertcat(*[qs[j] for j in joints]))
+        fun = ca.Function("fast_gain", [qs], [ca.reshape(Kq, n, m2)], ["q"], ["K"])
+        return cls(joints=joints, grid=grid, gains=G, epsilon=float(epsilon), function=fun,
+                   filled=int(filled), info=dict(info or {}))
+
 
 def _dependent_joints(fun, n, rng, samples=3, rtol=1e-9):
     """Joints a numeric function of q (sum of |outputs|) depends on."""
@@ -716,8 +768,6 @@ def gain_schedule(model, Q=1.0, R=10.0, epsilon=None, joints=None, grid=None, ta
     >>> bool(np.allclose(s.function([0, ax[3], 0]).full(), s.gains[3]))
     True
     """
-    from casflex.modal.tables import ModalTable
-
     n, m = model.n, model.m
     if epsilon is None:
         epsilon = perturbation_parameter(model, table=table)
@@ -782,15 +832,8 @@ def gain_schedule(model, Q=1.0, R=10.0, epsilon=None, joints=None, grid=None, ta
         new = (~V) & (cnt > 0)
         G[new] = acc[new] / cnt[new][:, None, None]
         V = V | new
-    tab = ModalTable(grid=grid, shape_joints=joints, values={"gain": G},
-                     omega=np.zeros(shape + (1,)), periodic=(True,) * len(joints))
-    fg = tab.function("gain", method=method)
-    qs = ca.SX.sym("q", n)
-    Kq = fg(ca.vertcat(*[qs[j] for j in joints]))
-    fun = ca.Function("fast_gain", [qs], [ca.reshape(Kq, n, 2 * m)], ["q"], ["K"])
-    return GainSchedule(joints=joints, grid=grid, gains=G, epsilon=float(epsilon),
-                        function=fun, filled=filled,
-                        info={"worst_fast_eigenvalue": worst, "points": N})
+    return GainSchedule.from_gains(joints, grid, G, epsilon, n, method=method, filled=filled,
+                                   info={"worst_fast_eigenvalue": worst, "points": N})
 
 
 def composite_controller(model, Kp=1.0, Kd=2.0, gain=None, epsilon=None, fast=True,

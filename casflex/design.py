@@ -386,7 +386,7 @@ def run_design(study, out_dir, *, progress=False, log=None, cache_dir=None, proc
         if c["gains"] == "scheduled":
             say("fast LQR gains over the configuration grid ...")
             axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
-            gain = _schedule(control, model, c, eps, table, axis)
+            gain = _schedule(control, model, c, eps, table, axis, cache_dir)
         else:
             gain, _, _ = control.fast_gain(model, move.qf, Q=c["Q"], R=c["R"], epsilon=eps)
         controller = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
@@ -412,8 +412,10 @@ def run_design(study, out_dir, *, progress=False, log=None, cache_dir=None, proc
     plant = tabulate_plant(model)
     ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
     m = model.m
+    # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
-                 "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"]}
+                 "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
+                 "ddq": "difference"}
     loop = control.simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
                                         estimator=estimator, sampled=True)
     timings["closed_loop_s"] = time.perf_counter() - t0
@@ -434,8 +436,8 @@ def run_design(study, out_dir, *, progress=False, log=None, cache_dir=None, proc
     # 6. C bundle -----------------------------------------------------------------------------
     t0 = time.perf_counter()
     say("generating the C bundle ...")
-    c_files, c_functions, compiled = _c_bundle(study, model, plant, controller, out / "c",
-                                               dt)
+    c_files, c_functions, compiled = _c_bundle(study, model, plant, ekf, controller,
+                                               out / "c", dt)
     timings["codegen_s"] = time.perf_counter() - t0
 
     # 7. figures and report ---------------------------------------------------------------------
@@ -489,15 +491,46 @@ def run_design(study, out_dir, *, progress=False, log=None, cache_dir=None, proc
     return DesignResult(summary=_jsonable(summary), out_dir=out, files=files)
 
 
-def _schedule(control, model, c, eps, table, axis):
+def _schedule(control, model, c, eps, table, axis, cache_dir=None):
     """Fast gains scheduled on the full-turn grid ``axis`` of every joint the boundary
     layer depends on (the model table's own grid would be needlessly fine: one LQR per
-    point)."""
+    point), cached on disk next to the modal tables under a key made of everything the
+    gains depend on (the robot, the table, the weights, ε, the grid and the source of the
+    functions that compute them)."""
+    from casflex import __version__
+    from casflex.modal import tables
+
     bl = control.boundary_layer(model, eps)
     joints = control._dependent_joints(lambda qq: [x.full() for x in bl(qq)], model.n,
                                        np.random.default_rng(0))
-    return control.gain_schedule(model, Q=c["Q"], R=c["R"], epsilon=eps, table=table,
-                                 joints=joints, grid=[axis] * len(joints))
+    if cache_dir is False:
+        return control.gain_schedule(model, Q=c["Q"], R=c["R"], epsilon=eps, table=table,
+                                     joints=joints, grid=[axis] * len(joints))
+    ident = {
+        "version": __version__, "robot": repr(model.robot), "table": table.info.get("key"),
+        "modes": model.m, "delta_order": model.delta_order, "modal_mass": model.modal_mass,
+        "Q": c["Q"], "R": c["R"], "epsilon": float(eps), "axis": np.asarray(axis).tolist(),
+        "joints": list(joints),
+        "source": tables._source_digest(control.gain_schedule, control.boundary_layer,
+                                        control._lqr, control.GainSchedule),
+    }
+    key = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+    root = Path(tables.default_cache_dir() if cache_dir is None else cache_dir)
+    path = root / f"gains-{key[:32]}.npz"
+    if path.is_file():
+        try:
+            with np.load(path) as data:
+                if str(data["key"]) == key:
+                    return control.GainSchedule.from_gains(
+                        joints, [axis] * len(joints), data["gains"], eps, model.n,
+                        filled=int(data["filled"]), info={"from_cache": True})
+        except (OSError, KeyError, ValueError):
+            pass  # unreadable: recompute and overwrite
+    sched = control.gain_schedule(model, Q=c["Q"], R=c["R"], epsilon=eps, table=table,
+                                  joints=joints, grid=[axis] * len(joints))
+    tables._atomic_savez(path, key=np.array(key), gains=sched.gains,
+                         filled=np.array(sched.filled))
+    return sched
 
 
 def _jsonable(obj):
@@ -520,41 +553,42 @@ def _jsonable(obj):
 # ------------------------------------------------------------------------------ C bundle
 
 
-def _c_bundle(study, model, plant, controller, c_dir, dt):
-    """Generate (and compile, unless unchanged or switched off) the real-time C bundle."""
+def _c_bundle(study, model, plant, ekf, controller, c_dir, dt):
+    """Generate (and compile, unless unchanged or switched off) the real-time C bundle:
+    ``rt_step`` (:mod:`casflex.rtloop`: encoders, reference and sensor sample to torques and
+    the updated estimator), plus ``ekf_step`` and the controller alone."""
     from casflex import codegen
-    from casflex.estimation import ekf_functions
-    from casflex.rtcode import ekf_units
+    from casflex.rtloop import rt_bundle
 
     name = study.codegen["name"]
-    e = study.estimator
-    funcs = ekf_functions(model, study.sensors, e["Q"], e["R"], dt, plant=plant)
-    order = ["ekf_step", "plant", "measurement", "rigid_signals"]
-    units = {k: v for k, v in ekf_units(study.sensors).items() if k in order}
-    functions = [funcs[k] for k in order] + [controller]
     staging = c_dir.parent / (c_dir.name + ".new")
     if staging.exists():
         shutil.rmtree(staging)
-    bundle = codegen.generate(functions, staging, name=name, units=units)
+
+    def generate(directory):
+        return rt_bundle(ekf, controller, study.sensors, dt, directory, name=name,
+                         extra=(ekf, controller))
+
+    bundle = generate(staging)
     digest = _digest(staging)
-    old_digest = c_dir / ".digest"
+    functions = [f.name for f in bundle.functions]
     library_name = bundle.library.name
-    if c_dir.is_dir() and old_digest.is_file() and old_digest.read_text() == digest and \
-            (c_dir / library_name).is_file():
+    if c_dir.is_dir() and (c_dir / ".digest").is_file() and \
+            (c_dir / ".digest").read_text() == digest and (c_dir / library_name).is_file():
         shutil.rmtree(staging)  # same sources as the last run: keep its build
         compiled = "reused"
     else:
         if c_dir.exists():
             shutil.rmtree(c_dir)
-        staging.rename(c_dir)
-        bundle = codegen.generate(functions, c_dir, name=name, units=units)
+        shutil.rmtree(staging)
+        bundle = generate(c_dir)  # generated in place: the README names its own directory
         compiled = False
         if study.codegen["compile"]:
             codegen.build(bundle)
             compiled = True
         (c_dir / ".digest").write_text(digest)
     files = sorted(p.name for p in c_dir.iterdir() if not p.name.startswith("."))
-    return files, [f.name() for f in functions], compiled
+    return files, functions, compiled
 
 
 def _digest(directory):
@@ -719,9 +753,15 @@ def _report(study, s, design):
         "",
         "## Stability along the shaped move",
         "",
-        f"Check: {st['check']}. **{'Stable' if st['stable'] else 'NOT stable'}**: worst margin "
-        f"{st['worst_margin']:.4g} {st['unit']} at t = {st['worst_time']:.3f} s. Largest "
-        f"joint tracking error in the closed loop: {s['tracking_error_max']:.3g} rad.",
+        f"Check: {st['check']}. **{'Passed' if st['stable'] else 'FAILED'}**: worst margin "
+        f"{st['worst_margin']:.4g} {st['unit']} at t = {st['worst_time']:.3f} s.",
+        "",
+        ("The sampled closed loop with the EKF stays bounded; largest joint tracking error "
+         f"{s['tracking_error_max']:.3g} rad." if s["closed_loop_finite"] else
+         "**The sampled closed loop with the EKF diverged** (see the tip-deflection and "
+         "estimation figures): the design is not realizable at this sample time."),
+        "",
+        f"Overall: **{'stable' if s['stable'] else 'NOT stable'}**.",
         "",
         "![accessibility](accessibility.png)",
         "",

@@ -23,7 +23,8 @@ def _study_copy(tmp_path, replace=None, append=""):
     pdir = tmp_path / "problems"
     (pdir / "studies").mkdir(parents=True)
     (pdir / "sensors").mkdir()
-    for name in ("arm2link.toml", "moves.toml", "sensors/arm2link_accel.toml"):
+    for name in ("arm2link.toml", "arm2link_actuated.toml", "moves.toml",
+                 "sensors/arm2link_accel.toml"):
         shutil.copy(ROOT / "problems" / name, pdir / name)
     text = STUDY.read_text()
     for old, new in (replace or {}).items():
@@ -46,7 +47,8 @@ def no_heavy_work(monkeypatch):
 
 
 @pytest.mark.parametrize("replace, append, field, rule", [
-    ({'robot = "../arm2link.toml"': 'robot = "../nothere.toml"'}, "", "robot", "must exist"),
+    ({'robot = "../arm2link_actuated.toml"': 'robot = "../nothere.toml"'}, "", "robot",
+     "must exist"),
     ({'move = "../moves.toml:move1"': 'move = "../moves.toml:move9"'}, "", "move9", ""),
     ({'move = "../moves.toml:move1"': 'move = "../gone.toml:move1"'}, "", "move",
      "must exist"),
