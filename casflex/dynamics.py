@@ -411,6 +411,9 @@ class FlexibleModel:
         expected = quantity_shapes(self.robot, self.m)
         self.Q = {}
         placeholders, values = [], []
+        # one interpolant call for every tabulated quantity when the provider offers it
+        evaluate = getattr(provider, "evaluate", None)
+        self.table_values = evaluate(self.q_shape) if evaluate is not None else None
         for name in QUANTITY_KEYS:
             f = provider.function(name)
             size = int(np.prod(expected[name]))
@@ -431,7 +434,12 @@ class FlexibleModel:
                 if size else symbols
             keep = np.flatnonzero(~zero)
             placeholders.append(symbols[keep.tolist()] if keep.size else ca.SX(0, 1))
-            value = ca.SX(f(self.q_shape)) if size else ca.SX(0, 1)
+            if not size:
+                value = ca.SX(0, 1)
+            elif self.table_values is not None:
+                value = self.table_values[name]
+            else:
+                value = ca.SX(f(self.q_shape))
             values.append(value[keep.tolist()] if keep.size else ca.SX(0, 1))
             if name == "omega":
                 self.omega = value

@@ -534,7 +534,13 @@ def _point_data(model, sensors):
             raise ModelError(f"the provider tabulates {f.numel_out(0) // max(m * width, 1)} "
                              f"sensor points; the sensors need {P}: {sensors.points} (build "
                              "the model with points=sensors.points)")
-        data[key] = ca.SX(f(model.q_shape)) if P * m else ca.SX.zeros(P * m * width)
+        shared = getattr(model, "table_values", None)  # the model's one interpolant call
+        if not P * m:
+            data[key] = ca.SX.zeros(P * m * width)
+        elif shared is not None and key in shared:
+            data[key] = shared[key]
+        else:
+            data[key] = ca.SX(f(model.q_shape))
     return data
 
 
