@@ -76,7 +76,7 @@ class Study:
     --------
     >>> s = load_study("problems/studies/arm2link_move1.toml")
     >>> s.robot_path.name, round(s.model["grid_step"], 6), s.estimator["Q"]
-    ('arm2link.toml', 0.05236, 5e-06)
+    ('arm2link_actuated.toml', 0.05236, 5e-06)
     """
 
     path: Path
@@ -147,7 +147,7 @@ def load_study(path):
     --------
     >>> s = load_study("problems/studies/arm2link_move1.toml")
     >>> s.robot.name, s.sensors.output_names[:2], s.shaper["vtol"]
-    ('arm2link', ('tip1_x', 'tip1_y'), 0.05)
+    ('arm2link_actuated', ('tip1_x', 'tip1_y'), 0.05)
     """
     from casflex.moves import load_move
     from casflex.robot import load

@@ -259,3 +259,7 @@ pair = modes(tube, [0.0], count=2)
 tips = pair.displacement[:, 0, -1, :2]
 print("tip displacement (x, y) of the pair:\n", tips)
 print("the pair spans both planes:", abs(np.linalg.det(tips)) > 1e-3)
+
+# %% [markdown]
+# **Next:** [2. The modal model](02_modal_model.ipynb) normalizes these modes, tracks them
+# across configurations, tabulates them and builds the CasADi equations of motion on them.

@@ -201,3 +201,7 @@ r1 = results["move1"]
 M_1 = f["mass"].map(r1.t.size)(r1.q.T, np.zeros((model.m, r1.t.size))).full().reshape(
     model.n + model.m, r1.t.size, model.n + model.m)
 print("for comparison, move 1 changes M(q, 0) by up to", np.ptp(M_1, axis=1).max())
+
+# %% [markdown]
+# **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model
+# simulates, with accelerometers or strain gauges and an EKF.

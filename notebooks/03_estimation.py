@@ -232,3 +232,7 @@ table(rows, ["move", "sensors", "δ ratio (order 1)", "δ̇ ratio (order 1)"])
 
 # %%
 print(f"notebook ran in {time.perf_counter() - start:.0f} s")
+
+# %% [markdown]
+# **Next:** [4. Input shaping](04_input_shaping.ipynb) removes the vibration of a planned
+# move before it starts, using the frequencies and contributions of the modal model.

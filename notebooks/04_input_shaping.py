@@ -406,3 +406,7 @@ fig.tight_layout()
 # So the contributions of eq. 196 choose the right modes and tolerances for the linear
 # part of the response, and the ±20 % margin — more than the model error — is what covers
 # the non-linear coupling on the spatial moves, at the price of longer shapers.
+
+# %% [markdown]
+# **Next:** [5. Control](05_control.ipynb) closes the loop: which modes the joints can
+# reach, and two controllers that use the estimated flexible states.

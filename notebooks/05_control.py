@@ -268,3 +268,9 @@ plt.show()
 # residual vibration almost as well as with true states and about ten times better than
 # the slow law alone, at the price of joint motion: the fast part moves the joints to damp
 # the modes, and the estimation noise doubles the peak joint error.
+
+# %% [markdown]
+# **Next:** [6. Real-time code](06_realtime.ipynb) turns the estimator and the controller
+# into C for the 1 kHz loop. The whole chain — model, shaper, simulations, stability check
+# and C — runs as one job with `casflex design problems/studies/arm2link_move1.toml --out
+# DIR`.
