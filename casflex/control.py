@@ -210,6 +210,10 @@ def controllability(model, q, rtol=1e-9):
 def accessibility_function(model):
     """Accessibility indexes of eq. 204 as a CasADi function.
 
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+
     Returns
     -------
     casadi.Function
@@ -358,6 +362,14 @@ def accessibility_along(model, move, t):
 
 def reference_function(move):
     """The bang-bang reference of a move as a CasADi function of time.
+
+    Parameters
+    ----------
+    move : casflex.moves.Move
+        A move with ``q0``, ``qf``, ``duration`` and ``peak_acceleration``; a move that
+        has its own ``casadi_reference()`` (e.g. :class:`casflex.moves.ShapedMove`)
+        supplies its reference itself. Before ``t = 0`` the reference rests at ``q0``,
+        after the duration at ``qf``.
 
     Returns
     -------
@@ -644,6 +656,21 @@ class GainSchedule:
     filled : int
         Grid points where the pair was not stabilisable (an inaccessible mode) whose gain
         was replaced by the mean of the neighbouring points.
+    info : dict
+        Free-form notes of the builder (e.g. the LQR weights).
+
+    Examples
+    --------
+    Usually from :func:`gain_schedule`; here two gains tabulated over joint 0 by hand:
+
+    >>> ax = np.linspace(-np.pi, np.pi, 4, endpoint=False)
+    >>> G = np.zeros((4, 1, 2))
+    >>> G[:, 0, 0] = [1.0, 2.0, 3.0, 4.0]
+    >>> s = GainSchedule.from_gains((0,), [ax], G, 0.15, n_joints=1, method="linear")
+    >>> s.joints, s.gains.shape, s.epsilon
+    ((0,), (4, 1, 2), 0.15)
+    >>> s.function([ax[2]]).full().round(9).tolist()
+    [[3.0, 0.0]]
     """
 
     joints: tuple
@@ -915,6 +942,19 @@ def tracking(controller, move):
 
     The result is the controller form of :func:`casflex.simulate.simulate_torque`.
 
+    Parameters
+    ----------
+    controller : casadi.Function
+        ``(qd, dqd, ddqd, x) -> tau``, e.g. from :func:`inversion_controller`,
+        :func:`feedforward_controller` or :func:`composite_controller`.
+    move : casflex.moves.Move
+        The reference, through :func:`reference_function`.
+
+    Returns
+    -------
+    casadi.Function
+        ``<controller>_tracking (t, x) -> tau`` [s, state ``[q; δ; q̇; δ̇]`` -> N·m].
+
     Examples
     --------
     >>> from casflex.robot import load
@@ -936,6 +976,20 @@ def tracking(controller, move):
 
 def closed_loop(model, controller, move):
     """Closed-loop vector field ``(t, x) -> xdot`` of the model under a tracking law.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    controller : casadi.Function
+        ``(qd, dqd, ddqd, x) -> tau``.
+    move : casflex.moves.Move
+        The reference (:func:`reference_function`).
+
+    Returns
+    -------
+    casadi.Function
+        ``closed_loop (t, x) -> xdot`` with ``x = [q; δ; q̇; δ̇]``: the model's ``ode``
+        evaluated at the controller's torque.
 
     Examples
     --------
@@ -974,6 +1028,25 @@ class ClosedLoopResult:
         (N, 3) tip position with and without deflection [m], base frame.
     x_hat : numpy.ndarray or None
         (N, 2m) estimates ``[δ̂, δ̂̇]`` used by the controller when an estimator ran.
+    n, m : int
+        Numbers of joints and modes (they split ``x``).
+
+    Examples
+    --------
+    Usually from :func:`simulate_closed_loop`; the properties split the state:
+
+    >>> r = ClosedLoopResult(t=np.array([0.0, 0.1]),
+    ...                      x=np.array([[0.0, 0.01, 0.0, 0.0], [0.2, -0.01, 1.0, 0.5]]),
+    ...                      tau=np.zeros((2, 1)), qd=np.array([[0.0], [0.25]]),
+    ...                      tip=np.array([[1.0, 0.0, 0.0], [0.98, 0.2, 0.0]]),
+    ...                      tip_rigid=np.array([[1.0, 0.0, 0.0], [0.98, 0.199, 0.0]]),
+    ...                      n=1, m=1)
+    >>> r.q.ravel().tolist(), r.delta.ravel().tolist(), r.dq.ravel().tolist()
+    ([0.0, 0.2], [0.01, -0.01], [0.0, 1.0])
+    >>> r.tracking_error.ravel().round(6).tolist()
+    [0.0, -0.05]
+    >>> r.tip_deflection[1].round(6).tolist()
+    [0.0, 0.001, 0.0]
     """
 
     t: np.ndarray

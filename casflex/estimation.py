@@ -110,6 +110,16 @@ def exact_plant_function(model):
 
     Exact but large (the reference the tabulated plant is checked against).
 
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+
+    Returns
+    -------
+    casadi.Function
+        ``flex_exact (u, x) -> dddelta`` with ``u = [q; q̇; q̈]`` (3n) and
+        ``x = [δ; δ̇]`` (2m); the model's ``prescribed_dddelta`` (m).
+
     Examples
     --------
     >>> from casflex.robot import load
@@ -198,6 +208,20 @@ class FlexiblePlant:
         1: first order in Δ; 2: with the products ``x_a x_b`` (:attr:`pairs`). A
         second-order plant replaced with ``order=1`` (``dataclasses.replace``) is its
         first-order part.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> plant = tabulate_plant(model, cache_dir=False)
+    >>> plant.order, plant.pairs          # one mode: x = [δ₁, δ̇₁]
+    (2, [(0, 0), (0, 1), (1, 1)])
+    >>> plant.shape_joints, plant.fourier_joints, plant.table is None
+    ((), (1, 2), True)
+    >>> len(plant.monomials), plant.pattern.shape   # 1 + 2n + n(n+1)/2 monomials
+    (13, (13, 1, 6))
     """
 
     model: object
@@ -235,6 +259,8 @@ class FlexiblePlant:
 
         Parameters
         ----------
+        q, dq, ddq : casadi.SX or array_like
+            Joint angles [rad], rates [rad/s] and accelerations [rad/s²] (n each).
         coriolis : bool
             ``False`` drops every term with ``q̇`` (Coriolis and centrifugal forcing,
             gyroscopic coupling and centrifugal stiffening).
@@ -244,6 +270,32 @@ class FlexiblePlant:
         quadratic : bool
             Also return ``W`` (m × len(:attr:`pairs`)), the coefficients of the products
             ``x_a x_b`` (zero columns for a first-order plant).
+
+        Returns
+        -------
+        r0 : casadi.SX
+            (m × 1) δ̈ at Δ = 0.
+        Jd, Jv : casadi.SX
+            (m × m) ``∂δ̈/∂δ`` and ``∂δ̈/∂δ̇`` at Δ = 0.
+        W : casadi.SX
+            Only with ``quadratic=True``.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> plant = tabulate_plant(model, cache_dir=False)
+        >>> r0, Jd, Jv = plant.coefficients(np.zeros(3), np.zeros(3), np.zeros(3))
+        >>> round(float(r0), 6), round(float(Jd), 3), round(float(Jv), 6)   # J_δ = -ω₁²
+        (0.0, -69.012, 0.0)
+        >>> _, Jd2, _ = plant.coefficients(np.zeros(3), np.zeros(3), np.zeros(3),
+        ...                                stiffness_scale=2.0)
+        >>> round(float(Jd2), 3)
+        -138.025
+        >>> plant.coefficients([0, 0, 0], [0, 0, 0], [0, 0, 0], quadratic=True)[3].shape
+        (1, 3)
         """
         m = self.m
         ncol = 2 * m + 1 + len(self.pairs)
@@ -285,13 +337,47 @@ class FlexiblePlant:
         return r0, Jd, Jv
 
     def quadratic_terms(self, x):
-        """The products ``x_a x_b`` of :attr:`pairs` (SX column)."""
+        """The products ``x_a x_b`` of :attr:`pairs` (SX column).
+
+        Parameters
+        ----------
+        x : casadi.SX or array_like
+            ``[δ; δ̇]`` (2m).
+
+        Returns
+        -------
+        casadi.SX
+            ``len(pairs) × 1``; empty (0 × 1) for a first-order plant.
+
+        Examples
+        --------
+        >>> import dataclasses
+        >>> from casflex.robot import load
+        >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> plant = tabulate_plant(model, cache_dir=False)
+        >>> print(plant.quadratic_terms(ca.SX.sym("x", 2)))
+        [sq(x_0), (x_0*x_1), sq(x_1)]
+        >>> dataclasses.replace(plant, order=1).quadratic_terms(ca.SX.sym("x", 2)).shape
+        (0, 1)
+        """
         return ca.vertcat(*[x[a] * x[b] for a, b in self.pairs]) if self.pairs else \
             ca.SX(0, 1)
 
     def function(self, coriolis=True, stiffness_scale=1.0):
         """``casadi.Function`` ``u -> (r0, Jd, Jv[, W])``; ``W`` (second-order plants only)
         holds the coefficients of the products ``x_a x_b`` of :attr:`pairs`.
+
+        Parameters
+        ----------
+        coriolis, stiffness_scale
+            Estimator-model variations (:meth:`coefficients`).
+
+        Returns
+        -------
+        casadi.Function
+            ``flex_coefficients (u) -> (r0, Jd, Jv[, W])`` with ``u = [q; q̇; q̈]`` (3n).
 
         Examples
         --------
@@ -317,6 +403,18 @@ class FlexiblePlant:
         """``casadi.Function`` ``(u, x) -> dddelta`` of the tabulated plant.
 
         ``quadratic=False`` drops the second-order terms (the first-order plant).
+
+        Parameters
+        ----------
+        coriolis, stiffness_scale
+            Estimator-model variations (:meth:`coefficients`).
+        quadratic : bool
+            Include the products ``x_a x_b`` (second-order plants only).
+
+        Returns
+        -------
+        casadi.Function
+            ``flex_lean (u, x) -> dddelta`` with ``u = [q; q̇; q̈]`` (3n), ``x = [δ; δ̇]``.
 
         Examples
         --------
@@ -1047,6 +1145,17 @@ def rigid_signal_function(model, sensors):
     """``u -> y_rigid``: the rigid-motion part contained in the signals (zero for strain
     gauges and for accelerometers declared with ``rigid = false``).
 
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+        Must tabulate ``sensors.points``.
+    sensors : casflex.sensors.SensorSet
+
+    Returns
+    -------
+    casadi.Function
+        ``y_rigid (u) -> y`` with ``u = [q; q̇; q̈]`` (3n), ``sensors.n_outputs`` signals.
+
     Examples
     --------
     >>> from casflex.robot import load
@@ -1066,6 +1175,22 @@ def rigid_signal_function(model, sensors):
 def ekf_functions(model, sensors, Q, R, dt, *, plant=None, sqrt=False, coriolis=True,
                   stiffness_scale=1.0, rigid_removed=False, prefix="", jacobians="exact"):
     """The named functions of a real-time estimator, ready to combine or generate.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+        Must tabulate ``sensors.points``.
+    sensors : casflex.sensors.SensorSet
+    Q, R, dt
+        Process-noise intensity, signal covariance and sample time [s]
+        (:func:`ekf_step_function`).
+    plant : FlexiblePlant, optional
+        Default :func:`tabulate_plant` of ``model``.
+    sqrt, coriolis, stiffness_scale, rigid_removed, jacobians
+        Passed on to :func:`ekf_step_function` (``coriolis`` and ``stiffness_scale`` to
+        the ``plant`` function as well).
+    prefix : str
+        Prepended to every function name (several estimators in one C bundle).
 
     Returns
     -------
@@ -1121,6 +1246,19 @@ class EKFResult:
         (N + 1, 2m) priors ``x̂_{k|k−1}`` (row 0: the initial guess).
     P : numpy.ndarray
         (N + 1, 2m, 2m) prior covariances (``S Sᵀ`` for the square-root form).
+
+    Examples
+    --------
+    From :func:`run_ekf`; here with a toy one-state step that adds 1 per sample:
+
+    >>> x, P, u, y, k = [ca.SX.sym(s) for s in "xPuyk"]
+    >>> f = ca.Function("s", [x, P, u, y, k], [x + 1, 2 * P, x], ["x", "P", "u", "y", "mask"],
+    ...                 ["x_next", "P_next", "x_post"])
+    >>> r = run_ekf(f, np.zeros((3, 1)), np.zeros((3, 1)), [0.0], [[1.0]])
+    >>> r.x.shape, r.x_prior.shape, r.P.shape
+    ((3, 1), (4, 1), (4, 1, 1))
+    >>> r.x_prior.ravel().tolist(), r.P.ravel().tolist()
+    ([0.0, 1.0, 2.0, 3.0], [1.0, 2.0, 4.0, 8.0])
     """
 
     x: np.ndarray
@@ -1134,6 +1272,23 @@ def prefilter_initial(plant, sensors, x0, u0, y0):
     The difference between the first signals and their prediction is taken as an offset
     and removed from the start (a filter started at rest would let it decay with
     ``1/ω_c`` instead).
+
+    Parameters
+    ----------
+    plant : FlexiblePlant
+    sensors : casflex.sensors.SensorSet
+    x0 : array_like
+        Initial estimate ``[δ; δ̇]`` (2m).
+    u0 : array_like
+        First ``[q; q̇; q̈]`` (3n).
+    y0 : array_like
+        First signals (r); NaN (a missing sample) is replaced by the prediction.
+
+    Returns
+    -------
+    numpy.ndarray
+        (4r) prefilter state, the ``f`` input of a step with ``prefilter``
+        (:func:`ekf_step_function`; ``f0`` of :func:`run_ekf`).
 
     Examples
     --------
@@ -1159,6 +1314,17 @@ def prefilter_initial(plant, sensors, x0, u0, y0):
 
 def highpass_cutoff(model, q):
     """Cut-off one decade below the lowest natural frequency at ``q`` [rad/s] (§5.5.1.1).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    q : array_like
+        Configuration [rad] (n).
+
+    Returns
+    -------
+    float
+        ``min ω(q) / 10`` [rad/s], the ``prefilter`` of :func:`ekf_step_function`.
 
     Examples
     --------
@@ -1299,6 +1465,23 @@ class SimulatedData:
         (N, 2m) true ``[δ, δ̇]``.
     y_clean, y : numpy.ndarray
         (N, r) exact signals and signals with noise (and offset).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None)
+    >>> d = simulate_data(model, ss, Move([0, 0, 0], [-1, 0, 0], 0.2), t_end=0.01,
+    ...                   noise=0.0, offset=1e-6)
+    >>> d.t.shape, d.u.shape, d.x.shape, d.y.shape
+    ((11,), (11, 9), (11, 2), (11, 2))
+    >>> (d.y - d.y_clean).round(12).max().item()    # the sensor bias, no noise
+    1e-06
     """
 
     t: np.ndarray

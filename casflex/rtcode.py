@@ -43,6 +43,20 @@ __all__ = ["ekf_units", "ekf_bundle", "model_bundle", "covariance_run"]
 def ekf_units(sensors, prefix=""):
     """Units of the EKF functions' ports for the README (``{function: {port: unit}}``).
 
+    Parameters
+    ----------
+    sensors : casflex.sensors.SensorSet
+        Decides the unit of the signals ``y``: m/s² (accelerometers only), strain (strain
+        pairs only) or a per-signal note for a mixed set.
+    prefix : str
+        Prefix of the function names (as for :func:`ekf_bundle`).
+
+    Returns
+    -------
+    dict of str to dict of str to str
+        Keys ``<prefix>ekf_step``, ``<prefix>plant``, ``<prefix>measurement`` and
+        ``<prefix>rigid_signals``; the ``units`` of :func:`casflex.codegen.generate`.
+
     Examples
     --------
     >>> from casflex.sensors import SensorSet, Accelerometer
@@ -87,6 +101,27 @@ def ekf_bundle(model, sensors, out_dir, Q, R, dt, *, name="casflex_ekf", plant=N
     Returns
     -------
     casflex.codegen.Bundle
+        Functions ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals`` (with
+        ``prefix``), in that order.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.estimation import tabulate_plant
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None)
+    >>> plant = tabulate_plant(model, cache_dir=False)
+    >>> b = ekf_bundle(model, ss, tempfile.mkdtemp(), Q=5e-6, R=9e-14, dt=1e-3,
+    ...                plant=plant, prefix="arm_")
+    >>> b.header.name, [f.name for f in b.functions]
+    ('casflex_ekf.h', ['arm_ekf_step', 'arm_plant', 'arm_measurement', 'arm_rigid_signals'])
+    >>> [(p.name, p.rows) for p in b.function("arm_ekf_step").inputs]
+    [('x', 2), ('P', 2), ('u', 9), ('y', 2), ('mask', 2)]
     """
     from casflex.estimation import ekf_functions, ekf_step_function, tabulate_plant
 
@@ -113,6 +148,25 @@ def model_bundle(model, out_dir, *, name="casflex_model", functions=("forward",)
 
     The model's graph is large (the forward dynamics of the Table 8 arm with three modes
     has ~67 000 SX operations): compile it with ``-O1``/``-O0`` when build time matters.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    out_dir : str or pathlib.Path
+    name : str
+        Bundle name.
+    functions : sequence of str
+        Keys of :meth:`casflex.dynamics.FlexibleModel.functions` to generate (``"ode"``,
+        ``"mass"``, ...); units are written for ``"forward"``.
+
+    Returns
+    -------
+    casflex.codegen.Bundle
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        For a name the model has no function for.
 
     Examples
     --------
@@ -275,6 +329,34 @@ def covariance_run(bundle, u, y, x0, P0, steps, *, mask=None, f0=None, function=
         ``max_rel_asymmetry`` (max |P_ij − P_ji| / √(P_ii P_jj)),
         ``min_rel_cholesky_pivot``, ``min_diag``, ``max_diag``, ``mean_step_ns`` (including
         the checks), ``x_final``.
+
+    Notes
+    -----
+    The program, its data file and the executable are written to ``bundle.out_dir``
+    (``covrun_<function>.c``, ``covrun_<function>_data.txt``, ``covrun_<function>``).
+
+    Examples
+    --------
+    A one-mode strain-gauge EKF, 1000 steps over one recorded sample at rest (``-O0``: the
+    build, not the run, takes the time here):
+
+    >>> import tempfile
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.estimation import tabulate_plant
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None)
+    >>> plant = tabulate_plant(model, cache_dir=False)
+    >>> b = ekf_bundle(model, ss, tempfile.mkdtemp(), Q=5e-6, R=9e-14, dt=1e-3, plant=plant)
+    >>> r = covariance_run(b, np.zeros((1, 9)), np.zeros((1, 2)), [0, 0], np.eye(2) * 1e-4,
+    ...                    1000, flags=("-O0",))
+    >>> r["steps"], r["not_positive_definite"], r["not_finite"]
+    (1000, 0, 0)
+    >>> bool(r["max_diag"] <= 1e-4)   # the covariance shrinks from P0
+    True
     """
     info = bundle.function(function)
     nx = info.inputs[0].rows

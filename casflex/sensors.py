@@ -277,11 +277,44 @@ class SensorSet:
         return np.array(out)
 
     def point_index(self, sensor):
-        """Index of ``sensor``'s point in :attr:`points`."""
+        """Index of ``sensor``'s point in :attr:`points`.
+
+        Parameters
+        ----------
+        sensor : Accelerometer or StrainPair
+            A sensor whose point ``(row, s)`` is among :attr:`points` (not necessarily
+            one of this set's sensors).
+
+        Returns
+        -------
+        int
+            Sensors at the same point share the index.
+
+        Examples
+        --------
+        >>> ss = SensorSet([Accelerometer(2, 1.0, name="a"), StrainPair(3, 0.05, name="b"),
+        ...                 Accelerometer(2, 1.0, name="c", axes="z")])
+        >>> ss.points
+        [(2, 1.0), (3, 0.05)]
+        >>> [ss.point_index(sen) for sen in ss]
+        [0, 1, 0]
+        """
         return self.points.index((int(sensor.row), float(sensor.s)))
 
     def with_options(self, **changes):
         """A copy with the given fields changed on every accelerometer (e.g. ``rigid``).
+
+        Parameters
+        ----------
+        **changes
+            Field values, e.g. ``rigid=False``, ``gravity=False``, ``frame="inertial"``.
+            Each is applied to every sensor that has that field (so ``noise`` or
+            ``axes`` reach the strain pairs too) and ignored for the others. The copy
+            keeps :attr:`points` and ``source``.
+
+        Returns
+        -------
+        SensorSet
 
         Examples
         --------
@@ -300,6 +333,19 @@ class SensorSet:
 
 def default_strain_distance(section):
     """Half depths ``(c_x, c_y)`` [m] of a rectangle or tube section (NaN otherwise).
+
+    The default ``distance`` of a :class:`StrainPair`: ``c_x`` is the distance of the
+    ±x faces from the neutral axis, ``c_y`` that of the ±y faces.
+
+    Parameters
+    ----------
+    section : casflex.robot.Section
+        Its ``kind`` decides: ``"rectangle"`` and ``"tube"`` are recovered from the area
+        and second moments, any other kind gives NaN.
+
+    Returns
+    -------
+    tuple of 2 float
 
     Examples
     --------
@@ -566,6 +612,18 @@ def _point_pose(model, sensors, data, sensor):
 def point_position_function(model, sensors):
     """``casadi.Function`` ``(q, delta) -> (p_<name>, ...)``: sensor positions [m] in the base
     frame, the model's kinematics (for independent checks of the accelerometer model).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+        Built with ``points=sensors.points``.
+    sensors : SensorSet
+        One output per sensor, the position of its sensing element (offset included).
+
+    Returns
+    -------
+    casadi.Function
+        ``sensor_positions (q, delta) -> (p_<name>, ...)``, each 3 × 1 [m].
 
     Examples
     --------

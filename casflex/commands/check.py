@@ -13,7 +13,24 @@ HELP = ("stability of the inversion (eq. 226) or composite (fast loop Hurwitz) c
 
 
 def add_arguments(parser):
-    """Arguments of ``casflex check``."""
+    """Arguments of ``casflex check``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> a = p.parse_args(["problems/arm2link.toml", "--move",
+    ...                   "problems/moves.toml:control_move1", "--controller", "composite",
+    ...                   "--schedule"])
+    >>> a.controller, a.modes, a.step, a.dt, a.schedule
+    ('composite', 3, '6deg', 0.01, True)
+    """
     parser.add_argument("robot", help="robot description (TOML)")
     parser.add_argument("--move", required=True, metavar="FILE:NAME",
                         help="planned move, e.g. problems/moves.toml:move1")
@@ -37,7 +54,47 @@ def add_arguments(parser):
 
 
 def run(args, log):
-    """Run the check; return ``{"stable", "worst_margin", "worst_time", ...}`` (SI)."""
+    """Run the check; return ``{"stable", "worst_margin", "worst_time", ...}`` (SI).
+
+    Building the model tabulates modes over a grid (seconds to minutes), so the example
+    below only shows an argument check.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        Inversion (:func:`casflex.control.inversion_stability`): ``stable``,
+        ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q`` [rad], ``alpha``,
+        ``gamma`` [1/s], ``damping_condition``, ``time_scale_max``. Composite
+        (:func:`casflex.control.composite_stability`): ``stable``, ``worst_margin``,
+        ``worst_real`` [1/s], ``worst_time`` [s], ``worst_q`` [rad], ``epsilon`` [s],
+        ``gains`` (``"scheduled"`` or ``"end of move"``).
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        A move for another number of joints, ``--modes < 1``, a bad ``--dt`` or
+        ``--step``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> args = p.parse_args(["problems/arm2link.toml", "--move",
+    ...                      "problems/moves.toml:control_move1", "--controller",
+    ...                      "inversion", "--dt", "0"])
+    >>> run(args, print)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --dt: must be > 0 [s]; got 0.0
+    """
     from casflex import control
     from casflex.model import build_model
     from casflex.moves import load_move

@@ -27,6 +27,11 @@ HELP = "generate C code of the EKF (and the forward dynamics) for a robot and it
 def add_arguments(parser):
     """Arguments of ``casflex codegen``.
 
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
     Examples
     --------
     >>> import argparse
@@ -67,10 +72,53 @@ def add_arguments(parser):
 def rt_functions(model, sensors, args, plant=None):
     """The named functions and units of the estimator bundle for ``args``.
 
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+        Built with ``points=sensors.points``.
+    sensors : casflex.sensors.SensorSet
+    args : argparse.Namespace
+        Uses ``Q``, ``R`` (``None``: the sensors' ``noise²``), ``dt``, ``sqrt``,
+        ``prefilter`` and, when ``controller`` is set, ``kp``, ``kd``, ``q_weight``,
+        ``r_weight`` (see :func:`add_arguments`).
+    plant : casflex.estimation.FlexiblePlant, optional
+        Default :func:`casflex.estimation.tabulate_plant` of ``model``.
+
     Returns
     -------
     functions : dict of str to casadi.Function
+        ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals`` and, with a
+        controller, ``rt_step``.
     units : dict
+        ``{function: {port: unit}}`` for the README.
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``R`` not given and a sensor without ``noise``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> from casflex.robot import load
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.estimation import tabulate_plant
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3), noise=3e-7)])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None)
+    >>> plant = tabulate_plant(model, cache_dir=False)
+    >>> args = argparse.Namespace(Q=5e-6, R=None, dt=1e-3, sqrt=False, prefilter=False,
+    ...                           controller=None)
+    >>> funcs, units = rt_functions(model, ss, args, plant=plant)
+    >>> sorted(funcs), units["ekf_step"]["y"]
+    (['ekf_step', 'measurement', 'plant', 'rigid_signals'], 'strain (-)')
+    >>> quiet = SensorSet([StrainPair(2, 0.05)])     # no noise given, and no --R
+    >>> rt_functions(model, quiet, args, plant=plant)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --R not given and the sensor file gives no noise for ...
     """
     from casflex.estimation import (
         ekf_functions,
@@ -112,7 +160,42 @@ def rt_functions(model, sensors, args, plant=None):
 
 
 def run(args, log):
-    """Generate the bundles; return ``{"files": [...], "functions": [...]}``."""
+    """Generate the bundles; return ``{"files": [...], "functions": [...]}``.
+
+    Building the model tabulates modes over a grid (seconds to minutes), so the example
+    below only shows an argument check; see the module docstring for what is written.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        ``{"files": [paths of source, header, README, Makefile, manifest per bundle],
+        "functions": [C function names]}``.
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``--modes < 1``, ``--dt <= 0`` or ``--R`` missing for sensors without noise.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> args = p.parse_args(["problems/arm2link.toml", "--sensors",
+    ...                      "problems/sensors/arm2link_strain.toml", "--out", "d",
+    ...                      "--modes", "0"])
+    >>> run(args, print)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --modes: must be >= 1; got 0
+    """
     from casflex import codegen
     from casflex.model import build_model
     from casflex.robot import load
