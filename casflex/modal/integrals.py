@@ -99,7 +99,7 @@ from __future__ import annotations
 import numpy as np
 
 from casflex.errors import ModelError
-from casflex.modal.normalize import local_state
+from casflex.modal.normalize import gauss_legendre, local_state
 from casflex.tmm.chain import build_chain
 
 __all__ = [
@@ -342,7 +342,7 @@ def configuration_quantities(robot, q, shapes_normalized, points=None, quadratur
     omega = np.asarray(shapes.omega, dtype=float)
     m = omega.size
     nb = len(shapes.rows)
-    xg, wg = np.polynomial.legendre.leggauss(int(quadrature_points))
+    xg, wg = gauss_legendre(int(quadrature_points))
     C1 = np.zeros((nb, m, 4, 4))
     C2 = np.zeros((nb, m, m, 4, 4))
     eps = np.zeros((nb, m, 3))

@@ -46,6 +46,7 @@ basis vector's direction and makes the group mass-orthonormal.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -55,6 +56,7 @@ from casflex.errors import ModelError
 from casflex.tmm import elements as el
 
 __all__ = [
+    "gauss_legendre",
     "local_state",
     "modal_mass_matrix",
     "modal_stiffness_matrix",
@@ -127,6 +129,40 @@ def local_state(robot, shapes, beam, s):
     return np.einsum("mpij,mj->mpi", U, z0)
 
 
+@functools.lru_cache(maxsize=32)
+def _gauss_legendre(points):
+    x, w = np.polynomial.legendre.leggauss(points)
+    x.setflags(write=False)
+    w.setflags(write=False)
+    return x, w
+
+
+def gauss_legendre(points):
+    """Gauss–Legendre nodes and weights on [−1, 1], computed once per point count.
+
+    ``numpy.polynomial.legendre.leggauss`` solves an eigenvalue problem on every call
+    (~2 ms for 100 points), which tabulations repeat at every grid point; the arrays
+    returned here are cached and read-only.
+
+    Parameters
+    ----------
+    points : int
+        Number of nodes (>= 1).
+
+    Returns
+    -------
+    x, w : numpy.ndarray
+        Nodes and weights.
+
+    Examples
+    --------
+    >>> x, w = gauss_legendre(3)
+    >>> x.round(6).tolist(), round(float(w.sum()), 12)
+    ([-0.774597, 0.0, 0.774597], 2.0)
+    """
+    return _gauss_legendre(int(points))
+
+
 def _quadrature(robot, shapes, beam, method, points):
     """Nodes [m], weights [m] and the local state (m, n, 12) for one beam."""
     link = _beam_link(robot, shapes, beam)
@@ -134,7 +170,7 @@ def _quadrature(robot, shapes, beam, method, points):
     if method == "gauss":
         if points < 2:
             raise ModelError(f"Gauss quadrature needs at least 2 points; got {points}")
-        x, w = np.polynomial.legendre.leggauss(int(points))
+        x, w = gauss_legendre(int(points))
         s = 0.5 * L * (x + 1.0)
         return s, 0.5 * L * w, local_state(robot, shapes, beam, s)
     if method == "simpson":
