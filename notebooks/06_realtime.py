@@ -38,7 +38,7 @@ from casflex.sensors import load_sensors
 ROOT = Path.cwd().parent if Path.cwd().name == "notebooks" else Path.cwd()
 robot = load(ROOT / "problems" / "arm2link.toml")
 sensors = load_sensors(ROOT / "problems" / "sensors" / "arm2link_accel.toml", robot)
-model, table = build_model(robot, n_modes=3, step=np.radians(7.5), points=sensors.points,
+model, table = build_model(robot, n_modes=3, step=np.radians(15), points=sensors.points,
                            gravity=None, processes=1)
 plant = tabulate_plant(model)
 Q, R, DT = 5e-6, sensors.noise_std**2, 1e-3
@@ -151,7 +151,7 @@ print({k: check[k] for k in ("steps", "not_positive_definite", "not_finite",
 from casflex import control, rtloop
 
 arm = load(ROOT / "problems" / "arm2link_actuated.toml")
-model0, _ = build_model(arm, n_modes=3, step=np.radians(7.5), points=sensors.points,
+model0, _ = build_model(arm, n_modes=3, step=np.radians(15), points=sensors.points,
                         gravity=None, delta_order=0, processes=1)
 ekf0 = ekf_step_function(tabulate_plant(model0), sensors, Q, R, DT)
 ctrl = rtloop.make_controller(model0, "composite")
