@@ -12,6 +12,12 @@
     :func:`casflex.simulate.simulate_prescribed` of Table 9 move 1 (5 modes, 5 s, 1 ms
     steps, RK4): first call on the model (builds the RK4 step and ``mapaccum`` Functions)
     and a second call (warm). Nothing is compiled: CasADi's VM evaluates the step.
+``simulate_move1_poly_s``, ``simulate_move1_poly_warm_s``
+    the same with ``method="poly"`` (exact polynomial form of the modal rows, coefficients
+    interpolated in time), first and second call, measured in the same run;
+    ``move1_poly_info`` holds its breakdown (pieces, F evaluations, achieved interpolation
+    error, stage timings) and ``move1_poly_vs_rk4`` the largest differences from the RK4
+    result (modal amplitudes relative to each mode's range, torques relative to the peak).
 ``dask_1_worker_s``, ``dask_2_workers_s``, ``dask_speedup_2_workers``
     the testbed 10 × 12 grid of ``bench_tables.py`` (same settings, reused from there).
 ``cpu_capacity_2_processes``
@@ -34,6 +40,8 @@ import tempfile
 import time
 import warnings
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -73,6 +81,18 @@ def bench(skip_dask=False):
     out["move1_max_tip_deflection"] = r.max_tip_deflection
     out["move1_residual_tip_deflection"] = r.residual_tip_deflection
     out["move1_torque_peak"] = r.torque_peak.tolist()
+    out["loadavg_before_poly"] = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    p = simulate_prescribed(model, move, dt=1e-3, method="poly")
+    out["simulate_move1_poly_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    p = simulate_prescribed(model, move, dt=1e-3, method="poly")
+    out["simulate_move1_poly_warm_s"] = time.perf_counter() - t0
+    out["move1_poly_info"] = {k: v for k, v in p.info.items() if k.startswith("poly_")}
+    span = np.ptp(r.delta, axis=0)
+    out["move1_poly_vs_rk4"] = {
+        "delta_rel_range": float(np.max(np.abs(p.delta - r.delta).max(axis=0) / span)),
+        "tau_rel_peak": float(np.abs(p.tau - r.tau).max() / np.abs(r.tau).max())}
     if not skip_dask:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # coarse 2-D grid: low MAC

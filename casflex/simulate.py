@@ -12,7 +12,10 @@ Two problems are solved on a :class:`casflex.dynamics.FlexibleModel`:
 
 Integration
 -----------
-``method="rk4"`` (default) is the classical fixed-step Runge–Kutta scheme. For prescribed
+``method="rk4"`` (default) is the classical fixed-step Runge–Kutta scheme; for prescribed
+motion, ``method="poly"`` takes the same steps on an exact polynomial form of the modal
+rows whose configuration-dependent coefficients are interpolated in time (see
+:func:`simulate_prescribed`). For prescribed
 motion the reference is sampled at every node and half step, one RK4 step is a CasADi
 ``Function`` (the stage at the node also returns the torque) and the whole simulation is a
 single call of ``Function.mapaccum`` over all steps, evaluated by CasADi's virtual machine —
@@ -46,6 +49,7 @@ __all__ = ["SimulationResult", "simulate_prescribed", "simulate_torque", "sample
 
 _CACHE = weakref.WeakKeyDictionary()
 _METHODS = ("rk4", "cvodes", "idas")
+_PRESCRIBED_METHODS = _METHODS + ("poly",)
 
 
 @dataclass
@@ -259,9 +263,9 @@ def _initial(value, m, name):
     return v
 
 
-def _check_method(method):
-    if method not in _METHODS:
-        raise ModelError(f"method must be one of {list(_METHODS)}; got {method!r}")
+def _check_method(method, methods=_METHODS):
+    if method not in methods:
+        raise ModelError(f"method must be one of {list(methods)}; got {method!r}")
 
 
 def _tips(f, q, delta):
@@ -363,8 +367,11 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
         Step and output interval [s].
     t_end : float, optional
         End time [s]; default the move's ``duration + settle`` or the last sample.
-    method : {"rk4", "cvodes", "idas"}
-        Fixed-step RK4 (default, one ``mapaccum`` call) or a CasADi integrator.
+    method : {"rk4", "cvodes", "idas", "poly"}
+        Fixed-step RK4 (default, one ``mapaccum`` call), a CasADi integrator, or
+        ``"poly"``: the same RK4 steps on the exact polynomial form of the modal rows
+        (below). ``"poly"`` needs a :class:`casflex.moves.Move` or
+        :class:`casflex.moves.ShapedMove` (a sampled reference raises ``ModelError``).
     delta0, ddelta0 : array_like, optional
         Initial modal amplitudes and rates (default 0).
     **options
@@ -374,11 +381,44 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     Returns
     -------
     SimulationResult
+        With ``method="poly"``, ``info`` also holds ``poly_pieces``,
+        ``poly_F_evaluations``, ``poly_max_nodes_per_piece``, ``poly_interp_rel_err`` (the
+        achieved interpolation error, relative), ``poly_F_instructions`` and the timings
+        of the stages [s].
 
     Raises
     ------
     ModelError
-        Joint-count mismatch, bad step, times or method.
+        Joint-count mismatch, bad step, times or method; ``"poly"`` with a sampled
+        reference or when the interpolation does not reach 1e-10.
+
+    Notes
+    -----
+    ``method="poly"`` (exact fast path for prescribed motion). With ``delta_order`` 0 or
+    1 the mass matrix is affine in δ, ``M(q, δ) = M0(q) + Σ_j δ_j M_j(q)`` (``M_j =
+    ∂M/∂δ_j``), so with ``q(t), q̇(t), q̈(t)`` given the modal rows are
+
+    ``M_δδ(q, δ) δ̈ = r,   M_δδ = M0_δδ + Σ_j δ_j M_j,δδ,
+    r = c + J_δ δ + J_δ̇ δ̇ + Σ_jk C_jk δ_j δ̇_k + Σ_jk E_jk δ̇_j δ̇_k``
+
+    exactly (no δδ terms): with ``P = Σ_i q̇_i ∂M/∂q_i`` and
+    ``C Ẋ = Ṁ Ẋ − ½ ∂_X(Ẋᵀ M Ẋ)``, row ``a`` of ``−(M_δq q̈ + C Ẋ + G + D Ẋ)`` gives
+    ``c_a = −[M0 q̈ + P0 q̇]_a + ½ q̇ᵀ M_a,qq q̇ − g0_a``,
+    ``J_δ,aj = −[M_j q̈ + P_j q̇]_a − gd_aj − ω_a² 1_aj``,
+    ``J_δ̇,ak = −P0_a,δk − [M_k q̇]_a + q̇ᵀ M_a,qδk − 2 ζ ω_a 1_ak``,
+    ``C_ajk = −P_j,aδk`` and ``E_ajk = −M_j,aδk + ½ M_a,δjδk`` (joint rows of
+    ``M``, ``P`` in the ``q`` columns; ``g0 + gd δ`` the gravity forces, affine in δ).
+    One CasADi function ``F(q)`` gives ``M0``, ``M_j``, their q-Jacobians, ``Ω``,
+    ``∂Ω²/∂q`` and the gravity terms. ``F(q(t))`` is analytic between the switches of
+    the move and the times at which a shape joint crosses a knot of the modal tables'
+    interpolants; on each such piece ``F`` is evaluated at Chebyshev–Lobatto nodes, the
+    node count doubling until the previous interpolant matches ``F`` at the new nodes to
+    1e-10 of each output's largest entry. The coefficients at the RK4 stage times
+    (the reference's ``q̇``, ``q̈`` exact) drive chunked ``mapaccum`` RK4 steps whose
+    stage solves the m × m system; the torques ``τ = [M Ẍ + C Ẋ + G]_q`` follow from
+    the same arrays at the samples. The result equals ``method="rk4"`` to round-off
+    plus the interpolation error; it is faster when the model is large and the
+    reference crosses few table knots.
     SolverError
         The CasADi integrator failed.
 
@@ -394,16 +434,20 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     >>> r = simulate_prescribed(model, move, dt=0.01)
     >>> r.delta.shape, bool(0.0 < r.max_tip_deflection < 0.05)
     ((121, 1), True)
+    >>> p = simulate_prescribed(model, move, dt=0.01, method="poly")
+    >>> bool(np.abs(p.delta - r.delta).max() < 1e-10 * np.abs(r.delta).max())
+    True
     """
     import time
 
-    _check_method(method)
+    _check_method(method, _PRESCRIBED_METHODS)
     n, m = model.n, model.m
     f = _functions(model)
     t, q, dq, ddq, t_move_end = sample_reference(reference, dt, t_end, n_joints=n)
     steps = t.size - 1
     z0 = np.r_[_initial(delta0, m, "delta0"), _initial(ddelta0, m, "ddelta0")]
     start = time.perf_counter()
+    info = {}
     if method == "rk4":
         sampler = _as_reference(reference, n)[0]
         qh, dqh, ddqh = sampler(t[:-1] + 0.5 * dt)
@@ -416,6 +460,8 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
         Z = np.vstack([z0, zs.full().T])
         tau_last, _ = f["prescribed"](q[-1], dq[-1], ddq[-1], Z[-1, :m], Z[-1, m:])
         tau = np.vstack([taus.full().T, tau_last.full().T])
+    elif method == "poly":
+        Z, tau, info = _simulate_poly(model, f, reference, t, float(dt), z0)
     else:
         Z = _integrate_prescribed(model, f, reference, t, z0, method, options)
         tm = f["prescribed"].map(t.size)
@@ -428,7 +474,7 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     tip, tip_rigid = _tips(f, q, delta)
     return SimulationResult(t=t, q=q, dq=dq, ddq=ddq, tau=tau, delta=delta, ddelta=ddelta,
                             tip=tip, tip_rigid=tip_rigid, t_move_end=t_move_end,
-                            method=method, info={"steps": steps, "wall_s": wall})
+                            method=method, info={"steps": steps, "wall_s": wall, **info})
 
 
 def _integrator(name, method, dae, t0, grid, options):
@@ -493,6 +539,466 @@ def _integrate_prescribed(model, f, reference, t, z0, method, options):
         integ = _integrator("prescribed", method, dae, a, grid, options)
         Z.append(_run(integ, Z[-1][-1] if Z[-1].ndim == 2 else Z[-1]))
     return np.vstack([np.atleast_2d(Z[0])] + Z[1:])
+
+
+# ---------------------------------------------------------------------------- poly method
+
+_POLY_TOL = 1e-10
+_POLY_START = 5  # Chebyshev intervals per piece in the first round (then 10, 20, ...)
+_POLY_MAX_NODES = 96
+
+
+def _poly_function(model, f):
+    """``F(q)``: the configuration-only arrays of the modal and joint rows (cached).
+
+    Outputs, with ``M(q, δ) = M0(q) + Σ_j δ_j M_j(q)`` (exact: the model keeps M to first
+    order in δ): ``M0`` (N × N), ``Mj`` (N × N m, ``[M_1 … M_m]``), ``dM`` (N² (m + 1) × n,
+    the q-Jacobian of ``[vec M0; vec M_1; …]``), ``omega`` (m), ``domega2`` (m × n,
+    ``∂Ω²/∂q``), ``g0`` (N) and ``gd`` (N × m) with ``g(q, δ) = g0 + gd δ`` the gravity
+    forces (affine in δ).
+    """
+    F = f.get("_poly_F")
+    if F is not None:
+        return F
+    n, m = model.n, model.m
+    N = n + m
+    q, d = model.q, model.delta
+    # M and g are affine in δ, so M_j = M(q, e_j) − M(q, 0) exactly; evaluating the
+    # expressions at numeric δ lets CasADi drop the vanishing products (0.18 M SX
+    # instructions with the q-Jacobians for the 5-mode Table 8 arm, against 0.46 M from
+    # ∂M/∂δ_j at δ = 0)
+    g = model.gravity_forces
+    at = ca.Function("poly_at_delta", [q, d], [model.M, g])
+    M0, g0 = at(q, ca.DM.zeros(m))
+    Mj, gd = [], []
+    for j in range(m):
+        e = ca.DM.zeros(m)
+        e[j] = 1.0
+        Mk, gk = at(q, e)
+        Mj.append(Mk - M0)
+        gd.append(gk - g0)
+    iu = np.triu_indices(N)
+
+    def upper(A):
+        return ca.vertcat(*[A[int(i), int(k)] for i, k in zip(*iu, strict=True)])
+
+    stack = ca.vertcat(upper(M0), *[upper(A) for A in Mj])
+    dstack = ca.jacobian(stack, q)
+    omega = model.omega if m else ca.SX(0, 1)
+    outs = [stack, dstack, omega, ca.jacobian(omega**2, q), g0,
+            ca.horzcat(*gd) if m else ca.SX(N, 0)]
+    F = ca.Function("poly_configuration", [q], outs, ["q"],
+                    ["M", "dM", "omega", "domega2", "g0", "gd"])
+    f["_poly_F"] = F
+    return F
+
+
+def _poly_unpack(raw, n, m, dq, full=False):
+    """Arrays of ``F(q)`` at T times from the flat rows ``raw`` (T × R).
+
+    ``P0``, ``Pj`` are ``Σ_i q̇_i ∂M0/∂q_i`` and ``Σ_i q̇_i ∂M_j/∂q_i`` for the rates ``dq``
+    (T × n); ``full`` adds the partial derivatives ``K0``, ``Kj`` themselves (torques).
+    """
+    N = n + m
+    iu = np.triu_indices(N)
+    nt = iu[0].size
+    T = raw.shape[0]
+    o = 0
+
+    def take(k):
+        nonlocal o
+        out = raw[:, o:o + k]
+        o += k
+        return out
+
+    index = np.empty((N, N), dtype=int)
+    index[iu] = np.arange(nt)
+    index[iu[1], iu[0]] = np.arange(nt)
+
+    def sym(flat, lead):  # full symmetric matrices from their upper triangles (one gather)
+        return flat[..., index]
+
+    S = take(nt * (m + 1)).reshape(T, m + 1, nt)
+    dS = take(nt * (m + 1) * n).reshape(T, n, m + 1, nt)  # column-major: q index slowest
+    omega = take(m)
+    dw2 = take(m * n).reshape(T, n, m).transpose(0, 2, 1)
+    g0 = take(N)
+    gd = take(N * m).reshape(T, m, N).transpose(0, 2, 1)
+    allM = sym(S, (m + 1,))
+    allP = sym(np.einsum("ti,tijk->tjk", dq, dS), (m + 1,))
+    out = {"M0": allM[:, 0], "Mj": allM[:, 1:], "P0": allP[:, 0], "Pj": allP[:, 1:],
+           "omega": omega, "domega2": dw2, "g0": g0, "gd": gd}
+    if full:
+        allK = sym(dS, (n, m + 1))
+        out["K0"], out["Kj"] = allK[:, :, 0], allK[:, :, 1:]
+    return out
+
+
+def _poly_eval(F, qs):
+    """Flat rows (len(qs) × R) of ``F`` at the configurations ``qs`` (one map call)."""
+    outs = F.map(qs.shape[0], "thread", 2)(qs.T)
+    # column-major flattening of every output, one row per configuration
+    return np.hstack([np.asarray(o.full()).reshape(-1, qs.shape[0], order="F").T
+                      if o.numel() else np.zeros((qs.shape[0], 0)) for o in outs])
+
+
+def _poly_knots(model):
+    """Breakpoints of the model's table interpolants, per joint (dict joint -> array)."""
+    table = getattr(model.provider, "table", None)
+    if table is None or getattr(model.provider, "method", "bspline") not in ("bspline",
+                                                                               "linear"):
+        return {}
+    knots = {}
+    periodic = tuple(getattr(table, "periodic", ()) or ()) + (False,) * len(table.grid)
+    for ax, joint in enumerate(table.shape_joints):
+        g = np.asarray(table.grid[ax], dtype=float).ravel()
+        if periodic[ax]:
+            g = np.concatenate([g + 2.0 * np.pi * k for k in range(-2, 3)])
+        knots[int(joint)] = np.unique(g)
+    return knots
+
+
+def _poly_breaks(model, reference, sampler, t0, t1):
+    """Sorted times in [t0, t1] between which q(t) is a polynomial of degree ≤ 2 and no
+    shape joint crosses a knot of the table interpolants (the coefficients are analytic
+    there)."""
+    switches = getattr(reference, "breakpoints", None)
+    if switches is None:
+        T = float(reference.duration)
+        switches = (0.0, 0.5 * T, T)
+    phase = np.unique(np.r_[t0, np.clip(np.asarray(switches, dtype=float), t0, t1), t1])
+    breaks = [phase]
+    knots = _poly_knots(model)
+    for a, b in zip(phase[:-1], phase[1:], strict=True):
+        if b - a <= 0.0:
+            continue
+        qa, dqa, _ = sampler(np.array([a]))
+        ddq = sampler(np.array([0.5 * (a + b)]))[2][0]
+        for j, kn in knots.items():
+            # q_j(a + s) = qa + dqa s + ddq s² / 2 = κ  for s in (0, b - a)
+            A, B, C = 0.5 * ddq[j], dqa[0, j], qa[0, j] - kn
+            roots = []
+            if abs(A) > 0.0:
+                disc = B * B - 4.0 * A * C
+                ok = disc >= 0.0
+                sq = np.sqrt(np.where(ok, disc, 0.0))
+                for r in ((-B + sq) / (2.0 * A), (-B - sq) / (2.0 * A)):
+                    roots.append(r[ok])
+            elif abs(B) > 0.0:
+                roots.append(-C / B)
+            if roots:
+                s = np.concatenate(roots)
+                s = s[(s > 1e-12 * (b - a)) & (s < (1.0 - 1e-12) * (b - a))]
+                breaks.append(a + s)
+    out = np.unique(np.concatenate(breaks))
+    # merge breaks closer than 1e-12 s (a knot at a switch)
+    keep = np.r_[True, np.diff(out) > 1e-12]
+    return out[keep]
+
+
+def _cheb(a, b, K):
+    k = np.arange(K + 1)
+    x = np.cos(np.pi * k / K)
+    w = (-1.0) ** k
+    w[0] *= 0.5
+    w[-1] *= 0.5
+    return 0.5 * (a + b) + 0.5 * (b - a) * x, w
+
+
+def _bary(tn, w, fv, t):
+    """Barycentric interpolation (second kind) of node values ``fv`` at times ``t``."""
+    D = t[:, None] - tn[None, :]
+    exact = D == 0.0
+    D[exact] = 1.0
+    C = w / D
+    out = (C @ fv) / C.sum(axis=1)[:, None]
+    hit = np.nonzero(exact.any(axis=1))[0]
+    if hit.size:
+        out[hit] = fv[np.argmax(exact[hit], axis=1)]
+    return out
+
+
+def _poly_interpolants(F, sampler, breaks, tol):
+    """Chebyshev interpolants of ``F(q(t))`` on every piece between ``breaks``.
+
+    The node count of every piece doubles (nested Chebyshev–Lobatto nodes) until the
+    previous interpolant agrees with ``F`` at the new nodes to ``tol`` relative to the
+    largest entry of each output block. Returns ``(pieces, err, evaluations, nodes)``.
+    """
+    pieces = [(a, b) for a, b in zip(breaks[:-1], breaks[1:], strict=True) if b > a]
+    K = _POLY_START
+    nodes = {}
+    vals = {}
+    tq = np.concatenate([_cheb(a, b, K)[0] for a, b in pieces])
+    raw = _poly_eval(F, sampler(tq)[0])
+    evaluations = tq.size
+    sizes = [F.numel_out(i) for i in range(F.n_out())]
+    edges = np.r_[0, np.cumsum(sizes)]
+    scale = np.ones(raw.shape[1])
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        if hi > lo:
+            scale[lo:hi] = max(float(np.abs(raw[:, lo:hi]).max()), 1e-300)
+    o = 0
+    for i, _ in enumerate(pieces):
+        nodes[i] = K
+        vals[i] = raw[o:o + K + 1]
+        o += K + 1
+    todo = list(range(len(pieces)))
+    err = {}
+    while todo:
+        if K >= _POLY_MAX_NODES:
+            worst = max(err[i] for i in todo)
+            raise ModelError(
+                f"method='poly': the interpolation of the model's configuration arrays "
+                f"did not reach {tol:g} relative with {K} Chebyshev nodes per piece "
+                f"(reached {worst:.2e}); the modal quantities are not smooth between the "
+                "known breakpoints (provider without knot information?). Use method='rk4'")
+        new_t = []
+        for i in todo:
+            a, b = pieces[i]
+            tn2, _ = _cheb(a, b, 2 * K)
+            new_t.append(tn2[1::2])  # the nodes of 2K not already in K
+        new_q = sampler(np.concatenate(new_t))[0]
+        new_raw = _poly_eval(F, new_q)
+        evaluations += new_q.shape[0]
+        o = 0
+        nxt = []
+        for i, tnew in zip(todo, new_t, strict=True):
+            a, b = pieces[i]
+            tn, w = _cheb(a, b, K)
+            fnew = new_raw[o:o + tnew.size]
+            o += tnew.size
+            e = float(np.max(np.abs(_bary(tn, w, vals[i], tnew) - fnew) / scale))
+            err[i] = e
+            merged = np.empty((2 * K + 1, raw.shape[1]))
+            merged[0::2] = vals[i]
+            merged[1::2] = fnew
+            vals[i] = merged
+            nodes[i] = 2 * K
+            if e > tol:
+                nxt.append(i)
+        todo = nxt
+        K *= 2
+    out = []
+    for i, (a, b) in enumerate(pieces):
+        tn, w = _cheb(a, b, nodes[i])
+        out.append((a, b, tn, w, vals[i]))
+    return out, max(err.values()) if err else 0.0, evaluations, max(nodes.values())
+
+
+def _poly_at(pieces, t):
+    """Interpolated ``F(q(t))`` rows at the sorted times ``t`` (right-continuous choice of
+    the piece; ``F(q(t))`` is continuous, so the choice at a break only matters to
+    round-off)."""
+    starts = np.array([p[0] for p in pieces])
+    cut = np.r_[0, np.searchsorted(t, starts[1:], side="left"), t.size]
+    out = np.empty((t.size, pieces[0][4].shape[1]))
+    for i, (lo, hi) in enumerate(zip(cut[:-1], cut[1:], strict=True)):
+        if hi > lo:
+            _, _, tn, w, fv = pieces[i]
+            out[lo:hi] = _bary(tn, w, fv, t[lo:hi])
+    return out
+
+
+def _poly_coefficients(A, dq, ddq, n, m, zeta):
+    """Coefficients of the modal rows at T times (arrays of :func:`_poly_unpack`).
+
+    ``M_δδ(δ) = Mdd0 + Σ_j δ_j Add_j`` and ``M_δδ δ̈ = r`` with
+    ``r = c + Jd δ + Jv δ̇ + Σ_jk C_ajk δ_j δ̇_k + Σ_jk E_ajk δ̇_j δ̇_k``.
+    Returns ``(T, 455-like)`` rows ``[Mdd0, Add, c, Jd, Jv, C, E]`` (C order, see
+    :func:`_poly_stage`).
+    """
+    T = dq.shape[0]
+    M0, Mj, P0, Pj = A["M0"], A["Mj"], A["P0"], A["Pj"]
+    q_, d_ = slice(0, n), slice(n, n + m)
+    Mqa = Mj[:, :, q_, q_]  # M_a[q, q] for each mode a
+    # L_δ = M_δq(δ) q̈ + h_δ (to be negated): h_δ = [ṀẊ]_δ - ½ ∂_δ(ẊᵀMẊ) + G_δ + D δ̇
+    c = (np.einsum("tab,tb->ta", M0[:, d_, q_], ddq)
+         + np.einsum("tab,tb->ta", P0[:, d_, q_], dq)
+         - 0.5 * np.einsum("ti,taij,tj->ta", dq, Mqa, dq, optimize=True)
+         + A["g0"][:, d_])
+    w2 = A["omega"] ** 2
+    Jd = (np.einsum("tjab,tb->taj", Mj[:, :, d_, q_], ddq)
+          + np.einsum("tjab,tb->taj", Pj[:, :, d_, q_], dq)
+          + A["gd"][:, d_, :])
+    Jd[:, np.arange(m), np.arange(m)] += w2
+    Jv = (P0[:, d_, d_]
+          + np.einsum("tkab,tb->tak", Mj[:, :, d_, q_], dq)
+          - np.einsum("ti,taik->tak", dq, Mj[:, :, q_, d_]))
+    Jv[:, np.arange(m), np.arange(m)] += 2.0 * zeta * A["omega"]
+    C = Pj[:, :, d_, d_].transpose(0, 2, 1, 3)  # [t, a, j, k] = P_j[a, δk]
+    E = (Mj[:, :, d_, d_].transpose(0, 2, 1, 3)
+         - 0.5 * Mj[:, :, d_, d_])  # M_j[a, δk] - ½ M_a[δj, δk]
+    Mdd0 = M0[:, d_, d_]
+    Add = Mj[:, :, d_, d_]
+    parts = [Mdd0, Add, -c, -Jd, -Jv, -C, -E]
+    return np.hstack([p.reshape(T, -1) for p in parts])
+
+
+def _poly_stage(m):
+    """SX stage ``(coef, z) -> [δ̇; δ̈]`` of the polynomial form of the modal rows."""
+    z = ca.SX.sym("z", 2 * m)
+    sizes = [m * m, m**3, m, m * m, m * m, m**3, m**3]
+    coef = ca.SX.sym("coef", sum(sizes))
+    d, v = z[:m], z[m:]
+    parts, o = [], 0
+    for s in sizes:
+        parts.append(coef[o:o + s])
+        o += s
+    Mdd0, Add, c, Jd, Jv, C, E = parts
+
+    def mat(x, rows, cols):  # C-order block
+        return ca.reshape(x, cols, rows).T
+
+    Mdd = mat(Mdd0, m, m)
+    for j in range(m):
+        Mdd += d[j] * mat(Add[j * m * m:(j + 1) * m * m], m, m)
+    dv = ca.kron(d, v)
+    vv = ca.kron(v, v)
+    r = c + mat(Jd, m, m) @ d + mat(Jv, m, m) @ v + mat(C, m, m * m) @ dv \
+        + mat(E, m, m * m) @ vv
+    return ca.Function("poly_stage", [coef, z], [ca.vertcat(v, ca.solve(Mdd, r))]), \
+        sum(sizes)
+
+
+_POLY_CHUNK = 250
+
+
+def _poly_rk4(f, m, dt):
+    """``mapaccum`` over ``_POLY_CHUNK`` RK4 steps with the coefficients at t, t + dt/2 and
+    t + dt as the per-step input (building a mapaccum costs time linear in its length, so
+    a long simulation calls this chunk repeatedly)."""
+    key = ("poly", m, float(dt))
+    cached = f["_rk4"].get(key)
+    if cached is not None:
+        return cached
+    stage, nc = _poly_stage(m)
+    z = ca.SX.sym("z", 2 * m)
+    p = ca.SX.sym("p", 3 * nc)
+    pa, pb, pc = p[:nc], p[nc:2 * nc], p[2 * nc:]
+    k1 = stage(pa, z)
+    k2 = stage(pb, z + 0.5 * dt * k1)
+    k3 = stage(pb, z + 0.5 * dt * k2)
+    k4 = stage(pc, z + dt * k3)
+    step = ca.Function("poly_rk4", [z, p], [z + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4),
+                                            k1[m:]], ["z", "p"], ["z_next", "dddelta"])
+    acc = step.mapaccum("poly_rk4_acc", _POLY_CHUNK, [0], [0])
+    f["_rk4"][key] = (acc, stage)
+    return acc, stage
+
+
+def _poly_integrate(acc, z0, P, m):
+    """Run the chunked RK4 over the rows of ``P`` (one row per step)."""
+    steps = P.shape[0]
+    L = _POLY_CHUNK
+    chunks = -(-steps // L)
+    pad = chunks * L - steps
+    if pad:
+        P = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
+    zs = np.empty((chunks * L, 2 * m))
+    dds = np.empty((chunks * L, m))
+    z = np.ascontiguousarray(z0[None, :], dtype=float)
+    for c in range(chunks):
+        zc, dc = _call_buffered(acc, [z, P[c * L:(c + 1) * L]], [(L, 2 * m), (L, m)])
+        zs[c * L:(c + 1) * L] = zc
+        dds[c * L:(c + 1) * L] = dc
+        z = np.ascontiguousarray(zc[-1:])
+    return zs[:steps], dds[:steps]
+
+
+def _call_buffered(fun, args, shapes):
+    """Evaluate ``fun`` without converting large arrays to DM: CasADi reads and writes the
+    numpy buffers directly (column-major, so an input of shape (r, c) is passed as a
+    C-contiguous (c, r) array)."""
+    buf, run = fun.buffer()
+    keep = []
+    for i, a in enumerate(args):
+        a = np.ascontiguousarray(a, dtype=float)
+        keep.append(a)
+        buf.set_arg(i, memoryview(a))
+    outs = [np.zeros(s) for s in shapes]
+    for i, o in enumerate(outs):
+        buf.set_res(i, memoryview(o))
+    run()
+    return outs
+
+
+def _poly_tau(A, dq, ddq, d, v, dd, n, m):
+    """Joint torques ``τ = [M Ẍ + C Ẋ + G]_q`` at T samples from the configuration arrays
+    (unpacked with ``full=True`` and the same rates ``dq``)."""
+    M0, Mj, Kj = A["M0"], A["Mj"], A["Kj"]
+    X1 = np.hstack([dq, v])
+    X2 = np.hstack([ddq, dd])
+    M = M0 + np.einsum("tj,tjab->tab", d, Mj)
+    K = A["K0"] + np.einsum("tj,tijab->tiab", d, Kj)  # ∂M/∂q_i at δ
+    # Ṁ = Σ_i q̇_i ∂M/∂q_i + Σ_j δ̇_j M_j
+    Mdot = A["P0"] + np.einsum("tj,tjab->tab", d, A["Pj"]) + np.einsum("tj,tjab->tab", v, Mj)
+    lhs = np.einsum("tab,tb->ta", M, X2) + np.einsum("tab,tb->ta", Mdot, X1)
+    tau = lhs[:, :n] - 0.5 * np.einsum("ta,tiab,tb->ti", X1, K, X1, optimize=True)
+    tau += A["g0"][:, :n] + np.einsum("taj,tj->ta", A["gd"][:, :n, :], d)
+    tau += 0.5 * np.einsum("tai,ta->ti", A["domega2"], d**2)
+    return tau
+
+
+def _simulate_poly(model, f, reference, t, dt, z0):
+    """Integrate z with the polynomial form of the modal rows; returns (Z, tau, info)."""
+    import time
+
+    from casflex.moves import Move
+
+    n, m = model.n, model.m
+    if not (isinstance(reference, Move) or hasattr(reference, "breakpoints")):
+        raise ModelError("method='poly' needs the reference as a casflex.moves.Move or "
+                         "ShapedMove (known switching times); got sampled arrays — use "
+                         "method='rk4'")
+    if m == 0:
+        raise ModelError("method='poly' needs a model with modes (m >= 1); use method='rk4'")
+    if model.delta_order not in (0, 1):
+        raise ModelError(f"method='poly' needs delta_order 0 or 1; got {model.delta_order}")
+    info = {}
+    start = time.perf_counter()
+    F = _poly_function(model, f)
+    info["poly_build_s"] = time.perf_counter() - start
+    info["poly_F_instructions"] = int(F.n_instructions())
+    sampler = _as_reference(reference, n)[0]
+    start = time.perf_counter()
+    breaks = _poly_breaks(model, reference, sampler, float(t[0]), float(t[-1]))
+    pieces, err, evals, kmax = _poly_interpolants(F, sampler, breaks, _POLY_TOL)
+    info.update(poly_pieces=len(pieces), poly_F_evaluations=int(evals),
+                poly_max_nodes_per_piece=int(kmax) + 1, poly_interp_rel_err=err,
+                poly_interp_s=time.perf_counter() - start)
+    start = time.perf_counter()
+    zeta = model.damping_ratio
+    th = t[:-1] + 0.5 * dt
+    q, dq, ddq = sampler(t)
+    _, dqh, ddqh = sampler(th)
+    ddq_end = sampler(t[1:] - 1e-9 * dt)[2]
+    raw_t = _poly_at(pieces, t)
+    raw_h = _poly_at(pieces, th)
+    At = _poly_unpack(raw_t, n, m, dq, full=True)
+    Ah = _poly_unpack(raw_h, n, m, dqh)
+    ca_ = _poly_coefficients(At, dq, ddq, n, m, zeta)
+    cb = _poly_coefficients(Ah, dqh, ddqh, n, m, zeta)
+    # the end stage: same configuration arrays as the next node, q̈ from the left
+    cc = ca_[1:].copy()
+    jump = np.any(ddq_end != ddq[1:], axis=1)
+    if np.any(jump):
+        sub = {k: v[1:][jump] for k, v in At.items() if k not in ("K0", "Kj")}
+        cc[jump] = _poly_coefficients(sub, dq[1:][jump], ddq_end[jump], n, m, zeta)
+    P = np.hstack([ca_[:-1], cb, cc])
+    info["poly_assembly_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    acc, stage = _poly_rk4(f, m, float(dt))
+    zs, dds = _poly_integrate(acc, z0, P, m)
+    Z = np.vstack([z0, zs])
+    # δ̈ at the last sample from its own stage
+    dd_last = stage(ca_[-1], Z[-1]).full().ravel()[m:]
+    DD = np.vstack([dds, dd_last])
+    info["poly_integrate_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    tau = _poly_tau(At, dq, ddq, Z[:, :m], Z[:, m:], DD, n, m)
+    info["poly_torque_s"] = time.perf_counter() - start
+    return Z, tau, info
 
 
 # ---------------------------------------------------------------------------- torque

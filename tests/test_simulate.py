@@ -293,3 +293,114 @@ def test_cli_errors(tmp_path):
     rc, out, err = _cli(["simulate", "problems/arm2link.toml", "--move", f"{moves}:two",
                          "--json"])
     assert rc == 2 and out == "" and "2 joint values" in err and "3 joints" in err
+
+
+# ------------------------------------------------------------------ method="poly"
+
+
+@pytest.fixture(scope="module")
+def small3():
+    """Table 8 arm, 3 modes on a 15° grid (the table knots are crossed by move 1)."""
+    models = {}
+    for key, gravity in (("free", None), ("gravity", "robot")):
+        models[key] = build_model(ARM, 3, step=np.radians(15), cache_dir=False, processes=1,
+                                  gravity=gravity)[0]
+    return models
+
+
+def _poly_ddelta_tau(model, F, q, dq, ddq, d, v, dd):
+    """δ̈ from the polynomial/affine form and τ from the configuration arrays."""
+    from casflex import simulate as S
+
+    n, m = model.n, model.m
+    A = S._poly_unpack(S._poly_eval(F, np.atleast_2d(q)), n, m, dq[None], full=True)
+    coef = S._poly_coefficients(A, dq[None], ddq[None], n, m, model.damping_ratio)[0]
+    stage, _ = S._poly_stage(m)
+    ddd = stage(coef, np.r_[d, v]).full().ravel()[m:]
+    tau = S._poly_tau(A, dq[None], ddq[None], d[None], v[None], dd[None], n, m)[0]
+    return ddd, tau
+
+
+@pytest.mark.parametrize("key", ["free", "gravity"])
+def test_poly_form_reproduces_the_model_rows(small3, key):
+    """At random (t, δ, δ̇) on move 1 the affine M_δδ and the quadratic r give the model's
+    δ̈ (`prescribed_dddelta`), and the configuration arrays give its torques — with F
+    evaluated exactly and with F interpolated in time (Chebyshev pieces)."""
+    from casflex import simulate as S
+
+    model = small3[key]
+    f = S._functions(model)
+    F = S._poly_function(model, f)
+    move = load_move("problems/moves.toml:move1")
+    sampler = S._as_reference(move, model.n)[0]
+    breaks = S._poly_breaks(model, move, sampler, 0.0, move.t_end)
+    pieces, err, _, _ = S._poly_interpolants(F, sampler, breaks, 1e-10)
+    assert err <= 1e-10
+    rng = np.random.default_rng(7)
+    for t in rng.uniform(0.0, move.duration, 6):
+        q, dq, ddq = (a[0] for a in sampler(np.array([t])))
+        d, v = rng.normal(0.0, 0.03, model.m), rng.normal(0.0, 0.3, model.m)
+        tau_ref, dd_ref = (x.full().ravel() for x in f["prescribed"](q, dq, ddq, d, v))
+        dd_model = f["dddelta"](q, dq, ddq, d, v).full().ravel()
+        np.testing.assert_allclose(dd_model, dd_ref, rtol=0, atol=1e-14)
+        dd, tau = _poly_ddelta_tau(model, F, q, dq, ddq, d, v, dd_ref)
+        scale_d, scale_t = np.abs(dd_ref).max(), np.abs(tau_ref).max()
+        assert np.abs(dd - dd_ref).max() <= 1e-10 * scale_d
+        assert np.abs(tau - tau_ref).max() <= 1e-10 * scale_t
+        # the interpolated arrays at the same time
+        A = S._poly_unpack(S._poly_at(pieces, np.array([t])), model.n, model.m, dq[None],
+                           full=True)
+        coef = S._poly_coefficients(A, dq[None], ddq[None], model.n, model.m,
+                                    model.damping_ratio)[0]
+        stage, _ = S._poly_stage(model.m)
+        dd_i = stage(coef, np.r_[d, v]).full().ravel()[model.m:]
+        tau_i = S._poly_tau(A, dq[None], ddq[None], d[None], v[None], dd_ref[None],
+                            model.n, model.m)[0]
+        assert np.abs(dd_i - dd_ref).max() <= 1e-8 * scale_d
+        assert np.abs(tau_i - tau_ref).max() <= 1e-8 * scale_t
+
+
+def _compare_poly_rk4(model, reference, dt, t_end):
+    r = simulate_prescribed(model, reference, dt=dt, t_end=t_end)
+    p = simulate_prescribed(model, reference, dt=dt, t_end=t_end, method="poly")
+    assert p.method == "poly" and p.info["poly_interp_rel_err"] <= 1e-10
+    np.testing.assert_array_equal(p.t, r.t)
+    for name in ("delta", "ddelta"):
+        a, b = getattr(p, name), getattr(r, name)
+        # modes that stay at round-off level (out-of-plane modes of a planar move) are
+        # compared on the scale of the largest mode
+        span = np.maximum(np.ptp(b, axis=0), 1e-9 * np.ptp(b, axis=0).max())
+        assert np.all(np.abs(a - b).max(axis=0) <= 1e-8 * span), name
+    assert np.abs(p.tau - r.tau).max() <= 1e-8 * np.abs(r.tau).max()
+    np.testing.assert_allclose(p.tip, r.tip, rtol=0, atol=1e-9)
+    return r, p
+
+
+def test_poly_matches_rk4_on_move1(small3):
+    r, p = _compare_poly_rk4(small3["free"], load_move("problems/moves.toml:move1"),
+                             dt=2e-3, t_end=3.0)
+    assert p.info["poly_pieces"] >= 5  # three switches and the 15° knots of q3
+    assert p.max_tip_deflection == pytest.approx(r.max_tip_deflection, rel=1e-8)
+
+
+def test_poly_matches_rk4_on_a_shaped_move_with_gravity(small3):
+    from casflex.moves import ShapedMove
+    from casflex.shaping import zv
+
+    model = small3["gravity"]
+    move = load_move("problems/moves.toml:move2")
+    omega = model.functions()["stiffness"](move.q0).full().diagonal() ** 0.5
+    # 0.3 s after a zero-vibration impulse pair: the switches fall between samples
+    shaped = ShapedMove(move, zv(float(omega[0]), 0.0))
+    assert not np.allclose(shaped.breakpoints / 2e-3, np.round(shaped.breakpoints / 2e-3))
+    _compare_poly_rk4(model, shaped, dt=2e-3, t_end=shaped.duration + 0.3)
+
+
+def test_poly_errors(small3):
+    model = small3["free"]
+    move = load_move("problems/moves.toml:move1")
+    sampled = move.sample(np.linspace(0.0, 2.0, 11))
+    with pytest.raises(ModelError, match="Move or ShapedMove"):
+        simulate_prescribed(model, (np.linspace(0.0, 2.0, 11), *sampled), method="poly")
+    with pytest.raises(ModelError, match="method"):
+        simulate_torque(model, None, np.zeros(12), t_end=0.01, method="poly")
