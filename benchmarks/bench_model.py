@@ -8,15 +8,24 @@
 ``model_build_s``
     :func:`casflex.model.build_model` on the table just built (read from the cache):
     B-spline interpolants + symbolic model + ``functions()``; gravity neglected.
-``simulate_move1_s``, ``simulate_move1_warm_s``
+``simulate_move1_s``
     :func:`casflex.simulate.simulate_prescribed` of Table 9 move 1 (5 modes, 5 s, 1 ms
-    steps, RK4): first call on the model (builds the RK4 step and ``mapaccum`` Functions)
-    and a second call (warm). Nothing is compiled: CasADi's VM evaluates the step.
+    steps) by the fastest route: ``method="poly", jit=True`` with its compiled library in
+    the on-disk cache, median of three calls after the first (what every simulation of
+    a study costs once the model is compiled). ``simulate_move1_first_call_s``: the first
+    call in a process that finds the library on disk (builds ``F``, regenerates and
+    hashes the C source, loads it). ``jit_compile_s``: the one-off compilation with an
+    empty cache (``-O1``), ``jit_compile_call_s`` that whole first call.
+``simulate_move1_rk4_s``, ``simulate_move1_rk4_warm_s``
+    the same move with the plain RK4 path: first call on the model (builds the RK4 step
+    and ``mapaccum`` Functions) and a second call. Nothing is compiled: CasADi's VM
+    evaluates the step.
 ``simulate_move1_poly_s``, ``simulate_move1_poly_warm_s``
-    the same with ``method="poly"`` (exact polynomial form of the modal rows, coefficients
-    interpolated in time), first and second call, measured in the same run;
+    ``method="poly"`` without compilation (exact polynomial form of the modal rows,
+    coefficients interpolated in time, CasADi's VM), first and second call;
     ``move1_poly_info`` holds its breakdown (pieces, F evaluations, achieved interpolation
-    error, stage timings) and ``move1_poly_vs_rk4`` the largest differences from the RK4
+    error, stage timings), ``move1_poly_jit_info`` that of a compiled call, and
+    ``move1_poly_vs_rk4``/``move1_jit_vs_rk4`` the largest differences from the RK4
     result (modal amplitudes relative to each mode's range, torques relative to the peak).
 ``dask_1_worker_s``, ``dask_2_workers_s``, ``dask_speedup_2_workers``
     the testbed 10 × 12 grid of ``bench_tables.py`` (same settings, reused from there).
@@ -73,10 +82,10 @@ def bench(skip_dask=False):
     move = load_move(ROOT / "problems/moves.toml:move1")
     t0 = time.perf_counter()
     r = simulate_prescribed(model, move, dt=1e-3)
-    out["simulate_move1_s"] = time.perf_counter() - t0
+    out["simulate_move1_rk4_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     r = simulate_prescribed(model, move, dt=1e-3)
-    out["simulate_move1_warm_s"] = time.perf_counter() - t0
+    out["simulate_move1_rk4_warm_s"] = time.perf_counter() - t0
     out["move1_steps"] = int(r.info["steps"])
     out["move1_max_tip_deflection"] = r.max_tip_deflection
     out["move1_residual_tip_deflection"] = r.residual_tip_deflection
@@ -89,10 +98,38 @@ def bench(skip_dask=False):
     p = simulate_prescribed(model, move, dt=1e-3, method="poly")
     out["simulate_move1_poly_warm_s"] = time.perf_counter() - t0
     out["move1_poly_info"] = {k: v for k, v in p.info.items() if k.startswith("poly_")}
-    span = np.ptp(r.delta, axis=0)
-    out["move1_poly_vs_rk4"] = {
-        "delta_rel_range": float(np.max(np.abs(p.delta - r.delta).max(axis=0) / span)),
-        "tau_rel_peak": float(np.abs(p.tau - r.tau).max() / np.abs(r.tau).max())}
+
+    def deviation(a):
+        span = np.ptp(r.delta, axis=0)
+        return {"delta_rel_range": float(np.max(np.abs(a.delta - r.delta).max(axis=0) / span)),
+                "tau_rel_peak": float(np.abs(a.tau - r.tau).max() / np.abs(r.tau).max())}
+
+    out["move1_poly_vs_rk4"] = deviation(p)
+    # compiled: once with an empty library cache, then as a new process would (the
+    # in-memory functions forgotten), then warm
+    from casflex import simulate as S
+
+    with tempfile.TemporaryDirectory() as jit_cache:
+        t0 = time.perf_counter()
+        c = simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
+                                cache_dir=jit_cache)
+        out["jit_compile_call_s"] = time.perf_counter() - t0
+        out["jit_compile_s"] = c.info["poly_jit_s"]
+        S._CACHE.clear()
+        t0 = time.perf_counter()
+        c = simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
+                                cache_dir=jit_cache)
+        out["simulate_move1_first_call_s"] = time.perf_counter() - t0
+        warm = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            c = simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
+                                    cache_dir=jit_cache)
+            warm.append(time.perf_counter() - t0)
+    out["simulate_move1_s"] = float(np.median(warm))
+    out["simulate_move1_warm_runs_s"] = warm
+    out["move1_poly_jit_info"] = {k: v for k, v in c.info.items() if k.startswith("poly_")}
+    out["move1_jit_vs_rk4"] = deviation(c)
     if not skip_dask:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # coarse 2-D grid: low MAC

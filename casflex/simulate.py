@@ -348,7 +348,7 @@ def sample_reference(reference, dt=1e-3, t_end=None, n_joints=None):
 
 
 def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", delta0=None,
-                        ddelta0=None, **options):
+                        ddelta0=None, *, jit=False, cache_dir=None, **options):
     """Simulate the arm with joints that follow a prescribed trajectory exactly.
 
     The modal row of eq. 118, ``M_δq q̈ + M_δδ δ̈ + h_δ = 0``, is integrated for
@@ -374,6 +374,17 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
         :class:`casflex.moves.ShapedMove` (a sampled reference raises ``ModelError``).
     delta0, ddelta0 : array_like, optional
         Initial modal amplitudes and rates (default 0).
+    jit : bool or sequence of str
+        ``method="poly"`` only: compile ``F(q)`` and the RK4 steps to C with the system
+        compiler (:func:`casflex.codegen.compile_cached`; ``True`` means the flags
+        ``("-O1",)``, a sequence gives the flags). The library is cached on disk, keyed by
+        the generated source, so only the first call for a model pays the compilation
+        (≈ 30 s and 0.8 GB of compiler memory for the Table 8 arm with 5 modes at
+        ``-O1``); later calls, also from other processes, load it in about a second.
+        Results equal the uncompiled path to round-off.
+    cache_dir : str or pathlib.Path, optional
+        Root of the compiled-library cache (default ``$CASFLEX_CACHE`` or
+        ``~/.cache/casflex``).
     **options
         Integrator options for ``cvodes``/``idas`` (default ``abstol=1e-10``,
         ``reltol=1e-8``).
@@ -390,7 +401,12 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     ------
     ModelError
         Joint-count mismatch, bad step, times or method; ``"poly"`` with a sampled
-        reference or when the interpolation does not reach 1e-10.
+        reference or when the interpolation does not reach 1e-10; ``jit`` with another
+        method.
+    SolverError
+        The CasADi integrator failed.
+    casflex.codegen.BuildError
+        ``jit`` without a working C compiler.
 
     Notes
     -----
@@ -419,8 +435,6 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     the same arrays at the samples. The result equals ``method="rk4"`` to round-off
     plus the interpolation error; it is faster when the model is large and the
     reference crosses few table knots.
-    SolverError
-        The CasADi integrator failed.
 
     Examples
     --------
@@ -441,6 +455,8 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     import time
 
     _check_method(method, _PRESCRIBED_METHODS)
+    if jit is not False and method != "poly":
+        raise ModelError(f"jit is an option of method='poly'; got method={method!r}")
     n, m = model.n, model.m
     f = _functions(model)
     t, q, dq, ddq, t_move_end = sample_reference(reference, dt, t_end, n_joints=n)
@@ -461,7 +477,7 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
         tau_last, _ = f["prescribed"](q[-1], dq[-1], ddq[-1], Z[-1, :m], Z[-1, m:])
         tau = np.vstack([taus.full().T, tau_last.full().T])
     elif method == "poly":
-        Z, tau, info = _simulate_poly(model, f, reference, t, float(dt), z0)
+        Z, tau, info = _simulate_poly(model, f, reference, t, float(dt), z0, jit, cache_dir)
     else:
         Z = _integrate_prescribed(model, f, reference, t, z0, method, options)
         tm = f["prescribed"].map(t.size)
@@ -786,53 +802,159 @@ def _poly_interpolants(F, sampler, breaks, tol):
     return out, max(err.values()) if err else 0.0, evaluations, max(nodes.values())
 
 
-def _poly_at(pieces, t):
-    """Interpolated ``F(q(t))`` rows at the sorted times ``t`` (right-continuous choice of
-    the piece; ``F(q(t))`` is continuous, so the choice at a break only matters to
-    round-off)."""
+def _poly_piece_index(pieces, t, ddq, piece_ddq, left=False):
+    """Index of the piece that gives the rows at each time ``t`` whose reference
+    acceleration is ``ddq`` (T × n). Inside a piece that piece; at a break the later
+    piece (``left=False``: the reference is right-continuous) or the earlier one
+    (``left=True``: the left limit), and in either case the neighbour whose constant
+    ``q̈`` (``piece_ddq``) is the reference's, should a break and a switch of the
+    reference differ by round-off."""
     starts = np.array([p[0] for p in pieces])
-    cut = np.r_[0, np.searchsorted(t, starts[1:], side="left"), t.size]
-    out = np.empty((t.size, pieces[0][4].shape[1]))
-    for i, (lo, hi) in enumerate(zip(cut[:-1], cut[1:], strict=True)):
+    ends = np.array([p[1] for p in pieces])
+    side = "left" if left else "right"
+    idx = np.clip(np.searchsorted(starts, t, side=side) - 1, 0, len(pieces) - 1)
+    eps = 1e-9 * max(float(ends[-1] - starts[0]), 1.0)
+    near = np.nonzero((np.abs(t - starts[idx]) <= eps) | (np.abs(t - ends[idx]) <= eps))[0]
+    for k in near:
+        i = idx[k]
+        if np.array_equal(piece_ddq[i], ddq[k]):
+            continue
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(pieces) and np.array_equal(piece_ddq[j], ddq[k]):
+                idx[k] = j
+                break
+    return idx
+
+
+def _poly_at(pieces, values, t, idx, out=None):
+    """Rows of ``values`` (one array of node values per piece, nodes of ``pieces``)
+    interpolated at the times ``t`` from the pieces ``idx`` (sorted)."""
+    width = values[0].shape[1]
+    if out is None:
+        out = np.empty((t.size, width))
+    cut = np.r_[0, np.nonzero(np.diff(idx))[0] + 1, t.size]
+    for lo, hi in zip(cut[:-1], cut[1:], strict=True):
         if hi > lo:
-            _, _, tn, w, fv = pieces[i]
-            out[lo:hi] = _bary(tn, w, fv, t[lo:hi])
+            i = idx[lo]
+            _, _, tn, w, _ = pieces[i]
+            out[lo:hi] = _bary(tn, w, values[i], t[lo:hi])
     return out
 
 
-def _poly_coefficients(A, dq, ddq, n, m, zeta):
-    """Coefficients of the modal rows at T times (arrays of :func:`_poly_unpack`).
+def _sym_pairs(B):
+    """Coefficients of ``x_j x_k`` (j ≤ k) of the quadratic form ``Σ_jk x_j x_k B[..., j, k]``
+    (off-diagonal entries of the symmetrised ``B`` doubled)."""
+    m = B.shape[-1]
+    iu = np.triu_indices(m)
+    S = B + np.swapaxes(B, -1, -2)
+    S[..., np.arange(m), np.arange(m)] *= 0.5
+    return S[..., iu[0], iu[1]]
 
-    ``M_δδ(δ) = Mdd0 + Σ_j δ_j Add_j`` and ``M_δδ δ̈ = r`` with
-    ``r = c + Jd δ + Jv δ̇ + Σ_jk C_ajk δ_j δ̇_k + Σ_jk E_ajk δ̇_j δ̇_k``.
-    Returns ``(T, 455-like)`` rows ``[Mdd0, Add, c, Jd, Jv, C, E]`` (C order, see
-    :func:`_poly_stage`).
+
+def _poly_rows(A, dq, n, m, zeta):
+    """Every array of the modal stage and of the joint torques at T times, except the
+    factors of ``q̈`` (kept apart: ``q̈`` jumps at the move's switches while these rows
+    are continuous in time, so they are interpolated across switches).
+
+    ``A``: arrays of :func:`_poly_unpack` (``full=True``) at the rates ``dq`` (T × n).
+
+    The modal rows ``M_δδ(δ) δ̈ = r`` have ``M_δδ(δ) = Mdd0 + Σ_j δ_j Add_j`` and
+    ``r = c + Jd δ + Jv δ̇ + Σ_jk C_ajk δ_j δ̇_k + Σ_jk E_ajk δ̇_j δ̇_k`` with
+    ``c = c_row + c_acc q̈`` and ``Jd = Jd_row + Jd_acc q̈`` (r's parts stored negated,
+    the layout of :func:`_poly_stage`). The torques
+    ``τ = [M Ẍ + Ṁ Ẋ]_q − ½ Ẋᵀ (∂M/∂q) Ẋ + G_q`` are the polynomial of
+    :func:`_poly_torque`.
     """
-    T = dq.shape[0]
-    M0, Mj, P0, Pj = A["M0"], A["Mj"], A["P0"], A["Pj"]
-    q_, d_ = slice(0, n), slice(n, n + m)
-    Mqa = Mj[:, :, q_, q_]  # M_a[q, q] for each mode a
-    # L_δ = M_δq(δ) q̈ + h_δ (to be negated): h_δ = [ṀẊ]_δ - ½ ∂_δ(ẊᵀMẊ) + G_δ + D δ̇
-    c = (np.einsum("tab,tb->ta", M0[:, d_, q_], ddq)
-         + np.einsum("tab,tb->ta", P0[:, d_, q_], dq)
-         - 0.5 * np.einsum("ti,taij,tj->ta", dq, Mqa, dq, optimize=True)
+    N = n + m
+    q_, d_ = slice(0, n), slice(n, N)
+    M0, Mj, P0, Pj, K0, Kj = (A[k] for k in ("M0", "Mj", "P0", "Pj", "K0", "Kj"))
+    w = A["omega"]
+    ar = np.arange(m)
+    # L_δ = M_δq(δ) q̈ + [Ṁ Ẋ]_δ − ½ ∂_δ(Ẋᵀ M Ẋ) + G_δ + D δ̇ (negated below)
+    c = (np.einsum("tab,tb->ta", P0[:, d_, q_], dq)
+         - 0.5 * np.einsum("ti,taij,tj->ta", dq, Mj[:, :, q_, q_], dq, optimize=True)
          + A["g0"][:, d_])
-    w2 = A["omega"] ** 2
-    Jd = (np.einsum("tjab,tb->taj", Mj[:, :, d_, q_], ddq)
-          + np.einsum("tjab,tb->taj", Pj[:, :, d_, q_], dq)
-          + A["gd"][:, d_, :])
-    Jd[:, np.arange(m), np.arange(m)] += w2
-    Jv = (P0[:, d_, d_]
-          + np.einsum("tkab,tb->tak", Mj[:, :, d_, q_], dq)
+    Jd = np.einsum("tjab,tb->taj", Pj[:, :, d_, q_], dq) + A["gd"][:, d_, :]
+    Jd[:, ar, ar] += w**2
+    Jv = (P0[:, d_, d_] + np.einsum("tkab,tb->tak", Mj[:, :, d_, q_], dq)
           - np.einsum("ti,taik->tak", dq, Mj[:, :, q_, d_]))
-    Jv[:, np.arange(m), np.arange(m)] += 2.0 * zeta * A["omega"]
-    C = Pj[:, :, d_, d_].transpose(0, 2, 1, 3)  # [t, a, j, k] = P_j[a, δk]
-    E = (Mj[:, :, d_, d_].transpose(0, 2, 1, 3)
-         - 0.5 * Mj[:, :, d_, d_])  # M_j[a, δk] - ½ M_a[δj, δk]
-    Mdd0 = M0[:, d_, d_]
-    Add = Mj[:, :, d_, d_]
-    parts = [Mdd0, Add, -c, -Jd, -Jv, -C, -E]
+    Jv[:, ar, ar] += 2.0 * zeta * w
+    Mdd = Mj[:, :, d_, d_]
+    # torques: Σ_a q̇_a ∂M[a, :]/∂q_i of M0 and of every M_j
+    dqK0 = np.einsum("ta,tiab->tib", dq, K0[:, :, q_, :])
+    dqKj = np.einsum("ta,tijab->tijb", dq, Kj[:, :, :, q_, :])
+    return {
+        "Mdd0": M0[:, d_, d_], "Add": Mdd, "c": -c, "Jd": -Jd, "Jv": -Jv,
+        "C": -Pj[:, :, d_, d_].transpose(0, 2, 1, 3),  # [t, a, j, k] = P_j[a, δk]
+        "E": -(Mdd.transpose(0, 2, 1, 3) - 0.5 * Mdd),  # M_j[a, δk] − ½ M_a[δj, δk]
+        "c_acc": -M0[:, d_, q_],
+        "Jd_acc": -Mj[:, :, d_, q_].transpose(0, 2, 1, 3),  # [t, a, j, b]
+        "t0": (np.einsum("tib,tb->ti", P0[:, q_, q_], dq)
+               - 0.5 * np.einsum("tib,tb->ti", dqK0[:, :, q_], dq) + A["g0"][:, q_]),
+        "t0_acc": M0[:, q_, q_],
+        "td": (np.einsum("tjib,tb->tij", Pj[:, :, q_, q_], dq)
+               - 0.5 * np.einsum("tijb,tb->tij", dqKj[..., q_], dq) + A["gd"][:, q_, :]),
+        "td_acc": Mj[:, :, q_, q_].transpose(0, 2, 1, 3),  # [t, i, j, b]
+        "tv": (np.einsum("tjib,tb->tij", Mj[:, :, q_, q_], dq) + P0[:, q_, d_]
+               - dqK0[:, :, d_]),
+        "tdd": M0[:, q_, d_],
+        "tdd2": 0.5 * A["domega2"].transpose(0, 2, 1),
+        "t_d_dd": Mj[:, :, q_, d_].transpose(0, 2, 1, 3),  # [t, i, j, k]
+        "t_d_v": Pj[:, :, q_, d_].transpose(0, 2, 1, 3) - dqKj[..., d_],
+        "t_v_v": _sym_pairs(Mj[:, :, q_, d_].transpose(0, 2, 1, 3)
+                            - 0.5 * K0[:, :, d_, d_]),
+        "t_d_v_v": _sym_pairs(-0.5 * Kj[:, :, :, d_, d_]),
+    }
+
+
+def _poly_modal(rows, ddq):
+    """Stage coefficient rows ``[Mdd0, Add, c, Jd, Jv, C, E]`` (C order) at T times with
+    the accelerations ``ddq`` (T × n)."""
+    T = ddq.shape[0]
+    c = rows["c"] + np.einsum("tab,tb->ta", rows["c_acc"], ddq)
+    Jd = rows["Jd"] + np.einsum("tajb,tb->taj", rows["Jd_acc"], ddq)
+    parts = [rows["Mdd0"], rows["Add"], c, Jd, rows["Jv"], rows["C"], rows["E"]]
     return np.hstack([p.reshape(T, -1) for p in parts])
+
+
+_POLY_TORQUE = ("t0", "td", "tv", "tdd", "tdd2", "t_d_dd", "t_d_v", "t_v_v", "t_d_v_v")
+
+
+def _poly_torque_rows(rows, ddq):
+    """Flat torque-coefficient rows (T × R, parts :data:`_POLY_TORQUE` in C order) with
+    the accelerations ``ddq`` (T × n) folded into the constant and the δ terms."""
+    T = ddq.shape[0]
+    folded = dict(rows)
+    folded["t0"] = rows["t0"] + np.einsum("tib,tb->ti", rows["t0_acc"], ddq)
+    folded["td"] = rows["td"] + np.einsum("tijb,tb->tij", rows["td_acc"], ddq)
+    return np.hstack([folded[k].reshape(T, -1) for k in _POLY_TORQUE])
+
+
+def _poly_torque(R, n, m, d, v, dd):
+    """Joint torques at T samples from torque-coefficient rows ``R`` of
+    :func:`_poly_torque_rows`: per joint a polynomial in ``(δ, δ̇, δ̈)`` with the terms 1,
+    δ_j, δ̇_j, δ̈_j, δ_j², δ_j δ̈_k, δ_j δ̇_k, δ̇_j δ̇_k (j ≤ k) and δ_j δ̇_k δ̇_l (k ≤ l)."""
+    T = R.shape[0]
+    p = m * (m + 1) // 2
+    shapes = {"t0": (n,), "td": (n, m), "tv": (n, m), "tdd": (n, m), "tdd2": (n, m),
+              "t_d_dd": (n, m, m), "t_d_v": (n, m, m), "t_v_v": (n, p),
+              "t_d_v_v": (n, m, p)}
+    r, o = {}, 0
+    for k in _POLY_TORQUE:
+        size = math.prod(shapes[k])
+        r[k] = R[:, o:o + size].reshape((T, *shapes[k]))
+        o += size
+    iu = np.triu_indices(m)
+    vv = v[:, iu[0]] * v[:, iu[1]]
+    return (r["t0"]
+            + np.einsum("tij,tj->ti", r["td"], d)
+            + np.einsum("tij,tj->ti", r["tv"], v)
+            + np.einsum("tij,tj->ti", r["tdd"], dd)
+            + np.einsum("tij,tj->ti", r["tdd2"], d * d)
+            + np.einsum("tijk,tj,tk->ti", r["t_d_dd"], d, dd, optimize=True)
+            + np.einsum("tijk,tj,tk->ti", r["t_d_v"], d, v, optimize=True)
+            + np.einsum("tip,tp->ti", r["t_v_v"], vv)
+            + np.einsum("tijp,tj,tp->ti", r["t_d_v_v"], d, vv, optimize=True))
 
 
 def _poly_stage(m):
@@ -887,22 +1009,24 @@ def _poly_rk4(f, m, dt):
     return acc, stage
 
 
-def _poly_integrate(acc, z0, P, m):
-    """Run the chunked RK4 over the rows of ``P`` (one row per step)."""
-    steps = P.shape[0]
+def _poly_integrate(acc, z0, stage_rows, steps, m):
+    """Run the chunked RK4 over ``steps`` steps; ``stage_rows(k0, k1)`` gives the
+    coefficient rows ``[a | b | c]`` of steps ``k0 .. k1 - 1`` (assembled chunk by chunk:
+    a whole 5 s move at 1 ms would be ~55 MB)."""
     L = _POLY_CHUNK
     chunks = -(-steps // L)
-    pad = chunks * L - steps
-    if pad:
-        P = np.vstack([P, np.repeat(P[-1:], pad, axis=0)])
     zs = np.empty((chunks * L, 2 * m))
     dds = np.empty((chunks * L, m))
     z = np.ascontiguousarray(z0[None, :], dtype=float)
     for c in range(chunks):
-        zc, dc = _call_buffered(acc, [z, P[c * L:(c + 1) * L]], [(L, 2 * m), (L, m)])
-        zs[c * L:(c + 1) * L] = zc
-        dds[c * L:(c + 1) * L] = dc
-        z = np.ascontiguousarray(zc[-1:])
+        k0, k1 = c * L, min((c + 1) * L, steps)
+        P = stage_rows(k0, k1)
+        if k1 - k0 < L:
+            P = np.vstack([P, np.repeat(P[-1:], L - (k1 - k0), axis=0)])
+        zc, dc = _call_buffered(acc, [z, P], [(L, 2 * m), (L, m)])
+        zs[k0:k0 + L] = zc
+        dds[k0:k0 + L] = dc
+        z = np.ascontiguousarray(zc[k1 - k0 - 1:k1 - k0])
     return zs[:steps], dds[:steps]
 
 
@@ -940,7 +1064,24 @@ def _poly_tau(A, dq, ddq, d, v, dd, n, m):
     return tau
 
 
-def _simulate_poly(model, f, reference, t, dt, z0):
+def _poly_compiled(f, F, acc, jit, cache_dir):
+    """``F`` and the RK4 chunk ``acc`` compiled to C (cached per model and flags)."""
+    flags = ("-O1",) if jit is True else tuple(str(x) for x in jit)
+    key = ("_poly_jit", flags, str(cache_dir))
+    hit = f.get(key)
+    if hit is not None:
+        return hit + ({"poly_jit_s": 0.0, "poly_jit_built": False},)
+    from casflex.codegen import compile_cached
+
+    funs_F, info_F = compile_cached([F], "casflex_poly_F", cache_dir=cache_dir, flags=flags)
+    funs_a, info_a = compile_cached([acc], "casflex_poly_rk4", cache_dir=cache_dir,
+                                    flags=flags)
+    f[key] = (funs_F[F.name()], funs_a[acc.name()])
+    return f[key] + ({"poly_jit_s": info_F["seconds"] + info_a["seconds"],
+                      "poly_jit_built": info_F["built"] or info_a["built"]},)
+
+
+def _simulate_poly(model, f, reference, t, dt, z0, jit=False, cache_dir=None):
     """Integrate z with the polynomial form of the modal rows; returns (Z, tau, info)."""
     import time
 
@@ -958,8 +1099,12 @@ def _simulate_poly(model, f, reference, t, dt, z0):
     info = {}
     start = time.perf_counter()
     F = _poly_function(model, f)
+    acc, stage = _poly_rk4(f, m, float(dt))
     info["poly_build_s"] = time.perf_counter() - start
     info["poly_F_instructions"] = int(F.n_instructions())
+    if jit is not False:
+        F, acc, jinfo = _poly_compiled(f, F, acc, jit, cache_dir)
+        info.update(jinfo)
     sampler = _as_reference(reference, n)[0]
     start = time.perf_counter()
     breaks = _poly_breaks(model, reference, sampler, float(t[0]), float(t[-1]))
@@ -969,34 +1114,45 @@ def _simulate_poly(model, f, reference, t, dt, z0):
                 poly_interp_s=time.perf_counter() - start)
     start = time.perf_counter()
     zeta = model.damping_ratio
+    # stage and torque coefficients on the nodes of every piece, with the piece's q̈
+    # (constant between the breaks; the nodes at a break take their own piece's side)
+    sizes = [p[2].size for p in pieces]
+    tn_all = np.concatenate([p[2] for p in pieces])
+    dq_nodes = sampler(tn_all)[1]
+    piece_ddq = sampler(np.array([0.5 * (p[0] + p[1]) for p in pieces]))[2]
+    ddq_nodes = np.repeat(piece_ddq, sizes, axis=0)
+    rows = _poly_rows(_poly_unpack(np.vstack([p[4] for p in pieces]), n, m, dq_nodes,
+                                   full=True), dq_nodes, n, m, zeta)
+    cut = np.cumsum(sizes)[:-1]
+    modal = np.split(_poly_modal(rows, ddq_nodes), cut)
+    torque = np.split(_poly_torque_rows(rows, ddq_nodes), cut)
     th = t[:-1] + 0.5 * dt
-    q, dq, ddq = sampler(t)
-    _, dqh, ddqh = sampler(th)
-    ddq_end = sampler(t[1:] - 1e-9 * dt)[2]
-    raw_t = _poly_at(pieces, t)
-    raw_h = _poly_at(pieces, th)
-    At = _poly_unpack(raw_t, n, m, dq, full=True)
-    Ah = _poly_unpack(raw_h, n, m, dqh)
-    ca_ = _poly_coefficients(At, dq, ddq, n, m, zeta)
-    cb = _poly_coefficients(Ah, dqh, ddqh, n, m, zeta)
-    # the end stage: same configuration arrays as the next node, q̈ from the left
-    cc = ca_[1:].copy()
-    jump = np.any(ddq_end != ddq[1:], axis=1)
-    if np.any(jump):
-        sub = {k: v[1:][jump] for k, v in At.items() if k not in ("K0", "Kj")}
-        cc[jump] = _poly_coefficients(sub, dq[1:][jump], ddq_end[jump], n, m, zeta)
-    P = np.hstack([ca_[:-1], cb, cc])
+    ddq = sampler(t)[2]
+    ddqh = sampler(th)[2]
+    ddq_end = sampler(t[1:] - 1e-9 * dt)[2]  # the end stage takes q̈ from the left
+    ia = _poly_piece_index(pieces, t, ddq, piece_ddq)
+    ib = _poly_piece_index(pieces, th, ddqh, piece_ddq)
+    ic = _poly_piece_index(pieces, t[1:], ddq_end, piece_ddq, left=True)
+    nc = modal[0].shape[1]
+
+    def stage_rows(k0, k1):
+        P = np.empty((k1 - k0, 3 * nc))
+        _poly_at(pieces, modal, t[k0:k1], ia[k0:k1], P[:, :nc])
+        _poly_at(pieces, modal, th[k0:k1], ib[k0:k1], P[:, nc:2 * nc])
+        _poly_at(pieces, modal, t[k0 + 1:k1 + 1], ic[k0:k1], P[:, 2 * nc:])
+        return P
+
     info["poly_assembly_s"] = time.perf_counter() - start
     start = time.perf_counter()
-    acc, stage = _poly_rk4(f, m, float(dt))
-    zs, dds = _poly_integrate(acc, z0, P, m)
+    zs, dds = _poly_integrate(acc, z0, stage_rows, t.size - 1, m)
     Z = np.vstack([z0, zs])
     # δ̈ at the last sample from its own stage
-    dd_last = stage(ca_[-1], Z[-1]).full().ravel()[m:]
+    last = _poly_at(pieces, modal, t[-1:], ia[-1:])[0]
+    dd_last = stage(last, Z[-1]).full().ravel()[m:]
     DD = np.vstack([dds, dd_last])
     info["poly_integrate_s"] = time.perf_counter() - start
     start = time.perf_counter()
-    tau = _poly_tau(At, dq, ddq, Z[:, :m], Z[:, m:], DD, n, m)
+    tau = _poly_torque(_poly_at(pieces, torque, t, ia), n, m, Z[:, :m], Z[:, m:], DD)
     info["poly_torque_s"] = time.perf_counter() - start
     return Z, tau, info
 

@@ -308,16 +308,19 @@ def small3():
     return models
 
 
-def _poly_ddelta_tau(model, F, q, dq, ddq, d, v, dd):
-    """δ̈ from the polynomial/affine form and τ from the configuration arrays."""
+def _poly_ddelta_tau(model, raw, dq, ddq, d, v, dd):
+    """δ̈ from the polynomial/affine form and τ from the configuration arrays ``raw``
+    (one row of F)."""
     from casflex import simulate as S
 
     n, m = model.n, model.m
-    A = S._poly_unpack(S._poly_eval(F, np.atleast_2d(q)), n, m, dq[None], full=True)
-    coef = S._poly_coefficients(A, dq[None], ddq[None], n, m, model.damping_ratio)[0]
+    A = S._poly_unpack(raw, n, m, dq[None], full=True)
+    rows = S._poly_rows(A, dq[None], n, m, model.damping_ratio)
+    coef = S._poly_modal(rows, ddq[None])[0]
     stage, _ = S._poly_stage(m)
     ddd = stage(coef, np.r_[d, v]).full().ravel()[m:]
-    tau = S._poly_tau(A, dq[None], ddq[None], d[None], v[None], dd[None], n, m)[0]
+    tau = S._poly_torque(S._poly_torque_rows(rows, ddq[None]), n, m, d[None], v[None],
+                         dd[None])[0]
     return ddd, tau
 
 
@@ -343,21 +346,32 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
         tau_ref, dd_ref = (x.full().ravel() for x in f["prescribed"](q, dq, ddq, d, v))
         dd_model = f["dddelta"](q, dq, ddq, d, v).full().ravel()
         np.testing.assert_allclose(dd_model, dd_ref, rtol=0, atol=1e-14)
-        dd, tau = _poly_ddelta_tau(model, F, q, dq, ddq, d, v, dd_ref)
+        dd, tau = _poly_ddelta_tau(model, S._poly_eval(F, np.atleast_2d(q)), dq, ddq, d, v,
+                                   dd_ref)
         scale_d, scale_t = np.abs(dd_ref).max(), np.abs(tau_ref).max()
         assert np.abs(dd - dd_ref).max() <= 1e-10 * scale_d
         assert np.abs(tau - tau_ref).max() <= 1e-10 * scale_t
         # the interpolated arrays at the same time
-        A = S._poly_unpack(S._poly_at(pieces, np.array([t])), model.n, model.m, dq[None],
-                           full=True)
-        coef = S._poly_coefficients(A, dq[None], ddq[None], model.n, model.m,
-                                    model.damping_ratio)[0]
-        stage, _ = S._poly_stage(model.m)
-        dd_i = stage(coef, np.r_[d, v]).full().ravel()[model.m:]
-        tau_i = S._poly_tau(A, dq[None], ddq[None], d[None], v[None], dd_ref[None],
-                            model.n, model.m)[0]
+        i = int(np.searchsorted([p[0] for p in pieces], t, side="right")) - 1
+        raw = S._poly_at(pieces, [p[4] for p in pieces], np.array([t]), np.array([i]))
+        dd_i, tau_i = _poly_ddelta_tau(model, raw, dq, ddq, d, v, dd_ref)
         assert np.abs(dd_i - dd_ref).max() <= 1e-8 * scale_d
         assert np.abs(tau_i - tau_ref).max() <= 1e-8 * scale_t
+
+
+def test_poly_piece_choice_at_breaks():
+    """At a break the piece follows the reference's side; a break that misses the
+    reference's switch by round-off still gets the piece with the reference's q̈."""
+    from casflex import simulate as S
+
+    tn, w = S._cheb(0.0, 1.0, 2)
+    pieces = [(0.0, 1.0, tn, w, None), (1.0, 2.0, tn + 1.0, w, None)]
+    acc = np.array([[1.0], [-1.0]])
+    t = np.array([0.5, 1.0, 1.0, 1.0 - 1e-15, 1.0 + 1e-15, 1.5])
+    ddq = np.array([[1.0], [-1.0], [1.0], [-1.0], [1.0], [-1.0]])
+    assert S._poly_piece_index(pieces, t[:2], ddq[:2], acc).tolist() == [0, 1]
+    assert S._poly_piece_index(pieces, t[2:3], ddq[2:3], acc, left=True).tolist() == [0]
+    assert S._poly_piece_index(pieces, t[3:], ddq[3:], acc).tolist() == [1, 0, 1]
 
 
 def _compare_poly_rk4(model, reference, dt, t_end):
@@ -404,3 +418,29 @@ def test_poly_errors(small3):
         simulate_prescribed(model, (np.linspace(0.0, 2.0, 11), *sampled), method="poly")
     with pytest.raises(ModelError, match="method"):
         simulate_torque(model, None, np.zeros(12), t_end=0.01, method="poly")
+
+
+def test_poly_jit_equals_the_virtual_machine(small3, tmp_path):
+    """``jit``: F and the RK4 chunk compiled to C give the VM's result to round-off; the
+    library is built once and loaded from the on-disk cache afterwards (also by a fresh
+    model object, as in another process); other flags build another library."""
+    from casflex import simulate as S
+
+    model = small3["gravity"]
+    move = load_move("problems/moves.toml:move1")
+    vm = simulate_prescribed(model, move, dt=2e-3, t_end=2.0, method="poly")
+    c = simulate_prescribed(model, move, dt=2e-3, t_end=2.0, method="poly", jit=("-O0",),
+                            cache_dir=tmp_path)
+    assert c.info["poly_jit_built"]
+    for name in ("delta", "ddelta", "tau"):
+        a, b = getattr(c, name), getattr(vm, name)
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), name
+    S._CACHE.clear()  # forget the loaded functions: the next call reads the disk cache
+    again = simulate_prescribed(model, move, dt=2e-3, t_end=2.0, method="poly",
+                                jit=("-O0",), cache_dir=tmp_path)
+    assert not again.info["poly_jit_built"]
+    np.testing.assert_array_equal(again.delta, c.delta)
+    libs = sorted(p.name.split("-")[0] for p in (tmp_path / "jit").iterdir())
+    assert libs == ["casflex_poly_F", "casflex_poly_rk4"]
+    with pytest.raises(ModelError, match="jit"):
+        simulate_prescribed(model, move, dt=2e-3, t_end=0.1, jit=True)

@@ -51,8 +51,13 @@ def add_arguments(parser):
                              "1.5deg for one shape joint, 6deg for more)")
     parser.add_argument("--gravity", action="store_true",
                         help="include the robot's gravity (neglected by default, §3.3.7.1)")
-    parser.add_argument("--method", default="rk4", choices=["rk4", "cvodes", "idas"],
-                        help="integration method (default rk4)")
+    parser.add_argument("--method", default="rk4", choices=["rk4", "poly", "cvodes", "idas"],
+                        help="integration method (default rk4; poly: the same RK4 steps on "
+                             "the exact polynomial form of the modal rows, faster)")
+    parser.add_argument("--jit", action="store_true",
+                        help="with --method poly: compile the model's arrays and the RK4 "
+                             "steps to C (system compiler; cached on disk, the first run "
+                             "compiles for ~30 s)")
     parser.add_argument("--cache-dir", default=None,
                         help="modal table cache (default $CASFLEX_CACHE or ~/.cache/casflex)")
     parser.add_argument("--plot", metavar="FILE.png",
@@ -81,7 +86,8 @@ def run(args, log):
     Raises
     ------
     ModelError
-        A move for another number of joints, ``--modes < 1`` or a bad ``--dt``.
+        A move for another number of joints, ``--modes < 1``, a bad ``--dt``, or
+        ``--jit`` without ``--method poly``.
 
     Examples
     --------
@@ -94,6 +100,11 @@ def run(args, log):
     Traceback (most recent call last):
         ...
     casflex.errors.ModelError: --dt: must be a positive step in s; got -0.01
+    >>> run(p.parse_args(["problems/arm2link.toml", "--move", "problems/moves.toml:move1",
+    ...                   "--jit"]), print)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --jit: needs --method poly; got --method rk4
     """
     from casflex.model import build_model
     from casflex.moves import load_move
@@ -109,12 +120,15 @@ def run(args, log):
     if not (math.isfinite(args.dt) and args.dt > 0.0):
         raise ModelError(f"--dt: must be a positive step in s; got {args.dt}")
     step = None if args.step is None else parse_angle(args.step, "--step")
+    if getattr(args, "jit", False) and args.method != "poly":
+        raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
     t0 = time.perf_counter()
     model, table = build_model(robot, args.modes, step=step, cache_dir=args.cache_dir,
                                progress=True, gravity="robot" if args.gravity else None)
     log(f"model of '{robot.name}': {model.m} modes over {table.omega.shape[0]} points of "
         f"joint(s) {[j + 1 for j in table.shape_joints]} ({time.perf_counter() - t0:.1f} s)")
-    result = simulate_prescribed(model, move, dt=args.dt, method=args.method)
+    jit = {"jit": True, "cache_dir": args.cache_dir} if getattr(args, "jit", False) else {}
+    result = simulate_prescribed(model, move, dt=args.dt, method=args.method, **jit)
     log(f"{move.name}: {result.t[-1]:.3f} s simulated in {result.info['wall_s']:.2f} s "
         f"({args.method}, dt = {args.dt} s)")
     log(f"  max tip deflection      {1e3 * result.max_tip_deflection:10.3f} mm")
