@@ -429,12 +429,17 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     the move and the times at which a shape joint crosses a knot of the modal tables'
     interpolants; on each such piece ``F`` is evaluated at Chebyshev–Lobatto nodes, the
     node count doubling until the previous interpolant matches ``F`` at the new nodes to
-    1e-10 of each output's largest entry. The coefficients at the RK4 stage times
-    (the reference's ``q̇``, ``q̈`` exact) drive chunked ``mapaccum`` RK4 steps whose
-    stage solves the m × m system; the torques ``τ = [M Ẍ + C Ẋ + G]_q`` follow from
-    the same arrays at the samples. The result equals ``method="rk4"`` to round-off
-    plus the interpolation error; it is faster when the model is large and the
-    reference crosses few table knots.
+    1e-10 of each output's largest entry. On the same nodes the stage coefficients
+    (with the reference's ``q̇`` and the piece's constant ``q̈``) and the coefficients of
+    the torques ``τ = [M Ẍ + C Ẋ + G]_q`` as a polynomial in ``(δ, δ̇, δ̈)`` are formed
+    and interpolated to the RK4 stage times, 250 steps at a time, which drive chunked
+    ``mapaccum`` RK4 steps whose stage solves the m × m system. At a switch the piece on
+    the reference's side is used (the end stage of a step takes the left limit, as the
+    RK4 path does). The result equals ``method="rk4"`` to round-off plus the
+    interpolation error; it is faster when the model is large and the reference crosses
+    few table knots, and ``jit`` takes the evaluation of ``F`` and the RK4 steps out of
+    CasADi's virtual machine (Table 8 arm, 5 modes, move 1: ≈ 0.3 s instead of ≈ 0.7 s,
+    see ``benchmarks/README_model.md``).
 
     Examples
     --------
