@@ -28,7 +28,8 @@
     ``move1_poly_vs_rk4``/``move1_jit_vs_rk4`` the largest differences from the RK4
     result (modal amplitudes relative to each mode's range, torques relative to the peak).
 ``dask_1_worker_s``, ``dask_2_workers_s``, ``dask_speedup_2_workers``
-    the testbed 10 × 12 grid of ``bench_tables.py`` (same settings, reused from there).
+    the testbed 10 × 12 grid of ``bench_tables.py`` (same settings, reused from there;
+    1- and 2-worker runs alternated, best of three each).
 ``cpu_capacity_2_processes``
     speed-up of a pure-Python loop on 2 processes over 1, before and after (what the shared
     machine offered at the time).
@@ -133,7 +134,7 @@ def bench(skip_dask=False):
     if not skip_dask:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # coarse 2-D grid: low MAC
-            times, same, _ = bench_dask(1)
+            times, same, _ = bench_dask(3)
         out["dask_1_worker_s"] = times[1]
         out["dask_2_workers_s"] = times[2]
         out["dask_speedup_2_workers"] = times[1] / times[2]

@@ -10,7 +10,8 @@
     4 modes, default quantities, no cache, on a ``dask.distributed.LocalCluster`` with
     one and with two single-threaded worker processes (warmed up before timing; workers
     started with ``MALLOC_TRIM_THRESHOLD_`` = 128 MiB instead of Dask's 64 KiB, see
-    ``TRIM_KEY``).
+    ``TRIM_KEY``); both clusters up at once and the runs alternated, best of
+    ``--repeat``.
 ``cpu_capacity_2_processes``
     speed-up of a pure-Python loop on 2 processes over 1, before and after: what the
     machine offers at the time (other jobs on the same cores lower it); read the Dask
@@ -74,6 +75,12 @@ def bench_table(repeat):
 
 
 def bench_dask(repeat):
+    """Best time of ``repeat`` builds on a 1-worker and on a 2-worker ``LocalCluster``.
+
+    Both clusters stay up and the runs alternate (1, 2, 1, 2, ...): the machine is
+    shared, and a change of load between two blocks of runs would bias the ratio."""
+    import contextlib
+
     import dask
     from distributed import Client, LocalCluster
 
@@ -82,19 +89,20 @@ def bench_dask(repeat):
 
     robot = load(ROOT / "problems/testbed.toml")
     grid = [np.linspace(-np.pi / 2, np.pi / 2, 10), np.linspace(-np.pi, np.pi, 12)]
-    times, tables = {}, {}
-    for n in (1, 2):
-        with dask.config.set({TRIM_KEY: TRIM_VALUE}), LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True,
-                dashboard_address=None) as cluster, Client(cluster) as client:
-            client.wait_for_workers(n)
-            client.run(_warm)
-            best = np.inf
-            for _ in range(repeat):
+    times, tables, clients = {1: np.inf, 2: np.inf}, {}, {}
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(dask.config.set({TRIM_KEY: TRIM_VALUE}))
+        for n in (1, 2):
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None))
+            clients[n] = stack.enter_context(Client(cluster))
+            clients[n].wait_for_workers(n)
+            clients[n].run(_warm)
+        for _ in range(repeat):
+            for n in (1, 2):
                 t0 = time.perf_counter()
-                tables[n] = build_table(robot, grid, 4, cache_dir=False, client=client)
-                best = min(best, time.perf_counter() - t0)
-            times[n] = best
+                tables[n] = build_table(robot, grid, 4, cache_dir=False, client=clients[n])
+                times[n] = min(times[n], time.perf_counter() - t0)
     same = all(np.array_equal(tables[1].values[k], tables[2].values[k])
                for k in tables[1].values)
     return times, same, tables[2]

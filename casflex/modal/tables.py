@@ -358,13 +358,17 @@ def parallel_map(func, jobs, *, client=None, processes=None, progress=False, des
     if chunksize is None:
         chunksize = 1 if workers == 0 else max(1, min(16, -(-len(jobs) // (4 * workers))))
     chunks = [jobs[i:i + chunksize] for i in range(0, len(jobs), chunksize)]
-    bar = tqdm(total=len(jobs), desc=desc, file=sys.stderr, disable=not progress,
-               leave=False, dynamic_ncols=True)
+    # no tqdm monitor thread: it would outlive the bar, and a later pool could then no
+    # longer fork (forkserver is slower to start, and cannot re-import a __main__ read
+    # from stdin)
+    bar = type("_Bar", (tqdm,), {"monitor_interval": 0})(
+        total=len(jobs), desc=desc, file=sys.stderr, disable=not progress, leave=False,
+        dynamic_ncols=True)
     try:
         if client is not None:
-            from distributed import as_completed
-
             import pickle
+
+            from distributed import as_completed
 
             futures = [client.submit(_run_chunk_packed, func,
                                      pickle.dumps([a for _, a in c],
