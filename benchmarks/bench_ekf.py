@@ -9,20 +9,24 @@ Three implementations of the same step (casflex.estimation.ekf_step_function):
   coefficients, the measurement and its Jacobian come from CasADi functions evaluated
   numerically.
 
-The step is that of the second-order plant (``tabulate_plant(order=2)``) with
-``jacobians="first_order"``, compiled with ``-O3 -march=native -ffp-contract=off``
-(no FMA contraction: within 1e-10 of Python, tests/test_codegen_ekf.py; options below).
-``--compare`` also times, in the same run, the configurations listed in
-``VARIANTS`` (the previous first-order step at ``-O2`` among them): key ``variants``.
+The step is that of the second-order plant (``tabulate_plant(order=2)``, Fourier
+coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_order"``,
+the sequential scalar Joseph updates (``update="auto"``: R is diagonal) and the
+sensor-entry tables of the measurement (``lean=True``), compiled with ``-O3 -march=native
+-ffp-contract=off`` (no FMA contraction: within 1e-10 of Python,
+tests/test_codegen_ekf.py; options below). ``--compare`` also times, in the same run, the
+configurations listed in ``VARIANTS`` (the step before these changes among them): key
+``variants``.
 
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
-[--order 2] [--jacobians first_order] [--flags "-O3 -march=native -ffp-contract=off"]
-[--compare]``
+[--order 2] [--jacobians first_order] [--update auto]
+[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]]``
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -35,26 +39,31 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# (label, plant order, jacobians, cse, compiler flags)
+NATIVE = "-O3 -march=native -ffp-contract=off"
+FIRST = {"jacobians": "first_order"}
+BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False}
+# (label, plant order, pruned plant, ekf_step_function options, compiler flags)
 VARIANTS = [
-    ("before: order 1, exact, no cse, -O2", 1, "exact", False, "-O2"),
-    ("order 1, exact, cse, -O2", 1, "exact", True, "-O2"),
-    ("order 2, exact, cse, -O2", 2, "exact", True, "-O2"),
-    ("order 2, first_order, cse, -O2", 2, "first_order", True, "-O2"),
-    ("order 2, first_order, cse, -O3", 2, "first_order", True, "-O3"),
-    ("order 2, exact, cse, -O3 -march=native -ffp-contract=off", 2, "exact", True,
-     "-O3 -march=native -ffp-contract=off"),
-    ("order 2, first_order, cse, -O3 -march=native -ffp-contract=off", 2, "first_order",
-     True, "-O3 -march=native -ffp-contract=off"),
-    # FMA contraction: faster still, but 2e-7 from Python on random inputs (not 1e-10)
-    ("order 2, first_order, cse, -O3 -march=native (FMA)", 2, "first_order", True,
-     "-O3 -march=native"),
+    ("first-order plant, exact, no cse, batch, full tables, -O2", 1, False,
+     {"jacobians": "exact", "cse": False, "update": "batch", "lean": False}, "-O2"),
+    ("before: order 2, first_order, batch, full tables", 2, False, BEFORE, NATIVE),
+    ("+ pruned plant", 2, True, BEFORE, NATIVE),
+    ("+ sensor-entry tables", 2, True, {**FIRST, "update": "batch"}, NATIVE),
+    ("+ sequential update (default)", 2, True, FIRST, NATIVE),
+    ("default, jacobians=linearized", 2, True, {"jacobians": "linearized"}, NATIVE),
+    ("default, jacobians=exact", 2, True, {"jacobians": "exact"}, NATIVE),
+    ("default, -O2", 2, True, FIRST, "-O2"),
+    ("default, -O3 -march=native -fno-math-errno -fno-trapping-math", 2, True, FIRST,
+     NATIVE + " -fno-math-errno -fno-trapping-math"),
+    # FMA contraction: faster still, but far from Python on random inputs (not 1e-10)
+    ("default, -O3 -march=native (FMA)", 2, True, FIRST, "-O3 -march=native"),
 ]
 
 
 def numpy_step_factory(plant, sensors, Q, R, dt):
     """A numpy EKF step ``(x, P, u, y, mask) -> (x_next, P_next, x_post)`` (the equations
-    of ``ekf_step_function(..., jacobians="first_order")``)."""
+    of ``ekf_step_function(..., jacobians="first_order", update="batch")``; the default
+    sequential update is the same to rounding)."""
     from casflex.sensors import kinematic_measurement
 
     m = plant.m
@@ -123,11 +132,13 @@ def main(argv=None):
                         help="grid step of the modal tables, deg")
     parser.add_argument("--order", type=int, default=2, help="plant order in Δ (1 or 2)")
     parser.add_argument("--jacobians", default="first_order",
-                        choices=["exact", "first_order"])
-    parser.add_argument("--flags", default="-O3 -march=native -ffp-contract=off",
-                        help="C compiler flags")
+                        choices=["exact", "first_order", "linearized"])
+    parser.add_argument("--update", default="auto", choices=["auto", "batch", "sequential"])
+    parser.add_argument("--flags", default=NATIVE, help="C compiler flags")
     parser.add_argument("--compare", action="store_true",
                         help="also time the configurations of VARIANTS in this run")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
 
     from casflex import codegen
@@ -155,7 +166,8 @@ def main(argv=None):
     plant = plants[args.order]
     log(f"plants tabulated in {time.perf_counter() - t0:.1f} s: {plant.info}")
     Q, R, dt = 5e-6, (250e-6 * 9.8) ** 2, 1e-3
-    step = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians)
+    step = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                             update=args.update)
     move = load_move(str(ROOT / "problems/moves.toml") + ":move1")
     data = simulate_data(model, sensors, move, dt=dt, t_end=args.steps * dt - dt)
     N = data.u.shape[0]
@@ -176,14 +188,27 @@ def main(argv=None):
 
     variants = {}
     if args.compare:
-        for label, order, jac, cse, flags in VARIANTS:
-            stp = ekf_step_function(plants.setdefault(order, tabulate_plant(model, order=order)),
-                                    sensors, Q, R, dt, jacobians=jac, cse=cse)
-            us, dev, _ = time_c(stp, flags)
-            variants[label] = {"c_step_us": us, "sx_instructions": int(stp.n_instructions()),
-                               "c_vs_python_max_rel_dev": dev,
-                               "load_avg_1min": os.getloadavg()[0]}
-            log(f"{label:48s} {us:7.2f} us  {stp.n_instructions()} instr  dev {dev:.1e}")
+        steps = {}
+        for label, order, pruned, opts, _flags in VARIANTS:
+            pl = plants.setdefault(order, tabulate_plant(model, order=order))
+            if not pruned:
+                pl = dataclasses.replace(pl, keep=None)  # every Fourier coefficient
+            steps[label] = ekf_step_function(pl, sensors, Q, R, dt, **opts)
+        # interleaved rounds: on a shared machine one variant's median can catch a busy
+        # spell; the median over the rounds is reported (and each round's figure)
+        for rnd in range(args.rounds):
+            for label, _, _, _, flags in VARIANTS:
+                stp = steps[label]
+                us, dev, _ = time_c(stp, flags)
+                v = variants.setdefault(label, {
+                    "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
+                    "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
+                v["rounds_us"].append(us)
+                v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
+                v["load_avg_1min"].append(os.getloadavg()[0])
+                v["c_step_us"] = float(np.median(v["rounds_us"]))
+                log(f"[{rnd}] {label:62s} {us:7.2f} us  {stp.n_instructions()} instr  "
+                    f"dev {dev:.1e}")
     c_us, c_dev, sz_w = time_c(step, args.flags)
     ref = run_ekf(step, data.u, data.y, x0, P0)
 
@@ -219,6 +244,7 @@ def main(argv=None):
         "sz_w": sz_w,
         "order": args.order,
         "jacobians": args.jacobians,
+        "update": args.update,
         "flags": args.flags,
         "c_vs_python_max_rel_dev": c_dev,
         "numpy_vs_casadi_max_rel_dev": dev,

@@ -686,12 +686,26 @@ def _exact_signals(model, sensors, dddelta):
     return [ca.substitute(o, acc, dddelta) for o in outs]
 
 
-def _kin_signals(model, sensors, acc):
-    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked."""
+def _kin_signals(model, sensors, acc, lean=False):
+    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked.
+
+    ``lean``: with a table provider, the table entries the signals need (and their
+    derivatives along the shape joints) come from one small spline of just those entries
+    instead of the model's spline of every quantity (:func:`_lean_tables`); the same
+    expressions to rounding."""
     q, dq, ddq, d, dd = model.q, model.dq, model.ddq, model.delta, model.ddelta
     X = ca.vertcat(q, d)
     dX = ca.vertcat(dq, dd)
-    data = _point_data(model, sensors)
+    ddX = ca.vertcat(ddq, acc)
+    lean = lean and _lean_applicable(model)
+    if lean:
+        # table entries as placeholders V(q_shape), with their rates as symbols: the time
+        # derivatives below differentiate them as extra coordinates
+        body_model, data, V = _placeholder_kinematics(model, sensors)
+        Vd, Vdd = ca.SX.sym("Vd", V.numel()), ca.SX.sym("Vdd", V.numel())
+        X, dX, ddX = ca.vertcat(X, V), ca.vertcat(dX, Vd), ca.vertcat(ddX, Vdd)
+    else:
+        body_model, data = model, _point_data(model, sensors)
     g = ca.DM(model.gravity)
     outs = []
     for sen in sensors:
@@ -704,16 +718,92 @@ def _kin_signals(model, sensors, acc):
             eps = ca.vertcat(-sen.distance[0] * kap[0], -sen.distance[1] * kap[1])
             outs.append(ca.vertcat(*[eps[_AXES[a]] for a in sen.axes]))
             continue
-        p, R = _point_pose(model, sensors, data, sen)
+        p, R = _point_pose(body_model, sensors, data, sen)
         v = ca.jtimes(p, X, dX)
-        a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ca.vertcat(ddq, acc))
+        a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ddX)
         if sen.gravity:
             a = a - g
         y = R.T @ a if sen.frame == "sensor" else a
         if not sen.rigid:
             y = y - _rigid_substitute(y, model, acc)
         outs.append(ca.vertcat(*[y[_AXES[c]] for c in sen.axes]))
+    if lean:
+        outs = _lean_tables(model, outs, V, Vd, Vdd)
     return outs
+
+
+def _lean_applicable(model):
+    provider = getattr(model, "provider", None)
+    return (getattr(model, "table_values", None) is not None
+            and getattr(provider, "table", None) is not None
+            and hasattr(provider, "method") and hasattr(model, "_kinematics")
+            and len(provider.shape_joints) > 0)
+
+
+def _placeholder_kinematics(model, sensors):
+    """The model's kinematics with its table quantities as symbols (not yet filled), the
+    sensor-point quantities as symbols, and the column of all those symbols."""
+    import copy
+
+    clone = copy.copy(model)  # its own A, T, bodies; the model itself is left as it is
+    clone._kinematics()
+    shared = _point_data(model, sensors)  # (also checks the provider's points)
+    data, syms = {}, []
+    for name in sorted(model.Q):
+        col = model.Q[name]
+        syms += [col[i] for i in range(col.numel()) if col[i].is_symbolic()]
+    for key in sorted(shared):
+        # entries vanishing over the whole grid stay constant zeros, as in the model
+        sym = ca.SX.sym(key, shared[key].numel())
+        zero = model.provider.zero_entries(key) if shared[key].numel() else []
+        data[key] = ca.vertcat(*[0 if z else sym[i] for i, z in enumerate(zero)]) \
+            if len(zero) else ca.SX(0, 1)
+        syms += [sym[i] for i, z in enumerate(zero) if not z]
+    return clone, data, ca.vertcat(*syms)
+
+
+def _lean_tables(model, outs, V, Vd, Vdd):
+    """Fill the placeholders ``V`` (and rates ``Vd``, ``Vdd``) of ``outs`` with one
+    B-spline of the entries the signals use (the model's grid, periodicity and method:
+    the same interpolant restricted to those entries) and its derivatives along the
+    shape joints: ``V̇ = J q̇_s``, ``V̈ = (∂(J q̇_s)/∂q_s) q̇_s + J q̈_s``."""
+    from casflex.modal.tables import ModalTable
+
+    table = model.provider.table
+    where = {}
+    for name, col in model.Q.items():
+        for i in range(col.numel()):
+            if col[i].is_symbolic():
+                where[col[i].element_hash()] = (name, i)
+    y = ca.vertcat(*outs)
+    used = set(e.element_hash() for e in ca.symvar(y))
+    need = [k for k in range(V.numel())
+            if {V[k].element_hash(), Vd[k].element_hash(), Vdd[k].element_hash()} & used]
+    if not need:
+        return outs
+    cols = []
+    for k in need:
+        name_i = where.get(V[k].element_hash())
+        if name_i is None:  # a sensor-point quantity: "<key>_<i>"
+            key, _, idx = V[k].name().rpartition("_")
+            name_i = (key, int(idx))
+        name, i = name_i
+        data = table.omega if name == "omega" and "omega" not in table.values \
+            else table.values[name]
+        data = np.asarray(data, dtype=float)
+        cols.append(data.reshape(table.shape + (-1,))[..., i])
+    sub = ModalTable(grid=table.grid, shape_joints=table.shape_joints,
+                     values={"sensor_entries": np.stack(cols, axis=-1)}, omega=table.omega,
+                     periodic=table.periodic).function("sensor_entries",
+                                                       method=model.provider.method)
+    qs, dqs = model.q_shape, ca.vertcat(*[model.dq[j] for j in model.provider.shape_joints])
+    ddqs = ca.vertcat(*[model.ddq[j] for j in model.provider.shape_joints])
+    val = ca.SX(sub(qs))
+    J = ca.jacobian(val, qs)
+    rate = J @ dqs
+    rate2 = ca.jtimes(rate, qs, dqs) + J @ ddqs
+    idx = list(need)
+    return ca.substitute(outs, [V[idx], Vd[idx], Vdd[idx]], [val, rate, rate2])
 
 
 def _wrap(model, sensors, outs, name):
@@ -724,7 +814,7 @@ def _wrap(model, sensors, outs, name):
                        [s.name for s in sensors] + ["y"])
 
 
-def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False):
+def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False, lean=False):
     """The measurement with ``δ̈`` as an input: ``(x, u, dddelta) -> y``.
 
     The estimator substitutes its own (lean) model of the flexible accelerations; with
@@ -738,6 +828,14 @@ def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False):
     rigid_part : bool
         Return instead ``u -> y_rigid``: the signals of the same sensors on the rigid arm
         (``δ = δ̇ = δ̈ = 0``), i.e. what ``rigid = False`` subtracts.
+    lean : bool
+        With a table provider (:class:`casflex.model.TableProvider`): the modal-table
+        entries the signals use and their derivatives along the shape joints come from
+        one B-spline of just those entries (the model's grid, periodicity and method)
+        instead of the model's B-spline of every quantity and its derivatives (Table 8
+        arm, 3 modes, two accelerometers: 27 of 158 entries; five spline evaluations of
+        158 values become four of 27). The same expressions to rounding. Ignored for
+        other providers and with ``rigid_part``.
 
     Returns
     -------
@@ -752,6 +850,8 @@ def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False):
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
     >>> kinematic_measurement(model, ss).name_in()
     ['x', 'u', 'dddelta']
+    >>> kinematic_measurement(model, ss, lean=True).name_out()   # pointwise: the same
+    ['y']
     """
     acc = ca.SX.sym("dddelta", model.m)
     x = ca.vertcat(model.delta, model.ddelta)
@@ -766,5 +866,5 @@ def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False):
             else:
                 keep.append(ca.DM.zeros(o.numel()))
         return ca.Function(name, [u], [ca.vertcat(*keep)], ["u"], ["y_rigid"])
-    y = ca.vertcat(*_kin_signals(model, sensors, acc))
+    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean=lean))
     return ca.Function(name, [x, u, acc], [y], ["x", "u", "dddelta"], ["y"])

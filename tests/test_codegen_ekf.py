@@ -70,14 +70,20 @@ def test_ekf_step_c_equals_python(setup, ekf_lib):
     assert bundle.reentrant
 
 
-def test_lean_step_with_native_flags_equals_python(setup, tmp_path):
-    """The benchmarked configuration: second-order plant, ``jacobians="first_order"``,
-    built with ``-O3 -march=native -ffp-contract=off``: within 1e-10 relative. (With FMA
-    contractions, i.e. without ``-ffp-contract=off``, the deviation on these random
-    inputs reaches ~2e-7: rounding differences amplified by ill-conditioned updates.)"""
+@pytest.mark.parametrize("jacobians,update", [("first_order", "auto"),
+                                              ("linearized", "auto"),
+                                              ("first_order", "batch")])
+def test_lean_step_with_native_flags_equals_python(setup, tmp_path, jacobians, update):
+    """The benchmarked configuration: second-order plant (pruned), ``jacobians=
+    "first_order"``, sequential scalar updates, the sensor-entry tables, built with ``-O3
+    -march=native -ffp-contract=off``: within 1e-10 relative; likewise ``"linearized"``
+    and the batch update. (With FMA contractions, i.e. without ``-ffp-contract=off``, the
+    deviation on these random inputs reaches ~2e-7: rounding differences amplified by
+    ill-conditioned updates.)"""
     _, sensors, plant = setup
-    assert plant.order == 2
-    step_py = ekf_step_function(plant, sensors, Q, R, DT, jacobians="first_order")
+    assert plant.order == 2 and plant.keep is not None
+    step_py = ekf_step_function(plant, sensors, Q, R, DT, jacobians=jacobians,
+                                update=update)
     bundle = codegen.generate([step_py], tmp_path, name="lean")
     step_c = codegen.load(codegen.build(
         bundle, flags=("-O3", "-march=native", "-ffp-contract=off")), "ekf_step")

@@ -505,14 +505,41 @@ def robot_fingerprint(robot):
     }, sort_keys=True)
 
 
+_SOURCE_CACHE = {}
+
+
+def _source_of(obj):
+    """``inspect.getsource(obj)`` (or a name when there is none), memoised on the object,
+    its code object and its file's modification time: the digest of a table key is
+    recomputed on every call, and reading sources costs ~0.1 s."""
+    path = (getattr(obj, "__file__", None)
+            or getattr(getattr(obj, "__code__", None), "co_filename", None)
+            or getattr(sys.modules.get(getattr(obj, "__module__", None) or ""), "__file__",
+                       None))
+    try:
+        stamp = os.stat(path).st_mtime_ns if path else None
+    except OSError:
+        stamp = None
+    try:
+        key = (obj, getattr(obj, "__code__", None), path, stamp)
+        hash(key)
+    except TypeError:
+        key = None
+    if key is not None and key in _SOURCE_CACHE:
+        return _SOURCE_CACHE[key]
+    try:
+        src = inspect.getsource(obj)
+    except (OSError, TypeError):
+        src = getattr(obj, "__qualname__", repr(type(obj)))
+    if key is not None:
+        _SOURCE_CACHE[key] = src
+    return src
+
+
 def _source_digest(*objects):
     h = hashlib.sha256()
     for obj in objects:
-        try:
-            src = inspect.getsource(obj)
-        except (OSError, TypeError):
-            src = getattr(obj, "__qualname__", repr(type(obj)))
-        h.update(src.encode())
+        h.update(_source_of(obj).encode())
     return h.hexdigest()
 
 

@@ -146,8 +146,6 @@ def shape_features(shapes, robot=None, weighting=None):
         parts.append(disp.reshape(m, -1))
         parts.append(tors.reshape(m, -1))
         return np.concatenate(parts, axis=1)
-    from casflex.tmm.elements import body_mass_matrix
-
     for ib, row in enumerate(shapes.rows):
         link = robot.links[row]
         c = _trapezoid_weights(shapes.s[ib])
@@ -158,9 +156,26 @@ def shape_features(shapes, robot=None, weighting=None):
     state = np.asarray(shapes.body_state_local, dtype=float)
     for jb, row in enumerate(shapes.body_rows):
         tip = robot.links[row].tip
-        L = _sqrt_psd(body_mass_matrix(tip.mass, tip.inertia, tip.com_offset))
-        parts.append(state[:, jb] @ L)
+        parts.append(state[:, jb] @ _body_factor(tip.mass, tip.inertia, tip.com_offset))
     return np.concatenate(parts, axis=1)
+
+
+_BODY_FACTORS = {}
+
+
+def _body_factor(mass, inertia, com_offset):
+    """``L`` with ``L Lᵀ`` = the tip body's 6 × 6 mass matrix (memoised: a grid's tracking
+    asks for the same few bodies at every point)."""
+    from casflex.tmm.elements import body_mass_matrix
+
+    key = (float(mass), np.asarray(inertia, dtype=float).tobytes(),
+           np.asarray(com_offset, dtype=float).tobytes())
+    L = _BODY_FACTORS.get(key)
+    if L is None:
+        L = _sqrt_psd(body_mass_matrix(mass, inertia, com_offset))
+        L.setflags(write=False)
+        _BODY_FACTORS[key] = L
+    return L
 
 
 def _as_features(x, robot, weighting):
