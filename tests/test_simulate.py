@@ -284,6 +284,26 @@ def test_cli_json_contract(tmp_path):
     assert (tmp_path / "sim.png").stat().st_size > 0
 
 
+def test_cli_poly_jit_equals_rk4(tmp_path):
+    """``--method poly --jit``: compiled fast path, same figures as RK4; the library goes
+    into the cache directory; ``--jit`` needs ``--method poly``."""
+    common = ["simulate", "problems/arm2link.toml", "--move", "problems/moves.toml:move1",
+              "--modes", "1", "--dt", "0.005", "--step", "15deg", "--cache-dir",
+              str(tmp_path), "--json"]
+    rc, out, err = _cli(common)
+    assert rc == 0, err
+    rk4 = json.loads(out)
+    rc, out, err = _cli([*common, "--method", "poly", "--jit"])
+    assert rc == 0, err
+    fast = json.loads(out)
+    for key in ("max_tip_deflection", "residual_tip_deflection"):
+        assert fast[key] == pytest.approx(rk4[key], rel=1e-8)
+    assert fast["torque_peak"] == pytest.approx(rk4["torque_peak"], rel=1e-8)
+    assert len(list((tmp_path / "jit").glob("casflex_poly_F-*/libcasflex_poly_F.*"))) == 1
+    rc, out, err = _cli([*common, "--jit"])
+    assert rc == 2 and out == "" and "--jit" in err and "--method poly" in err
+
+
 def test_cli_errors(tmp_path):
     rc, out, err = _cli(["simulate", "problems/arm2link.toml", "--move",
                          "problems/moves.toml:nosuchmove", "--json"])
