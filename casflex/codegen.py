@@ -1456,7 +1456,7 @@ def compile_cached(functions, name, *, cache_dir=None, flags=("-O1",), compiler=
     Raises
     ------
     BuildError
-        No C compiler, or it failed.
+        No C compiler, it failed, or the cache directory cannot be created.
 
     Examples
     --------
@@ -1480,7 +1480,11 @@ def compile_cached(functions, name, *, cache_dir=None, flags=("-O1",), compiler=
     start = time.perf_counter()
     cmd = _compiler(compiler)
     root = (Path(cache_dir) if cache_dir is not None else default_cache_dir()) / "jit"
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BuildError(f"compile_cached: cannot create the library cache '{root}': "
+                         f"{exc.strerror or exc}; pass another cache_dir") from exc
     h = hashlib.sha256(json.dumps([name, list(flags), _compiler_ident(cmd),
                                    ca.__version__]).encode())
     try:  # the serialised graphs determine the generated C (and are ~3x faster to get)

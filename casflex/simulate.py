@@ -374,10 +374,10 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
         :class:`casflex.moves.ShapedMove` (a sampled reference raises ``ModelError``).
     delta0, ddelta0 : array_like, optional
         Initial modal amplitudes and rates (default 0).
-    jit : bool or sequence of str
+    jit : bool, str or sequence of str
         ``method="poly"`` only: compile ``F(q)`` and the RK4 steps to C with the system
         compiler (:func:`casflex.codegen.compile_cached`; ``True`` means the flags
-        ``("-O1",)``, a sequence gives the flags). The library is cached on disk, keyed by
+        ``("-O1",)``; a string such as ``"-O0"`` or a sequence gives the flags). The library is cached on disk, keyed by
         the generated source, so only the first call for a model pays the compilation
         (≈ 30 s and 0.8 GB of compiler memory for the Table 8 arm with 5 modes at
         ``-O1``); later calls, also from other processes, load it in about a second.
@@ -1071,7 +1071,16 @@ def _poly_tau(A, dq, ddq, d, v, dd, n, m):
 
 def _poly_compiled(f, F, acc, jit, cache_dir):
     """``F`` and the RK4 chunk ``acc`` compiled to C (cached per model and flags)."""
-    flags = ("-O1",) if jit is True else tuple(str(x) for x in jit)
+    if jit is True:
+        flags = ("-O1",)
+    elif isinstance(jit, str):
+        flags = tuple(jit.split())
+    else:
+        try:
+            flags = tuple(str(x) for x in jit)
+        except TypeError:
+            raise ModelError(f"jit must be True, False, a flags string or a sequence of "
+                             f"compiler flags; got {jit!r}") from None
     key = ("_poly_jit", flags, str(cache_dir))
     hit = f.get(key)
     if hit is not None:

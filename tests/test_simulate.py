@@ -457,10 +457,12 @@ def test_poly_jit_equals_the_virtual_machine(small3, tmp_path):
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), name
     S._CACHE.clear()  # forget the loaded functions: the next call reads the disk cache
     again = simulate_prescribed(model, move, dt=2e-3, t_end=2.0, method="poly",
-                                jit=("-O0",), cache_dir=tmp_path)
+                                jit="-O0", cache_dir=tmp_path)  # the same flags
     assert not again.info["poly_jit_built"]
     np.testing.assert_array_equal(again.delta, c.delta)
     libs = sorted(p.name.split("-")[0] for p in (tmp_path / "jit").iterdir())
     assert libs == ["casflex_poly_F", "casflex_poly_rk4"]
     with pytest.raises(ModelError, match="jit"):
         simulate_prescribed(model, move, dt=2e-3, t_end=0.1, jit=True)
+    with pytest.raises(ModelError, match="compiler flags"):
+        simulate_prescribed(model, move, dt=2e-3, t_end=0.1, method="poly", jit=3)
