@@ -1501,6 +1501,7 @@ def compile_cached(functions, name, *, cache_dir=None, flags=("-O1",), compiler=
             (staging / f"{name}.c").write_bytes(_generated_source(functions, name, root))
             _run_compiler([*cmd, *flags, "-fPIC", "-shared", f"{name}.c", "-o", lib.name,
                            "-lm"], staging)
+            (staging / f"{name}.c").unlink()  # 2-3x the library's size; regenerable
             try:
                 os.replace(staging, target)
             except OSError:  # another process put the same library in place first
