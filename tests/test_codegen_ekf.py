@@ -157,6 +157,21 @@ def test_cli_codegen_json(tmp_path, capsys):
     assert any(f.endswith(".h") for f in out["files"])
 
 
+def test_cli_codegen_jacobians(tmp_path, capsys):
+    """``--jacobians``: the default is the lean benchmarked step (first-order Jacobians),
+    smaller than ``exact``; ``linearized`` is leaner still."""
+    sizes = {}
+    for jac in ("exact", None, "linearized"):
+        argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
+                str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out",
+                str(tmp_path / str(jac)), "--step", "30", "--no-model", "--json"]
+        assert main(argv + (["--jacobians", jac] if jac else [])) == 0
+        out = json.loads(capsys.readouterr().out)
+        # the bundle's other functions are the same: its source grows with the step
+        sizes[jac] = Path(next(f for f in out["files"] if f.endswith(".c"))).stat().st_size
+    assert sizes["linearized"] < sizes[None] < sizes["exact"], sizes
+
+
 def test_cli_codegen_bad_sensor_file(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text('[[sensor]]\ntype = "strain"\nlink = "link1"\ns = 3.0\n')

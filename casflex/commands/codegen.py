@@ -5,6 +5,11 @@ README and Makefile: ``DIR/<name>_ekf`` with ``ekf_step``, ``plant``, ``measurem
 ``rigid_signals`` (:func:`casflex.rtcode.ekf_bundle`) and, unless ``--no-model``,
 ``DIR/<name>_model`` with the model's ``forward`` dynamics.
 
+The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``--jacobians first_order``
+(default; ``exact`` and ``linearized`` are the alternatives of
+:func:`casflex.estimation.ekf_step_function`), sequential scalar updates when ``R`` is
+diagonal.
+
 With ``--controller composite|inversion`` the EKF bundle also gets ``rt_step``
 (:func:`casflex.rtloop.rt_step_function`): encoder readings, reference and accelerometer
 sample to the joint torques and the updated estimator state in one call. The model is then
@@ -56,6 +61,13 @@ def add_arguments(parser):
     parser.add_argument("--prefilter", action="store_true",
                         help="high-pass prefilter one decade below the lowest frequency")
     parser.add_argument("--sqrt", action="store_true", help="square-root covariance form")
+    parser.add_argument("--jacobians", choices=("first_order", "exact", "linearized"),
+                        default="first_order",
+                        help="Jacobians of the EKF step (default first_order: those of the "
+                             "plant's first-order part, the benchmarked real-time step, "
+                             "same accuracy as exact on the studies; exact: through the "
+                             "full plant; linearized: also the measurement's at zero "
+                             "deflection, leanest)")
     parser.add_argument("--no-model", action="store_true",
                         help="skip the forward-dynamics bundle")
     parser.add_argument("--no-gravity", action="store_true", help="model without gravity")
@@ -139,11 +151,13 @@ def rt_functions(model, sensors, args, plant=None):
         R = std**2
     if plant is None:
         plant = tabulate_plant(model)
-    funcs = ekf_functions(model, sensors, args.Q, R, args.dt, plant=plant, sqrt=args.sqrt)
+    jac = getattr(args, "jacobians", "first_order")
+    funcs = ekf_functions(model, sensors, args.Q, R, args.dt, plant=plant, sqrt=args.sqrt,
+                          jacobians=jac)
     if args.prefilter:
         wc = highpass_cutoff(model, np.zeros(model.n))
         funcs["ekf_step"] = ekf_step_function(plant, sensors, args.Q, R, args.dt,
-                                              sqrt=args.sqrt, prefilter=wc)
+                                              sqrt=args.sqrt, prefilter=wc, jacobians=jac)
     units = ekf_units(sensors)
     if getattr(args, "controller", None):
         from casflex import rtloop
