@@ -725,7 +725,9 @@ def _cheb(a, b, K):
     w = (-1.0) ** k
     w[0] *= 0.5
     w[-1] *= 0.5
-    return 0.5 * (a + b) + 0.5 * (b - a) * x, w
+    t = 0.5 * (a + b) + 0.5 * (b - a) * x
+    t[0], t[-1] = b, a  # exactly: neighbouring pieces share their end nodes
+    return t, w
 
 
 def _bary(tn, w, fv, t):
@@ -753,8 +755,10 @@ def _poly_interpolants(F, sampler, breaks, tol):
     nodes = {}
     vals = {}
     tq = np.concatenate([_cheb(a, b, K)[0] for a, b in pieces])
-    raw = _poly_eval(F, sampler(tq)[0])
-    evaluations = tq.size
+    # F(q(t)) is continuous: a node shared by two pieces is evaluated once
+    tu, back = np.unique(tq, return_inverse=True)
+    raw = _poly_eval(F, sampler(tu)[0])[back]
+    evaluations = tu.size
     sizes = [F.numel_out(i) for i in range(F.n_out())]
     edges = np.r_[0, np.cumsum(sizes)]
     scale = np.ones(raw.shape[1])
