@@ -1058,23 +1058,6 @@ def _call_buffered(fun, args, shapes):
     return outs
 
 
-def _poly_tau(A, dq, ddq, d, v, dd, n, m):
-    """Joint torques ``τ = [M Ẍ + C Ẋ + G]_q`` at T samples from the configuration arrays
-    (unpacked with ``full=True`` and the same rates ``dq``)."""
-    M0, Mj, Kj = A["M0"], A["Mj"], A["Kj"]
-    X1 = np.hstack([dq, v])
-    X2 = np.hstack([ddq, dd])
-    M = M0 + np.einsum("tj,tjab->tab", d, Mj)
-    K = A["K0"] + np.einsum("tj,tijab->tiab", d, Kj)  # ∂M/∂q_i at δ
-    # Ṁ = Σ_i q̇_i ∂M/∂q_i + Σ_j δ̇_j M_j
-    Mdot = A["P0"] + np.einsum("tj,tjab->tab", d, A["Pj"]) + np.einsum("tj,tjab->tab", v, Mj)
-    lhs = np.einsum("tab,tb->ta", M, X2) + np.einsum("tab,tb->ta", Mdot, X1)
-    tau = lhs[:, :n] - 0.5 * np.einsum("ta,tiab,tb->ti", X1, K, X1, optimize=True)
-    tau += A["g0"][:, :n] + np.einsum("taj,tj->ta", A["gd"][:, :n, :], d)
-    tau += 0.5 * np.einsum("tai,ta->ti", A["domega2"], d**2)
-    return tau
-
-
 def _poly_compiled(f, F, acc, jit, cache_dir):
     """``F`` and the RK4 chunk ``acc`` compiled to C (cached per model and flags)."""
     if jit is True:
