@@ -379,8 +379,9 @@ def simulate_prescribed(model, reference, dt=1e-3, t_end=None, method="rk4", del
     jit : bool, str or sequence of str
         ``method="poly"`` only: compile ``F(q)`` and the RK4 steps to C with the system
         compiler (:func:`casflex.codegen.compile_cached`; ``True`` means the flags
-        ``("-O1",)``; a string such as ``"-O0"`` or a sequence gives the flags). The library is cached on disk, keyed by
-        the generated source, so only the first call for a model pays the compilation
+        ``("-O1",)``; a string such as ``"-O0"`` or a sequence gives the flags). The
+        library is cached on disk, keyed by the serialised CasADi graphs, the flags and
+        the compiler, so only the first call for a model pays the compilation
         (≈ 30 s and 0.8 GB of compiler memory for the Table 8 arm with 5 modes at
         ``-O1``); later calls, also from other processes, load it in about a second.
         Results equal the uncompiled path to round-off.
