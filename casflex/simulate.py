@@ -617,11 +617,11 @@ def _poly_function(model, f):
     return F
 
 
-def _poly_unpack(raw, n, m, dq, full=False):
+def _poly_unpack(raw, n, m, dq):
     """Arrays of ``F(q)`` at T times from the flat rows ``raw`` (T × R).
 
     ``P0``, ``Pj`` are ``Σ_i q̇_i ∂M0/∂q_i`` and ``Σ_i q̇_i ∂M_j/∂q_i`` for the rates ``dq``
-    (T × n); ``full`` adds the partial derivatives ``K0``, ``Kj`` themselves (torques).
+    (T × n); ``K0``, ``Kj`` the partial derivatives themselves (torques).
     """
     N = n + m
     iu = np.triu_indices(N)
@@ -639,8 +639,6 @@ def _poly_unpack(raw, n, m, dq, full=False):
     index[iu] = np.arange(nt)
     index[iu[1], iu[0]] = np.arange(nt)
 
-    def sym(flat, lead):  # full symmetric matrices from their upper triangles (one gather)
-        return flat[..., index]
 
     S = take(nt * (m + 1)).reshape(T, m + 1, nt)
     dS = take(nt * (m + 1) * n).reshape(T, n, m + 1, nt)  # column-major: q index slowest
@@ -648,14 +646,13 @@ def _poly_unpack(raw, n, m, dq, full=False):
     dw2 = take(m * n).reshape(T, n, m).transpose(0, 2, 1)
     g0 = take(N)
     gd = take(N * m).reshape(T, m, N).transpose(0, 2, 1)
-    allM = sym(S, (m + 1,))
-    allP = sym(np.einsum("ti,tijk->tjk", dq, dS), (m + 1,))
-    out = {"M0": allM[:, 0], "Mj": allM[:, 1:], "P0": allP[:, 0], "Pj": allP[:, 1:],
-           "omega": omega, "domega2": dw2, "g0": g0, "gd": gd}
-    if full:
-        allK = sym(dS, (n, m + 1))
-        out["K0"], out["Kj"] = allK[:, :, 0], allK[:, :, 1:]
-    return out
+    # full symmetric matrices from their upper triangles (one gather each)
+    allM = S[..., index]
+    allP = np.einsum("ti,tijk->tjk", dq, dS)[..., index]
+    allK = dS[..., index]
+    return {"M0": allM[:, 0], "Mj": allM[:, 1:], "P0": allP[:, 0], "Pj": allP[:, 1:],
+            "K0": allK[:, :, 0], "Kj": allK[:, :, 1:], "omega": omega, "domega2": dw2,
+            "g0": g0, "gd": gd}
 
 
 def _poly_eval(F, qs):
@@ -868,7 +865,7 @@ def _poly_rows(A, dq, n, m, zeta):
     factors of ``q̈`` (kept apart: ``q̈`` jumps at the move's switches while these rows
     are continuous in time, so they are interpolated across switches).
 
-    ``A``: arrays of :func:`_poly_unpack` (``full=True``) at the rates ``dq`` (T × n).
+    ``A``: arrays of :func:`_poly_unpack` at the rates ``dq`` (T × n).
 
     The modal rows ``M_δδ(δ) δ̈ = r`` have ``M_δδ(δ) = Mdd0 + Σ_j δ_j Add_j`` and
     ``r = c + Jd δ + Jv δ̇ + Σ_jk C_ajk δ_j δ̇_k + Σ_jk E_ajk δ̇_j δ̇_k`` with
@@ -1125,8 +1122,8 @@ def _simulate_poly(model, f, reference, t, dt, z0, jit=False, cache_dir=None):
     dq_nodes = sampler(tn_all)[1]
     piece_ddq = sampler(np.array([0.5 * (p[0] + p[1]) for p in pieces]))[2]
     ddq_nodes = np.repeat(piece_ddq, sizes, axis=0)
-    rows = _poly_rows(_poly_unpack(np.vstack([p[4] for p in pieces]), n, m, dq_nodes,
-                                   full=True), dq_nodes, n, m, zeta)
+    rows = _poly_rows(_poly_unpack(np.vstack([p[4] for p in pieces]), n, m, dq_nodes),
+                      dq_nodes, n, m, zeta)
     cut = np.cumsum(sizes)[:-1]
     modal = np.split(_poly_modal(rows, ddq_nodes), cut)
     torque = np.split(_poly_torque_rows(rows, ddq_nodes), cut)

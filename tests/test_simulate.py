@@ -334,7 +334,7 @@ def _poly_ddelta_tau(model, raw, dq, ddq, d, v, dd):
     from casflex import simulate as S
 
     n, m = model.n, model.m
-    A = S._poly_unpack(raw, n, m, dq[None], full=True)
+    A = S._poly_unpack(raw, n, m, dq[None])
     rows = S._poly_rows(A, dq[None], n, m, model.damping_ratio)
     coef = S._poly_modal(rows, ddq[None])[0]
     stage, _ = S._poly_stage(m)
