@@ -24,8 +24,7 @@ import json
 import re
 import sys
 
-import numpy as np
-
+from casflex._json import jsonable
 from casflex.errors import CasflexError
 
 #: verb name -> module under casflex.commands
@@ -39,21 +38,6 @@ VERBS = {
     "codegen": "codegen",
     "design": "design",
 }
-
-
-def _jsonable(obj):
-    """Convert numpy scalars/arrays inside ``obj`` to plain Python for :mod:`json`."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 def _available_verbs():
@@ -142,7 +126,7 @@ def main(argv=None):
         print(f"casflex {args.verb}: interrupted", file=sys.stderr)
         return 130
     if args.json:
-        sys.stdout.write(json.dumps(_jsonable(result)) + "\n")
+        sys.stdout.write(json.dumps(jsonable(result)) + "\n")
         sys.stdout.flush()
     return 0
 

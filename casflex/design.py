@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from casflex._json import jsonable
 from casflex.errors import ProblemFileError
 
 __all__ = ["Study", "load_study", "run_design", "DesignResult"]
@@ -485,11 +486,11 @@ def run_design(study, out_dir, *, progress=False, log=None, cache_dir=None, proc
         "figures": [p.name for p in figures],
     }
     summary_path = out / "summary.json"
-    summary_path.write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    summary_path.write_text(json.dumps(jsonable(summary), indent=2) + "\n")
     report = out / "report.md"
     report.write_text(_report(study, summary, design))
     files = [report, summary_path, *figures] + [out / "c" / f for f in c_files]
-    return DesignResult(summary=_jsonable(summary), out_dir=out, files=files)
+    return DesignResult(summary=jsonable(summary), out_dir=out, files=files)
 
 
 def _schedule(control, model, c, eps, table, axis, cache_dir=None):
@@ -499,7 +500,13 @@ def _schedule(control, model, c, eps, table, axis, cache_dir=None):
     gains depend on (the robot, the table, the weights, ε, the grid and the source of the
     functions that compute them)."""
     from casflex import __version__
-    from casflex.modal import tables
+    from casflex._cache import (
+        default_cache_dir,
+        digest,
+        load_verified,
+        save_verified,
+        source_digest,
+    )
 
     bl = control.boundary_layer(model, eps)
     joints = control._dependent_joints(lambda qq: [x.full() for x in bl(qq)], model.n,
@@ -512,43 +519,20 @@ def _schedule(control, model, c, eps, table, axis, cache_dir=None):
         "modes": model.m, "delta_order": model.delta_order, "modal_mass": model.modal_mass,
         "Q": c["Q"], "R": c["R"], "epsilon": float(eps), "axis": np.asarray(axis).tolist(),
         "joints": list(joints),
-        "source": tables._source_digest(control.gain_schedule, control.boundary_layer,
-                                        control._lqr, control.GainSchedule),
+        "source": source_digest(control.gain_schedule, control.boundary_layer,
+                                 control._lqr, control.GainSchedule),
     }
-    key = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
-    root = Path(tables.default_cache_dir() if cache_dir is None else cache_dir)
-    path = root / f"gains-{key[:32]}.npz"
-    if path.is_file():
-        try:
-            with np.load(path) as data:
-                if str(data["key"]) == key:
-                    return control.GainSchedule.from_gains(
-                        joints, [axis] * len(joints), data["gains"], eps, model.n,
-                        filled=int(data["filled"]), info={"from_cache": True})
-        except (OSError, KeyError, ValueError):
-            pass  # unreadable: recompute and overwrite
+    key = digest(ident)
+    path = Path(default_cache_dir() if cache_dir is None else cache_dir) / f"gains-{key[:32]}.npz"
+    hit = load_verified(path, key)
+    if hit is not None:
+        return control.GainSchedule.from_gains(
+            joints, [axis] * len(joints), hit["gains"], eps, model.n,
+            filled=int(hit["filled"]), info={"from_cache": True})
     sched = control.gain_schedule(model, Q=c["Q"], R=c["R"], epsilon=eps, table=table,
                                   joints=joints, grid=[axis] * len(joints))
-    tables._atomic_savez(path, key=np.array(key), gains=sched.gains,
-                         filled=np.array(sched.filled))
+    save_verified(path, key, gains=sched.gains, filled=np.array(sched.filled))
     return sched
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 # ------------------------------------------------------------------------------ C bundle

@@ -543,12 +543,8 @@ def tabulate_plant(model, *, grid=None, step=None, degree=2, eps=1e-4, check=Tru
     """
     import time
 
-    from casflex.modal.tables import (
-        ModalTable,
-        _atomic_savez,
-        _load_verified,
-        default_cache_dir,
-    )
+    from casflex._cache import default_cache_dir, load_verified, save_verified
+    from casflex.modal.tables import ModalTable
     from casflex.model import default_grid
 
     t0 = time.perf_counter()
@@ -590,7 +586,7 @@ def tabulate_plant(model, *, grid=None, step=None, degree=2, eps=1e-4, check=Tru
                          eps2=eps2, order=order, check=check, seed=seed)
         path = Path(default_cache_dir() if cache_dir is None else cache_dir) / (
             f"plant-{key[:32]}.npz")
-        hit = _load_verified(path, key)
+        hit = load_verified(path, key)
         if hit is not None:
             return _pruned(_plant_from_arrays(model, mono, shape, fourier, degree, order, hit,
                                               time.perf_counter() - t0), prune)
@@ -690,7 +686,7 @@ def tabulate_plant(model, *, grid=None, step=None, degree=2, eps=1e-4, check=Tru
                 arrays[f"grid{ax}"] = a
         else:
             arrays["constant"] = constant
-        _atomic_savez(path, __key__=np.array(key), **arrays)
+        save_verified(path, key, **arrays)
     return plant
 
 

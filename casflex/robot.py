@@ -26,12 +26,12 @@ Units: metres, kilograms, seconds, radians, pascals.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from casflex._problemfile import TableReader, parse_toml, read_toml
 from casflex.errors import ProblemFileError
 
 __all__ = [
@@ -44,8 +44,6 @@ __all__ = [
     "loads",
     "rectangle_torsion_constant",
 ]
-
-_ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
 
 def rectangle_torsion_constant(a, b, terms=50):
@@ -503,100 +501,6 @@ def dh_transform(alpha, a, theta, d):
 # --------------------------------------------------------------------------- loading
 
 
-class _Reader:
-    """Checks one TOML table: known keys, types, finiteness; collects errors with context."""
-
-    def __init__(self, path, table, prefix):
-        self.path = path
-        self.table = table
-        self.prefix = prefix
-        self.used = set()
-
-    def _field(self, key):
-        return f"{self.prefix}.{key}" if self.prefix else key
-
-    def error(self, key, value, rule):
-        return ProblemFileError(self.path, self._field(key), value, rule)
-
-    def has(self, key):
-        return key in self.table
-
-    def number(self, key, default=None, *, required=False, angle=False, positive=False,
-               nonnegative=False):
-        self.used.add(key)
-        if key not in self.table:
-            if required:
-                raise self.error(key, None, "is required but missing")
-            return default
-        raw = self.table[key]
-        value = raw
-        if angle and isinstance(raw, dict):
-            unknown = set(raw) - {"value", "unit"}
-            if unknown or "value" not in raw:
-                raise self.error(key, raw, "an angle is a number [rad] or {value = ..., "
-                                           "unit = \"deg\"|\"rad\"}")
-            unit = raw.get("unit", "rad")
-            if unit not in _ANGLE_UNITS:
-                raise self.error(key, raw, f"unknown angle unit {unit!r}; use 'rad' or 'deg'")
-            value = raw["value"]
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise self.error(key, raw, "must be a number")
-            value = float(value) * _ANGLE_UNITS[unit]
-        elif isinstance(raw, bool) or not isinstance(raw, (int, float)):
-            raise self.error(key, raw, "must be a number")
-        value = float(value)
-        if not math.isfinite(value):
-            raise self.error(key, raw, "must be finite (no NaN or inf)")
-        if positive and value <= 0.0:
-            raise self.error(key, raw, "must be > 0")
-        if nonnegative and value < 0.0:
-            raise self.error(key, raw, "must be >= 0")
-        return value
-
-    def vector(self, key, n, default):
-        self.used.add(key)
-        if key not in self.table:
-            return tuple(default)
-        raw = self.table[key]
-        if not isinstance(raw, list) or len(raw) != n:
-            raise self.error(key, raw, f"must be a list of {n} numbers")
-        out = []
-        for v in raw:
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise self.error(key, raw, f"must be a list of {n} numbers")
-            if not math.isfinite(float(v)):
-                raise self.error(key, raw, "must be finite (no NaN or inf)")
-            out.append(float(v))
-        return tuple(out)
-
-    def string(self, key, default=None, choices=None):
-        self.used.add(key)
-        if key not in self.table:
-            return default
-        raw = self.table[key]
-        if not isinstance(raw, str):
-            raise self.error(key, raw, "must be a string")
-        if choices is not None and raw not in choices:
-            raise self.error(key, raw, f"must be one of {sorted(choices)}")
-        return raw
-
-    def table_(self, key):
-        self.used.add(key)
-        if key not in self.table:
-            return None
-        raw = self.table[key]
-        if not isinstance(raw, dict):
-            raise self.error(key, raw, "must be a table")
-        return _Reader(self.path, raw, self._field(key))
-
-    def finish(self):
-        unknown = sorted(set(self.table) - self.used)
-        if unknown:
-            key = unknown[0]
-            raise self.error(key, self.table[key],
-                             f"unknown key; known keys here are {sorted(self.used)}")
-
-
 def _read_section(r):
     shape = r.string("shape", choices={"rectangle", "tube", "explicit"})
     if shape is None:
@@ -620,7 +524,7 @@ def _read_section(r):
 
 
 def _read_link(path, raw, index):
-    r = _Reader(path, raw, f"link[{index}]")
+    r = TableReader(path, raw, f"link[{index}]")
     name = r.string("name", default=f"row{index + 1}")
     joint = r.string("joint", default="fixed", choices={"revolute", "fixed"})
     theta = r.number("theta", 0.0, angle=True)
@@ -715,10 +619,7 @@ def loads(text, path=None):
     ...     print(exc.field, "=", repr(exc.value), exc.rule)
     link[0].joint = 'prismatic' must be one of ['fixed', 'revolute']
     """
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ProblemFileError(path, "<toml>", None, f"is not valid TOML: {exc}") from exc
+    data = parse_toml(text, path)
     return _from_dict(data, path)
 
 
@@ -745,16 +646,11 @@ def load(path):
     >>> robot.flexible_links[0].length
     1.0
     """
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
-    return loads(text, path)
+    return _from_dict(read_toml(path), path)
 
 
 def _from_dict(data, path):
-    r = _Reader(path, data, "")
+    r = TableReader(path, data, "")
     name = r.string("name", default=Path(path).stem if path else "robot")
     description = r.string("description", default="")
     gravity = np.array(r.vector("gravity", 3, (0.0, 0.0, -9.81)))

@@ -178,7 +178,8 @@ def run(args, log):
     >>> len(out["q"]), len(out["omega"][0])
     (3, 2)
     """
-    from casflex.modal.tables import compute_modes, parallel_map
+    from casflex._parallel import parallel_map
+    from casflex.modal.tables import compute_modes
     from casflex.modal.tracking import track
 
     robot = load(args.robot)

@@ -51,13 +51,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
-import inspect
 import json
 import math
-import os
-import sys
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -66,13 +61,21 @@ from pathlib import Path
 import numpy as np
 
 import casflex
+from casflex._cache import (
+    atomic_write_text,
+    default_cache_dir,
+    digest,
+    load_verified,
+    save_verified,
+    source_digest,
+)
+from casflex._parallel import parallel_map
 from casflex.errors import ModelError
 from casflex.modal import tracking as trk
 
 __all__ = [
     "shape_joints",
     "compute_modes",
-    "parallel_map",
     "build_table",
     "ModalTable",
     "default_quantities",
@@ -263,144 +266,6 @@ def _point_quantities(func, robot, q, arrays):
     return {str(k): np.asarray(v, dtype=float) for k, v in values.items()}
 
 
-# ------------------------------------------------------------------ parallel map
-
-
-def _executor(processes):
-    """Process pool: ``fork`` while this process has a single thread (works in scripts
-    without a ``__main__`` guard and starts fast), ``forkserver`` when other threads run
-    (forking a threaded process can deadlock), the platform default elsewhere."""
-    import multiprocessing
-    import threading
-    from concurrent.futures import ProcessPoolExecutor
-
-    methods = multiprocessing.get_all_start_methods()
-    if "fork" in methods and threading.active_count() == 1:
-        method = "fork"
-    elif "forkserver" in methods:
-        method = "forkserver"
-    else:
-        method = None
-    ctx = multiprocessing.get_context(method)
-    if method == "forkserver":
-        ctx.set_forkserver_preload(["casflex.modal.tables"])
-    return ProcessPoolExecutor(max_workers=processes, mp_context=ctx)
-
-
-def _run_chunk(func, arg_list):
-    """Worker side of a chunk: ``[func(*args) for args in arg_list]``."""
-    return [func(*args) for args in arg_list]
-
-
-def _run_chunk_packed(func, packed_args):
-    """:func:`_run_chunk` with the arguments and the results pickled into one buffer
-    each: a chunk's many small arrays travel as one frame instead of hundreds (Dask's
-    per-object serialisation of task arguments and results costs the client and the
-    scheduler more CPU than the arrays' size suggests)."""
-    import pickle
-
-    return pickle.dumps(_run_chunk(func, pickle.loads(packed_args)),
-                        protocol=pickle.HIGHEST_PROTOCOL)
-
-
-def parallel_map(func, jobs, *, client=None, processes=None, progress=False, desc="",
-                 chunksize=None):
-    """Run ``func(*args)`` for every ``(tag, args)`` in ``jobs``; yield ``(tag, result)``
-    as results arrive.
-
-    Parameters
-    ----------
-    func : callable
-        A picklable (module-level) function.
-    jobs : iterable of (object, tuple)
-        A tag (returned with the result) and the positional arguments of each call.
-    client : dask.distributed.Client, optional
-        Submit to this cluster (``client.submit``, gathered as completed).
-    processes : int, optional
-        Size of the local process pool (default ``os.cpu_count()``); ``1`` runs the
-        calls in this process.
-    progress : bool
-        tqdm progress bar on stderr.
-    desc : str
-        Label of the progress bar.
-    chunksize : int, optional
-        Calls per task sent to a worker. The per-point work is short (tens of ms), so
-        single calls would be dominated by scheduling and transfer; by default a chunk
-        is ``ceil(N / (4 workers))`` calls, at most 16 (1 when running in-process).
-
-    Yields
-    ------
-    (tag, result)
-        In completion order (a chunk's results together). An exception in a call is
-        raised here; the remaining tasks are cancelled.
-
-    Examples
-    --------
-    >>> sorted(parallel_map(abs, [(i, (-i,)) for i in range(3)], processes=1))
-    [(0, 0), (1, 1), (2, 2)]
-    """
-    from concurrent.futures import as_completed as cf_completed
-
-    from tqdm.auto import tqdm
-
-    jobs = list(jobs)
-    if not jobs:
-        return
-    if processes is None:
-        processes = os.cpu_count() or 1
-    pool = None
-    if client is None and processes > 1 and len(jobs) > 1:
-        pool = _executor(min(processes, len(jobs)))  # before tqdm starts its monitor thread
-    if client is not None:
-        workers = max(1, sum(client.nthreads().values()))
-    else:
-        workers = processes if pool is not None else 0
-    if chunksize is None:
-        chunksize = 1 if workers == 0 else max(1, min(16, -(-len(jobs) // (4 * workers))))
-    chunks = [jobs[i:i + chunksize] for i in range(0, len(jobs), chunksize)]
-    # no tqdm monitor thread: it would outlive the bar, and a later pool could then no
-    # longer fork (forkserver is slower to start, and cannot re-import a __main__ read
-    # from stdin)
-    bar = type("_Bar", (tqdm,), {"monitor_interval": 0})(
-        total=len(jobs), desc=desc, file=sys.stderr, disable=not progress, leave=False,
-        dynamic_ncols=True)
-    try:
-        if client is not None:
-            import pickle
-
-            from distributed import as_completed
-
-            futures = [client.submit(_run_chunk_packed, func,
-                                     pickle.dumps([a for _, a in c],
-                                                  protocol=pickle.HIGHEST_PROTOCOL),
-                                     pure=False)
-                       for c in chunks]
-            tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
-            try:
-                for fut in as_completed(futures):
-                    results = pickle.loads(fut.result())
-                    bar.update(len(results))
-                    yield from zip(tags[fut.key], results, strict=True)
-            finally:
-                client.cancel([f for f in futures if not f.done()])
-        elif pool is None:
-            for tag, args in jobs:
-                result = func(*args)
-                bar.update(1)
-                yield tag, result
-        else:
-            futures = {pool.submit(_run_chunk, func, [a for _, a in c]): [t for t, _ in c]
-                       for c in chunks}
-            for fut in cf_completed(futures):
-                results = fut.result()
-                bar.update(len(results))
-                yield from zip(futures[fut], results, strict=True)
-    finally:
-        bar.close()
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
-
-
 def compute_modes(robot, qs, count, *, n_points=51, client=None, processes=None,
                   progress=False, directions=None):
     """Raw TMM modes at many configurations, in parallel, in the order of ``qs``.
@@ -505,51 +370,13 @@ def robot_fingerprint(robot):
     }, sort_keys=True)
 
 
-_SOURCE_CACHE = {}
-
-
-def _source_of(obj):
-    """``inspect.getsource(obj)`` (or a name when there is none), memoised on the object,
-    its code object and its file's modification time: the digest of a table key is
-    recomputed on every call, and reading sources costs ~0.1 s."""
-    path = (getattr(obj, "__file__", None)
-            or getattr(getattr(obj, "__code__", None), "co_filename", None)
-            or getattr(sys.modules.get(getattr(obj, "__module__", None) or ""), "__file__",
-                       None))
-    try:
-        stamp = os.stat(path).st_mtime_ns if path else None
-    except OSError:
-        stamp = None
-    try:
-        key = (obj, getattr(obj, "__code__", None), path, stamp)
-        hash(key)
-    except TypeError:
-        key = None
-    if key is not None and key in _SOURCE_CACHE:
-        return _SOURCE_CACHE[key]
-    try:
-        src = inspect.getsource(obj)
-    except (OSError, TypeError):
-        src = getattr(obj, "__qualname__", repr(type(obj)))
-    if key is not None:
-        _SOURCE_CACHE[key] = src
-    return src
-
-
-def _source_digest(*objects):
-    h = hashlib.sha256()
-    for obj in objects:
-        h.update(_source_of(obj).encode())
-    return h.hexdigest()
-
-
 def _tmm_digest():
     import casflex.robot
     import casflex.tmm.chain
     import casflex.tmm.elements
     import casflex.tmm.solve
 
-    return _source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
+    return source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
                           casflex.robot)
 
 
@@ -559,7 +386,7 @@ def _function_identity(func):
         import casflex.modal.normalize
 
         return {"name": "casflex.modal.tables.default_quantities",
-                "digest": _source_digest(default_quantities, casflex.modal.normalize,
+                "digest": source_digest(default_quantities, casflex.modal.normalize,
                                          casflex.modal.integrals)}
     if func is None:
         return None
@@ -570,62 +397,8 @@ def _function_identity(func):
     return {
         "name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
         "version": str(getattr(func, "version", getattr(func, "__version__", ""))),
-        "digest": _source_digest(func),
+        "digest": source_digest(func),
     }
-
-
-def _sha(obj):
-    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
-
-
-def default_cache_dir():
-    """``$CASFLEX_CACHE`` if set, else ``~/.cache/casflex``.
-
-    Examples
-    --------
-    >>> isinstance(default_cache_dir(), Path)
-    True
-    """
-    env = os.environ.get("CASFLEX_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "casflex"
-
-
-def _atomic_savez(path, **arrays):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
-def _atomic_write_text(path, text):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-
-
-def _load_verified(path, key):
-    """The arrays of ``path`` if it exists and carries ``key``, else None."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if str(data["__key__"]) != key:
-                return None
-            return {k: data[k] for k in data.files if k != "__key__"}
-    except Exception:  # missing, truncated, foreign: recompute
-        return None
 
 
 # ------------------------------------------------------------------ the table
@@ -927,8 +700,7 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
 
     Examples
     --------
-    >>> import tempfile
-    >>> from casflex.robot import load
+    >>>     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
     >>> table = build_table(robot, np.radians([0.0, 10.0, 20.0, 30.0]), 3, quantities=False,
     ...                     cache_dir=tempfile.mkdtemp(), processes=1)
@@ -960,18 +732,18 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
             q[k] = a[i]
         return q
 
-    modes_key = _sha({
+    modes_key = digest({
         "format": FORMAT_VERSION, "casflex": casflex.__version__, "tmm": _tmm_digest(),
         "robot": robot_fingerprint(robot), "joints": list(joints),
         "q_fixed": _canonical(q_fixed), "grid": [_canonical(a) for a in grid],
         "count": count, "n_points": int(n_points), "shifts": _canonical(DEGENERATE_SHIFTS),
-        "point": _source_digest(_point_modes, _shapes_to_arrays),
+        "point": source_digest(_point_modes, _shapes_to_arrays),
     })
-    table_key = _sha({
+    table_key = digest({
         "modes": modes_key, "n_modes": int(n_modes), "weighting": weighting,
-        "tracking": _source_digest(trk), "quantities": _function_identity(
+        "tracking": source_digest(trk), "quantities": _function_identity(
             quantities if quantities else None),
-        "tables": _source_digest(build_table, ModalTable, _pad_periodic),
+        "tables": source_digest(build_table, ModalTable, _pad_periodic),
     })
     use_cache = cache_dir is not False
     root = Path(default_cache_dir() if cache_dir is None else cache_dir) if use_cache else None
@@ -979,20 +751,20 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
             "n_points_total": len(indices)}
     if use_cache:
         tdir = root / f"table-{table_key[:32]}"
-        cached = _load_verified(tdir / "table.npz", table_key)
+        cached = load_verified(tdir / "table.npz", table_key)
         if cached is not None:
             table = _table_from_arrays(cached)
             table.info.update(computed_modes=0, cached_modes=0, computed_quantities=0,
                               from_cache=True, seconds=time.perf_counter() - t_start)
             return table
         mdir = root / f"modes-{modes_key[:32]}"
-        _atomic_write_text(mdir / "key.json", json.dumps({"key": modes_key}))
+        atomic_write_text(mdir / "key.json", json.dumps({"key": modes_key}))
 
     # ---- stage 1: raw modes at every point (parallel, cached per point)
     raw = np.empty(gshape, dtype=object)
     missing = []
     for flat, idx in enumerate(indices):
-        arrays = _load_verified(mdir / f"p{flat:07d}.npz", modes_key) if use_cache else None
+        arrays = load_verified(mdir / f"p{flat:07d}.npz", modes_key) if use_cache else None
         if arrays is None:
             missing.append(flat)
         else:
@@ -1007,7 +779,7 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
     for flat, arrays in parallel_map(_point_modes, jobs, client=client, processes=processes,
                                   progress=progress, desc="TMM"):
         if use_cache:
-            _atomic_savez(mdir / f"p{flat:07d}.npz", __key__=np.array(modes_key), **arrays)
+            save_verified(mdir / f"p{flat:07d}.npz", modes_key, **arrays)
         raw[indices[flat]] = arrays
     info.update(computed_modes=len(missing), cached_modes=len(indices) - len(missing))
     t_modes = time.perf_counter()
@@ -1050,7 +822,7 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
         per_point = [None] * len(indices)
         missing = []
         for flat in range(len(indices)):
-            got = (_load_verified(tdir / f"q{flat:07d}.npz", table_key) if use_cache
+            got = (load_verified(tdir / f"q{flat:07d}.npz", table_key) if use_cache
                    else None)
             if got is None:
                 missing.append(flat)
@@ -1062,7 +834,7 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
                                       processes=processes, progress=progress,
                                       desc="quantities"):
             if use_cache:
-                _atomic_savez(tdir / f"q{flat:07d}.npz", __key__=np.array(table_key),
+                save_verified(tdir / f"q{flat:07d}.npz", table_key,
                               **result)
             per_point[flat] = result
         info["computed_quantities"] = len(missing)
@@ -1086,7 +858,7 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
     table = ModalTable(grid=grid, shape_joints=joints, values=values, omega=omega,
                        q_fixed=q_fixed, periodic=tuple(periodic), info=info)
     if use_cache:
-        _atomic_savez(tdir / "table.npz", __key__=np.array(table_key),
+        save_verified(tdir / "table.npz", table_key,
                       **_table_to_arrays(table))
     return table
 

@@ -1,0 +1,247 @@
+"""The one on-disk cache of casflex: where it lives, how keys are made, how files are
+written and read.
+
+Everything casflex keeps between runs — modal tables (:mod:`casflex.modal.tables`), the
+tabulated estimator plant, gain schedules and JIT-compiled libraries — goes through this
+module, so every cache has the same guarantees:
+
+* **keys** are SHA-256 digests of everything the result depends on (:func:`digest` of a
+  JSON-able description, plus :func:`source_digest` of the code that computes it), and
+  every file stores its key;
+* **writes are atomic**: a temporary file (or staging directory) in the same directory,
+  flushed and then renamed into place, so a build that is killed or races another process
+  never leaves a truncated file under a final name;
+* **reads are verified**: a file whose stored key differs (stale, foreign) or that cannot
+  be read (truncated, corrupt) is treated as missing, so it is recomputed and overwritten
+  and a stale cache is never used.
+
+The root is ``$CASFLEX_CACHE`` if set, else ``~/.cache/casflex`` (:func:`default_cache_dir`);
+every function that caches takes ``cache_dir`` (a path, ``None`` for the default, ``False``
+for no cache; see :func:`cache_root`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import inspect
+import json
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "default_cache_dir",
+    "cache_root",
+    "digest",
+    "source_digest",
+    "atomic_savez",
+    "atomic_write_text",
+    "load_verified",
+    "save_verified",
+    "staged_directory",
+]
+
+#: name of the array that holds a file's key in :func:`save_verified` files
+KEY_FIELD = "__key__"
+
+
+def default_cache_dir() -> Path:
+    """``$CASFLEX_CACHE`` if set, else ``~/.cache/casflex``.
+
+    Examples
+    --------
+    >>> isinstance(default_cache_dir(), Path)
+    True
+    """
+    env = os.environ.get("CASFLEX_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "casflex"
+
+
+def cache_root(cache_dir: str | os.PathLike | bool | None) -> Path | None:
+    """The cache directory a ``cache_dir`` argument asks for: ``None`` gives
+    :func:`default_cache_dir`, ``False`` gives ``None`` (caching off), a path gives itself.
+
+    Examples
+    --------
+    >>> cache_root(False) is None, cache_root("/tmp/x") == Path("/tmp/x")
+    (True, True)
+    """
+    if cache_dir is False:
+        return None
+    return default_cache_dir() if cache_dir is None else Path(cache_dir)
+
+
+def digest(obj) -> str:
+    """SHA-256 (hex) of the canonical JSON text of ``obj`` (keys sorted).
+
+    Examples
+    --------
+    >>> digest({"b": 1, "a": [1.5]}) == digest({"a": [1.5], "b": 1})
+    True
+    """
+    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
+
+
+_SOURCE_MEMO: dict = {}
+
+
+def _source_of(obj) -> str:
+    """``inspect.getsource(obj)`` (or a name when there is none), memoised on the object,
+    its code object and its file's modification time: a cache key's source digest is
+    recomputed on every call, and reading sources costs ~0.1 s."""
+    path = (getattr(obj, "__file__", None)
+            or getattr(getattr(obj, "__code__", None), "co_filename", None)
+            or getattr(sys.modules.get(getattr(obj, "__module__", None) or ""), "__file__",
+                       None))
+    try:
+        stamp = os.stat(path).st_mtime_ns if path else None
+    except OSError:
+        stamp = None
+    try:
+        key = (obj, getattr(obj, "__code__", None), path, stamp)
+        hash(key)
+    except TypeError:
+        key = None
+    if key is not None and key in _SOURCE_MEMO:
+        return _SOURCE_MEMO[key]
+    try:
+        src = inspect.getsource(obj)
+    except (OSError, TypeError):
+        src = getattr(obj, "__qualname__", repr(type(obj)))
+    if key is not None:
+        _SOURCE_MEMO[key] = src
+    return src
+
+
+def source_digest(*objects) -> str:
+    """SHA-256 (hex) of the source code of modules, classes or functions, in order: part
+    of a cache key, so that a change to the code that computes a cached result
+    invalidates it.
+
+    Examples
+    --------
+    >>> source_digest(digest) == source_digest(digest)
+    True
+    >>> source_digest(digest) == source_digest(source_digest)
+    False
+    """
+    h = hashlib.sha256()
+    for obj in objects:
+        h.update(_source_of(obj).encode())
+    return h.hexdigest()
+
+
+def _replace_atomically(path: Path, write) -> None:
+    """Write through ``write(binary file)`` to a temporary file beside ``path``, flush it
+    to disk and rename it over ``path``; the temporary file is removed on any failure."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_savez(path: str | os.PathLike, **arrays) -> None:
+    """``numpy.savez(path, **arrays)``, atomically (temporary file, fsync, rename).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> p = Path(tempfile.mkdtemp()) / "a.npz"
+    >>> atomic_savez(p, x=np.arange(3))
+    >>> np.load(p)["x"].tolist()
+    [0, 1, 2]
+    """
+    _replace_atomically(Path(path), lambda fh: np.savez(fh, **arrays))
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (temporary file, fsync, rename).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> p = Path(tempfile.mkdtemp()) / "a.txt"
+    >>> atomic_write_text(p, "done")
+    >>> p.read_text()
+    'done'
+    """
+    _replace_atomically(Path(path), lambda fh: fh.write(text.encode("utf-8")))
+
+
+def save_verified(path: str | os.PathLike, key: str, **arrays) -> None:
+    """Store ``arrays`` with their ``key`` atomically, for :func:`load_verified`.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> p = Path(tempfile.mkdtemp()) / "g.npz"
+    >>> save_verified(p, "k1", gains=np.ones(2))
+    >>> load_verified(p, "k1")["gains"].tolist(), load_verified(p, "other")
+    ([1.0, 1.0], None)
+    """
+    atomic_savez(path, **{KEY_FIELD: np.array(key)}, **arrays)
+
+
+def load_verified(path: str | os.PathLike, key: str) -> dict | None:
+    """The arrays stored at ``path`` if the file exists, reads and carries ``key``; else
+    ``None`` (missing, truncated, corrupt or stale: the caller recomputes).
+
+    Examples
+    --------
+    >>> load_verified("/nonexistent/file.npz", "k") is None
+    True
+    """
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data[KEY_FIELD]) != key:
+                return None
+            return {k: data[k] for k in data.files if k != KEY_FIELD}
+    except Exception:  # missing, truncated, foreign, corrupt: recompute
+        return None
+
+
+@contextlib.contextmanager
+def staged_directory(target: str | os.PathLike) -> Iterator[Path]:
+    """Build a directory under a private name beside ``target`` and rename it into place
+    when the block succeeds, so ``target`` is either absent or complete.
+
+    If another process put ``target`` in place first, its copy is kept and this one is
+    discarded (both were built from the same key). The staging directory is removed
+    whatever happens.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> target = Path(tempfile.mkdtemp()) / "lib-abc"
+    >>> with staged_directory(target) as tmp:
+    ...     _ = (tmp / "lib.so").write_text("built")
+    >>> (target / "lib.so").read_text()
+    'built'
+    """
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".build-{target.name}-"))
+    try:
+        yield staging
+        try:
+            os.replace(staging, target)
+        except OSError:  # a non-empty target exists: another process finished first
+            if not target.is_dir():
+                raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

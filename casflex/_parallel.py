@@ -1,0 +1,164 @@
+"""The one way casflex runs many independent calls: in this process, on a local process
+pool or on a Dask cluster, with a progress bar on stderr.
+
+:func:`parallel_map` is used for the modal tables (:func:`casflex.modal.tables.build_table`)
+and the CLI's frequency sweep. The per-call work there is short (tens of ms of numpy), so
+calls travel in chunks and, on Dask, each chunk's arguments and results are pickled into
+one buffer.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Iterable, Iterator
+
+__all__ = ["parallel_map", "progress_bar"]
+
+
+def progress_bar(total: int, desc: str = "", enabled: bool = True):
+    """A tqdm progress bar on stderr that starts no monitor thread.
+
+    tqdm's monitor thread would outlive the bar, and a later process pool could then no
+    longer fork (forkserver is slower to start, and cannot re-import a ``__main__`` read
+    from stdin).
+
+    Examples
+    --------
+    >>> with progress_bar(3, enabled=False) as bar:
+    ...     bar.update(3)
+    """
+    from tqdm.auto import tqdm
+
+    return type("_Bar", (tqdm,), {"monitor_interval": 0})(
+        total=total, desc=desc, file=sys.stderr, disable=not enabled, leave=False,
+        dynamic_ncols=True)
+
+
+def _executor(processes):
+    """Process pool: ``fork`` while this process has a single thread (works in scripts
+    without a ``__main__`` guard and starts fast), ``forkserver`` when other threads run
+    (forking a threaded process can deadlock), the platform default elsewhere."""
+    import multiprocessing
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+
+    methods = multiprocessing.get_all_start_methods()
+    if "fork" in methods and threading.active_count() == 1:
+        method = "fork"
+    elif "forkserver" in methods:
+        method = "forkserver"
+    else:
+        method = None
+    ctx = multiprocessing.get_context(method)
+    if method == "forkserver":
+        ctx.set_forkserver_preload(["casflex.modal.tables"])
+    return ProcessPoolExecutor(max_workers=processes, mp_context=ctx)
+
+
+def _run_chunk(func, arg_list):
+    """Worker side of a chunk: ``[func(*args) for args in arg_list]``."""
+    return [func(*args) for args in arg_list]
+
+
+def _run_chunk_packed(func, packed_args):
+    """:func:`_run_chunk` with the arguments and the results pickled into one buffer
+    each: a chunk's many small arrays travel as one frame instead of hundreds (Dask's
+    per-object serialisation of task arguments and results costs the client and the
+    scheduler more CPU than the arrays' size suggests)."""
+    import pickle
+
+    return pickle.dumps(_run_chunk(func, pickle.loads(packed_args)),
+                        protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def parallel_map(func: Callable, jobs: Iterable, *, client=None, processes: int | None = None,
+                 progress: bool = False, desc: str = "",
+                 chunksize: int | None = None) -> Iterator[tuple]:
+    """Run ``func(*args)`` for every ``(tag, args)`` in ``jobs``; yield ``(tag, result)``
+    as results arrive.
+
+    Parameters
+    ----------
+    func : callable
+        A picklable (module-level) function.
+    jobs : iterable of (object, tuple)
+        A tag (returned with the result) and the positional arguments of each call.
+    client : dask.distributed.Client, optional
+        Submit to this cluster (``client.submit``, gathered as completed).
+    processes : int, optional
+        Size of the local process pool (default ``os.cpu_count()``); ``1`` runs the
+        calls in this process.
+    progress : bool
+        tqdm progress bar on stderr.
+    desc : str
+        Label of the progress bar.
+    chunksize : int, optional
+        Calls per task sent to a worker. The per-point work is short (tens of ms), so
+        single calls would be dominated by scheduling and transfer; by default a chunk
+        is ``ceil(N / (4 workers))`` calls, at most 16 (1 when running in-process).
+
+    Yields
+    ------
+    (tag, result)
+        In completion order (a chunk's results together). An exception in a call is
+        raised here; the remaining tasks are cancelled.
+
+    Examples
+    --------
+    >>> sorted(parallel_map(abs, [(i, (-i,)) for i in range(3)], processes=1))
+    [(0, 0), (1, 1), (2, 2)]
+    """
+    from concurrent.futures import as_completed as cf_completed
+
+    jobs = list(jobs)
+    if not jobs:
+        return
+    if processes is None:
+        processes = os.cpu_count() or 1
+    pool = None
+    if client is None and processes > 1 and len(jobs) > 1:
+        pool = _executor(min(processes, len(jobs)))  # before tqdm starts its monitor thread
+    if client is not None:
+        workers = max(1, sum(client.nthreads().values()))
+    else:
+        workers = processes if pool is not None else 0
+    if chunksize is None:
+        chunksize = 1 if workers == 0 else max(1, min(16, -(-len(jobs) // (4 * workers))))
+    chunks = [jobs[i:i + chunksize] for i in range(0, len(jobs), chunksize)]
+    bar = progress_bar(len(jobs), desc, progress)
+    try:
+        if client is not None:
+            import pickle
+
+            from distributed import as_completed
+
+            futures = [client.submit(_run_chunk_packed, func,
+                                     pickle.dumps([a for _, a in c],
+                                                  protocol=pickle.HIGHEST_PROTOCOL),
+                                     pure=False)
+                       for c in chunks]
+            tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
+            try:
+                for fut in as_completed(futures):
+                    results = pickle.loads(fut.result())
+                    bar.update(len(results))
+                    yield from zip(tags[fut.key], results, strict=True)
+            finally:
+                client.cancel([f for f in futures if not f.done()])
+        elif pool is None:
+            for tag, args in jobs:
+                result = func(*args)
+                bar.update(1)
+                yield tag, result
+        else:
+            futures = {pool.submit(_run_chunk, func, [a for _, a in c]): [t for t, _ in c]
+                       for c in chunks}
+            for fut in cf_completed(futures):
+                results = fut.result()
+                bar.update(len(results))
+                yield from zip(futures[fut], results, strict=True)
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)

@@ -1,0 +1,173 @@
+"""The one family of argument checks of casflex.
+
+Each check returns the value converted (float, int, array) or raises a
+:class:`~casflex.errors.CasflexError` whose message names the field, the value and the
+rule it broke:
+
+* a value read from a problem file raises :class:`~casflex.errors.ProblemFileError` with
+  the file (pass ``path``);
+* a value passed to a function raises :class:`~casflex.errors.ModelError` (the default
+  without ``path``), or the ``error`` class the caller names.
+
+Tables of problem files are read with :class:`casflex._problemfile.TableReader`, which
+adds known-key checking and units on top of the same rules.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Collection
+
+import numpy as np
+
+from casflex.errors import CasflexError, ModelError, ProblemFileError
+
+__all__ = ["fail", "number", "choice", "vector", "square_matrix"]
+
+
+def fail(field: str, value, rule: str, *, path: str | os.PathLike | None = None,
+         error: type[CasflexError] | None = None) -> CasflexError:
+    """The exception for ``field = value`` breaking ``rule`` (to be raised by the caller).
+
+    Examples
+    --------
+    >>> str(fail("dt", -1.0, "must be > 0"))
+    'dt = -1.0: must be > 0'
+    >>> str(fail("move.duration", 0, "must be > 0", path="moves.toml"))
+    "moves.toml: field 'move.duration' = 0: must be > 0"
+    """
+    if error is None:
+        error = ProblemFileError if path is not None else ModelError
+    if issubclass(error, ProblemFileError):
+        return error(path, field, value, rule)
+    return error(f"{field} = {value!r}: {rule}")
+
+
+def number(value, field: str, *, low: float | None = None, high: float | None = None,
+           low_open: bool = False, high_open: bool = False, integer: bool = False,
+           path: str | os.PathLike | None = None,
+           error: type[CasflexError] | None = None) -> float | int:
+    """``value`` as a finite float (or int with ``integer``) within the given bounds.
+
+    Parameters
+    ----------
+    value : object
+        A real number (``bool`` is not one).
+    field : str
+        Name of the argument or dotted problem-file field.
+    low, high : float, optional
+        Bounds; inclusive unless ``low_open`` / ``high_open``.
+    integer : bool
+        Require a whole number and return an ``int``.
+    path, error
+        See :func:`fail`.
+
+    Examples
+    --------
+    >>> number(0.5, "vtol", low=0.0, low_open=True, high=1.0)
+    0.5
+    >>> number(3.0, "count", low=1, integer=True)
+    3
+    >>> number(float("nan"), "dt")
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: dt = nan: must be finite (no NaN or inf)
+    >>> number(0.0, "dt", low=0.0, low_open=True)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: dt = 0.0: must be > 0.0
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(
+            value, (int, float, np.integer, np.floating)):
+        raise fail(field, value, "must be a real number", path=path, error=error)
+    v = float(value)
+    if not math.isfinite(v):
+        raise fail(field, value, "must be finite (no NaN or inf)", path=path, error=error)
+    if integer and not v.is_integer():
+        raise fail(field, value, "must be a whole number", path=path, error=error)
+    if low is not None and (v <= low if low_open else v < low):
+        raise fail(field, value, f"must be {'>' if low_open else '>='} {low}", path=path,
+                   error=error)
+    if high is not None and (v >= high if high_open else v > high):
+        raise fail(field, value, f"must be {'<' if high_open else '<='} {high}", path=path,
+                   error=error)
+    return int(v) if integer else v
+
+
+def choice(value, field: str, choices: Collection, *, path: str | os.PathLike | None = None,
+           error: type[CasflexError] | None = None):
+    """``value`` if it is one of ``choices``.
+
+    Examples
+    --------
+    >>> choice("rk4", "method", ("rk4", "cvodes"))
+    'rk4'
+    >>> choice("euler", "method", ("rk4", "cvodes"))
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: method = 'euler': must be one of 'rk4', 'cvodes'
+    """
+    try:
+        ok = value in choices
+    except TypeError:  # unhashable value against a set
+        ok = False
+    if not ok:
+        raise fail(field, value, "must be one of " + ", ".join(repr(c) for c in choices),
+                   path=path, error=error)
+    return value
+
+
+def vector(value, size: int | None, field: str, *, unit: str = "",
+           error: type[CasflexError] | None = None) -> np.ndarray:
+    """``value`` as a 1-D array of ``size`` finite floats (any size when ``None``).
+
+    Examples
+    --------
+    >>> vector([0, 0.5], 2, "q").tolist()
+    [0.0, 0.5]
+    >>> vector([0, 0.5], 3, "q", unit="rad")
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: q = [0, 0.5]: must be 3 finite values [rad]
+    """
+    try:
+        a = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        a = None
+    if a is None or (size is not None and a.size != size) or not np.all(np.isfinite(a)):
+        what = f"{size} finite values" if size is not None else "finite values"
+        raise fail(field, value, f"must be {what}" + (f" [{unit}]" if unit else ""),
+                   error=error)
+    return a
+
+
+def square_matrix(value, size: int, field: str, *, psd: bool = False,
+                  error: type[CasflexError] | None = None) -> np.ndarray:
+    """``value`` as a finite ``size`` × ``size`` matrix: a scalar means that multiple of the
+    identity, a vector the diagonal. With ``psd`` the matrix must be symmetric positive
+    semi-definite (weights, covariances).
+
+    Examples
+    --------
+    >>> square_matrix(2.0, 2, "Q").tolist()
+    [[2.0, 0.0], [0.0, 2.0]]
+    >>> square_matrix([1.0, -1.0], 2, "R", psd=True)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: R = [1.0, -1.0]: must be symmetric positive semi-definite
+    """
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        a = np.full((0,), np.nan)
+    if a.ndim == 0:
+        a = a * np.eye(size)
+    elif a.ndim == 1 and a.size == size:
+        a = np.diag(a)
+    if a.shape != (size, size) or not np.all(np.isfinite(a)):
+        raise fail(field, value, f"must be a finite scalar, {size}-vector (diagonal) or "
+                                 f"{size} x {size} matrix", error=error)
+    if psd and (not np.allclose(a, a.T) or np.min(np.linalg.eigvalsh(0.5 * (a + a.T))) < 0):
+        raise fail(field, value, "must be symmetric positive semi-definite", error=error)
+    return a
