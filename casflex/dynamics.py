@@ -466,6 +466,27 @@ class FlexibleModel:
         E[0, 3], E[1, 3], E[2, 3] = u[0], u[1], L + u[2]
         return E
 
+    def rebuilt_kinematics(self):
+        """A shallow copy of the model with its own link transforms (``A``, ``T``,
+        ``bodies``, ``tip``) rebuilt from its quantities ``Q``, the model itself left as
+        it is. The sensor models use it to build kinematics on placeholder quantities
+        (:func:`casflex.sensors.kinematic_measurement` with ``lean=True``).
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, -0.5], count=2))
+        >>> clone = model.rebuilt_kinematics()
+        >>> clone.T is not model.T, clone.T[-1].shape == model.T[-1].shape
+        (True, True)
+        """
+        import copy
+
+        clone = copy.copy(self)
+        clone._kinematics()
+        return clone
+
     def _kinematics(self):
         robot, m, Q = self.robot, self.m, self.Q
         pseudo = {row: (kind, J) for kind, row, J in rigid_pseudo_inertias(robot)}

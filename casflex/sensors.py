@@ -736,17 +736,14 @@ def _lean_applicable(model):
     provider = getattr(model, "provider", None)
     return (getattr(model, "table_values", None) is not None
             and getattr(provider, "table", None) is not None
-            and hasattr(provider, "method") and hasattr(model, "_kinematics")
+            and hasattr(provider, "method") and hasattr(model, "rebuilt_kinematics")
             and len(provider.shape_joints) > 0)
 
 
 def _placeholder_kinematics(model, sensors):
     """The model's kinematics with its table quantities as symbols (not yet filled), the
     sensor-point quantities as symbols, and the column of all those symbols."""
-    import copy
-
-    clone = copy.copy(model)  # its own A, T, bodies; the model itself is left as it is
-    clone._kinematics()
+    clone = model.rebuilt_kinematics()  # its own A, T, bodies; the model is left as it is
     shared = _point_data(model, sensors)  # (also checks the provider's points)
     data, syms = {}, []
     for name in sorted(model.Q):

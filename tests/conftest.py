@@ -1,0 +1,106 @@
+"""Shared robots, sensor sets and models of the test suite, and its markers.
+
+Tests run from the repository root (the README's command); problem files are named by
+their path from there. Markers (registered in ``pyproject.toml``, ``--strict-markers``):
+
+``slow``
+    takes more than a few seconds on two cores (tabulates a model, runs Ipopt many times,
+    executes a notebook). ``python -m pytest -m "not slow"`` is the fast suite.
+``needs_cc``
+    compiles generated C with the system compiler (``cc``).
+
+Models are built through :func:`arm_model`, a session-wide memo keyed by the build
+options, with their modal tables in one session cache directory: two test modules that
+ask for the same model share one build.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TESTS = Path(__file__).resolve().parent
+# helpers shared by test modules in sub-folders (reference_fem.py)
+if str(TESTS) not in sys.path:
+    sys.path.insert(0, str(TESTS))
+
+ARM_FILE = ROOT / "problems" / "arm2link.toml"
+TESTBED_FILE = ROOT / "problems" / "testbed.toml"
+ACCEL_FILE = ROOT / "problems" / "sensors" / "arm2link_accel.toml"
+STRAIN_FILE = ROOT / "problems" / "sensors" / "arm2link_strain.toml"
+MOVES_FILE = ROOT / "problems" / "moves.toml"
+
+
+@pytest.fixture(scope="session")
+def arm():
+    """The dissertation's Table 8 arm (two 1 m aluminium links, three joints)."""
+    from casflex.robot import load
+
+    return load(ARM_FILE)
+
+
+@pytest.fixture(scope="session")
+def testbed():
+    """The testbed arm of §4.5 (problems/testbed.toml)."""
+    from casflex.robot import load
+
+    return load(TESTBED_FILE)
+
+
+@pytest.fixture(scope="session")
+def accel_sensors(arm):
+    """The two tip accelerometers of the studies (problems/sensors/arm2link_accel.toml)."""
+    from casflex.sensors import load_sensors
+
+    return load_sensors(ACCEL_FILE, arm)
+
+
+@pytest.fixture(scope="session")
+def strain_sensors(arm):
+    """The strain-gauge pairs of the studies (problems/sensors/arm2link_strain.toml)."""
+    from casflex.sensors import load_sensors
+
+    return load_sensors(STRAIN_FILE, arm)
+
+
+@pytest.fixture(scope="session")
+def move():
+    """``move(name)``: a move of problems/moves.toml (``"move1"``, ``"control_move3"``...)."""
+    from casflex.moves import load_move
+
+    return lambda name: load_move(f"{MOVES_FILE}:{name}")
+
+
+@pytest.fixture(scope="session")
+def model_cache(tmp_path_factory):
+    """One modal-table cache directory for the whole session."""
+    return tmp_path_factory.mktemp("casflex_tables")
+
+
+@pytest.fixture(scope="session")
+def arm_model(arm, model_cache):
+    """``arm_model(n_modes, step_deg=15, **options)`` -> ``(model, table)`` of the Table 8
+    arm, built once per distinct set of options in the session.
+
+    ``options`` are :func:`casflex.model.build_model` keywords (``gravity``,
+    ``delta_order``, ``points``, ``grid``...); ``step_deg`` is the grid step of the shape
+    joint in degrees (ignored when ``grid`` is given).
+    """
+    from casflex.model import build_model
+
+    built = {}
+
+    def get(n_modes, step_deg=15.0, **options):
+        key = (n_modes, step_deg, repr(sorted(options.items())))
+        if key not in built:
+            options.setdefault("processes", 1)
+            if "grid" not in options:
+                options["step"] = np.radians(step_deg)
+            built[key] = build_model(arm, n_modes=n_modes, cache_dir=model_cache, **options)
+        return built[key]
+
+    return get
