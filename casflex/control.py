@@ -57,7 +57,6 @@ Examples
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -91,16 +90,12 @@ __all__ = [
     "plot_accessibility",
 ]
 
-_FUNCTIONS = weakref.WeakKeyDictionary()
 _FIVE_DEG = math.radians(5.0)
 
 
 def _functions(model):
     """``model.functions()``, built once per model."""
-    f = _FUNCTIONS.get(model)
-    if f is None:
-        f = _FUNCTIONS[model] = model.functions()
-    return f
+    return model.functions()
 
 
 def _gain_matrix(value, n, what):

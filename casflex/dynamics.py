@@ -484,6 +484,7 @@ class FlexibleModel:
         import copy
 
         clone = copy.copy(self)
+        clone.__dict__.pop("_functions_memo", None)  # built from the original's kinematics
         clone._kinematics()
         return clone
 
@@ -661,7 +662,11 @@ class FlexibleModel:
             ``ode (x, tau) -> xdot`` with ``x = [q; delta; dq; ddelta]``;
             ``prescribed (q, dq, ddq, delta, ddelta) -> (tau, dddelta)``;
             ``energy (q, dq, delta, ddelta) -> (kinetic, potential, energy)``;
-            ``frames (q, delta) -> (T1, ..., Tn_rows)``; ``tip (q, delta) -> p``.
+            ``frames (q, delta) -> (T1, ..., Tn_rows)``; ``tip (q, delta) -> p``;
+            ``dddelta (q, dq, ddq, delta, ddelta) -> dddelta`` (the flexible part of
+            ``prescribed``); ``ode_w (x, tau, w) -> xdot`` with a generalized force ``w``
+            on every coordinate. Built once per model; each call returns a new dict of
+            the same Functions.
 
         Examples
         --------
@@ -671,9 +676,16 @@ class FlexibleModel:
         >>> f["forward"].name_in()
         ['q', 'dq', 'delta', 'ddelta', 'tau']
         """
+        memo = self.__dict__.get("_functions_memo")
+        if memo is None:
+            memo = self._functions_memo = self._build_functions()
+        return dict(memo)
+
+    def _build_functions(self):
         q, dq, d, dd, tau = self.q, self.dq, self.delta, self.ddelta, self.tau
         n = self.n
         x = ca.vertcat(q, d, dq, dd)
+        w = ca.SX.sym("w", n + self.m)
         rows = [f"T{i + 1}" for i in range(len(self.T))]
         return {
             "mass": ca.Function("mass", [q, d], [self.M], ["q", "delta"], ["M"]),
@@ -702,6 +714,14 @@ class FlexibleModel:
                                   ["kinetic", "potential", "energy"]),
             "frames": ca.Function("frames", [q, d], list(self.T), ["q", "delta"], rows),
             "tip": ca.Function("tip", [q, d], [self.tip], ["q", "delta"], ["p"]),
+            "dddelta": ca.Function("dddelta", [q, dq, self.ddq, d, dd],
+                                   [self.prescribed_dddelta],
+                                   ["q", "dq", "ddq", "delta", "ddelta"], ["dddelta"]),
+            # a generalized force w on every coordinate (disturbances): M Ẍ + h = [τ; 0] + w
+            "ode_w": ca.Function("ode_w", [x, tau, w],
+                                 [ca.vertcat(dq, dd, ca.solve(self.M, ca.vertcat(
+                                     tau, ca.SX.zeros(self.m)) + w - self.h))],
+                                 ["x", "tau", "w"], ["xdot"]),
         }
 
 

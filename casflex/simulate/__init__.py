@@ -164,20 +164,7 @@ def _functions(model):
     """The model's Functions plus the reduced ones of this module (cached per model)."""
     cache = _CACHE.get(model)
     if cache is None:
-        f = model.functions()
-        n, m = model.n, model.m
-        cache = dict(f)
-        cache["dddelta"] = ca.Function(
-            "dddelta", [model.q, model.dq, model.ddq, model.delta, model.ddelta],
-            [model.prescribed_dddelta], ["q", "dq", "ddq", "delta", "ddelta"], ["dddelta"])
-        # generalized force on every coordinate (for disturbances): M Ẍ + h = [τ; 0] + w
-        w = ca.SX.sym("w", n + m)
-        x = ca.vertcat(model.q, model.delta, model.dq, model.ddelta)
-        rhs = ca.vertcat(model.tau, ca.SX.zeros(m)) + w - model.h
-        cache["ode_w"] = ca.Function(
-            "ode_w", [x, model.tau, w],
-            [ca.vertcat(model.dq, model.ddelta, ca.solve(model.M, rhs))],
-            ["x", "tau", "w"], ["xdot"])
+        cache = model.functions()
         cache["_rk4"] = {}
         _CACHE[model] = cache
     return cache
