@@ -22,9 +22,18 @@ import functools
 import casadi as ca
 import numpy as np
 
+from casflex.dynamics import (
+    ConstantProvider,
+    FlexibleModel,
+    PointwiseProvider,
+    rigid_provider,
+    zero_entries,
+)
 from casflex.errors import ModelError
 
-__all__ = ["TableProvider", "default_grid", "build_model", "sensor_quantities"]
+__all__ = ["TableProvider", "default_grid", "build_model", "sensor_quantities",
+           "ConstantProvider", "PointwiseProvider", "FlexibleModel", "rigid_provider",
+           "zero_entries"]
 
 
 class TableProvider:
