@@ -67,6 +67,11 @@ def cache_root(cache_dir: str | os.PathLike | bool | None) -> Path | None:
     """The cache directory a ``cache_dir`` argument asks for: ``None`` gives
     :func:`default_cache_dir`, ``False`` gives ``None`` (caching off), a path gives itself.
 
+    Parameters
+    ----------
+    cache_dir : str or os.PathLike or bool or None
+        A function's ``cache_dir`` argument.
+
     Examples
     --------
     >>> cache_root(False) is None, cache_root("/tmp/x") == Path("/tmp/x")
@@ -79,6 +84,11 @@ def cache_root(cache_dir: str | os.PathLike | bool | None) -> Path | None:
 
 def digest(obj) -> str:
     """SHA-256 (hex) of the canonical JSON text of ``obj`` (keys sorted).
+
+    Parameters
+    ----------
+    obj : object
+        JSON-serialisable description of what a cached result depends on.
 
     Examples
     --------
@@ -124,6 +134,11 @@ def source_digest(*objects) -> str:
     of a cache key, so that a change to the code that computes a cached result
     invalidates it.
 
+    Parameters
+    ----------
+    *objects : module, class or function
+        The code a cached result is computed by.
+
     Examples
     --------
     >>> source_digest(digest) == source_digest(digest)
@@ -158,6 +173,13 @@ def _replace_atomically(path: Path, write) -> None:
 def atomic_savez(path: str | os.PathLike, **arrays) -> None:
     """``numpy.savez(path, **arrays)``, atomically (temporary file, fsync, rename).
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.npz`` file (its directory is created).
+    **arrays : numpy.ndarray
+        Arrays to store under their keyword names.
+
     Examples
     --------
     >>> import tempfile
@@ -171,6 +193,13 @@ def atomic_savez(path: str | os.PathLike, **arrays) -> None:
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically (temporary file, fsync, rename).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file (its directory is created).
+    text : str
+        Content.
 
     Examples
     --------
@@ -186,6 +215,15 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
 def save_verified(path: str | os.PathLike, key: str, **arrays) -> None:
     """Store ``arrays`` with their ``key`` atomically, for :func:`load_verified`.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.npz`` file.
+    key : str
+        Digest of everything the arrays depend on.
+    **arrays : numpy.ndarray
+        Arrays to store.
+
     Examples
     --------
     >>> import tempfile
@@ -200,6 +238,13 @@ def save_verified(path: str | os.PathLike, key: str, **arrays) -> None:
 def load_verified(path: str | os.PathLike, key: str) -> dict | None:
     """The arrays stored at ``path`` if the file exists, reads and carries ``key``; else
     ``None`` (missing, truncated, corrupt or stale: the caller recomputes).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file written by :func:`save_verified`.
+    key : str
+        The key the caller expects.
 
     Examples
     --------
@@ -223,6 +268,11 @@ def staged_directory(target: str | os.PathLike) -> Iterator[Path]:
     If another process put ``target`` in place first, its copy is kept and this one is
     discarded (both were built from the same key). The staging directory is removed
     whatever happens.
+
+    Parameters
+    ----------
+    target : str or os.PathLike
+        Final directory.
 
     Examples
     --------

@@ -18,6 +18,11 @@ def jsonable(obj):
     """``obj`` with every numpy array, numpy scalar, path and non-finite float replaced by
     plain JSON values (dict keys become strings).
 
+    Parameters
+    ----------
+    obj : object
+        Result to encode: nested dicts, lists, tuples, numpy arrays and scalars.
+
     Examples
     --------
     >>> jsonable({"w": np.array([1.5, np.inf]), 2: (np.int64(3), np.bool_(True))})

@@ -23,6 +23,15 @@ def progress_bar(total: int, desc: str = "", enabled: bool = True):
     longer fork (forkserver is slower to start, and cannot re-import a ``__main__`` read
     from stdin).
 
+    Parameters
+    ----------
+    total : int
+        Number of steps.
+    desc : str
+        Label.
+    enabled : bool
+        Show the bar (a disabled bar counts silently).
+
     Examples
     --------
     >>> with progress_bar(3, enabled=False) as bar:

@@ -24,6 +24,13 @@ def parse_toml(text: str, path: str | os.PathLike | None = None) -> dict:
     """The TOML ``text`` as a dict; invalid TOML is a :class:`ProblemFileError` naming
     ``path`` (the file the text came from, if any).
 
+    Parameters
+    ----------
+    text : str
+        TOML text.
+    path : str or os.PathLike, optional
+        File the text came from, named in errors.
+
     Examples
     --------
     >>> parse_toml("a = 1")
@@ -42,6 +49,11 @@ def parse_toml(text: str, path: str | os.PathLike | None = None) -> dict:
 def read_toml(path: str | os.PathLike) -> dict:
     """The TOML file at ``path`` as a dict; a missing or unreadable file or invalid TOML
     is a :class:`ProblemFileError` naming the file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        TOML file.
 
     Examples
     --------
@@ -96,13 +108,62 @@ class TableReader:
         return f"{self.prefix}.{key}" if self.prefix else key
 
     def error(self, key, value, rule):
+        """The :class:`ProblemFileError` for ``key = value`` breaking ``rule``.
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+        value : object
+            The offending value.
+        rule : str
+            The rule it broke.
+
+        Examples
+        --------
+        >>> str(TableReader("a.toml", {}, "link[0]").error("E", -1, "must be > 0"))
+        "a.toml: field 'link[0].E' = -1: must be > 0"
+        """
         return ProblemFileError(self.path, self._field(key), value, rule)
 
     def has(self, key):
+        """Whether the table gives ``key`` (does not mark it as known).
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+
+        Examples
+        --------
+        >>> TableReader(None, {"a": 1}, "").has("a")
+        True
+        """
         return key in self.table
 
     def number(self, key, default=None, *, required=False, angle=False, positive=False,
                nonnegative=False):
+        """The number under ``key`` as a finite float, or ``default`` when absent.
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+        default : float, optional
+            Value when the key is absent.
+        required : bool
+            Absence is an error.
+        angle : bool
+            Also accept ``{value = ..., unit = "deg"|"rad"}``; the result is in rad.
+        positive, nonnegative : bool
+            Require ``> 0`` / ``>= 0``.
+
+        Examples
+        --------
+        >>> r = TableReader(None, {"q": {"value": 180, "unit": "deg"}}, "")
+        >>> round(r.number("q", angle=True), 6), r.number("d", 0.5)
+        (3.141593, 0.5)
+        """
         self.used.add(key)
         if key not in self.table:
             if required:
@@ -134,6 +195,22 @@ class TableReader:
         return value
 
     def vector(self, key, n, default):
+        """The list of ``n`` finite numbers under ``key`` as a tuple, or ``default``.
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+        n : int
+            Required length.
+        default : sequence of float
+            Value when the key is absent.
+
+        Examples
+        --------
+        >>> TableReader(None, {"g": [0, 0, -9.81]}, "").vector("g", 3, (0, 0, 0))
+        (0.0, 0.0, -9.81)
+        """
         self.used.add(key)
         if key not in self.table:
             return tuple(default)
@@ -150,6 +227,22 @@ class TableReader:
         return tuple(out)
 
     def string(self, key, default=None, choices=None):
+        """The string under ``key`` (one of ``choices`` if given), or ``default``.
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+        default : str, optional
+            Value when the key is absent.
+        choices : collection of str, optional
+            Allowed values.
+
+        Examples
+        --------
+        >>> TableReader(None, {"joint": "revolute"}, "").string("joint", choices={"revolute"})
+        'revolute'
+        """
         self.used.add(key)
         if key not in self.table:
             return default
@@ -161,6 +254,19 @@ class TableReader:
         return raw
 
     def table_(self, key):
+        """A reader of the sub-table under ``key``, or ``None`` when absent.
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+
+        Examples
+        --------
+        >>> sub = TableReader("a.toml", {"tip": {"mass": 1.0}}, "link[1]").table_("tip")
+        >>> sub.prefix, sub.number("mass")
+        ('link[1].tip', 1.0)
+        """
         self.used.add(key)
         if key not in self.table:
             return None
@@ -170,6 +276,19 @@ class TableReader:
         return TableReader(self.path, raw, self._field(key))
 
     def finish(self):
+        """Reject the keys of the table that no getter asked for.
+
+        Examples
+        --------
+        >>> r = TableReader("a.toml", {"mass": 1.0, "colour": "red"}, "tip")
+        >>> r.number("mass")
+        1.0
+        >>> try:
+        ...     r.finish()
+        ... except ProblemFileError as exc:
+        ...     print(exc.field, "-", exc.rule)
+        tip.colour - unknown key; known keys here are ['mass']
+        """
         unknown = sorted(set(self.table) - self.used)
         if unknown:
             key = unknown[0]

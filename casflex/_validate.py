@@ -30,6 +30,19 @@ def fail(field: str, value, rule: str, *, path: str | os.PathLike | None = None,
          error: type[CasflexError] | None = None) -> CasflexError:
     """The exception for ``field = value`` breaking ``rule`` (to be raised by the caller).
 
+    Parameters
+    ----------
+    field : str
+        Argument name or dotted problem-file field.
+    value : object
+        The offending value.
+    rule : str
+        The rule it broke, in words.
+    path : str or os.PathLike, optional
+        Problem file the value came from.
+    error : type, optional
+        Exception class (default: ProblemFileError with ``path``, else ModelError).
+
     Examples
     --------
     >>> str(fail("dt", -1.0, "must be > 0"))
@@ -99,6 +112,17 @@ def choice(value, field: str, choices: Collection, *, path: str | os.PathLike | 
            error: type[CasflexError] | None = None):
     """``value`` if it is one of ``choices``.
 
+    Parameters
+    ----------
+    value : object
+        The value to check.
+    field : str
+        Argument name or dotted problem-file field.
+    choices : collection
+        Allowed values.
+    path, error
+        See :func:`fail`.
+
     Examples
     --------
     >>> choice("rk4", "method", ("rk4", "cvodes"))
@@ -121,6 +145,19 @@ def choice(value, field: str, choices: Collection, *, path: str | os.PathLike | 
 def vector(value, size: int | None, field: str, *, unit: str = "",
            error: type[CasflexError] | None = None) -> np.ndarray:
     """``value`` as a 1-D array of ``size`` finite floats (any size when ``None``).
+
+    Parameters
+    ----------
+    value : array_like
+        The values.
+    size : int or None
+        Required number of values (any when ``None``).
+    field : str
+        Argument name.
+    unit : str
+        Unit named in the error message.
+    error : type, optional
+        See :func:`fail`.
 
     Examples
     --------
@@ -147,6 +184,19 @@ def square_matrix(value, size: int, field: str, *, psd: bool = False,
     """``value`` as a finite ``size`` × ``size`` matrix: a scalar means that multiple of the
     identity, a vector the diagonal. With ``psd`` the matrix must be symmetric positive
     semi-definite (weights, covariances).
+
+    Parameters
+    ----------
+    value : float or array_like
+        Scalar, diagonal or full matrix.
+    size : int
+        Rows and columns.
+    field : str
+        Argument name.
+    psd : bool
+        Require a symmetric positive semi-definite matrix.
+    error : type, optional
+        See :func:`fail`.
 
     Examples
     --------
