@@ -1,7 +1,10 @@
-"""Execute every notebook in notebooks/ (each within 3 minutes) and check it is current."""
+"""Execute every notebook in notebooks/ and check that each is current with its source.
+
+A notebook cell that runs longer than 3 minutes is an error (nbclient's timeout): a hang
+fails instead of stalling CI. How long the notebooks take is measured in benchmarks/, not here.
+"""
 
 import os
-import time
 from pathlib import Path
 
 import nbformat
@@ -12,22 +15,20 @@ ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path):
     nb = nbformat.read(path, as_version=4)
     env_backend = os.environ.get("MPLBACKEND")
     os.environ["MPLBACKEND"] = "Agg"
     try:
-        start = time.perf_counter()
         NotebookClient(nb, timeout=180, kernel_name="python3",
                        resources={"metadata": {"path": str(path.parent)}}).execute()
-        elapsed = time.perf_counter() - start
     finally:
         if env_backend is None:
             os.environ.pop("MPLBACKEND", None)
         else:
             os.environ["MPLBACKEND"] = env_backend
-    assert elapsed < 180, f"{path.name} took {elapsed:.0f} s (limit 180 s)"
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])

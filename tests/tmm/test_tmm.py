@@ -24,7 +24,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import brentq
 
-from casflex.robot import load, loads
+from casflex.robot import loads
 from casflex.tmm import (
     build_chain,
     count_below,
@@ -38,7 +38,7 @@ try:
 except ImportError:  # pragma: no cover - when tests/ is imported as a package
     from tests import reference_fem as fem
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 E, G, RHO = 69.0e9, 26.9e9, 2700.0
 MATERIAL = f"[link.material]\nE = {E}\nG = {G}\nrho = {RHO}\n"
 #: λ_n L of a clamped–free Euler–Bernoulli beam (roots of 1 + cos x cosh x = 0)
@@ -351,11 +351,6 @@ def test_near_double_roots_are_resolved():
 # ----------------------------------------------------------------------------- Table 8 arm
 
 
-@pytest.fixture(scope="module")
-def arm():
-    return load(ROOT / "problems" / "arm2link.toml")
-
-
 def test_arm2link_q0_dissertation(arm):
     # §3.3.7 / Table 14 (q = 0): 8.26, 11.93, 23.37 rad/s
     w = natural_frequencies(arm, [0.0, 0.0, 0.0], count=3)
@@ -386,11 +381,6 @@ def test_arm2link_independent_of_q1_q2(arm, q):
 
 
 # ----------------------------------------------------------------------------- testbed
-
-
-@pytest.fixture(scope="module")
-def testbed():
-    return load(ROOT / "problems" / "testbed.toml")
 
 
 def test_testbed_impulse_peaks(testbed):

@@ -20,20 +20,9 @@ from casflex.modal.tables import (
     robot_fingerprint,
     shape_joints,
 )
-from casflex.robot import load
 from casflex.tmm import natural_frequencies
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return load(ROOT / "problems/arm2link.toml")
-
-
-@pytest.fixture(scope="module")
-def testbed():
-    return load(ROOT / "problems/testbed.toml")
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # ------------------------------------------------------------------ shape joints

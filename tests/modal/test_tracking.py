@@ -21,11 +21,6 @@ STEP = np.radians(1.5)
 
 
 @pytest.fixture(scope="module")
-def arm():
-    return load("problems/arm2link.toml")
-
-
-@pytest.fixture(scope="module")
 def sweep(arm):
     """Fig. 25/26: q3 over [-pi, pi] every 1.5 deg, 5 modes + 2 extra."""
     q3 = np.arange(-np.pi, np.pi + 0.5 * STEP, STEP)

@@ -24,7 +24,7 @@ try:
 except ImportError:  # pragma: no cover - when tests/ is imported as a package
     from tests.test_tmm import fe_modes
 
-FIXTURES = Path(__file__).resolve().parents[1] / "problems" / "fixtures"
+FIXTURES = Path(__file__).resolve().parents[2] / "problems" / "fixtures"
 
 # Tables 3–7 (Hz): experiment and the dissertation's TMM column (ω4 of Table 3 not measured)
 TABLES = {
