@@ -18,13 +18,12 @@ stderr with exit status 2.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
-import re
 import sys
 
 from casflex._json import jsonable
+from casflex.commands.common import ArgumentParser
 from casflex.errors import CasflexError
 
 #: verb name -> module under casflex.commands
@@ -51,10 +50,6 @@ def _available_verbs():
     return verbs
 
 
-# Negative values such as "-1.5", "-1e-3" or "-45deg" are values, not options.
-_NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(deg|rad)?$")
-
-
 def build_parser():
     """Return the :class:`argparse.ArgumentParser` of the ``casflex`` command.
 
@@ -64,24 +59,22 @@ def build_parser():
     >>> parser.prog
     'casflex'
     """
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="casflex",
         description="Modeling, estimation and control of flexible serial robot arms.",
     )
     from casflex import __version__
 
-    parser._negative_number_matcher = _NEGATIVE_VALUE  # argparse's hook for "-1"-like values
     parser.add_argument("--version", action="version", version=f"casflex {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
     for verb, module in _available_verbs().items():
         p = sub.add_parser(verb, help=module.HELP, description=module.HELP)
-        p._negative_number_matcher = _NEGATIVE_VALUE
         module.add_arguments(p)
         p.add_argument(
             "--json", action="store_true", help="print exactly one JSON object on stdout"
         )
-        p.set_defaults(_module=module)
+        p.set_defaults(verb_module=module)
     return parser
 
 
@@ -118,7 +111,7 @@ def main(argv=None):
         print(message, file=sys.stderr, flush=True)
 
     try:
-        result = args._module.run(args, log)
+        result = args.verb_module.run(args, log)
     except CasflexError as exc:
         print(f"casflex {args.verb}: error: {exc}", file=sys.stderr)
         return 2

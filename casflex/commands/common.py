@@ -1,16 +1,73 @@
-"""Helpers shared by the command-line verbs."""
+"""Helpers shared by the command-line verbs: the argument parser and angle parsing."""
 
 from __future__ import annotations
 
+import argparse
 import math
+import re
+from collections.abc import Sequence
 
 from casflex.errors import ModelError
 
-__all__ = ["parse_angle"]
+__all__ = ["ArgumentParser", "parse_angle"]
+
+#: a command-line token that is a negative value, not an option: "-1.5", "-1e-3",
+#: "-45deg", "-0.5rad", "-pi", "-0.5pi", "-0.5*pi"
+NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(deg|rad)?$"
+                            r"|^-(\d*\.?\d*\*?)pi$")
 
 
-def parse_angle(text, option):
-    """Parse ``"0.5"`` (rad), ``"30deg"`` or ``"0.5rad"`` into radians.
+class ArgumentParser(argparse.ArgumentParser):
+    """:class:`argparse.ArgumentParser` that reads negative values with units as values.
+
+    argparse takes a token that starts with ``-`` for an option unless it looks like a
+    plain negative number, so ``--from -180deg`` or ``--q 0 0 -pi`` would fail. Tokens
+    matching :data:`NEGATIVE_VALUE` are passed on with a leading space, which argparse
+    treats as a value and every casflex converter strips (no casflex option looks like a
+    negative number). Sub-parsers made by ``add_subparsers`` are of this class too.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        As for :class:`argparse.ArgumentParser`.
+
+    Examples
+    --------
+    >>> p = ArgumentParser()
+    >>> _ = p.add_argument("--q", nargs=2)
+    >>> [parse_angle(v, "--q") for v in p.parse_args(["--q", "-180deg", "-0"]).q]
+    [-3.141592653589793, -0.0]
+    """
+
+    def parse_known_args(self, args: Sequence[str] | None = None, namespace=None):
+        """:meth:`argparse.ArgumentParser.parse_known_args` with negative values protected.
+
+        Parameters
+        ----------
+        args : sequence of str, optional
+            Tokens (default ``sys.argv[1:]``).
+        namespace : argparse.Namespace, optional
+            Object to fill.
+
+        Examples
+        --------
+        >>> p = ArgumentParser()
+        >>> _ = p.add_argument("--to")
+        >>> p.parse_known_args(["--to", "-pi"])[0].to.strip()
+        '-pi'
+        """
+        if args is None:
+            import sys
+
+            args = sys.argv[1:]
+        args = [" " + a if isinstance(a, str) and NEGATIVE_VALUE.match(a) else a
+                for a in args]
+        return super().parse_known_args(args, namespace)
+
+
+def parse_angle(text: str, option: str) -> float:
+    """Parse ``"0.5"`` (rad), ``"30deg"``, ``"0.5rad"``, ``"pi"`` or ``"-0.5*pi"`` into
+    radians.
 
     Parameters
     ----------
@@ -21,15 +78,18 @@ def parse_angle(text, option):
 
     Examples
     --------
-    >>> round(parse_angle("180deg", "--q"), 6)
-    3.141593
+    >>> round(parse_angle("180deg", "--q"), 6), round(parse_angle("-0.5pi", "--to"), 6)
+    (3.141593, -1.570796)
     """
     raw = str(text).strip()
     factor = 1.0
-    for suffix, f in (("deg", math.pi / 180.0), ("rad", 1.0)):
-        if raw.endswith(suffix):
+    for suffix, f in (("deg", math.pi / 180.0), ("rad", 1.0), ("pi", math.pi)):
+        if raw.lower().endswith(suffix):
             raw, factor = raw[: -len(suffix)], f
             break
+    if factor == math.pi:  # "pi", "-pi", "0.5pi", "0.5*pi"
+        raw = raw.rstrip("*")
+        raw = raw + "1" if raw in ("", "-", "+") else raw
     try:
         value = float(raw) * factor
     except ValueError:

@@ -20,7 +20,6 @@ JSON: ``{"joint": K, "q": [...], "omega": [[...], ...]}`` (rad, rad/s).
 from __future__ import annotations
 
 import math
-import re
 import sys
 
 import numpy as np
@@ -45,18 +44,14 @@ def add_arguments(parser):
 
     Examples
     --------
-    >>> import argparse
-    >>> p = argparse.ArgumentParser()
+    >>> from casflex.commands.common import ArgumentParser
+    >>> p = ArgumentParser()
     >>> add_arguments(p)
     >>> a = p.parse_args(["r.toml", "--joint", "3", "--from", "-180deg", "--to", "pi",
     ...                   "--step", "1.5deg"])
-    >>> a.joint, a.start, a.stop, a.step
+    >>> a.joint, a.start.strip(), a.stop, a.step
     (3, '-180deg', 'pi', '1.5deg')
     """
-    if hasattr(parser, "_negative_number_matcher"):
-        # let "-pi", "-0.5pi", "-180deg" through as values (argparse knows "-3.1" only)
-        parser._negative_number_matcher = re.compile(
-            r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(deg|rad)?$|^-(\d*\.?\d*\*?)pi$")
     parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
     parser.add_argument("--joint", type=int, required=True, metavar="K",
                         help="joint to sweep, 1-based")
@@ -77,17 +72,6 @@ def add_arguments(parser):
                         help="worker processes (default: all CPUs; 1 = no pool)")
     parser.add_argument("--plot", metavar="FILE.png", default=None,
                         help="write frequency vs joint angle")
-
-
-def _angle(text, option):
-    raw = str(text).strip().lower()
-    sign = 1.0
-    if raw.startswith(("-", "+")):
-        sign, raw = (-1.0 if raw[0] == "-" else 1.0), raw[1:]
-    if raw.endswith("pi"):
-        factor = raw[:-2].rstrip("*") or "1"
-        return sign * parse_angle(factor, option) * math.pi
-    return sign * parse_angle(raw, option)
 
 
 def sweep_values(start, stop, step):
@@ -191,12 +175,12 @@ def run(args, log):
         raise ModelError(f"--count: must be >= 1; got {args.count}")
     if args.processes is not None and args.processes < 1:
         raise ModelError(f"--processes: must be >= 1; got {args.processes}")
-    values = sweep_values(_angle(args.start, "--from"), _angle(args.stop, "--to"),
-                          _angle(args.step, "--step"))
+    values = sweep_values(parse_angle(args.start, "--from"), parse_angle(args.stop, "--to"),
+                          parse_angle(args.step, "--step"))
     if args.q is None:
         base = np.zeros(robot.n_joints)
     else:
-        base = np.array([_angle(v, "--q") for v in args.q])
+        base = np.array([parse_angle(v, "--q") for v in args.q])
         if base.size != robot.n_joints:
             raise ModelError(f"--q: robot '{robot.name}' has {robot.n_joints} joints; got "
                              f"{base.size} values")
