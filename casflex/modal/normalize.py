@@ -140,8 +140,8 @@ def _gauss_legendre(points):
 def gauss_legendre(points):
     """Gauss–Legendre nodes and weights on [−1, 1], computed once per point count.
 
-    ``numpy.polynomial.legendre.leggauss`` solves an eigenvalue problem on every call
-    (~2 ms for 100 points), which tabulations repeat at every grid point; the arrays
+    ``numpy.polynomial.legendre.leggauss`` solves an eigenvalue problem on every call,
+    which tabulations would repeat at every grid point; the arrays
     returned here are cached and read-only.
 
     Parameters

@@ -249,15 +249,6 @@ def default_quantities(robot, q, shapes):
     return configuration_quantities(robot, q, mass_normalize(robot, shapes))
 
 
-def _default_available():
-    try:
-        import casflex.modal.integrals  # noqa: F401
-        import casflex.modal.normalize  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def _point_quantities(func, robot, q, arrays):
     """Quantities of one point from the tracked shape arrays (run in worker processes)."""
     values = func(robot, np.asarray(q, dtype=float), _arrays_to_shapes(arrays))
@@ -691,16 +682,18 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
 
     Notes
     -----
-    The per-point work is short (≈ 20–50 ms), so it is sent to workers in chunks (see
-    :func:`parallel_map`). Dask's nanny starts workers with
+    The per-point work is short (one TMM solve), so it is sent to workers in chunks (see
+    :func:`casflex._parallel.parallel_map`). Dask's nanny starts workers with
     ``MALLOC_TRIM_THRESHOLD_=65536`` (``distributed.nanny.pre-spawn-environ``), which
-    makes the TMM about twice as slow in a worker; for table builds start the cluster
+    slows the TMM in a worker (measured in ``benchmarks/README_tables.md``); for table
+    builds start the cluster
     under ``dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
     2**27})``.
 
     Examples
     --------
-    >>>     >>> from casflex.robot import load
+    >>> import tempfile
+    >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
     >>> table = build_table(robot, np.radians([0.0, 10.0, 20.0, 30.0]), 3, quantities=False,
     ...                     cache_dir=tempfile.mkdtemp(), processes=1)
@@ -722,7 +715,7 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
                else robot.check_q(q_fixed).astype(float))
     count = int(n_modes) + int(extra_modes)
     if quantities is None:
-        quantities = default_quantities if _default_available() else False
+        quantities = default_quantities
     gshape = tuple(a.size for a in grid)
     indices = list(np.ndindex(gshape))
 

@@ -15,7 +15,6 @@ import pytest
 from casflex.errors import ModelError
 from casflex.modal.tables import (
     ModalTable,
-    _default_available,
     build_table,
     robot_fingerprint,
     shape_joints,
@@ -251,7 +250,6 @@ def test_full_turn_table_is_periodic(arm, tmp_path):
     np.testing.assert_allclose(f(np.pi + 0.2).full(), f(-np.pi + 0.2).full(), rtol=1e-12)
 
 
-@pytest.mark.skipif(not _default_available(), reason="normalize/integrals not available")
 def test_default_quantities_are_tabulated(arm, tmp_path):
     grid = np.radians([80.0, 85.0, 90.0, 95.0, 100.0])
     table = build_table(arm, grid, 3, cache_dir=tmp_path, processes=2)
