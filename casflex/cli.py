@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import json
 import sys
+from collections.abc import Sequence
 
 from casflex._json import jsonable
 from casflex.commands.common import ArgumentParser
@@ -50,7 +51,7 @@ def _available_verbs():
     return verbs
 
 
-def build_parser():
+def build_parser() -> ArgumentParser:
     """Return the :class:`argparse.ArgumentParser` of the ``casflex`` command.
 
     Examples
@@ -78,7 +79,7 @@ def build_parser():
     return parser
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``casflex`` console script; returns the exit status.
 
     Parameters
@@ -107,7 +108,7 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
 
-    def log(message):
+    def log(message: str) -> None:
         print(message, file=sys.stderr, flush=True)
 
     try:

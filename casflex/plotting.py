@@ -7,13 +7,22 @@ under any backend (the CLI uses Agg).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from matplotlib.figure import Figure
+from numpy.typing import ArrayLike
+
+from casflex.errors import ModelError
+
+if TYPE_CHECKING:
+    from casflex.robot import Robot
+    from casflex.tmm import ModeShapes
 
 __all__ = ["plot_modes", "plot_sweep", "skeleton"]
 
 
-def skeleton(robot, q):
+def skeleton(robot: Robot, q: ArrayLike) -> np.ndarray:
     """Points of the undeformed arm in the base frame, base to tip [m], shape (k, 3).
 
     Parameters
@@ -53,7 +62,8 @@ def _equal_axes(ax, pts):
     ax.set_zlim(centre[2] - half, centre[2] + half)
 
 
-def plot_modes(robot, q, shapes, n_modes=None, scale=None):
+def plot_modes(robot: Robot, q: ArrayLike, shapes: ModeShapes, n_modes: int | None = None,
+               scale: float | None = None) -> Figure:
     """The undeformed arm and its first mode shapes, one 3-D panel per mode.
 
     Parameters
@@ -107,7 +117,8 @@ def plot_modes(robot, q, shapes, n_modes=None, scale=None):
     return fig
 
 
-def plot_sweep(q, omega, joint, tracked=False):
+def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False, *,
+               unit: str = "rad/s", title: str | None = None) -> Figure:
     """Natural frequencies versus one joint angle (dissertation Fig. 25/26).
 
     Parameters
@@ -120,6 +131,10 @@ def plot_sweep(q, omega, joint, tracked=False):
         1-based joint number, for the label.
     tracked : bool
         Whether the columns follow modes (lines) or sorted order (markers).
+    unit : {"rad/s", "Hz"}
+        Unit of the frequency axis.
+    title : str, optional
+        Figure title (default: which kind of sweep it is).
 
     Returns
     -------
@@ -133,14 +148,18 @@ def plot_sweep(q, omega, joint, tracked=False):
     """
     q = np.asarray(q, dtype=float)
     omega = np.asarray(omega, dtype=float)
+    if unit == "Hz":
+        omega = omega / (2.0 * np.pi)
+    elif unit != "rad/s":
+        raise ModelError(f"unit = {unit!r}: must be 'rad/s' or 'Hz'")
     fig = Figure(figsize=(7, 4.5), layout="constrained")
     ax = fig.add_subplot()
     for j in range(omega.shape[1]):
         style = dict(lw=1.5) if tracked else dict(ls="none", marker=".", ms=3)
         ax.plot(np.degrees(q), omega[:, j], label=f"mode {j + 1}", **style)
     ax.set_xlabel(f"q{joint} [deg]")
-    ax.set_ylabel("natural frequency [rad/s]")
-    ax.set_title("tracked modes" if tracked else "sorted natural frequencies")
+    ax.set_ylabel(f"natural frequency [{unit}]")
+    ax.set_title(title or ("tracked modes" if tracked else "sorted natural frequencies"))
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
     return fig

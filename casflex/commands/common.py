@@ -39,7 +39,9 @@ class ArgumentParser(argparse.ArgumentParser):
     [-3.141592653589793, -0.0]
     """
 
-    def parse_known_args(self, args: Sequence[str] | None = None, namespace=None):
+    def parse_known_args(self, args: Sequence[str] | None = None,
+                         namespace: argparse.Namespace | None = None,
+                         ) -> tuple[argparse.Namespace, list[str]]:
         """:meth:`argparse.ArgumentParser.parse_known_args` with negative values protected.
 
         Parameters

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
+
 import numpy as np
 
 from casflex.commands.common import parse_angle
@@ -11,7 +14,7 @@ from casflex.robot import load
 HELP = "natural frequencies and mode shapes of a robot at one configuration (TMM)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``casflex modes``.
 
     Parameters
@@ -35,7 +38,7 @@ def add_arguments(parser):
     parser.add_argument("--plot", metavar="FILE.png", help="draw the arm and its first modes")
 
 
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Compute the modes; return ``{"q", "omega", "frequency_hz"}`` (rad, rad/s, Hz).
 
     Parameters

@@ -19,8 +19,10 @@ JSON: ``{"joint": K, "q": [...], "omega": [[...], ...]}`` (rad, rad/s).
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
+from collections.abc import Callable
 
 import numpy as np
 
@@ -34,7 +36,7 @@ HELP = "natural frequencies while one joint sweeps a range (raw or tracked by MA
 MAX_POINTS = 100_000
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``sweep`` arguments to ``parser``.
 
     Parameters
@@ -74,7 +76,7 @@ def add_arguments(parser):
                         help="write frequency vs joint angle")
 
 
-def sweep_values(start, stop, step):
+def sweep_values(start: float, stop: float, step: float) -> np.ndarray:
     """The joint values ``start, start + step, ...`` up to ``stop`` [rad].
 
     Parameters
@@ -111,33 +113,7 @@ def sweep_values(start, stop, step):
     return start + step * np.arange(n)
 
 
-def _frequencies(robot, q, count):
-    from casflex.tmm import natural_frequencies
-
-    return natural_frequencies(robot, q, count=count)
-
-
-def _plot(values, omega, joint, tracked, robot_name, filename):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(7.0, 4.5))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    x = np.degrees(values)
-    for j in range(omega.shape[1]):
-        ax.plot(x, omega[:, j] / (2 * math.pi), ".-", ms=2.5, lw=1.0, label=f"mode {j + 1}")
-    ax.set_xlabel(f"q{joint} (deg)")
-    ax.set_ylabel("natural frequency (Hz)")
-    kind = "tracked by MAC" if tracked else "sorted"
-    ax.set_title(f"{robot_name}: natural frequencies vs q{joint} ({kind})")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(filename, dpi=120)
-
-
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Sweep the joint; return ``{"joint", "q", "omega"}`` (rad, rad/s).
 
     Parameters
@@ -162,9 +138,7 @@ def run(args, log):
     >>> len(out["q"]), len(out["omega"][0])
     (3, 2)
     """
-    from casflex._parallel import parallel_map
-    from casflex.modal.tables import compute_modes
-    from casflex.modal.tracking import track
+    from casflex.modal.sweep import frequency_sweep
 
     robot = load(args.robot)
     k = args.joint
@@ -189,29 +163,23 @@ def run(args, log):
     kind = "tracked" if args.track else "sorted"
     log(f"{robot.name}: sweeping q{k} from {values[0]:.6g} to {values[-1]:.6g} rad "
         f"({values.size} points), {args.count} modes, {kind}")
-    progress = values.size >= 20 and sys.stderr.isatty()
-    if args.track:
-        along = np.zeros(robot.n_joints)
-        along[k - 1] = 1.0  # a multiple root is stepped off along the swept joint
-        seq = compute_modes(robot, qs, args.count + 2, processes=args.processes,
-                            progress=progress, directions=[along, -along])
-        tr = track(seq, count=args.count, robot=robot)
-        omega = tr.omega(seq)
-        worst = float(np.nanmin(tr.mac)) if np.isfinite(tr.mac).any() else 1.0
-        log(f"  lowest MAC between tracked neighbours: {worst:.4f}")
-        if worst < 0.9:
+    result = frequency_sweep(robot, qs, args.count, track=args.track, joint=k - 1,
+                             processes=args.processes,
+                             progress=values.size >= 20 and sys.stderr.isatty())
+    omega = result.omega
+    if result.tracked:
+        log(f"  lowest MAC between tracked neighbours: {result.min_mac:.4f}")
+        if result.min_mac < 0.9:
             log("  warning: a tracked mode changes fast between neighbours; use a smaller "
                 "--step")
-    else:
-        omega = np.empty((values.size, args.count))
-        jobs = [(i, (robot, q, args.count)) for i, q in enumerate(qs)]
-        for i, w in parallel_map(_frequencies, jobs, processes=args.processes,
-                                 progress=progress, desc="TMM"):
-            omega[i] = w
     for j in range(args.count):
-        col = omega[:, j] / (2 * math.pi)
+        col = result.omega_hz[:, j]
         log(f"  mode {j + 1}: {col.min():10.5f} .. {col.max():10.5f} Hz")
     if args.plot:
-        _plot(values, omega, k, args.track, robot.name, args.plot)
+        from casflex.plotting import plot_sweep
+
+        fig = plot_sweep(values, omega, k, tracked=args.track, unit="Hz",
+                         title=f"{robot.name}: natural frequencies vs q{k} ({kind})")
+        fig.savefig(args.plot, dpi=120)
         log(f"wrote {args.plot}")
     return {"joint": k, "q": values, "omega": omega}
