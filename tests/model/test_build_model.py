@@ -1,10 +1,12 @@
 """build_model: tables + B-spline provider + symbolic model agree with a pointwise model."""
 
 import numpy as np
+import pytest
 
 from casflex.model import FlexibleModel, PointwiseProvider
 
 
+@pytest.mark.slow
 def test_tabulated_model_matches_pointwise(arm, arm_model):
     robot = arm
     model, table = arm_model(3, step_deg=7.5, gravity=None)
