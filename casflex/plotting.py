@@ -163,3 +163,186 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
     return fig
+
+
+# ------------------------------------------------------------------ design report figures
+# The figures of the report of a design job (:func:`casflex.design.run_design`), drawn from
+# plain arrays. Each is 6.4 × 3.6 in without a layout engine; the job calls
+# ``fig.tight_layout()`` before saving.
+
+__all__ += ["plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
+            "plot_estimation_error", "plot_accessibility"]
+
+
+def plot_frequencies_along(t: np.typing.ArrayLike, omega: np.typing.ArrayLike,
+                           move_name: str) -> Figure:
+    """Natural frequencies of every mode along a move.
+
+    Parameters
+    ----------
+    t : array_like
+        (k,) times along the move [s].
+    omega : array_like
+        (k, m) natural frequencies [rad/s].
+    move_name : str
+        Name of the move, for the title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> fig = plot_frequencies_along([0.0, 1.0], [[8.3, 12.0], [8.9, 12.4]], "move1")
+    >>> len(fig.axes[0].lines), fig.axes[0].get_title()
+    (2, 'natural frequencies along move1')
+    """
+    omega = np.asarray(omega)
+    fig = Figure(figsize=(6.4, 3.6))
+    ax = fig.add_subplot()
+    for j in range(omega.shape[1]):
+        ax.plot(t, omega[:, j], label=f"mode {j + 1}")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("ω [rad/s]")
+    ax.set_title(f"natural frequencies along {move_name}")
+    ax.legend()
+    return fig
+
+
+def plot_shaper_sensitivity(omega: np.typing.ArrayLike, vibration: np.typing.ArrayLike,
+                            ranges: list[tuple[float, float, float]], n_impulses: int,
+                            duration: float) -> Figure:
+    """Residual vibration of a shaper against frequency, with the design ranges.
+
+    Parameters
+    ----------
+    omega : array_like
+        (k,) frequencies [rad/s].
+    vibration : array_like
+        (k,) residual vibration fraction V(ω) of the shaper.
+    ranges : sequence of (float, float, float)
+        ``(omega_min, omega_max, vtol)`` of every mode's design range [rad/s, rad/s, -].
+    n_impulses : int
+        Number of impulses of the shaper, for the title.
+    duration : float
+        Duration of the shaper [s], for the title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> fig = plot_shaper_sensitivity([5.0, 10.0, 15.0], [0.5, 0.01, 0.4],
+    ...                               [(8.0, 12.0, 0.05)], 3, 0.35)
+    >>> fig.axes[0].get_title()
+    'SI shaper, 3 impulses, 0.350 s'
+    """
+    fig = Figure(figsize=(6.4, 3.6))
+    ax = fig.add_subplot()
+    ax.plot(omega, vibration, "k", lw=1.2)
+    for j, (lo, hi, vtol) in enumerate(ranges):
+        ax.axvspan(lo, hi, alpha=0.15, color=f"C{j}")
+        ax.hlines(vtol, lo, hi, colors=f"C{j}", label=f"mode {j + 1}: Vtol {vtol:.3g}")
+    ax.set_xlabel("ω [rad/s]")
+    ax.set_ylabel("residual vibration V")
+    ax.set_title(f"SI shaper, {n_impulses} impulses, {duration:.3f} s")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def plot_tip_deflection(runs: list[tuple[str, np.typing.ArrayLike, np.typing.ArrayLike]],
+                        move_end: float) -> Figure:
+    """Magnitude of the tip deflection of several runs of a move.
+
+    Parameters
+    ----------
+    runs : sequence of (str, array_like, array_like)
+        ``(label, t, tip_deflection)``: times (k,) [s] and tip deflection vectors (k, 3)
+        [m] of every run.
+    move_end : float
+        Time the (shaped) move ends [s], marked by a dotted line.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> fig = plot_tip_deflection([("unshaped", [0.0, 1.0], [[0, 0, 0], [0.01, 0, 0]])], 0.5)
+    >>> fig.axes[0].lines[0].get_ydata().tolist()   # mm
+    [0.0, 10.0]
+    """
+    fig = Figure(figsize=(6.4, 3.6))
+    ax = fig.add_subplot()
+    for label, t, deflection in runs:
+        ax.plot(t, 1e3 * np.linalg.norm(deflection, axis=1), label=label)
+    ax.axvline(move_end, color="0.6", ls=":", lw=1)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("‖tip deflection‖ [mm]")
+    ax.legend()
+    return fig
+
+
+def plot_estimation_error(t: np.typing.ArrayLike, error: np.typing.ArrayLike) -> Figure:
+    """Estimation error of every modal amplitude, ``δ̂ − δ``, over time.
+
+    Parameters
+    ----------
+    t : array_like
+        (k,) times [s].
+    error : array_like
+        (k, m) estimation errors of the modal amplitudes [√kg m].
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> fig = plot_estimation_error([0.0, 0.001], [[1e-4, 0.0], [5e-5, 1e-5]])
+    >>> len(fig.axes[0].lines)
+    2
+    """
+    error = np.asarray(error)
+    fig = Figure(figsize=(6.4, 3.6))
+    ax = fig.add_subplot()
+    for j in range(error.shape[1]):
+        ax.plot(t, error[:, j], lw=0.8, label=f"δ̂{j + 1} − δ{j + 1}")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("estimation error [√kg·m]")
+    ax.set_title("EKF in the loop")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def plot_accessibility(t: np.typing.ArrayLike, accessibility: np.typing.ArrayLike) -> Figure:
+    """Modal accessibility along a move (dissertation eq. 204).
+
+    Parameters
+    ----------
+    t : array_like
+        (k,) times [s].
+    accessibility : array_like
+        (k, m) accessibility of every mode [√kg·m].
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> fig = plot_accessibility([0.0, 1.0], [[0.2, 0.1], [0.3, 0.1]])
+    >>> [line.get_label() for line in fig.axes[0].lines]
+    ['a1', 'a2']
+    """
+    accessibility = np.asarray(accessibility)
+    fig = Figure(figsize=(6.4, 3.6))
+    ax = fig.add_subplot()
+    for j in range(accessibility.shape[1]):
+        ax.plot(t, accessibility[:, j], label=f"a{j + 1}")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("accessibility [√kg·m]")
+    ax.set_title("modal accessibility along the shaped move (eq. 204)")
+    ax.legend()
+    return fig

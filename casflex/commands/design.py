@@ -17,12 +17,14 @@ and ``c_files``.
 
 from __future__ import annotations
 
+import argparse
 import time
+from collections.abc import Callable
 
 HELP = "run the design job of a study: shaper, simulations, stability, C bundle, report"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``casflex design``.
 
     Parameters
@@ -46,7 +48,7 @@ def add_arguments(parser):
                         help="worker processes of the tabulation (default: all CPUs)")
 
 
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Validate the study, run the job, return the summary (SI units).
 
     Parameters
@@ -77,19 +79,19 @@ def run(args, log):
     ...
     casflex.errors.ProblemFileError: ...shaper.vtol...must be <= 1...
     """
-    from casflex.design import load_study, run_design
+    from casflex.design import run_design
     from casflex.errors import ModelError
 
     if args.processes is not None and args.processes < 1:
         raise ModelError(f"--processes: must be >= 1; got {args.processes}")
     start = time.perf_counter()
-    study = load_study(args.study)  # every rule checked before heavy work
 
     def step(message):
         log(f"[{time.perf_counter() - start:6.1f} s] {message}")
 
-    result = run_design(study, args.out, progress=True, log=step, cache_dir=args.cache_dir,
-                        processes=args.processes)
+    # the study is validated before any heavy work starts
+    result = run_design(args.study, args.out, progress=True, log=step,
+                        cache_dir=args.cache_dir, processes=args.processes)
     s = result.summary
     log(f"shaper: {len(s['shaper']['times'])} impulses, {s['shaper_duration']:.4f} s; "
         f"shaping removes {100 * s['residual_reduction']:.1f} % of the residual tip "

@@ -1,4 +1,4 @@
-"""Symbolic rigid–flexible dynamics (casflex.dynamics).
+"""Symbolic rigid–flexible dynamics (casflex.model.equations).
 
 Every symbolic quantity is evaluated and compared with an independent numeric
 computation that does not share its code path (pinocchio-style):
@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 from scipy.integrate import simpson
 
-from casflex.dynamics import ConstantProvider, FlexibleModel, PointwiseProvider, rigid_provider
 from casflex.errors import ModelError
+from casflex.model import ConstantProvider, FlexibleModel, PointwiseProvider, rigid_provider
 from casflex.robot import TipBody, load, loads
 
 ARM = load("problems/arm2link.toml")
@@ -251,6 +251,7 @@ def _with_motors(robot, inertia=0.01):
     return dataclasses.replace(robot, links=tuple(links))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("modal_mass, gravity", [
     ("first_order", None),               # eq. 114 at δ = 0, starts at the table's q3
     ("kinematic", [0.0, 0.0, -0.981]),   # frozen shapes, any q, with gravity

@@ -1,16 +1,15 @@
 """build_model: tables + B-spline provider + symbolic model agree with a pointwise model."""
 
 import numpy as np
+import pytest
 
-from casflex.dynamics import FlexibleModel, PointwiseProvider
-from casflex.model import build_model
-from casflex.robot import load
+from casflex.model import FlexibleModel, PointwiseProvider
 
 
-def test_tabulated_model_matches_pointwise(tmp_path):
-    robot = load("problems/arm2link.toml")
-    model, table = build_model(robot, n_modes=3, step=np.radians(7.5), cache_dir=tmp_path,
-                               processes=1, gravity=None)
+@pytest.mark.slow
+def test_tabulated_model_matches_pointwise(arm, arm_model):
+    robot = arm
+    model, table = arm_model(3, step_deg=7.5, gravity=None)
     assert table.shape_joints == (2,)
     f = model.functions()
     for q3, tol in [(table.grid[0][30], 1e-9), (0.5, 1e-6)]:  # a grid point, then between

@@ -57,8 +57,8 @@ included"); ``delta_order=0`` gives the dissertation's ``M(q)``. The modal block
   configuration where the tables are exact this is the TMM's modal mass, i.e. the
   identity up to quadrature round-off (the tests use it to check the link-local
   deflections and end transforms); with shapes frozen at another configuration
-  (:class:`ConstantProvider`) it is the only choice that keeps ``M`` a true kinetic
-  energy.
+  (:class:`~casflex.model.providers.ConstantProvider`) it is the only choice that keeps
+  ``M`` a true kinetic energy.
 
 The modal quantities must belong to the configuration at which the model is evaluated
 (tables over the shape joints): the identity of eq. 114 holds only there.
@@ -75,9 +75,9 @@ Provider interface
 An object with ``shape_joints`` (indices into ``q`` of the joints the modal quantities
 depend on) and ``function(name) -> casadi.Function`` mapping the vector of those joint
 values to the quantity ``name`` of :func:`casflex.modal.integrals.configuration_quantities`,
-returned as a column vector holding the array flattened in C (row-major) order.
-:class:`ConstantProvider` and :class:`PointwiseProvider` are the simple ones; the modal
-tables provide B-spline interpolants. The interpolants are called on SX symbols; the
+returned as a column vector holding the array flattened in C (row-major) order
+(:mod:`casflex.model.providers`: constant and pointwise quantities, and the B-spline
+interpolants of the modal tables). The interpolants are called on SX symbols; the
 resulting graph is never built in MX and expanded.
 
 Modes follow the configuration through the tables only: velocities contain no
@@ -86,159 +86,19 @@ Modes follow the configuration through the tables only: velocities contain no
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError
-from casflex.modal.integrals import (
-    QUANTITY_KEYS,
-    configuration_quantities,
-    quantity_shapes,
-    rigid_pseudo_inertias,
-)
+from casflex.modal.integrals import QUANTITY_KEYS, quantity_shapes, rigid_pseudo_inertias
 
-__all__ = ["ConstantProvider", "PointwiseProvider", "FlexibleModel", "rigid_provider",
-           "zero_entries"]
+if TYPE_CHECKING:
+    from casflex.robot import Robot
 
-
-ZERO_TOLERANCE = 1e-12
-
-
-def zero_entries(values, leading=0):
-    """Entries of a quantity that are zero wherever it is known, as a flat C-order mask.
-
-    An entry counts as zero when its magnitude never exceeds ``ZERO_TOLERANCE`` (1e-12)
-    times the largest magnitude of the whole quantity: structural zeros (a planar mode's
-    out-of-plane displacement, the translational row of a pseudo-inertia) come out of the
-    transfer-matrix solution as round-off of that size. The model replaces them by
-    constant zeros, which removes the products they feed from the symbolic expressions;
-    the change this makes is below the tables' own accuracy.
-
-    Parameters
-    ----------
-    values : array_like
-        The quantity, with ``leading`` grid axes first.
-    leading : int
-        Number of leading axes (grid points) to reduce over.
-
-    Examples
-    --------
-    >>> zero_entries([[1.0, 0.0], [2.0, 1e-15]], leading=1)
-    array([False,  True])
-    """
-    v = np.abs(np.asarray(values, dtype=float))
-    if v.size == 0:
-        return np.zeros(int(np.prod(v.shape[leading:])), dtype=bool)
-    peak = v.reshape(int(np.prod(v.shape[:leading])), -1).max(axis=0)
-    return peak <= ZERO_TOLERANCE * v.max()
-
-
-class ConstantProvider:
-    """Modal quantities that do not change with the configuration.
-
-    Parameters
-    ----------
-    quantities : dict of str to array_like
-        As returned by :func:`casflex.modal.integrals.configuration_quantities`.
-    shape_joints : sequence of int
-        Joint indices the (constant) functions take as input.
-
-    Examples
-    --------
-    >>> p = ConstantProvider({"omega": [2.0, 3.0]}, shape_joints=(2,))
-    >>> p.function("omega")([0.1])
-    DM([2, 3])
-    """
-
-    def __init__(self, quantities, shape_joints=()):
-        self.quantities = {k: np.asarray(v, dtype=float) for k, v in quantities.items()}
-        self.shape_joints = tuple(int(j) for j in shape_joints)
-
-    def zero_entries(self, name):
-        """Mask (C order) of the entries of ``name`` that vanish (see :func:`zero_entries`).
-
-        Parameters
-        ----------
-        name : str
-            A quantity of :func:`casflex.modal.integrals.configuration_quantities`.
-
-        Examples
-        --------
-        >>> ConstantProvider({"omega": [2.0, 0.0]}).zero_entries("omega").tolist()
-        [False, True]
-        """
-        return zero_entries(self.quantities[name])
-
-    def function(self, name):
-        """casadi.Function ``q_shape -> name`` (C-order flattened array, column vector).
-
-        Parameters
-        ----------
-        name : str
-            A quantity of :func:`casflex.modal.integrals.configuration_quantities`.
-
-        Examples
-        --------
-        >>> p = ConstantProvider({"end_u": np.ones((1, 2, 3))}, shape_joints=(2,))
-        >>> p.function("end_u").size1_out(0)
-        6
-        """
-        if name not in self.quantities:
-            raise ModelError(f"provider has no quantity {name!r}; it has "
-                             f"{sorted(self.quantities)}")
-        x = ca.SX.sym("q_shape", len(self.shape_joints))
-        v = self.quantities[name].ravel()
-        out = ca.DM(v) if v.size else ca.DM.zeros(0, 1)
-        return ca.Function(name, [x], [out], ["q_shape"], [name])
-
-
-class PointwiseProvider(ConstantProvider):
-    """Quantities of one configuration, computed with the TMM (for tests and studies).
-
-    Parameters
-    ----------
-    robot : casflex.robot.Robot
-    q : array_like
-        Configuration [rad] at which the structure's shape is frozen.
-    count : int
-        Number of modes.
-    points : sequence of (int, float), optional
-        Sensor points (see :func:`~casflex.modal.integrals.configuration_quantities`).
-    shape_joints : sequence of int
-        Joint indices reported as inputs (the values do not depend on them).
-
-    Examples
-    --------
-    >>> from casflex.robot import load
-    >>> p = PointwiseProvider(load("problems/arm2link.toml"), [0.0, 0.0, 0.5], count=2)
-    >>> np.asarray(p.function("omega")([])).ravel().round(2)
-    array([10.42, 15.11])
-    """
-
-    def __init__(self, robot, q, count=5, points=None, shape_joints=()):
-        from casflex.modal.normalize import mass_normalize
-        from casflex.tmm import modes
-
-        shapes = mass_normalize(robot, modes(robot, q, count=count))
-        self.shapes = shapes
-        super().__init__(configuration_quantities(robot, q, shapes, points=points),
-                         shape_joints)
-
-
-def rigid_provider(robot):
-    """A provider with zero modes: the model reduces to the rigid-body dynamics.
-
-    Parameters
-    ----------
-    robot : casflex.robot.Robot
-
-    Examples
-    --------
-    >>> from casflex.robot import load
-    >>> rigid_provider(load("problems/arm2link.toml")).function("C2").size1_out(0)
-    0
-    """
-    return ConstantProvider({k: np.zeros(s) for k, s in quantity_shapes(robot, 0).items()})
+__all__ = ["FlexibleModel"]
 
 
 # ------------------------------------------------------------------ symbolic helpers
@@ -315,7 +175,8 @@ class FlexibleModel:
     ----------
     robot : casflex.robot.Robot
     provider : object
-        ``shape_joints`` and ``function(name)`` (module docstring).
+        ``shape_joints`` and ``function(name)`` (the provider interface of
+        :mod:`casflex.model.providers`).
     gravity : array_like, None or "robot"
         Gravity vector in the base frame [m/s²]; ``"robot"`` (default) takes
         ``robot.gravity``; ``None`` switches gravity off.
@@ -347,6 +208,7 @@ class FlexibleModel:
 
     Examples
     --------
+    >>> from casflex.model import PointwiseProvider
     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0.5], count=2),
@@ -359,8 +221,10 @@ class FlexibleModel:
     [1.0, 0.0, -1.0]
     """
 
-    def __init__(self, robot, provider, gravity=_GRAVITY_DEFAULT, damping_ratio=None,
-                 delta_order=1, modal_mass="first_order"):
+    def __init__(self, robot: Robot, provider: Any,
+                 gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
+                 damping_ratio: float | None = None, delta_order: int = 1,
+                 modal_mass: str = "first_order") -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
         self.robot = robot
@@ -466,7 +330,7 @@ class FlexibleModel:
         E[0, 3], E[1, 3], E[2, 3] = u[0], u[1], L + u[2]
         return E
 
-    def rebuilt_kinematics(self):
+    def rebuilt_kinematics(self) -> FlexibleModel:
         """A shallow copy of the model with its own link transforms (``A``, ``T``,
         ``bodies``, ``tip``) rebuilt from its quantities ``Q``, the model itself left as
         it is. The sensor models use it to build kinematics on placeholder quantities
@@ -474,6 +338,7 @@ class FlexibleModel:
 
         Examples
         --------
+        >>> from casflex.model import PointwiseProvider
         >>> from casflex.robot import load
         >>> robot = load("problems/arm2link.toml")
         >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, -0.5], count=2))
@@ -649,7 +514,7 @@ class FlexibleModel:
 
     # -------------------------------------------------------------- functions
 
-    def functions(self):
+    def functions(self) -> dict[str, ca.Function]:
         """The model as named casadi Functions.
 
         Returns
@@ -670,6 +535,7 @@ class FlexibleModel:
 
         Examples
         --------
+        >>> from casflex.model import rigid_provider
         >>> from casflex.robot import load
         >>> robot = load("problems/arm2link.toml")
         >>> f = FlexibleModel(robot, rigid_provider(robot), gravity=None).functions()

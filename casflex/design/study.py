@@ -1,0 +1,232 @@
+"""Study files: what a design job is asked to do, validated before any heavy work.
+
+A *study* names a robot, a planned move and a sensor set, plus the settings of each step
+of the job (``problems/studies/arm2link_move1.toml`` is the bundled example;
+``problems/README.md`` documents every key). :func:`load_study` reads one, checks every
+rule and loads the files it names.
+
+Examples
+--------
+>>> study = load_study("problems/studies/arm2link_move1.toml")
+>>> study.move.name, study.model["modes"], study.controller["law"]
+('move1', 3, 'composite')
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from casflex._problemfile import read_toml
+from casflex._validate import choice, fail, number
+
+if TYPE_CHECKING:
+    from casflex.moves import Move
+    from casflex.robot import Robot
+    from casflex.sensors import SensorSet
+
+__all__ = ["Study", "load_study"]
+
+# every section of a study file, its keys and their defaults (None: required or "unset")
+_SECTIONS = {
+    "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False},
+    "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
+    "simulation": {"dt": 1e-3, "settle": None},
+    "controller": {"law": "composite", "Kp": 1.0, "Kd": 2.0, "Q": 1.0, "R": 10.0,
+                   "gains": "scheduled", "schedule_points": 30},
+    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0},
+    "codegen": {"name": "casflex", "compile": True},
+}
+# the top-level keys of a study file besides the sections
+_TOP = ("name", "description", "robot", "move", "sensors")
+
+
+@dataclass
+class Study:
+    """A validated design study (see :func:`load_study`).
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The study file.
+    name, description : str
+    robot_path, sensors_path : pathlib.Path
+    robot : casflex.robot.Robot
+    move : casflex.moves.Move
+    sensors : casflex.sensors.SensorSet
+    model, shaper, simulation, controller, estimator, codegen : dict
+        The settings of every step, defaults filled in (units as in ``problems/README.md``;
+        ``model["grid_step"]`` is converted to rad).
+
+    Examples
+    --------
+    >>> s = load_study("problems/studies/arm2link_move1.toml")
+    >>> s.robot_path.name, round(s.model["grid_step"], 6), s.estimator["Q"]
+    ('arm2link_actuated.toml', 0.05236, 5e-06)
+    """
+
+    path: Path
+    name: str
+    description: str
+    robot_path: Path
+    sensors_path: Path
+    robot: Robot
+    move: Move
+    sensors: SensorSet
+    model: dict = field(default_factory=dict)
+    shaper: dict = field(default_factory=dict)
+    simulation: dict = field(default_factory=dict)
+    controller: dict = field(default_factory=dict)
+    estimator: dict = field(default_factory=dict)
+    codegen: dict = field(default_factory=dict)
+
+
+def _named_file(path, key, name, value=None):
+    """The existing file ``name`` (relative to the study file ``path``) that the study's
+    ``key`` names; ``value`` is the field's value reported when the file is missing
+    (default ``name``)."""
+    if not isinstance(name, str) or not name:
+        raise fail(key, name, "must be a file path (string)", path=path)
+    p = Path(name)
+    if not p.is_absolute():
+        p = path.parent / p
+    if not p.is_file():
+        raise fail(key, name if value is None else value, f"file {p} must exist", path=path)
+    return p
+
+
+def _settings(path, raw):
+    """Every section of ``raw`` with its defaults filled in, unknown keys rejected."""
+    for key, value in raw.items():
+        if key not in _TOP and key not in _SECTIONS:
+            raise fail(key, value, "unknown key; allowed: " + ", ".join(_TOP + tuple(
+                _SECTIONS)), path=path)
+    for key in ("robot", "move", "sensors"):
+        if key not in raw:
+            raise fail(key, None, "is required", path=path)
+    settings = {}
+    for section, defaults in _SECTIONS.items():
+        given = raw.get(section, {})
+        if not isinstance(given, dict):
+            raise fail(section, given, "must be a table [section]", path=path)
+        for key, value in given.items():
+            if key not in defaults:
+                raise fail(f"{section}.{key}", value, "unknown key; allowed: "
+                           + ", ".join(defaults), path=path)
+        settings[section] = {**defaults, **given}
+    return settings
+
+
+def _flag(path, key, value):
+    if not isinstance(value, bool):
+        raise fail(key, value, "must be true or false", path=path)
+    return value
+
+
+def _check_settings(path, settings, sensors, sensors_path):
+    """Convert and check the values of every section in place."""
+    def num(key, value, **bounds):
+        return number(value, key, path=path, **bounds)
+
+    def one_of(key, value, choices):
+        return choice(value, key, choices, path=path)
+
+    m = settings["model"]
+    m["modes"] = num("model.modes", m["modes"], low=1, high=12, integer=True)
+    m["grid_step"] = math.radians(num("model.grid_step", m["grid_step"], low=0.0, high=45.0,
+                                      low_open=True))
+    m["delta_order"] = one_of("model.delta_order", m["delta_order"], (0, 1))
+    _flag(path, "model.gravity", m["gravity"])
+    s = settings["shaper"]
+    s["vtol"] = num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True)
+    s["margin"] = num("shaper.margin", s["margin"], low=0.0, high=1.0, high_open=True)
+    s["n_samples"] = num("shaper.n_samples", s["n_samples"], low=10, high=5000, integer=True)
+    sim = settings["simulation"]
+    sim["dt"] = num("simulation.dt", sim["dt"], low=1e-5, high=1e-2)
+    if sim["settle"] is not None:
+        sim["settle"] = num("simulation.settle", sim["settle"], low=0.0, high=60.0)
+    c = settings["controller"]
+    c["law"] = one_of("controller.law", c["law"], ("composite", "inversion"))
+    for key in ("Kp", "Kd", "Q", "R"):
+        c[key] = num(f"controller.{key}", c[key], low=0.0, low_open=True)
+    c["gains"] = one_of("controller.gains", c["gains"], ("scheduled", "end"))
+    c["schedule_points"] = num("controller.schedule_points", c["schedule_points"], low=8,
+                               high=360, integer=True)
+    e = settings["estimator"]
+    e["Q"] = num("estimator.Q", e["Q"], low=0.0, low_open=True)
+    e["P0"] = num("estimator.P0", e["P0"], low=0.0, low_open=True)
+    e["seed"] = num("estimator.seed", e["seed"], low=0, integer=True)
+    if e["R"] is None:
+        std = np.asarray(sensors.noise_std, dtype=float)
+        if not np.all(np.isfinite(std) & (std > 0)):
+            raise fail("estimator.R", None, "is required when the sensor file "
+                       f"{sensors_path} gives no 'noise' for every sensor", path=path)
+        e["R"] = std**2
+    else:
+        e["R"] = np.full(sensors.n_outputs, num("estimator.R", e["R"], low=0.0,
+                                                low_open=True))
+    g = settings["codegen"]
+    if not (isinstance(g["name"], str) and g["name"].isidentifier()):
+        raise fail("codegen.name", g["name"], "must be a C identifier", path=path)
+    _flag(path, "codegen.compile", g["compile"])
+
+
+def load_study(path: str | os.PathLike) -> Study:
+    """Read and validate a study file; load the robot, move and sensors it names.
+
+    Every rule is checked here, before any heavy work: a missing file, an unknown key, a
+    sensor on a link the robot does not have, a tolerance outside ``(0, 1]`` — each
+    raises :class:`casflex.errors.ProblemFileError` naming the file, the field, the value
+    and the rule. Relative paths are relative to the study file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    Study
+
+    Examples
+    --------
+    >>> s = load_study("problems/studies/arm2link_move1.toml")
+    >>> s.robot.name, s.sensors.output_names[:2], s.shaper["vtol"]
+    ('arm2link_actuated', ('tip1_x', 'tip1_y'), 0.05)
+    """
+    from casflex.moves import load_move
+    from casflex.robot import load
+    from casflex.sensors import load_sensors
+
+    path = Path(path)
+    if not path.is_file():
+        raise fail("-", str(path), "the study file must exist", path=path)
+    raw = read_toml(path)
+    settings = _settings(path, raw)
+
+    robot_path = _named_file(path, "robot", raw["robot"])
+    move_ref = raw["move"]
+    if not isinstance(move_ref, str) or ":" not in move_ref:
+        raise fail("move", move_ref, "must be 'FILE:NAME' (e.g. '../moves.toml:move1')",
+                   path=path)
+    move_file, _, move_name = move_ref.rpartition(":")
+    move_path = _named_file(path, "move", move_file, value=move_ref)
+    sensors_path = _named_file(path, "sensors", raw["sensors"])
+    robot = load(robot_path)
+    move = load_move(f"{move_path}:{move_name}")
+    if move.n_joints != robot.n_joints:
+        raise fail("move", move_ref, f"has {move.n_joints} joints; robot '{robot.name}' "
+                   f"has {robot.n_joints}", path=path)
+    sensors = load_sensors(sensors_path, robot)
+
+    _check_settings(path, settings, sensors, sensors_path)
+    name = raw.get("name", path.stem)
+    if not isinstance(name, str) or not name:
+        raise fail("name", name, "must be a non-empty string", path=path)
+    return Study(path=path, name=name, description=str(raw.get("description", "")),
+                 robot_path=robot_path, sensors_path=sensors_path, robot=robot, move=move,
+                 sensors=sensors, **settings)

@@ -1,0 +1,70 @@
+"""The low-order symbolic model of a flexible arm: joints plus tracked modal amplitudes.
+
+A :class:`FlexibleModel` holds the CasADi equations of motion (mass matrix, Coriolis,
+potential forces, damping, forward and prescribed-motion dynamics) of a robot whose
+configuration-dependent modal quantities come from a *provider*; :func:`build_model`
+tabulates those quantities over the shape joints and builds the model in one call.
+
+Building a model
+----------------
+build_model
+    Tabulate the modes of a robot (cached on disk) and build its model on B-spline
+    interpolants of the tables.
+default_grid
+    The default full-turn grid of the shape joints [rad].
+sensor_quantities
+    Modal quantities plus mode values at sensor points, for the tabulation.
+
+The equations of motion (:mod:`casflex.model.equations`)
+--------------------------------------------------------
+FlexibleModel
+    Symbolic rigid–flexible model; ``functions()`` gives its casadi Functions.
+
+Providers of the modal quantities (:mod:`casflex.model.providers`)
+------------------------------------------------------------------
+TableProvider
+    Interpolants of a modal table over the shape joints.
+ConstantProvider
+    Quantities that do not change with the configuration.
+PointwiseProvider
+    Quantities of one configuration, computed with the TMM.
+rigid_provider
+    No modes: the rigid-body model.
+zero_entries
+    Entries of a quantity that vanish wherever it is known.
+
+Examples
+--------
+>>> from casflex.model import FlexibleModel, rigid_provider
+>>> from casflex.robot import load
+>>> robot = load("problems/arm2link.toml")
+>>> FlexibleModel(robot, rigid_provider(robot), gravity=None).m
+0
+"""
+
+from __future__ import annotations
+
+from casflex.model.build import build_model, default_grid, sensor_quantities
+from casflex.model.equations import FlexibleModel
+from casflex.model.providers import (
+    ConstantProvider,
+    PointwiseProvider,
+    TableProvider,
+    rigid_provider,
+    zero_entries,
+)
+
+__all__ = [
+    # building a model
+    "build_model",
+    "default_grid",
+    "sensor_quantities",
+    # the equations of motion
+    "FlexibleModel",
+    # providers
+    "TableProvider",
+    "ConstantProvider",
+    "PointwiseProvider",
+    "rigid_provider",
+    "zero_entries",
+]

@@ -1,0 +1,165 @@
+"""One call from a robot to its configuration-dependent symbolic model.
+
+:func:`build_model` tabulates the tracked, mass-normalised modes over a grid of the joints
+that change the structure's shape (:mod:`casflex.modal.tables`, cached on disk), wraps
+the table in B-spline interpolants (:class:`~casflex.model.providers.TableProvider`) and
+builds the CasADi model (:class:`~casflex.model.equations.FlexibleModel`) on them.
+
+Examples
+--------
+>>> from casflex.robot import load
+>>> robot = load("problems/arm2link.toml")
+>>> model, table = build_model(robot, n_modes=3, step=np.radians(15), cache_dir=False,
+...                            processes=1)
+>>> table.shape_joints, model.m
+((2,), 3)
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex.errors import ModelError
+from casflex.model.equations import FlexibleModel
+from casflex.model.providers import TableProvider
+
+if TYPE_CHECKING:
+    from casflex.modal.tables import ModalTable
+    from casflex.robot import Robot
+    from casflex.tmm import ModeShapes
+
+__all__ = ["build_model", "default_grid", "sensor_quantities"]
+
+
+def default_grid(robot: Robot | None, joints: Sequence[int],
+                 step: float | None = None) -> list[np.ndarray]:
+    """A full-turn grid per shape joint [rad]: 1.5° for one joint, 6° for more.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot or None
+        Unused (kept for a uniform signature).
+    joints : sequence of int
+        The shape joints (0-based), one axis each.
+    step : float, optional
+        Grid step [rad]; a full turn needs at least 8 points.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        One axis per shape joint, from −π (included) to π (excluded) [rad].
+
+    Examples
+    --------
+    >>> len(default_grid(None, (2,))[0])
+    240
+    """
+    if step is None:
+        step = np.radians(1.5) if len(joints) == 1 else np.radians(6.0)
+    n = int(round(2.0 * np.pi / step))
+    if n < 8:
+        raise ModelError(f"grid step {step} rad is too coarse: a full turn needs >= 8 points")
+    axis = -np.pi + 2.0 * np.pi * np.arange(n) / n
+    return [axis] * len(joints)
+
+
+def sensor_quantities(robot: Robot, q: ArrayLike, shapes: ModeShapes,
+                      points: Sequence[tuple[int, float]] = ()) -> dict[str, np.ndarray]:
+    """Model quantities plus mode values at sensor ``points`` (picklable for the pool).
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    q : array_like
+        Joint variables the shapes were computed at [rad].
+    shapes : casflex.tmm.ModeShapes
+        Tracked, sign-corrected modes (not yet mass-normalised).
+    points : sequence of (int, float)
+        Sensor points ``(row, s)``: DH row of a flexible link, arc length [m].
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        As :func:`casflex.modal.integrals.configuration_quantities`.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> q = [0.0, 0.0, 0.5]
+    >>> values = sensor_quantities(robot, q, modes(robot, q, count=1), points=[(3, 1.0)])
+    >>> values["point_u"].shape   # (points, modes, 3)
+    (1, 1, 3)
+    """
+    from casflex.modal.integrals import configuration_quantities
+    from casflex.modal.normalize import mass_normalize
+
+    return configuration_quantities(robot, q, mass_normalize(robot, shapes),
+                                    points=list(points) or None)
+
+
+def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
+                grid: Sequence[ArrayLike] | None = None,
+                points: Sequence[tuple[int, float]] = (),
+                gravity: ArrayLike | str | None = "robot",
+                damping_ratio: float | None = None, method: str = "bspline",
+                cache_dir: str | os.PathLike | bool | None = None, client: Any = None,
+                processes: int | None = None, progress: bool = False,
+                **model_options: Any) -> tuple[FlexibleModel, ModalTable]:
+    """Tabulate the modes of ``robot`` and build its symbolic model.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    n_modes : int
+        Number of tracked modes in the model.
+    step : float, optional
+        Grid step of the shape joints [rad] (see :func:`default_grid`).
+    grid : sequence of array_like, optional
+        Explicit axes [rad], one per shape joint (overrides ``step``).
+    points : sequence of (int, float)
+        Sensor points ``(row, s)`` whose mode values are tabulated too (row: DH row index
+        of a flexible link, s: arc length from the link's start [m]).
+    gravity, damping_ratio, **model_options
+        Passed to :class:`~casflex.model.equations.FlexibleModel`.
+    method : {"bspline", "linear"}
+        Interpolation of the tables.
+    cache_dir, client, processes, progress
+        Passed to :func:`casflex.modal.tables.build_table`.
+
+    Returns
+    -------
+    model : casflex.model.FlexibleModel
+    table : casflex.modal.tables.ModalTable
+
+    Examples
+    --------
+    A one-mode model tabulated over a small range of the elbow joint (no cache):
+
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model, table = build_model(robot, n_modes=1, grid=[np.radians([0, 10, 20, 30])],
+    ...                            cache_dir=False, processes=1)
+    >>> model.m, table.shape_joints, table.omega.ravel().round(3).tolist()
+    (1, (2,), [8.307, 8.901, 9.639, 10.553])
+    """
+    from casflex.modal.tables import build_table, shape_joints
+
+    joints = shape_joints(robot)
+    if grid is None:
+        grid = default_grid(robot, joints, step)
+    quantities = functools.partial(sensor_quantities, points=tuple(points)) if points \
+        else None
+    table = build_table(robot, grid if len(joints) != 1 else grid[0], n_modes,
+                        quantities=quantities, cache_dir=cache_dir, client=client,
+                        processes=processes, progress=progress, joints=joints)
+    model = FlexibleModel(robot, TableProvider(table, method), gravity=gravity,
+                          damping_ratio=damping_ratio, **model_options)
+    return model, table
