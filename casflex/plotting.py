@@ -171,7 +171,7 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
 # ``fig.tight_layout()`` before saving.
 
 __all__ += ["plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
-            "plot_estimation_error", "plot_accessibility"]
+            "plot_estimation_error", "plot_accessibility_along"]
 
 
 def plot_frequencies_along(t: np.typing.ArrayLike, omega: np.typing.ArrayLike,
@@ -316,7 +316,7 @@ def plot_estimation_error(t: np.typing.ArrayLike, error: np.typing.ArrayLike) ->
     return fig
 
 
-def plot_accessibility(t: np.typing.ArrayLike, accessibility: np.typing.ArrayLike) -> Figure:
+def plot_accessibility_along(t: np.typing.ArrayLike, accessibility: np.typing.ArrayLike) -> Figure:
     """Modal accessibility along a move (dissertation eq. 204).
 
     Parameters
@@ -332,7 +332,7 @@ def plot_accessibility(t: np.typing.ArrayLike, accessibility: np.typing.ArrayLik
 
     Examples
     --------
-    >>> fig = plot_accessibility([0.0, 1.0], [[0.2, 0.1], [0.3, 0.1]])
+    >>> fig = plot_accessibility_along([0.0, 1.0], [[0.2, 0.1], [0.3, 0.1]])
     >>> [line.get_label() for line in fig.axes[0].lines]
     ['a1', 'a2']
     """

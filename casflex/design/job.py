@@ -322,7 +322,7 @@ def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, er
             len(design.shaper.times), design.duration),
         "tip_deflection.png": plotting.plot_tip_deflection(runs, move_end),
         "estimation.png": plotting.plot_estimation_error(loop.t, err_delta),
-        "accessibility.png": plotting.plot_accessibility(t_acc, acc),
+        "accessibility.png": plotting.plot_accessibility_along(t_acc, acc),
     }
     paths = []
     for name, fig in figures.items():
