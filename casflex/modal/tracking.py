@@ -163,7 +163,7 @@ def shape_features(shapes: ModeShapes, robot: Robot | None = None,
     return np.concatenate(parts, axis=1)
 
 
-_BODY_FACTORS = {}
+_BODY_FACTORS: dict[tuple[float, bytes, bytes], np.ndarray] = {}
 
 
 def _body_factor(mass, inertia, com_offset):
