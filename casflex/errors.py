@@ -4,6 +4,10 @@ Every input problem raises a :class:`CasflexError` subclass whose message names
 the file (where there is one), the field, the offending value and the rule it broke.
 """
 
+from __future__ import annotations
+
+import os
+
 
 class CasflexError(Exception):
     """Base class of every error casflex raises on purpose.
@@ -44,7 +48,8 @@ class ProblemFileError(CasflexError, ValueError):
     ('link[0].material.E', -1.0, True)
     """
 
-    def __init__(self, path, field, value, rule):
+    def __init__(self, path: str | os.PathLike[str] | None, field: str, value: object,
+                 rule: str) -> None:
         self.path = None if path is None else str(path)
         self.field = field
         self.value = value

@@ -26,10 +26,13 @@ Units: metres, kilograms, seconds, radians, pascals.
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from casflex._problemfile import TableReader, parse_toml, read_toml
 from casflex.errors import ProblemFileError
@@ -46,7 +49,7 @@ __all__ = [
 ]
 
 
-def rectangle_torsion_constant(a, b, terms=50):
+def rectangle_torsion_constant(a: float, b: float, terms: int = 50) -> float:
     """St-Venant torsion constant of a solid ``a × b`` rectangle [m^4].
 
     Uses the series solution of the Prandtl stress function,
@@ -112,7 +115,7 @@ class Section:
     kind: str = "explicit"
 
     @classmethod
-    def rectangle(cls, a, b):
+    def rectangle(cls, a: float, b: float) -> Section:
         """Solid rectangle, ``a`` along local y and ``b`` along local x [m].
 
         Parameters
@@ -142,7 +145,7 @@ class Section:
         )
 
     @classmethod
-    def tube(cls, outer_diameter, wall):
+    def tube(cls, outer_diameter: float, wall: float) -> Section:
         """Circular tube by outer diameter and wall thickness [m]; ``J = Ip``.
 
         Parameters
@@ -217,11 +220,11 @@ class TipBody:
     """
 
     mass: float = 0.0
-    inertia: tuple = (0.0, 0.0, 0.0)
-    com_offset: tuple = (0.0, 0.0, 0.0)
+    inertia: tuple[float, ...] = (0.0, 0.0, 0.0)
+    com_offset: tuple[float, ...] = (0.0, 0.0, 0.0)
 
     @property
-    def is_empty(self):
+    def is_empty(self) -> bool:
         """True when the body has neither mass nor inertia."""
         return self.mass == 0.0 and not any(self.inertia)
 
@@ -282,26 +285,26 @@ class Link:
     joint_stiffness: float | None = None
 
     @property
-    def flexible(self):
+    def flexible(self) -> bool:
         """True when the row carries a beam."""
         return self.section is not None
 
     @property
-    def beam_along(self):
+    def beam_along(self) -> str | None:
         """``"a"`` or ``"d"`` for a flexible row (which translation the beam spans), else None."""
         if not self.flexible:
             return None
         return "a" if self.a != 0.0 else "d"
 
     @property
-    def length(self):
+    def length(self) -> float:
         """Beam length [m] of a flexible row (0 for a rigid row)."""
         if not self.flexible:
             return 0.0
         return abs(self.a) if self.a != 0.0 else abs(self.d)
 
     @property
-    def mass_per_length(self):
+    def mass_per_length(self) -> float:
         """Distributed mass ρA [kg/m] (0 for a rigid row)."""
         return self.material.rho * self.section.A if self.flexible else 0.0
 
@@ -329,7 +332,7 @@ class Robot:
     (3, ['link1', 'link2'])
     """
 
-    links: tuple
+    links: tuple[Link, ...]
     name: str = "robot"
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     damping_ratio: float = 0.0
@@ -337,21 +340,21 @@ class Robot:
     description: str = ""
 
     @property
-    def n_joints(self):
+    def n_joints(self) -> int:
         """Number of joint variables (revolute rows)."""
         return sum(1 for link in self.links if link.joint == "revolute")
 
     @property
-    def joint_rows(self):
+    def joint_rows(self) -> tuple[int, ...]:
         """Row index of every joint variable, in order."""
         return tuple(i for i, link in enumerate(self.links) if link.joint == "revolute")
 
     @property
-    def flexible_links(self):
+    def flexible_links(self) -> tuple[Link, ...]:
         """The flexible rows, base first."""
         return tuple(link for link in self.links if link.flexible)
 
-    def joint_angles(self, q):
+    def joint_angles(self, q: ArrayLike) -> np.ndarray:
         """DH angles θ_i of every row for joint variables ``q`` [rad].
 
         Parameters
@@ -375,7 +378,7 @@ class Robot:
         theta[list(self.joint_rows)] += q
         return theta
 
-    def check_q(self, q):
+    def check_q(self, q: ArrayLike) -> np.ndarray:
         """Return ``q`` as a float array of length ``n_joints`` or raise ModelError.
 
         Parameters
@@ -414,7 +417,7 @@ class Robot:
             raise ModelError(f"joint variables must be finite; got q = {q.tolist()}")
         return q
 
-    def frames(self, q):
+    def frames(self, q: ArrayLike) -> np.ndarray:
         """Homogeneous transforms ``T_0i`` of every DH frame ``i = 1..n`` (n, 4, 4).
 
         Parameters
@@ -441,7 +444,7 @@ class Robot:
             out[i] = T
         return out
 
-    def with_joint_stiffness(self, stiffness):
+    def with_joint_stiffness(self, stiffness: Iterable[float | None]) -> Robot:
         """Return a copy with the joint stiffness of every revolute row replaced [Nm/rad].
 
         Parameters
@@ -467,7 +470,7 @@ class Robot:
         return replace(self, links=tuple(links))
 
 
-def dh_transform(alpha, a, theta, d):
+def dh_transform(alpha: float, a: float, theta: float, d: float) -> np.ndarray:
     """Modified-DH transform ``Rx(alpha) Tx(a) Rz(theta) Tz(d)`` as a 4x4 array.
 
     Parameters
@@ -582,7 +585,7 @@ def _read_link(path, raw, index):
                 motor_inertia=motor_inertia, joint_stiffness=joint_stiffness)
 
 
-def loads(text, path=None):
+def loads(text: str, path: str | os.PathLike[str] | None = None) -> Robot:
     """Read a robot description from TOML text (see :func:`load`).
 
     Parameters
@@ -623,7 +626,7 @@ def loads(text, path=None):
     return _from_dict(data, path)
 
 
-def load(path):
+def load(path: str | os.PathLike[str]) -> Robot:
     """Read and validate a robot description file.
 
     Parameters

@@ -1,10 +1,121 @@
-"""Modal quantities over the configuration space: normalisation, tracking, tables."""
+"""Modal quantities over the configuration space: normalisation, tracking, tables.
 
-from casflex.modal.integrals import configuration_quantities, quantity_shapes  # noqa: F401
-from casflex.modal.normalize import (  # noqa: F401
+The transfer-matrix modes of one configuration (:mod:`casflex.tmm`) are mass-normalised
+(:mod:`casflex.modal.normalize`), turned into the quantities of the rigid–flexible model
+(:mod:`casflex.modal.integrals`), followed in identity and sign from one configuration to
+the next (:mod:`casflex.modal.tracking`) and tabulated over a grid of the shape joints
+with interpolants for the dynamics (:mod:`casflex.modal.tables`).
+
+Mass normalisation
+==================
+
+   mass_normalize          -- scale the modes so that the modal mass matrix is the identity
+   modal_mass_matrix       -- modal mass matrix of sampled modes
+   modal_stiffness_matrix  -- modal stiffness matrix from the strain energy of the modes
+   local_state             -- exact local state [u, θ, M, F] of every mode along one beam
+   gauss_legendre          -- cached Gauss–Legendre nodes and weights on [−1, 1]
+   SHAPE_FIELDS            -- the ModeShapes fields a change of mode basis transforms
+
+Model quantities
+================
+
+   configuration_quantities  -- every configuration-dependent quantity at one configuration
+   quantity_shapes           -- array shape of every key of configuration_quantities
+   pseudo_inertia            -- 4 × 4 pseudo-inertia of a rigid body about a frame origin
+   section_pseudo_inertia    -- pseudo-inertia per unit length of a beam section
+   rigid_pseudo_inertias     -- constant pseudo-inertias of every rigid piece of a robot
+   QUANTITY_KEYS             -- keys of configuration_quantities without sensor points
+   POINT_KEYS                -- keys added when sensor points are requested
+
+Mode tracking
+=============
+
+   track           -- follow the modes along a path of configurations
+   Tracking        -- result of track: order, sign and MAC per step
+   track_grid      -- follow the modes over an N-D grid along a spanning tree
+   GridTracking    -- result of track_grid, with the correlation across every grid edge
+   mac             -- modified modal assurance criterion of every pair of modes
+   correlation     -- signed normalised correlation of every pair of modes
+   shape_features  -- feature vectors whose dot products are the MAC inner product
+   combine         -- apply a linear recombination of the modes to every per-mode field
+
+Modal tables
+============
+
+   build_table         -- tabulate tracked modes and model quantities over a grid (cached)
+   ModalTable          -- the tabulated quantities, with casadi interpolants
+   shape_joints        -- the joints that change the shape of the structure
+   compute_modes       -- raw TMM modes at many configurations, in parallel
+   default_quantities  -- mass-normalise tracked shapes and evaluate the model quantities
+   robot_fingerprint   -- canonical description of what changes a robot's dynamics
+"""
+
+from casflex.modal.integrals import (
+    POINT_KEYS,
+    QUANTITY_KEYS,
+    configuration_quantities,
+    pseudo_inertia,
+    quantity_shapes,
+    rigid_pseudo_inertias,
+    section_pseudo_inertia,
+)
+from casflex.modal.normalize import (
+    SHAPE_FIELDS,
+    gauss_legendre,
+    local_state,
     mass_normalize,
     modal_mass_matrix,
     modal_stiffness_matrix,
 )
-from casflex.modal.tables import ModalTable, build_table, shape_joints  # noqa: F401
-from casflex.modal.tracking import correlation, mac, track, track_grid  # noqa: F401
+from casflex.modal.tables import (
+    ModalTable,
+    build_table,
+    compute_modes,
+    default_quantities,
+    robot_fingerprint,
+    shape_joints,
+)
+from casflex.modal.tracking import (
+    GridTracking,
+    Tracking,
+    combine,
+    correlation,
+    mac,
+    shape_features,
+    track,
+    track_grid,
+)
+
+__all__ = [
+    # mass normalisation
+    "mass_normalize",
+    "modal_mass_matrix",
+    "modal_stiffness_matrix",
+    "local_state",
+    "gauss_legendre",
+    "SHAPE_FIELDS",
+    # model quantities
+    "configuration_quantities",
+    "quantity_shapes",
+    "pseudo_inertia",
+    "section_pseudo_inertia",
+    "rigid_pseudo_inertias",
+    "QUANTITY_KEYS",
+    "POINT_KEYS",
+    # mode tracking
+    "track",
+    "Tracking",
+    "track_grid",
+    "GridTracking",
+    "mac",
+    "correlation",
+    "shape_features",
+    "combine",
+    # modal tables
+    "build_table",
+    "ModalTable",
+    "shape_joints",
+    "compute_modes",
+    "default_quantities",
+    "robot_fingerprint",
+]

@@ -96,11 +96,19 @@ All vectors are in the local beam frame of the link (``z`` along the beam, see
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError
 from casflex.modal.normalize import gauss_legendre, local_state
 from casflex.tmm.chain import build_chain
+
+if TYPE_CHECKING:
+    from casflex.robot import Link, Robot
+    from casflex.tmm.solve import ModeShapes
 
 __all__ = [
     "QUANTITY_KEYS",
@@ -129,7 +137,8 @@ def _skew(v):
     return out
 
 
-def pseudo_inertia(mass, inertia=(0.0, 0.0, 0.0), com_offset=(0.0, 0.0, 0.0)):
+def pseudo_inertia(mass: float, inertia: ArrayLike = (0.0, 0.0, 0.0),
+                   com_offset: ArrayLike = (0.0, 0.0, 0.0)) -> np.ndarray:
     """4 × 4 pseudo-inertia ``∫ h hᵀ dm`` of a rigid body about a frame origin.
 
     Parameters
@@ -164,7 +173,7 @@ def pseudo_inertia(mass, inertia=(0.0, 0.0, 0.0), com_offset=(0.0, 0.0, 0.0)):
     return J
 
 
-def section_pseudo_inertia(link):
+def section_pseudo_inertia(link: Link) -> np.ndarray:
     """Pseudo-inertia per unit length of a beam section, ``diag(½ρI_p, ½ρI_p, −½ρI_p, ρA)``.
 
     Translational mass and torsional inertia only (module docstring) [kg/m, kg m].
@@ -196,7 +205,7 @@ def section_pseudo_inertia(link):
     return np.diag([0.5 * rIp, 0.5 * rIp, -0.5 * rIp, link.mass_per_length])
 
 
-def rigid_pseudo_inertias(robot):
+def rigid_pseudo_inertias(robot: Robot) -> list[tuple[str, int, np.ndarray]]:
     """Constant pseudo-inertias ``C0`` of every rigid piece of the robot (eq. 81–82).
 
     Parameters
@@ -238,7 +247,7 @@ def rigid_pseudo_inertias(robot):
     return out
 
 
-def quantity_shapes(robot, n_modes, n_points=0):
+def quantity_shapes(robot: Robot, n_modes: int, n_points: int = 0) -> dict[str, tuple[int, ...]]:
     """Array shape of every key of :func:`configuration_quantities`.
 
     Parameters
@@ -298,7 +307,9 @@ def _relative(z, s):
     return w, th
 
 
-def configuration_quantities(robot, q, shapes_normalized, points=None, quadrature_points=48):
+def configuration_quantities(robot: Robot, q: ArrayLike, shapes_normalized: ModeShapes,
+                             points: Sequence[tuple[int, float]] | None = None,
+                             quadrature_points: int = 48) -> dict[str, np.ndarray]:
     """Every configuration-dependent quantity of the model at one configuration.
 
     Parameters

@@ -48,12 +48,19 @@ from __future__ import annotations
 
 import functools
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.integrate import simpson
 
 from casflex.errors import ModelError
 from casflex.tmm import elements as el
+from casflex.tmm.solve import MODE_FIELDS
+
+if TYPE_CHECKING:
+    from casflex.robot import Robot
+    from casflex.tmm.solve import ModeShapes
 
 __all__ = [
     "gauss_legendre",
@@ -64,11 +71,9 @@ __all__ = [
     "SHAPE_FIELDS",
 ]
 
-#: ModeShapes fields indexed by mode first; mass_normalize transforms all of them.
-SHAPE_FIELDS = (
-    "displacement", "rotation", "moment", "force", "slope", "curvature", "twist_rate",
-    "axial_strain", "body_state", "body_state_local", "spring_rotation",
-)
+#: ModeShapes fields indexed by mode first; mass_normalize transforms all of them
+#: (the same tuple as :data:`casflex.tmm.solve.MODE_FIELDS`).
+SHAPE_FIELDS = MODE_FIELDS
 
 
 def _beam_link(robot, shapes, beam):
@@ -82,7 +87,7 @@ def _beam_link(robot, shapes, beam):
     return robot.links[row]
 
 
-def local_state(robot, shapes, beam, s):
+def local_state(robot: Robot, shapes: ModeShapes, beam: int, s: ArrayLike) -> np.ndarray:
     """Exact local state ``[u, θ, M, F]`` of every mode at arc lengths ``s`` of one beam.
 
     The beam's start state (the first sample of the shapes) is propagated with the
@@ -137,7 +142,7 @@ def _gauss_legendre(points):
     return x, w
 
 
-def gauss_legendre(points):
+def gauss_legendre(points: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss–Legendre nodes and weights on [−1, 1], computed once per point count.
 
     ``numpy.polynomial.legendre.leggauss`` solves an eigenvalue problem on every call,
@@ -203,7 +208,8 @@ def _check_counts(robot, shapes):
     return m
 
 
-def modal_mass_matrix(robot, shapes, method="gauss", points=48):
+def modal_mass_matrix(robot: Robot, shapes: ModeShapes, method: str = "gauss",
+                      points: int = 48) -> np.ndarray:
     """Modal mass matrix of the sampled modes (see the module docstring).
 
     Parameters
@@ -246,7 +252,8 @@ def modal_mass_matrix(robot, shapes, method="gauss", points=48):
     return 0.5 * (M + M.T)
 
 
-def modal_stiffness_matrix(robot, shapes, method="gauss", points=48):
+def modal_stiffness_matrix(robot: Robot, shapes: ModeShapes, method: str = "gauss",
+                           points: int = 48) -> np.ndarray:
     """Modal stiffness matrix from the strain energy of the modes (eq. 98–99, 109).
 
     ``K_jk = Σ_beams ∫ (E I_y w_x,j'' w_x,k'' + E I_x w_y,j'' w_y,k'' + G J θ_z,j' θ_z,k'
@@ -304,7 +311,8 @@ def _groups(shapes):
     return groups
 
 
-def mass_normalize(robot, shapes, method="gauss", points=48):
+def mass_normalize(robot: Robot, shapes: ModeShapes, method: str = "gauss",
+                   points: int = 48) -> ModeShapes:
     """Scale the modes so that the modal mass matrix is the identity (eq. 114).
 
     A simple mode is divided by the square root of its modal mass (its sign is kept);

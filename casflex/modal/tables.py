@@ -53,12 +53,16 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import time
 import warnings
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 import casflex
 from casflex._cache import (
@@ -72,6 +76,13 @@ from casflex._cache import (
 from casflex._parallel import parallel_map
 from casflex.errors import ModelError
 from casflex.modal import tracking as trk
+
+if TYPE_CHECKING:
+    import casadi as ca
+    from dask.distributed import Client
+
+    from casflex.robot import Robot
+    from casflex.tmm.solve import ModeShapes
 
 __all__ = [
     "shape_joints",
@@ -106,7 +117,7 @@ def _collinear(p1, a1, p2, a2, tol=1e-9):
     return np.linalg.norm(d - np.dot(d, a1) * a1) <= tol * max(1.0, np.linalg.norm(d))
 
 
-def shape_joints(robot, samples=3):
+def shape_joints(robot: Robot, samples: int = 3) -> tuple[int, ...]:
     """Indices (0-based) of the joints that change the shape of the structure.
 
     Rule: rotating joint ``k`` moves everything outboard of it rigidly about the joint's
@@ -211,7 +222,7 @@ def _arrays_to_shapes(arrays):
     return ModeShapes(**kw)
 
 
-def default_quantities(robot, q, shapes):
+def default_quantities(robot: Robot, q: np.ndarray, shapes: ModeShapes) -> dict[str, np.ndarray]:
     """Mass-normalise the tracked shapes and evaluate the model quantities at ``q``.
 
     ``casflex.modal.integrals.configuration_quantities(robot, q,
@@ -257,8 +268,10 @@ def _point_quantities(func, robot, q, arrays):
     return {str(k): np.asarray(v, dtype=float) for k, v in values.items()}
 
 
-def compute_modes(robot, qs, count, *, n_points=51, client=None, processes=None,
-                  progress=False, directions=None):
+def compute_modes(robot: Robot, qs: ArrayLike, count: int, *, n_points: int = 51,
+                  client: Client | None = None, processes: int | None = None,
+                  progress: bool = False,
+                  directions: Sequence[ArrayLike] | None = None) -> list[ModeShapes]:
     """Raw TMM modes at many configurations, in parallel, in the order of ``qs``.
 
     Parameters
@@ -329,7 +342,7 @@ def _canonical(obj):
     raise TypeError(f"cannot fingerprint {type(obj)}")
 
 
-def robot_fingerprint(robot):
+def robot_fingerprint(robot: Robot) -> str:
     """Canonical description of everything in ``robot`` that changes its dynamics.
 
     Every field of every link (DH row, joint type, section, material, section angle,
@@ -441,25 +454,25 @@ class ModalTable:
     [2.0, 4.0]
     """
 
-    grid: tuple
-    shape_joints: tuple
-    values: dict
+    grid: tuple[np.ndarray, ...]
+    shape_joints: tuple[int, ...]
+    values: dict[str, np.ndarray]
     omega: np.ndarray
     q_fixed: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    periodic: tuple = ()
-    info: dict = field(default_factory=dict)
+    periodic: tuple[bool, ...] = ()
+    info: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def shape(self):
+    def shape(self) -> tuple[int, ...]:
         """Grid shape."""
         return tuple(a.size for a in self.grid)
 
     @property
-    def names(self):
+    def names(self) -> list[str]:
         """Names of the tabulated quantities."""
         return sorted(self.values)
 
-    def q(self, index):
+    def q(self, index: Sequence[int]) -> np.ndarray:
         """Full joint vector [rad] of the grid point ``index``.
 
         Parameters
@@ -485,7 +498,8 @@ class ModalTable:
             q[k] = axis[i]
         return q
 
-    def function(self, name, method="bspline", entries=None):
+    def function(self, name: str, method: str = "bspline",
+                 entries: ArrayLike | None = None) -> ca.Function:
         """``casadi.Function`` interpolating quantity ``name`` over the grid.
 
         Parameters
@@ -626,9 +640,14 @@ def _check_grid(robot, grid, joints):
     return tuple(grid)
 
 
-def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=None,
-                processes=None, progress=False, *, joints=None, q_fixed=None,
-                extra_modes=EXTRA_MODES, n_points=51, weighting=None):
+def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: int,
+                quantities: (Callable[[Robot, np.ndarray, ModeShapes], Mapping[str, ArrayLike]]
+                             | Literal[False] | None) = None,
+                cache_dir: str | os.PathLike[str] | Literal[False] | None = None,
+                client: Client | None = None, processes: int | None = None,
+                progress: bool = False, *, joints: Sequence[int] | None = None,
+                q_fixed: ArrayLike | None = None, extra_modes: int = EXTRA_MODES,
+                n_points: int = 51, weighting: str | None = None) -> ModalTable:
     """Tabulate tracked modes and model quantities over a grid of the shape joints.
 
     Parameters
@@ -643,9 +662,8 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
     quantities : callable or False, optional
         ``quantities(robot, q, tracked_shapes) -> dict[str, array]`` evaluated at every
         point (must be picklable for the process pool: a module-level function). Default:
-        :func:`default_quantities` when :mod:`casflex.modal.normalize` and
-        :mod:`casflex.modal.integrals` are importable; ``False`` (or those modules
-        missing) tabulates ω and the tracked shape fields (unit peak displacement).
+        :func:`default_quantities`; ``False`` tabulates ω and the tracked shape fields
+        (unit peak displacement).
     cache_dir : str or Path or False, optional
         Cache directory (default :func:`default_cache_dir`); ``False`` disables caching.
     client : dask.distributed.Client, optional
@@ -684,10 +702,11 @@ def build_table(robot, grid, n_modes, quantities=None, cache_dir=None, client=No
     -----
     The per-point work is short (one TMM solve), so it is sent to workers in chunks (see
     :func:`casflex._parallel.parallel_map`). Dask's nanny starts workers with
-    ``MALLOC_TRIM_THRESHOLD_=65536`` (``distributed.nanny.pre-spawn-environ``), which
-    slows the TMM in a worker (measured in ``benchmarks/README_tables.md``); for table
-    builds start the cluster
-    under ``dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
+    ``MALLOC_TRIM_THRESHOLD_=65536`` (``distributed.nanny.pre-spawn-environ``): the
+    TMM allocates many medium-sized arrays and glibc then returns memory to the system
+    after every call, which slows it in a worker (see ``benchmarks/README_tables.md``).
+    For table builds start the cluster under
+    ``dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
     2**27})``.
 
     Examples

@@ -60,12 +60,20 @@ parameter space no continuous choice of sign exists at all; those edges show up 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
 from casflex.errors import ModelError
+from casflex.tmm.solve import MODE_FIELDS  # the per-mode fields combine() transforms
+
+if TYPE_CHECKING:
+    from casflex.robot import Robot
+    from casflex.tmm.solve import ModeShapes
 
 __all__ = [
     "shape_features",
@@ -77,12 +85,6 @@ __all__ = [
     "GridTracking",
     "track_grid",
 ]
-
-#: ModeShapes fields indexed by mode first (combined linearly by the tracking)
-MODE_FIELDS = (
-    "displacement", "rotation", "moment", "force", "slope", "curvature", "twist_rate",
-    "axial_strain", "body_state", "body_state_local", "spring_rotation",
-)
 
 
 def _trapezoid_weights(s):
@@ -104,7 +106,8 @@ def _sqrt_psd(M):
     return V * np.sqrt(np.clip(e, 0.0, None))
 
 
-def shape_features(shapes, robot=None, weighting=None):
+def shape_features(shapes: ModeShapes, robot: Robot | None = None,
+                   weighting: str | None = None) -> np.ndarray:
     """Feature vectors whose dot products are the modified-MAC inner product.
 
     Parameters
@@ -160,7 +163,7 @@ def shape_features(shapes, robot=None, weighting=None):
     return np.concatenate(parts, axis=1)
 
 
-_BODY_FACTORS = {}
+_BODY_FACTORS: dict[tuple[float, bytes, bytes], np.ndarray] = {}
 
 
 def _body_factor(mass, inertia, com_offset):
@@ -184,7 +187,8 @@ def _as_features(x, robot, weighting):
     return shape_features(x, robot, weighting)
 
 
-def correlation(a, b, robot=None, weighting=None):
+def correlation(a: ModeShapes | np.ndarray, b: ModeShapes | np.ndarray,
+                robot: Robot | None = None, weighting: str | None = None) -> np.ndarray:
     """Signed normalised correlation ``<φa, φb> / (|φa| |φb|)`` of every pair of modes.
 
     Parameters
@@ -215,7 +219,8 @@ def correlation(a, b, robot=None, weighting=None):
     return (fa @ fb.T) / np.outer(na, nb)
 
 
-def mac(a, b, robot=None, weighting=None):
+def mac(a: ModeShapes | np.ndarray, b: ModeShapes | np.ndarray, robot: Robot | None = None,
+        weighting: str | None = None) -> np.ndarray:
     """Modified modal assurance criterion of every pair of modes (eq. 119–120).
 
     Parameters
@@ -242,7 +247,8 @@ def mac(a, b, robot=None, weighting=None):
     return correlation(a, b, robot, weighting) ** 2
 
 
-def combine(shapes, transform, order=None):
+def combine(shapes: ModeShapes, transform: ArrayLike,
+            order: ArrayLike | None = None) -> ModeShapes:
     """Apply a linear recombination of the modes to every per-mode field of ``shapes``.
 
     Parameters
@@ -399,13 +405,13 @@ class Tracking:
     ([[0, 1, 2], [0, 2, 1]], [False, False])
     """
 
-    transform: tuple
+    transform: tuple[np.ndarray, ...]
     order: np.ndarray
     sign: np.ndarray
     mac: np.ndarray
     degenerate: np.ndarray
 
-    def apply(self, sequence):
+    def apply(self, sequence: Sequence[ModeShapes]) -> list[ModeShapes]:
         """The tracked, sign-corrected ModeShapes of every step of ``sequence``.
 
         Parameters
@@ -431,7 +437,7 @@ class Tracking:
         return [combine(s, T, o) for s, T, o in
                 zip(sequence, self.transform, self.order, strict=True)]
 
-    def omega(self, sequence):
+    def omega(self, sequence: Sequence[ModeShapes]) -> np.ndarray:
         """(n_steps, n) tracked natural frequencies [rad/s].
 
         Parameters
@@ -532,7 +538,9 @@ def _fill(pending, feats, groups, shapes, T, quality, before, after, pos_before,
         quality[k] = qk
 
 
-def track(sequence, count=None, robot=None, weighting=None, reference=None, rel_tol=1e-9):
+def track(sequence: Iterable[ModeShapes], count: int | None = None, robot: Robot | None = None,
+          weighting: str | None = None, reference: ModeShapes | None = None,
+          rel_tol: float = 1e-9) -> Tracking:
     """Follow the modes along a path of configurations (identity and sign).
 
     Parameters
@@ -627,7 +635,7 @@ class GridTracking:
     degenerate: np.ndarray
     edge_correlation: np.ndarray
 
-    def apply(self, shapes):
+    def apply(self, shapes: np.ndarray) -> np.ndarray:
         """Object array of tracked ModeShapes for a grid of raw ModeShapes.
 
         Parameters
@@ -659,7 +667,9 @@ class GridTracking:
         return out
 
 
-def track_grid(shapes, count=None, robot=None, weighting=None, rel_tol=1e-9):
+def track_grid(shapes: np.ndarray | Sequence[Any], count: int | None = None,
+               robot: Robot | None = None, weighting: str | None = None,
+               rel_tol: float = 1e-9) -> GridTracking:
     """Track modes over an N-D grid along a comb-shaped spanning tree.
 
     Parameters

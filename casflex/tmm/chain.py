@@ -23,10 +23,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from casflex.tmm import elements as el
+
+if TYPE_CHECKING:
+    from casflex.robot import Robot
 
 __all__ = ["Element", "Chain", "build_chain"]
 
@@ -66,15 +71,15 @@ class Element:
     R: np.ndarray
     start: np.ndarray
     row: int
-    params: dict = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
 
     @cached_property
-    def rotation12(self):
+    def rotation12(self) -> np.ndarray:
         """``blockdiag(R, R, R, R)``: local state components to base-frame components."""
         return el.rotation_matrix(self.R)
 
     @property
-    def end(self):
+    def end(self) -> np.ndarray:
         """End point in the base frame [m]."""
         if self.kind == "beam":
             return self.start + self.R[:, 2] * self.params["length"]
@@ -103,12 +108,12 @@ class Chain:
     ((2, 3), 2, [0.0, 0.5, 0.0])
     """
 
-    elements: tuple
+    elements: tuple[Element, ...]
     q: np.ndarray
-    beam_rows: tuple
+    beam_rows: tuple[int, ...]
 
     @property
-    def beams(self):
+    def beams(self) -> tuple[Element, ...]:
         """The beam elements, base first."""
         return tuple(e for e in self.elements if e.kind == "beam")
 
@@ -123,7 +128,7 @@ def _rz(a):
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def build_chain(robot, q):
+def build_chain(robot: Robot, q: ArrayLike) -> Chain:
     """Pose every element of ``robot`` at joint variables ``q``.
 
     Parameters
@@ -187,7 +192,7 @@ def build_chain(robot, q):
     return Chain(elements=tuple(out), q=np.asarray(q, dtype=float), beam_rows=beam_rows)
 
 
-def body_mass_global(element):
+def body_mass_global(element: Element) -> np.ndarray:
     """6 × 6 mass matrix of a ``body`` element about its attachment point, base frame."""
     P = element.params
     M_local = el.body_mass_matrix(P["mass"], P["inertia"], P["com_offset"])

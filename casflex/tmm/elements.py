@@ -28,8 +28,13 @@ All functions accept an array of ω and return stacked matrices of shape (N, 12,
 from __future__ import annotations
 
 import functools
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from casflex.robot import Material, Section
 
 __all__ = [
     "DISSERTATION_ORDER",
@@ -52,7 +57,7 @@ __all__ = [
 DISSERTATION_ORDER = np.array([0, 3, 6, 9, 1, 4, 7, 10, 2, 5, 8, 11])
 
 
-def skew(v):
+def skew(v: ArrayLike) -> np.ndarray:
     """Cross-product matrix ``[v]×`` with ``[v]× w = v × w``.
 
     Parameters
@@ -78,7 +83,8 @@ def _omega(omega):
     return np.atleast_1d(np.asarray(omega, dtype=float))
 
 
-def beam_field(s, omega, EA, EIx, EIy, GJ, rho_A, rho_Ip):
+def beam_field(s: ArrayLike, omega: ArrayLike, EA: float, EIx: float, EIy: float, GJ: float,
+               rho_A: float, rho_Ip: float) -> np.ndarray:
     """Field transfer matrix of a uniform beam over a length ``s``, in its local frame.
 
     Parameters
@@ -164,7 +170,8 @@ def _layout(EA, EIx, EIy, GJ):
     return {"flat": np.array(flat), "ratio": ratio}
 
 
-def beam_matrix(length, omega, section, material):
+def beam_matrix(length: float, omega: ArrayLike, section: Section,
+                material: Material) -> np.ndarray:
     """Transfer matrix of a uniform flexible link in its local frame (eq. 15–47).
 
     Parameters
@@ -196,7 +203,7 @@ def beam_matrix(length, omega, section, material):
     )
 
 
-def body_mass_matrix(mass, inertia, com_offset):
+def body_mass_matrix(mass: float, inertia: ArrayLike, com_offset: ArrayLike) -> np.ndarray:
     """6 × 6 rigid-body mass matrix about its attachment point, over ``[u, θ]``.
 
     Parameters
@@ -221,7 +228,7 @@ def body_mass_matrix(mass, inertia, com_offset):
     return np.block([[mass * np.eye(3), -mass * C], [mass * C, Ic - mass * C @ C]])
 
 
-def point_body_matrix(omega, mass_matrix):
+def point_body_matrix(omega: ArrayLike, mass_matrix: ArrayLike) -> np.ndarray:
     """Transfer across a rigid body attached at a point (zero length).
 
     ``d`` is continuous and the internal forces jump by the inertia forces:
@@ -249,7 +256,7 @@ def point_body_matrix(omega, mass_matrix):
     return out
 
 
-def offset_matrix(r):
+def offset_matrix(r: ArrayLike) -> np.ndarray:
     """Massless rigid connection from point A to point B = A + r (r in the state's frame [m]).
 
     ``u_B = u_A + θ × r``, ``θ_B = θ_A``, ``F_B = F_A``, ``M_B = M_A − r × F_A``.
@@ -275,7 +282,8 @@ def offset_matrix(r):
     return out
 
 
-def rigid_body_matrix(omega, mass, inertia, com_offset, length):
+def rigid_body_matrix(omega: ArrayLike, mass: float, inertia: ArrayLike, com_offset: ArrayLike,
+                      length: float) -> np.ndarray:
     """Rigid link of ``length`` along local z carrying a body (eq. 48–55, generalised).
 
     The body (mass, principal inertia about its centre of mass, centre of mass at
@@ -309,7 +317,7 @@ def rigid_body_matrix(omega, mass, inertia, com_offset, length):
     return offset_matrix([0.0, 0.0, length])[None] @ point_body_matrix(omega, M)
 
 
-def rotation_matrix(R):
+def rotation_matrix(R: ArrayLike) -> np.ndarray:
     """12 × 12 frame change ``blockdiag(R, R, R, R)``: components in frame A → frame B.
 
     ``R`` maps A-components to B-components (``v_B = R v_A``).
@@ -340,7 +348,7 @@ def _rot(axis, angle):
     return np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
 
 
-def rotation_x(angle):
+def rotation_x(angle: float) -> np.ndarray:
     """Eq. 58: components in a frame rotated by ``angle`` [rad] about x (12 × 12).
 
     Parameters
@@ -360,7 +368,7 @@ def rotation_x(angle):
     return rotation_matrix(_rot(0, angle))
 
 
-def rotation_y(angle):
+def rotation_y(angle: float) -> np.ndarray:
     """Eq. 57: frame rotated by ``angle`` [rad] about y (12 × 12).
 
     Parameters
@@ -380,7 +388,7 @@ def rotation_y(angle):
     return rotation_matrix(_rot(1, angle))
 
 
-def rotation_z(angle):
+def rotation_z(angle: float) -> np.ndarray:
     """Eq. 56: frame rotated by ``angle`` [rad] about z (12 × 12).
 
     Parameters
@@ -400,7 +408,7 @@ def rotation_z(angle):
     return rotation_matrix(_rot(2, angle))
 
 
-def joint_spring_matrix(stiffness, axis=(0.0, 0.0, 1.0)):
+def joint_spring_matrix(stiffness: float, axis: ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
     """Torsional joint spring about ``axis`` (unit vector in the state's frame) [Nm/rad].
 
     The outboard side rotates relative to the inboard side by ``φ = (axis · M)/k``;

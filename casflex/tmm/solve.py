@@ -24,12 +24,17 @@ mode shapes span the null space (orthonormal in base-reaction space, from an SVD
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from casflex.errors import SolverError
 from casflex.tmm import elements as el
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
+
+if TYPE_CHECKING:
+    from casflex.robot import Robot
 
 __all__ = [
     "system_matrix",
@@ -38,6 +43,7 @@ __all__ = [
     "natural_frequencies",
     "sweep_frequencies",
     "ModeShapes",
+    "MODE_FIELDS",
     "mode_shapes",
     "modes",
 ]
@@ -166,7 +172,7 @@ def _single(chain, omega):
     return _Stack([chain]), np.zeros(omega.size, dtype=int), omega
 
 
-def system_matrix(chain, omega):
+def system_matrix(chain: Chain, omega: ArrayLike) -> np.ndarray:
     """System transfer matrix from the clamped base to the free tip (eq. 59), (N, 12, 12).
 
     Parameters
@@ -187,7 +193,7 @@ def system_matrix(chain, omega):
     return stack.system(cfg, omega, columns=slice(None))
 
 
-def frequency_determinant(chain, omega):
+def frequency_determinant(chain: Chain, omega: ArrayLike) -> np.ndarray:
     """``det subU(ω)`` with rows scaled to unit peak: zero exactly at the natural frequencies.
 
     Parameters
@@ -275,7 +281,7 @@ def _beam_stiffness(element, omega):
     return K00, -Tdf_inv, K10, K11
 
 
-def count_below(chain, omega):
+def count_below(chain: Chain, omega: ArrayLike) -> np.ndarray:
     """Number of natural frequencies below each ω (Wittrick–Williams), counted with multiplicity.
 
     Parameters
@@ -451,8 +457,11 @@ def _roots(stack, count, omega_max, double_tol, rtol):
     return out
 
 
-def natural_frequencies(chain_or_robot, q=None, count=None, omega_max=None, *,
-                        double_tol=1e-9, rtol=1e-12, return_multiplicity=False):
+def natural_frequencies(chain_or_robot: Chain | Robot, q: ArrayLike | None = None,
+                        count: int | None = None, omega_max: float | None = None, *,
+                        double_tol: float = 1e-9, rtol: float = 1e-12,
+                        return_multiplicity: bool = False
+                        ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Natural frequencies of a chain, every root with its multiplicity [rad/s].
 
     Parameters
@@ -473,8 +482,9 @@ def natural_frequencies(chain_or_robot, q=None, count=None, omega_max=None, *,
 
     Returns
     -------
-    numpy.ndarray
-        Ascending frequencies, repeated according to multiplicity.
+    numpy.ndarray or tuple of numpy.ndarray
+        Ascending frequencies, repeated according to multiplicity; with
+        ``return_multiplicity`` the pair ``(frequencies, multiplicities)``.
 
     Examples
     --------
@@ -491,7 +501,8 @@ def natural_frequencies(chain_or_robot, q=None, count=None, omega_max=None, *,
     return values
 
 
-def sweep_frequencies(robot, qs, count, *, double_tol=1e-9, rtol=1e-12):
+def sweep_frequencies(robot: Robot, qs: ArrayLike, count: int, *, double_tol: float = 1e-9,
+                      rtol: float = 1e-12) -> np.ndarray:
     """The ``count`` lowest natural frequencies at many configurations at once [rad/s].
 
     All configurations are solved together: every numpy call of the root search works
@@ -592,7 +603,7 @@ class ModeShapes:
     omega: np.ndarray
     multiplicity: np.ndarray
     s: np.ndarray
-    rows: tuple
+    rows: tuple[int, ...]
     R: np.ndarray
     position: np.ndarray
     displacement: np.ndarray
@@ -606,14 +617,22 @@ class ModeShapes:
     body_state: np.ndarray
     body_state_local: np.ndarray
     body_position: np.ndarray
-    body_rows: tuple
+    body_rows: tuple[int, ...]
     spring_rotation: np.ndarray
-    spring_rows: tuple
+    spring_rows: tuple[int, ...]
 
     @property
-    def displacement_global(self):
+    def displacement_global(self) -> np.ndarray:
         """(m, n_beams, n_points, 3) displacements in the base frame [m]."""
         return np.einsum("bij,mbpj->mbpi", self.R, self.displacement)
+
+
+#: :class:`ModeShapes` fields indexed by mode first: a change of mode basis (mass
+#: normalisation, tracking) transforms all of them alike.
+MODE_FIELDS = (
+    "displacement", "rotation", "moment", "force", "slope", "curvature", "twist_rate",
+    "axial_strain", "body_state", "body_state_local", "spring_rotation",
+)
 
 
 def _null_vectors(subU):
@@ -627,7 +646,8 @@ def _null_vectors(subU):
     return vt
 
 
-def mode_shapes(chain, omega, multiplicity=None, n_points=51):
+def mode_shapes(chain: Chain, omega: ArrayLike, multiplicity: ArrayLike | None = None,
+                n_points: int = 51) -> ModeShapes:
     """Mode shapes at the given natural frequencies (eq. 61–62).
 
     Parameters
@@ -764,7 +784,8 @@ def mode_shapes(chain, omega, multiplicity=None, n_points=51):
     )
 
 
-def modes(robot, q, count=5, omega_max=None, n_points=51):
+def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | None = None,
+          n_points: int = 51) -> ModeShapes:
     """Natural frequencies and mode shapes of ``robot`` at configuration ``q``.
 
     Parameters
@@ -772,8 +793,9 @@ def modes(robot, q, count=5, omega_max=None, n_points=51):
     robot : casflex.robot.Robot
     q : array_like
         Joint variables [rad].
-    count : int
-        Number of lowest modes (a double root counts twice).
+    count : int or None
+        Number of lowest modes (a double root counts twice); ``None`` with ``omega_max``
+        gives every mode below it.
     omega_max : float, optional
         Upper frequency limit [rad/s].
     n_points : int
