@@ -48,6 +48,12 @@ Modal tables
    compute_modes       -- raw TMM modes at many configurations, in parallel
    default_quantities  -- mass-normalise tracked shapes and evaluate the model quantities
    robot_fingerprint   -- canonical description of what changes a robot's dynamics
+
+Frequency sweeps
+================
+
+   frequency_sweep   -- natural frequencies along a path of configurations, sorted or tracked
+   FrequencySweep    -- result of frequency_sweep
 """
 
 from casflex.modal.integrals import (
@@ -67,6 +73,7 @@ from casflex.modal.normalize import (
     modal_mass_matrix,
     modal_stiffness_matrix,
 )
+from casflex.modal.sweep import FrequencySweep, frequency_sweep
 from casflex.modal.tables import (
     ModalTable,
     build_table,
@@ -118,4 +125,7 @@ __all__ = [
     "compute_modes",
     "default_quantities",
     "robot_fingerprint",
+    # frequency sweeps
+    "frequency_sweep",
+    "FrequencySweep",
 ]
