@@ -1,7 +1,7 @@
 """Configuration-dependent quantities of the rigid–flexible model (dissertation eq. 63–95).
 
 :func:`configuration_quantities` turns the mass-normalised TMM modes of one configuration
-into every quantity :mod:`casflex.dynamics` needs, as a dict of numpy arrays whose shapes
+into every quantity :mod:`casflex.model` needs, as a dict of numpy arrays whose shapes
 depend only on the robot, the mode count and the sensor points
 (:func:`quantity_shapes`), so that a tabulation engine can evaluate it at every grid
 point, stack the results and fit splines. It is a pure function of plain data (picklable,

@@ -2,7 +2,7 @@
 
 The transfer-matrix method returns the natural modes of the whole structure at one
 configuration with the joints locked at the motors, scaled to unit peak displacement
-(:func:`casflex.tmm.modes`). The low-order model (:mod:`casflex.dynamics`) needs them
+(:func:`casflex.tmm.modes`). The low-order model (:mod:`casflex.model`) needs them
 *mass-normalised*, ``M_δδ = I``, so that ``K_δδ = Ω²`` (eq. 114–115) and the model varies
 smoothly with the configuration.
 
