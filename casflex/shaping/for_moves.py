@@ -29,13 +29,13 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import fail, number
 from casflex.errors import ModelError, ProblemFileError, SolverError
-from casflex.model import FlexibleModel, build_model
 from casflex.moves import Move
 from casflex.shaping.shapers import Shaper, apply_shaper, as_shaper, check_vtol, check_zeta
 from casflex.shaping.si import FrequencyRange, SIShaperResult, initial_si_guess, si_shaper
 
 if TYPE_CHECKING:
     from casflex.modal.tables import ModalTable
+    from casflex.model import FlexibleModel
     from casflex.robot import Robot
 
 __all__ = [
@@ -698,6 +698,8 @@ def shaper_for_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, vtol: f
     >>> model.m, res.tolerances.tolist(), round(res.duration, 3)
     (1, [0.05], 0.366)
     """
+    from casflex.model import build_model
+
     if move.n_joints != robot.n_joints:
         raise fail("move", move.name, f"has {move.n_joints} joint(s) but robot "
                    f"'{robot.name}' has {robot.n_joints}")
