@@ -242,7 +242,7 @@ def test_margin_makes_shapers_longer(designs):
 
 
 def test_unconstrained_ranges_do_not_break_the_design():
-    """Regression: a vtol = 1 range used to feed its V = 1 peaks back as samples."""
+    """Regression: a vtol = 1 range must not feed its V = 1 peaks back as samples."""
     ranges = [FrequencyRange(9.307738784276948, 11.97004502528341, 0.0, 0.05),
               FrequencyRange(22.74676580978592, 34.581990179015285, 0.0, 1.0)]
     assert si_shaper(ranges).duration == pytest.approx(0.5402, abs=1e-3)
@@ -365,7 +365,7 @@ def test_bad_inputs(model, move):
 @pytest.mark.slow
 def test_si_design_recovers_from_infeasible_restart():
     """Regression: with Vtol = (0.05, 0.1, 0.666…) the restart from the pruned solution
-    used to end in Ipopt's 'Infeasible_Problem_Detected'; it is retried from the guess."""
+    can end in Ipopt's 'Infeasible_Problem_Detected'; the design retries from the guess."""
     hz = 2.0 * np.pi
     vt = tolerances_from_contributions([4.0, 2.0, 0.3])
     ranges = [FrequencyRange(a * hz, b * hz, 0.0, v)
