@@ -16,10 +16,21 @@ from numpy.typing import ArrayLike
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
     from casflex.robot import Robot
+    from casflex.shaping import FrequencyRange, MoveShaperResult, Shaper
     from casflex.tmm import ModeShapes
 
-__all__ = ["plot_modes", "plot_sweep", "skeleton"]
+__all__ = [
+    # structures and modes
+    "skeleton", "plot_modes", "plot_sweep",
+    # input shaping
+    "plot_prv", "plot_move_shaper",
+    # design report
+    "plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
+    "plot_estimation_error", "plot_accessibility_along",
+]
 
 
 def skeleton(robot: Robot, q: ArrayLike) -> np.ndarray:
@@ -170,11 +181,7 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
 # plain arrays. Each is 6.4 × 3.6 in without a layout engine; the job calls
 # ``fig.tight_layout()`` before saving.
 
-__all__ += ["plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
-            "plot_estimation_error", "plot_accessibility_along"]
-
-
-def plot_frequencies_along(t: np.typing.ArrayLike, omega: np.typing.ArrayLike,
+def plot_frequencies_along(t: ArrayLike, omega: ArrayLike,
                            move_name: str) -> Figure:
     """Natural frequencies of every mode along a move.
 
@@ -209,7 +216,7 @@ def plot_frequencies_along(t: np.typing.ArrayLike, omega: np.typing.ArrayLike,
     return fig
 
 
-def plot_shaper_sensitivity(omega: np.typing.ArrayLike, vibration: np.typing.ArrayLike,
+def plot_shaper_sensitivity(omega: ArrayLike, vibration: ArrayLike,
                             ranges: list[tuple[float, float, float]], n_impulses: int,
                             duration: float) -> Figure:
     """Residual vibration of a shaper against frequency, with the design ranges.
@@ -251,7 +258,7 @@ def plot_shaper_sensitivity(omega: np.typing.ArrayLike, vibration: np.typing.Arr
     return fig
 
 
-def plot_tip_deflection(runs: list[tuple[str, np.typing.ArrayLike, np.typing.ArrayLike]],
+def plot_tip_deflection(runs: list[tuple[str, ArrayLike, ArrayLike]],
                         move_end: float) -> Figure:
     """Magnitude of the tip deflection of several runs of a move.
 
@@ -284,7 +291,7 @@ def plot_tip_deflection(runs: list[tuple[str, np.typing.ArrayLike, np.typing.Arr
     return fig
 
 
-def plot_estimation_error(t: np.typing.ArrayLike, error: np.typing.ArrayLike) -> Figure:
+def plot_estimation_error(t: ArrayLike, error: ArrayLike) -> Figure:
     """Estimation error of every modal amplitude, ``δ̂ − δ``, over time.
 
     Parameters
@@ -316,7 +323,7 @@ def plot_estimation_error(t: np.typing.ArrayLike, error: np.typing.ArrayLike) ->
     return fig
 
 
-def plot_accessibility_along(t: np.typing.ArrayLike, accessibility: np.typing.ArrayLike) -> Figure:
+def plot_accessibility_along(t: ArrayLike, accessibility: ArrayLike) -> Figure:
     """Modal accessibility along a move (dissertation eq. 204).
 
     Parameters
@@ -345,4 +352,132 @@ def plot_accessibility_along(t: np.typing.ArrayLike, accessibility: np.typing.Ar
     ax.set_ylabel("accessibility [√kg·m]")
     ax.set_title("modal accessibility along the shaped move (eq. 204)")
     ax.legend()
+    return fig
+
+
+# ------------------------------------------------------------------------- input shaping
+
+def plot_prv(shaper: Shaper, ranges: Sequence[FrequencyRange]) -> Figure:
+    """Residual vibration of a shaper over its design ranges, with their tolerances.
+
+    The curve spans the ranges widened by a quarter of their span on each side, one curve
+    per damping ratio of the ranges; a tolerance is a red bar over its range (a marker for
+    a single frequency). Frequencies are drawn in Hz, residual vibration in %.
+
+    Parameters
+    ----------
+    shaper : casflex.shaping.Shaper
+    ranges : sequence of casflex.shaping.FrequencyRange
+        Design ranges, rad/s.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from casflex.shaping import FrequencyRange, zv
+    >>> fig = plot_prv(zv(10.0), [FrequencyRange(9.0, 11.0, 0.0, 0.05)])
+    >>> fig.axes[0].get_xlabel(), fig.axes[0].get_title()
+    ('natural frequency (Hz)', 'SI shaper: 2 impulses, 0.3142 s')
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from casflex.shaping import residual_vibration
+
+    lo = min(r.omega_min for r in ranges)
+    hi = max(r.omega_max for r in ranges)
+    span = hi - lo if hi > lo else hi
+    w = np.linspace(max(lo - 0.25 * span, 1e-3 * hi), hi + 0.25 * span, 3000)
+    fig = Figure(figsize=(7.0, 4.0))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    zetas = sorted({r.zeta for r in ranges})
+    for z in zetas:
+        label = "V(ω)" if len(zetas) == 1 else f"V(ω), ζ = {z:g}"
+        ax.plot(w / (2 * np.pi), 100.0 * residual_vibration(shaper, w, z), label=label)
+    for i, r in enumerate(ranges):
+        x = [r.omega_min / (2 * np.pi), r.omega_max / (2 * np.pi)]
+        if x[0] == x[1]:
+            ax.plot(x[:1], [100.0 * r.vtol], "rv", label="Vtol" if i == 0 else None)
+        else:
+            ax.plot(x, [100.0 * r.vtol] * 2, "r-", lw=3, label="Vtol" if i == 0 else None)
+    ax.set_xlabel("natural frequency (Hz)")
+    ax.set_ylabel("residual vibration (%)")
+    ax.set_title(f"SI shaper: {len(shaper)} impulses, {shaper.duration:.4f} s")
+    ax.set_ylim(0.0, 105.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
+def plot_move_shaper(result: MoveShaperResult, move_name: str,
+                     deflections: Mapping[str, tuple[ArrayLike, ArrayLike]] | None = None
+                     ) -> Figure:
+    """The shaper of a planned move: its residual vibration over the design ranges and,
+    when given, simulated tip deflections.
+
+    Parameters
+    ----------
+    result : casflex.shaping.MoveShaperResult
+        The design (:func:`casflex.shaping.shaper_for_move`); ranges in rad/s.
+    move_name : str
+        Name of the move, for the title.
+    deflections : mapping of str to (t, deflection), optional
+        Label -> times (s) and deflection of the tip (shape (N,) or (N, 3), m), drawn as
+        ‖deflection‖ in mm in a second panel (e.g. ``{"unshaped": ..., "shaped": ...}``).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import load_move
+    >>> from casflex.robot import load
+    >>> from casflex.shaping import shaper_for_move
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=2),
+    ...                       gravity=None)
+    >>> res = shaper_for_move(model, load_move("problems/moves.toml:move3"), margin=0.0,
+    ...                       n_samples=50)
+    >>> t = np.linspace(0.0, 1.0, 11)
+    >>> fig = plot_move_shaper(res, "move3", {"unshaped": (t, 0.1 * t), "shaped": (t, 0 * t)})
+    >>> len(fig.axes), fig.axes[1].get_ylabel()
+    (2, '|tip deflection| (mm)')
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from casflex.shaping import residual_vibration
+
+    fig = Figure(figsize=(8.0, 7.0 if deflections else 4.0))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(2 if deflections else 1, 1, 1)
+    hi = max(r.omega_max for r in result.ranges)
+    w = np.linspace(1e-3 * hi, 1.25 * hi, 3000)
+    ax.plot(w, 100.0 * residual_vibration(result.shaper, w, result.ranges[0].zeta), label="V(ω)")
+    for i, r in enumerate(result.ranges):
+        x = [r.omega_min, r.omega_max]
+        style = "rv" if x[0] == x[1] else "r-"
+        ax.plot(x if x[0] != x[1] else x[:1], [100.0 * r.vtol] * (2 if x[0] != x[1] else 1),
+                style, lw=3, label="Vtol" if i == 0 else None)
+    ax.set_xlabel("natural frequency (rad/s)")
+    ax.set_ylabel("residual vibration (%)")
+    ax.set_ylim(0.0, 105.0)
+    ax.set_title(f"{move_name}: r = {np.round(result.contributions, 3).tolist()}, "
+                 f"{len(result.shaper)} impulses, {result.duration:.3f} s")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    if deflections:
+        ax2 = fig.add_subplot(2, 1, 2)
+        for label, (t, deflection) in deflections.items():
+            d = np.asarray(deflection, dtype=float).reshape(len(t), -1)
+            ax2.plot(t, 1e3 * np.linalg.norm(d, axis=1), label=label)
+        ax2.set_xlabel("time (s)")
+        ax2.set_ylabel("|tip deflection| (mm)")
+        ax2.grid(True, alpha=0.3)
+        ax2.legend(loc="upper right")
+    fig.tight_layout()
     return fig

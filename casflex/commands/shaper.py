@@ -10,16 +10,19 @@ Two forms:
 
 ``casflex shaper ROBOT.toml --move FILE:NAME [--modes 3] [--margin 0.2] [--vtol 0.05]
 [--plot FILE.png] [--json]``
-    designs the shaper of a planned move of a robot (dissertation §6.1.4–6.1.5): the
-    modal model is built with :func:`casflex.model.build_model` (tables cached), the
-    modal contributions to the tip deflection give the tolerances (eq. 196–198), the
-    frequency spans along the move widened by ``±margin`` give the ranges, and
-    :func:`casflex.shaping.shaper_for_move` designs the shaper. The move is then
+    designs the shaper of a planned move of a robot (dissertation §6.1.4–6.1.5) with
+    :func:`casflex.shaping.shaper_for_robot_move`: the modal model is built (tables
+    cached), the modal contributions to the tip deflection give the tolerances
+    (eq. 196–198), the frequency spans along the move widened by ``±margin`` give the
+    ranges, and :func:`casflex.shaping.shaper_for_move` designs the shaper. The move is then
     simulated with the modal model (:func:`casflex.simulate.simulate_prescribed`), unshaped
     and shaped, and the residual tip deflection (largest ‖tip deflection‖ after the move —
     the shaped one — ends, m) of both is reported. Gravity is left out of the model, as in
     the dissertation's moves, so that the deflection is vibration only. ``--no-simulate``
     skips the simulations (the residual keys are then ``null``).
+
+``--plot`` draws :func:`casflex.plotting.plot_prv` (problem form) or
+:func:`casflex.plotting.plot_move_shaper` (robot form).
 
 JSON of the robot form: the keys of the problem form plus ``"move"``, ``"margin"``,
 ``"contributions"`` (normalised ``r``, eq. 196), ``"raw_contributions"`` (m/s),
@@ -31,25 +34,21 @@ move without the margin, rad/s), ``"residual_tip_deflection_unshaped"``,
 
 from __future__ import annotations
 
-import math
-import tomllib
+import argparse
+from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
+from casflex._problemfile import read_toml
+from casflex._validate import number
 from casflex.commands.common import parse_angle
-from casflex.errors import ModelError, ProblemFileError
-from casflex.shaping import (
-    ranges_from_mapping,
-    residual_vibration,
-    si_shaper,
-)
+from casflex.errors import ProblemFileError
+from casflex.shaping import ranges_from_mapping, si_shaper
 
 HELP = ("Design a specified-insensitivity input shaper from a shaper problem file, or for a "
         "planned move of a robot (ROBOT.toml --move FILE:NAME).")
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``shaper`` arguments to ``parser``.
 
     Parameters
@@ -100,50 +99,7 @@ def add_arguments(parser):
                        help="design only; do not simulate the unshaped and shaped moves")
 
 
-def _read(path):
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except OSError as exc:
-        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ProblemFileError(path, "<file>", str(path), f"is not valid TOML: {exc}") from exc
-
-
-def _plot(result, filename):
-    """Write the PRV curve of ``result`` over all ranges (Agg canvas, no global backend)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    ranges = result.ranges
-    lo = min(r.omega_min for r in ranges)
-    hi = max(r.omega_max for r in ranges)
-    span = hi - lo if hi > lo else hi
-    w = np.linspace(max(lo - 0.25 * span, 1e-3 * hi), hi + 0.25 * span, 3000)
-    fig = Figure(figsize=(7.0, 4.0))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    zetas = sorted({r.zeta for r in ranges})
-    for z in zetas:
-        label = "V(ω)" if len(zetas) == 1 else f"V(ω), ζ = {z:g}"
-        ax.plot(w / (2 * math.pi), 100.0 * residual_vibration(result.shaper, w, z), label=label)
-    for i, r in enumerate(ranges):
-        x = [r.omega_min / (2 * math.pi), r.omega_max / (2 * math.pi)]
-        if x[0] == x[1]:
-            ax.plot(x[:1], [100.0 * r.vtol], "rv", label="Vtol" if i == 0 else None)
-        else:
-            ax.plot(x, [100.0 * r.vtol] * 2, "r-", lw=3, label="Vtol" if i == 0 else None)
-    ax.set_xlabel("natural frequency (Hz)")
-    ax.set_ylabel("residual vibration (%)")
-    ax.set_title(f"SI shaper: {len(result.shaper)} impulses, {result.duration:.4f} s")
-    ax.set_ylim(0.0, 105.0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(filename, dpi=120)
-
-
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Design the shaper of ``args.problem``; return impulses and per-range checks.
 
     Parameters
@@ -169,9 +125,9 @@ def run(args, log):
     ['amplitudes', 'duration', 'ranges', 'times']
     """
     path = Path(args.problem)
-    data = _read(path)
+    data = read_toml(path)
     move = getattr(args, "move", None)
-    if not isinstance(data, dict) or "range" not in data:
+    if "range" not in data:
         if move is None:
             raise ProblemFileError(
                 path,
@@ -193,15 +149,32 @@ def run(args, log):
         f"{len(result.shaper)} impulses, duration {result.duration:.6f} s, "
         f"{result.iterations} NLP solve(s)"
     )
-    for t, a in zip(result.shaper.times, result.shaper.amplitudes, strict=True):
-        log(f"  t = {t:.6f} s   A = {a:.6f}")
-    out_ranges = []
-    for r, v in zip(ranges, result.max_prv, strict=True):
+    _log_impulses(result.shaper, log)
+    for r, v in zip(result.ranges, result.max_prv, strict=True):
         log(
             f"  range {r.omega_min:.4f}-{r.omega_max:.4f} rad/s, zeta {r.zeta:g}: "
             f"max V = {100 * v:.3f} % (Vtol {100 * r.vtol:.3f} %)"
         )
-        out_ranges.append(
+    if getattr(args, "plot", None):
+        from casflex.plotting import plot_prv
+
+        plot_prv(result.shaper, result.ranges).savefig(args.plot, dpi=120)
+        log(f"wrote {args.plot}")
+    return _shaper_json(result)
+
+
+def _log_impulses(shaper, log):
+    for t, a in zip(shaper.times, shaper.amplitudes, strict=True):
+        log(f"  t = {t:.6f} s   A = {a:.6f}")
+
+
+def _shaper_json(result):
+    """Impulses and per-range checks of an SI design (s, rad/s, fractions)."""
+    return {
+        "times": result.shaper.times.tolist(),
+        "amplitudes": result.shaper.amplitudes.tolist(),
+        "duration": result.duration,
+        "ranges": [
             {
                 "omega_min": r.omega_min,
                 "omega_max": r.omega_max,
@@ -209,156 +182,78 @@ def run(args, log):
                 "vtol": r.vtol,
                 "max_prv": float(v),
             }
-        )
-    if getattr(args, "plot", None):
-        _plot(result, args.plot)
-        log(f"wrote {args.plot}")
-    return {
-        "times": result.shaper.times.tolist(),
-        "amplitudes": result.shaper.amplitudes.tolist(),
-        "duration": result.duration,
-        "ranges": out_ranges,
+            for r, v in zip(result.ranges, result.max_prv, strict=True)
+        ],
     }
 
 
-def _ranges_json(result):
-    return [
-        {
-            "omega_min": r.omega_min,
-            "omega_max": r.omega_max,
-            "zeta": r.zeta,
-            "vtol": r.vtol,
-            "max_prv": float(v),
-        }
-        for r, v in zip(result.ranges, result.max_prv, strict=True)
-    ]
+def _residuals(model, move, shaper, dt, log):
+    """Simulate the move unshaped and shaped; the residual tip deflections (m) and traces.
 
-
-def _check_option(value, name, lo, hi, lo_open=False, hi_open=False):
-    ok = math.isfinite(value) and (value > lo if lo_open else value >= lo) and (
-        value < hi if hi_open else value <= hi)
-    if not ok:
-        left = "(" if lo_open else "["
-        right = ")" if hi_open else "]"
-        raise ModelError(f"{name}: {value!r} must lie in {left}{lo}, {hi}{right}")
-
-
-def _simulate(model, move, shaper, dt, log):
-    """Simulate the move unshaped and shaped; return a dict of residuals and the traces."""
-    try:
-        from casflex.simulate import simulate_prescribed
-    except ImportError:
-        log("casflex.simulate is not available: residual tip deflections not computed")
-        return None
+    Composed from library calls: :func:`casflex.simulate.simulate_prescribed` on the move
+    and on :func:`casflex.shaping.shaped_reference`, and
+    :func:`casflex.shaping.residual_amplitude` after the end of each move.
+    """
     from casflex.shaping import residual_amplitude, shaped_reference
+    from casflex.simulate import simulate_prescribed
 
     log(f"simulating {move.name} unshaped (dt = {dt:g} s, {move.t_end:g} s)")
     plain = simulate_prescribed(model, move, dt=dt, t_end=move.t_end)
-    ref = shaped_reference(shaper, move, dt=dt)
     t_end = move.t_end + shaper.duration
     log(f"simulating {move.name} shaped ({t_end:g} s)")
-    shaped = simulate_prescribed(model, ref, dt=dt, t_end=t_end)
-    res_plain = residual_amplitude(plain.t, plain.tip_deflection, move.duration)
-    res_shaped = residual_amplitude(shaped.t, shaped.tip_deflection,
-                                    move.duration + shaper.duration)
-    return {
-        "unshaped": res_plain,
-        "shaped": res_shaped,
-        "plain": plain,
-        "shaped_result": shaped,
+    shaped = simulate_prescribed(model, shaped_reference(shaper, move, dt=dt), dt=dt,
+                                 t_end=t_end)
+    residual = {
+        "unshaped": residual_amplitude(plain.t, plain.tip_deflection, move.duration),
+        "shaped": residual_amplitude(shaped.t, shaped.tip_deflection,
+                                     move.duration + shaper.duration),
     }
-
-
-def _plot_robot(result, sims, move, filename):
-    """PRV curve with the design ranges and, if simulated, the tip deflection."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(8.0, 7.0 if sims else 4.0))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(2 if sims else 1, 1, 1)
-    hi = max(r.omega_max for r in result.ranges)
-    w = np.linspace(1e-3 * hi, 1.25 * hi, 3000)
-    ax.plot(w, 100.0 * residual_vibration(result.shaper, w, result.ranges[0].zeta), label="V(ω)")
-    for i, r in enumerate(result.ranges):
-        x = [r.omega_min, r.omega_max]
-        style = "rv" if x[0] == x[1] else "r-"
-        ax.plot(x if x[0] != x[1] else x[:1], [100.0 * r.vtol] * (2 if x[0] != x[1] else 1),
-                style, lw=3, label="Vtol" if i == 0 else None)
-    ax.set_xlabel("natural frequency (rad/s)")
-    ax.set_ylabel("residual vibration (%)")
-    ax.set_ylim(0.0, 105.0)
-    ax.set_title(f"{move.name}: r = {np.round(result.contributions, 3).tolist()}, "
-                 f"{len(result.shaper)} impulses, {result.duration:.3f} s")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
-    if sims:
-        ax2 = fig.add_subplot(2, 1, 2)
-        for key, label in (("plain", "unshaped"), ("shaped_result", "shaped")):
-            sim = sims[key]
-            d = np.asarray(sim.tip_deflection, dtype=float).reshape(len(sim.t), -1)
-            ax2.plot(sim.t, 1e3 * np.linalg.norm(d, axis=1), label=label)
-        ax2.set_xlabel("time (s)")
-        ax2.set_ylabel("|tip deflection| (mm)")
-        ax2.grid(True, alpha=0.3)
-        ax2.legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(filename, dpi=120)
+    traces = {"unshaped": (plain.t, plain.tip_deflection),
+              "shaped": (shaped.t, shaped.tip_deflection)}
+    return residual, traces
 
 
 def _run_robot(args, path, log):
     """The robot form: design the shaper of ``args.move`` for the robot at ``path``."""
-    from casflex.model import build_model
     from casflex.moves import load_move
     from casflex.robot import load
-    from casflex.shaping import shaper_for_move
+    from casflex.shaping import shaper_for_robot_move
 
     robot = load(path)
     move = load_move(args.move)
-    modes = getattr(args, "modes", 3)
-    if isinstance(modes, bool) or not isinstance(modes, int) or modes < 1:
-        raise ModelError(f"--modes: {modes!r} must be an integer >= 1")
-    margin = float(getattr(args, "margin", 0.2))
-    vtol = float(getattr(args, "vtol", 0.05))
-    dt = float(getattr(args, "dt", 1e-3))
-    _check_option(margin, "--margin", 0.0, 1.0, hi_open=True)
-    _check_option(vtol, "--vtol", 0.0, 1.0, lo_open=True)
-    _check_option(dt, "--dt", 0.0, 0.1, lo_open=True)
-    if move.n_joints != robot.n_joints:
-        raise ModelError(f"--move: move '{move.name}' has {move.n_joints} joint(s) but robot "
-                         f"'{robot.name}' has {robot.n_joints}")
+    modes = number(getattr(args, "modes", 3), "--modes", low=1, integer=True)
+    margin = number(float(getattr(args, "margin", 0.2)), "--margin", low=0.0, high=1.0,
+                    high_open=True)
+    vtol = number(float(getattr(args, "vtol", 0.05)), "--vtol", low=0.0, low_open=True,
+                  high=1.0)
+    dt = number(float(getattr(args, "dt", 1e-3)), "--dt", low=0.0, low_open=True, high=0.1)
     step = getattr(args, "step", None)
     step = None if step is None else parse_angle(step, "--step")
-    log(f"building the {modes}-mode model of '{robot.name}' (tables cached)")
-    model, _ = build_model(robot, n_modes=modes, step=step, gravity=None,
-                           cache_dir=getattr(args, "cache_dir", None),
-                           processes=getattr(args, "processes", None), progress=True)
-    log(f"designing the shaper for {move.name} (margin ±{100 * margin:g} %, "
-        f"Vtol {100 * vtol:g} %)")
-    result = shaper_for_move(model, move, vtol=vtol, margin=margin)
+    model, result = shaper_for_robot_move(
+        robot, move, modes, vtol=vtol, margin=margin, step=step,
+        cache_dir=getattr(args, "cache_dir", None), processes=getattr(args, "processes", None),
+        progress=True, log=log)
     for j, (r, v, lo, hi) in enumerate(zip(result.contributions, result.tolerances,
                                            result.omega_min, result.omega_max, strict=True)):
         log(f"  mode {j + 1}: omega {lo:.3f}-{hi:.3f} rad/s, r = {r:.3f}, Vtol = {v:.3f}")
     log(f"{len(result.shaper)} impulses, duration {result.duration:.6f} s")
-    for t, a in zip(result.shaper.times, result.shaper.amplitudes, strict=True):
-        log(f"  t = {t:.6f} s   A = {a:.6f}")
-    sims = None if getattr(args, "no_simulate", False) else _simulate(
-        model, move, result.shaper, dt, log)
-    unshaped = shaped = reduction = None
-    if sims:
-        unshaped, shaped = sims["unshaped"], sims["shaped"]
+    _log_impulses(result.shaper, log)
+    residual, traces = {"unshaped": None, "shaped": None}, None
+    reduction = None
+    if not getattr(args, "no_simulate", False):
+        residual, traces = _residuals(model, move, result.shaper, dt, log)
+        unshaped, shaped = residual["unshaped"], residual["shaped"]
         reduction = 1.0 - shaped / unshaped if unshaped > 0.0 else None
         log(f"residual tip deflection: unshaped {1e3 * unshaped:.3f} mm, shaped "
             f"{1e3 * shaped:.3f} mm" + (f" ({100 * reduction:.1f} % less)"
                                          if reduction is not None else ""))
     if getattr(args, "plot", None):
-        _plot_robot(result, sims, move, args.plot)
+        from casflex.plotting import plot_move_shaper
+
+        plot_move_shaper(result, move.name, traces).savefig(args.plot, dpi=120)
         log(f"wrote {args.plot}")
     return {
-        "times": result.shaper.times.tolist(),
-        "amplitudes": result.shaper.amplitudes.tolist(),
-        "duration": result.duration,
-        "ranges": _ranges_json(result.si),
+        **_shaper_json(result.si),
         "move": move.name,
         "margin": margin,
         "contributions": result.contributions.tolist(),
@@ -366,7 +261,7 @@ def _run_robot(args, path, log):
         "tolerances": result.tolerances.tolist(),
         "omega_min": result.omega_min.tolist(),
         "omega_max": result.omega_max.tolist(),
-        "residual_tip_deflection_unshaped": unshaped,
-        "residual_tip_deflection_shaped": shaped,
+        "residual_tip_deflection_unshaped": residual["unshaped"],
+        "residual_tip_deflection_shaped": residual["shaped"],
         "residual_reduction": reduction,
     }

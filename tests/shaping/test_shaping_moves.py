@@ -20,26 +20,21 @@ so are the spans (Table 14: 6.64–8.26, 9.36–11.9, 23.36–35.21; casflex: 6.
 and the modes are tracked along it (mode 3 rises from 22.7 to 34.6 rad/s without crossing).
 
 The residual-vibration checks use two models: the decoupled modal model of eq. 194,
-``δ̈ + Ω²(q) δ = −M_qδᵀ(q) q̈`` integrated here with its own RK4 (independent of
-casflex.simulate), and — when it is available — the full model through
-``casflex.simulate.simulate_prescribed``.
+``δ̈ + Ω²(q) δ = −M_qδᵀ(q) q̈`` integrated here step by step with casflex's RK4 step
+(independent of casflex.simulate's model), and — when it is available — the full model
+through ``casflex.simulate.simulate_prescribed``.
 """
 
 from __future__ import annotations
-
-import json
 
 import casadi as ca
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from casflex import cli
-from casflex.dynamics import FlexibleModel, PointwiseProvider
 from casflex.errors import ModelError, ProblemFileError
-from casflex.model import build_model
-from casflex.moves import Move, load_move
-from casflex.robot import load
+from casflex.model import FlexibleModel, PointwiseProvider
+from casflex.moves import Move
 from casflex.shaping import (
     FrequencyRange,
     apply_shaper,
@@ -55,8 +50,8 @@ from casflex.shaping import (
     tolerances_from_contributions,
     zv,
 )
+from casflex.simulate.integrators import rk4_step
 
-ROBOT = "problems/arm2link.toml"
 MOVES = ("move1", "move2", "move3")
 DISSERTATION = {
     "move1": {"r": [0.647, 1.0, 0.13], "vtol": [0.078, 0.05, 0.36], "duration": 0.87},
@@ -64,31 +59,25 @@ DISSERTATION = {
     "move3": {"r": [1.0, 0.0, 0.38], "vtol": [0.05, 1.0, 0.13], "duration": 0.39},
 }
 TABLE14 = ([6.64, 9.36, 23.36], [8.26, 11.9, 35.21])  # rad/s, moves 1 and 2
+#: a coarse grid of q3 covering the moves (-75°…15°, 7.5° steps), rad
+GRID = [np.radians(np.arange(-75.0, 15.1, 7.5))]
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    """Three-mode model on a coarse grid of q3 covering the moves (-75°…15°, 7.5° steps)."""
-    robot = load(ROBOT)
-    grid = [np.radians(np.arange(-75.0, 15.1, 7.5))]
-    model, _ = build_model(robot, n_modes=3, grid=grid, processes=1, gravity=None,
-                           cache_dir=tmp_path_factory.mktemp("tables"))
+def model(arm_model):
+    """Three-mode gravity-free model of the Table 8 arm on :data:`GRID`."""
+    model, _ = arm_model(3, grid=GRID, gravity=None)
     return model
 
 
 @pytest.fixture(scope="module")
-def designs(model):
+def designs(model, move):
     """Shapers of moves 1-3 with the dissertation's spans (no margin) and with ±20 %."""
     out = {}
     for name in MOVES:
-        move = load_move(f"problems/moves.toml:{name}")
-        out[name, 0.0] = shaper_for_move(model, move, margin=0.0)
-        out[name, 0.2] = shaper_for_move(model, move, margin=0.2)
+        out[name, 0.0] = shaper_for_move(model, move(name), margin=0.0)
+        out[name, 0.2] = shaper_for_move(model, move(name), margin=0.2)
     return out
-
-
-def move(name):
-    return load_move(f"problems/moves.toml:{name}")
 
 
 # ------------------------------------------------------------------ the decoupled model
@@ -115,22 +104,16 @@ def modal_response(model, reference, dt):
     k = f["stiffness"].map(tm.size)(qm.T).full().reshape(m, tm.size, m)
     w2 = k[np.arange(m), :, np.arange(m)].T  # (samples, m)
     F0, F1, W0, W1 = force[:N], force[N:], w2[:N], w2[N:]
-    x = np.zeros(m)
-    v = np.zeros(m)
+
+    def rhs(y, u):  # y = (δ, δ̇), u = (force, ω²)
+        return np.concatenate([y[m:], u[0] - u[1] * y[:m]])
+
+    y = np.zeros(2 * m)
     out = np.zeros((N, m))
     for i in range(N - 1):
         h = t[i + 1] - t[i]
-
-        def acc(xx, ff, ww):
-            return ff - ww * xx
-
-        k1x, k1v = v, acc(x, F0[i], W0[i])
-        k2x, k2v = v + 0.5 * h * k1v, acc(x + 0.5 * h * k1x, F1[i], W1[i])
-        k3x, k3v = v + 0.5 * h * k2v, acc(x + 0.5 * h * k2x, F1[i], W1[i])
-        k4x, k4v = v + h * k3v, acc(x + h * k3x, F0[i + 1], W0[i + 1])
-        x = x + h / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
-        v = v + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
-        out[i + 1] = x
+        y = rk4_step(rhs, y, h, (F0[i], W0[i]), (F1[i], W1[i]), (F0[i + 1], W0[i + 1]))
+        out[i + 1] = y[:m]
     J = jac.map(N)(q.T).full().reshape(3, N, m)
     tip = np.einsum("knj,nj->nk", J, out)
     return t, out, tip
@@ -138,13 +121,13 @@ def modal_response(model, reference, dt):
 
 # ------------------------------------------------------------------- contributions
 @pytest.mark.parametrize("name", MOVES)
-def test_contributions_match_dissertation(model, name):
+def test_contributions_match_dissertation(model, name, move):
     r = modal_contributions(model, move(name))
     np.testing.assert_allclose(r, DISSERTATION[name]["r"], atol=0.01)
     assert r.max() == 1.0
 
 
-def test_contributions_quadrature_independent_and_raw(model):
+def test_contributions_quadrature_independent_and_raw(model, move):
     """The midpoint rule on a Move and the trapezoid on its samples agree; raw values scale."""
     mv = move("move1")
     t = np.linspace(0.0, mv.duration, 4001)
@@ -178,10 +161,9 @@ def test_modal_displacement_against_finite_differences(model):
     assert modal_displacements(model, q, point=2)[0] < fd[0]
 
 
-def test_contributions_pointwise_model_for_move3():
+def test_contributions_pointwise_model_for_move3(arm, move):
     """Move 3 keeps q3 = 0: a model frozen at q = 0 (no tables) gives the same r."""
-    robot = load(ROBOT)
-    frozen = FlexibleModel(robot, PointwiseProvider(robot, [0.0, 0.0, 0.0], count=3),
+    frozen = FlexibleModel(arm, PointwiseProvider(arm, [0.0, 0.0, 0.0], count=3),
                            gravity=None)
     r = modal_contributions(frozen, move("move3"))
     np.testing.assert_allclose(r, DISSERTATION["move3"]["r"], atol=0.01)
@@ -199,6 +181,7 @@ def test_tolerances_eq198():
     assert tolerances_from_contributions([2.0, 1.0], vtol=0.6).tolist() == [0.6, 1.0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", MOVES)
 def test_tolerances_for_moves(designs, name):
     np.testing.assert_allclose(designs[name, 0.0].tolerances, DISSERTATION[name]["vtol"],
@@ -206,7 +189,7 @@ def test_tolerances_for_moves(designs, name):
 
 
 # --------------------------------------------------------------------- frequencies
-def test_frequency_spans_match_table14(model):
+def test_frequency_spans_match_table14(model, move):
     t, omega = frequencies_along(model, move("move1"))
     assert omega.shape == (t.size, 3)
     np.testing.assert_allclose(omega.min(axis=0), TABLE14[0], rtol=0.03)
@@ -219,7 +202,7 @@ def test_frequency_spans_match_table14(model):
     np.testing.assert_allclose(w3[0], [8.31, 11.97, 22.75], atol=0.01)
 
 
-def test_frequency_ranges_margin_and_table_form(model, tmp_path):
+def test_frequency_ranges_margin_and_table_form(model, arm_model, move):
     ranges = frequency_ranges_along(model, move("move2"), margin=0.2, vtol=[1.0, 0.05, 1.0])
     plain = frequency_ranges_along(model, move("move2"), margin=0.0)
     for a, b in zip(ranges, plain, strict=True):
@@ -228,10 +211,7 @@ def test_frequency_ranges_margin_and_table_form(model, tmp_path):
     assert [r.vtol for r in ranges] == [1.0, 0.05, 1.0]
     assert [r.vtol for r in plain] == [0.05] * 3
     # a ModalTable gives the same spans as the model built on it
-    robot = load(ROBOT)
-    grid = [np.radians(np.arange(-75.0, 15.1, 7.5))]
-    _, table = build_model(robot, n_modes=3, grid=grid, processes=1, gravity=None,
-                           cache_dir=tmp_path)
+    _, table = arm_model(3, grid=GRID, gravity=None)
     from_table = frequency_ranges_along(table, move("move2"), margin=0.0)
     for a, b in zip(from_table, plain, strict=True):
         assert a.omega_min == pytest.approx(b.omega_min, rel=1e-9)
@@ -239,6 +219,7 @@ def test_frequency_ranges_margin_and_table_form(model, tmp_path):
 
 
 # -------------------------------------------------------------------------- shapers
+@pytest.mark.slow
 @pytest.mark.parametrize("name", MOVES)
 def test_shaper_durations_match_dissertation(designs, name):
     res = designs[name, 0.0]
@@ -249,6 +230,7 @@ def test_shaper_durations_match_dissertation(designs, name):
         assert residual_vibration(res.shaper, w, r.zeta).max() <= r.vtol + 1e-6
 
 
+@pytest.mark.slow
 def test_margin_makes_shapers_longer(designs):
     """±20 % ranges: move 3 then needs ~0.87 s, not the dissertation's 0.39 s."""
     durations = {name: designs[name, 0.2].duration for name in MOVES}
@@ -260,7 +242,7 @@ def test_margin_makes_shapers_longer(designs):
 
 
 def test_unconstrained_ranges_do_not_break_the_design():
-    """Regression: a vtol = 1 range used to feed its V = 1 peaks back as samples."""
+    """Regression: a vtol = 1 range must not feed its V = 1 peaks back as samples."""
     ranges = [FrequencyRange(9.307738784276948, 11.97004502528341, 0.0, 0.05),
               FrequencyRange(22.74676580978592, 34.581990179015285, 0.0, 1.0)]
     assert si_shaper(ranges).duration == pytest.approx(0.5402, abs=1e-3)
@@ -299,8 +281,9 @@ def test_single_mode_residual_is_shaper_prv():
     assert shaped / unshaped == pytest.approx(residual_vibration(s, w), rel=0.02)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", MOVES)
-def test_decoupled_model_residual_reduced(model, designs, name):
+def test_decoupled_model_residual_reduced(model, designs, name, move):
     """Eq. 194 model: the shaped moves cut the residual tip deflection by >= 90 %."""
     mv = move(name)
     dt = 2e-3
@@ -315,7 +298,8 @@ def test_decoupled_model_residual_reduced(model, designs, name):
     assert shaped < 0.1 * unshaped
 
 
-def test_full_model_residual_reduced(model, designs):
+@pytest.mark.slow
+def test_full_model_residual_reduced(model, designs, move):
     """Full model (casflex.simulate): the ±20 % shaper cuts move 1's residual by >= 80 %.
 
     Move 1 is the hardest case (measured: 85 % less with ±20 %, 75 % with the bare spans;
@@ -332,7 +316,7 @@ def test_full_model_residual_reduced(model, designs):
 
 
 # ---------------------------------------------------------------------- bad inputs
-def test_bad_inputs(model):
+def test_bad_inputs(model, move):
     mv = move("move1")
     with pytest.raises(ModelError, match="2 joint"):
         modal_contributions(model, Move(q0=[0.0, 0.0], qf=[1.0, 1.0], duration=1.0))
@@ -378,44 +362,10 @@ def test_bad_inputs(model):
         apply_shaper(zv(10.0), t, t, t, np.zeros(3))
 
 
-# ------------------------------------------------------------------------------ CLI
-def test_cli_robot_form_json(tmp_path, capsys):
-    code = cli.main(["shaper", ROBOT, "--move", "problems/moves.toml:move2", "--margin", "0",
-                     "--step", "7.5deg", "--processes", "1", "--cache-dir", str(tmp_path),
-                     "--no-simulate", "--json"])
-    captured = capsys.readouterr()
-    assert code == 0, captured.err
-    data = json.loads(captured.out)
-    assert {"times", "amplitudes", "duration", "ranges", "contributions", "tolerances",
-            "residual_tip_deflection_unshaped", "residual_tip_deflection_shaped"} <= set(data)
-    np.testing.assert_allclose(data["contributions"], [0.0, 1.0, 0.0], atol=1e-6)
-    assert data["tolerances"] == [1.0, 0.05, 1.0]
-    assert data["duration"] == pytest.approx(0.540, abs=0.005)
-    assert data["residual_tip_deflection_shaped"] is None
-    assert len(data["ranges"]) == 3 and data["ranges"][1]["max_prv"] <= 0.05 + 1e-6
-
-
-@pytest.mark.parametrize("argv, message", [
-    (["shaper", ROBOT, "--json"], "--move"),
-    (["shaper", "problems/shapers/three_ranges.toml", "--move",
-      "problems/moves.toml:move1"], "takes no --move"),
-    (["shaper", ROBOT, "--move", "problems/moves.toml:nosuch"], "no such move"),
-    (["shaper", ROBOT, "--move", "problems/moves.toml:move1", "--margin", "1.5"],
-     "--margin"),
-    (["shaper", ROBOT, "--move", "problems/moves.toml:move1", "--vtol", "0"], "--vtol"),
-    (["shaper", "problems/fixtures/fixture1.toml", "--move", "problems/moves.toml:move1"],
-     "joint"),
-])
-def test_cli_robot_form_errors(argv, message, capsys):
-    assert cli.main(argv) == 2
-    captured = capsys.readouterr()
-    assert captured.out == ""
-    assert message in captured.err
-
-
+@pytest.mark.slow
 def test_si_design_recovers_from_infeasible_restart():
     """Regression: with Vtol = (0.05, 0.1, 0.666…) the restart from the pruned solution
-    used to end in Ipopt's 'Infeasible_Problem_Detected'; it is retried from the guess."""
+    can end in Ipopt's 'Infeasible_Problem_Detected'; the design retries from the guess."""
     hz = 2.0 * np.pi
     vt = tolerances_from_contributions([4.0, 2.0, 0.3])
     ranges = [FrequencyRange(a * hz, b * hz, 0.0, v)

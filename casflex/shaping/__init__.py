@@ -1,0 +1,133 @@
+"""Input shaping (§6.1 of the reference dissertation).
+
+The package reads as its data flow: impulse sequences and their residual vibration
+(:mod:`~casflex.shaping.shapers`, nothing of robots), specified-insensitivity design over
+frequency ranges (:mod:`~casflex.shaping.si`), and the shaper of a planned move of an arm
+(:mod:`~casflex.shaping.for_moves`). Residual vibration is a *fraction* (0.05 = 5 %);
+units are SI (s, rad, rad/s, m).
+
+Shapers and residual vibration (:mod:`casflex.shaping.shapers`)
+----------------------------------------------------------------
+Shaper                      impulse times (s) and amplitudes (sum 1)
+convolve                    multi-mode shaper from several shapers
+residual_vibration          PRV fraction V(ω, ζ) of a shaper (eq. 187–189)
+residual_vibration_casadi   the same as a CasADi expression (for NLPs)
+sensitivity_curve           V over a band of frequencies
+
+Closed-form shapers (:mod:`casflex.shaping.shapers`)
+----------------------------------------------------
+zv                          zero vibration (eq. 190–191)
+zvd                         zero vibration and derivative
+ei                          extra-insensitive
+ei_two_hump                 two-hump extra-insensitive
+ei_three_hump               three-hump extra-insensitive
+
+Shaping a reference (:mod:`casflex.shaping.shapers`)
+----------------------------------------------------
+apply_shaper                convolve sampled joint references with a shaper
+
+Specified-insensitivity shapers (:mod:`casflex.shaping.si`)
+-----------------------------------------------------------
+FrequencyRange              band of frequencies with a damping ratio and a tolerance
+ranges_from_mapping         ranges of a parsed shaper problem
+load_shaper_problem         ranges of a shaper problem file (TOML ``[[range]]`` tables)
+SISample                    sample frequencies of the SI constraints
+NLPSolution                 outcome of one SI NLP solve
+solve_si_nlp                one minimum-duration NLP (Ipopt or SLSQP)
+SIShaperResult              result of the SI design
+initial_si_guess            convolved EI shapers at the range midpoints
+si_shaper                   SI design: solves, prune-and-merge, dense-grid verification
+si_shaper_slsqp             the same with SciPy's SLSQP
+
+Shapers for planned moves (:mod:`casflex.shaping.for_moves`)
+------------------------------------------------------------
+modal_displacements         displacement of a point per unit modal amplitude (eq. 197)
+modal_contributions         contribution of every mode along a move (eq. 196)
+tolerances_from_contributions  Vtol of every mode (eq. 198)
+frequencies_along           natural frequencies along a move
+frequency_ranges_along      frequency ranges swept along a move, with a margin
+MoveShaperResult            result of the design for a move
+shaper_for_move             SI shaper of a move for a model
+shaper_for_robot_move       the same, building the gravity-free model of a robot
+shaped_reference            sampled, shaped reference of a move
+residual_amplitude          largest deflection after the move
+"""
+
+from __future__ import annotations
+
+from casflex.shaping.for_moves import (
+    MoveShaperResult,
+    frequencies_along,
+    frequency_ranges_along,
+    modal_contributions,
+    modal_displacements,
+    residual_amplitude,
+    shaped_reference,
+    shaper_for_move,
+    shaper_for_robot_move,
+    tolerances_from_contributions,
+)
+from casflex.shaping.shapers import (
+    Shaper,
+    apply_shaper,
+    convolve,
+    ei,
+    ei_three_hump,
+    ei_two_hump,
+    residual_vibration,
+    residual_vibration_casadi,
+    sensitivity_curve,
+    zv,
+    zvd,
+)
+from casflex.shaping.si import (
+    FrequencyRange,
+    NLPSolution,
+    SISample,
+    SIShaperResult,
+    initial_si_guess,
+    load_shaper_problem,
+    ranges_from_mapping,
+    si_shaper,
+    si_shaper_slsqp,
+    solve_si_nlp,
+)
+
+__all__ = [
+    # shapers and residual vibration
+    "Shaper",
+    "convolve",
+    "residual_vibration",
+    "residual_vibration_casadi",
+    "sensitivity_curve",
+    # closed-form shapers
+    "zv",
+    "zvd",
+    "ei",
+    "ei_two_hump",
+    "ei_three_hump",
+    # shaping a reference
+    "apply_shaper",
+    # specified-insensitivity shapers
+    "FrequencyRange",
+    "ranges_from_mapping",
+    "load_shaper_problem",
+    "SISample",
+    "NLPSolution",
+    "SIShaperResult",
+    "solve_si_nlp",
+    "initial_si_guess",
+    "si_shaper",
+    "si_shaper_slsqp",
+    # shapers for planned moves
+    "modal_displacements",
+    "modal_contributions",
+    "tolerances_from_contributions",
+    "frequencies_along",
+    "frequency_ranges_along",
+    "MoveShaperResult",
+    "shaper_for_move",
+    "shaper_for_robot_move",
+    "shaped_reference",
+    "residual_amplitude",
+]
