@@ -144,3 +144,53 @@ def plot_sweep(q, omega, joint, tracked=False):
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
     return fig
+
+
+# ------------------------------------------------------------------- control (§6.2)
+
+from numpy.typing import ArrayLike  # noqa: E402
+
+__all__ += ["plot_accessibility"]
+
+
+def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
+                       joints: tuple[int, int] = (2, 3), fig: Figure | None = None) -> Figure:
+    """Maps of the accessibility indexes, one panel per mode (Fig. 108–110).
+
+    Parameters
+    ----------
+    axes : (array_like, array_like)
+        Grid values [rad] of the two joints.
+    index : array_like
+        ``(m, len(axes[0]), len(axes[1]))`` from
+        :func:`casflex.control.accessibility_map`.
+    joints : (int, int)
+        Joint numbers for the labels (1-based).
+    fig : matplotlib.figure.Figure, optional
+        Figure to draw in (default a new one).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> ax = [np.linspace(-3, 3, 4)] * 2
+    >>> fig = plot_accessibility(ax, np.ones((2, 4, 4)))
+    >>> len(fig.axes)
+    4
+    """
+    index = np.asarray(index, dtype=float)
+    m = index.shape[0]
+    if fig is None:
+        fig = Figure(figsize=(4.2 * m, 3.6))
+    for k in range(m):
+        ax = fig.add_subplot(1, m, k + 1)
+        mesh = ax.pcolormesh(np.degrees(axes[1]), np.degrees(axes[0]), index[k],
+                             shading="auto", cmap="viridis")
+        fig.colorbar(mesh, ax=ax)
+        ax.set_title(f"a{k + 1} [√kg·m]")
+        ax.set_xlabel(f"q{joints[1]} [deg]")
+        ax.set_ylabel(f"q{joints[0]} [deg]")
+    fig.tight_layout()
+    return fig
