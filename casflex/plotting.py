@@ -167,7 +167,7 @@ def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
     joints : (int, int)
         Joint numbers for the labels (1-based).
     fig : matplotlib.figure.Figure, optional
-        Figure to draw in (default a new one).
+        Figure to draw in (default a new pyplot figure).
 
     Returns
     -------
@@ -175,15 +175,20 @@ def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
 
     Examples
     --------
+    >>> import matplotlib
+    >>> matplotlib.use("Agg")
     >>> ax = [np.linspace(-3, 3, 4)] * 2
     >>> fig = plot_accessibility(ax, np.ones((2, 4, 4)))
     >>> len(fig.axes)
     4
     """
+    import matplotlib.pyplot as plt
+
     index = np.asarray(index, dtype=float)
     m = index.shape[0]
     if fig is None:
-        fig = Figure(figsize=(4.2 * m, 3.6))
+        # a pyplot figure (unlike the others here): notebooks show it with plt.show()
+        fig = plt.figure(figsize=(4.2 * m, 3.6))
     for k in range(m):
         ax = fig.add_subplot(1, m, k + 1)
         mesh = ax.pcolormesh(np.degrees(axes[1]), np.degrees(axes[0]), index[k],
