@@ -27,6 +27,8 @@ __all__ = [
     "skeleton", "plot_modes", "plot_sweep",
     # input shaping
     "plot_prv", "plot_move_shaper",
+    # control
+    "plot_accessibility",
     # design report
     "plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
     "plot_estimation_error", "plot_accessibility_along",
@@ -479,5 +481,55 @@ def plot_move_shaper(result: MoveShaperResult, move_name: str,
         ax2.set_ylabel("|tip deflection| (mm)")
         ax2.grid(True, alpha=0.3)
         ax2.legend(loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
+# ------------------------------------------------------------------- control (§6.2)
+
+def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
+                       joints: tuple[int, int] = (2, 3), fig: Figure | None = None) -> Figure:
+    """Maps of the accessibility indexes, one panel per mode (Fig. 108–110).
+
+    Parameters
+    ----------
+    axes : (array_like, array_like)
+        Grid values [rad] of the two joints.
+    index : array_like
+        ``(m, len(axes[0]), len(axes[1]))`` from
+        :func:`casflex.control.accessibility_map`.
+    joints : (int, int)
+        Joint numbers for the labels (1-based).
+    fig : matplotlib.figure.Figure, optional
+        Figure to draw in (default a new pyplot figure).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> import matplotlib
+    >>> matplotlib.use("Agg")
+    >>> ax = [np.linspace(-3, 3, 4)] * 2
+    >>> fig = plot_accessibility(ax, np.ones((2, 4, 4)))
+    >>> len(fig.axes)
+    4
+    """
+    import matplotlib.pyplot as plt
+
+    index = np.asarray(index, dtype=float)
+    m = index.shape[0]
+    if fig is None:
+        # a pyplot figure (unlike the others here): notebooks show it with plt.show()
+        fig = plt.figure(figsize=(4.2 * m, 3.6))
+    for k in range(m):
+        ax = fig.add_subplot(1, m, k + 1)
+        mesh = ax.pcolormesh(np.degrees(axes[1]), np.degrees(axes[0]), index[k],
+                             shading="auto", cmap="viridis")
+        fig.colorbar(mesh, ax=ax)
+        ax.set_title(f"a{k + 1} [√kg·m]")
+        ax.set_xlabel(f"q{joints[1]} [deg]")
+        ax.set_ylabel(f"q{joints[0]} [deg]")
     fig.tight_layout()
     return fig

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -13,7 +15,7 @@ from casflex.robot import load
 HELP = "accessibility indexes of the modes over a grid of two joints (eq. 204)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``casflex accessibility``.
 
     Parameters
@@ -41,11 +43,12 @@ def add_arguments(parser):
     parser.add_argument("--no-cache", action="store_true", help="do not cache the tables")
 
 
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Compute the maps; return ``{"joints", "grid", "index"}`` (1-based joints, rad).
 
-    Tabulates the modes over the two joints (a few seconds even for a coarse grid), so
-    the example below only shows the argument checks; ``casflex accessibility
+    Checks the options, then calls :func:`casflex.control.robot_accessibility_map`, which
+    tabulates the modes over the two joints, so the example below only shows the argument
+    checks; ``casflex accessibility
     problems/arm2link.toml --step 45deg --modes 1 --json`` gives an ``index`` of shape
     (1, 8, 8).
 
@@ -77,9 +80,8 @@ def run(args, log):
         ...
     casflex.errors.ModelError: --joints: 4 is not a joint of 'arm2link' (1..3)
     """
-    from casflex import control
-    from casflex.modal.tables import shape_joints
-    from casflex.model import build_model, default_grid
+    from casflex.control import robot_accessibility_map
+    from casflex.plotting import plot_accessibility
 
     robot = load(args.robot)
     n = robot.n_joints
@@ -96,26 +98,18 @@ def run(args, log):
     if count < 8:
         raise ModelError(f"--step: {args.step} must be > 0 and give at least 8 points per "
                          "turn")
-    axis = -math.pi + 2 * math.pi * np.arange(count) / count
-    q = np.zeros(n)
+    q = None
     if args.q is not None:
         q = np.array([parse_angle(v, "--q") for v in args.q])
         if q.size != n:
             raise ModelError(f"--q: robot '{robot.name}' has {n} joints; got {q.size} values")
-    sj = shape_joints(robot)
-    grid = default_grid(robot, sj, step)
-    # shape joints that are mapped are tabulated on the map's own axis: no interpolation
-    grid = [axis if (k + 1) in joints else g for k, g in zip(sj, grid, strict=True)]
-    log(f"tabulating {args.modes} modes of {robot.name} over joints "
-        f"{[k + 1 for k in sj]} ({count} points per turn)")
-    model, _ = build_model(robot, args.modes, grid=grid, gravity=None, delta_order=0,
-                           cache_dir=False if args.no_cache else None)
-    axes, index = control.accessibility_map(model, joints=(joints[0] - 1, joints[1] - 1),
-                                            axes=(axis, axis), q=q)
+    axes, index = robot_accessibility_map(robot, (joints[0] - 1, joints[1] - 1), step, q=q,
+                                          n_modes=args.modes,
+                                          cache_dir=False if args.no_cache else None, log=log)
     for k in range(index.shape[0]):
         log(f"  mode {k + 1}: a in [{index[k].min():.4g}, {index[k].max():.4g}] sqrt(kg) m")
     if args.plot:
-        fig = control.plot_accessibility(axes, index, joints=tuple(joints))
+        fig = plot_accessibility(axes, index, joints=tuple(joints))
         fig.savefig(args.plot, dpi=120)
         log(f"wrote {args.plot}")
     return {"joints": joints, "grid": [a for a in axes], "index": index}

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
+
 import numpy as np
 
 from casflex.commands.common import parse_angle
@@ -12,7 +15,7 @@ HELP = ("stability of the inversion (eq. 226) or composite (fast loop Hurwitz) c
         "along a move")
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``casflex check``.
 
     Parameters
@@ -53,11 +56,11 @@ def add_arguments(parser):
     parser.add_argument("--no-cache", action="store_true", help="do not cache the tables")
 
 
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Run the check; return ``{"stable", "worst_margin", "worst_time", ...}`` (SI).
 
-    Building the model tabulates modes over a grid (seconds to minutes), so the example
-    below only shows an argument check.
+    Checks the options, then calls :func:`casflex.control.check_stability`. Building the
+    model tabulates modes over a grid, so the example below only shows an argument check.
 
     Parameters
     ----------
@@ -69,12 +72,12 @@ def run(args, log):
     Returns
     -------
     dict
-        Inversion (:func:`casflex.control.inversion_stability`): ``stable``,
+        As :func:`casflex.control.check_stability`: inversion (eq. 226) ``stable``,
         ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q`` [rad], ``alpha``,
-        ``gamma`` [1/s], ``damping_condition``, ``time_scale_max``. Composite
-        (:func:`casflex.control.composite_stability`): ``stable``, ``worst_margin``,
-        ``worst_real`` [1/s], ``worst_time`` [s], ``worst_q`` [rad], ``epsilon`` [s],
-        ``gains`` (``"scheduled"`` or ``"end of move"``).
+        ``gamma`` [1/s], ``damping_condition``, ``time_scale_max``; composite (fast loop)
+        ``stable``, ``worst_margin``, ``worst_real`` [1/s], ``worst_time`` [s],
+        ``worst_q`` [rad], ``epsilon`` [s], ``gains`` (``"scheduled"`` or ``"end of
+        move"``).
 
     Raises
     ------
@@ -95,8 +98,7 @@ def run(args, log):
         ...
     casflex.errors.ModelError: --dt: must be > 0 [s]; got 0.0
     """
-    from casflex import control
-    from casflex.model import build_model
+    from casflex.control import check_stability
     from casflex.moves import load_move
 
     robot = load(args.robot)
@@ -113,39 +115,23 @@ def run(args, log):
         raise ModelError(f"--step: must be > 0; got {args.step}")
     log(f"building the model of {robot.name} ({args.modes} modes, table step "
         f"{np.degrees(step):g} deg)")
-    model, table = build_model(robot, args.modes, step=step, gravity=None, delta_order=0,
-                               cache_dir=False if args.no_cache else None,
-                               progress=False)
+    r = check_stability(robot, move, args.controller, n_modes=args.modes, step=step,
+                        dt=args.dt, Kp=args.kp, alpha=args.alpha, Q=args.q_weight,
+                        R=args.r_weight, schedule=args.schedule,
+                        cache_dir=False if args.no_cache else None)
     if args.controller == "inversion":
-        r = control.inversion_stability(model, move, alpha=args.alpha, Kp=args.kp,
-                                        dt=args.dt)
         log(f"eq. 226 along {move.name}: worst margin {r['worst_margin']:.6g} 1/s^3 at "
             f"t = {r['worst_time']:.3f} s; alpha = {r['alpha']:.4g} 1/s; "
             f"gamma = {r['gamma']:.4g} 1/s; move may run {r['time_scale_max']:.4g}x faster")
         if not r["damping_condition"]:
             log("note: D - alpha I is not positive definite (no modal damping): eq. 225 "
                 "does not hold, the zero dynamics are not exponentially stable")
-        return {"stable": r["stable"], "worst_margin": r["worst_margin"],
-                "worst_time": r["worst_time"], "worst_q": r["worst_q"],
-                "alpha": r["alpha"], "gamma": r["gamma"],
-                "damping_condition": r["damping_condition"],
-                "time_scale_max": r["time_scale_max"]}
-    eps = control.perturbation_parameter(model, table=table)
-    if args.schedule:
-        gain = control.gain_schedule(model, Q=args.q_weight, R=args.r_weight, epsilon=eps,
-                                     table=table)
-    else:
-        gain, _, _ = control.fast_gain(model, move.qf, Q=args.q_weight, R=args.r_weight,
-                                       epsilon=eps)
-    r = control.composite_stability(model, move, gain=gain, epsilon=eps, dt=args.dt)
+        return r
     log(f"fast closed loop along {move.name}: largest real part {r['worst_real']:.6g} 1/s "
         f"at t = {r['worst_time']:.3f} s, q = {np.round(r['worst_q'], 4).tolist()} rad "
-        f"(epsilon = {eps:.4g} s)")
+        f"(epsilon = {r['epsilon']:.4g} s)")
     if not r["stable"] and not args.schedule:
         log("note: with gains fixed at the end of the move the fast loop of this model is "
             "not Hurwitz along the move (a property of the model: small residual joint "
             "inertia, see casflex.control.composite_stability); try --schedule")
-    return {"stable": r["stable"], "worst_margin": r["worst_margin"],
-            "worst_time": r["worst_time"], "worst_real": r["worst_real"],
-            "worst_q": r["worst_q"], "epsilon": eps,
-            "gains": "scheduled" if args.schedule else "end of move"}
+    return r

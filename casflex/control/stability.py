@@ -1,0 +1,386 @@
+"""Stability checks of the tracking laws along a move, and a decay metric (§6.2.2–6.2.3).
+
+Notation: ``n`` joints, ``m`` modes, ``K = diag(ω²)``, modal damping ``D``, ``C_δδ`` the
+modal block of the Coriolis matrix.
+
+How the flattened equations are read
+------------------------------------
+* Eq. 226: only the symmetric part of ``K̄ = K − α(C_δδ + D) + α² I`` enters the quadratic
+  forms (``C_δδ`` is skew-symmetric), so the margin is
+  ``λ_min(2α (K + α² I − α D) − K̇)`` along ``q_d(t)``, ``K̇ = ∂K/∂q · q̇_d`` by CasADi
+  differentiation [1/s³]. Eq. 225 as printed (``D̄ = C − αI``, "α > 0 guarantees
+  xᵀD̄x > 0") has a sign slip: with modal damping ``D`` the requirement is
+  ``D − α I ≻ 0``, i.e. ``α < 2ζ ω_min``; :func:`inversion_stability` reports it as
+  ``damping_condition``. The rate of eq. 230 is computed so that ``V̇ ≤ −γ V`` really
+  holds: ``γ = min(2 λ_min(D − αI), β / λ_max(K̄))`` with ``β`` the worst margin.
+* The composite law is checked through its fast loop ``A_f − B_f K_f`` (eq. 251,
+  :mod:`casflex.control.perturbation`), which lives in the fast time ``t/ε``: the
+  eigenvalues reported by :func:`composite_stability` are converted back to real time
+  (``λ/ε`` [1/s]).
+
+Examples
+--------
+>>> t = np.linspace(0.0, 10.0, 1001)
+>>> round(decay_time(t, np.exp(-t)), 2)   # below 5 % of the peak from t = 3 s on
+2.99
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import TYPE_CHECKING
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex._validate import choice, number
+from casflex.control.perturbation import (
+    GainSchedule,
+    boundary_layer,
+    fast_gain,
+    gain_schedule,
+    perturbation_parameter,
+)
+from casflex.errors import ModelError
+
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
+    from casflex.moves import Move
+    from casflex.robot import Robot
+
+__all__ = [
+    "inversion_stability",
+    "composite_stability",
+    "check_stability",
+    "decay_time",
+]
+
+
+def _trajectory(move, t, dt):
+    if t is None:
+        t = np.arange(int(round(move.duration / dt)) + 1) * dt
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    return (t, *move.sample(t))
+
+
+def inversion_stability(model: FlexibleModel, move: Move, alpha: float | None = None,
+                        Kp: ArrayLike = 1.0, t: ArrayLike | None = None,
+                        dt: float = 1e-2) -> dict:
+    """Stability condition of the zero dynamics (eq. 226) along a move, rate (eq. 230).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    move : casflex.moves.Move
+    alpha : float, optional
+        The constant of eq. 216 [1/s]. Default: ``ζ ω_min`` (half the bound
+        ``2ζω_min`` of ``D − αI ≻ 0``) with modal damping, else ``√K_p`` (the slow
+        closed-loop rate; eq. 225 cannot hold without damping, which is reported).
+    Kp : float
+        Used only for the default ``alpha``.
+    t : array_like, optional
+        Times [s] (default the move's duration at step ``dt``).
+    dt : float
+
+    Returns
+    -------
+    dict
+        ``t``, ``margin`` (λ_min(2α K̄ − K̇) per time [1/s³]), ``worst_margin``,
+        ``worst_time``, ``stable`` (margin > 0 throughout), ``alpha``,
+        ``damping_condition`` (``D − αI ≻ 0``), ``gamma`` (eq. 230, [1/s]; > 0 means
+        exponential stability), ``time_scale_max`` (largest factor by which the move
+        may be run faster, duration/s, keeping eq. 226; ``inf`` if unbounded).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 2), gravity=None)
+    >>> r = inversion_stability(model, Move([0, 0, 0], [-1, 0, 0], 2.0), alpha=1.0)
+    >>> r["stable"], r["time_scale_max"]   # frozen shapes: K̇ = 0
+    (True, inf)
+    """
+    m = model.m
+    t, qd, dqd, _ = _trajectory(move, t, dt)
+    zeta = model.damping_ratio
+    K = ca.substitute(model.K, model.delta, ca.SX.zeros(m))
+    D = ca.substitute(model.D, model.delta, ca.SX.zeros(m))
+    Kdot = ca.reshape(ca.jtimes(ca.vec(K), model.q, model.dq), m, m)
+    fK = ca.Function("KD", [model.q, model.dq], [K, D, Kdot])
+    Ks, Ds, Kds = fK.map(t.size)(qd.T, dqd.T)
+    Ks = np.asarray(Ks).reshape(m, t.size, m).transpose(1, 0, 2)
+    Ds = np.asarray(Ds).reshape(m, t.size, m).transpose(1, 0, 2)
+    Kds = np.asarray(Kds).reshape(m, t.size, m).transpose(1, 0, 2)
+    wmin = float(np.sqrt(np.min(np.diagonal(Ks, axis1=1, axis2=2))))
+    if alpha is None:
+        alpha = zeta * wmin if zeta > 0 else math.sqrt(float(np.max(np.atleast_1d(Kp))))
+    alpha = number(float(alpha), "alpha", low=0.0, low_open=True)  # [1/s]
+    I = np.eye(m)
+    margin = np.zeros(t.size)
+    smax = math.inf
+    kbar_max = 0.0
+    dmin = math.inf
+    for k in range(t.size):
+        Kbar = Ks[k] + alpha**2 * I - alpha * 0.5 * (Ds[k] + Ds[k].T)
+        Kd_ = 0.5 * (Kds[k] + Kds[k].T)
+        margin[k] = float(np.min(np.linalg.eigvalsh(2 * alpha * Kbar - Kd_)))
+        kbar_max = max(kbar_max, float(np.max(np.linalg.eigvalsh(Kbar))))
+        dmin = min(dmin, float(np.min(np.linalg.eigvalsh(0.5 * (Ds[k] + Ds[k].T)))) - alpha)
+        # largest s with 2αK̄ − s K̇ ⪰ 0: 1 / λ_max(L⁻¹ K̇ L⁻ᵀ), 2αK̄ = L Lᵀ
+        try:
+            L = np.linalg.cholesky(2 * alpha * Kbar)
+        except np.linalg.LinAlgError:
+            smax = 0.0
+            continue
+        Li = np.linalg.inv(L)
+        lam = float(np.max(np.linalg.eigvalsh(Li @ Kd_ @ Li.T)))
+        if lam > 0:
+            smax = min(smax, 1.0 / lam)
+    iw = int(np.argmin(margin))
+    beta = float(margin[iw])
+    gamma = min(2.0 * dmin, beta / kbar_max if kbar_max > 0 else math.inf)
+    return {"t": t, "margin": margin, "worst_margin": beta, "worst_time": float(t[iw]),
+            "worst_q": qd[iw], "stable": bool(beta > 0), "alpha": alpha,
+            "damping_condition": bool(dmin > 0), "gamma": float(gamma),
+            "time_scale_max": smax}
+
+
+def composite_stability(model: FlexibleModel, move: Move,
+                        gain: ArrayLike | GainSchedule | ca.Function | None = None,
+                        epsilon: float | None = None, Q: ArrayLike = 1.0, R: ArrayLike = 10.0,
+                        t: ArrayLike | None = None, dt: float = 1e-2,
+                        tol: float = 1e-9) -> dict:
+    """Is the fast closed loop ``A_f − B_f K_f`` Hurwitz along the move (§6.2.3.1)?
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    move : casflex.moves.Move
+    gain : array_like or GainSchedule or casadi.Function, optional
+        Default: :func:`~casflex.control.fast_gain` at the end of the move (the
+        dissertation's choice).
+    epsilon : float, optional
+    Q, R : float or array_like
+        LQR weights for the default gain.
+    t : array_like, optional
+    dt : float
+    tol : float
+        Real parts above ``−tol`` [1/s] count as not Hurwitz.
+
+    Returns
+    -------
+    dict
+        ``t``, ``real`` (largest real part of the fast closed-loop eigenvalues per time,
+        real time [1/s]), ``worst_real``, ``worst_time``, ``worst_q``,
+        ``worst_margin`` (``−worst_real``), ``stable``, ``epsilon``.
+
+    Notes
+    -----
+    With the gains fixed at the end of ``control_move1`` (the dissertation's choice) the
+    Table 8 model reports the fast loop unstable over the first ~0.5 s (largest real
+    part +87 1/s at ``q0 = [0, 1, 6.2]``, 70 at 0.2 s, 27 at 0.4 s; 3-mode table, 15°
+    grid), while gains scheduled over the grid keep it Hurwitz. This is the model, not
+    the boundary-layer formula (frames, signs and the ε scaling were checked: the
+    eigenvalues are invariant to ε up to the gain it implies, and ``A_f, B_f`` follow
+    from ``M(q, 0)⁻¹``): independently of this function,
+
+    * the full 12-state linearisation of the model under the composite law (finite
+      differences of :func:`~casflex.control.closed_loop`) at ``q0`` has an eigenvalue at
+      +26 1/s with the end gains (+19 at 0.2 s, +8 at 0.4 s, stable from 0.6 s), −0.75
+      1/s with the schedule;
+    * holding ``q0`` from a deflection of 1e-5 the state grows by ~5·10⁵ in 0.4 s with the
+      end gains and stays bounded with the schedule; along move 1 the joints leave the
+      plan by 5.6 rad within 0.6 s (0.04 rad with the schedule);
+
+    (``tests/control/test_control_closed_loop.py::``
+    ``test_end_gains_instability_is_in_the_model_not_the_boundary_layer``).
+    The cause is the small residual joint inertia of this arm, ``M_qq − M_qδ M_qδᵀ``
+    (smallest eigenvalue 4.5e-4 kg·m² at ``q0``, 2.1e-5 at mid-move, against 0.016–0.26
+    for ``M_qq``): ``B_f = [0; H_δq]`` is large and turns with the configuration
+    (‖B_f‖ = 340 at ``q0``, 1000 at ``qf``), the LQR at ``qf`` is high-gain (fast poles
+    −2025 and −1124 1/s) and the same gain with the ``B_f`` of ``q0`` has a real
+    eigenvalue in the right half-plane. The dissertation's arm may differ in its motor
+    inertias; for this model use :func:`~casflex.control.gain_schedule`.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> q = [0.0, 0.0, -np.pi / 2]
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, q, 2), gravity=None)
+    >>> r = composite_stability(model, Move(q, q, 1.0), epsilon=0.15)
+    >>> r["stable"]
+    True
+    """
+    n, m = model.n, model.m
+    t, qd, _, _ = _trajectory(move, t, dt)
+    if isinstance(gain, GainSchedule) and epsilon is None:
+        epsilon = gain.epsilon
+    if epsilon is None:
+        epsilon = perturbation_parameter(model)
+    if gain is None:
+        gain, _, _ = fast_gain(model, move.qf, Q=Q, R=R, epsilon=epsilon)
+    bl = boundary_layer(model, epsilon)
+    A, B = bl.map(t.size)(qd.T)
+    A = np.asarray(A).reshape(2 * m, t.size, 2 * m)
+    B = np.asarray(B).reshape(2 * m, t.size, n)
+    if isinstance(gain, GainSchedule):
+        gf = gain.function
+    elif isinstance(gain, ca.Function):
+        gf = gain
+    else:
+        gf = None
+        Kc = np.asarray(gain, dtype=float)
+    if gf is not None:
+        Ks = np.asarray(gf.map(t.size)(qd.T)).reshape(n, t.size, 2 * m)
+    real = np.zeros(t.size)
+    for k in range(t.size):
+        Kk = Ks[:, k, :] if gf is not None else Kc
+        ev = np.linalg.eigvals(A[:, k, :] - B[:, k, :] @ Kk)
+        real[k] = float(np.max(ev.real)) / float(epsilon)
+    iw = int(np.argmax(real))
+    return {"t": t, "real": real, "worst_real": float(real[iw]),
+            "worst_margin": float(-real[iw]), "worst_time": float(t[iw]),
+            "worst_q": qd[iw], "stable": bool(real[iw] < -tol), "epsilon": float(epsilon)}
+
+
+def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
+                    step: float = math.radians(6.0), dt: float = 1e-2, Kp: float = 1.0,
+                    alpha: float | None = None, Q: float = 1.0, R: float = 10.0,
+                    schedule: bool = False,
+                    cache_dir: str | os.PathLike | bool | None = None) -> dict:
+    """Stability of a tracking law of a robot along a planned move (``casflex check``).
+
+    Builds the model of the control studies (no gravity, ``delta_order=0``), then runs
+    :func:`inversion_stability` (eq. 226) or :func:`composite_stability` (fast loop
+    Hurwitz) with the LQR gains of ``Q I``, ``R I`` fixed at the end of the move or
+    scheduled over the configuration grid.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    move : casflex.moves.Move
+    controller : {"inversion", "composite"}
+    n_modes : int
+        Number of modes of the model.
+    step : float
+        Grid step of the modal tables [rad].
+    dt : float
+        Time step of the check along the move [s].
+    Kp : float
+        Slow gain (only for the default ``alpha``).
+    alpha : float, optional
+        Constant of eq. 216 [1/s] (inversion; see :func:`inversion_stability`).
+    Q, R : float
+        LQR weights ``Q I`` and ``R I`` (composite).
+    schedule : bool
+        Composite: gains scheduled over the grid (:func:`~casflex.control.gain_schedule`)
+        instead of fixed at the end of the move.
+    cache_dir : path, None or False
+        Modal-table cache (a path, ``None`` for the default, ``False`` for none).
+
+    Returns
+    -------
+    dict
+        Inversion: ``stable``, ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q``
+        [rad], ``alpha`` [1/s], ``gamma`` [1/s], ``damping_condition``,
+        ``time_scale_max``. Composite: ``stable``, ``worst_margin``, ``worst_time`` [s],
+        ``worst_real`` [1/s], ``worst_q`` [rad], ``epsilon`` [s], ``gains``
+        (``"scheduled"`` or ``"end of move"``).
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        A move for another number of joints, ``n_modes < 1``, ``dt`` or ``step`` not
+        positive, an unknown ``controller``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> robot = load("problems/arm2link.toml")
+    >>> check_stability(robot, Move([0, 0], [1, 0], 1.0), "inversion")
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: move 'move' has 2 joints; robot 'arm2link' has 3
+    """
+    from casflex.model import build_model
+
+    if move.n_joints != robot.n_joints:
+        raise ModelError(f"move '{move.name}' has {move.n_joints} joints; robot "
+                         f"'{robot.name}' has {robot.n_joints}")
+    choice(controller, "controller", ("inversion", "composite"))
+    number(n_modes, "n_modes", low=1, integer=True)
+    number(dt, "dt", low=0.0, low_open=True)  # [s]
+    number(step, "step", low=0.0, low_open=True)  # [rad]
+    model, table = build_model(robot, n_modes, step=step, gravity=None, delta_order=0,
+                               cache_dir=cache_dir, progress=False)
+    if controller == "inversion":
+        r = inversion_stability(model, move, alpha=alpha, Kp=Kp, dt=dt)
+        return {"stable": r["stable"], "worst_margin": r["worst_margin"],
+                "worst_time": r["worst_time"], "worst_q": r["worst_q"],
+                "alpha": r["alpha"], "gamma": r["gamma"],
+                "damping_condition": r["damping_condition"],
+                "time_scale_max": r["time_scale_max"]}
+    eps = perturbation_parameter(model, table=table)
+    if schedule:
+        gain = gain_schedule(model, Q=Q, R=R, epsilon=eps, table=table)
+    else:
+        gain, _, _ = fast_gain(model, move.qf, Q=Q, R=R, epsilon=eps)
+    r = composite_stability(model, move, gain=gain, epsilon=eps, dt=dt)
+    return {"stable": r["stable"], "worst_margin": r["worst_margin"],
+            "worst_time": r["worst_time"], "worst_real": r["worst_real"],
+            "worst_q": r["worst_q"], "epsilon": eps,
+            "gains": "scheduled" if schedule else "end of move"}
+
+
+def decay_time(t: ArrayLike, signal: ArrayLike, t0: float = 0.0, fraction: float = 0.05,
+               floor: float = 0.0) -> float:
+    """Time after ``t0`` from which ``‖signal‖`` stays below a fraction of its peak.
+
+    Parameters
+    ----------
+    t : array_like
+        (N,) times [s].
+    signal : array_like
+        (N,) or (N, k) samples (the Euclidean norm over columns is used).
+    t0 : float
+        Start of the window (e.g. the instant of a disturbance) [s].
+    fraction : float
+        Threshold as a fraction of the peak of ``‖signal‖`` after ``t0``.
+    floor : float
+        Absolute threshold added to the relative one.
+
+    Returns
+    -------
+    float
+        Seconds from ``t0``; ``inf`` if the signal is still above the threshold in the
+        last tenth of the window (it does not decay within the run).
+
+    Examples
+    --------
+    >>> tt = np.linspace(0, 10, 1001)
+    >>> round(decay_time(tt, np.exp(-tt) * np.cos(20 * tt)), 1)
+    3.0
+    """
+    t = np.asarray(t, dtype=float)
+    s = np.asarray(signal, dtype=float)
+    s = np.linalg.norm(s, axis=1) if s.ndim == 2 else np.abs(s)
+    sel = t >= t0
+    tt, ss = t[sel], s[sel]
+    if tt.size == 0:
+        raise ModelError(f"decay_time: no samples after t0 = {t0} s")
+    thr = fraction * float(np.max(ss)) + floor
+    above = np.nonzero(ss > thr)[0]
+    if above.size == 0:
+        return 0.0
+    last = tt[above[-1]]
+    if last >= tt[-1] - 0.1 * (tt[-1] - tt[0]):
+        return math.inf
+    return float(last - t0)
