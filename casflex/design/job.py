@@ -219,7 +219,7 @@ def _controller(study, model, table, move, shaped, say, cache_dir):
         if c["gains"] == "scheduled":
             say("fast LQR gains over the configuration grid ...")
             axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
-            gain = _schedule(control, model, c, eps, table, axis, cache_dir)
+            gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis, cache_dir)
         else:
             gain, _, _ = control.fast_gain(model, move.qf, Q=c["Q"], R=c["R"], epsilon=eps)
         controller = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
@@ -331,48 +331,6 @@ def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, er
         fig.savefig(p, dpi=110)
         paths.append(p)
     return paths
-
-
-def _schedule(control, model, c, eps, table, axis, cache_dir=None):
-    """Fast gains scheduled on the full-turn grid ``axis`` of every joint the boundary
-    layer depends on (the model table's own grid would be needlessly fine: one LQR per
-    point), cached on disk next to the modal tables under a key made of everything the
-    gains depend on (the robot, the table, the weights, ε, the grid and the source of the
-    functions that compute them)."""
-    from casflex import __version__
-    from casflex._cache import (
-        default_cache_dir,
-        digest,
-        load_verified,
-        save_verified,
-        source_digest,
-    )
-
-    bl = control.boundary_layer(model, eps)
-    joints = control._dependent_joints(lambda qq: [x.full() for x in bl(qq)], model.n,
-                                       np.random.default_rng(0))
-    if cache_dir is False:
-        return control.gain_schedule(model, Q=c["Q"], R=c["R"], epsilon=eps, table=table,
-                                     joints=joints, grid=[axis] * len(joints))
-    ident = {
-        "version": __version__, "robot": repr(model.robot), "table": table.info.get("key"),
-        "modes": model.m, "delta_order": model.delta_order, "modal_mass": model.modal_mass,
-        "Q": c["Q"], "R": c["R"], "epsilon": float(eps), "axis": np.asarray(axis).tolist(),
-        "joints": list(joints),
-        "source": source_digest(control.gain_schedule, control.boundary_layer,
-                                 control._lqr, control.GainSchedule),
-    }
-    key = digest(ident)
-    path = Path(default_cache_dir() if cache_dir is None else cache_dir) / f"gains-{key[:32]}.npz"
-    hit = load_verified(path, key)
-    if hit is not None:
-        return control.GainSchedule.from_gains(
-            joints, [axis] * len(joints), hit["gains"], eps, model.n,
-            filled=int(hit["filled"]), info={"from_cache": True})
-    sched = control.gain_schedule(model, Q=c["Q"], R=c["R"], epsilon=eps, table=table,
-                                  joints=joints, grid=[axis] * len(joints))
-    save_verified(path, key, gains=sched.gains, filled=np.array(sched.filled))
-    return sched
 
 
 # ------------------------------------------------------------------------------ C bundle
