@@ -148,16 +148,12 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     from casflex import codegen
-    from casflex.estimation import (
-        ekf_step_function,
-        run_ekf,
-        simulate_data,
-        tabulate_plant,
-    )
+    from casflex.estimation import ekf_step_function, run_ekf, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import load_move
     from casflex.robot import load
     from casflex.sensors import load_sensors
+    from casflex.simulate.measurements import simulate_data
 
     def log(msg):
         if not args.json:

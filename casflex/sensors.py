@@ -19,7 +19,7 @@ exact second time derivative of this position for the model's kinematics,
 
 which is eq. 148 (``T̈ r + 2 Ṫ ṙ + T r̈``) with the deflection of the inboard links in
 ``T_b`` included, and with ``δ̈`` eliminated through the flexible rows of the equations of
-motion (eq. 157–158, :attr:`casflex.dynamics.FlexibleModel.prescribed_dddelta`).
+motion (eq. 157–158, :attr:`casflex.model.FlexibleModel.prescribed_dddelta`).
 
 * ``frame = "sensor"`` (default): components along the axes of the deflected link at the
   sensor, ``R = R_b (I + [ϑ(s)δ ×])`` (eq. 153); ``"inertial"``: base-frame components.
@@ -51,7 +51,7 @@ Examples
 --------
 >>> import casadi as ca
 >>> from casflex.robot import load
->>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+>>> from casflex.model import FlexibleModel, PointwiseProvider
 >>> robot = load("problems/arm2link.toml")
 >>> sensors = SensorSet([Accelerometer(3, 1.0, name="tip")])
 >>> provider = PointwiseProvider(robot, [0, 0, 0], count=2, points=sensors.points)
@@ -64,14 +64,21 @@ Examples
 from __future__ import annotations
 
 import math
-import tomllib
+import os
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 
+from casflex._problemfile import TableReader, read_toml
+from casflex._validate import choice, fail
 from casflex.errors import ModelError, ProblemFileError
+
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
+    from casflex.robot import Robot, Section
 
 __all__ = [
     "Accelerometer",
@@ -133,14 +140,12 @@ class Accelerometer:
     def __post_init__(self):
         if not self.name:
             object.__setattr__(self, "name", _default_name("acc", self.row, self.s))
-        if self.frame not in ("sensor", "inertial"):
-            raise ModelError(f"accelerometer '{self.name}': frame must be 'sensor' or "
-                             f"'inertial'; got {self.frame!r}")
-        _check_axes(self.axes, "xyz", self.name)
+        choice(self.frame, f"{self.name}.frame", ("sensor", "inertial"))
+        _check_axes(self.axes, "xyz", f"{self.name}.axes")
         object.__setattr__(self, "offset", tuple(float(v) for v in self.offset))
 
     @property
-    def outputs(self):
+    def outputs(self) -> tuple[str, ...]:
         """Names of the scalar signals, ``<name>_<axis>``."""
         return tuple(f"{self.name}_{a}" for a in self.axes)
 
@@ -182,11 +187,11 @@ class StrainPair:
     def __post_init__(self):
         if not self.name:
             object.__setattr__(self, "name", _default_name("sg", self.row, self.s))
-        _check_axes(self.axes, "xy", self.name)
+        _check_axes(self.axes, "xy", f"{self.name}.axes")
         object.__setattr__(self, "distance", tuple(float(v) for v in self.distance))
 
     @property
-    def outputs(self):
+    def outputs(self) -> tuple[str, ...]:
         """Names of the scalar signals, ``<name>_<axis>``."""
         return tuple(f"{self.name}_{a}" for a in self.axes)
 
@@ -196,11 +201,13 @@ def _default_name(prefix, row, s):
     return f"{prefix}{int(row)}_{text}"
 
 
-def _check_axes(axes, allowed, name):
+def _check_axes(axes, allowed, field_, path=None, error=None):
+    """``axes`` if it is a non-empty, ordered subset of the letters ``allowed``."""
     if not isinstance(axes, str) or not axes or any(a not in allowed for a in axes) or \
             "".join(sorted(set(axes))) != axes:
-        raise ModelError(f"sensor '{name}': axes must be a non-empty, ordered subset of "
-                         f"{allowed!r}; got {axes!r}")
+        raise fail(field_, axes, f"must be a non-empty, ordered subset of {allowed!r}",
+                   path=path, error=error)
+    return axes
 
 
 class SensorSet:
@@ -220,7 +227,7 @@ class SensorSet:
     sensors : tuple
     points : list of (int, float)
         The distinct sensor points ``(row, s)``, to pass as ``points`` to
-        :func:`casflex.model.build_model` / :class:`~casflex.dynamics.PointwiseProvider`.
+        :func:`casflex.model.build_model` / :class:`~casflex.model.PointwiseProvider`.
 
     Examples
     --------
@@ -230,7 +237,8 @@ class SensorSet:
     (5, [(2, 1.0), (2, 0.05)])
     """
 
-    def __init__(self, sensors, source=None, points=None):
+    def __init__(self, sensors: Iterable[Accelerometer | StrainPair], source: str | None = None,
+                 points: Iterable[tuple[int, float]] | None = None) -> None:
         self.sensors = tuple(sensors)
         self.source = source
         names = set()
@@ -252,31 +260,31 @@ class SensorSet:
                                      f"is not among the given points {self.points}")
                 self.points.append(key)
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.sensors)
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Accelerometer | StrainPair]:
         return iter(self.sensors)
 
     @property
-    def n_outputs(self):
+    def n_outputs(self) -> int:
         """Length of the stacked measurement vector."""
         return sum(len(s.axes) for s in self.sensors)
 
     @property
-    def output_names(self):
+    def output_names(self) -> tuple[str, ...]:
         """Names of the scalar signals in stacking order."""
         return tuple(n for s in self.sensors for n in s.outputs)
 
     @property
-    def noise_std(self):
+    def noise_std(self) -> np.ndarray:
         """Per-signal standard deviations (NaN where a sensor gives none)."""
         out = []
         for s in self.sensors:
             out += [np.nan if s.noise is None else float(s.noise)] * len(s.axes)
         return np.array(out)
 
-    def point_index(self, sensor):
+    def point_index(self, sensor: Accelerometer | StrainPair) -> int:
         """Index of ``sensor``'s point in :attr:`points`.
 
         Parameters
@@ -301,7 +309,7 @@ class SensorSet:
         """
         return self.points.index((int(sensor.row), float(sensor.s)))
 
-    def with_options(self, **changes):
+    def with_options(self, **changes) -> SensorSet:
         """A copy with the given fields changed on every accelerometer (e.g. ``rigid``).
 
         Parameters
@@ -331,7 +339,7 @@ class SensorSet:
         return SensorSet(out, self.source, self.points)
 
 
-def default_strain_distance(section):
+def default_strain_distance(section: Section) -> tuple[float, float]:
     """Half depths ``(c_x, c_y)`` [m] of a rectangle or tube section (NaN otherwise).
 
     The default ``distance`` of a :class:`StrainPair`: ``c_x`` is the distance of the
@@ -364,41 +372,27 @@ def default_strain_distance(section):
 # ------------------------------------------------------------------ file reading
 
 
-def _err(path, field_, value, rule):
-    return ProblemFileError(path, field_, value, rule)
-
-
-def _number(path, raw, key, fld, default=None, required=False):
-    if key not in raw:
-        if required:
-            raise _err(path, fld, None, "is required but missing")
-        return default
-    v = raw[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-        raise _err(path, fld, v, "must be a finite number")
-    return float(v)
-
-
-def _resolve_row(path, robot, value, fld):
+def _resolve_row(reader, robot, value):
+    """The DH row of the flexible link named by ``value`` (link name or row index)."""
     if isinstance(value, bool):
-        raise _err(path, fld, value, "must be a link name or a 0-based DH row index")
+        raise reader.error("link", value, "must be a link name or a 0-based DH row index")
     if isinstance(value, int):
         if not 0 <= value < len(robot.links):
-            raise _err(path, fld, value, f"row index out of range: robot '{robot.name}' "
-                                         f"has rows 0..{len(robot.links) - 1}")
+            raise reader.error("link", value, f"row index out of range: robot '{robot.name}' "
+                                              f"has rows 0..{len(robot.links) - 1}")
         row = value
     elif isinstance(value, str):
         names = [link.name for link in robot.links]
         if value not in names:
-            raise _err(path, fld, value, f"unknown link; robot '{robot.name}' has links "
-                                         f"{names}")
+            raise reader.error("link", value, f"unknown link; robot '{robot.name}' has links "
+                                              f"{names}")
         row = names.index(value)
     else:
-        raise _err(path, fld, value, "must be a link name or a 0-based DH row index")
+        raise reader.error("link", value, "must be a link name or a 0-based DH row index")
     if not robot.links[row].flexible:
         flex = [link.name for link in robot.links if link.flexible]
-        raise _err(path, fld, value, f"link '{robot.links[row].name}' is rigid; sensors sit "
-                                     f"on flexible links {flex}")
+        raise reader.error("link", value, f"link '{robot.links[row].name}' is rigid; sensors "
+                                          f"sit on flexible links {flex}")
     return row
 
 
@@ -407,7 +401,56 @@ _ACC_KEYS = {"name", "type", "link", "s", "offset", "frame", "gravity", "rigid",
 _SG_KEYS = {"name", "type", "link", "s", "distance", "axes", "noise"}
 
 
-def sensors_from_tables(tables, robot, path=None):
+def _is_number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _sensor_from_table(reader, robot, kind):
+    """One sensor from its ``[[sensor]]`` table (``type`` already checked)."""
+    if not reader.has("link"):
+        raise reader.error("link", None, "is required: a link name or row index")
+    row = _resolve_row(reader, robot, reader.table["link"])
+    link = robot.links[row]
+    s = reader.number("s", required=True)
+    if not 0.0 <= s <= link.length * (1 + 1e-12):
+        raise reader.error("s", s, f"must lie on the link: 0 <= s <= {link.length} m "
+                                   f"(length of '{link.name}')")
+    name = reader.string("name", "")
+    if name and not name.isidentifier():
+        raise reader.error("name", name, "must be a C identifier ([A-Za-z_][A-Za-z0-9_]*)")
+    axes = reader.table.get("axes", "xyz" if kind == "accelerometer" else "xy")
+    _check_axes(axes, "xyz" if kind == "accelerometer" else "xy", f"{reader.prefix}.axes",
+                path=reader.path, error=ProblemFileError)
+    noise = reader.number("noise")
+    if noise is not None and noise <= 0:
+        raise reader.error("noise", noise, "must be > 0 (a standard deviation)")
+    if kind == "accelerometer":
+        offset = reader.vector("offset", 3, (0.0, 0.0, 0.0))
+        flags = {}
+        for key in ("gravity", "rigid"):
+            v = reader.table.get(key, True)
+            if not isinstance(v, bool):
+                raise reader.error(key, v, "must be true or false")
+            flags[key] = v
+        frame = reader.string("frame", "sensor", choices=("sensor", "inertial"))
+        return Accelerometer(row, s, name=name, offset=offset, frame=frame, axes=axes,
+                             noise=noise, **flags)
+    dist = reader.table.get("distance")
+    if dist is None:
+        dist = default_strain_distance(link.section)
+        if not all(math.isfinite(c) for c in dist):
+            raise reader.error("distance", None,
+                               "is required for an 'explicit' section (no depth known)")
+    elif _is_number(dist):
+        dist = (float(dist), float(dist))
+    if not (isinstance(dist, (list, tuple)) and len(dist) == 2
+            and all(_is_number(v) and v > 0 for v in dist)):
+        raise reader.error("distance", dist, "must be a positive number or [c_x, c_y] in m")
+    return StrainPair(row, s, distance=tuple(dist), name=name, axes=axes, noise=noise)
+
+
+def sensors_from_tables(tables: list[dict], robot: Robot,
+                        path: str | os.PathLike | None = None) -> SensorSet:
     """Build a :class:`SensorSet` from parsed ``[[sensor]]`` tables.
 
     Parameters
@@ -437,82 +480,31 @@ def sensors_from_tables(tables, robot, path=None):
     [0.0035, 0.0025]
     """
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-        raise _err(path, "sensor", tables, "must be an array of tables ([[sensor]])")
+        raise fail("sensor", tables, "must be an array of tables ([[sensor]])", path=path,
+                   error=ProblemFileError)
     if not tables:
-        raise _err(path, "sensor", tables, "declare at least one [[sensor]]")
+        raise fail("sensor", tables, "declare at least one [[sensor]]", path=path,
+                   error=ProblemFileError)
     out = []
     for i, raw in enumerate(tables):
-        pre = f"sensor[{i}]"
+        reader = TableReader(path, raw, f"sensor[{i}]")
         kind = raw.get("type")
         if kind not in ("accelerometer", "strain"):
-            raise _err(path, f"{pre}.type", kind, "must be 'accelerometer' or 'strain'")
+            raise reader.error("type", kind, "must be 'accelerometer' or 'strain'")
         allowed = _ACC_KEYS if kind == "accelerometer" else _SG_KEYS
         unknown = sorted(set(raw) - allowed)
         if unknown:
-            raise _err(path, f"{pre}.{unknown[0]}", raw[unknown[0]],
-                       f"unknown key for a {kind}; known keys are {sorted(allowed)}")
-        if "link" not in raw:
-            raise _err(path, f"{pre}.link", None, "is required: a link name or row index")
-        row = _resolve_row(path, robot, raw["link"], f"{pre}.link")
-        link = robot.links[row]
-        s = _number(path, raw, "s", f"{pre}.s", required=True)
-        if not 0.0 <= s <= link.length * (1 + 1e-12):
-            raise _err(path, f"{pre}.s", s, f"must lie on the link: 0 <= s <= {link.length} m "
-                                            f"(length of '{link.name}')")
-        name = raw.get("name", "")
-        if not isinstance(name, str) or (name and not name.isidentifier()):
-            raise _err(path, f"{pre}.name", name, "must be a C identifier "
-                                                  "([A-Za-z_][A-Za-z0-9_]*)")
-        axes = raw.get("axes", "xyz" if kind == "accelerometer" else "xy")
-        noise = _number(path, raw, "noise", f"{pre}.noise")
-        if noise is not None and noise <= 0:
-            raise _err(path, f"{pre}.noise", noise, "must be > 0 (a standard deviation)")
-        try:
-            if kind == "accelerometer":
-                off = raw.get("offset", [0.0, 0.0, 0.0])
-                if not (isinstance(off, list) and len(off) == 3 and all(
-                        isinstance(v, (int, float)) and not isinstance(v, bool)
-                        and math.isfinite(v) for v in off)):
-                    raise _err(path, f"{pre}.offset", off, "must be a list of 3 finite "
-                                                           "numbers [m]")
-                flags = {}
-                for key in ("gravity", "rigid"):
-                    v = raw.get(key, True)
-                    if not isinstance(v, bool):
-                        raise _err(path, f"{pre}.{key}", v, "must be true or false")
-                    flags[key] = v
-                frame = raw.get("frame", "sensor")
-                if frame not in ("sensor", "inertial"):
-                    raise _err(path, f"{pre}.frame", frame, "must be 'sensor' or 'inertial'")
-                sen = Accelerometer(row, s, name=name, offset=tuple(off), frame=frame,
-                                    axes=axes, noise=noise, **flags)
-            else:
-                dist = raw.get("distance")
-                default = default_strain_distance(link.section)
-                if dist is None:
-                    if not all(math.isfinite(c) for c in default):
-                        raise _err(path, f"{pre}.distance", None,
-                                   "is required for an 'explicit' section (no depth known)")
-                    dist = default
-                elif isinstance(dist, (int, float)) and not isinstance(dist, bool):
-                    dist = (float(dist), float(dist))
-                if not (isinstance(dist, (list, tuple)) and len(dist) == 2 and all(
-                        isinstance(v, (int, float)) and not isinstance(v, bool)
-                        and math.isfinite(v) and v > 0 for v in dist)):
-                    raise _err(path, f"{pre}.distance", dist,
-                               "must be a positive number or [c_x, c_y] in m")
-                sen = StrainPair(row, s, distance=tuple(dist), name=name, axes=axes,
-                                 noise=noise)
-        except ModelError as exc:
-            raise _err(path, f"{pre}.axes", axes, str(exc)) from exc
-        out.append(sen)
+            raise reader.error(unknown[0], raw[unknown[0]],
+                               f"unknown key for a {kind}; known keys are {sorted(allowed)}")
+        out.append(_sensor_from_table(reader, robot, kind))
     try:
         return SensorSet(out, source=None if path is None else str(path))
     except ModelError as exc:
-        raise _err(path, "sensor", [s.name for s in out], str(exc)) from exc
+        raise fail("sensor", [s.name for s in out], str(exc), path=path,
+                   error=ProblemFileError) from exc
 
 
-def load_sensors(path, robot):
+def load_sensors(path: str | os.PathLike, robot: Robot) -> SensorSet:
     """Read the ``[[sensor]]`` tables of a sensor file (or of a robot file).
 
     Parameters
@@ -534,21 +526,16 @@ def load_sensors(path, robot):
     >>> load_sensors("problems/sensors/arm2link_accel.toml", robot).output_names[:3]
     ('tip1_x', 'tip1_y', 'tip1_z')
     """
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise _err(path, "<file>", str(path), f"cannot be read: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise _err(path, "<toml>", None, f"is not valid TOML: {exc}") from exc
+    data = read_toml(path)
     if "sensor" not in data:
-        raise _err(path, "sensor", None, "is required: at least one [[sensor]] table")
+        raise fail("sensor", None, "is required: at least one [[sensor]] table", path=path,
+                   error=ProblemFileError)
     if "link" not in data:  # a sensor file: nothing else allowed
         unknown = sorted(set(data) - {"sensor", "description", "robot"})
         if unknown:
-            raise _err(path, unknown[0], data[unknown[0]],
-                       "unknown key; a sensor file has 'description', 'robot' and "
-                       "[[sensor]] tables")
+            raise fail(unknown[0], data[unknown[0]], "unknown key; a sensor file has "
+                       "'description', 'robot' and [[sensor]] tables", path=path,
+                       error=ProblemFileError)
     return sensors_from_tables(data["sensor"], robot, path)
 
 
@@ -609,13 +596,13 @@ def _point_pose(model, sensors, data, sensor):
     return p, T[:3, :3] @ Rl
 
 
-def point_position_function(model, sensors):
+def point_position_function(model: FlexibleModel, sensors: SensorSet) -> ca.Function:
     """``casadi.Function`` ``(q, delta) -> (p_<name>, ...)``: sensor positions [m] in the base
     frame, the model's kinematics (for independent checks of the accelerometer model).
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
         Built with ``points=sensors.points``.
     sensors : SensorSet
         One output per sensor, the position of its sensing element (offset included).
@@ -628,7 +615,7 @@ def point_position_function(model, sensors):
     Examples
     --------
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> robot = load("problems/arm2link.toml")
     >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
@@ -647,12 +634,13 @@ def _rigid_substitute(expr, model, extra=None):
     return ca.substitute(expr, v, ca.DM.zeros(v.numel()))
 
 
-def measurement_function(model, sensors, name="h"):
+def measurement_function(model: FlexibleModel, sensors: SensorSet,
+                         name: str = "h") -> ca.Function:
     """The measurement model ``h(x, u)`` of a sensor set (eq. 169, 174), exact for the model.
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
         Built with ``points=sensors.points`` (the provider must tabulate the sensor points).
     sensors : SensorSet
     name : str
@@ -667,7 +655,7 @@ def measurement_function(model, sensors, name="h"):
     Examples
     --------
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> robot = load("problems/arm2link.toml")
     >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip", axes="z")])
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
@@ -811,7 +799,8 @@ def _wrap(model, sensors, outs, name):
                        [s.name for s in sensors] + ["y"])
 
 
-def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False, lean=False):
+def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = "h_kin",
+                          rigid_part: bool = False, lean: bool = False) -> ca.Function:
     """The measurement with ``δ̈`` as an input: ``(x, u, dddelta) -> y``.
 
     The estimator substitutes its own (lean) model of the flexible accelerations; with
@@ -819,7 +808,7 @@ def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False, lean=F
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     sensors : SensorSet
     name : str
     rigid_part : bool
@@ -829,9 +818,8 @@ def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False, lean=F
         With a table provider (:class:`casflex.model.TableProvider`): the modal-table
         entries the signals use and their derivatives along the shape joints come from
         one B-spline of just those entries (the model's grid, periodicity and method)
-        instead of the model's B-spline of every quantity and its derivatives (Table 8
-        arm, 3 modes, two accelerometers: 27 of 158 entries; five spline evaluations of
-        158 values become four of 27). The same expressions to rounding. Ignored for
+        instead of the model's B-spline of every quantity and its derivatives (fewer and
+        smaller spline evaluations). The same expressions to rounding. Ignored for
         other providers and with ``rigid_part``.
 
     Returns
@@ -841,7 +829,7 @@ def kinematic_measurement(model, sensors, name="h_kin", rigid_part=False, lean=F
     Examples
     --------
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> robot = load("problems/arm2link.toml")
     >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))

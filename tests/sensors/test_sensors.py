@@ -5,13 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from casflex.dynamics import FlexibleModel, PointwiseProvider
 from casflex.errors import ModelError, ProblemFileError
-from casflex.estimation import exact_plant_function, simulate_data
+from casflex.estimation import exact_plant_function
 from casflex.modal.normalize import local_state
-from casflex.model import build_model
+from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
-from casflex.robot import load
 from casflex.sensors import (
     Accelerometer,
     SensorSet,
@@ -22,28 +20,29 @@ from casflex.sensors import (
     point_position_function,
     sensors_from_tables,
 )
+from casflex.simulate.measurements import simulate_data
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ROBOT = ROOT / "problems" / "arm2link.toml"
 # coarse test grids: the tracking warning of the modal tables is expected
 pytestmark = pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return load(ROBOT)
+def robot(arm):
+    """The Table 8 arm of problems/arm2link.toml (ROBOT)."""
+    return arm
 
 
 @pytest.fixture(scope="module")
-def inertial_setup(robot):
+def inertial_setup(arm_model):
     """Table model (15° grid) with accelerometers in the base frame, no gravity."""
     sensors = SensorSet([
         Accelerometer(2, 0.6, name="a1", frame="inertial", gravity=False),
         Accelerometer(3, 1.0, name="a2", frame="inertial", gravity=False,
                       offset=(0.01, -0.02, 0.0)),
     ])
-    model, _ = build_model(robot, n_modes=3, step=np.radians(15), cache_dir=False,
-                           processes=1, points=sensors.points, gravity=None)
+    model, _ = arm_model(3, points=sensors.points, gravity=None)
     return model, sensors
 
 

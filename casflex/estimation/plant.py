@@ -1,0 +1,719 @@
+"""The flexible plant of the estimator: the model's flexible rows expanded in Δ and
+tabulated (dissertation §5.4, eq. 157–162).
+
+The flexible rows of the model, ``M_δq q̈ + M_δδ δ̈ + (C Ẋ)_δ + G_δ + D δ̇ = 0``, solved
+for ``δ̈`` (:attr:`casflex.model.FlexibleModel.prescribed_dddelta`,
+:func:`exact_plant_function`), are a large expression. The filter uses its **expansion in
+Δ about Δ = 0 to second order** (default; ``order=1`` gives the dissertation's linear
+time-varying plant, eq. 159, 162):
+
+``δ̈ = r₀(u) + J_δ(u) δ + J_δ̇(u) δ̇ + Σ_{a≤b} W_ab(u) x_a x_b``,  ``x = [δ; δ̇]``
+
+with ``u = [q; q̇; q̈]`` the measured joint motion. The second-order terms (centripetal
+terms of the flexible rates, the change of the mass matrix and of the Coriolis coupling
+with δ) are small against δ̈ but matter for the velocity estimates of an arm whose tip
+deflects by several cm (the Table 8 arm on the Table 9 moves).
+
+Every coefficient is a polynomial of degree ≤ 2 in ``(q̇, q̈)`` — monomials ``1, q̈_a,
+q̇_a, q̇_a q̇_b`` — whose coefficients depend on ``q`` only. :func:`tabulate_plant`
+extracts them from the model (polynomial interpolation over 1 + 2n + n(n+1)/2 designs of
+``(q̇, q̈)``, central differences and even second differences in Δ), and stores them over
+the model's shape joints as periodic cubic B-splines (the model's own modal tables are
+B-splines on the same kind of grid) and as Fourier series of degree ``K`` in the other
+joints they depend on (rigid-body kinematics make that dependence a trigonometric
+polynomial; the degree is checked). Joints the coefficients do not depend on (e.g. a base
+joint about the gravity axis) are detected and left out. The result
+(:class:`FlexiblePlant`) is far smaller than the exact rows and their Jacobian.
+
+Examples
+--------
+>>> from casflex.robot import load
+>>> from casflex.model import FlexibleModel, PointwiseProvider
+>>> robot = load("problems/arm2link.toml")
+>>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+>>> plant = tabulate_plant(model, cache_dir=False)
+>>> plant.order, plant.n, plant.m
+(2, 3, 1)
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex._cache import cache_root, digest, load_verified, save_verified, source_digest
+from casflex._validate import choice
+
+if TYPE_CHECKING:
+    from casflex.modal.tables import ModalTable
+    from casflex.model import FlexibleModel
+
+__all__ = ["FlexiblePlant", "tabulate_plant", "exact_plant_function"]
+
+
+def exact_plant_function(model: FlexibleModel) -> ca.Function:
+    """``casadi.Function`` ``(u, x) -> dddelta``: the model's flexible rows solved for δ̈.
+
+    Exact but large (the reference the tabulated plant is checked against).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+
+    Returns
+    -------
+    casadi.Function
+        ``flex_exact (u, x) -> dddelta`` with ``u = [q; q̇; q̈]`` (3n) and
+        ``x = [δ; δ̇]`` (2m); the model's ``prescribed_dddelta`` (m).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> f = exact_plant_function(model)
+    >>> round(float(f(np.zeros(9), [1e-3, 0.0])), 6)   # -ω₁² δ₁ at rest (ω₁ = 8.31 rad/s)
+    -0.069012
+    """
+    u = ca.vertcat(model.q, model.dq, model.ddq)
+    x = ca.vertcat(model.delta, model.ddelta)
+    return ca.Function("flex_exact", [u, x], [model.prescribed_dddelta], ["u", "x"],
+                       ["dddelta"])
+
+
+def _monomials(n):
+    """Monomial list of (q̇, q̈): ('1',), ('a', i) for q̈_i, ('v', i), ('vv', i, j)."""
+    out = [("1",)]
+    out += [("a", i) for i in range(n)]
+    out += [("v", i) for i in range(n)]
+    out += [("vv", i, j) for i in range(n) for j in range(i, n)]
+    return out
+
+
+def _designs(n):
+    """(q̇, q̈) design points whose monomial matrix is square and invertible."""
+    d = [(np.zeros(n), np.zeros(n))]
+    eye = np.eye(n)
+    d += [(np.zeros(n), eye[i]) for i in range(n)]
+    d += [(eye[i], np.zeros(n)) for i in range(n)]
+    d += [(-eye[i], np.zeros(n)) for i in range(n)]
+    d += [(eye[i] + eye[j], np.zeros(n)) for i in range(n) for j in range(i + 1, n)]
+    return d
+
+
+def _monomial_values(mono, dq, ddq):
+    out = []
+    for mo in mono:
+        if mo[0] == "1":
+            out.append(1.0 + 0 * dq[0] if not isinstance(dq, np.ndarray) else 1.0)
+        elif mo[0] == "a":
+            out.append(ddq[mo[1]])
+        elif mo[0] == "v":
+            out.append(dq[mo[1]])
+        else:
+            out.append(dq[mo[1]] * dq[mo[2]])
+    return out
+
+
+def _fourier_basis(theta, K):
+    out = [1.0 + 0 * theta]
+    for k in range(1, K + 1):
+        out += [ca.cos(k * theta) if not isinstance(theta, float) else np.cos(k * theta),
+                ca.sin(k * theta) if not isinstance(theta, float) else np.sin(k * theta)]
+    return out
+
+
+@dataclass
+class FlexiblePlant:
+    """The flexible rows to first or second order in Δ,
+    ``δ̈ = r₀(u) + J_δ(u) δ + J_δ̇(u) δ̇ [+ W(u) (x_a x_b)_{a≤b}]``.
+
+    Built by :func:`tabulate_plant`. Coefficient array layout: ``coef[k, i, c]`` for
+    monomial ``k`` of ``(q̇, q̈)`` (:attr:`monomials`), mode row ``i`` and column ``c``
+    (0: r₀, 1..m: J_δ, m+1..2m: J_δ̇, then one column per pair of :attr:`pairs`).
+
+    Attributes
+    ----------
+    model : casflex.model.FlexibleModel
+    monomials : list of tuple
+    shape_joints, fourier_joints : tuple of int
+        Joints tabulated with B-splines, joints expanded in Fourier series.
+    degree : int
+        Fourier degree K.
+    table : casflex.modal.tables.ModalTable or None
+        The spline table (``None`` without shape joints).
+    constant : numpy.ndarray or None
+        ``(L, nnz)`` Fourier coefficients when there is no shape joint.
+    pattern : numpy.ndarray of bool
+        Structurally non-zero entries of ``coef`` (the only ones evaluated).
+    info : dict
+        Build statistics: ``samples``, ``evaluations``, ``seconds``, ``check_rel_error``,
+        ``from_cache``.
+    order : int
+        1: first order in Δ; 2: with the products ``x_a x_b`` (:attr:`pairs`). A
+        second-order plant replaced with ``order=1`` (``dataclasses.replace``) is its
+        first-order part.
+    keep : numpy.ndarray of bool or None
+        ``(L, nnz)``: the Fourier coefficients (rows: the ``L`` products of the Fourier
+        basis, columns: the structurally non-zero entries) that :meth:`coefficients`
+        evaluates; ``None``: all of them. Set by ``tabulate_plant(prune=...)``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> plant = tabulate_plant(model, cache_dir=False)
+    >>> plant.order, plant.pairs          # one mode: x = [δ₁, δ̇₁]
+    (2, [(0, 0), (0, 1), (1, 1)])
+    >>> plant.shape_joints, plant.fourier_joints, plant.table is None
+    ((), (1, 2), True)
+    >>> len(plant.monomials), plant.pattern.shape   # 1 + 2n + n(n+1)/2 monomials
+    (13, (13, 1, 6))
+    """
+
+    model: FlexibleModel
+    monomials: list[tuple]
+    shape_joints: tuple[int, ...]
+    fourier_joints: tuple[int, ...]
+    degree: int
+    table: ModalTable | None
+    constant: np.ndarray | None
+    pattern: np.ndarray
+    info: dict = field(default_factory=dict)
+    order: int = 1
+    keep: np.ndarray | None = None
+
+    @property
+    def pairs(self) -> list[tuple[int, int]]:
+        """Index pairs ``(a, b)``, ``a ≤ b``, of the quadratic terms ``x_a x_b`` (columns
+        ``2m+1 ...`` of the coefficient layout); empty for a first-order plant."""
+        if self.order < 2:
+            return []
+        nx = 2 * self.m
+        return [(a, b) for a in range(nx) for b in range(a, nx)]
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return self.model.n
+
+    @property
+    def m(self) -> int:
+        """Number of modes."""
+        return self.model.m
+
+    def coefficients(self, q: ArrayLike | ca.SX, dq: ArrayLike | ca.SX,
+                     ddq: ArrayLike | ca.SX, coriolis: bool = True,
+                     stiffness_scale: float = 1.0,
+                     quadratic: bool = False) -> tuple[ca.SX, ...]:
+        """SX coefficients ``(r0, Jd, Jv[, W])`` at ``(q, q̇, q̈)`` (SX or numbers).
+
+        Parameters
+        ----------
+        q, dq, ddq : casadi.SX or array_like
+            Joint angles [rad], rates [rad/s] and accelerations [rad/s²] (n each).
+        coriolis : bool
+            ``False`` drops every term with ``q̇`` (Coriolis and centrifugal forcing,
+            gyroscopic coupling and centrifugal stiffening).
+        stiffness_scale : float
+            Multiplies the modal stiffness ``K = Ω²`` inside ``J_δ`` (robustness studies;
+            the second-order terms are left as tabulated).
+        quadratic : bool
+            Also return ``W`` (m × len(:attr:`pairs`)), the coefficients of the products
+            ``x_a x_b`` (zero columns for a first-order plant).
+
+        Returns
+        -------
+        r0 : casadi.SX
+            (m × 1) δ̈ at Δ = 0.
+        Jd, Jv : casadi.SX
+            (m × m) ``∂δ̈/∂δ`` and ``∂δ̈/∂δ̇`` at Δ = 0.
+        W : casadi.SX
+            Only with ``quadratic=True``.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.model import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> plant = tabulate_plant(model, cache_dir=False)
+        >>> r0, Jd, Jv = plant.coefficients(np.zeros(3), np.zeros(3), np.zeros(3))
+        >>> round(float(r0), 6), round(float(Jd), 3), round(float(Jv), 6)   # J_δ = -ω₁²
+        (0.0, -69.012, 0.0)
+        >>> _, Jd2, _ = plant.coefficients(np.zeros(3), np.zeros(3), np.zeros(3),
+        ...                                stiffness_scale=2.0)
+        >>> round(float(Jd2), 3)
+        -138.025
+        >>> plant.coefficients([0, 0, 0], [0, 0, 0], [0, 0, 0], quadratic=True)[3].shape
+        (1, 3)
+        """
+        m = self.m
+        ncol = 2 * m + 1 + len(self.pairs)
+        q = ca.SX(ca.vertcat(*[q[i] for i in range(self.n)]))
+        L = (2 * self.degree + 1) ** len(self.fourier_joints)
+        nnz = int(self.pattern.sum())
+        phi = ca.SX.ones(1)
+        for j in self.fourier_joints:
+            phi = ca.vec(ca.vertcat(*_fourier_basis(q[j], self.degree)) @ phi.T)
+        if self.keep is None:
+            if self.table is not None:
+                qs = ca.vertcat(*[q[j] for j in self.shape_joints])
+                vals = ca.SX(self.table.function("coef")(qs))
+                A = ca.reshape(vals, nnz, L)  # stored column-major: nnz fastest
+            else:
+                A = ca.SX(ca.DM(self.constant.T))
+            entries = A @ phi if L > 1 else A[:, 0]
+        else:  # only the kept Fourier coefficients (tabulate_plant, prune)
+            keep = np.asarray(self.keep, dtype=bool).reshape(L, nnz)
+            flat = np.flatnonzero(keep.ravel())  # index l * nnz + e of the stored layout
+            if self.table is not None:
+                qs = ca.vertcat(*[q[j] for j in self.shape_joints])
+                vals = ca.SX(self.table.function("coef", entries=flat)(qs))
+            else:
+                vals = ca.SX(ca.DM(np.asarray(self.constant, dtype=float).ravel()[flat]))
+            terms = [[] for _ in range(nnz)]
+            for pos, fi in enumerate(flat):  # increasing l for every entry
+                terms[fi % nnz].append(vals[pos] * phi[fi // nnz] if L > 1 else vals[pos])
+            entries = ca.vertcat(*[sum(t[1:], t[0]) if t else ca.SX(0) for t in terms])
+        mono = _monomial_values(self.monomials, [dq[i] for i in range(self.n)],
+                                [ddq[i] for i in range(self.n)])
+        out = [[ca.SX(0) for _ in range(ncol)] for _ in range(m)]
+        idx = 0
+        for k, i, c in zip(*np.nonzero(self.pattern), strict=True):
+            mo = self.monomials[k]
+            if (not coriolis and mo[0] in ("v", "vv")) or c >= ncol:
+                idx += 1  # dropped: Coriolis terms, or products x_a x_b with order = 1
+                continue
+            out[i][c] = out[i][c] + mono[k] * entries[idx]
+            idx += 1
+        C = ca.SX(m, ncol)
+        for i in range(m):
+            for c in range(ncol):
+                C[i, c] = out[i][c]
+        r0, Jd, Jv = C[:, 0], C[:, 1:m + 1], C[:, m + 1:2 * m + 1]
+        if stiffness_scale != 1.0:
+            K = ca.substitute(self.model.K, self.model.q, q)
+            Jd = Jd - (float(stiffness_scale) - 1.0) * K
+        if quadratic:
+            W = C[:, 2 * m + 1:] if self.pairs else ca.SX(m, 0)
+            return r0, Jd, Jv, W
+        return r0, Jd, Jv
+
+    def quadratic_terms(self, x: ArrayLike | ca.SX) -> ca.SX:
+        """The products ``x_a x_b`` of :attr:`pairs` (SX column).
+
+        Parameters
+        ----------
+        x : casadi.SX or array_like
+            ``[δ; δ̇]`` (2m).
+
+        Returns
+        -------
+        casadi.SX
+            ``len(pairs) × 1``; empty (0 × 1) for a first-order plant.
+
+        Examples
+        --------
+        >>> import dataclasses
+        >>> from casflex.robot import load
+        >>> from casflex.model import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> plant = tabulate_plant(model, cache_dir=False)
+        >>> print(plant.quadratic_terms(ca.SX.sym("x", 2)))
+        [sq(x_0), (x_0*x_1), sq(x_1)]
+        >>> dataclasses.replace(plant, order=1).quadratic_terms(ca.SX.sym("x", 2)).shape
+        (0, 1)
+        """
+        return ca.vertcat(*[x[a] * x[b] for a, b in self.pairs]) if self.pairs else \
+            ca.SX(0, 1)
+
+    def function(self, coriolis: bool = True, stiffness_scale: float = 1.0) -> ca.Function:
+        """``casadi.Function`` ``u -> (r0, Jd, Jv[, W])``; ``W`` (second-order plants only)
+        holds the coefficients of the products ``x_a x_b`` of :attr:`pairs`.
+
+        Parameters
+        ----------
+        coriolis, stiffness_scale
+            Estimator-model variations (:meth:`coefficients`).
+
+        Returns
+        -------
+        casadi.Function
+            ``flex_coefficients (u) -> (r0, Jd, Jv[, W])`` with ``u = [q; q̇; q̈]`` (3n).
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.model import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> f = tabulate_plant(model).function()
+        >>> round(float(f(np.zeros(9))[1]), 3)   # J_δ = -ω₁² at rest
+        -69.012
+        """
+        n = self.n
+        u = ca.SX.sym("u", 3 * n)
+        r0, Jd, Jv, W = self.coefficients(u[:n], u[n:2 * n], u[2 * n:], coriolis,
+                                          stiffness_scale, quadratic=True)
+        if self.pairs:
+            return ca.Function("flex_coefficients", [u], [r0, Jd, Jv, W], ["u"],
+                               ["r0", "Jd", "Jv", "W"])
+        return ca.Function("flex_coefficients", [u], [r0, Jd, Jv], ["u"],
+                           ["r0", "Jd", "Jv"])
+
+    def rhs_function(self, coriolis: bool = True, stiffness_scale: float = 1.0,
+                     quadratic: bool = True) -> ca.Function:
+        """``casadi.Function`` ``(u, x) -> dddelta`` of the tabulated plant.
+
+        ``quadratic=False`` drops the second-order terms (the first-order plant).
+
+        Parameters
+        ----------
+        coriolis, stiffness_scale
+            Estimator-model variations (:meth:`coefficients`).
+        quadratic : bool
+            Include the products ``x_a x_b`` (second-order plants only).
+
+        Returns
+        -------
+        casadi.Function
+            ``flex_lean (u, x) -> dddelta`` with ``u = [q; q̇; q̈]`` (3n), ``x = [δ; δ̇]``.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.model import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> f = tabulate_plant(model).rhs_function()
+        >>> round(float(f(np.zeros(9), [1e-3, 0.0])), 6)   # -ω₁² δ₁ at rest
+        -0.069012
+        """
+        n, m = self.n, self.m
+        u = ca.SX.sym("u", 3 * n)
+        x = ca.SX.sym("x", 2 * m)
+        r0, Jd, Jv, W = self.coefficients(u[:n], u[n:2 * n], u[2 * n:], coriolis,
+                                          stiffness_scale, quadratic=True)
+        rhs = r0 + Jd @ x[:m] + Jv @ x[m:]
+        if quadratic and self.pairs:
+            rhs = rhs + W @ self.quadratic_terms(x)
+        return ca.Function("flex_lean", [u, x], [rhs], ["u", "x"], ["dddelta"])
+
+
+def _depends(fexact, n, m, joints, rng):
+    """Joints among ``joints`` whose value changes the exact plant (numerically)."""
+    out = []
+    for j in joints:
+        diffs, scale = 0.0, 0.0
+        for _ in range(3):
+            u = rng.normal(size=3 * n)
+            x = 1e-3 * rng.normal(size=2 * m)
+            u2 = u.copy()
+            u2[j] += rng.uniform(0.5, 2.5)
+            a = np.asarray(fexact(u, x)).ravel()
+            b = np.asarray(fexact(u2, x)).ravel()
+            diffs = max(diffs, float(np.max(np.abs(a - b))))
+            scale = max(scale, float(np.max(np.abs(a))))
+        if diffs > 1e-10 * max(scale, 1e-300):
+            out.append(j)
+    return tuple(out)
+
+
+def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = None,
+                   step: float | None = None, degree: int = 2, eps: float = 1e-4,
+                   check: bool = True, seed: int = 0, order: int = 2, eps2: float = 1e-3,
+                   cache_dir: str | os.PathLike | bool | None = None,
+                   prune: float | None = 1e-6) -> FlexiblePlant:
+    """Tabulate the flexible plant of ``model`` to first or second order in Δ (module
+    docstring).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    grid : sequence of array_like, optional
+        Axes over the shape joints [rad]; default the model's table grid when the provider
+        is a :class:`casflex.model.TableProvider`, else :func:`casflex.model.default_grid`
+        with ``step``.
+    step : float, optional
+        Grid step [rad] when no grid is known.
+    degree : int
+        Fourier degree in the other joints (2 is exact for rigid-body kinematics).
+    eps : float
+        Central-difference step in Δ for the first-order terms [√kg m, √kg m/s].
+    order : {1, 2}
+        Order of the expansion in Δ. 2 (default) adds the products ``x_a x_b`` (the
+        centripetal and gyroscopic terms of the flexible rates, the change of the mass
+        matrix with δ): small against δ̈, but without them the velocity estimates of an
+        arm that deflects by several cm (Table 8 arm, Table 9 moves) fall short.
+    eps2 : float
+        Step of the second differences for the second-order terms [√kg m, √kg m/s].
+    check : bool
+        Compare with the exact plant at random points; the largest relative error goes to
+        ``info["check_rel_error"]``.
+    seed : int
+        Random seed of the dependence detection and the check.
+    cache_dir : str or pathlib.Path or False, optional
+        Disk cache directory (default ``$CASFLEX_CACHE``, else ``~/.cache/casflex``;
+        ``False`` disables it). The file ``plant-<key>.npz`` is keyed on the SHA-256 of the model's
+        exact flexible rows (their serialised CasADi graph, modal tables included), the
+        grid, every option above, the casflex and CasADi versions and the source of the
+        tabulation code; it is written atomically and carries its key, so a stale or
+        foreign file is never read (it is recomputed and overwritten).
+        ``info["from_cache"]`` tells which happened.
+    prune : float or None
+        Leave out of the evaluation (:attr:`FlexiblePlant.keep`) every Fourier coefficient
+        whose largest magnitude over the grid is below ``prune`` times that of the
+        largest Fourier coefficient of the same entry (``None`` or 0: keep all). The
+        dropped ones are the harmonics an entry does not have, tabulated as round-off of
+        the differences, orders of magnitude below the harmonics it has (the default 1e-6
+        sits in this gap): the coefficients change only by round-off, and the table
+        lookup and the Fourier sum shrink. Applied after the cache (the stored table is
+        complete); ``info["pruned"]`` counts the dropped values.
+
+    Returns
+    -------
+    FlexiblePlant
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> plant = tabulate_plant(model)
+    >>> plant.fourier_joints, plant.info["check_rel_error"] < 1e-6
+    ((1, 2), True)
+    >>> full = tabulate_plant(model, prune=None)   # every Fourier coefficient evaluated
+    >>> full.keep is None, plant.keep.shape, int(plant.keep.sum()), plant.info["pruned"]
+    (True, (25, 31), 435, 340)
+    """
+    from casflex.modal.tables import ModalTable
+    from casflex.model import default_grid
+
+    t0 = time.perf_counter()
+    choice(order, "order", (1, 2))
+    n, m = model.n, model.m
+    rng = np.random.default_rng(seed)
+    fexact = exact_plant_function(model)
+    shape = tuple(model.provider.shape_joints)
+    others = [j for j in range(n) if j not in shape]
+    fourier = _depends(fexact, n, m, others, rng)
+    mono = _monomials(n)
+    designs = _designs(n)
+    Dm = np.array([_monomial_values(mono, dq, ddq) for dq, ddq in designs])
+    Dinv = np.linalg.inv(Dm)
+    L1 = 2 * degree + 1
+    thetas = 2.0 * np.pi * np.arange(L1) / L1
+    B1 = np.array([[float(v) for v in _fourier_basis(float(t), degree)] for t in thetas])
+    Bf = np.ones((1, 1))
+    for _ in fourier:
+        Bf = np.kron(Bf, B1)  # rows: sample combos (first joint slowest)
+    Binv = np.linalg.inv(Bf)
+
+    table_grid, periodic = None, ()
+    if shape:
+        if grid is None and hasattr(model.provider, "table"):
+            table_grid = tuple(np.asarray(a, dtype=float) for a in model.provider.table.grid)
+            periodic = tuple(model.provider.table.periodic)
+        else:
+            table_grid = tuple(np.asarray(a, dtype=float) for a in (
+                grid if grid is not None else default_grid(model.robot, shape, step)))
+            periodic = (True,) * len(shape)
+    gpoints = list(itertools.product(*[range(a.size) for a in table_grid])) if shape else [()]
+    fsamples = list(itertools.product(range(L1), repeat=len(fourier)))
+
+    path = key = None
+    root = cache_root(cache_dir)
+    if root is not None:
+        key = _plant_key(fexact, table_grid, periodic, fourier, degree=degree, eps=eps,
+                         eps2=eps2, order=order, check=check, seed=seed)
+        path = root / f"plant-{key[:32]}.npz"
+        hit = load_verified(path, key)
+        if hit is not None:
+            return _pruned(_plant_from_arrays(model, mono, shape, fourier, degree, order, hit,
+                                              time.perf_counter() - t0), prune)
+
+    # all (q, u, x) evaluation points
+    nx = 2 * m
+    xdes = [np.zeros(nx)]
+    for i in range(nx):
+        e = np.zeros(nx)
+        e[i] = eps
+        xdes += [e, -e]
+    pairs = [(a, b) for a in range(nx) for b in range(a, nx)] if order == 2 else []
+    if order == 2:
+        for i in range(nx):  # second differences: x_i^2 terms
+            e = np.zeros(nx)
+            e[i] = eps2
+            xdes += [e, -e]
+        for a, b in pairs:  # and x_a x_b from the even part along e_a + e_b
+            if a != b:
+                e = np.zeros(nx)
+                e[a] = e[b] = eps2
+                xdes += [e, -e]
+    Us, Xs = [], []
+    for gp in gpoints:
+        for fs in fsamples:
+            q = np.zeros(n)
+            for ax, j in enumerate(shape):
+                q[j] = table_grid[ax][gp[ax]]
+            for a, j in enumerate(fourier):
+                q[j] = thetas[fs[a]]
+            for dq, ddq in designs:
+                for x in xdes:
+                    Us.append(np.r_[q, dq, ddq])
+                    Xs.append(x)
+    U = np.array(Us).T
+    X = np.array(Xs).T
+    N = U.shape[1]
+    R = np.asarray(fexact.map(N)(U, X))  # (m, N)
+    nd, ndes = len(designs), len(xdes)
+    R = R.reshape(m, len(gpoints), len(fsamples), nd, ndes)
+    cols = np.empty((m, len(gpoints), len(fsamples), nd, 2 * m + 1 + len(pairs)))
+    cols[..., 0] = R[..., 0]
+    for i in range(nx):
+        cols[..., 1 + i] = (R[..., 1 + 2 * i] - R[..., 2 + 2 * i]) / (2.0 * eps)
+    if order == 2:
+        base = 1 + 2 * nx
+
+        def even(k):  # (f(+e) + f(-e) - 2 f(0)) / (2 eps2^2) for design pair k
+            return (R[..., base + 2 * k] + R[..., base + 2 * k + 1] - 2.0 * R[..., 0]) / (
+                2.0 * eps2**2)
+
+        diag = [even(i) for i in range(nx)]
+        k = nx
+        for c, (a, b) in enumerate(pairs):
+            if a == b:
+                cols[..., 1 + nx + c] = diag[a]
+            else:
+                cols[..., 1 + nx + c] = even(k) - diag[a] - diag[b]
+                k += 1
+    # monomial coefficients, then Fourier coefficients
+    coef = np.einsum("kd,igfdc->gfkic", Dinv, cols)  # (G, F, mono, m, 2m+1)
+    coef = np.einsum("lf,gfkic->glkic", Binv, coef)  # (G, L, mono, m, 2m+1)
+    scale = np.max(np.abs(coef), axis=(0, 1), keepdims=True)
+    big = np.max(np.abs(coef))
+    pattern = (scale[0, 0] > 1e-11 * big)
+    if order == 2:  # second differences carry round-off ~1e-16 |f| / eps2^2: drop it
+        quad = scale[0, 0][..., 1 + nx:]
+        pattern[..., 1 + nx:] = quad > 1e-7 * max(float(quad.max()), 1e-300)
+    nnz_idx = np.nonzero(pattern)
+    vals = coef[:, :, nnz_idx[0], nnz_idx[1], nnz_idx[2]]  # (G, L, nnz)
+    table, constant = None, None
+    if shape:
+        gshape = tuple(a.size for a in table_grid)
+        # per grid point the (nnz, L) matrix, column-major (nnz fastest) = vals[g] in C order
+        flat = vals.reshape((len(gpoints), -1)).reshape(gshape + (-1,))
+        table = ModalTable(grid=table_grid, shape_joints=shape, values={"coef": flat},
+                           omega=np.zeros(gshape + (1,)), periodic=periodic)
+    else:
+        constant = vals[0]  # (L, nnz)
+    plant = FlexiblePlant(model=model, monomials=mono, shape_joints=shape,
+                          fourier_joints=fourier, degree=degree, table=table,
+                          constant=constant, pattern=pattern,
+                          info={"samples": len(gpoints) * len(fsamples), "evaluations": N,
+                                "nonzeros": int(pattern.sum())}, order=order)
+    plant = _pruned(plant, prune)
+    if check:
+        plant.info["check_rel_error"] = _check_plant(plant, fexact, rng)
+    plant.info["seconds"] = time.perf_counter() - t0
+    plant.info["from_cache"] = False
+    if path is not None:
+        info = {k: v for k, v in plant.info.items() if k != "pruned"}
+        arrays = {"pattern": pattern, "info": np.array(json.dumps(info))}
+        if table is not None:
+            arrays["coef"] = table.values["coef"]
+            arrays["periodic"] = np.array(periodic, dtype=bool)
+            for ax, a in enumerate(table_grid):
+                arrays[f"grid{ax}"] = a
+        else:
+            arrays["constant"] = constant
+        save_verified(path, key, **arrays)
+    return plant
+
+
+def _pruned(plant, prune):
+    """The plant with :attr:`FlexiblePlant.keep` set by the relative threshold ``prune``
+    (see :func:`tabulate_plant`)."""
+    if not prune:
+        plant.info["pruned"] = 0
+        return plant
+    if plant.table is not None:
+        vals = np.asarray(plant.table.values["coef"], dtype=float)
+        vals = vals.reshape((-1, vals.shape[-1]))  # (grid points, L * nnz)
+    else:
+        vals = np.asarray(plant.constant, dtype=float).reshape((1, -1))
+    nnz = int(plant.pattern.sum())
+    size = np.max(np.abs(vals), axis=0).reshape(-1, nnz)  # (L, nnz)
+    keep = size >= float(prune) * np.max(size, axis=0, keepdims=True)
+    keep &= size > 0
+    plant.keep = keep
+    plant.info["pruned"] = int(keep.size - keep.sum())
+    return plant
+
+
+def _plant_key(fexact, grid, periodic, fourier, **options):
+    """SHA-256 identifying a tabulated plant (see :func:`tabulate_plant`, ``cache_dir``):
+    the exact rows' serialised graph, the grid, the options, the versions and the source
+    of the code that tabulates."""
+    from casflex import __version__
+
+    return digest({
+        "exact_plant": digest(fexact.serialize()), "casflex": __version__,
+        "casadi": ca.__version__, "fourier": list(fourier),
+        "periodic": [bool(p) for p in periodic], "options": options,
+        "grid": [np.asarray(a, dtype=float).tolist() for a in (grid or ())],
+        "source": source_digest(tabulate_plant, _depends, _monomials, _designs,
+                                _monomial_values, _fourier_basis, _check_plant,
+                                _plant_from_arrays, FlexiblePlant),
+    })
+
+
+def _plant_from_arrays(model, mono, shape, fourier, degree, order, arrays, seconds):
+    from casflex.modal.tables import ModalTable
+
+    table, constant = None, None
+    if "coef" in arrays:
+        table_grid = tuple(arrays[f"grid{ax}"] for ax in range(len(shape)))
+        flat = arrays["coef"]
+        table = ModalTable(grid=table_grid, shape_joints=shape, values={"coef": flat},
+                           omega=np.zeros(flat.shape[:-1] + (1,)),
+                           periodic=tuple(bool(p) for p in arrays["periodic"]))
+    else:
+        constant = arrays["constant"]
+    info = json.loads(str(arrays["info"]))
+    info.update(from_cache=True, seconds=seconds)
+    return FlexiblePlant(model=model, monomials=mono, shape_joints=shape,
+                         fourier_joints=fourier, degree=degree, table=table,
+                         constant=constant, pattern=arrays["pattern"].astype(bool),
+                         info=info, order=order)
+
+
+def _check_plant(plant, fexact, rng, count=6):
+    """Largest relative error of the tabulated plant at random points (Δ small)."""
+    n, m = plant.n, plant.m
+    lean = plant.rhs_function()
+    worst = 0.0
+    for _ in range(count):
+        u = np.r_[rng.uniform(-np.pi, np.pi, n), rng.normal(size=n), rng.normal(size=n)]
+        x = 1e-4 * rng.normal(size=2 * m)
+        a = np.asarray(fexact(u, x)).ravel()
+        b = np.asarray(lean(u, x)).ravel()
+        worst = max(worst, float(np.max(np.abs(a - b)) / max(np.max(np.abs(a)), 1e-300)))
+    return worst
+
+
