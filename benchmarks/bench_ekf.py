@@ -16,7 +16,7 @@ coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_ord
 the sequential scalar Joseph updates (``update="auto"``: R is diagonal) and the
 sensor-entry tables of the measurement (``lean=True``), compiled with ``-O3 -march=native
 -ffp-contract=off`` (no FMA contraction: within 1e-10 of Python,
-tests/test_codegen_ekf.py; options below). ``--compare`` also times, in the same run, the
+tests/codegen/test_codegen_ekf.py; options below). ``--compare`` also times, in the same run, the
 configurations listed in ``VARIANTS`` (the step before these changes among them): key
 ``variants``.
 

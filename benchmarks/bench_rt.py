@@ -7,7 +7,7 @@ dt = 1 ms, and the composite controller (slow computed torque + fast LQR gains s
 over the configuration grid; ``--controller inversion`` for the inversion law).
 
 The inputs are those of a real closed loop: first the whole loop (plant RK4, sensors with
-noise, ``rt_step``) runs in C over move 3 (``casflex.rtloop.run_closed_loop_c``); then
+noise, ``rt_step``) runs in C over move 3 (``casflex.codegen.run_closed_loop_c``); then
 ``rt_step`` alone runs in the ``casflex.codegen`` harness over the recorded encoder,
 reference and accelerometer samples, with ``x``, ``P`` and ``dq_prev`` fed back, each call
 timed inside C (``clock_gettime``); ``rt_step_us`` is the median over all calls.
@@ -45,7 +45,8 @@ def main(argv=None):
 
     import warnings
 
-    from casflex import codegen, rtloop
+    from casflex import codegen
+    from casflex.codegen import rtloop
     from casflex.estimation import ekf_step_function, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import load_move

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Collection
 
 import numpy as np
 
 from casflex.errors import CasflexError, ModelError, ProblemFileError
 
-__all__ = ["fail", "number", "choice", "vector", "square_matrix"]
+__all__ = ["fail", "number", "choice", "vector", "square_matrix", "identifier"]
 
 
 def fail(field: str, value, rule: str, *, path: str | os.PathLike | None = None,
@@ -221,3 +222,35 @@ def square_matrix(value, size: int, field: str, *, psd: bool = False,
     if psd and (not np.allclose(a, a.T) or np.min(np.linalg.eigvalsh(0.5 * (a + a.T))) < 0):
         raise fail(field, value, "must be symmetric positive semi-definite", error=error)
     return a
+
+
+_C_IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def identifier(value, field: str, *, path: str | os.PathLike | None = None,
+               error: type[CasflexError] | None = None) -> str:
+    """``value`` if it is a C identifier (``[A-Za-z_][A-Za-z0-9_]*``): a name that becomes
+    a C symbol or file stem of generated code.
+
+    Parameters
+    ----------
+    value : object
+        The name to check.
+    field : str
+        Argument name or dotted problem-file field.
+    path, error
+        See :func:`fail`.
+
+    Examples
+    --------
+    >>> identifier("arm_ekf", "bundle name")
+    'arm_ekf'
+    >>> identifier("my-bundle", "bundle name")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: bundle name = 'my-bundle': not a valid C identifier (...)
+    """
+    if not isinstance(value, str) or not _C_IDENTIFIER.match(value):
+        raise fail(field, value, "not a valid C identifier ([A-Za-z_][A-Za-z0-9_]*)",
+                   path=path, error=error)
+    return value

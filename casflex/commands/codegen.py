@@ -1,9 +1,9 @@
 """``casflex codegen``: C code of the real-time estimator (EKF) and of the model.
 
-Writes two bundles (:mod:`casflex.codegen`), each in its own directory with its header,
-README and Makefile: ``DIR/<name>_ekf`` with ``ekf_step``, ``plant``, ``measurement``,
-``rigid_signals`` (:func:`casflex.rtcode.ekf_bundle`) and, unless ``--no-model``,
-``DIR/<name>_model`` with the model's ``forward`` dynamics.
+Writes two bundles (:func:`casflex.codegen.realtime_bundles`), each in its own directory
+with its header, README and Makefile: ``DIR/<name>_ekf`` with ``ekf_step``, ``plant``,
+``measurement``, ``rigid_signals`` and, unless ``--no-model``, ``DIR/<name>_model`` with
+the model's ``forward`` dynamics.
 
 The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``--jacobians first_order``
 (default; ``exact`` and ``linearized`` are the alternatives of
@@ -11,13 +11,13 @@ The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``--jacobians first_o
 diagonal.
 
 With ``--controller composite|inversion`` the EKF bundle also gets ``rt_step``
-(:func:`casflex.rtloop.rt_step_function`): encoder readings, reference and accelerometer
+(:func:`casflex.codegen.rt_step_function`): encoder readings, reference and accelerometer
 sample to the joint torques and the updated estimator state in one call. The model is then
 built as in the control studies (``delta_order=0``, the dissertation's ``M(q)``); the
 composite law uses fast gains scheduled over the configuration grid.
 
-Extending the verb: :func:`rt_functions` returns the named CasADi functions of the bundle;
-add yours to that dict (and their units) before :func:`run` generates it.
+JSON: ``{"files": [source, header, README, Makefile, manifest of each bundle],
+"functions": [C function names]}``.
 """
 
 from __future__ import annotations
@@ -81,98 +81,6 @@ def add_arguments(parser):
                         help="composite: LQR R = w I (default 10)")
 
 
-def rt_functions(model, sensors, args, plant=None):
-    """The named functions and units of the estimator bundle for ``args``.
-
-    Parameters
-    ----------
-    model : casflex.dynamics.FlexibleModel
-        Built with ``points=sensors.points``.
-    sensors : casflex.sensors.SensorSet
-    args : argparse.Namespace
-        Uses ``Q``, ``R`` (``None``: the sensors' ``noise²``), ``dt``, ``sqrt``,
-        ``prefilter`` and, when ``controller`` is set, ``kp``, ``kd``, ``q_weight``,
-        ``r_weight`` (see :func:`add_arguments`).
-    plant : casflex.estimation.FlexiblePlant, optional
-        Default :func:`casflex.estimation.tabulate_plant` of ``model``.
-
-    Returns
-    -------
-    functions : dict of str to casadi.Function
-        ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals`` and, with a
-        controller, ``rt_step``.
-    units : dict
-        ``{function: {port: unit}}`` for the README.
-
-    Raises
-    ------
-    casflex.errors.ModelError
-        ``R`` not given and a sensor without ``noise``.
-
-    Examples
-    --------
-    >>> import argparse
-    >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
-    >>> from casflex.estimation import tabulate_plant
-    >>> from casflex.sensors import SensorSet, StrainPair
-    >>> robot = load("problems/arm2link.toml")
-    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3), noise=3e-7)])
-    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
-    ...                       gravity=None)
-    >>> plant = tabulate_plant(model, cache_dir=False)
-    >>> args = argparse.Namespace(Q=5e-6, R=None, dt=1e-3, sqrt=False, prefilter=False,
-    ...                           controller=None)
-    >>> funcs, units = rt_functions(model, ss, args, plant=plant)
-    >>> sorted(funcs), units["ekf_step"]["y"]
-    (['ekf_step', 'measurement', 'plant', 'rigid_signals'], 'strain (-)')
-    >>> quiet = SensorSet([StrainPair(2, 0.05)])     # no noise given, and no --R
-    >>> rt_functions(model, quiet, args, plant=plant)  # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-        ...
-    casflex.errors.ModelError: --R not given and the sensor file gives no noise for ...
-    """
-    from casflex.estimation import (
-        ekf_functions,
-        ekf_step_function,
-        highpass_cutoff,
-        tabulate_plant,
-    )
-    from casflex.rtcode import ekf_units
-
-    R = args.R
-    if R is None:
-        std = sensors.noise_std
-        if not np.all(np.isfinite(std)):
-            missing = [n for n, s in zip(sensors.output_names, std, strict=True)
-                       if not np.isfinite(s)]
-            raise ModelError(f"--R not given and the sensor file gives no noise for "
-                             f"{missing}; set 'noise' in the file or pass --R")
-        R = std**2
-    if plant is None:
-        plant = tabulate_plant(model)
-    jac = getattr(args, "jacobians", "first_order")
-    funcs = ekf_functions(model, sensors, args.Q, R, args.dt, plant=plant, sqrt=args.sqrt,
-                          jacobians=jac)
-    if args.prefilter:
-        wc = highpass_cutoff(model, np.zeros(model.n))
-        funcs["ekf_step"] = ekf_step_function(plant, sensors, args.Q, R, args.dt,
-                                              sqrt=args.sqrt, prefilter=wc, jacobians=jac)
-    units = ekf_units(sensors)
-    if getattr(args, "controller", None):
-        from casflex import rtloop
-
-        ctrl = rtloop.make_controller(model, args.controller, Kp=args.kp, Kd=args.kd,
-                                      Q=args.q_weight, R=args.r_weight)
-        step = funcs["ekf_step"]
-        funcs["rt_step"] = rtloop.rt_step_function(step, ctrl, args.dt)
-        rt = rtloop.rt_units(sensors, cov=step.name_in(1))
-        if step.n_in() > 5:
-            rt["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
-        units.update(rt)
-    return funcs, units
-
-
 def run(args, log):
     """Generate the bundles; return ``{"files": [...], "functions": [...]}``.
 
@@ -210,40 +118,19 @@ def run(args, log):
         ...
     casflex.errors.ModelError: --modes: must be >= 1; got 0
     """
-    from casflex import codegen
-    from casflex.model import build_model
-    from casflex.robot import load
-    from casflex.rtcode import model_bundle
-    from casflex.sensors import load_sensors
+    from casflex.codegen import realtime_bundles
 
     if args.modes < 1:
         raise ModelError(f"--modes: must be >= 1; got {args.modes}")
     if not args.dt > 0:
         raise ModelError(f"--dt: must be > 0 s; got {args.dt}")
-    robot = load(args.robot)
-    sensors = load_sensors(args.sensors, robot)
-    step = None if args.step is None else np.radians(args.step)
-    log(f"building the model of '{robot.name}' with {args.modes} modes ...")
-    options = {"delta_order": 0} if args.controller else {}
-    model, _ = build_model(robot, n_modes=args.modes, step=step, points=sensors.points,
-                           gravity=None if args.no_gravity else "robot", **options)
-    log("tabulating the flexible plant for the EKF"
-        + (f" and building the {args.controller} controller ..." if args.controller
-           else " ..."))
-    funcs, units = rt_functions(model, sensors, args)
-    order = ["ekf_step", "plant", "measurement", "rigid_signals"]
-    order += ["rt_step"] if "rt_step" in funcs else []
-    names = order + [k for k in funcs if k not in order]
-    from pathlib import Path
-
-    out = Path(args.out)
-    bundle = codegen.generate([funcs[k] for k in names], out / f"{args.name}_ekf",
-                              name=f"{args.name}_ekf",
-                              units={k: v for k, v in units.items() if k in names})
-    bundles = [bundle]
-    if not args.no_model:
-        bundles.append(model_bundle(model, out / f"{args.name}_model",
-                                    name=f"{args.name}_model"))
+    bundles = realtime_bundles(
+        args.robot, args.sensors, args.out, n_modes=args.modes, name=args.name,
+        step=None if args.step is None else np.radians(args.step),
+        gravity=not args.no_gravity, model=not args.no_model, Q=args.Q, R=args.R,
+        dt=args.dt, sqrt=args.sqrt, prefilter=args.prefilter, jacobians=args.jacobians,
+        controller=args.controller, kp=args.kp, kd=args.kd, q_weight=args.q_weight,
+        r_weight=args.r_weight, log=log)
     files, functions = [], []
     for b in bundles:
         files += [str(p) for p in (b.source, b.header, b.readme, b.makefile, b.manifest)

@@ -19,6 +19,7 @@ import pytest
 from casflex import codegen
 from casflex.codegen import BuildError, CodegenError
 from casflex.errors import CasflexError
+from casflex.simulate.integrators import rk4_step
 
 FLAGS = ("-O1",)
 RTOL = 1e-10
@@ -74,18 +75,11 @@ def _toy_ekf(kind):
         ddd = -w2(th) * d - 2 * 0.02 * ca.sqrt(w2(th)) * dd - thdd
         return ca.vertcat(thd, thdd, dd, ddd)
 
-    def rk4(x, u):
-        k1 = ode(x, u)
-        k2 = ode(x + DT / 2 * k1, u)
-        k3 = ode(x + DT / 2 * k2, u)
-        k4 = ode(x + DT * k3, u)
-        return x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
     def meas(x):
         return ca.vertcat(x[0], ca.sin(x[0]) + 0.5 * x[2])
 
     x, P, u, y = sym("x", 4), sym("P", 4, 4), sym("u"), sym("y", 2)
-    xp = rk4(x, u)
+    xp = rk4_step(ode, x, DT, u)
     F = ca.jacobian(xp, x)
     Pp = F @ P @ F.T + Q
     xs = sym("xs", 4)
@@ -127,6 +121,7 @@ def _sx_function():
                        ["Ab", "MtM", "det", "AMt", "J"])
 
 
+@pytest.mark.needs_cc
 def test_sx_several_inputs_outputs(tmp_path):
     f = _sx_function()
     units = {"mixed": {"A": "N/m", "s": "s", "J": "1"}}
@@ -156,6 +151,7 @@ def test_sx_several_inputs_outputs(tmp_path):
     assert [p["name"] for p in manifest["functions"][0]["outputs"]] == list(f.name_out())
 
 
+@pytest.mark.needs_cc
 def test_dense_false_keeps_sparse_outputs(tmp_path):
     x = ca.SX.sym("x", 4)
     f = ca.Function("jacx", [x], [ca.jacobian(ca.sin(x) * x[0], x)], ["x"], ["J"])
@@ -188,6 +184,7 @@ def _interp_function():
                        ["q", "p"], ["y", "dy_dq", "dy_dp"])
 
 
+@pytest.mark.needs_cc
 def test_interpolants_and_jacobian(tmp_path):
     f = _interp_function()
     assert f.is_a("MXFunction")
@@ -198,10 +195,11 @@ def test_interpolants_and_jacobian(tmp_path):
     rng = np.random.default_rng(4)
     for _ in range(20):
         q = np.array([rng.uniform(0.01, 1.99), rng.uniform(-0.99, 0.99)])
-        _compare(codegen._densified(f), g, [q, rng.standard_normal()])
+        _compare(codegen.densified(f), g, [q, rng.standard_normal()])
     assert bundle.reentrant
 
 
+@pytest.mark.needs_cc
 def test_bare_interpolant_function(tmp_path):
     grid = np.linspace(0.0, 1.0, 9)
     f = ca.interpolant("table", "bspline", [grid], grid**3)
@@ -214,6 +212,7 @@ def test_bare_interpolant_function(tmp_path):
 # --------------------------------------------------------------------------------------
 # (c) toy EKF step, SX and MX with an interpolant
 # --------------------------------------------------------------------------------------
+@pytest.mark.needs_cc
 @pytest.mark.parametrize("kind", ["SX", "MX"])
 def test_toy_ekf_step(tmp_path, kind):
     f = _toy_ekf(kind)
@@ -234,6 +233,7 @@ def test_toy_ekf_step(tmp_path, kind):
 # --------------------------------------------------------------------------------------
 # (d) the C harness runs the EKF 1000 steps with feedback and matches the Python loop
 # --------------------------------------------------------------------------------------
+@pytest.mark.needs_cc
 @pytest.mark.parametrize("kind", ["SX", "MX"])
 def test_harness_ekf_feedback(tmp_path, kind):
     f = _toy_ekf(kind)
@@ -259,6 +259,7 @@ def test_harness_ekf_feedback(tmp_path, kind):
     assert 0 < t["min_step_ns"] <= t["median_step_ns"] <= t["max_step_ns"]
 
 
+@pytest.mark.needs_cc
 def test_harness_feedback_by_index_and_no_timing(tmp_path):
     x, u = ca.SX.sym("x", 2), ca.SX.sym("u")
     f = ca.Function("acc", [u, x], [ca.vertcat(x[1], x[0] + u), x[0] * u], ["u", "x"],
@@ -272,6 +273,7 @@ def test_harness_feedback_by_index_and_no_timing(tmp_path):
     np.testing.assert_array_equal(res.outputs["z"], [0.5, -2.0, 4.5])
 
 
+@pytest.mark.needs_cc
 def test_harness_sparse_port(tmp_path):
     """With dense=False the harness still takes and returns dense numpy arrays."""
     x = ca.SX.sym("x", 3)
@@ -282,6 +284,7 @@ def test_harness_sparse_port(tmp_path):
     np.testing.assert_array_equal(res.outputs["J"], [np.diag(2 * v) for v in xs])
 
 
+@pytest.mark.needs_cc
 def test_readme_build_command_and_makefile(tmp_path):
     f = _toy_ekf("SX")
     bundle = codegen.generate([f], tmp_path, name="cmd")
@@ -299,12 +302,13 @@ def test_readme_build_command_and_makefile(tmp_path):
         assert (tmp_path / "harness_ekf_step").is_file()
 
 
+@pytest.mark.needs_cc
 def test_two_bundles_link_together(tmp_path):
     x = ca.SX.sym("x")
     a = codegen.generate([ca.Function("fa", [x], [x + 1])], tmp_path, name="bundle_a")
     b = codegen.generate([ca.Function("fb", [x], [x + 2])], tmp_path, name="bundle_b")
     lib = tmp_path / "libab.so"
-    cmd = [*codegen._compiler(None), "-O1", "-fPIC", "-shared", str(a.source), str(b.source),
+    cmd = [*codegen.find_compiler(None), "-O1", "-fPIC", "-shared", str(a.source), str(b.source),
            "-o", str(lib), "-lm"]
     subprocess.run(cmd, check=True, capture_output=True)
     assert float(codegen.load(lib, "fa")(1.0)) == 2.0
@@ -341,6 +345,7 @@ def test_missing_compiler(tmp_path, monkeypatch):
         codegen.build(bundle, compiler="definitely-not-a-compiler-xyz")
 
 
+@pytest.mark.needs_cc
 def test_compiler_failure_reports_stderr(tmp_path):
     x = ca.SX.sym("x")
     bundle = codegen.generate([ca.Function("sq", [x], [x * x])], tmp_path, name="badflag")
@@ -349,6 +354,7 @@ def test_compiler_failure_reports_stderr(tmp_path):
     assert "no-such-flag-casflex" in str(info.value)
 
 
+@pytest.mark.needs_cc
 def test_unknown_function_name(tmp_path):
     x = ca.SX.sym("x")
     bundle = codegen.generate([ca.Function("sq", [x], [x * x], ["x"], ["y"])], tmp_path,
@@ -392,6 +398,7 @@ def test_generate_rejects_bad_requests(tmp_path):
         codegen.generate([free], tmp_path)
 
 
+@pytest.mark.needs_cc
 def test_load_rejects_foreign_int_type(tmp_path):
     x = ca.SX.sym("x", 3)
     f = ca.Function("jac32", [x], [ca.jacobian(ca.sin(x), x)], ["x"], ["J"])
@@ -468,12 +475,13 @@ int main(void) {
 """
 
 
+@pytest.mark.needs_cc
 def test_reentrant_concurrent_threads(tmp_path):
     """The README's thread-safety claim: per-thread workspaces give identical results."""
     bundle = codegen.generate([_toy_ekf("MX")], tmp_path, name="ekf_mt")
     assert bundle.reentrant
     (tmp_path / "mt.c").write_text(THREAD_MAIN)
-    cmd = [*codegen._compiler(None), "-O1", "-pthread", "-I", str(tmp_path), "-o",
+    cmd = [*codegen.find_compiler(None), "-O1", "-pthread", "-I", str(tmp_path), "-o",
            str(tmp_path / "mt"), str(tmp_path / "mt.c"), str(bundle.source), "-lm"]
     subprocess.run(cmd, check=True, capture_output=True)
     out = subprocess.run([str(tmp_path / "mt")], capture_output=True, text=True)

@@ -35,7 +35,7 @@ in C, with the reference and the noise read from the data file.
 Examples
 --------
 >>> from casflex.robot import load
->>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+>>> from casflex.model import FlexibleModel, PointwiseProvider
 >>> from casflex.sensors import SensorSet, Accelerometer
 >>> from casflex.estimation import tabulate_plant, ekf_step_function
 >>> from casflex import control
@@ -51,11 +51,26 @@ Examples
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
-from casflex import codegen
+from casflex._validate import choice, number, vector
+from casflex.codegen.bundle import Bundle, generate
+from casflex.codegen.estimator import ekf_units
+from casflex.codegen.replay import run_harness
 from casflex.errors import ModelError
+from casflex.simulate.integrators import rk4_step
+
+if TYPE_CHECKING:
+    from casflex.control import GainSchedule
+    from casflex.model import FlexibleModel
+    from casflex.moves import Move
+    from casflex.sensors import SensorSet
 
 __all__ = [
     "make_controller",
@@ -70,12 +85,15 @@ __all__ = [
 _CONTROLLERS = ("composite", "inversion")
 
 
-def make_controller(model, kind, Kp=1.0, Kd=2.0, Q=1.0, R=10.0, gain=None, epsilon=None):
+def make_controller(model: FlexibleModel, kind: str, Kp: ArrayLike = 1.0, Kd: ArrayLike = 2.0,
+                    Q: ArrayLike = 1.0, R: ArrayLike = 10.0,
+                    gain: ArrayLike | GainSchedule | None = None,
+                    epsilon: float | None = None) -> ca.Function:
     """The controller of the real-time loop by name.
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     kind : {"composite", "inversion"}
         ``"composite"``: :func:`casflex.control.composite_controller` with the fast
         gains scheduled over the configuration grid (:func:`casflex.control.gain_schedule`,
@@ -98,7 +116,7 @@ def make_controller(model, kind, Kp=1.0, Kd=2.0, Q=1.0, R=10.0, gain=None, epsil
     Examples
     --------
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, rigid_provider
+    >>> from casflex.model import FlexibleModel, rigid_provider
     >>> model = FlexibleModel(load("problems/arm2link.toml"), rigid_provider(
     ...     load("problems/arm2link.toml")), gravity=None)
     >>> make_controller(model, "inversion").name()
@@ -106,12 +124,11 @@ def make_controller(model, kind, Kp=1.0, Kd=2.0, Q=1.0, R=10.0, gain=None, epsil
     >>> make_controller(model, "pid")
     Traceback (most recent call last):
         ...
-    casflex.errors.ModelError: controller 'pid' is unknown; use one of ('composite', 'inversion')
+    casflex.errors.ModelError: controller = 'pid': must be one of 'composite', 'inversion'
     """
     from casflex import control
 
-    if kind not in _CONTROLLERS:
-        raise ModelError(f"controller {kind!r} is unknown; use one of {_CONTROLLERS}")
+    choice(kind, "controller", _CONTROLLERS)
     if kind == "inversion":
         return control.inversion_controller(model, Kp=Kp, Kd=Kd)
     if gain is None:
@@ -119,7 +136,8 @@ def make_controller(model, kind, Kp=1.0, Kd=2.0, Q=1.0, R=10.0, gain=None, epsil
     return control.composite_controller(model, Kp=Kp, Kd=Kd, gain=gain, epsilon=epsilon)
 
 
-def rt_step_function(ekf_step, controller, dt, name="rt_step"):
+def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
+                     name: str = "rt_step") -> ca.Function:
     """Estimator and controller in one SX function (module docstring).
 
     Parameters
@@ -162,9 +180,7 @@ def rt_step_function(ekf_step, controller, dt, name="rt_step"):
     >>> [np.asarray(v).ravel().tolist() for v in (out[0], out[1], out[3], out[4])]
     [[3.0], [2.1, 2.0], [2.0], [0.1, 0.0]]
     """
-    dt = float(dt)
-    if not dt > 0:
-        raise ModelError(f"rt_step_function: dt must be > 0 [s]; got {dt}")
+    dt = number(dt, "dt", low=0.0, low_open=True)
     nx = ekf_step.size1_in(0)
     n = controller.size1_in(0)
     m = nx // 2
@@ -194,7 +210,7 @@ def rt_step_function(ekf_step, controller, dt, name="rt_step"):
     return ca.Function(name, ins, res, names_in, names_out, {"cse": True})
 
 
-def rt_units(sensors, cov="P"):
+def rt_units(sensors: SensorSet, cov: str = "P") -> dict[str, dict[str, str]]:
     """Units of the ``rt_step`` ports for the bundle README.
 
     Parameters
@@ -215,8 +231,6 @@ def rt_units(sensors, cov="P"):
     >>> rt_units(SensorSet([Accelerometer(2, 1.0)]))["rt_step"]["tau"]
     'N m'
     """
-    from casflex.rtcode import ekf_units
-
     e = ekf_units(sensors)["ekf_step"]
     xu = e["x"]
     return {"rt_step": {"x": xu, "x_next": xu, "x_post": xu, "y": e["y"],
@@ -228,8 +242,9 @@ def rt_units(sensors, cov="P"):
                         else "square root of P_next"}}
 
 
-def rt_bundle(ekf_step, controller, sensors, dt, out_dir, *, name="casflex_rt",
-              extra=()):
+def rt_bundle(ekf_step: ca.Function, controller: ca.Function, sensors: SensorSet, dt: float,
+              out_dir: str | os.PathLike, *, name: str = "casflex_rt",
+              extra: Sequence[ca.Function] = ()) -> Bundle:
     """Generate the C bundle of ``rt_step`` (and optionally other functions).
 
     Parameters
@@ -268,15 +283,16 @@ def rt_bundle(ekf_step, controller, sensors, dt, out_dir, *, name="casflex_rt",
     units = rt_units(sensors, cov=ekf_step.name_in(1))
     if ekf_step.n_in() > 5:
         units["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
-    return codegen.generate([f, *extra], out_dir, name=name, units=units)
+    return generate([f, *extra], out_dir, name=name, units=units)
 
 
-def loop_step_function(model, sensors, rt_step, dt, substeps=1, name="rt_loop_step"):
+def loop_step_function(model: FlexibleModel, sensors: SensorSet, rt_step: ca.Function,
+                       dt: float, substeps: int = 1, name: str = "rt_loop_step") -> ca.Function:
     """One sample of the closed loop: plant, sensors and ``rt_step`` (module docstring).
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
         The plant (its ``ode``), built with ``points=sensors.points``.
     sensors : casflex.sensors.SensorSet
     rt_step : casadi.Function
@@ -299,7 +315,7 @@ def loop_step_function(model, sensors, rt_step, dt, substeps=1, name="rt_loop_st
     Examples
     --------
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.sensors import SensorSet, Accelerometer
     >>> from casflex.estimation import tabulate_plant, ekf_step_function
     >>> from casflex import control
@@ -318,8 +334,7 @@ def loop_step_function(model, sensors, rt_step, dt, substeps=1, name="rt_loop_st
     if rt_step.n_in() != 10 or rt_step.size1_in(3) != n or rt_step.size1_in(0) != 2 * m:
         raise ModelError("loop_step_function: rt_step must be the plain form (10 inputs, "
                          f"no prefilter) for {n} joints and {m} modes")
-    if int(substeps) < 1:
-        raise ModelError(f"loop_step_function: substeps must be >= 1; got {substeps}")
+    substeps = number(substeps, "substeps", low=1, integer=True)
     ode = model.functions()["ode"]
     kin = kinematic_measurement(model, sensors)
     r = sensors.n_outputs
@@ -334,14 +349,10 @@ def loop_step_function(model, sensors, rt_step, dt, substeps=1, name="rt_loop_st
     acc = ode(xs, tau_prev)[n + m:]  # accelerations just before t_k
     y = kin(ca.vertcat(d, dd), ca.vertcat(q, dq, acc[:n]), acc[n:]) + noise
     tau, xn, Pn, dqn, xp = rt_step(x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask)
-    h = float(dt) / int(substeps)
+    h = float(dt) / substeps
     xnext = xs
-    for _ in range(int(substeps)):
-        k1 = ode(xnext, tau)
-        k2 = ode(xnext + 0.5 * h * k1, tau)
-        k3 = ode(xnext + 0.5 * h * k2, tau)
-        k4 = ode(xnext + h * k3, tau)
-        xnext = xnext + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    for _ in range(substeps):
+        xnext = rk4_step(ode, xnext, h, tau)  # torque held over the sample
     return ca.Function(name, [xs, tau_prev, x, P, dq_prev, qd, dqd, ddqd, noise, mask],
                        [xnext, tau, xn, Pn, dqn, xp, y],
                        ["xs", "tau_prev", "x", "P", "dq_prev", "qd", "dqd", "ddqd", "noise",
@@ -349,8 +360,9 @@ def loop_step_function(model, sensors, rt_step, dt, substeps=1, name="rt_loop_st
                        ["xs_next", "tau", "x_next", "P_next", "dq_next", "x_post", "y"])
 
 
-def closed_loop_bundle(model, sensors, rt_step, dt, out_dir, *, substeps=1,
-                       name="casflex_rtloop"):
+def closed_loop_bundle(model: FlexibleModel, sensors: SensorSet, rt_step: ca.Function,
+                       dt: float, out_dir: str | os.PathLike, *, substeps: int = 1,
+                       name: str = "casflex_rtloop") -> Bundle:
     """Generate the bundle of :func:`loop_step_function` (plant + sensors + ``rt_step``).
 
     Parameters
@@ -370,7 +382,7 @@ def closed_loop_bundle(model, sensors, rt_step, dt, out_dir, *, substeps=1,
     --------
     >>> import tempfile
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.sensors import SensorSet, Accelerometer
     >>> from casflex.estimation import tabulate_plant, ekf_step_function
     >>> from casflex import control
@@ -384,15 +396,18 @@ def closed_loop_bundle(model, sensors, rt_step, dt, out_dir, *, substeps=1,
     'rt_loop_step'
     """
     f = loop_step_function(model, sensors, rt_step, dt, substeps=substeps)
-    return codegen.generate([f], out_dir, name=name)
+    return generate([f], out_dir, name=name)
 
 
 _FEEDBACK = {"xs_next": "xs", "tau": "tau_prev", "x_next": "x", "P_next": "P",
              "dq_next": "dq_prev"}
 
 
-def run_closed_loop_c(bundle, move, steps, dt, *, x0=None, xhat0=None, P0=None, noise=None,
-                      repeat=1, flags=("-O1",), compiler=None):
+def run_closed_loop_c(bundle: Bundle, move: Move, steps: int, dt: float, *,
+                      x0: ArrayLike | None = None, xhat0: ArrayLike | None = None,
+                      P0: ArrayLike | None = None, noise: ArrayLike | None = None,
+                      repeat: int = 1, flags: Sequence[str] = ("-O1",),
+                      compiler: str | Sequence[str] | None = None) -> dict:
     """Run the closed loop in C (the harness of ``rt_loop_step``) over a move.
 
     Parameters
@@ -427,7 +442,7 @@ def run_closed_loop_c(bundle, move, steps, dt, *, x0=None, xhat0=None, P0=None, 
     >>> import tempfile
     >>> from casflex.robot import load
     >>> from casflex.moves import Move
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.sensors import SensorSet, Accelerometer
     >>> from casflex.estimation import tabulate_plant, ekf_step_function
     >>> from casflex import control
@@ -448,16 +463,12 @@ def run_closed_loop_c(bundle, move, steps, dt, *, x0=None, xhat0=None, P0=None, 
     n = info.inputs[1].rows
     m2 = info.inputs[2].rows
     r = info.inputs[8].rows
-    steps = int(steps)
-    if steps < 1:
-        raise ModelError(f"run_closed_loop_c: steps must be >= 1; got {steps}")
+    steps = number(steps, "steps", low=1, integer=True)
     t = np.arange(steps + 1) * float(dt)
     qd, dqd, ddqd = move.sample(t[:-1])
     if x0 is None:
         x0 = np.r_[move.q0, np.zeros(nx - n)]
-    x0 = np.asarray(x0, dtype=float).ravel()
-    if x0.size != nx:
-        raise ModelError(f"run_closed_loop_c: x0 needs {nx} values; got {x0.size}")
+    x0 = vector(x0, nx, "x0")
     noise = np.zeros((steps, r)) if noise is None else np.asarray(noise, dtype=float)
     if noise.shape != (steps, r):
         raise ModelError(f"run_closed_loop_c: noise must have shape {(steps, r)}; got "
@@ -466,11 +477,11 @@ def run_closed_loop_c(bundle, move, steps, dt, *, x0=None, xhat0=None, P0=None, 
                "x": np.zeros(m2) if xhat0 is None else np.asarray(xhat0, dtype=float),
                "P": 1e-4 * np.eye(m2) if P0 is None else np.asarray(P0, dtype=float),
                "dq_prev": x0[n + m2 // 2:2 * n + m2 // 2]}
-    res = codegen.run_harness(bundle, "rt_loop_step",
-                              {"qd": qd, "dqd": dqd, "ddqd": ddqd, "noise": noise,
-                               "mask": np.ones((steps, r))},
-                              initial, feedback=_FEEDBACK, repeat=repeat, flags=flags,
-                              compiler=compiler)
+    res = run_harness(bundle, "rt_loop_step",
+                      {"qd": qd, "dqd": dqd, "ddqd": ddqd, "noise": noise,
+                       "mask": np.ones((steps, r))},
+                      initial, feedback=_FEEDBACK, repeat=repeat, flags=flags,
+                      compiler=compiler)
     out = res.outputs
     return {"t": t, "x": np.vstack([x0, out["xs_next"]]), "tau": out["tau"],
             "x_hat": out["x_post"], "y": out["y"], "timing": res.timing}

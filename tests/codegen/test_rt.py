@@ -1,4 +1,4 @@
-"""casflex.rtloop: the rt_step bundle (EKF + controller in one C call) and the C closed loop.
+"""casflex.codegen.rtloop: the rt_step bundle (EKF + controller in one C call), the C closed loop.
 
 Independent references: the CasADi evaluation of the same graph (C loaded back), and the
 Python closed-loop simulation of casflex.control (a Python loop over samples calling the
@@ -13,15 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from casflex import codegen, control, rtloop
+from casflex import codegen, control
 from casflex.cli import main
+from casflex.codegen import rtloop
 from casflex.estimation import ekf_step_function, tabulate_plant
-from casflex.model import build_model
-from casflex.moves import load_move
-from casflex.robot import load
-from casflex.sensors import load_sensors
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
 DT = 1e-3
 Q_EKF = 5e-6
@@ -29,12 +26,9 @@ R_EKF = (250e-6 * 9.8) ** 2  # (250e-6 g)^2, eq. 185
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    robot = load(ROOT / "problems/arm2link.toml")
-    sensors = load_sensors(ROOT / "problems/sensors/arm2link_accel.toml", robot)
-    model, table = build_model(robot, n_modes=3, step=np.radians(15), processes=1,
-                               cache_dir=tmp_path_factory.mktemp("tables"),
-                               points=sensors.points, gravity=None, delta_order=0)
+def setup(arm_model, accel_sensors):
+    sensors = accel_sensors
+    model, _ = arm_model(3, points=sensors.points, gravity=None, delta_order=0)
     plant = tabulate_plant(model, check=False)
     ekf = ekf_step_function(plant, sensors, Q_EKF, R_EKF, DT)
     composite = rtloop.make_controller(model, "composite")
@@ -56,6 +50,8 @@ def _rel(a, b):
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
 
 
+@pytest.mark.needs_cc
+@pytest.mark.slow
 def test_rt_step_c_equals_python(setup, rt_lib):
     model, sensors, ekf, composite = setup
     bundle, lib, inv_step = rt_lib
@@ -86,10 +82,12 @@ def test_rt_step_c_equals_python(setup, rt_lib):
             assert _rel(got[1], xn) < 1e-10 and _rel(got[2], Pn) < 1e-10
 
 
-def test_closed_loop_in_c_matches_python_simulation(setup, tmp_path):
+@pytest.mark.needs_cc
+@pytest.mark.slow
+def test_closed_loop_in_c_matches_python_simulation(setup, tmp_path, move):
     """Move 3 under the scheduled composite law, EKF on noisy accelerometers, in C."""
     model, sensors, ekf, composite = setup
-    move = load_move(f"{ROOT}/problems/moves.toml:control_move3")
+    move = move("control_move3")
     N = 2500
     rt = rtloop.rt_step_function(ekf, composite, DT)
     noise = np.random.default_rng(7).normal(size=(N + 1, 6)) * np.sqrt(R_EKF)
@@ -113,6 +111,7 @@ def test_closed_loop_in_c_matches_python_simulation(setup, tmp_path):
     assert c["timing"]["steps"] == N
 
 
+@pytest.mark.slow
 def test_cli_codegen_controller(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
     argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",

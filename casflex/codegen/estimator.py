@@ -1,10 +1,10 @@
 """Real-time C code of the estimator: EKF bundle, model bundle, long-run C harness.
 
-The generic machinery is :mod:`casflex.codegen`; this module only chooses the functions
-(:func:`casflex.estimation.ekf_functions`, the model's ``forward`` dynamics), their units,
-and adds :func:`covariance_run`, a C program that runs ``ekf_step`` for millions of steps
-over a recorded data set (cycled) and checks after every step that ``P`` is finite,
-symmetric and positive definite (Cholesky), without writing the outputs.
+The generic machinery is :mod:`casflex.codegen.bundle`; this module only chooses the
+functions (:func:`casflex.estimation.ekf_functions`, the model's ``forward`` dynamics) and
+their units, and adds :func:`covariance_run`, a C program that runs ``ekf_step`` for
+millions of steps over a recorded data set (cycled) and checks after every step that ``P``
+is finite, symmetric and positive definite (Cholesky), without writing the outputs.
 
 Call signature of the generated step (see the bundle's README)::
 
@@ -17,7 +17,7 @@ Examples
 --------
 >>> import tempfile
 >>> from casflex.robot import load
->>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+>>> from casflex.model import FlexibleModel, PointwiseProvider
 >>> from casflex.sensors import SensorSet, StrainPair
 >>> robot = load("problems/arm2link.toml")
 >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
@@ -30,17 +30,29 @@ Examples
 from __future__ import annotations
 
 import json
+import os
 import subprocess
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from casflex import codegen
+from casflex.codegen.bundle import Bundle, generate
+from casflex.codegen.compiler import find_compiler, run_compiler
+from casflex.codegen.errors import BuildError
+from casflex.codegen.templates import covariance_run_source
 from casflex.errors import ModelError
+
+if TYPE_CHECKING:
+    from casflex.estimation import FlexiblePlant
+    from casflex.model import FlexibleModel
+    from casflex.sensors import SensorSet
 
 __all__ = ["ekf_units", "ekf_bundle", "model_bundle", "covariance_run"]
 
 
-def ekf_units(sensors, prefix=""):
+def ekf_units(sensors: SensorSet, prefix: str = "") -> dict[str, dict[str, str]]:
     """Units of the EKF functions' ports for the README (``{function: {port: unit}}``).
 
     Parameters
@@ -79,9 +91,12 @@ def ekf_units(sensors, prefix=""):
     }
 
 
-def ekf_bundle(model, sensors, out_dir, Q, R, dt, *, name="casflex_ekf", plant=None,
-               sqrt=False, prefilter=None, coriolis=True, stiffness_scale=1.0, prefix="",
-               jacobians="exact"):
+def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathLike,
+               Q: ArrayLike, R: ArrayLike, dt: float, *, name: str = "casflex_ekf",
+               plant: FlexiblePlant | None = None, sqrt: bool = False,
+               prefilter: float | None = None, coriolis: bool = True,
+               stiffness_scale: float = 1.0, prefix: str = "",
+               jacobians: str = "exact") -> Bundle:
     """Generate the EKF bundle (C source, header, README, Makefile, manifest).
 
     Parameters
@@ -108,7 +123,7 @@ def ekf_bundle(model, sensors, out_dir, Q, R, dt, *, name="casflex_ekf", plant=N
     --------
     >>> import tempfile
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.estimation import tabulate_plant
     >>> from casflex.sensors import SensorSet, StrainPair
     >>> robot = load("problems/arm2link.toml")
@@ -140,23 +155,24 @@ def ekf_bundle(model, sensors, out_dir, Q, R, dt, *, name="casflex_ekf", plant=N
     units = ekf_units(sensors, prefix)
     if sqrt:
         units[prefix + "ekf_step"].pop("x_next", None)
-    return codegen.generate([funcs[k] for k in order], out_dir, name=name, units=units)
+    return generate([funcs[k] for k in order], out_dir, name=name, units=units)
 
 
-def model_bundle(model, out_dir, *, name="casflex_model", functions=("forward",)):
+def model_bundle(model: FlexibleModel, out_dir: str | os.PathLike, *,
+                 name: str = "casflex_model",
+                 functions: Sequence[str] = ("forward",)) -> Bundle:
     """Generate a bundle with functions of the model (default its forward dynamics).
 
-    The model's graph is large (the forward dynamics of the Table 8 arm with three modes
-    has ~67 000 SX operations): compile it with ``-O1``/``-O0`` when build time matters.
+    The model's graph is large: compile it with ``-O1``/``-O0`` when build time matters.
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     out_dir : str or pathlib.Path
     name : str
         Bundle name.
     functions : sequence of str
-        Keys of :meth:`casflex.dynamics.FlexibleModel.functions` to generate (``"ode"``,
+        Keys of :meth:`casflex.model.FlexibleModel.functions` to generate (``"ode"``,
         ``"mass"``, ...); units are written for ``"forward"``.
 
     Returns
@@ -172,7 +188,7 @@ def model_bundle(model, out_dir, *, name="casflex_model", functions=("forward",)
     --------
     >>> import tempfile
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, rigid_provider
+    >>> from casflex.model import FlexibleModel, rigid_provider
     >>> robot = load("problems/arm2link.toml")
     >>> m = FlexibleModel(robot, rigid_provider(robot), gravity=None)
     >>> model_bundle(m, tempfile.mkdtemp()).functions[0].inputs[4].name
@@ -187,118 +203,14 @@ def model_bundle(model, out_dir, *, name="casflex_model", functions=("forward",)
         if key not in f:
             raise ModelError(f"the model has no function {key!r}; it has {sorted(f)}")
         chosen.append(f[key])
-    return codegen.generate(chosen, out_dir, name=name,
-                            units={k: v for k, v in units.items() if k in functions})
+    return generate(chosen, out_dir, name=name,
+                    units={k: v for k, v in units.items() if k in functions})
 
 
-_RUN_C = r"""/* Long EKF run generated by casflex.rtcode.covariance_run: cycles a recorded data set,
-   feeds x and the covariance back, checks the covariance after every step. */
-#include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <time.h>
-#include "%(header)s"
-
-#define NX %(nx)d
-#define NU %(nu)d
-#define NY %(ny)d
-#define NF %(nf)d
-
-static casadi_real u_data[%(k)d][NU], y_data[%(k)d][NY], m_data[%(k)d][NY];
-static casadi_real x[NX], P[NX * NX], f[NF + 1], xn[NX], Pn[NX * NX], xp[NX], fn[NF + 1];
-static casadi_real L[NX * NX];
-static const casadi_real* arg[%(fn)s_SZ_ARG > 0 ? %(fn)s_SZ_ARG : 1];
-static casadi_real* res[%(fn)s_SZ_RES > 0 ? %(fn)s_SZ_RES : 1];
-static casadi_int iw[%(fn)s_SZ_IW > 0 ? %(fn)s_SZ_IW : 1];
-static casadi_real w[%(fn)s_SZ_W > 0 ? %(fn)s_SZ_W : 1];
-
-static double now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return 1e9 * (double)ts.tv_sec + (double)ts.tv_nsec;
-}
-
-/* the covariance P = S S^T for the square-root form */
-static void covariance(const casadi_real* C, casadi_real* out) {
-  int i, j, k;
-  if (!%(sqrt)d) { for (i = 0; i < NX * NX; ++i) out[i] = C[i]; return; }
-  for (i = 0; i < NX; ++i) for (j = 0; j < NX; ++j) {
-    double s = 0;
-    for (k = 0; k < NX; ++k) s += C[i + NX * k] * C[j + NX * k];
-    out[i + NX * j] = s;
-  }
-}
-
-int main(int argc, char** argv) {
-  long long steps, s, k, nbad = 0, nnan = 0;
-  int i, j, kk;
-  double max_asym = 0, min_pivot = 1e300, max_diag = 0, min_diag = 1e300, t0, t1;
-  casadi_real Pc[NX * NX];
-  FILE* in;
-  if (argc < 3) { fprintf(stderr, "usage: %%s data.txt steps\n", argv[0]); return 2; }
-  in = fopen(argv[1], "r");
-  if (!in) { fprintf(stderr, "cannot open %%s\n", argv[1]); return 2; }
-  steps = atoll(argv[2]);
-  for (i = 0; i < NX; ++i) if (fscanf(in, "%%lf", &x[i]) != 1) return 3;
-  for (i = 0; i < NX * NX; ++i) if (fscanf(in, "%%lf", &P[i]) != 1) return 3;
-  for (i = 0; i < NF; ++i) if (fscanf(in, "%%lf", &f[i]) != 1) return 3;
-  for (k = 0; k < %(k)d; ++k) {
-    for (i = 0; i < NU; ++i) if (fscanf(in, "%%lf", &u_data[k][i]) != 1) return 3;
-    for (i = 0; i < NY; ++i) if (fscanf(in, "%%lf", &y_data[k][i]) != 1) return 3;
-    for (i = 0; i < NY; ++i) if (fscanf(in, "%%lf", &m_data[k][i]) != 1) return 3;
-  }
-  fclose(in);
-  t0 = now_ns();
-  for (s = 0; s < steps; ++s) {
-    k = s %% %(k)d;
-    arg[0] = x; arg[1] = P; arg[2] = u_data[k]; arg[3] = y_data[k]; arg[4] = m_data[k];
-    arg[5] = f;
-    res[0] = xn; res[1] = Pn; res[2] = xp; res[3] = fn;
-    if (%(fn)s(arg, res, iw, w, 0)) return 4;
-    for (i = 0; i < NX; ++i) x[i] = xn[i];
-    for (i = 0; i < NX * NX; ++i) P[i] = Pn[i];
-    for (i = 0; i < NF; ++i) f[i] = fn[i];
-    covariance(P, Pc);
-    /* checks: finite, symmetric, Cholesky pivots > 0 */
-    for (i = 0; i < NX * NX; ++i) if (!isfinite(Pc[i])) { ++nnan; break; }
-    for (i = 0; i < NX; ++i) {
-      double d = Pc[i + NX * i];
-      if (d > max_diag) max_diag = d;
-      if (d < min_diag) min_diag = d;
-      for (j = 0; j < i; ++j) {
-        double a = fabs(Pc[i + NX * j] - Pc[j + NX * i])
-                   / sqrt(fabs(Pc[i + NX * i] * Pc[j + NX * j]) + 1e-300);
-        if (a > max_asym) max_asym = a;
-      }
-    }
-    for (j = 0; j < NX; ++j) {
-      double d = Pc[j + NX * j];
-      for (kk = 0; kk < j; ++kk) d -= L[j + NX * kk] * L[j + NX * kk];
-      if (d / (Pc[j + NX * j] + 1e-300) < min_pivot) min_pivot = d / (Pc[j + NX * j] + 1e-300);
-      if (!(d > 0)) { ++nbad; break; }
-      L[j + NX * j] = sqrt(d);
-      for (i = j + 1; i < NX; ++i) {
-        double t = Pc[i + NX * j];
-        for (kk = 0; kk < j; ++kk) t -= L[i + NX * kk] * L[j + NX * kk];
-        L[i + NX * j] = t / L[j + NX * j];
-      }
-    }
-  }
-  t1 = now_ns();
-  printf("{\"steps\": %%lld, \"not_positive_definite\": %%lld, \"not_finite\": %%lld, "
-         "\"max_rel_asymmetry\": %%.17g, \"min_rel_cholesky_pivot\": %%.17g, "
-         "\"min_diag\": %%.17g, \"max_diag\": %%.17g, \"mean_step_ns\": %%.6g, "
-         "\"x_final\": [", steps, nbad, nnan, max_asym, min_pivot, min_diag, max_diag,
-         (t1 - t0) / (double)steps);
-  for (i = 0; i < NX; ++i) printf("%%s%%.17g", i ? ", " : "", x[i]);
-  printf("]}\n");
-  return 0;
-}
-"""
-
-
-def covariance_run(bundle, u, y, x0, P0, steps, *, mask=None, f0=None, function="ekf_step",
-                   compiler=None, flags=("-O2",)):
+def covariance_run(bundle: Bundle, u: ArrayLike, y: ArrayLike, x0: ArrayLike, P0: ArrayLike,
+                   steps: int, *, mask: ArrayLike | None = None, f0: ArrayLike | None = None,
+                   function: str = "ekf_step", compiler: str | Sequence[str] | None = None,
+                   flags: Sequence[str] = ("-O2",)) -> dict:
     """Run ``ekf_step`` in C for ``steps`` steps over recorded data (cycled); check ``P``.
 
     After every step the covariance (``S Sᵀ`` for the square-root form) is checked to be
@@ -342,7 +254,7 @@ def covariance_run(bundle, u, y, x0, P0, steps, *, mask=None, f0=None, function=
 
     >>> import tempfile
     >>> from casflex.robot import load
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.estimation import tabulate_plant
     >>> from casflex.sensors import SensorSet, StrainPair
     >>> robot = load("problems/arm2link.toml")
@@ -370,12 +282,12 @@ def covariance_run(bundle, u, y, x0, P0, steps, *, mask=None, f0=None, function=
     y = np.where(valid, y, 0.0)
     K = u.shape[0]
     src = bundle.out_dir / f"covrun_{function}.c"
-    src.write_text(_RUN_C % {"header": bundle.header.name, "nx": nx, "nu": nu, "ny": ny,
-                             "nf": nf, "k": K, "fn": function, "sqrt": int(sqrt)})
+    src.write_text(covariance_run_source(bundle.header.name, function, nx=nx, nu=nu, ny=ny,
+                                         nf=nf, samples=K, sqrt=sqrt))
     exe = bundle.out_dir / f"covrun_{function}"
-    cc = codegen._compiler(compiler)
-    codegen._run_compiler([*cc, *flags, "-I", str(bundle.out_dir), "-o", str(exe), str(src),
-                           str(bundle.source), "-lm"], bundle.out_dir)
+    cc = find_compiler(compiler)
+    run_compiler([*cc, *flags, "-I", str(bundle.out_dir), "-o", str(exe), str(src),
+                  str(bundle.source), "-lm"], bundle.out_dir)
     data = bundle.out_dir / f"covrun_{function}_data.txt"
     P0 = np.asarray(P0, dtype=float)
     head = [np.asarray(x0, float).ravel(), P0.T.ravel(),
@@ -388,6 +300,6 @@ def covariance_run(bundle, u, y, x0, P0, steps, *, mask=None, f0=None, function=
     proc = subprocess.run([str(exe), str(data), str(int(steps))], capture_output=True,
                           text=True, timeout=3600)
     if proc.returncode != 0:
-        raise codegen.BuildError(f"covariance_run: '{exe.name}' exited with status "
-                                 f"{proc.returncode}: {proc.stderr.strip()[-2000:]}")
+        raise BuildError(f"covariance_run: '{exe.name}' exited with status "
+                         f"{proc.returncode}: {proc.stderr.strip()[-2000:]}")
     return json.loads(proc.stdout)

@@ -8,24 +8,18 @@ import pytest
 
 from casflex import codegen
 from casflex.cli import main
+from casflex.codegen import covariance_run, ekf_bundle, model_bundle
 from casflex.estimation import ekf_step_function, run_ekf, simulate_data, tabulate_plant
-from casflex.model import build_model
-from casflex.moves import load_move
-from casflex.robot import load
-from casflex.rtcode import covariance_run, ekf_bundle, model_bundle
-from casflex.sensors import load_sensors
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
 Q, R, DT = 5e-6, (250e-6 * 9.8) ** 2, 1e-3
 
 
 @pytest.fixture(scope="module")
-def setup():
-    robot = load(ROOT / "problems/arm2link.toml")
-    sensors = load_sensors(ROOT / "problems/sensors/arm2link_accel.toml", robot)
-    model, _ = build_model(robot, n_modes=3, step=np.radians(30), cache_dir=False,
-                           processes=1, points=sensors.points, gravity=None)
+def setup(arm_model, accel_sensors):
+    sensors = accel_sensors
+    model, _ = arm_model(3, step_deg=30, points=sensors.points, gravity=None)
     plant = tabulate_plant(model, check=False)
     return model, sensors, plant
 
@@ -42,6 +36,8 @@ def _rel(a, b):
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
 
 
+@pytest.mark.needs_cc
+@pytest.mark.slow
 def test_ekf_step_c_equals_python(setup, ekf_lib):
     model, sensors, plant = setup
     bundle, lib = ekf_lib
@@ -70,6 +66,8 @@ def test_ekf_step_c_equals_python(setup, ekf_lib):
     assert bundle.reentrant
 
 
+@pytest.mark.needs_cc
+@pytest.mark.slow
 @pytest.mark.parametrize("jacobians,update", [("first_order", "auto"),
                                               ("linearized", "auto"),
                                               ("first_order", "batch")])
@@ -97,6 +95,8 @@ def test_lean_step_with_native_flags_equals_python(setup, tmp_path, jacobians, u
             assert _rel(a, b) < 1e-10
 
 
+@pytest.mark.needs_cc
+@pytest.mark.slow
 def test_forward_dynamics_c_equals_python(setup, tmp_path):
     model, _, _ = setup
     bundle = model_bundle(model, tmp_path)
@@ -111,12 +111,14 @@ def test_forward_dynamics_c_equals_python(setup, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def recorded(setup):
+def recorded(setup, move):
     model, sensors, _ = setup
-    move = load_move(str(ROOT / "problems/moves.toml") + ":move1")
+    move = move("move1")
     return simulate_data(model, sensors, move, dt=DT, t_end=0.4)
 
 
+@pytest.mark.needs_cc
+@pytest.mark.slow
 def test_c_harness_run_equals_python_run(setup, ekf_lib, recorded):
     _, sensors, plant = setup
     bundle, _ = ekf_lib
@@ -134,6 +136,8 @@ def test_c_harness_run_equals_python_run(setup, ekf_lib, recorded):
     assert _rel(res.outputs["P_next"], py.P[1:]) < 1e-9
 
 
+@pytest.mark.needs_cc
+@pytest.mark.slow
 def test_million_steps_covariance_stays_spd(ekf_lib, recorded):
     bundle, _ = ekf_lib
     d = recorded
@@ -157,6 +161,7 @@ def test_cli_codegen_json(tmp_path, capsys):
     assert any(f.endswith(".h") for f in out["files"])
 
 
+@pytest.mark.slow
 def test_cli_codegen_jacobians(tmp_path, capsys):
     """``--jacobians``: the default is the lean benchmarked step (first-order Jacobians),
     smaller than ``exact``; ``linearized`` is leaner still."""

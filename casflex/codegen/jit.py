@@ -1,0 +1,148 @@
+"""Just-in-time C: compile CasADi functions once, keep the shared library in the on-disk
+cache of casflex (:mod:`casflex._cache`), load it back in this and later processes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import casadi as ca
+
+from casflex._cache import cache_root, staged_directory
+from casflex._validate import identifier
+from casflex.codegen.compiler import find_compiler, run_compiler, shared_library_suffix
+from casflex.codegen.errors import BuildError, CodegenError
+
+__all__ = ["compile_cached"]
+
+_COMPILER_IDENT: dict[tuple[str, ...], str] = {}
+
+
+def _compiler_ident(cmd):
+    """``<compiler> --version`` (first line), cached per process: part of the cache key."""
+    key = tuple(cmd)
+    if key not in _COMPILER_IDENT:
+        try:
+            out = subprocess.run([*cmd, "--version"], capture_output=True, text=True,
+                                 timeout=60).stdout
+        except (OSError, subprocess.TimeoutExpired):
+            out = ""
+        _COMPILER_IDENT[key] = (out.splitlines() or [""])[0]
+    return _COMPILER_IDENT[key]
+
+
+def _write_source(functions, name, directory):
+    """Generate ``<directory>/<name>.c`` (no header) from ``functions``; return its path."""
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
+    for f in functions:
+        cg.add(f)
+    cg.generate(str(directory) + os.sep)
+    return Path(directory) / f"{name}.c"
+
+
+def _generated_source(functions, name, root):
+    """The C source CasADi generates for ``functions`` (bytes), via a scratch directory."""
+    with tempfile.TemporaryDirectory(dir=root, prefix=".gen-") as tmp:
+        return _write_source(functions, name, tmp).read_bytes()
+
+
+def compile_cached(functions: Sequence[ca.Function], name: str, *,
+                   cache_dir: str | os.PathLike | None = None,
+                   flags: Sequence[str] = ("-O1",),
+                   compiler: str | Sequence[str] | None = None
+                   ) -> tuple[dict[str, ca.Function], dict]:
+    """Compile CasADi functions to C once, keep the shared library on disk, load them back.
+
+    The functions' serialised graphs (or, for functions CasADi cannot serialise, the C
+    source :class:`casadi.CodeGenerator` generates from them) are hashed (SHA-256) with
+    the flags, the compiler's ``--version`` line and the CasADi version; the library lives
+    in ``<cache_dir>/jit/<name>-<hash>/``, so a later call — in this or another process —
+    with the same functions loads it without compiling, and a changed function, flag or
+    compiler never reads a stale library. The build goes to a private directory that is
+    renamed into place (:func:`casflex._cache.staged_directory`), so an interrupted or
+    concurrent build never leaves a broken library behind.
+
+    Parameters
+    ----------
+    functions : sequence of casadi.Function
+        Functions to compile (their names become the C symbols).
+    name : str
+        Name of the C file and library (a C identifier).
+    cache_dir : str or pathlib.Path, optional
+        Cache root; default :func:`casflex._cache.default_cache_dir`
+        (``$CASFLEX_CACHE`` or ``~/.cache/casflex``). ``False`` (no cache) is refused: a
+        loaded library must stay on disk.
+    flags : sequence of str
+        Compiler flags (``-fPIC -shared`` and ``-lm`` are added). ``-O0``/``-O1`` keep the
+        compile time of large expression graphs low; ``-O2`` and above take much longer.
+    compiler : str, optional
+        Compiler command; default ``$CC``, else ``cc``.
+
+    Returns
+    -------
+    functions : dict
+        ``name -> casadi.Function`` evaluating the compiled code (:func:`casadi.external`).
+    info : dict
+        ``library`` (path), ``built`` (``True`` if compiled by this call), ``seconds``
+        (time spent generating, hashing and, when built, compiling).
+
+    Raises
+    ------
+    casflex.codegen.BuildError
+        No C compiler, it failed, or the cache directory cannot be created.
+    casflex.codegen.CodegenError
+        ``name`` is not a C identifier, or ``cache_dir`` is ``False``.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> f = ca.Function("cube", [x], [x**3])
+    >>> cache = tempfile.mkdtemp()
+    >>> funs, info = compile_cached([f], "demo_jit", cache_dir=cache)
+    >>> float(funs["cube"](2.0)), info["built"]
+    (8.0, True)
+    >>> compile_cached([f], "demo_jit", cache_dir=cache)[1]["built"]   # from the cache
+    False
+    """
+    identifier(name, "library name", error=CodegenError)
+    start = time.perf_counter()
+    cmd = find_compiler(compiler)
+    base = cache_root(cache_dir)
+    if base is None:
+        raise CodegenError("compile_cached: cache_dir=False; the compiled library must live "
+                           "in a directory (give a path, or None for the default cache)")
+    root = base / "jit"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BuildError(f"compile_cached: cannot create the library cache '{root}': "
+                         f"{exc.strerror or exc}; pass another cache_dir") from exc
+    # Hashed incrementally: the serialised graphs can be large.
+    h = hashlib.sha256(json.dumps([name, list(flags), _compiler_ident(cmd),
+                                   ca.__version__]).encode())
+    try:  # the serialised graphs determine the generated C (and are quicker to get)
+        for f in functions:
+            h.update(f.serialize().encode())
+    except RuntimeError:  # not serialisable: hash the generated source instead
+        h.update(_generated_source(functions, name, root))
+    target = root / f"{name}-{h.hexdigest()[:24]}"
+    lib = target / f"lib{name}{shared_library_suffix()}"
+    built = False
+    if not lib.is_file():
+        with staged_directory(target) as staging:
+            source = _write_source(functions, name, staging)
+            run_compiler([*cmd, *flags, "-fPIC", "-shared", source.name, "-o", lib.name,
+                          "-lm"], staging)
+            source.unlink()  # 2-3x the library's size; regenerable
+        built = True
+    loaded = {f.name(): ca.external(f.name(), str(lib)) for f in functions}
+    return loaded, {"library": str(lib), "built": built,
+                    "seconds": time.perf_counter() - start}

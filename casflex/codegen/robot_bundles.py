@@ -1,0 +1,242 @@
+"""The real-time bundles of a robot and its sensors: what ``casflex codegen`` writes.
+
+:func:`realtime_bundles` builds the model of a robot for its sensors and writes two
+bundles, each in its own directory with its header, README and Makefile:
+``<out_dir>/<name>_ekf`` with ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals``
+(and, with a controller, ``rt_step``: :func:`casflex.codegen.rt_step_function`) and,
+unless ``model=False``, ``<out_dir>/<name>_model`` with the model's ``forward`` dynamics
+(:func:`casflex.codegen.model_bundle`).
+
+The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``jacobians="first_order"``
+(default; ``"exact"`` and ``"linearized"`` are the alternatives of
+:func:`casflex.estimation.ekf_step_function`), sequential scalar updates when ``R`` is
+diagonal. With a controller the model is built as in the control studies
+(``delta_order=0``, the dissertation's ``M(q)``); the composite law uses fast gains
+scheduled over the configuration grid.
+
+Extending the bundle: :func:`rt_functions` returns its named CasADi functions and their
+units; add yours to both before generating them with :func:`casflex.codegen.generate`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex._validate import number
+from casflex.codegen.bundle import Bundle, generate
+from casflex.codegen.estimator import ekf_units, model_bundle
+from casflex.codegen.rtloop import make_controller, rt_step_function, rt_units
+from casflex.errors import ModelError
+
+if TYPE_CHECKING:
+    from casflex.estimation import FlexiblePlant
+    from casflex.model import FlexibleModel
+    from casflex.robot import Robot
+    from casflex.sensors import SensorSet
+
+__all__ = ["rt_functions", "realtime_bundles"]
+
+#: order of the estimator bundle's functions (others follow in their dict order)
+_EKF_ORDER = ("ekf_step", "plant", "measurement", "rigid_signals", "rt_step")
+
+
+def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-6,
+                 R: ArrayLike | None = None, dt: float = 1e-3, sqrt: bool = False,
+                 prefilter: bool = False, jacobians: str = "first_order",
+                 controller: str | None = None, kp: ArrayLike = 1.0, kd: ArrayLike = 2.0,
+                 q_weight: ArrayLike = 1.0, r_weight: ArrayLike = 10.0,
+                 plant: FlexiblePlant | None = None
+                 ) -> tuple[dict[str, ca.Function], dict[str, dict[str, str]]]:
+    """The named functions and units of the estimator bundle.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        Built with ``points=sensors.points``.
+    sensors : casflex.sensors.SensorSet
+    Q : float or array_like
+        Process-noise intensity on ``[δ; δ̇]``.
+    R : float or array_like, optional
+        Signal variance; default the sensors' ``noise²``.
+    dt : float
+        Sample time [s].
+    sqrt : bool
+        Square-root covariance form.
+    prefilter : bool
+        High-pass prefilter one decade below the lowest frequency at ``q = 0``
+        (:func:`casflex.estimation.highpass_cutoff`).
+    jacobians : {"first_order", "exact", "linearized"}
+        Jacobians of the EKF step (:func:`casflex.estimation.ekf_step_function`).
+    controller : {"composite", "inversion"}, optional
+        Also ``rt_step``: the EKF and this controller in one call
+        (:func:`casflex.codegen.make_controller`).
+    kp, kd : float or array_like
+        Joint gains of the controller [1/s², 1/s].
+    q_weight, r_weight : float or array_like
+        LQR weights ``Q``, ``R`` of the composite controller's fast part.
+    plant : casflex.estimation.FlexiblePlant, optional
+        Default :func:`casflex.estimation.tabulate_plant` of ``model``.
+
+    Returns
+    -------
+    functions : dict of str to casadi.Function
+        ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals`` and, with a
+        controller, ``rt_step``.
+    units : dict
+        ``{function: {port: unit}}`` for the README.
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``R`` not given and a sensor without ``noise``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.estimation import tabulate_plant
+    >>> from casflex.sensors import SensorSet, StrainPair
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3), noise=3e-7)])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points),
+    ...                       gravity=None)
+    >>> plant = tabulate_plant(model, cache_dir=False)
+    >>> funcs, units = rt_functions(model, ss, Q=5e-6, dt=1e-3, plant=plant)
+    >>> sorted(funcs), units["ekf_step"]["y"]
+    (['ekf_step', 'measurement', 'plant', 'rigid_signals'], 'strain (-)')
+    >>> quiet = SensorSet([StrainPair(2, 0.05)])     # no noise given, and no R
+    >>> rt_functions(model, quiet, plant=plant)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --R not given and the sensor file gives no noise for ...
+    """
+    from casflex.estimation import (
+        ekf_functions,
+        ekf_step_function,
+        highpass_cutoff,
+        tabulate_plant,
+    )
+
+    if R is None:
+        std = sensors.noise_std
+        if not np.all(np.isfinite(std)):
+            missing = [n for n, s in zip(sensors.output_names, std, strict=True)
+                       if not np.isfinite(s)]
+            # worded for the command line, this function's main caller
+            raise ModelError(f"--R not given and the sensor file gives no noise for "
+                             f"{missing}; set 'noise' in the file or pass --R")
+        R = std**2
+    if plant is None:
+        plant = tabulate_plant(model)
+    funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
+                          jacobians=jacobians)
+    if prefilter:
+        wc = highpass_cutoff(model, np.zeros(model.n))
+        funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
+                                              prefilter=wc, jacobians=jacobians)
+    units = ekf_units(sensors)
+    if controller:
+        ctrl = make_controller(model, controller, Kp=kp, Kd=kd, Q=q_weight, R=r_weight)
+        step = funcs["ekf_step"]
+        funcs["rt_step"] = rt_step_function(step, ctrl, dt)
+        rt = rt_units(sensors, cov=step.name_in(1))
+        if step.n_in() > 5:
+            rt["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
+        units.update(rt)
+    return funcs, units
+
+
+def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLike | SensorSet,
+                     out_dir: str | os.PathLike, *, n_modes: int = 3, name: str = "casflex",
+                     step: float | None = None, gravity: bool = True, model: bool = True,
+                     Q: ArrayLike = 5e-6, R: ArrayLike | None = None, dt: float = 1e-3,
+                     sqrt: bool = False, prefilter: bool = False,
+                     jacobians: str = "first_order", controller: str | None = None,
+                     kp: ArrayLike = 1.0, kd: ArrayLike = 2.0, q_weight: ArrayLike = 1.0,
+                     r_weight: ArrayLike = 10.0,
+                     log: Callable[[str], object] | None = None) -> list[Bundle]:
+    """Build the model of a robot for its sensors and write its real-time bundles.
+
+    Building the model tabulates modes over a grid (seconds to minutes), so the example
+    below only shows an argument check; see the module docstring for what is written.
+
+    Parameters
+    ----------
+    robot : str, os.PathLike or casflex.robot.Robot
+        The robot, or its TOML file.
+    sensors : str, os.PathLike or casflex.sensors.SensorSet
+        The sensors, or a file with ``[[sensor]]`` tables.
+    out_dir : str or os.PathLike
+        Directory of the bundle directories ``<name>_ekf`` and ``<name>_model``.
+    n_modes : int
+        Number of modes.
+    name : str
+        Prefix of the bundle names.
+    step : float, optional
+        Grid step of the modal tables [rad] (default: :func:`casflex.model.build_model`'s).
+    gravity : bool
+        Model with the robot's gravity.
+    model : bool
+        Also write the forward-dynamics bundle.
+    Q, R, dt, sqrt, prefilter, jacobians, controller, kp, kd, q_weight, r_weight
+        As for :func:`rt_functions`.
+    log : callable, optional
+        ``log(message)`` receives one line per stage.
+
+    Returns
+    -------
+    list of casflex.codegen.Bundle
+        The estimator bundle, then (with ``model``) the model bundle.
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``n_modes < 1``, ``dt <= 0`` or ``R`` missing for sensors without noise.
+    casflex.errors.ProblemFileError
+        An invalid robot or sensor file.
+
+    Examples
+    --------
+    >>> realtime_bundles("problems/arm2link.toml", "problems/sensors/arm2link_strain.toml",
+    ...                  "d", n_modes=0)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: n_modes = 0: must be >= 1
+    """
+    from casflex.model import build_model
+    from casflex.robot import load
+    from casflex.sensors import load_sensors
+
+    n_modes = number(n_modes, "n_modes", low=1, integer=True)
+    dt = number(dt, "dt", low=0.0, low_open=True)
+    if log is None:
+        def log(message):
+            pass
+    if isinstance(robot, (str, os.PathLike)):
+        robot = load(robot)
+    if isinstance(sensors, (str, os.PathLike)):
+        sensors = load_sensors(sensors, robot)
+    log(f"building the model of '{robot.name}' with {n_modes} modes ...")
+    options = {"delta_order": 0} if controller else {}
+    flexible, _ = build_model(robot, n_modes=n_modes, step=step, points=sensors.points,
+                              gravity="robot" if gravity else None, **options)
+    log("tabulating the flexible plant for the EKF"
+        + (f" and building the {controller} controller ..." if controller else " ..."))
+    funcs, units = rt_functions(flexible, sensors, Q=Q, R=R, dt=dt, sqrt=sqrt,
+                                prefilter=prefilter, jacobians=jacobians,
+                                controller=controller, kp=kp, kd=kd, q_weight=q_weight,
+                                r_weight=r_weight)
+    names = [k for k in _EKF_ORDER if k in funcs] + [k for k in funcs if k not in _EKF_ORDER]
+    out = Path(out_dir)
+    bundles = [generate([funcs[k] for k in names], out / f"{name}_ekf", name=f"{name}_ekf",
+                        units={k: v for k, v in units.items() if k in names})]
+    if model:
+        bundles.append(model_bundle(flexible, out / f"{name}_model", name=f"{name}_model"))
+    return bundles
