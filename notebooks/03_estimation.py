@@ -207,7 +207,7 @@ fig.tight_layout()
 #   smaller; strain gauges keep δ accurate), and without the
 #   Coriolis terms the estimates are poor while the joints move and converge once they stop
 #   (Fig. 66), more slowly with strain gauges.
-# * Long runs: `tests/test_codegen_ekf.py` runs the generated C step for 10⁶ steps (1000 s
+# * Long runs: `tests/codegen/test_codegen_ekf.py` runs the generated C step for 10⁶ steps (1000 s
 #   at 1 kHz) and checks after every step that P is finite, symmetric and positive definite.
 
 # %% [markdown]

@@ -212,7 +212,7 @@ for q2 in (0.0, 1.0, np.pi / 2):
 # chapter 5 instead of the true `δ, δ̇`: two three-axis accelerometers
 # (`problems/sensors/arm2link_accel.toml`) with noise `R = (250e-6 g)² I`, `Q = 5e-6 I`,
 # and `q̈` from the backward difference of the joint rates — exactly what the generated
-# `rt_step` computes (`casflex codegen ... --controller composite`, `casflex.rtloop`).
+# `rt_step` computes (`casflex codegen ... --controller composite`, `casflex.codegen.rtloop`).
 # References: the same law on the true states, and the slow law alone. (Move 1 cannot be
 # run sampled at 1 ms on this model, see `simulate_closed_loop`.)
 

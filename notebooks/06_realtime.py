@@ -4,7 +4,7 @@
 # The dissertation ran its estimator in Simulink on a desktop PC: "over 90 % of one core at
 # 1 kHz", about 1 ms per step (§5.5). casflex writes the same computations as plain C from
 # the CasADi functions used everywhere else in the course (`casflex.codegen`,
-# `casflex.rtcode`): one header per bundle, fixed-size workspaces given by generated
+# `casflex.codegen`): one header per bundle, fixed-size workspaces given by generated
 # macros, no allocation inside a step, and a README of the call signatures.
 #
 # This notebook
@@ -28,11 +28,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from casflex import codegen
+from casflex.codegen import covariance_run, ekf_bundle
 from casflex.estimation import ekf_step_function, run_ekf, simulate_data, tabulate_plant
 from casflex.model import build_model
 from casflex.moves import load_move
 from casflex.robot import load
-from casflex.rtcode import covariance_run, ekf_bundle
 from casflex.sensors import load_sensors
 
 ROOT = Path.cwd().parent if Path.cwd().name == "notebooks" else Path.cwd()
@@ -135,7 +135,7 @@ print({k: check[k] for k in ("steps", "not_positive_definite", "not_finite",
 #
 # The real-time loop needs more than the estimator: at every sample the encoders give
 # `q, q̇`, the planner gives the reference `q_d, q̇_d, q̈_d`, the accelerometers give `y`,
-# and the motors need torques. `casflex.rtloop.rt_step_function` puts the EKF and a
+# and the motors need torques. `casflex.codegen.rt_step_function` puts the EKF and a
 # controller into one SX function — `q̈` for the filter from the backward difference of the
 # joint rates, the filter update and prediction, and the torque of the controller on the
 # filtered estimate — and `casflex codegen --controller composite|inversion` writes it to C.
@@ -148,7 +148,8 @@ print({k: check[k] for k in ("steps", "not_positive_definite", "not_finite",
 # they code-generate), on the dissertation's `M(q)` (`delta_order=0`).
 
 # %%
-from casflex import control, rtloop
+from casflex import control
+from casflex.codegen import rtloop
 
 arm = load(ROOT / "problems" / "arm2link_actuated.toml")
 model0, _ = build_model(arm, n_modes=3, step=np.radians(15), points=sensors.points,

@@ -338,10 +338,10 @@ def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, er
 
 def _c_bundle(study, model, plant, ekf, controller, c_dir, dt):
     """Generate (and compile, unless unchanged or switched off) the real-time C bundle:
-    ``rt_step`` (:mod:`casflex.rtloop`: encoders, reference and sensor sample to torques and
+    ``rt_step`` (:mod:`casflex.codegen.rtloop`: encoders, reference and sensor sample to torques and
     the updated estimator), plus ``ekf_step`` and the controller alone."""
     from casflex import codegen
-    from casflex.rtloop import rt_bundle
+    from casflex.codegen import rt_bundle
 
     name = study.codegen["name"]
     staging = c_dir.parent / (c_dir.name + ".new")
