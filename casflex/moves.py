@@ -93,22 +93,22 @@ class Move:
             raise ProblemFileError(None, f"{self.name}.settle", self.settle, "must be >= 0")
 
     @property
-    def n_joints(self):
+    def n_joints(self) -> int:
         """Number of joints."""
         return self.q0.size
 
     @property
-    def t_end(self):
+    def t_end(self) -> float:
         """End of the simulated interval, ``duration + settle`` [s]."""
         return self.duration + self.settle
 
     @property
-    def peak_acceleration(self):
+    def peak_acceleration(self) -> np.ndarray:
         """Joint accelerations of the first half [rad/s²]: ``4 (qf − q0) / T²``."""
         return 4.0 * (self.qf - self.q0) / self.duration**2
 
     @property
-    def breakpoints(self):
+    def breakpoints(self) -> np.ndarray:
         """Times [s] where the acceleration jumps: start, half time and end of the move.
 
         Examples
@@ -119,7 +119,7 @@ class Move:
         T = float(self.duration)
         return np.array([0.0, 0.5 * T, T])
 
-    def sample(self, t):
+    def sample(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint position, velocity and acceleration at times ``t``.
 
         Parameters
@@ -156,7 +156,7 @@ class Move:
             return q[0], qd[0], qdd[0]
         return q, qd, qdd
 
-    def time_grid(self, dt):
+    def time_grid(self, dt: float) -> np.ndarray:
         """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
 
         Parameters
@@ -216,55 +216,55 @@ class ShapedMove:
                                    "must sum to 1 to reach the move's end values")
 
     @property
-    def q0(self):
+    def q0(self) -> np.ndarray:
         """Start joint values [rad]."""
         return self.move.q0
 
     @property
-    def qf(self):
+    def qf(self) -> np.ndarray:
         """End joint values [rad]."""
         return self.move.qf
 
     @property
-    def n_joints(self):
+    def n_joints(self) -> int:
         """Number of joints."""
         return self.move.n_joints
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         """Time until the shaped reference comes to rest [s]: move plus shaper."""
         return self.move.duration + float(self.shaper.duration)
 
     @property
-    def settle(self):
+    def settle(self) -> float:
         """Time simulated after the shaped move ends [s] (the move's ``settle``)."""
         return self.move.settle
 
     @property
-    def t_end(self):
+    def t_end(self) -> float:
         """End of the simulated interval [s]."""
         return self.duration + self.settle
 
     @property
-    def name(self):
+    def name(self) -> str:
         """The move's name with a ``+shaper`` suffix."""
         return f"{self.move.name}+shaper"
 
     @property
-    def description(self):
+    def description(self) -> str:
         """Human-readable description."""
         return (f"{self.move.description or self.move.name}, shaped by "
                 f"{len(self.shaper.times)} impulses over {self.shaper.duration:.4g} s")
 
     @property
-    def breakpoints(self):
+    def breakpoints(self) -> np.ndarray:
         """Times [s] where the shaped acceleration jumps (sorted, unique)."""
         T = self.move.duration
         pts = [t + k * T / 2.0 for t in np.asarray(self.shaper.times, dtype=float)
                for k in (0, 1, 2)]
         return np.unique(np.round(pts, 15))
 
-    def sample(self, t):
+    def sample(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shaped position, velocity and acceleration at times ``t`` (see :meth:`Move.sample`).
 
         Parameters
@@ -298,7 +298,7 @@ class ShapedMove:
             return q[0], qd[0], qdd[0]
         return q, qd, qdd
 
-    def casadi_reference(self):
+    def casadi_reference(self) -> ca.Function:
         """``reference (t) -> (qd, dqd, ddqd)`` as a CasADi function, equal to :meth:`sample`.
 
         Examples
@@ -316,7 +316,7 @@ class ShapedMove:
             out = [o + float(ai) * p for o, p in zip(out, parts, strict=True)]
         return ca.Function("reference", [t], out, ["t"], ["qd", "dqd", "ddqd"])
 
-    def time_grid(self, dt):
+    def time_grid(self, dt: float) -> np.ndarray:
         """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
 
         Parameters
@@ -348,7 +348,7 @@ def _is_move(reference) -> bool:
     return isinstance(reference, Move) or hasattr(reference, "casadi_reference")
 
 
-def reference_function(move) -> ca.Function:
+def reference_function(move: Move | ShapedMove | tuple) -> ca.Function:
     """A reference as a CasADi function of time.
 
     Parameters
@@ -436,7 +436,8 @@ def _hermite(t_ref, y, dy, t):
     return out
 
 
-def reference_sampler(reference, n_joints: int) -> ReferenceSampler:
+def reference_sampler(reference: Move | ShapedMove | tuple, n_joints: int
+                      ) -> ReferenceSampler:
     """A numeric sampler of a move, a shaped move or sampled arrays.
 
     Parameters
@@ -528,7 +529,7 @@ def _angles(r, path, name, key, value, n=None):
     return out
 
 
-def load_moves(path):
+def load_moves(path: str | Path) -> dict[str, Move]:
     """Read every move of a move file.
 
     Parameters
@@ -588,7 +589,7 @@ def load_moves(path):
     return moves
 
 
-def load_move(spec):
+def load_move(spec: str | Path) -> Move:
     """Read one move given as ``FILE:NAME`` (or a file holding exactly one move).
 
     Parameters

@@ -5,6 +5,7 @@ arrays (simulation, the estimator's reference runs) and CasADi ``SX``/``MX`` exp
 (a step built once as a ``casadi.Function`` and mapped or generated to C).
 
 * :func:`rk4_step` — the one fixed-step Runge–Kutta scheme of casflex;
+* :func:`rk4_interval` — RK4 substeps over one sample interval, stage times as input;
 * :func:`time_grid` — the uniform output grid of a simulation;
 * :func:`casadi_integrator`, :func:`integrate` — an adaptive CasADi integrator
   (``cvodes``/``idas``) with output on a grid, and its evaluation;
@@ -25,8 +26,8 @@ import numpy as np
 
 from casflex.errors import ModelError, SolverError
 
-__all__ = ["rk4_step", "time_grid", "casadi_integrator", "integrate", "call_buffered",
-           "STEP_CACHE", "step_cache"]
+__all__ = ["rk4_step", "rk4_interval", "time_grid", "casadi_integrator", "integrate",
+           "call_buffered", "STEP_CACHE", "step_cache"]
 
 #: model -> dict of the step Functions built for it by casflex.simulate (weak keys: the
 #: entry goes with the model)
@@ -85,6 +86,45 @@ def rk4_step(f: Callable, x, h, u=None, u_half=_SAME, u_end=_SAME):
         k3 = f(x + 0.5 * h * k2, u_half)
         k4 = f(x + h * k3, u_end)
     return x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def rk4_interval(rhs: Callable, x, t, dt: float, substeps: int = 1, nudge: float = 0.0):
+    """``substeps`` RK4 steps of ``x' = rhs(x, s)`` over ``[t, t + dt]``, ``s`` the stage
+    time.
+
+    Parameters
+    ----------
+    rhs : callable
+        ``rhs(x, s)``, numeric or symbolic.
+    x : array_like or casadi.SX or casadi.MX
+        State at ``t``.
+    t : float or casadi expression
+        Start of the interval [s].
+    dt : float
+        Length of the interval [s].
+    substeps : int
+        RK4 steps of ``dt / substeps`` each.
+    nudge : float
+        The first and last stages of each step are evaluated ``nudge`` steps inside it,
+        so that the jumps of a bang-bang reference on the step boundaries fall between
+        steps, not on a stage.
+
+    Returns
+    -------
+    State at ``t + dt``, of the type of ``x``.
+
+    Examples
+    --------
+    x' = s from 0 to 1 (exact: 1/2):
+
+    >>> rk4_interval(lambda x, s: s, 0.0, 0.0, 1.0, substeps=2)
+    0.5
+    """
+    h = dt / substeps
+    for i in range(substeps):
+        ti = t + i * h
+        x = rk4_step(rhs, x, h, ti + nudge * h, ti + 0.5 * h, ti + (1.0 - nudge) * h)
+    return x
 
 
 def step_cache(model) -> dict:

@@ -8,11 +8,12 @@ One machinery integrates the model's forward dynamics for both front ends:
   move: continuous (CVODES or RK4 with substeps) or sampled (zero-order hold), with an
   impulsive tip force and optionally an EKF between the plant and the controller.
 
-The machinery: :func:`rk4_interval` (RK4 substeps over one sample with the one
-:func:`~casflex.simulate.integrators.rk4_step`), :func:`impulse_jump` (the state after an
-impulsive tip force), and three runners — a ``mapaccum`` of a symbolic sample step over
-the grid (split at the impulse), a loop over the samples for laws that run in Python
-(callables, the estimator), and an adaptive CasADi integrator restarted at the switches.
+The machinery: :func:`~casflex.simulate.integrators.rk4_interval` (RK4 substeps over one
+sample with the one :func:`~casflex.simulate.integrators.rk4_step`), :func:`impulse_jump`
+(the state after an impulsive tip force), and three runners — a ``mapaccum`` of a
+symbolic sample step over the grid (split at the impulse), a loop over the samples for
+laws that run in Python (callables, the estimator), and an adaptive CasADi integrator
+restarted at the switches.
 """
 
 from __future__ import annotations
@@ -30,13 +31,14 @@ from casflex.moves import reference_function
 from casflex.simulate.integrators import (
     casadi_integrator,
     integrate,
+    rk4_interval,
     rk4_step,
     step_cache,
     time_grid,
 )
 from casflex.simulate.results import ClosedLoopResult, SimulationResult, tip_positions
 
-__all__ = ["simulate_torque", "simulate_closed_loop", "impulse_jump", "rk4_interval"]
+__all__ = ["simulate_torque", "simulate_closed_loop", "impulse_jump"]
 
 #: a torque law of :func:`simulate_torque`: ``u(t, x)``, a ``casadi.Function`` of
 #: ``(t, x)``, constant torques or ``None`` (zero)
@@ -45,45 +47,6 @@ TorqueLaw = Callable | ca.Function | ArrayLike | None
 METHODS = ("rk4", "cvodes", "idas")
 
 # ---------------------------------------------------------------------------- machinery
-
-
-def rk4_interval(rhs: Callable, x, t, dt: float, substeps: int = 1, nudge: float = 0.0):
-    """``substeps`` RK4 steps of ``x' = rhs(x, s)`` over ``[t, t + dt]``, ``s`` the stage
-    time.
-
-    Parameters
-    ----------
-    rhs : callable
-        ``rhs(x, s)``, numeric or symbolic.
-    x : array_like or casadi.SX or casadi.MX
-        State at ``t``.
-    t : float or casadi expression
-        Start of the interval [s].
-    dt : float
-        Length of the interval [s].
-    substeps : int
-        RK4 steps of ``dt / substeps`` each.
-    nudge : float
-        The first and last stages of each step are evaluated ``nudge`` steps inside it,
-        so that the jumps of a bang-bang reference on the step boundaries fall between
-        steps, not on a stage.
-
-    Returns
-    -------
-    State at ``t + dt``, of the type of ``x``.
-
-    Examples
-    --------
-    x' = s from 0 to 1 (exact: 1/2):
-
-    >>> rk4_interval(lambda x, s: s, 0.0, 0.0, 1.0, substeps=2)
-    0.5
-    """
-    h = dt / substeps
-    for i in range(substeps):
-        ti = t + i * h
-        x = rk4_step(rhs, x, h, ti + nudge * h, ti + 0.5 * h, ti + (1.0 - nudge) * h)
-    return x
 
 
 def impulse_jump(model, x: np.ndarray, p: ArrayLike) -> np.ndarray:

@@ -52,6 +52,7 @@ def _with_motors(robot, inertia=0.01):
 # ------------------------------------------------------------------ frequencies
 
 
+@pytest.mark.slow
 def test_held_joints_oscillate_at_tmm_frequencies(arm2):
     from casflex.tmm import modes
 
@@ -87,6 +88,7 @@ def _small_model():
                                 damping_ratio=0.01, modal_mass="kinematic")
 
 
+@pytest.mark.slow
 def test_torque_rk4_matches_scipy_dop853():
     _, model = _small_model()
     f = model.functions()
@@ -112,6 +114,7 @@ def test_torque_rk4_matches_scipy_dop853():
     assert np.max(np.abs(Xc - ref.y.T[k]) / scale) < 1e-6
 
 
+@pytest.mark.slow
 def test_prescribed_rk4_and_cvodes_match_scipy_dop853(arm2):
     model, _ = arm2
     f = model.functions()
@@ -142,6 +145,7 @@ def test_prescribed_rk4_and_cvodes_match_scipy_dop853(arm2):
     assert np.max(np.abs(rc.delta - Z[:, :m]) / scale[:m]) < 1e-5
 
 
+@pytest.mark.slow
 def test_free_motion_energy_balance():
     robot, _ = _small_model()
     p = PointwiseProvider(robot, [0.0, 0.0, 0.6], count=2)
@@ -169,6 +173,7 @@ def moves(arm2):
     return out
 
 
+@pytest.mark.slow
 def test_table9_moves_give_centimetre_deflections(moves):
     for name, r in moves.items():
         assert isinstance(r, SimulationResult)
@@ -182,6 +187,7 @@ def test_table9_moves_give_centimetre_deflections(moves):
         assert json.loads(json.dumps(d))["max_tip_deflection"] == r.max_tip_deflection
 
 
+@pytest.mark.slow
 def test_move2_is_planar(moves):
     r = moves["move2"]
     # q1 = 0: the arm moves in the x-z plane of the base; deflections stay in it
@@ -189,6 +195,7 @@ def test_move2_is_planar(moves):
     assert np.abs(r.tip_deflection[:, [0, 2]]).max() > 1e-3
 
 
+@pytest.mark.slow
 def test_move3_keeps_the_tables_constant(arm2, moves):
     model, table = arm2
     r = moves["move3"]
@@ -207,6 +214,7 @@ def test_move3_keeps_the_tables_constant(arm2, moves):
     assert np.abs(r.tip_deflection[:, 2]).max() < 0.3 * np.abs(r.tip_deflection[:, :2]).max()
 
 
+@pytest.mark.slow
 def test_shaped_reference_reduces_residual_vibration(arm2, moves):
     from casflex.shaping import apply_shaper, convolve, zv
 
@@ -266,6 +274,7 @@ def _cli(argv):
     return rc, out.getvalue(), err.getvalue()
 
 
+@pytest.mark.slow
 def test_cli_json_contract(tmp_path):
     rc, out, err = _cli(["simulate", "problems/arm2link.toml", "--move",
                          "problems/moves.toml:move3", "--modes", "1", "--dt", "0.01",
@@ -282,6 +291,8 @@ def test_cli_json_contract(tmp_path):
     assert (tmp_path / "sim.png").stat().st_size > 0
 
 
+@pytest.mark.slow
+@pytest.mark.needs_cc
 def test_cli_poly_jit_equals_rk4(tmp_path):
     """``--method poly --jit``: compiled fast path, same figures as RK4; the library goes
     into the cache directory; ``--jit`` needs ``--method poly``."""
@@ -401,6 +412,7 @@ def _compare_poly_rk4(model, reference, dt, t_end):
     return r, p
 
 
+@pytest.mark.slow
 def test_poly_matches_rk4_on_move1(small3):
     r, p = _compare_poly_rk4(small3["free"], load_move("problems/moves.toml:move1"),
                              dt=2e-3, t_end=3.0)
@@ -408,6 +420,7 @@ def test_poly_matches_rk4_on_move1(small3):
     assert p.max_tip_deflection == pytest.approx(r.max_tip_deflection, rel=1e-8)
 
 
+@pytest.mark.slow
 def test_poly_matches_rk4_on_a_shaped_move_with_gravity(small3):
     from casflex.moves import ShapedMove
     from casflex.shaping import zv
@@ -431,6 +444,8 @@ def test_poly_errors(small3):
         simulate_torque(model, None, np.zeros(12), t_end=0.01, method="poly")
 
 
+@pytest.mark.slow
+@pytest.mark.needs_cc
 def test_poly_jit_equals_the_virtual_machine(small3, tmp_path):
     """``jit``: F and the RK4 chunk compiled to C give the VM's result to round-off; the
     library is built once and loaded from the on-disk cache afterwards (also by a fresh

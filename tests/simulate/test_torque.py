@@ -26,6 +26,7 @@ def sensor_model(arm_model, accel_sensors):
     return model, table, accel_sensors
 
 
+@pytest.mark.slow
 def test_inversion_tracks_better_than_feedforward(table_model):
     model, _ = table_model
     results = {}
@@ -41,6 +42,7 @@ def test_inversion_tracks_better_than_feedforward(table_model):
     assert results["control_move1", "feedforward"] > 1e-2
 
 
+@pytest.mark.slow
 def test_impulse_response_decays(table_model):
     """Composite controller after the move, impulse at t = 3 s (short version)."""
     model, table = table_model
@@ -62,6 +64,7 @@ def test_impulse_response_decays(table_model):
 
 
 @pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
+@pytest.mark.slow
 def test_composite_with_ekf_in_the_loop(sensor_model):
     """Move 3, scheduled composite law sampled at 1 kHz: EKF estimates vs true states.
 
@@ -113,6 +116,7 @@ def test_composite_with_ekf_in_the_loop(sensor_model):
 
 
 @pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
+@pytest.mark.slow
 def test_end_gains_instability_is_in_the_model_not_the_boundary_layer(table_model):
     """Independent of boundary_layer(): the full 12-state linearisation of the model under
     the composite law (finite differences of its closed-loop vector field) and a direct
