@@ -108,7 +108,7 @@ def bench(skip_dask=False):
     out["move1_poly_vs_rk4"] = deviation(p)
     # compiled: once with an empty library cache, then as a new process would (the
     # in-memory functions forgotten), then warm
-    from casflex import simulate as S
+    from casflex.simulate.integrators import STEP_CACHE
 
     with tempfile.TemporaryDirectory() as jit_cache:
         t0 = time.perf_counter()
@@ -116,7 +116,7 @@ def bench(skip_dask=False):
                                 cache_dir=jit_cache)
         out["jit_compile_call_s"] = time.perf_counter() - t0
         out["jit_compile_s"] = c.info["poly_jit_s"]
-        S._CACHE.clear()
+        STEP_CACHE.clear()
         t0 = time.perf_counter()
         c = simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
                                 cache_dir=jit_cache)

@@ -15,20 +15,35 @@ Move files are TOML with one table per move (see ``problems/moves.toml``)::
     settle = 3.0            # s simulated after the move ends (optional, default 3)
 
 A move is referred to as ``FILE:NAME`` (``problems/moves.toml:move1``).
+
+This module owns every way of sampling a reference:
+
+* :meth:`Move.sample`, :meth:`ShapedMove.sample` — numeric samples of a move;
+* :func:`reference_function` — the reference as a ``casadi.Function`` of time (a move,
+  a shaped move, or piecewise-linear interpolants of sampled arrays);
+* :func:`reference_sampler` — a numeric sampler of any reference (a move, a shaped move,
+  or sampled arrays ``(t, q, dq, ddq)`` with cubic Hermite interpolation), with its time
+  span and the end of its motion;
+* :attr:`Move.breakpoints`, :attr:`ShapedMove.breakpoints` — where the acceleration jumps.
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
+import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
-from casflex.errors import ProblemFileError
+from casflex.errors import ModelError, ProblemFileError
 
-__all__ = ["Move", "ShapedMove", "load_moves", "load_move"]
+__all__ = ["Move", "ShapedMove", "load_moves", "load_move", "reference_function",
+           "reference_sampler", "ReferenceSampler"]
 
 _PROFILES = ("bang-bang",)
 
@@ -78,21 +93,33 @@ class Move:
             raise ProblemFileError(None, f"{self.name}.settle", self.settle, "must be >= 0")
 
     @property
-    def n_joints(self):
+    def n_joints(self) -> int:
         """Number of joints."""
         return self.q0.size
 
     @property
-    def t_end(self):
+    def t_end(self) -> float:
         """End of the simulated interval, ``duration + settle`` [s]."""
         return self.duration + self.settle
 
     @property
-    def peak_acceleration(self):
+    def peak_acceleration(self) -> np.ndarray:
         """Joint accelerations of the first half [rad/s²]: ``4 (qf − q0) / T²``."""
         return 4.0 * (self.qf - self.q0) / self.duration**2
 
-    def sample(self, t):
+    @property
+    def breakpoints(self) -> np.ndarray:
+        """Times [s] where the acceleration jumps: start, half time and end of the move.
+
+        Examples
+        --------
+        >>> Move([0.0], [1.0], 2.0).breakpoints.tolist()
+        [0.0, 1.0, 2.0]
+        """
+        T = float(self.duration)
+        return np.array([0.0, 0.5 * T, T])
+
+    def sample(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint position, velocity and acceleration at times ``t``.
 
         Parameters
@@ -129,7 +156,7 @@ class Move:
             return q[0], qd[0], qdd[0]
         return q, qd, qdd
 
-    def time_grid(self, dt):
+    def time_grid(self, dt: float) -> np.ndarray:
         """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
 
         Parameters
@@ -189,55 +216,55 @@ class ShapedMove:
                                    "must sum to 1 to reach the move's end values")
 
     @property
-    def q0(self):
+    def q0(self) -> np.ndarray:
         """Start joint values [rad]."""
         return self.move.q0
 
     @property
-    def qf(self):
+    def qf(self) -> np.ndarray:
         """End joint values [rad]."""
         return self.move.qf
 
     @property
-    def n_joints(self):
+    def n_joints(self) -> int:
         """Number of joints."""
         return self.move.n_joints
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         """Time until the shaped reference comes to rest [s]: move plus shaper."""
         return self.move.duration + float(self.shaper.duration)
 
     @property
-    def settle(self):
+    def settle(self) -> float:
         """Time simulated after the shaped move ends [s] (the move's ``settle``)."""
         return self.move.settle
 
     @property
-    def t_end(self):
+    def t_end(self) -> float:
         """End of the simulated interval [s]."""
         return self.duration + self.settle
 
     @property
-    def name(self):
+    def name(self) -> str:
         """The move's name with a ``+shaper`` suffix."""
         return f"{self.move.name}+shaper"
 
     @property
-    def description(self):
+    def description(self) -> str:
         """Human-readable description."""
         return (f"{self.move.description or self.move.name}, shaped by "
                 f"{len(self.shaper.times)} impulses over {self.shaper.duration:.4g} s")
 
     @property
-    def breakpoints(self):
+    def breakpoints(self) -> np.ndarray:
         """Times [s] where the shaped acceleration jumps (sorted, unique)."""
         T = self.move.duration
         pts = [t + k * T / 2.0 for t in np.asarray(self.shaper.times, dtype=float)
                for k in (0, 1, 2)]
         return np.unique(np.round(pts, 15))
 
-    def sample(self, t):
+    def sample(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shaped position, velocity and acceleration at times ``t`` (see :meth:`Move.sample`).
 
         Parameters
@@ -271,7 +298,7 @@ class ShapedMove:
             return q[0], qd[0], qdd[0]
         return q, qd, qdd
 
-    def casadi_reference(self):
+    def casadi_reference(self) -> ca.Function:
         """``reference (t) -> (qd, dqd, ddqd)`` as a CasADi function, equal to :meth:`sample`.
 
         Examples
@@ -281,10 +308,6 @@ class ShapedMove:
         >>> round(float(s.casadi_reference()(2.25)[0]), 6)
         -0.984375
         """
-        import casadi as ca
-
-        from casflex.control import reference_function
-
         base = reference_function(self.move)
         t = ca.SX.sym("t")
         out = [0, 0, 0]
@@ -293,7 +316,7 @@ class ShapedMove:
             out = [o + float(ai) * p for o, p in zip(out, parts, strict=True)]
         return ca.Function("reference", [t], out, ["t"], ["qd", "dqd", "ddqd"])
 
-    def time_grid(self, dt):
+    def time_grid(self, dt: float) -> np.ndarray:
         """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
 
         Parameters
@@ -317,6 +340,182 @@ class ShapedMove:
         return np.arange(n + 1) * dt
 
 
+# ---------------------------------------------------------------------------- sampling
+
+
+def _is_move(reference) -> bool:
+    """A Move or a closed-form shaped move (anything with ``casadi_reference``)."""
+    return isinstance(reference, Move) or hasattr(reference, "casadi_reference")
+
+
+def reference_function(move: Move | ShapedMove | tuple) -> ca.Function:
+    """A reference as a CasADi function of time.
+
+    Parameters
+    ----------
+    move : Move or ShapedMove or tuple
+        A move with ``q0``, ``qf``, ``duration`` and ``peak_acceleration``; a move that
+        has its own ``casadi_reference()`` (e.g. :class:`ShapedMove`) supplies its
+        reference itself. Before ``t = 0`` a move rests at ``q0``, after the duration at
+        ``qf``. Sampled arrays ``(t, q, dq, ddq)`` [s, rad, rad/s, rad/s²] give
+        piecewise-linear interpolants of the samples.
+
+    Returns
+    -------
+    casadi.Function
+        ``reference (t) -> (qd, dqd, ddqd)`` [rad, rad/s, rad/s²], equal to
+        :meth:`Move.sample` for a move.
+
+    Examples
+    --------
+    >>> r = reference_function(Move([0.0], [-1.0], 2.0))
+    >>> [float(v) for v in r(1.5)]
+    [-0.875, -0.5, 1.0]
+    >>> t = np.array([0.0, 1.0])
+    >>> r = reference_function((t, np.c_[[0.0, 1.0]], np.c_[[1.0, 1.0]], np.c_[[0.0, 0.0]]))
+    >>> [float(v) for v in r(0.25)]
+    [0.25, 1.0, 0.0]
+    """
+    if hasattr(move, "casadi_reference"):  # e.g. ShapedMove
+        return move.casadi_reference()
+    t = ca.SX.sym("t")
+    if not isinstance(move, Move):  # sampled arrays
+        t_ref, qs, dqs, ddqs = (np.asarray(v, dtype=float) for v in move)
+        parts = []
+        for arr in (qs, dqs, ddqs):
+            arr = arr.reshape(t_ref.size, -1)
+            li = ca.interpolant("ref", "linear", [t_ref], arr.T.ravel(order="F"))
+            parts.append(li(t))
+        return ca.Function("reference", [t], parts, ["t"], ["qd", "dqd", "ddqd"])
+    T = float(move.duration)
+    q0, qf = ca.DM(move.q0), ca.DM(move.qf)
+    a = ca.DM(move.peak_acceleration)
+    tc = ca.fmin(ca.fmax(t, 0.0), T)
+    first = ca.logic_and(t >= 0.0, t < T / 2.0)
+    second = ca.logic_and(t >= T / 2.0, t < T)
+    q = ca.if_else(t < 0.0, q0, ca.if_else(first, q0 + 0.5 * a * tc**2,
+                                           qf - 0.5 * a * (T - tc) ** 2))
+    dq = ca.if_else(first, a * tc, ca.if_else(second, a * (T - tc), ca.DM.zeros(q0.shape)))
+    ddq = ca.if_else(first, a, ca.if_else(second, -a, ca.DM.zeros(q0.shape)))
+    return ca.Function("reference", [t], [q, dq, ddq], ["t"], ["qd", "dqd", "ddqd"])
+
+
+class ReferenceSampler(NamedTuple):
+    """A numeric sampler of a reference (:func:`reference_sampler`).
+
+    Attributes
+    ----------
+    sample : callable
+        ``sample(t) -> (q, dq, ddq)``, each of shape ``(len(t), n)`` [rad, rad/s, rad/s²].
+    t_start, t_last : float
+        First and last time of the reference [s] (a move: 0 and ``t_end``).
+    t_move_end : float
+        End of the motion [s] (a move: its duration; samples: the sample after the last
+        one that moves).
+    """
+
+    sample: Callable
+    t_start: float
+    t_last: float
+    t_move_end: float
+
+
+def _hermite(t_ref, y, dy, t):
+    """Cubic Hermite interpolation of samples ``y`` with slopes ``dy`` at times ``t``."""
+    idx = np.clip(np.searchsorted(t_ref, t, side="right") - 1, 0, t_ref.size - 2)
+    h = (t_ref[idx + 1] - t_ref[idx])[:, None]
+    s = ((t - t_ref[idx])[:, None] / h).clip(0.0, 1.0)
+    h00 = 2 * s**3 - 3 * s**2 + 1
+    h10 = s**3 - 2 * s**2 + s
+    h01 = -2 * s**3 + 3 * s**2
+    h11 = s**3 - s**2
+    out = h00 * y[idx] + h10 * h * dy[idx] + h01 * y[idx + 1] + h11 * h * dy[idx + 1]
+    before, after = t < t_ref[0], t > t_ref[-1]
+    out[before] = y[0]
+    out[after] = y[-1] + dy[-1] * (t[after] - t_ref[-1])[:, None]
+    return out
+
+
+def reference_sampler(reference: Move | ShapedMove | tuple, n_joints: int
+                      ) -> ReferenceSampler:
+    """A numeric sampler of a move, a shaped move or sampled arrays.
+
+    Parameters
+    ----------
+    reference : Move or ShapedMove or tuple
+        A move, or sampled arrays ``(t, q, dq, ddq)`` [s, rad, rad/s, rad/s²] (shape
+        ``(N,)`` and ``(N, n)``), e.g. from :func:`casflex.shaping.apply_shaper`. Between
+        samples ``q`` and ``dq`` are cubic Hermite interpolants, ``ddq`` is linear.
+    n_joints : int
+        Expected number of joints (checked).
+
+    Returns
+    -------
+    ReferenceSampler
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        Another number of joints, or malformed sampled arrays.
+
+    Examples
+    --------
+    >>> r = reference_sampler(Move([0.0], [-1.0], 2.0, settle=1.0), 1)
+    >>> r.t_start, r.t_last, r.t_move_end
+    (0.0, 3.0, 2.0)
+    >>> [a.ravel().tolist() for a in r.sample([0.5])]
+    [[-0.125], [-0.5], [-1.0]]
+    >>> t = np.array([0.0, 1.0, 2.0])
+    >>> s = reference_sampler((t, *Move([0.0], [1.0], 1.0).sample(t)), 1)
+    >>> s.t_move_end, s.sample([0.5])[0].ravel().tolist()
+    (1.0, [0.5])
+    """
+    n = n_joints
+    if _is_move(reference):
+        if reference.n_joints != n:
+            raise ModelError(f"move '{reference.name}' has {reference.n_joints} joints; the "
+                             f"model has {n}")
+        return ReferenceSampler(reference.sample, 0.0, reference.t_end,
+                                float(reference.duration))
+    try:
+        t_ref, q, dq, ddq = reference
+    except (TypeError, ValueError):
+        raise ModelError("reference must be a casflex.moves.Move or a tuple (t, q, dq, ddq) "
+                         f"of sampled arrays; got {type(reference).__name__}") from None
+    if dq is None or ddq is None:
+        raise ModelError("a sampled reference needs q, dq and ddq (e.g. apply_shaper(s, t, "
+                         "q, dq, ddq)); got None")
+    t_ref = np.asarray(t_ref, dtype=float).ravel()
+    arrays = []
+    for name, a in (("q", q), ("dq", dq), ("ddq", ddq)):
+        a = np.asarray(a, dtype=float)
+        if a.ndim == 1:
+            a = a[:, None]
+        if a.shape != (t_ref.size, n):
+            raise ModelError(f"reference {name} has shape {a.shape}; expected "
+                             f"({t_ref.size}, {n}) for a model with {n} joints")
+        arrays.append(a)
+    q, dq, ddq = arrays
+    if t_ref.size < 2 or np.any(np.diff(t_ref) <= 0.0) or not np.all(np.isfinite(t_ref)):
+        raise ModelError("reference t must hold >= 2 finite, strictly increasing times [s]")
+    moving = (np.abs(dq).max(axis=1) > 1e-12) | (np.abs(ddq).max(axis=1) > 1e-12)
+    if np.any(moving):
+        last = int(np.nonzero(moving)[0][-1])
+        t_move_end = float(t_ref[min(last + 1, t_ref.size - 1)])
+    else:
+        t_move_end = float(t_ref[0])
+
+    def sample(t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        ddq_t = np.column_stack([np.interp(t, t_ref, ddq[:, j]) for j in range(n)])
+        return _hermite(t_ref, q, dq, t), _hermite(t_ref, dq, ddq, t), ddq_t
+
+    return ReferenceSampler(sample, float(t_ref[0]), float(t_ref[-1]), t_move_end)
+
+
+# ---------------------------------------------------------------------------- move files
+
+
 def _angles(r, path, name, key, value, n=None):
     if not isinstance(value, list) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
@@ -330,7 +529,7 @@ def _angles(r, path, name, key, value, n=None):
     return out
 
 
-def load_moves(path):
+def load_moves(path: str | Path) -> dict[str, Move]:
     """Read every move of a move file.
 
     Parameters
@@ -390,7 +589,7 @@ def load_moves(path):
     return moves
 
 
-def load_move(spec):
+def load_move(spec: str | Path) -> Move:
     """Read one move given as ``FILE:NAME`` (or a file holding exactly one move).
 
     Parameters

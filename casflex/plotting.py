@@ -20,11 +20,14 @@ if TYPE_CHECKING:
 
     from casflex.robot import Robot
     from casflex.shaping import FrequencyRange, MoveShaperResult, Shaper
+    from casflex.simulate import SimulationResult
     from casflex.tmm import ModeShapes
 
 __all__ = [
     # structures and modes
     "skeleton", "plot_modes", "plot_sweep",
+    # simulation
+    "plot_result",
     # input shaping
     "plot_prv", "plot_move_shaper",
     # control
@@ -532,4 +535,58 @@ def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
         ax.set_xlabel(f"q{joints[1]} [deg]")
         ax.set_ylabel(f"q{joints[0]} [deg]")
     fig.tight_layout()
+    return fig
+
+
+# ---------------------------------------------------------------------------- simulation
+
+def plot_result(result: SimulationResult, title: str | None = None) -> Figure:
+    """Joint angles, torques, modal amplitudes and tip deflection, one panel each.
+
+    Parameters
+    ----------
+    result : casflex.simulate.SimulationResult
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from casflex.simulate import SimulationResult
+    >>> r = SimulationResult(t=np.arange(3.0), q=np.zeros((3, 1)), dq=np.zeros((3, 1)),
+    ...                      ddq=np.zeros((3, 1)), tau=np.zeros((3, 1)),
+    ...                      delta=np.zeros((3, 2)), ddelta=np.zeros((3, 2)),
+    ...                      tip=np.zeros((3, 3)), tip_rigid=np.zeros((3, 3)))
+    >>> len(plot_result(r).axes)
+    4
+    """
+    import math
+
+    fig = Figure(figsize=(10, 7), layout="constrained")
+    axes = fig.subplots(2, 2, sharex=True)
+    t = result.t
+    for j in range(result.q.shape[1]):
+        axes[0, 0].plot(t, result.q[:, j], label=f"q{j + 1}")
+        axes[0, 1].plot(t, result.tau[:, j], label=f"τ{j + 1}")
+    for j in range(result.delta.shape[1]):
+        axes[1, 0].plot(t, result.delta[:, j], label=f"δ{j + 1}")
+    for k, c in enumerate("xyz"):
+        axes[1, 1].plot(t, 1e3 * result.tip_deflection[:, k], label=c)
+    axes[1, 1].plot(t, 1e3 * np.linalg.norm(result.tip_deflection, axis=1), "k--", lw=0.8,
+                    label="|·|")
+    labels = [("joint angle [rad]", axes[0, 0]), ("torque [N m]", axes[0, 1]),
+              ("modal amplitude δ [√kg m]", axes[1, 0]),
+              ("tip deflection [mm]", axes[1, 1])]
+    for label, ax in labels:
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small", ncol=2)
+        if math.isfinite(result.t_move_end):
+            ax.axvline(result.t_move_end, color="0.6", lw=0.8, ls=":")
+    for ax in axes[1]:
+        ax.set_xlabel("t [s]")
+    if title:
+        fig.suptitle(title)
     return fig

@@ -1,10 +1,10 @@
-"""Bang-bang moves: kinematic consistency and move-file validation."""
+"""Bang-bang moves: kinematic consistency, move-file validation, reference samplers."""
 
 import numpy as np
 import pytest
 
 from casflex.errors import ProblemFileError
-from casflex.moves import Move, load_move, load_moves
+from casflex.moves import Move, load_move, load_moves, reference_function
 
 
 def test_bang_bang_is_consistent():
@@ -57,3 +57,11 @@ def test_move_names(tmp_path):
     p = tmp_path / "one.toml"
     p.write_text('[only]\nduration = 1.0\nq0 = [0.0]\nqf = [1.0]\nunit = "deg"\n')
     assert load_move(p).qf[0] == pytest.approx(np.pi / 180)
+
+
+def test_reference_matches_move_sample():
+    move = load_move("problems/moves.toml:control_move1")
+    ref = reference_function(move)
+    for t in np.linspace(-0.5, 3.0, 37):
+        for got, want in zip(ref(t), move.sample(t), strict=True):
+            np.testing.assert_allclose(got.full().ravel(), want, atol=1e-14)

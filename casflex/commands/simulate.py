@@ -5,9 +5,8 @@
 [--json]``
 
 ``--method poly`` takes the same RK4 steps on the exact polynomial form of the modal rows
-(about ten times faster for the Table 8 arm); ``--jit`` also compiles it to C once per
-model (about 30 s, kept in the cache directory), after which a move takes a fraction of a
-second.
+(faster for large models); ``--jit`` also compiles it to C once per model (kept in the
+cache directory), after which a move runs outside CasADi's virtual machine.
 
 The modal tables are built (or read from the cache) with a progress bar on stderr, the
 CasADi model is built on them and the joints follow the move exactly; the modal row of
@@ -21,7 +20,6 @@ JSON: ``{"t_end", "max_tip_deflection", "residual_tip_deflection", "torque_peak"
 from __future__ import annotations
 
 import math
-import time
 
 from casflex.commands.common import parse_angle
 from casflex.errors import ModelError
@@ -73,7 +71,7 @@ def add_arguments(parser):
 def run(args, log):
     """Build the model, simulate the move, return the JSON summary (SI units).
 
-    Building the model takes seconds, so the example below only shows the argument
+    Building the model is costly, so the example below only shows the argument
     checks; see the module docstring for a full command line and the JSON keys.
 
     Parameters
@@ -112,9 +110,8 @@ def run(args, log):
         ...
     casflex.errors.ModelError: --jit: needs --method poly; got --method rk4
     """
-    from casflex.model import build_model
     from casflex.moves import load_move
-    from casflex.simulate import plot_result, simulate_prescribed
+    from casflex.simulate import simulate_move
 
     robot = load(args.robot)
     move = load_move(args.move)
@@ -126,15 +123,14 @@ def run(args, log):
     if not (math.isfinite(args.dt) and args.dt > 0.0):
         raise ModelError(f"--dt: must be a positive step in s; got {args.dt}")
     step = None if args.step is None else parse_angle(args.step, "--step")
-    if getattr(args, "jit", False) and args.method != "poly":
+    jit = getattr(args, "jit", False)
+    if jit and args.method != "poly":
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
-    t0 = time.perf_counter()
-    model, table = build_model(robot, args.modes, step=step, cache_dir=args.cache_dir,
-                               progress=True, gravity="robot" if args.gravity else None)
+    result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
+                                         gravity=args.gravity, method=args.method, jit=jit,
+                                         cache_dir=args.cache_dir)
     log(f"model of '{robot.name}': {model.m} modes over {table.omega.shape[0]} points of "
-        f"joint(s) {[j + 1 for j in table.shape_joints]} ({time.perf_counter() - t0:.1f} s)")
-    jit = {"jit": True, "cache_dir": args.cache_dir} if getattr(args, "jit", False) else {}
-    result = simulate_prescribed(model, move, dt=args.dt, method=args.method, **jit)
+        f"joint(s) {[j + 1 for j in table.shape_joints]} ({result.info['model_s']:.1f} s)")
     log(f"{move.name}: {result.t[-1]:.3f} s simulated in {result.info['wall_s']:.2f} s "
         f"({args.method}, dt = {args.dt} s)")
     log(f"  max tip deflection      {1e3 * result.max_tip_deflection:10.3f} mm")
@@ -142,6 +138,8 @@ def run(args, log):
         f"(after t = {result.t_move_end:g} s)")
     log(f"  torque peak             {[round(float(v), 4) for v in result.torque_peak]} N m")
     if args.plot:
+        from casflex.plotting import plot_result
+
         plot_result(result, title=f"{robot.name}: {move.description or move.name}").savefig(
             args.plot, dpi=110)
         log(f"wrote {args.plot}")

@@ -27,20 +27,18 @@ from scipy.integrate import solve_ivp
 
 from casflex.dynamics import ConstantProvider, FlexibleModel, PointwiseProvider
 from casflex.errors import ModelError
-from casflex.model import build_model
-from casflex.moves import Move, load_move
+from casflex.moves import Move, load_move, reference_sampler
 from casflex.robot import load
-from casflex.simulate import SimulationResult, simulate_prescribed, simulate_torque
+from casflex.simulate import SimulationResult, poly, simulate_prescribed, simulate_torque
+from casflex.simulate.integrators import STEP_CACHE
 
 ARM = load("problems/arm2link.toml")
 
 
 @pytest.fixture(scope="module")
-def arm2(tmp_path_factory):
+def arm2(arm_model):
     """Table 8 arm, 2 tracked modes on a 7.5° grid of q3, gravity neglected (§3.3.7.1)."""
-    cache = tmp_path_factory.mktemp("cache")
-    model, table = build_model(ARM, n_modes=2, step=np.radians(7.5), cache_dir=cache,
-                               processes=1, gravity=None)
+    model, table = arm_model(2, step_deg=7.5, gravity=None)
     return model, table
 
 
@@ -54,6 +52,7 @@ def _with_motors(robot, inertia=0.01):
 # ------------------------------------------------------------------ frequencies
 
 
+@pytest.mark.slow
 def test_held_joints_oscillate_at_tmm_frequencies(arm2):
     from casflex.tmm import modes
 
@@ -89,6 +88,7 @@ def _small_model():
                                 damping_ratio=0.01, modal_mass="kinematic")
 
 
+@pytest.mark.slow
 def test_torque_rk4_matches_scipy_dop853():
     _, model = _small_model()
     f = model.functions()
@@ -114,6 +114,7 @@ def test_torque_rk4_matches_scipy_dop853():
     assert np.max(np.abs(Xc - ref.y.T[k]) / scale) < 1e-6
 
 
+@pytest.mark.slow
 def test_prescribed_rk4_and_cvodes_match_scipy_dop853(arm2):
     model, _ = arm2
     f = model.functions()
@@ -144,6 +145,7 @@ def test_prescribed_rk4_and_cvodes_match_scipy_dop853(arm2):
     assert np.max(np.abs(rc.delta - Z[:, :m]) / scale[:m]) < 1e-5
 
 
+@pytest.mark.slow
 def test_free_motion_energy_balance():
     robot, _ = _small_model()
     p = PointwiseProvider(robot, [0.0, 0.0, 0.6], count=2)
@@ -171,6 +173,7 @@ def moves(arm2):
     return out
 
 
+@pytest.mark.slow
 def test_table9_moves_give_centimetre_deflections(moves):
     for name, r in moves.items():
         assert isinstance(r, SimulationResult)
@@ -184,6 +187,7 @@ def test_table9_moves_give_centimetre_deflections(moves):
         assert json.loads(json.dumps(d))["max_tip_deflection"] == r.max_tip_deflection
 
 
+@pytest.mark.slow
 def test_move2_is_planar(moves):
     r = moves["move2"]
     # q1 = 0: the arm moves in the x-z plane of the base; deflections stay in it
@@ -191,6 +195,7 @@ def test_move2_is_planar(moves):
     assert np.abs(r.tip_deflection[:, [0, 2]]).max() > 1e-3
 
 
+@pytest.mark.slow
 def test_move3_keeps_the_tables_constant(arm2, moves):
     model, table = arm2
     r = moves["move3"]
@@ -209,6 +214,7 @@ def test_move3_keeps_the_tables_constant(arm2, moves):
     assert np.abs(r.tip_deflection[:, 2]).max() < 0.3 * np.abs(r.tip_deflection[:, :2]).max()
 
 
+@pytest.mark.slow
 def test_shaped_reference_reduces_residual_vibration(arm2, moves):
     from casflex.shaping import apply_shaper, convolve, zv
 
@@ -268,6 +274,7 @@ def _cli(argv):
     return rc, out.getvalue(), err.getvalue()
 
 
+@pytest.mark.slow
 def test_cli_json_contract(tmp_path):
     rc, out, err = _cli(["simulate", "problems/arm2link.toml", "--move",
                          "problems/moves.toml:move3", "--modes", "1", "--dt", "0.01",
@@ -284,6 +291,8 @@ def test_cli_json_contract(tmp_path):
     assert (tmp_path / "sim.png").stat().st_size > 0
 
 
+@pytest.mark.slow
+@pytest.mark.needs_cc
 def test_cli_poly_jit_equals_rk4(tmp_path):
     """``--method poly --jit``: compiled fast path, same figures as RK4; the library goes
     into the cache directory; ``--jit`` needs ``--method poly``."""
@@ -319,28 +328,25 @@ def test_cli_errors(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def small3():
+def small3(arm_model):
     """Table 8 arm, 3 modes on a 15° grid (the table knots are crossed by move 1)."""
     models = {}
     for key, gravity in (("free", None), ("gravity", "robot")):
-        models[key] = build_model(ARM, 3, step=np.radians(15), cache_dir=False, processes=1,
-                                  gravity=gravity)[0]
+        models[key] = arm_model(3, step_deg=15, gravity=gravity)[0]
     return models
 
 
 def _poly_ddelta_tau(model, raw, dq, ddq, d, v, dd):
     """δ̈ from the polynomial/affine form and τ from the configuration arrays ``raw``
     (one row of F)."""
-    from casflex import simulate as S
-
     n, m = model.n, model.m
-    A = S._poly_unpack(raw, n, m, dq[None])
-    rows = S._poly_rows(A, dq[None], n, m, model.damping_ratio)
-    coef = S._poly_modal(rows, ddq[None])[0]
-    stage, _ = S._poly_stage(m)
+    A = poly.unpack(raw, n, m, dq[None])
+    rows = poly.rows(A, dq[None], n, m, model.damping_ratio)
+    coef = poly.modal(rows, ddq[None])[0]
+    stage, _ = poly.stage(m)
     ddd = stage(coef, np.r_[d, v]).full().ravel()[m:]
-    tau = S._poly_torque(S._poly_torque_rows(rows, ddq[None]), n, m, d[None], v[None],
-                         dd[None])[0]
+    tau = poly.torque(poly.torque_rows(rows, ddq[None]), n, m, d[None], v[None],
+                      dd[None])[0]
     return ddd, tau
 
 
@@ -349,15 +355,13 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
     """At random (t, δ, δ̇) on move 1 the affine M_δδ and the quadratic r give the model's
     δ̈ (`prescribed_dddelta`), and the configuration arrays give its torques — with F
     evaluated exactly and with F interpolated in time (Chebyshev pieces)."""
-    from casflex import simulate as S
-
     model = small3[key]
-    f = S._functions(model)
-    F = S._poly_function(model, f)
+    f = model.functions()
+    F = poly.configuration_function(model)
     move = load_move("problems/moves.toml:move1")
-    sampler = S._as_reference(move, model.n)[0]
-    breaks = S._poly_breaks(model, move, sampler, 0.0, move.t_end)
-    pieces, err, _, _ = S._poly_interpolants(F, sampler, breaks, 1e-10)
+    sampler = reference_sampler(move, model.n)[0]
+    breaks = poly.breaks(model, move, sampler, 0.0, move.t_end)
+    pieces, err, _, _ = poly.interpolants(F, sampler, breaks, 1e-10)
     assert err <= 1e-10
     rng = np.random.default_rng(7)
     for t in rng.uniform(0.0, move.duration, 6):
@@ -366,14 +370,14 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
         tau_ref, dd_ref = (x.full().ravel() for x in f["prescribed"](q, dq, ddq, d, v))
         dd_model = f["dddelta"](q, dq, ddq, d, v).full().ravel()
         np.testing.assert_allclose(dd_model, dd_ref, rtol=0, atol=1e-14)
-        dd, tau = _poly_ddelta_tau(model, S._poly_eval(F, np.atleast_2d(q)), dq, ddq, d, v,
+        dd, tau = _poly_ddelta_tau(model, poly.evaluate(F, np.atleast_2d(q)), dq, ddq, d, v,
                                    dd_ref)
         scale_d, scale_t = np.abs(dd_ref).max(), np.abs(tau_ref).max()
         assert np.abs(dd - dd_ref).max() <= 1e-10 * scale_d
         assert np.abs(tau - tau_ref).max() <= 1e-10 * scale_t
         # the interpolated arrays at the same time
         i = int(np.searchsorted([p[0] for p in pieces], t, side="right")) - 1
-        raw = S._poly_at(pieces, [p[4] for p in pieces], np.array([t]), np.array([i]))
+        raw = poly.values_at(pieces, [p[4] for p in pieces], np.array([t]), np.array([i]))
         dd_i, tau_i = _poly_ddelta_tau(model, raw, dq, ddq, d, v, dd_ref)
         assert np.abs(dd_i - dd_ref).max() <= 1e-8 * scale_d
         assert np.abs(tau_i - tau_ref).max() <= 1e-8 * scale_t
@@ -382,16 +386,14 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
 def test_poly_piece_choice_at_breaks():
     """At a break the piece follows the reference's side; a break that misses the
     reference's switch by round-off still gets the piece with the reference's q̈."""
-    from casflex import simulate as S
-
-    tn, w = S._cheb(0.0, 1.0, 2)
+    tn, w = poly.chebyshev_nodes(0.0, 1.0, 2)
     pieces = [(0.0, 1.0, tn, w, None), (1.0, 2.0, tn + 1.0, w, None)]
     acc = np.array([[1.0], [-1.0]])
     t = np.array([0.5, 1.0, 1.0, 1.0 - 1e-15, 1.0 + 1e-15, 1.5])
     ddq = np.array([[1.0], [-1.0], [1.0], [-1.0], [1.0], [-1.0]])
-    assert S._poly_piece_index(pieces, t[:2], ddq[:2], acc).tolist() == [0, 1]
-    assert S._poly_piece_index(pieces, t[2:3], ddq[2:3], acc, left=True).tolist() == [0]
-    assert S._poly_piece_index(pieces, t[3:], ddq[3:], acc).tolist() == [1, 0, 1]
+    assert poly.piece_index(pieces, t[:2], ddq[:2], acc).tolist() == [0, 1]
+    assert poly.piece_index(pieces, t[2:3], ddq[2:3], acc, left=True).tolist() == [0]
+    assert poly.piece_index(pieces, t[3:], ddq[3:], acc).tolist() == [1, 0, 1]
 
 
 def _compare_poly_rk4(model, reference, dt, t_end):
@@ -410,6 +412,7 @@ def _compare_poly_rk4(model, reference, dt, t_end):
     return r, p
 
 
+@pytest.mark.slow
 def test_poly_matches_rk4_on_move1(small3):
     r, p = _compare_poly_rk4(small3["free"], load_move("problems/moves.toml:move1"),
                              dt=2e-3, t_end=3.0)
@@ -417,6 +420,7 @@ def test_poly_matches_rk4_on_move1(small3):
     assert p.max_tip_deflection == pytest.approx(r.max_tip_deflection, rel=1e-8)
 
 
+@pytest.mark.slow
 def test_poly_matches_rk4_on_a_shaped_move_with_gravity(small3):
     from casflex.moves import ShapedMove
     from casflex.shaping import zv
@@ -440,12 +444,12 @@ def test_poly_errors(small3):
         simulate_torque(model, None, np.zeros(12), t_end=0.01, method="poly")
 
 
+@pytest.mark.slow
+@pytest.mark.needs_cc
 def test_poly_jit_equals_the_virtual_machine(small3, tmp_path):
     """``jit``: F and the RK4 chunk compiled to C give the VM's result to round-off; the
     library is built once and loaded from the on-disk cache afterwards (also by a fresh
     model object, as in another process); other flags build another library."""
-    from casflex import simulate as S
-
     model = small3["gravity"]
     move = load_move("problems/moves.toml:move1")
     vm = simulate_prescribed(model, move, dt=2e-3, t_end=2.0, method="poly")
@@ -455,7 +459,7 @@ def test_poly_jit_equals_the_virtual_machine(small3, tmp_path):
     for name in ("delta", "ddelta", "tau"):
         a, b = getattr(c, name), getattr(vm, name)
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), name
-    S._CACHE.clear()  # forget the loaded functions: the next call reads the disk cache
+    STEP_CACHE.clear()  # forget the loaded functions: the next call reads the disk cache
     again = simulate_prescribed(model, move, dt=2e-3, t_end=2.0, method="poly",
                                 jit="-O0", cache_dir=tmp_path)  # the same flags
     assert not again.info["poly_jit_built"]

@@ -1,0 +1,675 @@
+"""The polynomial form of the modal rows: the fast exact path of prescribed motion.
+
+With ``delta_order`` 0 or 1 the mass matrix is affine in δ, so with the joint motion given
+the modal rows are a polynomial in ``(δ, δ̇)`` whose coefficients depend on the
+configuration only (the derivation is in the Notes of
+:func:`casflex.simulate.simulate_prescribed`, ``method="poly"``). The configuration arrays
+``F(q(t))`` are interpolated in time by Chebyshev pieces, then RK4 runs on the
+polynomial form.
+
+Configuration arrays
+    :func:`configuration_function` (``F(q)``), :func:`evaluate` (F at many
+    configurations), :func:`unpack` (the flat rows as matrices).
+Interpolation in time
+    :func:`breaks` (where ``F(q(t))`` stops being analytic), :func:`chebyshev_nodes`,
+    :func:`interpolants` (adaptive Chebyshev pieces), :func:`piece_index` (which piece
+    serves a time), :func:`values_at` (the interpolated rows).
+The polynomial form
+    :func:`rows` (every coefficient except the factors of q̈), :func:`modal` (stage
+    coefficients), :func:`stage` (the stage ``(coef, z) -> ż``), :func:`torque_rows`,
+    :func:`torque` (the joint torques).
+Simulation
+    :func:`simulate` (``method="poly"``, optionally compiled to C).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from casflex.errors import ModelError
+from casflex.moves import reference_sampler
+from casflex.simulate.integrators import call_buffered, rk4_step, step_cache
+
+__all__ = ["configuration_function", "evaluate", "unpack", "breaks", "chebyshev_nodes",
+           "interpolants", "piece_index", "values_at", "rows", "modal", "stage",
+           "torque_rows", "torque", "simulate"]
+
+_TOL = 1e-10
+_START = 5  # Chebyshev intervals per piece in the first round (then 10, 20, ...)
+_MAX_NODES = 96
+
+
+def configuration_function(model) -> ca.Function:
+    """``F(q)``: the configuration-only arrays of the modal and joint rows (memoised per
+    model in :func:`~casflex.simulate.integrators.step_cache`).
+
+    Outputs, with ``M(q, δ) = M0(q) + Σ_j δ_j M_j(q)`` (exact: the model keeps M to first
+    order in δ): ``M0`` (N × N), ``Mj`` (N × N m, ``[M_1 … M_m]``), ``dM`` (N² (m + 1) × n,
+    the q-Jacobian of ``[vec M0; vec M_1; …]``), ``omega`` (m), ``domega2`` (m × n,
+    ``∂Ω²/∂q``), ``g0`` (N) and ``gd`` (N × m) with ``g(q, δ) = g0 + gd δ`` the gravity
+    forces (affine in δ).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+
+    Returns
+    -------
+    casadi.Function
+        ``poly_configuration (q) -> (M, dM, omega, domega2, g0, gd)``; ``M`` stacks the
+        upper triangles of ``M0, M_1, …, M_m``.
+
+    Examples
+    --------
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
+    ...                       gravity=None)
+    >>> configuration_function(model).name_out()
+    ['M', 'dM', 'omega', 'domega2', 'g0', 'gd']
+    """
+    memo = step_cache(model)
+    F = memo.get("poly_F")
+    if F is not None:
+        return F
+    n, m = model.n, model.m
+    N = n + m
+    q, d = model.q, model.delta
+    # M and g are affine in δ, so M_j = M(q, e_j) − M(q, 0) exactly; evaluating the
+    # expressions at numeric δ lets CasADi drop the vanishing products (far fewer SX
+    # instructions with the q-Jacobians than ∂M/∂δ_j at δ = 0)
+    g = model.gravity_forces
+    at = ca.Function("poly_at_delta", [q, d], [model.M, g])
+    M0, g0 = at(q, ca.DM.zeros(m))
+    Mj, gd = [], []
+    for j in range(m):
+        e = ca.DM.zeros(m)
+        e[j] = 1.0
+        Mk, gk = at(q, e)
+        Mj.append(Mk - M0)
+        gd.append(gk - g0)
+    iu = np.triu_indices(N)
+
+    def upper(A):
+        return ca.vertcat(*[A[int(i), int(k)] for i, k in zip(*iu, strict=True)])
+
+    stack = ca.vertcat(upper(M0), *[upper(A) for A in Mj])
+    dstack = ca.jacobian(stack, q)
+    omega = model.omega if m else ca.SX(0, 1)
+    outs = [stack, dstack, omega, ca.jacobian(omega**2, q), g0,
+            ca.horzcat(*gd) if m else ca.SX(N, 0)]
+    F = ca.Function("poly_configuration", [q], outs, ["q"],
+                    ["M", "dM", "omega", "domega2", "g0", "gd"])
+    memo["poly_F"] = F
+    return F
+
+
+def unpack(raw, n, m, dq):
+    """Arrays of ``F(q)`` at T times from the flat rows ``raw`` (T × R).
+
+    ``P0``, ``Pj`` are ``Σ_i q̇_i ∂M0/∂q_i`` and ``Σ_i q̇_i ∂M_j/∂q_i`` for the rates ``dq``
+    (T × n); ``K0``, ``Kj`` the partial derivatives themselves (torques).
+    """
+    N = n + m
+    iu = np.triu_indices(N)
+    nt = iu[0].size
+    T = raw.shape[0]
+    o = 0
+
+    def take(k):
+        nonlocal o
+        out = raw[:, o:o + k]
+        o += k
+        return out
+
+    index = np.empty((N, N), dtype=int)
+    index[iu] = np.arange(nt)
+    index[iu[1], iu[0]] = np.arange(nt)
+
+
+    S = take(nt * (m + 1)).reshape(T, m + 1, nt)
+    dS = take(nt * (m + 1) * n).reshape(T, n, m + 1, nt)  # column-major: q index slowest
+    omega = take(m)
+    dw2 = take(m * n).reshape(T, n, m).transpose(0, 2, 1)
+    g0 = take(N)
+    gd = take(N * m).reshape(T, m, N).transpose(0, 2, 1)
+    # full symmetric matrices from their upper triangles (one gather each)
+    allM = S[..., index]
+    allP = np.einsum("ti,tijk->tjk", dq, dS)[..., index]
+    allK = dS[..., index]
+    return {"M0": allM[:, 0], "Mj": allM[:, 1:], "P0": allP[:, 0], "Pj": allP[:, 1:],
+            "K0": allK[:, :, 0], "Kj": allK[:, :, 1:], "omega": omega, "domega2": dw2,
+            "g0": g0, "gd": gd}
+
+
+def evaluate(F, qs):
+    """Flat rows (len(qs) × R) of ``F`` at the configurations ``qs`` (one map call)."""
+    outs = F.map(qs.shape[0], "thread", 2)(qs.T)
+    # column-major flattening of every output, one row per configuration
+    return np.hstack([np.asarray(o.full()).reshape(-1, qs.shape[0], order="F").T
+                      if o.numel() else np.zeros((qs.shape[0], 0)) for o in outs])
+
+
+def _table_knots(model):
+    """Breakpoints of the model's table interpolants, per joint (dict joint -> array)."""
+    table = getattr(model.provider, "table", None)
+    if table is None or getattr(model.provider, "method", "bspline") not in ("bspline",
+                                                                               "linear"):
+        return {}
+    knots = {}
+    periodic = tuple(getattr(table, "periodic", ()) or ()) + (False,) * len(table.grid)
+    for ax, joint in enumerate(table.shape_joints):
+        g = np.asarray(table.grid[ax], dtype=float).ravel()
+        if periodic[ax]:
+            g = np.concatenate([g + 2.0 * np.pi * k for k in range(-2, 3)])
+        knots[int(joint)] = np.unique(g)
+    return knots
+
+
+def breaks(model, reference, sampler, t0, t1):
+    """Sorted times in [t0, t1] between which q(t) is a polynomial of degree ≤ 2 and no
+    shape joint crosses a knot of the table interpolants (the coefficients are analytic
+    there)."""
+    switches = reference.breakpoints
+    phase = np.unique(np.r_[t0, np.clip(np.asarray(switches, dtype=float), t0, t1), t1])
+    breaks = [phase]
+    knots = _table_knots(model)
+    for a, b in zip(phase[:-1], phase[1:], strict=True):
+        if b - a <= 0.0:
+            continue
+        qa, dqa, _ = sampler(np.array([a]))
+        ddq = sampler(np.array([0.5 * (a + b)]))[2][0]
+        for j, kn in knots.items():
+            # q_j(a + s) = qa + dqa s + ddq s² / 2 = κ  for s in (0, b - a)
+            A, B, C = 0.5 * ddq[j], dqa[0, j], qa[0, j] - kn
+            roots = []
+            if abs(A) > 0.0:
+                disc = B * B - 4.0 * A * C
+                ok = disc >= 0.0
+                sq = np.sqrt(np.where(ok, disc, 0.0))
+                for r in ((-B + sq) / (2.0 * A), (-B - sq) / (2.0 * A)):
+                    roots.append(r[ok])
+            elif abs(B) > 0.0:
+                roots.append(-C / B)
+            if roots:
+                s = np.concatenate(roots)
+                s = s[(s > 1e-12 * (b - a)) & (s < (1.0 - 1e-12) * (b - a))]
+                breaks.append(a + s)
+    out = np.unique(np.concatenate(breaks))
+    # merge breaks closer than 1e-12 s (a knot at a switch)
+    keep = np.r_[True, np.diff(out) > 1e-12]
+    return out[keep]
+
+
+def chebyshev_nodes(a, b, K):
+    k = np.arange(K + 1)
+    x = np.cos(np.pi * k / K)
+    w = (-1.0) ** k
+    w[0] *= 0.5
+    w[-1] *= 0.5
+    t = 0.5 * (a + b) + 0.5 * (b - a) * x
+    t[0], t[-1] = b, a  # exactly: neighbouring pieces share their end nodes
+    return t, w
+
+
+def _barycentric(tn, w, fv, t):
+    """Barycentric interpolation (second kind) of node values ``fv`` at times ``t``."""
+    D = t[:, None] - tn[None, :]
+    exact = D == 0.0
+    D[exact] = 1.0
+    C = w / D
+    out = (C @ fv) / C.sum(axis=1)[:, None]
+    hit = np.nonzero(exact.any(axis=1))[0]
+    if hit.size:
+        out[hit] = fv[np.argmax(exact[hit], axis=1)]
+    return out
+
+
+def interpolants(F, sampler, breaks, tol):
+    """Chebyshev interpolants of ``F(q(t))`` on every piece between ``breaks``.
+
+    The node count of every piece doubles (nested Chebyshev–Lobatto nodes) until the
+    previous interpolant agrees with ``F`` at the new nodes to ``tol`` relative to the
+    largest entry of each output block. Returns ``(pieces, err, evaluations, nodes)``.
+    """
+    pieces = [(a, b) for a, b in zip(breaks[:-1], breaks[1:], strict=True) if b > a]
+    K = _START
+    nodes = {}
+    vals = {}
+    tq = np.concatenate([chebyshev_nodes(a, b, K)[0] for a, b in pieces])
+    # F(q(t)) is continuous: a node shared by two pieces is evaluated once
+    tu, back = np.unique(tq, return_inverse=True)
+    raw = evaluate(F, sampler(tu)[0])[back]
+    evaluations = tu.size
+    sizes = [F.numel_out(i) for i in range(F.n_out())]
+    edges = np.r_[0, np.cumsum(sizes)]
+    scale = np.ones(raw.shape[1])
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        if hi > lo:
+            scale[lo:hi] = max(float(np.abs(raw[:, lo:hi]).max()), 1e-300)
+    o = 0
+    for i, _ in enumerate(pieces):
+        nodes[i] = K
+        vals[i] = raw[o:o + K + 1]
+        o += K + 1
+    todo = list(range(len(pieces)))
+    err = {}
+    while todo:
+        if K >= _MAX_NODES:
+            worst = max(err[i] for i in todo)
+            raise ModelError(
+                f"method='poly': the interpolation of the model's configuration arrays "
+                f"did not reach {tol:g} relative with {K} Chebyshev nodes per piece "
+                f"(reached {worst:.2e}); the modal quantities are not smooth between the "
+                "known breakpoints (provider without knot information?). Use method='rk4'")
+        new_t = []
+        for i in todo:
+            a, b = pieces[i]
+            tn2, _ = chebyshev_nodes(a, b, 2 * K)
+            new_t.append(tn2[1::2])  # the nodes of 2K not already in K
+        new_q = sampler(np.concatenate(new_t))[0]
+        new_raw = evaluate(F, new_q)
+        evaluations += new_q.shape[0]
+        o = 0
+        nxt = []
+        for i, tnew in zip(todo, new_t, strict=True):
+            a, b = pieces[i]
+            tn, w = chebyshev_nodes(a, b, K)
+            fnew = new_raw[o:o + tnew.size]
+            o += tnew.size
+            e = float(np.max(np.abs(_barycentric(tn, w, vals[i], tnew) - fnew) / scale))
+            err[i] = e
+            merged = np.empty((2 * K + 1, raw.shape[1]))
+            merged[0::2] = vals[i]
+            merged[1::2] = fnew
+            vals[i] = merged
+            nodes[i] = 2 * K
+            if e > tol:
+                nxt.append(i)
+        todo = nxt
+        K *= 2
+    out = []
+    for i, (a, b) in enumerate(pieces):
+        tn, w = chebyshev_nodes(a, b, nodes[i])
+        out.append((a, b, tn, w, vals[i]))
+    return out, max(err.values()) if err else 0.0, evaluations, max(nodes.values())
+
+
+def piece_index(pieces, t, ddq, piece_ddq, left=False):
+    """Index of the piece that gives the rows at each time ``t`` whose reference
+    acceleration is ``ddq`` (T × n). Inside a piece that piece; at a break the later
+    piece (``left=False``: the reference is right-continuous) or the earlier one
+    (``left=True``: the left limit), and in either case the neighbour whose constant
+    ``q̈`` (``piece_ddq``) is the reference's, should a break and a switch of the
+    reference differ by round-off."""
+    starts = np.array([p[0] for p in pieces])
+    ends = np.array([p[1] for p in pieces])
+    side = "left" if left else "right"
+    idx = np.clip(np.searchsorted(starts, t, side=side) - 1, 0, len(pieces) - 1)
+    eps = 1e-9 * max(float(ends[-1] - starts[0]), 1.0)
+    near = np.nonzero((np.abs(t - starts[idx]) <= eps) | (np.abs(t - ends[idx]) <= eps))[0]
+    for k in near:
+        i = idx[k]
+        if np.array_equal(piece_ddq[i], ddq[k]):
+            continue
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(pieces) and np.array_equal(piece_ddq[j], ddq[k]):
+                idx[k] = j
+                break
+    return idx
+
+
+def values_at(pieces, values, t, idx, out=None):
+    """Rows of ``values`` (one array of node values per piece, nodes of ``pieces``)
+    interpolated at the times ``t`` from the pieces ``idx`` (sorted)."""
+    width = values[0].shape[1]
+    if out is None:
+        out = np.empty((t.size, width))
+    cut = np.r_[0, np.nonzero(np.diff(idx))[0] + 1, t.size]
+    for lo, hi in zip(cut[:-1], cut[1:], strict=True):
+        if hi > lo:
+            i = idx[lo]
+            _, _, tn, w, _ = pieces[i]
+            out[lo:hi] = _barycentric(tn, w, values[i], t[lo:hi])
+    return out
+
+
+def _sym_pairs(B):
+    """Coefficients of ``x_j x_k`` (j ≤ k) of the quadratic form ``Σ_jk x_j x_k B[..., j, k]``
+    (off-diagonal entries of the symmetrised ``B`` doubled)."""
+    m = B.shape[-1]
+    iu = np.triu_indices(m)
+    S = B + np.swapaxes(B, -1, -2)
+    S[..., np.arange(m), np.arange(m)] *= 0.5
+    return S[..., iu[0], iu[1]]
+
+
+def rows(A, dq, n, m, zeta):
+    """Every array of the modal stage and of the joint torques at T times, except the
+    factors of ``q̈`` (kept apart: ``q̈`` jumps at the move's switches while these rows
+    are continuous in time, so they are interpolated across switches).
+
+    ``A``: arrays of :func:`unpack` at the rates ``dq`` (T × n).
+
+    The modal rows ``M_δδ(δ) δ̈ = r`` have ``M_δδ(δ) = Mdd0 + Σ_j δ_j Add_j`` and
+    ``r = c + Jd δ + Jv δ̇ + Σ_jk C_ajk δ_j δ̇_k + Σ_jk E_ajk δ̇_j δ̇_k`` with
+    ``c = c_row + c_acc q̈`` and ``Jd = Jd_row + Jd_acc q̈`` (r's parts stored negated,
+    the layout of :func:`stage`). The torques
+    ``τ = [M Ẍ + Ṁ Ẋ]_q − ½ Ẋᵀ (∂M/∂q) Ẋ + G_q`` are the polynomial of
+    :func:`torque`.
+    """
+    N = n + m
+    q_, d_ = slice(0, n), slice(n, N)
+    M0, Mj, P0, Pj, K0, Kj = (A[k] for k in ("M0", "Mj", "P0", "Pj", "K0", "Kj"))
+    w = A["omega"]
+    ar = np.arange(m)
+    # L_δ = M_δq(δ) q̈ + [Ṁ Ẋ]_δ − ½ ∂_δ(Ẋᵀ M Ẋ) + G_δ + D δ̇ (negated below)
+    c = (np.einsum("tab,tb->ta", P0[:, d_, q_], dq)
+         - 0.5 * np.einsum("ti,taij,tj->ta", dq, Mj[:, :, q_, q_], dq, optimize=True)
+         + A["g0"][:, d_])
+    Jd = np.einsum("tjab,tb->taj", Pj[:, :, d_, q_], dq) + A["gd"][:, d_, :]
+    Jd[:, ar, ar] += w**2
+    Jv = (P0[:, d_, d_] + np.einsum("tkab,tb->tak", Mj[:, :, d_, q_], dq)
+          - np.einsum("ti,taik->tak", dq, Mj[:, :, q_, d_]))
+    Jv[:, ar, ar] += 2.0 * zeta * w
+    Mdd = Mj[:, :, d_, d_]
+    # torques: Σ_a q̇_a ∂M[a, :]/∂q_i of M0 and of every M_j
+    dqK0 = np.einsum("ta,tiab->tib", dq, K0[:, :, q_, :])
+    dqKj = np.einsum("ta,tijab->tijb", dq, Kj[:, :, :, q_, :])
+    return {
+        "Mdd0": M0[:, d_, d_], "Add": Mdd, "c": -c, "Jd": -Jd, "Jv": -Jv,
+        "C": -Pj[:, :, d_, d_].transpose(0, 2, 1, 3),  # [t, a, j, k] = P_j[a, δk]
+        "E": -(Mdd.transpose(0, 2, 1, 3) - 0.5 * Mdd),  # M_j[a, δk] − ½ M_a[δj, δk]
+        "c_acc": -M0[:, d_, q_],
+        "Jd_acc": -Mj[:, :, d_, q_].transpose(0, 2, 1, 3),  # [t, a, j, b]
+        "t0": (np.einsum("tib,tb->ti", P0[:, q_, q_], dq)
+               - 0.5 * np.einsum("tib,tb->ti", dqK0[:, :, q_], dq) + A["g0"][:, q_]),
+        "t0_acc": M0[:, q_, q_],
+        "td": (np.einsum("tjib,tb->tij", Pj[:, :, q_, q_], dq)
+               - 0.5 * np.einsum("tijb,tb->tij", dqKj[..., q_], dq) + A["gd"][:, q_, :]),
+        "td_acc": Mj[:, :, q_, q_].transpose(0, 2, 1, 3),  # [t, i, j, b]
+        "tv": (np.einsum("tjib,tb->tij", Mj[:, :, q_, q_], dq) + P0[:, q_, d_]
+               - dqK0[:, :, d_]),
+        "tdd": M0[:, q_, d_],
+        "tdd2": 0.5 * A["domega2"].transpose(0, 2, 1),
+        "t_d_dd": Mj[:, :, q_, d_].transpose(0, 2, 1, 3),  # [t, i, j, k]
+        "t_d_v": Pj[:, :, q_, d_].transpose(0, 2, 1, 3) - dqKj[..., d_],
+        "t_v_v": _sym_pairs(Mj[:, :, q_, d_].transpose(0, 2, 1, 3)
+                            - 0.5 * K0[:, :, d_, d_]),
+        "t_d_v_v": _sym_pairs(-0.5 * Kj[:, :, :, d_, d_]),
+    }
+
+
+def modal(rows, ddq):
+    """Stage coefficient rows ``[Mdd0, Add, c, Jd, Jv, C, E]`` (C order) at T times with
+    the accelerations ``ddq`` (T × n)."""
+    T = ddq.shape[0]
+    c = rows["c"] + np.einsum("tab,tb->ta", rows["c_acc"], ddq)
+    Jd = rows["Jd"] + np.einsum("tajb,tb->taj", rows["Jd_acc"], ddq)
+    parts = [rows["Mdd0"], rows["Add"], c, Jd, rows["Jv"], rows["C"], rows["E"]]
+    return np.hstack([p.reshape(T, -1) for p in parts])
+
+
+_TORQUE_PARTS = ("t0", "td", "tv", "tdd", "tdd2", "t_d_dd", "t_d_v", "t_v_v", "t_d_v_v")
+
+
+def torque_rows(rows, ddq):
+    """Flat torque-coefficient rows (T × R, parts :data:`_TORQUE_PARTS` in C order) with
+    the accelerations ``ddq`` (T × n) folded into the constant and the δ terms."""
+    T = ddq.shape[0]
+    folded = dict(rows)
+    folded["t0"] = rows["t0"] + np.einsum("tib,tb->ti", rows["t0_acc"], ddq)
+    folded["td"] = rows["td"] + np.einsum("tijb,tb->tij", rows["td_acc"], ddq)
+    return np.hstack([folded[k].reshape(T, -1) for k in _TORQUE_PARTS])
+
+
+def torque(R, n, m, d, v, dd):
+    """Joint torques at T samples from torque-coefficient rows ``R`` of
+    :func:`torque_rows`: per joint a polynomial in ``(δ, δ̇, δ̈)`` with the terms 1,
+    δ_j, δ̇_j, δ̈_j, δ_j², δ_j δ̈_k, δ_j δ̇_k, δ̇_j δ̇_k (j ≤ k) and δ_j δ̇_k δ̇_l (k ≤ l)."""
+    T = R.shape[0]
+    p = m * (m + 1) // 2
+    shapes = {"t0": (n,), "td": (n, m), "tv": (n, m), "tdd": (n, m), "tdd2": (n, m),
+              "t_d_dd": (n, m, m), "t_d_v": (n, m, m), "t_v_v": (n, p),
+              "t_d_v_v": (n, m, p)}
+    r, o = {}, 0
+    for k in _TORQUE_PARTS:
+        size = math.prod(shapes[k])
+        r[k] = R[:, o:o + size].reshape((T, *shapes[k]))
+        o += size
+    iu = np.triu_indices(m)
+    vv = v[:, iu[0]] * v[:, iu[1]]
+    return (r["t0"]
+            + np.einsum("tij,tj->ti", r["td"], d)
+            + np.einsum("tij,tj->ti", r["tv"], v)
+            + np.einsum("tij,tj->ti", r["tdd"], dd)
+            + np.einsum("tij,tj->ti", r["tdd2"], d * d)
+            + np.einsum("tijk,tj,tk->ti", r["t_d_dd"], d, dd, optimize=True)
+            + np.einsum("tijk,tj,tk->ti", r["t_d_v"], d, v, optimize=True)
+            + np.einsum("tip,tp->ti", r["t_v_v"], vv)
+            + np.einsum("tijp,tj,tp->ti", r["t_d_v_v"], d, vv, optimize=True))
+
+
+def stage(m):
+    """SX stage ``(coef, z) -> [δ̇; δ̈]`` of the polynomial form of the modal rows."""
+    z = ca.SX.sym("z", 2 * m)
+    sizes = [m * m, m**3, m, m * m, m * m, m**3, m**3]
+    coef = ca.SX.sym("coef", sum(sizes))
+    d, v = z[:m], z[m:]
+    parts, o = [], 0
+    for s in sizes:
+        parts.append(coef[o:o + s])
+        o += s
+    Mdd0, Add, c, Jd, Jv, C, E = parts
+
+    def mat(x, rows, cols):  # C-order block
+        return ca.reshape(x, cols, rows).T
+
+    Mdd = mat(Mdd0, m, m)
+    for j in range(m):
+        Mdd += d[j] * mat(Add[j * m * m:(j + 1) * m * m], m, m)
+    dv = ca.kron(d, v)
+    vv = ca.kron(v, v)
+    r = c + mat(Jd, m, m) @ d + mat(Jv, m, m) @ v + mat(C, m, m * m) @ dv \
+        + mat(E, m, m * m) @ vv
+    return ca.Function("poly_stage", [coef, z], [ca.vertcat(v, ca.solve(Mdd, r))]), \
+        sum(sizes)
+
+
+_CHUNK = 250
+
+
+def _rk4_chunk(model, dt):
+    """``mapaccum`` over ``_CHUNK`` RK4 steps with the coefficients at t, t + dt/2 and
+    t + dt as the per-step input (building a mapaccum costs time linear in its length, so
+    a long simulation calls this chunk repeatedly)."""
+    m = model.m
+    memo = step_cache(model)
+    key = ("poly", m, float(dt))
+    cached = memo.get(key)
+    if cached is not None:
+        return cached
+    rhs, nc = stage(m)
+    z = ca.SX.sym("z", 2 * m)
+    p = ca.SX.sym("p", 3 * nc)
+    k = {}
+
+    def derivative(zz, coef):
+        out = rhs(coef, zz)
+        k.setdefault("k1", out)  # the first stage: δ̈ at the start of the step
+        return out
+
+    z_next = rk4_step(derivative, z, dt, p[:nc], p[nc:2 * nc], p[2 * nc:])
+    step = ca.Function("poly_rk4", [z, p], [z_next, k["k1"][m:]], ["z", "p"],
+                       ["z_next", "dddelta"])
+    acc = step.mapaccum("poly_rk4_acc", _CHUNK, [0], [0])
+    memo[key] = (acc, rhs)
+    return acc, rhs
+
+
+def _integrate(acc, z0, stage_rows, steps, m):
+    """Run the chunked RK4 over ``steps`` steps; ``stage_rows(k0, k1)`` gives the
+    coefficient rows ``[a | b | c]`` of steps ``k0 .. k1 - 1`` (assembled chunk by chunk:
+    the rows of a whole long move would take tens of MB)."""
+    L = _CHUNK
+    chunks = -(-steps // L)
+    zs = np.empty((chunks * L, 2 * m))
+    dds = np.empty((chunks * L, m))
+    z = np.ascontiguousarray(z0[None, :], dtype=float)
+    for c in range(chunks):
+        k0, k1 = c * L, min((c + 1) * L, steps)
+        P = stage_rows(k0, k1)
+        if k1 - k0 < L:
+            P = np.vstack([P, np.repeat(P[-1:], L - (k1 - k0), axis=0)])
+        zc, dc = call_buffered(acc, [z, P], [(L, 2 * m), (L, m)])
+        zs[k0:k0 + L] = zc
+        dds[k0:k0 + L] = dc
+        z = np.ascontiguousarray(zc[k1 - k0 - 1:k1 - k0])
+    return zs[:steps], dds[:steps]
+
+
+def _compiled(model, F, acc, jit, cache_dir):
+    """``F`` and the RK4 chunk ``acc`` compiled to C (cached per model and flags)."""
+    if jit is True:
+        flags = ("-O1",)
+    elif isinstance(jit, str):
+        flags = tuple(jit.split())
+    else:
+        try:
+            flags = tuple(str(x) for x in jit)
+        except TypeError:
+            raise ModelError(f"jit must be True, False, a flags string or a sequence of "
+                             f"compiler flags; got {jit!r}") from None
+    memo = step_cache(model)
+    key = ("poly_jit", flags, str(cache_dir))
+    hit = memo.get(key)
+    if hit is not None:
+        return hit + ({"poly_jit_s": 0.0, "poly_jit_built": False},)
+    from casflex.codegen import compile_cached
+
+    funs_F, info_F = compile_cached([F], "casflex_poly_F", cache_dir=cache_dir, flags=flags)
+    funs_a, info_a = compile_cached([acc], "casflex_poly_rk4", cache_dir=cache_dir,
+                                    flags=flags)
+    memo[key] = (funs_F[F.name()], funs_a[acc.name()])
+    return memo[key] + ({"poly_jit_s": info_F["seconds"] + info_a["seconds"],
+                      "poly_jit_built": info_F["built"] or info_a["built"]},)
+
+
+def simulate(model, reference, t: np.ndarray, dt: float, z0: np.ndarray,
+             jit: bool | str | Sequence[str] = False, cache_dir: str | Path | None = None
+             ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Integrate ``z = [δ; δ̇]`` with the polynomial form of the modal rows (the
+    ``method="poly"`` of :func:`casflex.simulate.simulate_prescribed`, which checks the
+    arguments and documents the method).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    reference : casflex.moves.Move or casflex.moves.ShapedMove
+    t : numpy.ndarray
+        Uniform output grid [s].
+    dt : float
+        Its step [s].
+    z0 : numpy.ndarray
+        Initial ``[δ; δ̇]``.
+    jit : bool, str or sequence of str
+        Compile ``F`` and the RK4 steps to C (compiler flags).
+    cache_dir : str or pathlib.Path, optional
+        Root of the compiled-library cache.
+
+    Returns
+    -------
+    Z : numpy.ndarray, shape (len(t), 2 m)
+    tau : numpy.ndarray, shape (len(t), n)
+    info : dict
+        Bookkeeping of the interpolation and the timings of the stages [s].
+
+    Examples
+    --------
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import Move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
+    ...                       gravity=None)
+    >>> t = np.linspace(0.0, 0.5, 51)
+    >>> Z, tau, info = simulate(model, Move([0, 0, 0], [-0.1, 0, 0], 0.4), t, 0.01,
+    ...                         np.zeros(2))
+    >>> Z.shape, tau.shape, info["poly_pieces"]
+    ((51, 2), (51, 3), 3)
+    """
+    n, m = model.n, model.m
+    if not hasattr(reference, "breakpoints"):
+        raise ModelError("method='poly' needs the reference as a casflex.moves.Move or "
+                         "ShapedMove (known switching times); got sampled arrays — use "
+                         "method='rk4'")
+    if m == 0:
+        raise ModelError("method='poly' needs a model with modes (m >= 1); use method='rk4'")
+    if model.delta_order not in (0, 1):
+        raise ModelError(f"method='poly' needs delta_order 0 or 1; got {model.delta_order}")
+    info = {}
+    start = time.perf_counter()
+    F = configuration_function(model)
+    acc, rhs = _rk4_chunk(model, float(dt))
+    info["poly_build_s"] = time.perf_counter() - start
+    info["poly_F_instructions"] = int(F.n_instructions())
+    if jit is not False:
+        F, acc, jinfo = _compiled(model, F, acc, jit, cache_dir)
+        info.update(jinfo)
+    sampler = reference_sampler(reference, n).sample
+    start = time.perf_counter()
+    cuts = breaks(model, reference, sampler, float(t[0]), float(t[-1]))
+    pieces, err, evals, kmax = interpolants(F, sampler, cuts, _TOL)
+    info.update(poly_pieces=len(pieces), poly_F_evaluations=int(evals),
+                poly_max_nodes_per_piece=int(kmax) + 1, poly_interp_rel_err=err,
+                poly_interp_s=time.perf_counter() - start)
+    start = time.perf_counter()
+    zeta = model.damping_ratio
+    # stage and torque coefficients on the nodes of every piece, with the piece's q̈
+    # (constant between the breaks; the nodes at a break take their own piece's side)
+    sizes = [p[2].size for p in pieces]
+    tn_all = np.concatenate([p[2] for p in pieces])
+    dq_nodes = sampler(tn_all)[1]
+    piece_ddq = sampler(np.array([0.5 * (p[0] + p[1]) for p in pieces]))[2]
+    ddq_nodes = np.repeat(piece_ddq, sizes, axis=0)
+    node_rows = rows(unpack(np.vstack([p[4] for p in pieces]), n, m, dq_nodes),
+                     dq_nodes, n, m, zeta)
+    cut = np.cumsum(sizes)[:-1]
+    modal_nodes = np.split(modal(node_rows, ddq_nodes), cut)
+    torque_nodes = np.split(torque_rows(node_rows, ddq_nodes), cut)
+    th = t[:-1] + 0.5 * dt
+    ddq = sampler(t)[2]
+    ddqh = sampler(th)[2]
+    ddq_end = sampler(t[1:] - 1e-9 * dt)[2]  # the end stage takes q̈ from the left
+    ia = piece_index(pieces, t, ddq, piece_ddq)
+    ib = piece_index(pieces, th, ddqh, piece_ddq)
+    ic = piece_index(pieces, t[1:], ddq_end, piece_ddq, left=True)
+    nc = modal_nodes[0].shape[1]
+
+    def stage_rows(k0, k1):
+        P = np.empty((k1 - k0, 3 * nc))
+        values_at(pieces, modal_nodes, t[k0:k1], ia[k0:k1], P[:, :nc])
+        values_at(pieces, modal_nodes, th[k0:k1], ib[k0:k1], P[:, nc:2 * nc])
+        values_at(pieces, modal_nodes, t[k0 + 1:k1 + 1], ic[k0:k1], P[:, 2 * nc:])
+        return P
+
+    info["poly_assembly_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    zs, dds = _integrate(acc, z0, stage_rows, t.size - 1, m)
+    Z = np.vstack([z0, zs])
+    # δ̈ at the last sample from its own stage
+    last = values_at(pieces, modal_nodes, t[-1:], ia[-1:])[0]
+    dd_last = rhs(last, Z[-1]).full().ravel()[m:]
+    DD = np.vstack([dds, dd_last])
+    info["poly_integrate_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    tau = torque(values_at(pieces, torque_nodes, t, ia), n, m, Z[:, :m], Z[:, m:], DD)
+    info["poly_torque_s"] = time.perf_counter() - start
+    return Z, tau, info

@@ -1,0 +1,543 @@
+"""Torque-driven motion: forward dynamics of ``x = [q; δ; q̇; δ̇]`` under a torque law.
+
+One machinery integrates the model's forward dynamics for both front ends:
+
+* :func:`simulate_torque` — a law ``τ = u(t, x)`` (a callable, a ``casadi.Function``, a
+  constant) held over each step, with an optional generalized disturbance force;
+* :func:`simulate_closed_loop` — a tracking controller ``(qd, dqd, ddqd, x) -> τ`` on a
+  move: continuous (CVODES or RK4 with substeps) or sampled (zero-order hold), with an
+  impulsive tip force and optionally an EKF between the plant and the controller.
+
+The machinery: :func:`~casflex.simulate.integrators.rk4_interval` (RK4 substeps over one
+sample with the one :func:`~casflex.simulate.integrators.rk4_step`), :func:`impulse_jump`
+(the state after an impulsive tip force), and three runners — a ``mapaccum`` of a
+symbolic sample step over the grid (split at the impulse), a loop over the samples for
+laws that run in Python (callables, the estimator), and an adaptive CasADi integrator
+restarted at the switches.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex.errors import ModelError, SolverError
+from casflex.moves import reference_function
+from casflex.simulate.integrators import (
+    casadi_integrator,
+    integrate,
+    rk4_interval,
+    rk4_step,
+    step_cache,
+    time_grid,
+)
+from casflex.simulate.results import ClosedLoopResult, SimulationResult, tip_positions
+
+__all__ = ["simulate_torque", "simulate_closed_loop", "impulse_jump"]
+
+#: a torque law of :func:`simulate_torque`: ``u(t, x)``, a ``casadi.Function`` of
+#: ``(t, x)``, constant torques or ``None`` (zero)
+TorqueLaw = Callable | ca.Function | ArrayLike | None
+
+METHODS = ("rk4", "cvodes", "idas")
+
+# ---------------------------------------------------------------------------- machinery
+
+
+def impulse_jump(model, x: np.ndarray, p: ArrayLike) -> np.ndarray:
+    """State after an impulsive tip force ``p`` [N·s] (base frame): ``ΔẊ = M⁻¹ J_tipᵀ p``.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    x : numpy.ndarray
+        State ``[q; δ; q̇; δ̇]`` before the impulse.
+    p : array_like, shape (3,)
+        Impulse [N·s].
+
+    Returns
+    -------
+    numpy.ndarray
+        The state after it (the rates jump, the positions do not).
+
+    Examples
+    --------
+    >>> from casflex.dynamics import FlexibleModel, rigid_provider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, rigid_provider(robot), gravity=None)
+    >>> x = impulse_jump(model, np.zeros(6), [0.0, 0.0, 0.0])
+    >>> x.tolist()
+    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    """
+    n, m = model.n, model.m
+    f = model.functions()
+    q, d = x[:n], x[n:n + m]
+    J = ca.jacobian(model.tip, model.X)
+    Jf = ca.Function("tip_jacobian", [model.q, model.delta], [J])
+    M = f["mass"](q, d).full()
+    dX = np.linalg.solve(M, Jf(q, d).full().T @ np.asarray(p, dtype=float))
+    out = x.copy()
+    out[n + m:] += dX
+    return out
+
+
+def _impulse_index(impulse, t):
+    """Sample index of an impulse ``(t_d, p)`` (``None`` without one)."""
+    if impulse is None:
+        return None
+    kd = int(round(float(impulse[0]) / (t[1] - t[0])))
+    if not 0 <= kd <= t.size - 1:
+        raise ModelError(f"impulse time {impulse[0]} s lies outside the run "
+                         f"[0, {t[-1]}] s")
+    return kd
+
+
+def _run_mapaccum(step, x0, t, kd=None, jump=None, repeat_last=True):
+    """States and torques on the grid from ``step (x_k, t_k) -> (x_{k+1}, τ_k)``, one
+    ``mapaccum`` call per segment; the state at sample ``kd`` is replaced by
+    ``jump(x)``. The torque at the last sample repeats the previous one
+    (``repeat_last``) or is the step's at that sample."""
+    N = t.size - 1
+    segments = [(0, N)] if kd is None else [(0, kd), (kd, N)]
+    X, U = [x0[None]], []
+    xc = x0
+    for i, (k0, k1) in enumerate(segments):
+        if i == 1:
+            xc = jump(xc)
+            X[-1] = np.vstack([X[-1][:-1], xc[None]])  # the state at t_d: after the jump
+        if k1 > k0:
+            Xs, Us = step.mapaccum("run", k1 - k0)(xc, t[k0:k1][None, :])
+            Xs, Us = np.asarray(Xs).T, np.asarray(Us).T
+            X.append(Xs)
+            U.append(Us)
+            xc = Xs[-1]
+    X = np.vstack(X)
+    last = U[-1][-1:] if repeat_last else np.asarray(step(X[-1], t[-1])[1]).T
+    return X, np.vstack(U + [last])
+
+
+def _run_samples(x0, t, sample, kd=None, jump=None):
+    """States on the grid from a loop over the samples: at sample ``k`` the state
+    ``X[k]`` is recorded (after ``jump`` at ``kd``), then ``sample(k, X)`` runs the law
+    and returns the state at ``k + 1`` (its return value at the last sample is unused)."""
+    X = np.zeros((t.size, x0.size))
+    x = x0
+    for k in range(t.size):
+        if k == kd:
+            x = jump(x)
+        X[k] = x
+        x = sample(k, X)
+    return X
+
+
+def _run_adaptive(dae, x0, t, breaks, kd=None, jump=None, options=None):
+    """States on the grid by a CasADi integrator restarted at ``breaks`` (the switches of
+    the reference and the impulse), with the jump at sample ``kd``."""
+    tend = t[-1]
+    td = None if kd is None else t[kd]
+    breaks = sorted(b for b in set(breaks) | ({td} if td is not None else set())
+                    if 0.0 <= b <= tend)
+    X = np.zeros((t.size, x0.size))
+    X[0] = x0
+    xc = x0.copy()
+    if td is not None and td == 0.0:
+        xc = X[0] = jump(xc)
+    for a, b in zip(breaks[:-1], breaks[1:], strict=True):
+        if b - a <= 1e-12 * max(1.0, tend):
+            continue
+        ks = np.nonzero((t > a + 1e-12) & (t <= b + 1e-12))[0]
+        tout = list(t[ks])
+        if not tout or abs(tout[-1] - b) > 1e-12:
+            tout.append(b)
+        integ = casadi_integrator("closed_loop", "cvodes", dae, a, tout, options)
+        Xs = integrate(integ, xc)
+        X[ks] = Xs[:ks.size]
+        xc = Xs[-1]
+        if td is not None and abs(b - td) <= 1e-12:
+            xc = jump(xc)
+            k = int(np.argmin(np.abs(t - td)))
+            X[k] = xc
+    return X
+
+
+# ---------------------------------------------------------------------------- simulate_torque
+
+
+def simulate_torque(model, controller: TorqueLaw, x0: ArrayLike, t_end: float,
+                    dt: float = 1e-3, method: str = "rk4",
+                    disturbance: Callable | ca.Function | None = None,
+                    **options) -> SimulationResult:
+    """Simulate the torque-driven arm ``x = [q; δ; q̇; δ̇]`` (forward dynamics).
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    controller : callable or casadi.Function or array_like or None
+        ``controller(t, x) -> tau`` [N m], evaluated at the start of every step and held
+        over it (zero-order hold). A ``casadi.Function`` ``(t, x) -> tau`` runs the closed
+        loop as one ``mapaccum`` call (``disturbance`` then has to be ``None`` or a
+        ``casadi.Function`` of ``t`` too); a constant array or ``None`` (zero torque) as
+        well.
+    x0 : array_like, shape (2 (n + m),)
+        Initial state.
+    t_end : float
+        End time [s] (the simulation starts at 0).
+    dt : float
+        Step and output interval [s].
+    method : {"rk4", "cvodes", "idas"}
+        Fixed-step RK4 or a CasADi integrator between the steps.
+    disturbance : callable, optional
+        ``disturbance(t) -> w``: generalized force on ``[q; δ]`` (``n + m`` values, or
+        ``n`` joint torques) added to ``[τ; 0]`` [N m]; evaluated at the RK4 stage times
+        (for ``cvodes``/``idas``: held over each step).
+    **options
+        Integrator options for ``cvodes``/``idas``.
+
+    Returns
+    -------
+    SimulationResult
+        ``ddq`` are the joint accelerations at the samples, ``tau`` the applied torques.
+
+    Examples
+    --------
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
+    ...                       gravity=None)
+    >>> x0 = np.r_[0.0, 0.0, 0.0, 0.001, 0.0, 0.0, 0.0, 0.0]
+    >>> r = simulate_torque(model, None, x0, t_end=0.05, dt=0.01)
+    >>> r.q.shape, r.delta.shape
+    ((6, 3), (6, 1))
+    """
+    if method not in METHODS:
+        raise ModelError(f"method must be one of {list(METHODS)}; got {method!r}")
+    n, m = model.n, model.m
+    f = model.functions()
+    t, steps = time_grid(0.0, float(t_end), float(dt))
+    x0 = np.asarray(x0, dtype=float).ravel()
+    if x0.shape != (2 * (n + m),) or not np.all(np.isfinite(x0)):
+        raise ModelError(f"x0 must hold 2 (n + m) = {2 * (n + m)} finite values "
+                         f"[q; delta; dq; ddelta]; got shape {x0.shape}")
+    start = time.perf_counter()
+    const = None
+    if controller is None:
+        const = np.zeros(n)
+    elif not callable(controller) and not isinstance(controller, ca.Function):
+        const = np.asarray(controller, dtype=float).ravel()
+        if const.shape != (n,):
+            raise ModelError(f"a constant controller must hold {n} torques; got {const.shape}")
+    if isinstance(controller, ca.Function) or (const is not None and disturbance is None
+                                               and method == "rk4"):
+        step = _held_step(f, n, m, dt, controller, const, disturbance)
+        X, U = _run_mapaccum(step, x0, t, repeat_last=False)
+    else:
+        X, U = _held_loop(model, f, n, m, t, dt, x0, controller, const, disturbance,
+                          method, options)
+    wall = time.perf_counter() - start
+    if not np.all(np.isfinite(X)):
+        raise SolverError("simulate_torque: the state became non-finite (unstable closed "
+                          f"loop, or dt = {dt} s too large for the highest mode?)")
+    N = t.size
+    q, delta, dq, ddelta = X[:, :n], X[:, n:n + m], X[:, n + m:2 * n + m], X[:, 2 * n + m:]
+    W = _disturbance_samples(disturbance, t, n, m) if disturbance is not None and \
+        not isinstance(disturbance, ca.Function) else np.zeros((N, n + m))
+    xdot = f["ode_w"].map(N)(X.T, U.T, W.T).full().T
+    ddq = xdot[:, n + m:2 * n + m]
+    tip, tip_rigid = tip_positions(f["tip"], q, delta)
+    return SimulationResult(t=t, q=q, dq=dq, ddq=ddq, tau=U, delta=delta, ddelta=ddelta,
+                            tip=tip, tip_rigid=tip_rigid, t_move_end=math.nan, method=method,
+                            info={"steps": steps, "wall_s": wall})
+
+
+def _w_vector(value, n, m):
+    w = np.asarray(value, dtype=float).ravel()
+    if w.size == n:
+        return np.r_[w, np.zeros(m)]
+    if w.size != n + m:
+        raise ModelError(f"disturbance(t) must return n = {n} joint torques or n + m = "
+                         f"{n + m} generalized forces; got {w.size} values")
+    return w
+
+
+def _disturbance_samples(disturbance, t, n, m):
+    return np.array([_w_vector(disturbance(float(tk)), n, m) for tk in t])
+
+
+def _held_step(f, n, m, dt, controller, const, disturbance):
+    """``step (x, t) -> (x_next, τ)``: RK4 over one step with the law's torque held and
+    a ``casadi.Function`` disturbance at the stage times."""
+    ode = f["ode_w"]
+    x = ca.MX.sym("x", 2 * (n + m))
+    tk = ca.MX.sym("t")
+    if const is not None:
+        u = ca.MX(ca.DM(const))
+    else:
+        if controller.n_in() != 2 or controller.n_out() < 1:
+            raise ModelError("a casadi.Function controller must map (t, x) -> tau")
+        u = controller(tk, x)
+        u = u[0] if isinstance(u, (list, tuple)) else u
+        if u.numel() != n:
+            raise ModelError(f"controller must return {n} torques; got {u.numel()}")
+
+    def w_at(tt):
+        if disturbance is None:
+            return ca.MX.zeros(n + m)
+        if not isinstance(disturbance, ca.Function):
+            raise ModelError("with a casadi.Function controller the disturbance must be a "
+                             "casadi.Function of t too (or None)")
+        wv = disturbance(tt)
+        wv = wv[0] if isinstance(wv, (list, tuple)) else wv
+        if wv.numel() == n:
+            wv = ca.vertcat(wv, ca.MX.zeros(m))
+        return wv
+
+    x_next = rk4_interval(lambda xx, s: ode(xx, u, w_at(s)), x, tk, dt)
+    return ca.Function("rk4_cl", [x, tk], [x_next, u])
+
+
+def _held_loop(model, f, n, m, t, dt, x0, controller, const, disturbance, method, options):
+    """A Python law held over each step: RK4 (the disturbance sampled at the stage times)
+    or a CasADi integrator (the disturbance held)."""
+    ode = f["ode_w"]
+    if method == "rk4":
+        memo = step_cache(model)
+        key = ("rk4_w", float(dt))
+        step = memo.get(key)
+        if step is None:
+            x = ca.MX.sym("x", 2 * (n + m))
+            u = ca.MX.sym("u", n)
+            w = ca.MX.sym("w", n + m, 3)
+            x_next = rk4_step(lambda xx, wk: ode(xx, u, wk), x, dt, w[:, 0], w[:, 1],
+                              w[:, 2])
+            step = memo[key] = ca.Function("rk4_w", [x, u, w], [x_next])
+    else:
+        x = ca.SX.sym("x", 2 * (n + m))
+        u = ca.SX.sym("u", n)
+        w = ca.SX.sym("w", n + m)
+        dae = {"x": x, "p": ca.vertcat(u, w), "ode": ode(x, u, w)}
+        integ = casadi_integrator("torque", method, dae, 0.0, [float(dt)], options)
+    U = np.zeros((t.size, n))
+    zero_w = np.zeros(n + m)
+
+    def sample(k, X):
+        tk = float(t[k])
+        u_k = const if const is not None else controller(tk, X[k].copy())
+        u_k = np.asarray(u_k, dtype=float).ravel()
+        if u_k.shape != (n,):
+            raise ModelError(f"controller(t, x) must return {n} torques; got {u_k.shape}")
+        U[k] = u_k
+        if k == t.size - 1:
+            return None
+        if disturbance is None:
+            W = np.column_stack([zero_w] * 3)
+        else:
+            W = np.column_stack([_w_vector(disturbance(tk + c * dt), n, m)
+                                 for c in (0.0, 0.5, 1.0)])
+        if method == "rk4":
+            return step(X[k], u_k, W).full().ravel()
+        return integrate(integ, X[k], np.r_[u_k, W[:, 0]])[-1]
+
+    return _run_samples(x0, t, sample), U
+
+
+# ---------------------------------------------------------------------------- closed loop
+
+
+def simulate_closed_loop(model, controller: ca.Function, move, x0: ArrayLike | None = None,
+                         t_end: float | None = None, dt: float = 1e-3,
+                         impulse: tuple[float, ArrayLike] | None = None,
+                         method: str = "cvodes", substeps: int = 1, sampled: bool = False,
+                         estimator: dict | None = None, rtol: float = 1e-8,
+                         atol: float = 1e-10) -> ClosedLoopResult:
+    """Simulate the model under a tracking controller.
+
+    By default the control law acts continuously, as in the dissertation's simulations,
+    and the closed loop is integrated by CVODES (BDF, variable step: the computed-torque
+    loops are stiff, with real poles near −2000 1/s where the residual joint inertia
+    ``M_qq − M_qδ M_qδᵀ`` is small), in segments between the switching times of the
+    reference and the impulse, with output every ``dt``. ``method="rk4"`` uses
+    ``substeps`` classical RK4 steps per ``dt`` instead (one ``mapaccum``; the reference
+    is evaluated just inside each step so its jumps fall between steps). With
+    ``sampled=True`` (always with an estimator) the law runs at ``t_k = k·dt`` and its
+    torque is held until ``t_{k+1}``, as in the real-time loop, with RK4. Sampling has a
+    limit on the Table 8 model: where the residual joint inertia ``M_qq − M_qδ M_qδᵀ``
+    nearly vanishes (mid ``control_move1``, smallest eigenvalue 2e-5 kg·m²) the
+    computed-torque loops on ``M_qq`` have real poles beyond −1300 1/s and a 1 ms (even
+    0.2 ms) zero-order hold diverges, for the slow law alone too; ``control_move3`` runs
+    sampled at 1 ms.
+
+    Parameters
+    ----------
+    model : casflex.dynamics.FlexibleModel
+    controller : casadi.Function
+        ``(qd, dqd, ddqd, x) -> tau``.
+    move : casflex.moves.Move or casflex.moves.ShapedMove
+        Reference (:func:`casflex.moves.reference_function`; a move with ``q0 == qf``
+        holds a configuration).
+    x0 : array_like, optional
+        Initial state ``[q, δ, q̇, δ̇]`` (default: at rest at ``move.q0``).
+    t_end : float, optional
+        Default ``move.t_end`` [s].
+    dt : float
+        Sample time [s].
+    impulse : (float, array_like), optional
+        ``(t_d, p)``: impulsive tip force ``p`` [N·s] (base frame) at ``t_d``.
+    method : {"cvodes", "rk4"}
+    substeps : int
+        RK4 steps per ``dt``.
+    sampled : bool
+        Zero-order hold of the torque over each ``dt``.
+    estimator : dict, optional
+        Output feedback: ``{"step": ekf_step, "sensors": SensorSet, "P0": P0,
+        "x0": x̂0, "R": R (noise covariance, optional), "seed": 0, "noise": array
+        (optional), "ddq": "plant" | "difference"}``. At every sample ``t_k`` the exact
+        signals of the plant (its acceleration just before ``t_k``, under the torque of
+        the previous sample) plus noise — the rows of ``noise`` ((N + 1, r) samples, if
+        given) or draws of covariance ``R`` — go to the EKF of
+        :func:`casflex.estimation.ekf_step_function` with ``u = [q, q̇, q̈]``: ``q̈`` is
+        the plant's (``"plant"``, default) or the backward difference of the joint rates
+        ``(q̇_k − q̇_{k−1})/dt`` (``"difference"``, what the real-time ``rt_step`` of
+        :mod:`casflex.rtloop` computes from the encoders). The controller gets
+        ``[q, δ̂, q̇, δ̂̇]`` with the filtered estimate ``x̂_{k|k}``.
+    rtol, atol : float
+        CVODES tolerances.
+
+    Returns
+    -------
+    ClosedLoopResult
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> move = Move([0, 0, 0], [-0.1, 0, 0], 0.5, settle=0.0)
+    >>> from casflex.control import inversion_controller
+    >>> r = simulate_closed_loop(model, inversion_controller(model), move, dt=5e-3)
+    >>> bool(np.max(np.abs(r.tracking_error)) < 1e-6)
+    True
+    """
+    n, m = model.n, model.m
+    nx = 2 * (n + m)
+    dt = float(dt)
+    if method not in ("cvodes", "rk4"):
+        raise ModelError(f"method must be 'cvodes' or 'rk4'; got {method!r}")
+    t, N = time_grid(0.0, move.t_end if t_end is None else float(t_end), dt)
+    if x0 is None:
+        x0 = np.r_[move.q0, np.zeros(m), np.zeros(n), np.zeros(m)]
+    x0 = np.asarray(x0, dtype=float).ravel()
+    if x0.size != nx:
+        raise ModelError(f"x0: expected {nx} values [q, delta, dq, ddelta]; got {x0.size}")
+    f = model.functions()
+    ode = f["ode"]
+    ref = reference_function(move)
+    kd = _impulse_index(impulse, t)
+
+    def jump(x):
+        return impulse_jump(model, x, impulse[1])
+
+    t_s = ca.SX.sym("t")
+    x_s = ca.SX.sym("x", nx)
+    x_hat = None
+    if estimator is None and method == "cvodes" and not sampled:
+        # the law acts continuously: CVODES between the switches of the reference
+        dae = {"x": x_s, "t": t_s, "ode": ode(x_s, controller(*ref(t_s), x_s))}
+        T = float(move.duration)
+        X = _run_adaptive(dae, x0, t, (0.0, T / 2.0, T, t[-1]), kd, jump,
+                          {"abstol": atol, "reltol": rtol, "max_num_steps": 1000000})
+        tau_all = np.asarray(controller.map(N + 1)(*ref.map(N + 1)(t[None, :]), X.T)).T
+    elif estimator is None:
+        tau = controller(*ref(t_s), x_s)
+        if sampled:  # the torque of t_k held until t_k+1
+            xn = rk4_interval(lambda xx, s: ode(xx, tau), x_s, t_s, dt, substeps)
+        else:
+            xn = rk4_interval(lambda xx, s: ode(xx, controller(*ref(s), xx)), x_s, t_s, dt,
+                              substeps, nudge=1e-9)
+        step = ca.Function("cl_step", [x_s, t_s], [xn, tau], {"cse": True})
+        X, tau_all = _run_mapaccum(step, x0, t, kd, jump)
+    else:
+        X, tau_all, x_hat = _run_with_estimator(model, controller, ref, x0, t, dt,
+                                                substeps, kd, jump, estimator)
+    qd_all = np.asarray(ref.map(N + 1)(t[None, :])[0]).T
+    tip, tip_rigid = tip_positions(f["tip"], X[:, :n], X[:, n:n + m])
+    return ClosedLoopResult(t=t, x=X, tau=tau_all, qd=qd_all, tip=tip, tip_rigid=tip_rigid,
+                            n=n, m=m, x_hat=x_hat)
+
+
+def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, kd, jump, est):
+    """Sampled closed loop with an EKF between plant and controller."""
+    from casflex.sensors import measurement_function
+
+    n, m = model.n, model.m
+    nx = 2 * (n + m)
+    ode = model.functions()["ode"]
+    ekf = est["step"]
+    sensors = est["sensors"]
+    h = measurement_function(model, sensors)
+    ny = sensors.n_outputs
+    rng = np.random.default_rng(est.get("seed", 0))
+    ddq_source = est.get("ddq", "plant")
+    if ddq_source not in ("plant", "difference"):
+        raise ModelError(f"estimator['ddq'] must be 'plant' or 'difference'; got "
+                         f"{ddq_source!r}")
+    noise = est.get("noise")
+    if noise is not None:
+        noise = np.asarray(noise, dtype=float)
+        if noise.shape != (t.size, ny):
+            raise ModelError(f"estimator['noise']: expected shape {(t.size, ny)} (one row "
+                             f"of {ny} signals per sample); got {noise.shape}")
+    Rn = est.get("R")
+    Lr = None if Rn is None else np.linalg.cholesky(
+        np.atleast_2d(np.asarray(Rn, dtype=float)) * np.eye(ny) if np.ndim(Rn) < 2
+        else np.asarray(Rn, dtype=float))
+    # one sample: torque from (reference, plant joints, estimate), then RK4 of the plant
+    t_s = ca.SX.sym("t")
+    x_s = ca.SX.sym("x", nx)
+    xh = ca.SX.sym("xh", 2 * m)
+    xc = ca.vertcat(x_s[:n], xh[:m], x_s[n + m:2 * n + m], xh[m:])
+    tau = controller(*ref(t_s), xc)
+    xn = rk4_interval(lambda xx, s: ode(xx, tau), x_s, t_s, dt, substeps)
+    acc = ode(xn, tau)[n + m:2 * (n + m)]  # what the sensors see just before t_{k+1}
+    plant_step = ca.Function("plant_step", [x_s, xh, t_s], [xn, tau, acc], {"cse": True})
+    N = t.size - 1
+    TAU = np.zeros((N + 1, n))
+    XH = np.zeros((N + 1, 2 * m))
+    loop = {"xprior": np.asarray(est.get("x0", np.zeros(2 * m)), dtype=float),
+            "P": np.asarray(est.get("P0", np.eye(2 * m) * 1e-4), dtype=float),
+            "ddq_prev": np.zeros(n)}
+    mask = np.ones(ny)
+
+    def sample(k, X):
+        x = X[k].copy()
+        u = np.r_[x[:n], x[n + m:2 * n + m], loop["ddq_prev"]]
+        y = np.asarray(h(np.r_[x[n:n + m], x[2 * n + m:]], u)[-1]).ravel()
+        if noise is not None:
+            y = y + noise[k]
+        elif Lr is not None:
+            y = y + Lr @ rng.standard_normal(ny)
+        if ddq_source == "difference":
+            dq_k = x[n + m:2 * n + m]
+            u = np.r_[x[:n], dq_k, (dq_k - (X[k - 1, n + m:2 * n + m] if k else dq_k)) / dt]
+        xprior_next, loop["P"], xpost = ekf(loop["xprior"], loop["P"], u, y, mask)
+        xpost = np.asarray(xpost).ravel()
+        XH[k] = xpost
+        if k == N:
+            return None
+        xn_, tau_, acc_ = plant_step(x, xpost, t[k])
+        TAU[k] = np.asarray(tau_).ravel()
+        loop["ddq_prev"] = np.asarray(acc_).ravel()[:n]
+        loop["xprior"] = np.asarray(xprior_next).ravel()
+        return np.asarray(xn_).ravel()
+
+    X = _run_samples(x0, t, sample, kd, jump)
+    TAU[N] = TAU[N - 1]
+    return X, TAU, XH
