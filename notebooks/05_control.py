@@ -24,6 +24,7 @@ from casflex import control
 from casflex.model import build_model
 from casflex.moves import Move, load_move
 from casflex.robot import load
+from casflex.simulate import decay_time, simulate_closed_loop
 
 np.set_printoptions(precision=4, suppress=True)
 ROOT = Path.cwd().parent if Path.cwd().name == "notebooks" else Path.cwd()
@@ -69,7 +70,7 @@ for name in ("control_move1", "control_move2", "control_move3"):
     move = load_move(f"{MOVES}:{name}")
     for law in (control.inversion_controller, control.feedforward_controller):
         ctrl = law(model, Kp=1.0, Kd=2.0)
-        r = control.simulate_closed_loop(model, ctrl, move, dt=5e-3)
+        r = simulate_closed_loop(model, ctrl, move, dt=5e-3)
         runs[name, ctrl.name()] = r
         e = r.tracking_error
         rows.append((name, ctrl.name(), np.abs(e).max(), np.sqrt(np.mean(e**2)),
@@ -162,13 +163,13 @@ print("fast loop along move 3:",
 imp = {}
 for fast in (True, False):
     ctrl = control.composite_controller(model, gain=K, epsilon=eps, fast=fast)
-    r = control.simulate_closed_loop(model, ctrl, move, dt=5e-3, t_end=8.0,
-                                     impulse=(3.0, [0.02, 0.02, 0.02]))
+    r = simulate_closed_loop(model, ctrl, move, dt=5e-3, t_end=8.0,
+                             impulse=(3.0, [0.02, 0.02, 0.02]))
     imp[fast] = r
     d = np.linalg.norm(r.tip_deflection, axis=1)
     print(f"fast part {'on ' if fast else 'off'}: peak deflection after the impulse "
           f"{d[r.t >= 3].max():.4f} m, 5% decay time "
-          f"{control.decay_time(r.t, r.tip_deflection, 3.0):.2f} s, "
+          f"{decay_time(r.t, r.tip_deflection, 3.0):.2f} s, "
           f"max |q - qd| {np.abs(r.tracking_error).max():.3f} rad")
 fig, axs = plt.subplots(1, 2, figsize=(11, 3.5), sharey=True)
 for ax, fast in zip(axs, (False, True), strict=True):
@@ -198,12 +199,12 @@ for q2 in (0.0, 1.0, np.pi / 2):
           "poles (Re, Im) =", [(round(float(v.real), 4), round(float(v.imag), 2))
                                for v in sorted(osc, key=lambda v: v.imag)])
     if q2 < 1.5:
-        r = control.simulate_closed_loop(model, ctrl, Move(q, q, 1.0),
-                                         x0=np.r_[q, x_delta, np.zeros(6)], t_end=6.0,
-                                         dt=5e-3)
+        r = simulate_closed_loop(model, ctrl, Move(q, q, 1.0),
+                                 x0=np.r_[q, x_delta, np.zeros(6)], t_end=6.0,
+                                 dt=5e-3)
         print("   5% decay times of the tip deflection and of δ1, δ2, δ3:",
-              round(control.decay_time(r.t, r.tip_deflection), 2),
-              [round(control.decay_time(r.t, r.delta[:, k]), 2) for k in range(3)], "s")
+              round(decay_time(r.t, r.tip_deflection), 2),
+              [round(decay_time(r.t, r.delta[:, k]), 2) for k in range(3)], "s")
 
 # %% [markdown]
 # ## 5.6 EKF in the loop
@@ -234,8 +235,8 @@ loops = {}
 for label, fast, e in (("true states", True, None), ("EKF", True, est),
                        ("slow law only", False, None)):
     ctrl = control.composite_controller(smodel, gain=sched_s, fast=fast)
-    loops[label] = control.simulate_closed_loop(smodel, ctrl, move, dt=dt_s, t_end=3.5,
-                                                sampled=True, method="rk4", estimator=e)
+    loops[label] = simulate_closed_loop(smodel, ctrl, move, dt=dt_s, t_end=3.5,
+                                        sampled=True, method="rk4", estimator=e)
 for label, r in loops.items():
     w = (r.t >= 2.5) & (r.t <= 3.5)
     resid = np.sqrt(np.mean(np.sum(r.tip_deflection[w] ** 2, axis=1)))

@@ -148,8 +148,8 @@ print({k: check[k] for k in ("steps", "not_positive_definite", "not_finite",
 # they code-generate), on the dissertation's `M(q)` (`delta_order=0`).
 
 # %%
-from casflex import control
 from casflex.codegen import rtloop
+from casflex.simulate import simulate_closed_loop
 
 arm = load(ROOT / "problems" / "arm2link_actuated.toml")
 model0, _ = build_model(arm, n_modes=3, step=np.radians(15), points=sensors.points,
@@ -182,7 +182,7 @@ print(f"C vs Python, 10 random calls: largest relative difference {worst:.1e}")
 # `closed_loop_bundle` adds a plant to the same C bundle — RK4 of the model's equations of
 # motion, the exact accelerometer model and given noise — and the generated harness runs
 # plant and `rt_step` sample by sample in C. The Python simulation of the same loop
-# (`casflex.control.simulate_closed_loop` with the EKF) is an independent reference: a
+# (`casflex.simulate.simulate_closed_loop` with the EKF) is an independent reference: a
 # Python loop calling the pieces one by one.
 
 # %%
@@ -193,8 +193,8 @@ loop = rtloop.closed_loop_bundle(model0, sensors, rt, DT, out / "loop")
 c_run = rtloop.run_closed_loop_c(loop, move3, N, DT, noise=noise[:N])
 est = {"step": ekf0, "sensors": sensors, "P0": 1e-4 * np.eye(6), "x0": np.zeros(6),
        "noise": noise, "ddq": "difference"}
-py_run = control.simulate_closed_loop(model0, ctrl, move3, t_end=N * DT, dt=DT,
-                                      estimator=est)
+py_run = simulate_closed_loop(model0, ctrl, move3, t_end=N * DT, dt=DT,
+                              estimator=est)
 scale = np.abs(py_run.x).max(axis=0) + 1e-12
 print(f"C loop vs Python loop over {N} samples: largest deviation "
       f"{np.max(np.abs(c_run['x'] - py_run.x) / scale):.1e} of each state's range")

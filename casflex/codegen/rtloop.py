@@ -19,7 +19,7 @@ generates its C bundle (:mod:`casflex.codegen`). One call per sample ``t_k``::
 
 The state carried from one call to the next is ``(x, P, dq_prev)`` (feed ``x_next``,
 ``P_next``, ``dq_next`` back); start with ``dq_prev = dq`` of the first sample. This is
-exactly the loop of :func:`casflex.control.simulate_closed_loop` with
+exactly the loop of :func:`casflex.simulate.simulate_closed_loop` with
 ``estimator={..., "ddq": "difference"}``.
 
 Closing the loop in C
@@ -422,7 +422,7 @@ def run_closed_loop_c(bundle: Bundle, move: Move, steps: int, dt: float, *,
     x0 : array_like, optional
         Plant state ``[q; δ; q̇; δ̇]`` at ``t_0`` (default at rest at ``move.q0``).
     xhat0, P0 : array_like, optional
-        EKF prior (default 0 and ``1e-4 I``, as :func:`casflex.control.simulate_closed_loop`).
+        EKF prior (default 0 and ``1e-4 I``, as :func:`casflex.simulate.simulate_closed_loop`).
     noise : array_like, optional
         ``(N, r)`` noise added to the signals (default none).
     repeat : int

@@ -2,7 +2,7 @@
 
 Everything here works on a :class:`casflex.model.FlexibleModel` (usually from
 :func:`casflex.model.build_model`) and returns plain numpy data or ``casadi.Function``
-objects that can be simulated (:func:`simulate_closed_loop`, or
+objects that can be simulated (:func:`casflex.simulate.simulate_closed_loop`, or
 :func:`casflex.simulate.simulate_torque` through :func:`tracking`) and code-generated.
 Each module documents how it reads the dissertation's equations.
 
@@ -21,7 +21,8 @@ plot_accessibility        maps of the indexes, one panel per mode (in
 
 Tracking laws (:mod:`casflex.control.laws`, eq. 210–213, 232, 248)
 -----------------------------------------------------------------
-reference_function        the bang-bang reference of a move as ``t -> (qd, dqd, ddqd)``
+reference_function        the reference of a move as ``t -> (qd, dqd, ddqd)`` (from
+                          :mod:`casflex.moves`, which owns every way of sampling one)
 inversion_controller      inversion-based law (eq. 210 with eq. 213)
 feedforward_controller    computed torque on the rigid model (eq. 232, slow law eq. 248)
 composite_controller      slow law plus fast LQR feedback (eq. 248 + 251)
@@ -44,12 +45,10 @@ Stability checks (:mod:`casflex.control.stability`, eq. 225–230, §6.2.3.1)
 inversion_stability       zero-dynamics condition (eq. 226) and rate (eq. 230)
 composite_stability       is the fast closed loop Hurwitz along a move?
 check_stability           either check for a robot and a move (``casflex check``)
-decay_time                time from which a signal stays below a fraction of its peak
 
-Closed-loop simulation (:mod:`casflex.control.closed_loop`)
------------------------------------------------------------
-simulate_closed_loop      simulate the model under a law (CVODES or RK4, impulses, EKF)
-ClosedLoopResult          its result (states, torques, tip positions)
+Closed-loop simulation is time response, not design: :func:`casflex.simulate.simulate_closed_loop`
+runs the model under these laws (with impulses and the EKF in the loop) and
+:func:`casflex.simulate.decay_time` measures how fast the vibration dies out.
 
 Examples
 --------
@@ -75,13 +74,11 @@ from casflex.control.accessibility import (
     modal_system,
     robot_accessibility_map,
 )
-from casflex.control.closed_loop import ClosedLoopResult, simulate_closed_loop
 from casflex.control.laws import (
     closed_loop,
     composite_controller,
     feedforward_controller,
     inversion_controller,
-    reference_function,
     tracking,
 )
 from casflex.control.perturbation import (
@@ -97,9 +94,9 @@ from casflex.control.perturbation import (
 from casflex.control.stability import (
     check_stability,
     composite_stability,
-    decay_time,
     inversion_stability,
 )
+from casflex.moves import reference_function
 
 __all__ = [
     "modal_system",
@@ -127,9 +124,6 @@ __all__ = [
     "inversion_stability",
     "composite_stability",
     "check_stability",
-    "decay_time",
-    "simulate_closed_loop",
-    "ClosedLoopResult",
 ]
 
 

@@ -40,59 +40,19 @@ from numpy.typing import ArrayLike
 from casflex._validate import square_matrix
 from casflex.control.perturbation import GainSchedule, perturbation_parameter
 from casflex.errors import ModelError
+from casflex.moves import reference_function
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move
 
 __all__ = [
-    "reference_function",
     "inversion_controller",
     "feedforward_controller",
     "composite_controller",
     "tracking",
     "closed_loop",
 ]
-
-
-def reference_function(move: Move) -> ca.Function:
-    """The bang-bang reference of a move as a CasADi function of time.
-
-    Parameters
-    ----------
-    move : casflex.moves.Move
-        A move with ``q0``, ``qf``, ``duration`` and ``peak_acceleration``; a move that
-        has its own ``casadi_reference()`` (e.g. :class:`casflex.moves.ShapedMove`)
-        supplies its reference itself. Before ``t = 0`` the reference rests at ``q0``,
-        after the duration at ``qf``.
-
-    Returns
-    -------
-    casadi.Function
-        ``reference (t) -> (qd, dqd, ddqd)`` [rad, rad/s, rad/s²], equal to
-        :meth:`casflex.moves.Move.sample`.
-
-    Examples
-    --------
-    >>> from casflex.moves import Move
-    >>> r = reference_function(Move([0.0], [-1.0], 2.0))
-    >>> [float(v) for v in r(1.5)]
-    [-0.875, -0.5, 1.0]
-    """
-    if hasattr(move, "casadi_reference"):  # e.g. casflex.moves.ShapedMove
-        return move.casadi_reference()
-    t = ca.SX.sym("t")
-    T = float(move.duration)
-    q0, qf = ca.DM(move.q0), ca.DM(move.qf)
-    a = ca.DM(move.peak_acceleration)
-    tc = ca.fmin(ca.fmax(t, 0.0), T)
-    first = ca.logic_and(t >= 0.0, t < T / 2.0)
-    second = ca.logic_and(t >= T / 2.0, t < T)
-    q = ca.if_else(t < 0.0, q0, ca.if_else(first, q0 + 0.5 * a * tc**2,
-                                           qf - 0.5 * a * (T - tc) ** 2))
-    dq = ca.if_else(first, a * tc, ca.if_else(second, a * (T - tc), ca.DM.zeros(q0.shape)))
-    ddq = ca.if_else(first, a, ca.if_else(second, -a, ca.DM.zeros(q0.shape)))
-    return ca.Function("reference", [t], [q, dq, ddq], ["t"], ["qd", "dqd", "ddqd"])
 
 
 def _rigid_terms(model):

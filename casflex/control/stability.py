@@ -18,11 +18,6 @@ How the flattened equations are read
   eigenvalues reported by :func:`composite_stability` are converted back to real time
   (``λ/ε`` [1/s]).
 
-Examples
---------
->>> t = np.linspace(0.0, 10.0, 1001)
->>> round(decay_time(t, np.exp(-t)), 2)   # below 5 % of the peak from t = 3 s on
-2.99
 """
 
 from __future__ import annotations
@@ -54,7 +49,6 @@ __all__ = [
     "inversion_stability",
     "composite_stability",
     "check_stability",
-    "decay_time",
 ]
 
 
@@ -196,7 +190,7 @@ def composite_stability(model: FlexibleModel, move: Move,
       end gains and stays bounded with the schedule; along move 1 the joints leave the
       plan by 5.6 rad within 0.6 s (0.04 rad with the schedule);
 
-    (``tests/control/test_control_closed_loop.py::``
+    (``tests/simulate/test_torque.py::``
     ``test_end_gains_instability_is_in_the_model_not_the_boundary_layer``).
     The cause is the small residual joint inertia of this arm, ``M_qq − M_qδ M_qδᵀ``
     (smallest eigenvalue 4.5e-4 kg·m² at ``q0``, 2.1e-5 at mid-move, against 0.016–0.26
@@ -338,49 +332,3 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
             "worst_time": r["worst_time"], "worst_real": r["worst_real"],
             "worst_q": r["worst_q"], "epsilon": eps,
             "gains": "scheduled" if schedule else "end of move"}
-
-
-def decay_time(t: ArrayLike, signal: ArrayLike, t0: float = 0.0, fraction: float = 0.05,
-               floor: float = 0.0) -> float:
-    """Time after ``t0`` from which ``‖signal‖`` stays below a fraction of its peak.
-
-    Parameters
-    ----------
-    t : array_like
-        (N,) times [s].
-    signal : array_like
-        (N,) or (N, k) samples (the Euclidean norm over columns is used).
-    t0 : float
-        Start of the window (e.g. the instant of a disturbance) [s].
-    fraction : float
-        Threshold as a fraction of the peak of ``‖signal‖`` after ``t0``.
-    floor : float
-        Absolute threshold added to the relative one.
-
-    Returns
-    -------
-    float
-        Seconds from ``t0``; ``inf`` if the signal is still above the threshold in the
-        last tenth of the window (it does not decay within the run).
-
-    Examples
-    --------
-    >>> tt = np.linspace(0, 10, 1001)
-    >>> round(decay_time(tt, np.exp(-tt) * np.cos(20 * tt)), 1)
-    3.0
-    """
-    t = np.asarray(t, dtype=float)
-    s = np.asarray(signal, dtype=float)
-    s = np.linalg.norm(s, axis=1) if s.ndim == 2 else np.abs(s)
-    sel = t >= t0
-    tt, ss = t[sel], s[sel]
-    if tt.size == 0:
-        raise ModelError(f"decay_time: no samples after t0 = {t0} s")
-    thr = fraction * float(np.max(ss)) + floor
-    above = np.nonzero(ss > thr)[0]
-    if above.size == 0:
-        return 0.0
-    last = tt[above[-1]]
-    if last >= tt[-1] - 0.1 * (tt[-1] - tt[0]):
-        return math.inf
-    return float(last - t0)

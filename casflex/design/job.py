@@ -118,7 +118,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     from casflex.estimation import ekf_step_function, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import Move, ShapedMove
-    from casflex.simulate import simulate_prescribed
+    from casflex.simulate import simulate_closed_loop, simulate_prescribed
 
     if not isinstance(study, Study):
         study = load_study(study)
@@ -180,8 +180,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
                  "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
                  "ddq": "difference"}
-    loop = control.simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
-                                        estimator=estimator, sampled=True)
+    loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
+                                estimator=estimator, sampled=True)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite:

@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from casflex import codegen, control
+from casflex import codegen
 from casflex.cli import main
 from casflex.codegen import rtloop
 from casflex.estimation import ekf_step_function, tabulate_plant
+from casflex.simulate import simulate_closed_loop
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
@@ -95,8 +96,8 @@ def test_closed_loop_in_c_matches_python_simulation(setup, tmp_path, move):
     c = rtloop.run_closed_loop_c(bundle, move, N, DT, noise=noise[:N], flags=("-O1",))
     est = {"step": ekf, "sensors": sensors, "P0": 1e-4 * np.eye(6), "x0": np.zeros(6),
            "noise": noise, "ddq": "difference"}
-    py = control.simulate_closed_loop(model, composite, move, t_end=N * DT, dt=DT,
-                                      estimator=est)
+    py = simulate_closed_loop(model, composite, move, t_end=N * DT, dt=DT,
+                              estimator=est)
     np.testing.assert_allclose(c["t"], py.t, atol=1e-12)
     assert np.all(np.isfinite(c["x"]))
     scale = np.abs(py.x).max(axis=0) + 1e-12

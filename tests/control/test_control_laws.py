@@ -1,25 +1,16 @@
-"""casflex.control.laws: the reference and the tracking laws.
+"""casflex.control.laws: the tracking laws.
 
-Independent checks: eq. 210 written out term by term from the model's ``mass`` and
-``coriolis`` functions against the controller; the bang-bang reference against
-Move.sample.
+Independent check: eq. 210 written out term by term from the model's ``mass`` and
+``coriolis`` functions against the controller. (The reference a law follows belongs to
+casflex.moves and is tested in tests/test_moves.py.)
 """
 
 import numpy as np
 
 from casflex import control
 from casflex.model import FlexibleModel, PointwiseProvider
-from casflex.moves import load_move
 
 Q_ONE = np.array([0.0, 1.0, -np.pi / 2])
-
-
-def test_reference_matches_move_sample():
-    move = load_move("problems/moves.toml:control_move1")
-    ref = control.reference_function(move)
-    for t in np.linspace(-0.5, 3.0, 37):
-        for got, want in zip(ref(t), move.sample(t), strict=True):
-            np.testing.assert_allclose(got.full().ravel(), want, atol=1e-14)
 
 
 def test_inversion_law_is_eq_210_at_zero_deflection(elbow_model, arm):

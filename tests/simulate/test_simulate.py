@@ -23,9 +23,9 @@ import json
 import casadi as ca
 import numpy as np
 import pytest
+from casflex.dynamics import ConstantProvider, FlexibleModel, PointwiseProvider
 from scipy.integrate import solve_ivp
 
-from casflex.dynamics import ConstantProvider, FlexibleModel, PointwiseProvider
 from casflex.errors import ModelError
 from casflex.moves import Move, load_move, reference_sampler
 from casflex.robot import load
