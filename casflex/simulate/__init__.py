@@ -1,6 +1,6 @@
 """Simulation of the flexible-arm model: prescribed joint motion and torque-driven motion.
 
-Two problems are solved on a :class:`casflex.dynamics.FlexibleModel`:
+Two problems are solved on a :class:`casflex.model.FlexibleModel`:
 
 * prescribed motion — the joints follow a planned trajectory exactly (perfect tracking,
   dissertation §3.3.7.1). The second (modal) row of eq. 118 gives the modal accelerations
@@ -32,6 +32,14 @@ simulate_closed_loop
     A tracking controller ``(qd, dqd, ddqd, x) -> τ`` on a move: continuous or sampled,
     impulsive tip force, EKF in the loop.
 
+Sensor data (:mod:`casflex.simulate.measurements`)
+---------------------------------------------------
+simulate_data
+    A move simulated with its sensor signals (noise, offsets), the input of the
+    estimators in :mod:`casflex.estimation`.
+SimulatedData
+    Its result.
+
 Results (:mod:`casflex.simulate.results`)
 -----------------------------------------
 SimulationResult
@@ -57,13 +65,14 @@ Measured costs of the methods: ``benchmarks/README_model.md``.
 from __future__ import annotations
 
 from casflex.simulate.integrators import rk4_step
+from casflex.simulate.measurements import SimulatedData, simulate_data
 from casflex.simulate.prescribed import sample_reference, simulate_move, simulate_prescribed
 from casflex.simulate.results import ClosedLoopResult, SimulationResult, decay_time
 from casflex.simulate.torque import simulate_closed_loop, simulate_torque
 
 __all__ = ["SimulationResult", "simulate_prescribed", "simulate_torque", "sample_reference",
            "plot_result", "simulate_move", "simulate_closed_loop", "ClosedLoopResult",
-           "decay_time", "rk4_step"]
+           "decay_time", "rk4_step", "simulate_data", "SimulatedData"]
 
 
 def __getattr__(name):

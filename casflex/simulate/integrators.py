@@ -132,7 +132,7 @@ def step_cache(model) -> dict:
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
 
     Returns
     -------

@@ -57,7 +57,7 @@ def configuration_function(model) -> ca.Function:
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
 
     Returns
     -------
@@ -67,7 +67,7 @@ def configuration_function(model) -> ca.Function:
 
     Examples
     --------
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
@@ -552,7 +552,7 @@ def _compiled(model, F, acc, jit, cache_dir):
     hit = memo.get(key)
     if hit is not None:
         return hit + ({"poly_jit_s": 0.0, "poly_jit_built": False},)
-    from casflex.codegen import compile_cached
+    from casflex.codegen.jit import compile_cached
 
     funs_F, info_F = compile_cached([F], "casflex_poly_F", cache_dir=cache_dir, flags=flags)
     funs_a, info_a = compile_cached([acc], "casflex_poly_rk4", cache_dir=cache_dir,
@@ -571,7 +571,7 @@ def simulate(model, reference, t: np.ndarray, dt: float, z0: np.ndarray,
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     reference : casflex.moves.Move or casflex.moves.ShapedMove
     t : numpy.ndarray
         Uniform output grid [s].
@@ -593,7 +593,7 @@ def simulate(model, reference, t: np.ndarray, dt: float, z0: np.ndarray,
 
     Examples
     --------
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.moves import Move
     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")

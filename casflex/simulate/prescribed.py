@@ -128,7 +128,7 @@ def simulate_prescribed(model, reference: Reference, dt: float = 1e-3,
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     reference : casflex.moves.Move or tuple
         A move, or sampled ``(t, q, dq, ddq)`` arrays [s, rad, rad/s, rad/s²], e.g. a
         shaped reference from :func:`casflex.shaping.apply_shaper` (interpolated between
@@ -212,7 +212,7 @@ def simulate_prescribed(model, reference: Reference, dt: float = 1e-3,
 
     Examples
     --------
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.moves import Move
     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
@@ -350,7 +350,7 @@ def simulate_move(robot, move: Move, n_modes: int = 5, *, dt: float = 1e-3,
     -------
     result : SimulationResult
         ``info["model_s"]`` holds the time spent building the model [s].
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     table : casflex.modal.ModalTable
 
     Examples

@@ -54,7 +54,7 @@ def impulse_jump(model, x: np.ndarray, p: ArrayLike) -> np.ndarray:
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     x : numpy.ndarray
         State ``[q; δ; q̇; δ̇]`` before the impulse.
     p : array_like, shape (3,)
@@ -67,7 +67,7 @@ def impulse_jump(model, x: np.ndarray, p: ArrayLike) -> np.ndarray:
 
     Examples
     --------
-    >>> from casflex.dynamics import FlexibleModel, rigid_provider
+    >>> from casflex.model import FlexibleModel, rigid_provider
     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
     >>> model = FlexibleModel(robot, rigid_provider(robot), gravity=None)
@@ -177,7 +177,7 @@ def simulate_torque(model, controller: TorqueLaw, x0: ArrayLike, t_end: float,
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     controller : callable or casadi.Function or array_like or None
         ``controller(t, x) -> tau`` [N m], evaluated at the start of every step and held
         over it (zero-order hold). A ``casadi.Function`` ``(t, x) -> tau`` runs the closed
@@ -206,7 +206,7 @@ def simulate_torque(model, controller: TorqueLaw, x0: ArrayLike, t_end: float,
 
     Examples
     --------
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.robot import load
     >>> robot = load("problems/arm2link.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
@@ -375,7 +375,7 @@ def simulate_closed_loop(model, controller: ca.Function, move, x0: ArrayLike | N
 
     Parameters
     ----------
-    model : casflex.dynamics.FlexibleModel
+    model : casflex.model.FlexibleModel
     controller : casadi.Function
         ``(qd, dqd, ddqd, x) -> tau``.
     move : casflex.moves.Move or casflex.moves.ShapedMove
@@ -417,7 +417,7 @@ def simulate_closed_loop(model, controller: ca.Function, move, x0: ArrayLike | N
     --------
     >>> from casflex.robot import load
     >>> from casflex.moves import Move
-    >>> from casflex.dynamics import FlexibleModel, PointwiseProvider
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> robot = load("problems/arm2link.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
     >>> move = Move([0, 0, 0], [-0.1, 0, 0], 0.5, settle=0.0)
