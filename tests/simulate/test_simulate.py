@@ -23,10 +23,10 @@ import json
 import casadi as ca
 import numpy as np
 import pytest
-from casflex.dynamics import ConstantProvider, FlexibleModel, PointwiseProvider
 from scipy.integrate import solve_ivp
 
 from casflex.errors import ModelError
+from casflex.model import ConstantProvider, FlexibleModel, PointwiseProvider
 from casflex.moves import Move, load_move, reference_sampler
 from casflex.robot import load
 from casflex.simulate import SimulationResult, poly, simulate_prescribed, simulate_torque
