@@ -39,6 +39,7 @@ import casadi as ca
 import numpy as np
 
 from casflex import codegen
+from casflex.simulate.integrators import rk4_step
 
 DT = 1e-3
 THETA_GRID = np.linspace(-np.pi, np.pi, 25)
@@ -68,11 +69,7 @@ def toy_ekf(kind="MX"):
         return ca.vertcat(x[0], ca.sin(x[0]) + 0.5 * x[2])
 
     x, P, u, y = sym("x", 4), sym("P", 4, 4), sym("u"), sym("y", 2)
-    k1 = ode(x, u)
-    k2 = ode(x + DT / 2 * k1, u)
-    k3 = ode(x + DT / 2 * k2, u)
-    k4 = ode(x + DT * k3, u)
-    xp = x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    xp = rk4_step(ode, x, DT, u)
     F = ca.jacobian(xp, x)
     Pp = F @ P @ F.T + Q
     xs = sym("xs", 4)

@@ -40,6 +40,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from casflex.simulate.integrators import rk4_step
+
 ROOT = Path(__file__).resolve().parents[1]
 
 NATIVE = "-O3 -march=native -ffp-contract=off"
@@ -115,11 +117,7 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
         Pp = 0.5 * (Pp + Pp.T)
         hF = dt * F
         Phi = eye + hF @ (eye + hF / 2 @ (eye + hF / 3 @ (eye + hF / 4)))
-        k1 = rhs(xp)
-        k2 = rhs(xp + 0.5 * dt * k1)
-        k3 = rhs(xp + 0.5 * dt * k2)
-        k4 = rhs(xp + dt * k3)
-        xn = xp + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xn = rk4_step(rhs, xp, dt)
         Pn = Phi @ Pp @ Phi.T + Qd
         return xn, 0.5 * (Pn + Pn.T), xp
 
