@@ -1,4 +1,4 @@
-"""Stability checks of the tracking laws along a move, and a decay metric (§6.2.2–6.2.3).
+"""Stability checks of the tracking laws along a move (§6.2.2–6.2.3).
 
 Notation: ``n`` joints, ``m`` modes, ``K = diag(ω²)``, modal damping ``D``, ``C_δδ`` the
 modal block of the Coriolis matrix.
