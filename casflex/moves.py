@@ -412,6 +412,15 @@ class ReferenceSampler(NamedTuple):
     t_move_end : float
         End of the motion [s] (a move: its duration; samples: the sample after the last
         one that moves).
+
+    Examples
+    --------
+    >>> r = reference_sampler(Move([0.0], [1.0], 1.0, settle=0.5), 1)
+    >>> r.t_start, r.t_last, r.t_move_end
+    (0.0, 1.5, 1.0)
+    >>> q, dq, ddq = r.sample([0.0, 0.5, 1.0])
+    >>> q.ravel().tolist(), dq.ravel().tolist()
+    ([0.0, 0.5, 1.0], [0.0, 2.0, 0.0])
     """
 
     sample: Callable

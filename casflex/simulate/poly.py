@@ -28,6 +28,7 @@ import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -35,6 +36,15 @@ import numpy as np
 from casflex.errors import ModelError
 from casflex.moves import reference_sampler
 from casflex.simulate.integrators import call_buffered, rk4_step, step_cache
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from casflex.model import FlexibleModel
+    from casflex.moves import Move, ShapedMove
+
+    _Sampler = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    _Piece = tuple[float, float, np.ndarray, np.ndarray, np.ndarray]
 
 __all__ = ["configuration_function", "evaluate", "unpack", "breaks", "chebyshev_nodes",
            "interpolants", "piece_index", "values_at", "rows", "modal", "stage",
@@ -45,7 +55,7 @@ _START = 5  # Chebyshev intervals per piece in the first round (then 10, 20, ...
 _MAX_NODES = 96
 
 
-def configuration_function(model) -> ca.Function:
+def configuration_function(model: FlexibleModel) -> ca.Function:
     """``F(q)``: the configuration-only arrays of the modal and joint rows (memoised per
     model in :func:`~casflex.simulate.integrators.step_cache`).
 
@@ -111,11 +121,35 @@ def configuration_function(model) -> ca.Function:
     return F
 
 
-def unpack(raw, n, m, dq):
+def unpack(raw: np.ndarray, n: int, m: int, dq: np.ndarray) -> dict[str, np.ndarray]:
     """Arrays of ``F(q)`` at T times from the flat rows ``raw`` (T × R).
 
-    ``P0``, ``Pj`` are ``Σ_i q̇_i ∂M0/∂q_i`` and ``Σ_i q̇_i ∂M_j/∂q_i`` for the rates ``dq``
-    (T × n); ``K0``, ``Kj`` the partial derivatives themselves (torques).
+    Full matrices from their upper triangles; ``P0``, ``Pj`` are ``Σ_i q̇_i ∂M0/∂q_i``,
+    ``Σ_i q̇_i ∂M_j/∂q_i`` for the rates ``dq``, ``K0``, ``Kj`` the derivatives (torques).
+
+    Parameters
+    ----------
+    raw : numpy.ndarray, shape (T, R)
+        Rows of ``F`` (:func:`evaluate` or :func:`values_at`), SI units.
+    n, m : int
+        Number of joints and of modes (``N = n + m``).
+    dq : numpy.ndarray, shape (T, n)
+        Joint rates [rad/s].
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        ``M0``, ``P0`` (T, N, N); ``Mj``, ``Pj`` (T, m, N, N); ``K0`` (T, n, N, N); ``Kj``
+        (T, n, m, N, N); ``omega`` (T, m) [rad/s]; ``domega2`` (T, m, n); ``g0`` (T, N);
+        ``gd`` (T, N, m).
+
+    Examples
+    --------
+    Rigid one-joint arm (n = 1, m = 0), ``M(q) = 2 + q / 2``, g = 9.8 N m, q = 0, q̇ = 3:
+
+    >>> A = unpack(np.array([[2.0, 0.5, 9.8]]), 1, 0, np.array([[3.0]]))
+    >>> A["M0"].tolist(), A["P0"].tolist(), A["K0"].tolist(), A["g0"].tolist()
+    ([[[2.0]]], [[[1.5]]], [[[[0.5]]]], [[9.8]])
     """
     N = n + m
     iu = np.triu_indices(N)
@@ -149,8 +183,29 @@ def unpack(raw, n, m, dq):
             "g0": g0, "gd": gd}
 
 
-def evaluate(F, qs):
-    """Flat rows (len(qs) × R) of ``F`` at the configurations ``qs`` (one map call)."""
+def evaluate(F: ca.Function, qs: np.ndarray) -> np.ndarray:
+    """Flat rows (len(qs) × R) of ``F`` at the configurations ``qs`` (one map call).
+
+    Parameters
+    ----------
+    F : casadi.Function
+        :func:`configuration_function` (or its compiled form); two or more outputs.
+    qs : numpy.ndarray, shape (T, n)
+        Joint positions [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (T, R)
+        Per row, every output flattened column-major (what :func:`interpolants` interpolates).
+
+    Examples
+    --------
+    >>> x = ca.SX.sym("q", 2)
+    >>> F = ca.Function("F", [x], [ca.diag(x), ca.sum1(x)])
+    >>> evaluate(F, np.array([[1.0, 2.0], [3.0, 4.0]]))
+    array([[1., 0., 0., 2., 3.],
+           [3., 0., 0., 4., 7.]])
+    """
     outs = F.map(qs.shape[0], "thread", 2)(qs.T)
     # column-major flattening of every output, one row per configuration
     return np.hstack([np.asarray(o.full()).reshape(-1, qs.shape[0], order="F").T
@@ -173,10 +228,39 @@ def _table_knots(model):
     return knots
 
 
-def breaks(model, reference, sampler, t0, t1):
+def breaks(model: FlexibleModel, reference: Move | ShapedMove, sampler: _Sampler,
+           t0: float, t1: float) -> np.ndarray:
     """Sorted times in [t0, t1] between which q(t) is a polynomial of degree ≤ 2 and no
     shape joint crosses a knot of the table interpolants (the coefficients are analytic
-    there)."""
+    there): the ends of the pieces of :func:`interpolants`.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        The knots are those of its provider's table (none without a table).
+    reference : casflex.moves.Move or casflex.moves.ShapedMove
+        Its ``breakpoints`` are the switches of q̈ [s].
+    sampler : callable
+        ``sampler(t) -> (q, dq, ddq)`` of the reference (``reference_sampler(...).sample``).
+    t0, t1 : float
+        Simulated interval [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        Break times [s], from ``t0`` to ``t1``.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import Move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1))
+    >>> move = Move([0, 0, 0], [-0.1, 0, 0], 0.4)
+    >>> breaks(model, move, reference_sampler(move, 3).sample, 0.0, 0.5).tolist()
+    [0.0, 0.2, 0.4, 0.5]
+    """
     switches = reference.breakpoints
     phase = np.unique(np.r_[t0, np.clip(np.asarray(switches, dtype=float), t0, t1), t1])
     breaks = [phase]
@@ -208,7 +292,32 @@ def breaks(model, reference, sampler, t0, t1):
     return out[keep]
 
 
-def chebyshev_nodes(a, b, K):
+def chebyshev_nodes(a: float, b: float, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """Chebyshev–Lobatto nodes on ``[a, b]`` and their barycentric weights.
+
+    The nodes of ``2 K`` contain those of ``K`` (:func:`interpolants` doubles the count)
+    and the end nodes are exactly ``b`` and ``a`` (neighbouring pieces share them).
+
+    Parameters
+    ----------
+    a, b : float
+        Interval [s].
+    K : int
+        Number of intervals (``K + 1`` nodes).
+
+    Returns
+    -------
+    t : numpy.ndarray, shape (K + 1,)
+        Nodes [s], from ``b`` down to ``a``.
+    w : numpy.ndarray, shape (K + 1,)
+        Weights of the barycentric formula (second kind).
+
+    Examples
+    --------
+    >>> t, w = chebyshev_nodes(0.0, 1.0, 2)
+    >>> t.tolist(), w.tolist()
+    ([1.0, 0.5, 0.0], [0.5, -1.0, 0.5])
+    """
     k = np.arange(K + 1)
     x = np.cos(np.pi * k / K)
     w = (-1.0) ** k
@@ -232,12 +341,48 @@ def _barycentric(tn, w, fv, t):
     return out
 
 
-def interpolants(F, sampler, breaks, tol):
+def interpolants(F: ca.Function, sampler: _Sampler, breaks: np.ndarray, tol: float
+                 ) -> tuple[list[_Piece], float, int, int]:
     """Chebyshev interpolants of ``F(q(t))`` on every piece between ``breaks``.
 
     The node count of every piece doubles (nested Chebyshev–Lobatto nodes) until the
     previous interpolant agrees with ``F`` at the new nodes to ``tol`` relative to the
-    largest entry of each output block. Returns ``(pieces, err, evaluations, nodes)``.
+    largest entry of each output block (a few evaluations of ``F`` per piece, not per step).
+
+    Parameters
+    ----------
+    F : casadi.Function
+        ``q -> arrays`` (:func:`configuration_function`), two or more outputs.
+    sampler : callable
+        ``sampler(t) -> (q, dq, ddq)`` of the reference.
+    breaks : numpy.ndarray
+        Sorted piece ends [s] (:func:`breaks`).
+    tol : float
+        Relative tolerance.
+
+    Returns
+    -------
+    pieces : list of tuple
+        ``(a, b, nodes, weights, values)``: interval [s], :func:`chebyshev_nodes` and the
+        rows of ``F`` at the nodes (:func:`evaluate`).
+    err : float
+        Largest relative error estimate.
+    evaluations : int
+        Number of configurations at which ``F`` was evaluated.
+    nodes : int
+        Largest number of intervals of a piece.
+
+    Examples
+    --------
+    >>> from casflex.moves import Move
+    >>> move, x = Move([0.0], [1.0], 1.0), ca.SX.sym("q")
+    >>> F = ca.Function("F", [x], [ca.sin(x), ca.cos(x)])
+    >>> sampler = reference_sampler(move, 1).sample
+    >>> pieces, err, _, _ = interpolants(F, sampler, move.breakpoints, 1e-10)
+    >>> len(pieces), err <= 1e-10
+    (2, True)
+    >>> bool(np.array_equal(pieces[1][4], evaluate(F, sampler(pieces[1][2])[0])))
+    True
     """
     pieces = [(a, b) for a, b in zip(breaks[:-1], breaks[1:], strict=True) if b > a]
     K = _START
@@ -302,13 +447,42 @@ def interpolants(F, sampler, breaks, tol):
     return out, max(err.values()) if err else 0.0, evaluations, max(nodes.values())
 
 
-def piece_index(pieces, t, ddq, piece_ddq, left=False):
+def piece_index(pieces: Sequence[_Piece], t: np.ndarray, ddq: np.ndarray,
+                piece_ddq: np.ndarray, left: bool = False) -> np.ndarray:
     """Index of the piece that gives the rows at each time ``t`` whose reference
     acceleration is ``ddq`` (T × n). Inside a piece that piece; at a break the later
     piece (``left=False``: the reference is right-continuous) or the earlier one
     (``left=True``: the left limit), and in either case the neighbour whose constant
     ``q̈`` (``piece_ddq``) is the reference's, should a break and a switch of the
-    reference differ by round-off."""
+    reference differ by round-off.
+
+    Parameters
+    ----------
+    pieces : sequence of tuple
+        Pieces of :func:`interpolants` (their intervals are used).
+    t : numpy.ndarray, shape (T,)
+        Sorted times [s].
+    ddq : numpy.ndarray, shape (T, n)
+        Reference acceleration at ``t`` [rad/s²].
+    piece_ddq : numpy.ndarray, shape (len(pieces), n)
+        Acceleration of every piece [rad/s²].
+    left : bool
+        At a break, take the earlier piece.
+
+    Returns
+    -------
+    numpy.ndarray of int, shape (T,)
+
+    Examples
+    --------
+    >>> tn, w = chebyshev_nodes(0.0, 1.0, 2)
+    >>> pieces = [(0.0, 1.0, tn, w, None), (1.0, 2.0, tn + 1.0, w, None)]
+    >>> acc = np.array([[1.0], [-1.0]])
+    >>> piece_index(pieces, np.array([0.5, 1.0]), acc, acc).tolist()
+    [0, 1]
+    >>> piece_index(pieces, np.array([1.0 - 1e-15]), np.array([[-1.0]]), acc).tolist()
+    [1]
+    """
     starts = np.array([p[0] for p in pieces])
     ends = np.array([p[1] for p in pieces])
     side = "left" if left else "right"
@@ -326,9 +500,37 @@ def piece_index(pieces, t, ddq, piece_ddq, left=False):
     return idx
 
 
-def values_at(pieces, values, t, idx, out=None):
+def values_at(pieces: Sequence[_Piece], values: Sequence[np.ndarray], t: np.ndarray,
+              idx: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Rows of ``values`` (one array of node values per piece, nodes of ``pieces``)
-    interpolated at the times ``t`` from the pieces ``idx`` (sorted)."""
+    interpolated at the times ``t`` from the pieces ``idx`` (sorted), by the barycentric
+    formula: the stage and torque rows at the RK4 times.
+
+    Parameters
+    ----------
+    pieces : sequence of tuple
+        Pieces of :func:`interpolants` (their nodes and weights are used).
+    values : sequence of numpy.ndarray
+        Per piece, the rows at its nodes, shape (number of nodes, R).
+    t : numpy.ndarray, shape (T,)
+        Times [s].
+    idx : numpy.ndarray of int, shape (T,)
+        Piece of every time (:func:`piece_index`).
+    out : numpy.ndarray, shape (T, R), optional
+        Array to fill and return.
+
+    Returns
+    -------
+    numpy.ndarray, shape (T, R)
+
+    Examples
+    --------
+    >>> tn, w = chebyshev_nodes(0.0, 1.0, 2)
+    >>> pieces = [(0.0, 1.0, tn, w, None)]
+    >>> values_at(pieces, [tn[:, None] ** 2], np.array([0.25, 0.5]), np.array([0, 0]))  # t²
+    array([[0.0625],
+           [0.25  ]])
+    """
     width = values[0].shape[1]
     if out is None:
         out = np.empty((t.size, width))
@@ -351,12 +553,11 @@ def _sym_pairs(B):
     return S[..., iu[0], iu[1]]
 
 
-def rows(A, dq, n, m, zeta):
+def rows(A: dict[str, np.ndarray], dq: np.ndarray, n: int, m: int, zeta: float
+         ) -> dict[str, np.ndarray]:
     """Every array of the modal stage and of the joint torques at T times, except the
     factors of ``q̈`` (kept apart: ``q̈`` jumps at the move's switches while these rows
     are continuous in time, so they are interpolated across switches).
-
-    ``A``: arrays of :func:`unpack` at the rates ``dq`` (T × n).
 
     The modal rows ``M_δδ(δ) δ̈ = r`` have ``M_δδ(δ) = Mdd0 + Σ_j δ_j Add_j`` and
     ``r = c + Jd δ + Jv δ̇ + Σ_jk C_ajk δ_j δ̇_k + Σ_jk E_ajk δ̇_j δ̇_k`` with
@@ -364,6 +565,30 @@ def rows(A, dq, n, m, zeta):
     the layout of :func:`stage`). The torques
     ``τ = [M Ẍ + Ṁ Ẋ]_q − ½ Ẋᵀ (∂M/∂q) Ẋ + G_q`` are the polynomial of
     :func:`torque`.
+
+    Parameters
+    ----------
+    A : dict of numpy.ndarray
+        Arrays of :func:`unpack` at the rates ``dq``.
+    dq : numpy.ndarray, shape (T, n)
+        Joint rates [rad/s].
+    n, m : int
+        Number of joints and of modes.
+    zeta : float
+        Modal damping ratio ζ.
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        The coefficients above, time first; ``c_acc``, ``Jd_acc``, ``t0_acc``, ``td_acc``
+        multiply ``q̈``.
+
+    Examples
+    --------
+    >>> A = unpack(np.array([[2.0, 0.5, 9.8]]), 1, 0, np.array([[3.0]]))  # see unpack
+    >>> R = rows(A, np.array([[3.0]]), 1, 0, 0.0)
+    >>> R["t0"].tolist(), R["t0_acc"].tolist()  # τ = 2 q̈ + ½ M'(q) q̇² + 9.8
+    ([[12.05]], [[[2.0]]])
     """
     N = n + m
     q_, d_ = slice(0, n), slice(n, N)
@@ -407,9 +632,36 @@ def rows(A, dq, n, m, zeta):
     }
 
 
-def modal(rows, ddq):
+def modal(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
     """Stage coefficient rows ``[Mdd0, Add, c, Jd, Jv, C, E]`` (C order) at T times with
-    the accelerations ``ddq`` (T × n)."""
+    the accelerations ``ddq`` (T × n) folded in: the ``coef`` of :func:`stage`.
+
+    Parameters
+    ----------
+    rows : dict of numpy.ndarray
+        Coefficients of :func:`rows`.
+    ddq : numpy.ndarray, shape (T, n)
+        Joint accelerations [rad/s²].
+
+    Returns
+    -------
+    numpy.ndarray, shape (T, 3 m³ + 3 m² + m)
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1))
+    >>> q, dq = np.array([[0.0, 0.3, -0.2]]), np.array([[0.2, -0.1, 0.4]])
+    >>> A = unpack(evaluate(configuration_function(model), q), model.n, model.m, dq)
+    >>> R = rows(A, dq, model.n, model.m, model.damping_ratio)
+    >>> ddq, d, v = np.array([[1.0, -0.5, 0.2]]), np.array([0.01]), np.array([-0.2])
+    >>> z_dot = stage(model.m)[0](modal(R, ddq)[0], np.r_[d, v]).full().ravel()
+    >>> dd = model.functions()["dddelta"](q[0], dq[0], ddq[0], d, v).full().ravel()
+    >>> bool(np.allclose(z_dot[model.m:], dd, rtol=1e-12))  # the model's δ̈
+    True
+    """
     T = ddq.shape[0]
     c = rows["c"] + np.einsum("tab,tb->ta", rows["c_acc"], ddq)
     Jd = rows["Jd"] + np.einsum("tajb,tb->taj", rows["Jd_acc"], ddq)
@@ -420,9 +672,28 @@ def modal(rows, ddq):
 _TORQUE_PARTS = ("t0", "td", "tv", "tdd", "tdd2", "t_d_dd", "t_d_v", "t_v_v", "t_d_v_v")
 
 
-def torque_rows(rows, ddq):
+def torque_rows(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
     """Flat torque-coefficient rows (T × R, parts :data:`_TORQUE_PARTS` in C order) with
-    the accelerations ``ddq`` (T × n) folded into the constant and the δ terms."""
+    the accelerations ``ddq`` (T × n) folded into the constant and the δ terms.
+
+    Parameters
+    ----------
+    rows : dict of numpy.ndarray
+        Coefficients of :func:`rows`.
+    ddq : numpy.ndarray, shape (T, n)
+        Joint accelerations [rad/s²].
+
+    Returns
+    -------
+    numpy.ndarray, shape (T, R)
+        ``R = n (1 + 4 m + 2 m² + p + m p)``, ``p = m (m + 1) / 2``.
+
+    Examples
+    --------
+    >>> A = unpack(np.array([[2.0, 0.5, 9.8]]), 1, 0, np.array([[3.0]]))  # see unpack
+    >>> torque_rows(rows(A, np.array([[3.0]]), 1, 0, 0.0), np.array([[1.0]])).tolist()  # q̈ = 1
+    [[14.05]]
+    """
     T = ddq.shape[0]
     folded = dict(rows)
     folded["t0"] = rows["t0"] + np.einsum("tib,tb->ti", rows["t0_acc"], ddq)
@@ -430,10 +701,40 @@ def torque_rows(rows, ddq):
     return np.hstack([folded[k].reshape(T, -1) for k in _TORQUE_PARTS])
 
 
-def torque(R, n, m, d, v, dd):
+def torque(R: np.ndarray, n: int, m: int, d: np.ndarray, v: np.ndarray, dd: np.ndarray
+           ) -> np.ndarray:
     """Joint torques at T samples from torque-coefficient rows ``R`` of
     :func:`torque_rows`: per joint a polynomial in ``(δ, δ̇, δ̈)`` with the terms 1,
-    δ_j, δ̇_j, δ̈_j, δ_j², δ_j δ̈_k, δ_j δ̇_k, δ̇_j δ̇_k (j ≤ k) and δ_j δ̇_k δ̇_l (k ≤ l)."""
+    δ_j, δ̇_j, δ̈_j, δ_j², δ_j δ̈_k, δ_j δ̇_k, δ̇_j δ̇_k (j ≤ k) and δ_j δ̇_k δ̇_l (k ≤ l).
+
+    Parameters
+    ----------
+    R : numpy.ndarray, shape (T, R)
+        Rows of :func:`torque_rows` (or interpolated by :func:`values_at`).
+    n, m : int
+        Number of joints and of modes.
+    d, v, dd : numpy.ndarray, shape (T, m)
+        δ, δ̇ and δ̈.
+
+    Returns
+    -------
+    numpy.ndarray, shape (T, n)
+        Joint torques [N m].
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1))
+    >>> q, dq = np.array([[0.0, 0.3, -0.2]]), np.array([[0.2, -0.1, 0.4]])
+    >>> A = unpack(evaluate(configuration_function(model), q), model.n, model.m, dq)
+    >>> R = rows(A, dq, model.n, model.m, model.damping_ratio)
+    >>> ddq, d, v = np.array([[1.0, -0.5, 0.2]]), np.array([[0.01]]), np.array([[-0.2]])
+    >>> tau, dd = (x.full() for x in model.functions()["prescribed"](q[0], dq[0], ddq[0], d, v))
+    >>> bool(np.allclose(torque(torque_rows(R, ddq), 3, 1, d, v, dd.T), tau.T, rtol=1e-12))
+    True
+    """
     T = R.shape[0]
     p = m * (m + 1) // 2
     shapes = {"t0": (n,), "td": (n, m), "tv": (n, m), "tdd": (n, m), "tdd2": (n, m),
@@ -457,8 +758,30 @@ def torque(R, n, m, d, v, dd):
             + np.einsum("tijp,tj,tp->ti", r["t_d_v_v"], d, vv, optimize=True))
 
 
-def stage(m):
-    """SX stage ``(coef, z) -> [δ̇; δ̈]`` of the polynomial form of the modal rows."""
+def stage(m: int) -> tuple[ca.Function, int]:
+    """SX stage ``(coef, z) -> [δ̇; δ̈]`` of the polynomial form of the modal rows.
+
+    ``(Mdd0 + Σ_j δ_j Add_j) δ̈ = c + Jd δ + Jv δ̇ + C (δ ⊗ δ̇) + E (δ̇ ⊗ δ̇)`` with the
+    coefficients of :func:`modal`: the right-hand side of the RK4 steps.
+
+    Parameters
+    ----------
+    m : int
+        Number of modes.
+
+    Returns
+    -------
+    rhs : casadi.Function
+        ``poly_stage (coef, z) -> ż``, ``z = [δ; δ̇]``.
+    size : int
+        Length of ``coef`` (``3 m³ + 3 m² + m``).
+
+    Examples
+    --------
+    >>> rhs, size = stage(1)  # one mode: Mdd0 = 2, c = 4, the other coefficients 0
+    >>> rhs([2.0, 0.0, 4.0, 0.0, 0.0, 0.0, 0.0], [0.0, 1.0]).full().ravel().tolist()
+    [1.0, 2.0]
+    """
     z = ca.SX.sym("z", 2 * m)
     sizes = [m * m, m**3, m, m * m, m * m, m**3, m**3]
     coef = ca.SX.sym("coef", sum(sizes))
@@ -562,9 +885,9 @@ def _compiled(model, F, acc, jit, cache_dir):
                       "poly_jit_built": info_F["built"] or info_a["built"]},)
 
 
-def simulate(model, reference, t: np.ndarray, dt: float, z0: np.ndarray,
-             jit: bool | str | Sequence[str] = False, cache_dir: str | Path | None = None
-             ) -> tuple[np.ndarray, np.ndarray, dict]:
+def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, dt: float,
+             z0: np.ndarray, jit: bool | str | Sequence[str] = False,
+             cache_dir: str | Path | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """Integrate ``z = [δ; δ̇]`` with the polynomial form of the modal rows (the
     ``method="poly"`` of :func:`casflex.simulate.simulate_prescribed`, which checks the
     arguments and documents the method).
