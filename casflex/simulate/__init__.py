@@ -17,7 +17,8 @@ simulate_prescribed
     The joints follow a move, a shaped move or sampled arrays; ``method`` ``"rk4"``
     (one ``mapaccum`` call over all steps), ``"cvodes"``/``"idas"`` (adaptive) or
     ``"poly"`` (the same RK4 steps on the exact polynomial form of the modal rows,
-    :mod:`casflex.simulate.poly`, optionally compiled to C).
+    :mod:`casflex.simulate.poly`, interpolated in time by
+    :mod:`casflex.simulate.chebyshev`, optionally compiled to C).
 sample_reference
     A reference on the uniform grid of a simulation.
 simulate_move

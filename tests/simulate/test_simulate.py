@@ -29,7 +29,13 @@ from casflex.errors import ModelError
 from casflex.model import ConstantProvider, FlexibleModel, PointwiseProvider
 from casflex.moves import Move, load_move, reference_sampler
 from casflex.robot import load
-from casflex.simulate import SimulationResult, poly, simulate_prescribed, simulate_torque
+from casflex.simulate import (
+    SimulationResult,
+    chebyshev,
+    poly,
+    simulate_prescribed,
+    simulate_torque,
+)
 from casflex.simulate.integrators import STEP_CACHE
 
 ARM = load("problems/arm2link.toml")
@@ -360,8 +366,8 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
     F = poly.configuration_function(model)
     move = load_move("problems/moves.toml:move1")
     sampler = reference_sampler(move, model.n)[0]
-    breaks = poly.breaks(model, move, sampler, 0.0, move.t_end)
-    pieces, err, _, _ = poly.interpolants(F, sampler, breaks, 1e-10)
+    breaks = chebyshev.breaks(model, move, sampler, 0.0, move.t_end)
+    pieces, err, _, _ = chebyshev.interpolants(F, sampler, breaks, 1e-10)
     assert err <= 1e-10
     rng = np.random.default_rng(7)
     for t in rng.uniform(0.0, move.duration, 6):
@@ -370,14 +376,14 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
         tau_ref, dd_ref = (x.full().ravel() for x in f["prescribed"](q, dq, ddq, d, v))
         dd_model = f["dddelta"](q, dq, ddq, d, v).full().ravel()
         np.testing.assert_allclose(dd_model, dd_ref, rtol=0, atol=1e-14)
-        dd, tau = _poly_ddelta_tau(model, poly.evaluate(F, np.atleast_2d(q)), dq, ddq, d, v,
+        dd, tau = _poly_ddelta_tau(model, chebyshev.evaluate(F, np.atleast_2d(q)), dq, ddq, d, v,
                                    dd_ref)
         scale_d, scale_t = np.abs(dd_ref).max(), np.abs(tau_ref).max()
         assert np.abs(dd - dd_ref).max() <= 1e-10 * scale_d
         assert np.abs(tau - tau_ref).max() <= 1e-10 * scale_t
         # the interpolated arrays at the same time
         i = int(np.searchsorted([p[0] for p in pieces], t, side="right")) - 1
-        raw = poly.values_at(pieces, [p[4] for p in pieces], np.array([t]), np.array([i]))
+        raw = chebyshev.values_at(pieces, [p[4] for p in pieces], np.array([t]), np.array([i]))
         dd_i, tau_i = _poly_ddelta_tau(model, raw, dq, ddq, d, v, dd_ref)
         assert np.abs(dd_i - dd_ref).max() <= 1e-8 * scale_d
         assert np.abs(tau_i - tau_ref).max() <= 1e-8 * scale_t
@@ -386,14 +392,14 @@ def test_poly_form_reproduces_the_model_rows(small3, key):
 def test_poly_piece_choice_at_breaks():
     """At a break the piece follows the reference's side; a break that misses the
     reference's switch by round-off still gets the piece with the reference's q̈."""
-    tn, w = poly.chebyshev_nodes(0.0, 1.0, 2)
+    tn, w = chebyshev.chebyshev_nodes(0.0, 1.0, 2)
     pieces = [(0.0, 1.0, tn, w, None), (1.0, 2.0, tn + 1.0, w, None)]
     acc = np.array([[1.0], [-1.0]])
     t = np.array([0.5, 1.0, 1.0, 1.0 - 1e-15, 1.0 + 1e-15, 1.5])
     ddq = np.array([[1.0], [-1.0], [1.0], [-1.0], [1.0], [-1.0]])
-    assert poly.piece_index(pieces, t[:2], ddq[:2], acc).tolist() == [0, 1]
-    assert poly.piece_index(pieces, t[2:3], ddq[2:3], acc, left=True).tolist() == [0]
-    assert poly.piece_index(pieces, t[3:], ddq[3:], acc).tolist() == [1, 0, 1]
+    assert chebyshev.piece_index(pieces, t[:2], ddq[:2], acc).tolist() == [0, 1]
+    assert chebyshev.piece_index(pieces, t[2:3], ddq[2:3], acc, left=True).tolist() == [0]
+    assert chebyshev.piece_index(pieces, t[3:], ddq[3:], acc).tolist() == [1, 0, 1]
 
 
 def _compare_poly_rk4(model, reference, dt, t_end):
