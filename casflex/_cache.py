@@ -82,7 +82,7 @@ def cache_root(cache_dir: str | os.PathLike | bool | None) -> Path | None:
     return default_cache_dir() if cache_dir is None else Path(cache_dir)
 
 
-def digest(obj) -> str:
+def digest(obj: object) -> str:
     """SHA-256 (hex) of the canonical JSON text of ``obj`` (keys sorted).
 
     Parameters

@@ -14,7 +14,7 @@ import numpy as np
 __all__ = ["jsonable"]
 
 
-def jsonable(obj):
+def jsonable(obj: object) -> object:
     """``obj`` with every numpy array, numpy scalar, path and non-finite float replaced by
     plain JSON values (dict keys become strings).
 

@@ -12,11 +12,16 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from distributed import Client
+    from tqdm import tqdm
 
 __all__ = ["parallel_map", "progress_bar"]
 
 
-def progress_bar(total: int, desc: str = "", enabled: bool = True):
+def progress_bar(total: int, desc: str = "", enabled: bool = True) -> tqdm:
     """A tqdm progress bar on stderr that starts no monitor thread.
 
     tqdm's monitor thread would outlive the bar, and a later process pool could then no
@@ -81,8 +86,8 @@ def _run_chunk_packed(func, packed_args):
                         protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def parallel_map(func: Callable, jobs: Iterable, *, client=None, processes: int | None = None,
-                 progress: bool = False, desc: str = "",
+def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None,
+                 processes: int | None = None, progress: bool = False, desc: str = "",
                  chunksize: int | None = None) -> Iterator[tuple]:
     """Run ``func(*args)`` for every ``(tag, args)`` in ``jobs``; yield ``(tag, result)``
     as results arrive.

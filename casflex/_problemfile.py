@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
+from collections.abc import Collection, Sequence
 from pathlib import Path
 
 from casflex.errors import ProblemFileError
@@ -98,7 +99,7 @@ class TableReader:
     casflex.errors.ProblemFileError: arm.toml: field 'm.E' = -1.0: must be > 0
     """
 
-    def __init__(self, path, table, prefix):
+    def __init__(self, path: str | os.PathLike | None, table: dict, prefix: str) -> None:
         self.path = path
         self.table = table
         self.prefix = prefix
@@ -107,7 +108,7 @@ class TableReader:
     def _field(self, key):
         return f"{self.prefix}.{key}" if self.prefix else key
 
-    def error(self, key, value, rule):
+    def error(self, key: str, value: object, rule: str) -> ProblemFileError:
         """The :class:`ProblemFileError` for ``key = value`` breaking ``rule``.
 
         Parameters
@@ -126,7 +127,7 @@ class TableReader:
         """
         return ProblemFileError(self.path, self._field(key), value, rule)
 
-    def has(self, key):
+    def has(self, key: str) -> bool:
         """Whether the table gives ``key`` (does not mark it as known).
 
         Parameters
@@ -141,8 +142,9 @@ class TableReader:
         """
         return key in self.table
 
-    def number(self, key, default=None, *, required=False, angle=False, positive=False,
-               nonnegative=False):
+    def number(self, key: str, default: float | None = None, *, required: bool = False,
+               angle: bool = False, positive: bool = False,
+               nonnegative: bool = False) -> float | None:
         """The number under ``key`` as a finite float, or ``default`` when absent.
 
         Parameters
@@ -194,7 +196,7 @@ class TableReader:
             raise self.error(key, raw, "must be >= 0")
         return value
 
-    def vector(self, key, n, default):
+    def vector(self, key: str, n: int, default: Sequence[float]) -> tuple[float, ...]:
         """The list of ``n`` finite numbers under ``key`` as a tuple, or ``default``.
 
         Parameters
@@ -226,7 +228,8 @@ class TableReader:
             out.append(float(v))
         return tuple(out)
 
-    def string(self, key, default=None, choices=None):
+    def string(self, key: str, default: str | None = None,
+               choices: Collection[str] | None = None) -> str | None:
         """The string under ``key`` (one of ``choices`` if given), or ``default``.
 
         Parameters
@@ -253,7 +256,7 @@ class TableReader:
             raise self.error(key, raw, f"must be one of {sorted(choices)}")
         return raw
 
-    def table_(self, key):
+    def table_(self, key: str) -> TableReader | None:
         """A reader of the sub-table under ``key``, or ``None`` when absent.
 
         Parameters
@@ -275,7 +278,7 @@ class TableReader:
             raise self.error(key, raw, "must be a table")
         return TableReader(self.path, raw, self._field(key))
 
-    def finish(self):
+    def finish(self) -> None:
         """Reject the keys of the table that no getter asked for.
 
         Examples

@@ -27,7 +27,7 @@ from casflex.errors import CasflexError, ModelError, ProblemFileError
 __all__ = ["fail", "number", "choice", "vector", "square_matrix", "identifier"]
 
 
-def fail(field: str, value, rule: str, *, path: str | os.PathLike | None = None,
+def fail(field: str, value: object, rule: str, *, path: str | os.PathLike | None = None,
          error: type[CasflexError] | None = None) -> CasflexError:
     """The exception for ``field = value`` breaking ``rule`` (to be raised by the caller).
 
@@ -58,7 +58,7 @@ def fail(field: str, value, rule: str, *, path: str | os.PathLike | None = None,
     return error(f"{field} = {value!r}: {rule}")
 
 
-def number(value, field: str, *, low: float | None = None, high: float | None = None,
+def number(value: object, field: str, *, low: float | None = None, high: float | None = None,
            low_open: bool = False, high_open: bool = False, integer: bool = False,
            path: str | os.PathLike | None = None,
            error: type[CasflexError] | None = None) -> float | int:
@@ -109,8 +109,9 @@ def number(value, field: str, *, low: float | None = None, high: float | None = 
     return int(v) if integer else v
 
 
-def choice(value, field: str, choices: Collection, *, path: str | os.PathLike | None = None,
-           error: type[CasflexError] | None = None):
+def choice(value: object, field: str, choices: Collection, *,
+           path: str | os.PathLike | None = None,
+           error: type[CasflexError] | None = None) -> object:
     """``value`` if it is one of ``choices``.
 
     Parameters
@@ -143,7 +144,7 @@ def choice(value, field: str, choices: Collection, *, path: str | os.PathLike | 
     return value
 
 
-def vector(value, size: int | None, field: str, *, unit: str = "",
+def vector(value: object, size: int | None, field: str, *, unit: str = "",
            error: type[CasflexError] | None = None) -> np.ndarray:
     """``value`` as a 1-D array of ``size`` finite floats (any size when ``None``).
 
@@ -180,7 +181,7 @@ def vector(value, size: int | None, field: str, *, unit: str = "",
     return a
 
 
-def square_matrix(value, size: int, field: str, *, psd: bool = False,
+def square_matrix(value: object, size: int, field: str, *, psd: bool = False,
                   error: type[CasflexError] | None = None) -> np.ndarray:
     """``value`` as a finite ``size`` × ``size`` matrix: a scalar means that multiple of the
     identity, a vector the diagonal. With ``psd`` the matrix must be symmetric positive
@@ -227,7 +228,7 @@ def square_matrix(value, size: int, field: str, *, psd: bool = False,
 _C_IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-def identifier(value, field: str, *, path: str | os.PathLike | None = None,
+def identifier(value: object, field: str, *, path: str | os.PathLike | None = None,
                error: type[CasflexError] | None = None) -> str:
     """``value`` if it is a C identifier (``[A-Za-z_][A-Za-z0-9_]*``): a name that becomes
     a C symbol or file stem of generated code.

@@ -22,6 +22,9 @@ JSON: ``{"files": [source, header, README, Makefile, manifest of each bundle],
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
+
 import numpy as np
 
 from casflex.errors import ModelError
@@ -29,7 +32,7 @@ from casflex.errors import ModelError
 HELP = "generate C code of the EKF (and the forward dynamics) for a robot and its sensors"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``casflex codegen``.
 
     Parameters
@@ -81,7 +84,7 @@ def add_arguments(parser):
                         help="composite: LQR R = w I (default 10)")
 
 
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Generate the bundles; return ``{"files": [...], "functions": [...]}``.
 
     Building the model tabulates modes over a grid (seconds to minutes), so the example

@@ -19,7 +19,9 @@ JSON: ``{"t_end", "max_tip_deflection", "residual_tip_deflection", "torque_peak"
 
 from __future__ import annotations
 
+import argparse
 import math
+from collections.abc import Callable
 
 from casflex.commands.common import parse_angle
 from casflex.errors import ModelError
@@ -28,7 +30,7 @@ from casflex.robot import load
 HELP = "simulate a planned move with perfect joint tracking (tip deflection, torques)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``casflex simulate``.
 
     Parameters
@@ -68,7 +70,7 @@ def add_arguments(parser):
                         help="joint angles, torques, modal amplitudes and tip deflection")
 
 
-def run(args, log):
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Build the model, simulate the move, return the JSON summary (SI units).
 
     Building the model is costly, so the example below only shows the argument

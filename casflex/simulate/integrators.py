@@ -20,11 +20,15 @@ from __future__ import annotations
 import math
 import weakref
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 
 from casflex.errors import ModelError, SolverError
+
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
 
 __all__ = ["rk4_step", "rk4_interval", "time_grid", "casadi_integrator", "integrate",
            "call_buffered", "STEP_CACHE", "step_cache"]
@@ -35,8 +39,12 @@ STEP_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 _SAME = object()
 
+#: a state: a numpy array or a CasADi expression
+State = np.ndarray | ca.SX | ca.MX | ca.DM | float
 
-def rk4_step(f: Callable, x, h, u=None, u_half=_SAME, u_end=_SAME):
+
+def rk4_step(f: Callable, x: State, h: float | ca.SX | ca.MX, u: object = None,
+             u_half: object = _SAME, u_end: object = _SAME) -> State:
     """One classical 4th-order Runge–Kutta step of ``x' = f(x, u)``.
 
     Parameters
@@ -88,7 +96,8 @@ def rk4_step(f: Callable, x, h, u=None, u_half=_SAME, u_end=_SAME):
     return x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def rk4_interval(rhs: Callable, x, t, dt: float, substeps: int = 1, nudge: float = 0.0):
+def rk4_interval(rhs: Callable, x: State, t: float | ca.SX | ca.MX, dt: float,
+                 substeps: int = 1, nudge: float = 0.0) -> State:
     """``substeps`` RK4 steps of ``x' = rhs(x, s)`` over ``[t, t + dt]``, ``s`` the stage
     time.
 
@@ -127,7 +136,7 @@ def rk4_interval(rhs: Callable, x, t, dt: float, substeps: int = 1, nudge: float
     return x
 
 
-def step_cache(model) -> dict:
+def step_cache(model: FlexibleModel) -> dict:
     """The memo of step functions built for ``model`` (a dict, created on first use).
 
     Parameters

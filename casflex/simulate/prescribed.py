@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -34,6 +35,10 @@ from casflex.simulate.integrators import (
     time_grid,
 )
 from casflex.simulate.results import SimulationResult, tip_positions
+
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
+    from casflex.robot import Robot
 
 __all__ = ["simulate_prescribed", "sample_reference", "simulate_move"]
 
@@ -113,7 +118,7 @@ def sample_reference(reference: Reference, dt: float = 1e-3, t_end: float | None
     return t, q, dq, ddq, t_move_end
 
 
-def simulate_prescribed(model, reference: Reference, dt: float = 1e-3,
+def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 1e-3,
                         t_end: float | None = None, method: str = "rk4",
                         delta0: ArrayLike | None = None, ddelta0: ArrayLike | None = None, *,
                         jit: bool | str | Sequence[str] = False,
@@ -320,7 +325,7 @@ def _integrate_adaptive(model, f, reference, t, z0, method, options):
     return np.vstack([np.atleast_2d(Z[0])] + Z[1:])
 
 
-def simulate_move(robot, move: Move, n_modes: int = 5, *, dt: float = 1e-3,
+def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-3,
                   step: float | None = None, gravity: bool = False, method: str = "rk4",
                   jit: bool = False, cache_dir: str | Path | None = None,
                   progress: bool = True) -> tuple[SimulationResult, object, object]:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -38,6 +39,10 @@ from casflex.simulate.integrators import (
 )
 from casflex.simulate.results import ClosedLoopResult, SimulationResult, tip_positions
 
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
+    from casflex.moves import Move, ShapedMove
+
 __all__ = ["simulate_torque", "simulate_closed_loop", "impulse_jump"]
 
 #: a torque law of :func:`simulate_torque`: ``u(t, x)``, a ``casadi.Function`` of
@@ -49,7 +54,7 @@ METHODS = ("rk4", "cvodes", "idas")
 # ---------------------------------------------------------------------------- machinery
 
 
-def impulse_jump(model, x: np.ndarray, p: ArrayLike) -> np.ndarray:
+def impulse_jump(model: FlexibleModel, x: np.ndarray, p: ArrayLike) -> np.ndarray:
     """State after an impulsive tip force ``p`` [N·s] (base frame): ``ΔẊ = M⁻¹ J_tipᵀ p``.
 
     Parameters
@@ -169,7 +174,7 @@ def _run_adaptive(dae, x0, t, breaks, kd=None, jump=None, options=None):
 # ---------------------------------------------------------------------------- simulate_torque
 
 
-def simulate_torque(model, controller: TorqueLaw, x0: ArrayLike, t_end: float,
+def simulate_torque(model: FlexibleModel, controller: TorqueLaw, x0: ArrayLike, t_end: float,
                     dt: float = 1e-3, method: str = "rk4",
                     disturbance: Callable | ca.Function | None = None,
                     **options) -> SimulationResult:
@@ -350,7 +355,8 @@ def _held_loop(model, f, n, m, t, dt, x0, controller, const, disturbance, method
 # ---------------------------------------------------------------------------- closed loop
 
 
-def simulate_closed_loop(model, controller: ca.Function, move, x0: ArrayLike | None = None,
+def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
+                         move: Move | ShapedMove, x0: ArrayLike | None = None,
                          t_end: float | None = None, dt: float = 1e-3,
                          impulse: tuple[float, ArrayLike] | None = None,
                          method: str = "cvodes", substeps: int = 1, sampled: bool = False,
