@@ -35,9 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
+from casflex.errors import CasflexError
+
 __all__ = [
+    "CacheError",
     "default_cache_dir",
     "cache_root",
+    "make_cache_directory",
     "digest",
     "source_digest",
     "atomic_savez",
@@ -49,6 +53,62 @@ __all__ = [
 
 #: name of the array that holds a file's key in :func:`save_verified` files
 KEY_FIELD = "__key__"
+
+
+class CacheError(CasflexError, OSError):
+    """The cache directory cannot be created or written (a file in its place, no
+    permission, disk full): the message names the path and how to choose another cache.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file or directory that could not be written.
+    exc : OSError
+        The underlying error.
+
+    Examples
+    --------
+    >>> err = CacheError("/proc/cache/x.npz", PermissionError(13, "Permission denied"))
+    >>> print(err)  # doctest: +NORMALIZE_WHITESPACE
+    cache path '/proc/cache/x.npz': cannot be written (Permission denied); choose a writable
+    cache directory with cache_dir= (--cache-dir on the command line) or $CASFLEX_CACHE
+    """
+
+    def __init__(self, path: str | os.PathLike, exc: OSError) -> None:
+        self.path = str(path)
+        reason = exc.strerror or str(exc)
+        super().__init__(f"cache path {self.path!r}: cannot be written ({reason}); choose a "
+                         "writable cache directory with cache_dir= (--cache-dir on the "
+                         "command line) or $CASFLEX_CACHE")
+
+
+def make_cache_directory(directory: str | os.PathLike) -> Path:
+    """Create ``directory`` (and its parents) for cache files, or raise
+    :class:`CacheError` naming it.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        A directory under the cache root.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> make_cache_directory(tmp / "a" / "b").is_dir()
+    True
+    >>> _ = (tmp / "file").write_text("")
+    >>> make_cache_directory(tmp / "file" / "b")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex._cache.CacheError: cache path '.../file/b': cannot be written (Not a directory); ...
+    """
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CacheError(directory, exc) from exc
+    return directory
 
 
 def default_cache_dir() -> Path:
@@ -156,17 +216,22 @@ def _replace_atomically(path: Path, write) -> None:
     """Write through ``write(binary file)`` to a temporary file beside ``path``, flush it
     to disk and rename it over ``path``; the temporary file is removed on any failure."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    make_cache_directory(path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    except OSError as exc:
+        raise CacheError(path, exc) from exc
     try:
         with os.fdopen(fd, "wb") as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise CacheError(path, exc) from exc
         raise
 
 
@@ -284,8 +349,11 @@ def staged_directory(target: str | os.PathLike) -> Iterator[Path]:
     'built'
     """
     target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".build-{target.name}-"))
+    make_cache_directory(target.parent)
+    try:
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".build-{target.name}-"))
+    except OSError as exc:
+        raise CacheError(target, exc) from exc
     try:
         yield staging
         try:

@@ -13,6 +13,7 @@ import tomllib
 from collections.abc import Collection, Sequence
 from pathlib import Path
 
+from casflex._validate import to_float
 from casflex.errors import ProblemFileError
 
 __all__ = ["ANGLE_UNITS", "TableReader", "parse_toml", "read_toml"]
@@ -43,7 +44,7 @@ def parse_toml(text: str, path: str | os.PathLike | None = None) -> dict:
     """
     try:
         return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise ProblemFileError(path, "<toml>", None, f"is not valid TOML: {exc}") from exc
 
 
@@ -179,15 +180,15 @@ class TableReader:
                 raise self.error(key, raw, "an angle is a number [rad] or {value = ..., "
                                            "unit = \"deg\"|\"rad\"}")
             unit = raw.get("unit", "rad")
-            if unit not in ANGLE_UNITS:
+            if not isinstance(unit, str) or unit not in ANGLE_UNITS:
                 raise self.error(key, raw, f"unknown angle unit {unit!r}; use 'rad' or 'deg'")
             value = raw["value"]
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise self.error(key, raw, "must be a number")
-            value = float(value) * ANGLE_UNITS[unit]
+            value = to_float(value) * ANGLE_UNITS[unit]
         elif isinstance(raw, bool) or not isinstance(raw, (int, float)):
             raise self.error(key, raw, "must be a number")
-        value = float(value)
+        value = to_float(value)
         if not math.isfinite(value):
             raise self.error(key, raw, "must be finite (no NaN or inf)")
         if positive and value <= 0.0:
@@ -223,7 +224,7 @@ class TableReader:
         for v in raw:
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise self.error(key, raw, f"must be a list of {n} numbers")
-            if not math.isfinite(float(v)):
+            if not math.isfinite(to_float(v)):
                 raise self.error(key, raw, "must be finite (no NaN or inf)")
             out.append(float(v))
         return tuple(out)

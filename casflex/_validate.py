@@ -19,12 +19,14 @@ import math
 import os
 import re
 from collections.abc import Collection
+from pathlib import Path
 
 import numpy as np
 
 from casflex.errors import CasflexError, ModelError, ProblemFileError
 
-__all__ = ["fail", "number", "choice", "vector", "square_matrix", "identifier"]
+__all__ = ["fail", "to_float", "number", "choice", "vector", "square_matrix", "identifier",
+           "output_file", "output_directory"]
 
 
 def fail(field: str, value: object, rule: str, *, path: str | os.PathLike | None = None,
@@ -56,6 +58,28 @@ def fail(field: str, value: object, rule: str, *, path: str | os.PathLike | None
     if issubclass(error, ProblemFileError):
         return error(path, field, value, rule)
     return error(f"{field} = {value!r}: {rule}")
+
+
+def to_float(value: int | float) -> float:
+    """``float(value)``, with an integer beyond the float range giving ``±inf`` instead of
+    raising :class:`OverflowError`, so that the caller's finiteness check rejects it.
+
+    TOML and JSON integers have no size limit; ``float(10**400)`` raises.
+
+    Parameters
+    ----------
+    value : int or float
+        A real number (the caller has checked the type).
+
+    Examples
+    --------
+    >>> to_float(3), to_float(10**400), to_float(-10**400)
+    (3.0, inf, -inf)
+    """
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 def number(value: object, field: str, *, low: float | None = None, high: float | None = None,
@@ -95,7 +119,7 @@ def number(value: object, field: str, *, low: float | None = None, high: float |
     if isinstance(value, (bool, np.bool_)) or not isinstance(
             value, (int, float, np.integer, np.floating)):
         raise fail(field, value, "must be a real number", path=path, error=error)
-    v = float(value)
+    v = to_float(value)
     if not math.isfinite(v):
         raise fail(field, value, "must be finite (no NaN or inf)", path=path, error=error)
     if integer and not v.is_integer():
@@ -255,3 +279,91 @@ def identifier(value: object, field: str, *, path: str | os.PathLike | None = No
         raise fail(field, value, "not a valid C identifier ([A-Za-z_][A-Za-z0-9_]*)",
                    path=path, error=error)
     return value
+
+
+def _writable(directory: Path) -> bool:
+    return os.access(directory, os.W_OK | os.X_OK)
+
+
+def output_file(value: str | os.PathLike, field: str, *,
+                error: type[CasflexError] | None = None) -> Path:
+    """``value`` as the path of a file to be written: its directory must exist and be
+    writable, and the path must not be a directory. Check it before the work whose result
+    it is to receive.
+
+    Parameters
+    ----------
+    value : str or os.PathLike
+        The file to be written (an existing file is overwritten).
+    field : str
+        Argument or option name, e.g. ``"--plot"``.
+    error : type, optional
+        See :func:`fail`.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> output_file(tmp / "plot.png", "--plot") == tmp / "plot.png"
+    True
+    >>> output_file(tmp / "missing" / "plot.png", "--plot")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --plot = '.../plot.png': the directory ... does not exist; ...
+    """
+    path = Path(value)
+    parent = path.parent
+    if path.is_dir():
+        raise fail(field, str(value), "is a directory; give a file name", error=error)
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise fail(field, str(value), f"the directory {str(parent)!r} {what}; create it "
+                                      "first", error=error)
+    if not _writable(parent):
+        raise fail(field, str(value), f"the directory {str(parent)!r} is not writable",
+                   error=error)
+    return path
+
+
+def output_directory(value: str | os.PathLike, field: str, *,
+                     error: type[CasflexError] | None = None) -> Path:
+    """``value`` as a directory to be created (with its parents) or written into: it must
+    not be an existing file, and the nearest existing directory above it must be
+    writable. Check it before the work whose results it is to receive.
+
+    Parameters
+    ----------
+    value : str or os.PathLike
+        The output directory.
+    field : str
+        Argument or option name, e.g. ``"--out"``.
+    error : type, optional
+        See :func:`fail`.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> output_directory(tmp / "new" / "out", "--out") == tmp / "new" / "out"
+    True
+    >>> _ = (tmp / "notes.txt").write_text("")
+    >>> output_directory(tmp / "notes.txt", "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --out = '.../notes.txt': is an existing file, not a directory
+    """
+    path = Path(value)
+    if path.exists() and not path.is_dir():
+        raise fail(field, str(value), "is an existing file, not a directory", error=error)
+    existing = path
+    while not existing.exists():  # the nearest existing ancestor is where mkdir starts
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if existing != path and existing.exists() and not existing.is_dir():
+        raise fail(field, str(value), f"{str(existing)!r} is an existing file, not a "
+                                      "directory", error=error)
+    if existing.is_dir() and not _writable(existing):
+        raise fail(field, str(value), f"the directory {str(existing)!r} is not writable",
+                   error=error)
+    return path

@@ -114,7 +114,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         result = args.verb_module.run(args, log)
     except CasflexError as exc:
-        print(f"casflex {args.verb}: error: {exc}", file=sys.stderr)
+        # one line whatever the message holds (a solver's report may span several)
+        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+        print(f"casflex {args.verb}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"casflex {args.verb}: interrupted", file=sys.stderr)

@@ -30,7 +30,6 @@ This module owns every way of sampling a reference:
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +39,8 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from casflex._problemfile import read_toml
+from casflex._validate import to_float
 from casflex.errors import ModelError, ProblemFileError
 
 __all__ = ["Move", "ShapedMove", "load_moves", "load_move", "reference_function",
@@ -529,7 +530,7 @@ def _angles(r, path, name, key, value, n=None):
     if not isinstance(value, list) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         raise ProblemFileError(path, f"{name}.{key}", value, "must be a list of numbers [rad]")
-    out = np.array(value, dtype=float) * r
+    out = np.array([to_float(v) for v in value], dtype=float) * r
     if not np.all(np.isfinite(out)):
         raise ProblemFileError(path, f"{name}.{key}", value, "must be finite (no NaN or inf)")
     if n is not None and out.size != n:
@@ -555,12 +556,7 @@ def load_moves(path: str | Path) -> dict[str, Move]:
     ['move1', 'move2', 'move3']
     """
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ProblemFileError(path, "<toml>", None, f"is not valid TOML: {exc}") from exc
+    data = read_toml(path)
     moves = {}
     known = {"description", "duration", "q0", "qf", "settle", "unit", "profile", "robot"}
     for name, table in data.items():
@@ -588,8 +584,8 @@ def load_moves(path: str | Path) -> dict[str, Move]:
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise ProblemFileError(path, f"{name}.{key}", v, "must be a number [s]")
         try:
-            moves[name] = Move(q0=q0, qf=qf, duration=float(table["duration"]),
-                               settle=float(table.get("settle", 3.0)), name=name,
+            moves[name] = Move(q0=q0, qf=qf, duration=to_float(table["duration"]),
+                               settle=to_float(table.get("settle", 3.0)), name=name,
                                description=str(table.get("description", "")), profile=profile)
         except ProblemFileError as exc:
             raise ProblemFileError(path, exc.field, exc.value, exc.rule) from None

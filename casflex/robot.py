@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._problemfile import TableReader, parse_toml, read_toml
-from casflex.errors import ProblemFileError
+from casflex.errors import ModelError, ProblemFileError
 
 __all__ = [
     "Section",
@@ -135,14 +135,18 @@ class Section:
         >>> round(s.Ix / s.Iy, 4)   # (b a^3) / (a b^3) = (a/b)^2
         0.5102
         """
-        return cls(
-            A=a * b,
-            Ix=b * a**3 / 12.0,
-            Iy=a * b**3 / 12.0,
-            J=rectangle_torsion_constant(a, b),
-            Ip=a * b * (a**2 + b**2) / 12.0,
-            kind="rectangle",
-        )
+        try:
+            section = cls(
+                A=a * b,
+                Ix=b * a**3 / 12.0,
+                Iy=a * b**3 / 12.0,
+                J=rectangle_torsion_constant(a, b),
+                Ip=a * b * (a**2 + b**2) / 12.0,
+                kind="rectangle",
+            )
+        except OverflowError:
+            section = None
+        return _finite_section(section, f"Section.rectangle(a={a!r}, b={b!r})")
 
     @classmethod
     def tube(cls, outer_diameter: float, wall: float) -> Section:
@@ -167,8 +171,24 @@ class Section:
         """
         ro = outer_diameter / 2.0
         ri = ro - wall
-        i = math.pi / 4.0 * (ro**4 - ri**4)
-        return cls(A=math.pi * (ro**2 - ri**2), Ix=i, Iy=i, J=2 * i, Ip=2 * i, kind="tube")
+        try:
+            i = math.pi / 4.0 * (ro**4 - ri**4)
+            section = cls(A=math.pi * (ro**2 - ri**2), Ix=i, Iy=i, J=2 * i, Ip=2 * i,
+                          kind="tube")
+        except OverflowError:
+            section = None
+        return _finite_section(section, f"Section.tube(outer_diameter={outer_diameter!r}, "
+                                        f"wall={wall!r})")
+
+
+def _finite_section(section, call):
+    """``section`` if its properties are finite floats (``None``: they overflowed)."""
+    if section is None or not all(
+            math.isfinite(v) for v in (section.A, section.Ix, section.Iy, section.J,
+                                       section.Ip)):
+        raise ModelError(f"{call}: the section properties overflow the float range; "
+                         "give the dimensions in m")
+    return section
 
 
 @dataclass(frozen=True)
@@ -508,16 +528,22 @@ def _read_section(r):
     shape = r.string("shape", choices={"rectangle", "tube", "explicit"})
     if shape is None:
         raise r.error("shape", None, "is required: 'rectangle', 'tube' or 'explicit'")
-    if shape == "rectangle":
-        a = r.number("a", required=True, positive=True)
-        b = r.number("b", required=True, positive=True)
-        section = Section.rectangle(a, b)
-    elif shape == "tube":
-        od = r.number("outer_diameter", required=True, positive=True)
-        wall = r.number("wall", required=True, positive=True)
-        if wall >= od / 2.0:
-            raise r.error("wall", wall, f"must be smaller than the outer radius {od / 2.0} m")
-        section = Section.tube(od, wall)
+    if shape in ("rectangle", "tube"):
+        keys = ("a", "b") if shape == "rectangle" else ("outer_diameter", "wall")
+        dims = {k: r.number(k, required=True, positive=True) for k in keys}
+        if shape == "tube" and dims["wall"] >= dims["outer_diameter"] / 2.0:
+            raise r.error("wall", dims["wall"], "must be smaller than the outer radius "
+                                                f"{dims['outer_diameter'] / 2.0} m")
+        try:
+            section = getattr(Section, shape)(*dims.values())
+        except ModelError:
+            section = None
+        if section is None or min(section.A, section.Ix, section.Iy, section.J,
+                                  section.Ip) <= 0.0:
+            # the dimension farthest from 1 m (in decades) over- or underflowed
+            key = max(keys, key=lambda k: abs(math.log10(dims[k])))
+            raise r.error(key, dims[key], "gives section properties (A, I, J) beyond the "
+                                          "float range; give the dimensions in m")
     else:
         vals = {k: r.number(k, required=True, positive=True) for k in ("A", "Ix", "Iy", "J")}
         ip = r.number("Ip", default=vals["Ix"] + vals["Iy"], positive=True)

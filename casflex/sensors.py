@@ -73,7 +73,7 @@ import casadi as ca
 import numpy as np
 
 from casflex._problemfile import TableReader, read_toml
-from casflex._validate import choice, fail
+from casflex._validate import choice, fail, to_float
 from casflex.errors import ModelError, ProblemFileError
 
 if TYPE_CHECKING:
@@ -402,7 +402,7 @@ _SG_KEYS = {"name", "type", "link", "s", "distance", "axes", "noise"}
 
 
 def _is_number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(to_float(v))
 
 
 def _sensor_from_table(reader, robot, kind):

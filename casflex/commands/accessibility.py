@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from casflex.commands.common import parse_angle
+from casflex.commands.common import parse_angle, plot_path
 from casflex.errors import ModelError
 from casflex.robot import load
 
@@ -83,6 +83,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     from casflex.control import robot_accessibility_map
     from casflex.plotting import plot_accessibility
 
+    plot_path(args.plot)  # before any heavy work
     robot = load(args.robot)
     n = robot.n_joints
     joints = [int(j) for j in args.joints]

@@ -23,10 +23,12 @@ JSON: ``{"files": [source, header, README, Makefile, manifest of each bundle],
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 
 import numpy as np
 
+from casflex._validate import output_directory
 from casflex.errors import ModelError
 
 HELP = "generate C code of the EKF (and the forward dynamics) for a robot and its sensors"
@@ -125,8 +127,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
 
     if args.modes < 1:
         raise ModelError(f"--modes: must be >= 1; got {args.modes}")
-    if not args.dt > 0:
+    if not (args.dt > 0 and math.isfinite(args.dt)):
         raise ModelError(f"--dt: must be > 0 s; got {args.dt}")
+    output_directory(args.out, "--out")  # before any heavy work
     bundles = realtime_bundles(
         args.robot, args.sensors, args.out, n_modes=args.modes, name=args.name,
         step=None if args.step is None else np.radians(args.step),

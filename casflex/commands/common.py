@@ -1,15 +1,20 @@
-"""Helpers shared by the command-line verbs: the argument parser and angle parsing."""
+"""Helpers shared by the command-line verbs: the argument parser, angle parsing and the
+check of figure files (made before any heavy work; output directories are checked with
+:func:`casflex._validate.output_directory`)."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 from collections.abc import Sequence
+from pathlib import Path
 
+from casflex._validate import fail, output_file
 from casflex.errors import ModelError
 
-__all__ = ["ArgumentParser", "parse_angle"]
+__all__ = ["ArgumentParser", "parse_angle", "plot_path"]
 
 #: a command-line token that is a negative value, not an option: "-1.5", "-1e-3",
 #: "-45deg", "-0.5rad", "-pi", "-0.5pi", "-0.5*pi"
@@ -100,3 +105,43 @@ def parse_angle(text: str, option: str) -> float:
     if not math.isfinite(value):
         raise ModelError(f"{option}: {text!r} must be finite")
     return value
+
+
+def plot_path(value: str | os.PathLike | None, option: str = "--plot") -> Path | None:
+    """Check a figure file option before any heavy work: its directory exists and is
+    writable and matplotlib can write its format (``None`` when the option is not given).
+
+    Parameters
+    ----------
+    value : str or os.PathLike or None
+        The option's value.
+    option : str
+        The option name, for the error message.
+
+    Examples
+    --------
+    >>> plot_path(None) is None, plot_path("modes.png").name
+    (True, 'modes.png')
+    >>> plot_path("no_such_dir/modes.png")
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --plot = 'no_such_dir/modes.png': the directory 'no_such_dir' \
+does not exist; create it first
+    >>> plot_path("modes.doc")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: --plot = 'modes.doc': unknown figure format 'doc'; use one of ...
+    """
+    if value is None:
+        return None
+    path = output_file(value, option)
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt:
+        from matplotlib.figure import Figure
+
+        formats = sorted(Figure().canvas.get_supported_filetypes())
+        if fmt not in formats:
+            raise fail(option, str(value), f"unknown figure format {fmt!r}; use one of "
+                                           + ", ".join(formats))
+    return path
+

@@ -79,11 +79,13 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ...
     casflex.errors.ProblemFileError: ...shaper.vtol...must be <= 1...
     """
+    from casflex._validate import output_directory
     from casflex.design import run_design
     from casflex.errors import ModelError
 
     if args.processes is not None and args.processes < 1:
         raise ModelError(f"--processes: must be >= 1; got {args.processes}")
+    output_directory(args.out, "--out")
     start = time.perf_counter()
 
     def step(message):

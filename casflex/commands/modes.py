@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from casflex.commands.common import parse_angle
+from casflex.commands.common import parse_angle, plot_path
 from casflex.errors import ModelError
 from casflex.robot import load
 
@@ -65,6 +65,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """
     from casflex.tmm import modes
 
+    plot_path(args.plot)  # before any heavy work
     robot = load(args.robot)
     if args.q is None:
         q = np.zeros(robot.n_joints)

@@ -23,7 +23,7 @@ import argparse
 import math
 from collections.abc import Callable
 
-from casflex.commands.common import parse_angle
+from casflex.commands.common import parse_angle, plot_path
 from casflex.errors import ModelError
 from casflex.robot import load
 
@@ -115,6 +115,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     from casflex.moves import load_move
     from casflex.simulate import simulate_move
 
+    plot_path(args.plot)  # before any heavy work
     robot = load(args.robot)
     move = load_move(args.move)
     if move.n_joints != robot.n_joints:

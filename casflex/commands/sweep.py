@@ -26,7 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from casflex.commands.common import parse_angle
+from casflex.commands.common import parse_angle, plot_path
 from casflex.errors import ModelError
 from casflex.robot import load
 
@@ -140,6 +140,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """
     from casflex.modal.sweep import frequency_sweep
 
+    plot_path(args.plot)  # before any heavy work
     robot = load(args.robot)
     k = args.joint
     if not 1 <= k <= robot.n_joints:
