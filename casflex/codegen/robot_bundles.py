@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex._validate import number
+from casflex._validate import number, output_directory
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.estimator import ekf_units, model_bundle
 from casflex.codegen.rtloop import make_controller, rt_step_function, rt_units
@@ -216,6 +215,7 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
 
     n_modes = number(n_modes, "n_modes", low=1, integer=True)
     dt = number(dt, "dt", low=0.0, low_open=True)
+    out = output_directory(out_dir, "out_dir")  # before any heavy work
     if log is None:
         def log(message):
             pass
@@ -234,7 +234,6 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
                                 controller=controller, kp=kp, kd=kd, q_weight=q_weight,
                                 r_weight=r_weight)
     names = [k for k in _EKF_ORDER if k in funcs] + [k for k in funcs if k not in _EKF_ORDER]
-    out = Path(out_dir)
     bundles = [generate([funcs[k] for k in names], out / f"{name}_ekf", name=f"{name}_ekf",
                         units={k: v for k, v in units.items() if k in names})]
     if model:

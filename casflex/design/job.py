@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from casflex._json import jsonable
+from casflex._validate import output_directory
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
 
@@ -122,8 +123,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
 
     if not isinstance(study, Study):
         study = load_study(study)
+    out = output_directory(out_dir, "out_dir")  # before any heavy work
     say = log or (lambda message: None)
-    out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     timings = {}
     move = study.move
