@@ -2,7 +2,7 @@
 
 Two forms:
 
-``casflex shaper PROBLEM.toml [--plot FILE.png] [--json]``
+``casflex shaper PROBLEM.toml [--plot FILE.png] [--time-limit S] [--json]``
     reads a shaper problem (a TOML file with ``[[range]]`` tables, see
     ``problems/shapers/README.md``), designs the SI shaper with
     :func:`casflex.shaping.si_shaper` and returns the impulses and the verified maximum
@@ -20,6 +20,10 @@ Two forms:
     the shaped one — ends, m) of both is reported. Gravity is left out of the model, as in
     the dissertation's moves, so that the deflection is vibration only. ``--no-simulate``
     skips the simulations (the residual keys are then ``null``).
+
+``--time-limit S`` bounds the wall-clock time of the design (default 60 s, 0 = no
+limit; the ``time_limit`` of :func:`casflex.shaping.si_shaper`): beyond it the command fails
+with a one-line error naming the option.
 
 ``--plot`` draws :func:`casflex.plotting.plot_prv` (problem form) or
 :func:`casflex.plotting.plot_move_shaper` (robot form).
@@ -42,7 +46,7 @@ from casflex._problemfile import read_toml
 from casflex._validate import number
 from casflex.commands.common import parse_angle
 from casflex.errors import ProblemFileError
-from casflex.shaping import ranges_from_mapping, si_shaper
+from casflex.shaping import DEFAULT_TIME_LIMIT, ranges_from_mapping, si_shaper
 
 HELP = ("Design a specified-insensitivity input shaper from a shaper problem file, or for a "
         "planned move of a robot (ROBOT.toml --move FILE:NAME).")
@@ -76,6 +80,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="write the residual vibration curve over all ranges with the tolerances "
         "(robot form: and the simulated tip deflection, unshaped and shaped)",
+    )
+    parser.add_argument(
+        "--time-limit",
+        type=float,
+        default=DEFAULT_TIME_LIMIT,
+        metavar="S",
+        help=f"wall-clock limit of the shaper design, s (default {DEFAULT_TIME_LIMIT:g}; "
+        "0 = no limit)",
     )
     robot = parser.add_argument_group("robot form (ROBOT.toml --move FILE:NAME)")
     robot.add_argument("--move", metavar="FILE:NAME", default=None,
@@ -144,7 +156,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         )
     ranges = ranges_from_mapping(data, str(path))
     log(f"designing an SI shaper for {len(ranges)} frequency range(s) from {path}")
-    result = si_shaper(ranges)
+    result = si_shaper(ranges, time_limit=_time_limit(args))
     log(
         f"{len(result.shaper)} impulses, duration {result.duration:.6f} s, "
         f"{result.iterations} NLP solve(s)"
@@ -213,6 +225,13 @@ def _residuals(model, move, shaper, dt, log):
     return residual, traces
 
 
+def _time_limit(args):
+    """``--time-limit`` in s, None for 0 (no limit)."""
+    limit = number(float(getattr(args, "time_limit", DEFAULT_TIME_LIMIT)), "--time-limit",
+                   low=0.0)
+    return limit if limit > 0.0 else None
+
+
 def _run_robot(args, path, log):
     """The robot form: design the shaper of ``args.move`` for the robot at ``path``."""
     from casflex.moves import load_move
@@ -232,7 +251,7 @@ def _run_robot(args, path, log):
     model, result = shaper_for_robot_move(
         robot, move, modes, vtol=vtol, margin=margin, step=step,
         cache_dir=getattr(args, "cache_dir", None), processes=getattr(args, "processes", None),
-        progress=True, log=log)
+        progress=True, log=log, time_limit=_time_limit(args))
     for j, (r, v, lo, hi) in enumerate(zip(result.contributions, result.tolerances,
                                            result.omega_min, result.omega_max, strict=True)):
         log(f"  mode {j + 1}: omega {lo:.3f}-{hi:.3f} rad/s, r = {r:.3f}, Vtol = {v:.3f}")

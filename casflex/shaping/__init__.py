@@ -10,9 +10,11 @@ Shapers and residual vibration (:mod:`casflex.shaping.shapers`)
 ----------------------------------------------------------------
 Shaper                      impulse times (s) and amplitudes (sum 1)
 convolve                    multi-mode shaper from several shapers
+merge_closest               closest impulses merged down to a number of impulses
 residual_vibration          PRV fraction V(ω, ζ) of a shaper (eq. 187–189)
 residual_vibration_casadi   the same as a CasADi expression (for NLPs)
 sensitivity_curve           V over a band of frequencies
+band_maximum                largest V over a band (grid refined at its maxima)
 
 Closed-form shapers (:mod:`casflex.shaping.shapers`)
 ----------------------------------------------------
@@ -36,6 +38,9 @@ NLPSolution                 outcome of one SI NLP solve
 solve_si_nlp                one minimum-duration NLP (Ipopt or SLSQP)
 SIShaperResult              result of the SI design
 initial_si_guess            convolved EI shapers at the range midpoints
+GUESS_MAX_IMPULSES          most impulses the initial guess keeps
+DEFAULT_TIME_LIMIT          default wall-clock limit of an SI design, s
+HESSIAN_TERMS_PER_SECOND    NLP size allowed per second of the time limit left
 si_shaper                   SI design: solves, prune-and-merge, dense-grid verification
 si_shaper_slsqp             the same with SciPy's SLSQP
 
@@ -70,10 +75,12 @@ from casflex.shaping.for_moves import (
 from casflex.shaping.shapers import (
     Shaper,
     apply_shaper,
+    band_maximum,
     convolve,
     ei,
     ei_three_hump,
     ei_two_hump,
+    merge_closest,
     residual_vibration,
     residual_vibration_casadi,
     sensitivity_curve,
@@ -81,6 +88,9 @@ from casflex.shaping.shapers import (
     zvd,
 )
 from casflex.shaping.si import (
+    DEFAULT_TIME_LIMIT,
+    GUESS_MAX_IMPULSES,
+    HESSIAN_TERMS_PER_SECOND,
     FrequencyRange,
     NLPSolution,
     SISample,
@@ -97,9 +107,11 @@ __all__ = [
     # shapers and residual vibration
     "Shaper",
     "convolve",
+    "merge_closest",
     "residual_vibration",
     "residual_vibration_casadi",
     "sensitivity_curve",
+    "band_maximum",
     # closed-form shapers
     "zv",
     "zvd",
@@ -117,6 +129,9 @@ __all__ = [
     "SIShaperResult",
     "solve_si_nlp",
     "initial_si_guess",
+    "GUESS_MAX_IMPULSES",
+    "DEFAULT_TIME_LIMIT",
+    "HESSIAN_TERMS_PER_SECOND",
     "si_shaper",
     "si_shaper_slsqp",
     # shapers for planned moves

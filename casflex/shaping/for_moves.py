@@ -19,6 +19,7 @@ Units are SI: times in s, angles in rad, frequencies in rad/s, deflections in m.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -31,7 +32,13 @@ from casflex._validate import fail, number
 from casflex.errors import ModelError, ProblemFileError, SolverError
 from casflex.moves import Move
 from casflex.shaping.shapers import Shaper, apply_shaper, as_shaper, check_vtol, check_zeta
-from casflex.shaping.si import FrequencyRange, SIShaperResult, initial_si_guess, si_shaper
+from casflex.shaping.si import (
+    DEFAULT_TIME_LIMIT,
+    FrequencyRange,
+    SIShaperResult,
+    initial_si_guess,
+    si_shaper,
+)
 
 if TYPE_CHECKING:
     from casflex.modal.tables import ModalTable
@@ -543,7 +550,9 @@ class MoveShaperResult:
 def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
                     vtol: float = 0.05, margin: float = 0.20, zeta: ArrayLike | None = None,
                     *, point: int | ca.Function | None = None, n_samples: int = 400,
-                    n_impulses: str | int | None = "auto", **si_options) -> MoveShaperResult:
+                    n_impulses: str | int | None = "auto",
+                    time_limit: float | None = DEFAULT_TIME_LIMIT,
+                    **si_options) -> MoveShaperResult:
     """Design the SI shaper of a planned move from its modal contributions (§6.1.4).
 
     The steps of the dissertation: the contributions ``r`` of every mode to the deflection
@@ -577,6 +586,9 @@ def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
         have dozens of impulses, most of which the optimum drops, and an NLP that large is
         slow) and falls back to the full guess if that design fails; ``None`` always uses
         the full guess.
+    time_limit : float or None, optional
+        Wall-clock limit of the SI design, s (both attempts of ``"auto"`` together; see
+        :func:`si_shaper`; None: no limit).
     **si_options
         Further keyword arguments of :func:`si_shaper`.
 
@@ -618,14 +630,19 @@ def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
         limit = 4 * active
         guess_size = len(initial_si_guess(ranges)) if active else 1
         if active and guess_size > limit:
+            started = time.perf_counter()
             try:
-                si = si_shaper(ranges, limit, **si_options)
+                si = si_shaper(ranges, limit, time_limit=time_limit, **si_options)
             except SolverError:
-                si = si_shaper(ranges, None, **si_options)
+                left = (None if time_limit is None
+                        else time_limit - (time.perf_counter() - started))
+                if left is not None and left <= 0.0:
+                    raise
+                si = si_shaper(ranges, None, time_limit=left, **si_options)
         else:
-            si = si_shaper(ranges, None, **si_options)
+            si = si_shaper(ranges, None, time_limit=time_limit, **si_options)
     else:
-        si = si_shaper(ranges, n_impulses, **si_options)
+        si = si_shaper(ranges, n_impulses, time_limit=time_limit, **si_options)
     return MoveShaperResult(
         shaper=si.shaper,
         ranges=list(ranges),
@@ -643,7 +660,8 @@ def shaper_for_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, vtol: f
                           margin: float = 0.20, step: float | None = None,
                           cache_dir: str | os.PathLike | None = None,
                           processes: int | None = None, progress: bool = False,
-                          log: Callable[[str], None] | None = None
+                          log: Callable[[str], None] | None = None,
+                          time_limit: float | None = DEFAULT_TIME_LIMIT
                           ) -> tuple[FlexibleModel, MoveShaperResult]:
     """Build the modal model of a robot and design the SI shaper of a planned move.
 
@@ -673,6 +691,8 @@ def shaper_for_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, vtol: f
         Show a progress bar while tabulating.
     log : callable, optional
         ``log(message)`` receives one line before each of the two steps.
+    time_limit : float or None, optional
+        Wall-clock limit of the shaper design, s (see :func:`shaper_for_move`).
 
     Returns
     -------
@@ -709,7 +729,8 @@ def shaper_for_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, vtol: f
                            cache_dir=cache_dir, processes=processes, progress=progress)
     say(f"designing the shaper for {move.name} (margin ±{100 * margin:g} %, "
         f"Vtol {100 * vtol:g} %)")
-    return model, shaper_for_move(model, move, vtol=vtol, margin=margin)
+    return model, shaper_for_move(model, move, vtol=vtol, margin=margin,
+                                  time_limit=time_limit)
 
 
 def shaped_reference(shaper: Shaper, move: Move, dt: float = 1e-3, t_end: float | None = None

@@ -21,6 +21,7 @@ Units are SI: times in s, frequencies in rad/s, damping ratios dimensionless.
 
 from __future__ import annotations
 
+import heapq
 import math
 import os
 from dataclasses import dataclass
@@ -36,9 +37,11 @@ from casflex.errors import ProblemFileError, SolverError
 __all__ = [
     "Shaper",
     "convolve",
+    "merge_closest",
     "residual_vibration",
     "residual_vibration_casadi",
     "sensitivity_curve",
+    "band_maximum",
     "zv",
     "zvd",
     "ei",
@@ -284,6 +287,63 @@ def convolve(*shapers: Shaper) -> Shaper:
     return out
 
 
+def merge_closest(shaper: Shaper, n_impulses: int) -> Shaper:
+    """``shaper`` with its closest adjacent impulses merged until ``n_impulses`` remain.
+
+    Repeatedly the adjacent pair with the smallest time gap (the earliest pair among equal
+    gaps) becomes one impulse at the amplitude-weighted mean time (the midpoint for two zero
+    amplitudes) with the summed amplitude; the first impulse is then moved to t = 0. A heap
+    of the gaps with lazy deletion makes this O(N log N) for N impulses.
+
+    Parameters
+    ----------
+    shaper : Shaper
+    n_impulses : int
+        Number of impulses to keep (>= 1); a shaper with no more impulses is returned with
+        only its first impulse moved to t = 0.
+
+    Returns
+    -------
+    Shaper
+
+    Examples
+    --------
+    >>> s = merge_closest(Shaper([0.0, 0.1, 1.0, 1.5], [0.25, 0.25, 0.25, 0.25]), 3)
+    >>> s.times.tolist(), s.amplitudes.tolist()
+    ([0.0, 1.0, 1.5], [0.5, 0.25, 0.25])
+    """
+    t = shaper.times.tolist()
+    a = shaper.amplitudes.tolist()
+    m = len(t)
+    nxt = list(range(1, m + 1))  # linked list of the surviving impulses
+    prv = list(range(-1, m - 1))
+    alive = [True] * m
+    # (gap, left index, left time, right time): the times tell a stale entry from a live one
+    heap = [(t[i + 1] - t[i], i, t[i], t[i + 1]) for i in range(m - 1)]
+    heapq.heapify(heap)
+    count = m
+    while count > n_impulses:
+        _, i, ti, tj = heapq.heappop(heap)
+        j = nxt[i] if alive[i] else m
+        if j >= m or t[i] != ti or t[j] != tj:
+            continue
+        w = a[i] + a[j]
+        t[i] = (a[i] * t[i] + a[j] * t[j]) / w if w > 0 else 0.5 * (t[i] + t[j])
+        a[i] = w
+        alive[j] = False
+        nxt[i] = nxt[j]
+        if nxt[i] < m:
+            prv[nxt[i]] = i
+            heapq.heappush(heap, (t[nxt[i]] - t[i], i, t[i], t[nxt[i]]))
+        if prv[i] >= 0:
+            heapq.heappush(heap, (t[i] - t[prv[i]], prv[i], t[prv[i]], t[i]))
+        count -= 1
+    kept = [i for i in range(m) if alive[i]]
+    times = [t[i] for i in kept]
+    times[0] = 0.0
+    return Shaper(times, [a[i] for i in kept])
+
+
 # --------------------------------------------------------------------------------------
 # residual vibration
 # --------------------------------------------------------------------------------------
@@ -456,6 +516,68 @@ def sensitivity_curve(shaper: Shaper, omega_min: float, omega_max: float, zeta: 
     return omega, np.atleast_1d(residual_vibration(shaper, omega, zeta))
 
 
+def band_maximum(shaper: Shaper, omega_min: float, omega_max: float, zeta: float = 0.0,
+                 n_refine: int = 6) -> tuple[float, list[tuple[float, float]]]:
+    """Largest residual vibration over a band: dense grid refined at its local maxima.
+
+    V oscillates in ω with a period of about 2π / duration; the grid has about 40 points
+    per period (400 to 20 000), and the ``n_refine`` largest grid maxima (end points
+    included) are refined by a bounded scalar search between their grid neighbours.
+
+    Parameters
+    ----------
+    shaper : Shaper
+    omega_min, omega_max : float
+        Band limits, rad/s (equal: a single frequency).
+    zeta : float, optional
+        Damping ratio.
+    n_refine : int, optional
+        Number of grid maxima refined.
+
+    Returns
+    -------
+    vmax : float
+        Largest V found (fraction).
+    peaks : list of (float, float)
+        ``(omega, V)`` of the refined maxima, rad/s.
+
+    Examples
+    --------
+    >>> vmax, peaks = band_maximum(zv(10.0), 9.0, 11.0)
+    >>> round(vmax, 4), [round(float(w), 3) for w, _ in peaks[:2]]
+    (0.1564, [9.0, 11.0])
+    """
+    if omega_max == omega_min:
+        v = residual_vibration(shaper, omega_min, zeta)
+        return v, [(omega_min, v)]
+    width = omega_max - omega_min
+    # V oscillates in ω with a period of about 2π / duration: ~40 points per period
+    per = 2.0 * math.pi / max(shaper.duration, 1e-9)
+    npts = int(min(20000, max(400, 40.0 * width / per)))
+    w = np.linspace(omega_min, omega_max, npts)
+    v = residual_vibration(shaper, w, zeta)
+    peaks_idx = [0, npts - 1]
+    interior = np.nonzero((v[1:-1] >= v[:-2]) & (v[1:-1] >= v[2:]))[0] + 1
+    peaks_idx.extend(interior.tolist())
+    peaks_idx = sorted(set(peaks_idx), key=lambda i: -v[i])[:n_refine]
+    peaks = []
+    for i in peaks_idx:
+        if i in (0, npts - 1):
+            peaks.append((w[i], v[i]))
+            continue
+        res = optimize.minimize_scalar(
+            lambda om: -residual_vibration(shaper, om, zeta),
+            bounds=(w[i - 1], w[i + 1]),
+            method="bounded",
+            options={"xatol": 1e-10 * max(1.0, w[i])},
+        )
+        om = float(res.x)
+        vv = float(-res.fun)
+        peaks.append((om, vv) if vv >= v[i] else (w[i], v[i]))
+    vmax = max(p[1] for p in peaks)
+    return float(max(vmax, v.max())), peaks
+
+
 # --------------------------------------------------------------------------------------
 # closed-form shapers
 # --------------------------------------------------------------------------------------
@@ -526,7 +648,8 @@ def _ei_undamped(vtol):
 
 def _ei2_undamped(vtol):
     x = (vtol**2 * (math.sqrt(1.0 - vtol**2) + 1.0)) ** (1.0 / 3.0)
-    a1 = (3.0 * x**2 + 2.0 * x + 3.0 * vtol**2) / (16.0 * x)
+    # vtol² underflows for vtol < 1e-162; a1 -> 1/8 as vtol -> 0 (reached in double already)
+    a1 = (3.0 * x**2 + 2.0 * x + 3.0 * vtol**2) / (16.0 * x) if x > 0.0 else 0.125
     a2 = 0.5 - a1
     return np.arange(4) * math.pi, np.array([a1, a2, a2, a1])
 

@@ -35,12 +35,13 @@ from casflex.errors import ProblemFileError, SolverError
 from casflex.shaping.shapers import (
     Shaper,
     as_shaper,
+    band_maximum,
     check_vtol,
     check_zeta,
-    convolve,
     ei,
     ei_three_hump,
     ei_two_hump,
+    merge_closest,
     residual_vibration,
     residual_vibration_casadi,
 )
@@ -53,6 +54,9 @@ __all__ = [
     "NLPSolution",
     "solve_si_nlp",
     "SIShaperResult",
+    "GUESS_MAX_IMPULSES",
+    "DEFAULT_TIME_LIMIT",
+    "HESSIAN_TERMS_PER_SECOND",
     "initial_si_guess",
     "si_shaper",
     "si_shaper_slsqp",
@@ -396,6 +400,10 @@ class NLPSolution:
 #: tolerance itself, not only to the solver's constraint-violation tolerance.
 _VTOL_MARGIN = 1e-7
 
+#: Ipopt's constraint tolerance on V² relative to the squared limit, used when it is
+#: tighter than the default (vtol below about 0.007).
+_VIOL_PER_VTOL2 = 2e-6
+
 _DEFAULT_IPOPT = {
     "print_level": 0,
     "sb": "yes",
@@ -443,6 +451,8 @@ def solve_si_nlp(samples: SISample, guess: Shaper, method: str = "ipopt",
     subject to ``V(ω_s, ζ_s)² <= vtol_s²`` at every sample (eq. 192, squared for
     smoothness, with a relative margin of 1e-7 on vtol), ``A_i >= 0``, ``Σ A_i = 1``,
     ``t_1 = 0`` and ``t_i <= t_{i+1}``. The number of impulses is that of ``guess``.
+    Ipopt's ``constr_viol_tol`` (1e-10, absolute on V²) is lowered to ``2e-6 vtol²`` for
+    the smallest vtol when that is tighter, so that a small vtol is met to a relative 1e-6.
 
     Parameters
     ----------
@@ -480,6 +490,12 @@ def solve_si_nlp(samples: SISample, guess: Shaper, method: str = "ipopt",
         lbg = np.concatenate([[0.0], np.zeros(n - 1), np.full(m, -np.inf)])
         ubg = np.concatenate([[0.0], np.full(n - 1, np.inf), lim])
         opts = dict(_DEFAULT_IPOPT)
+        if m:
+            # V² <= vtol² is met to constr_viol_tol (absolute): for small vtol tighten it so
+            # that V exceeds vtol by at most a relative 1e-6 (0.5e-6 / (1 - margin)²)
+            tight = _VIOL_PER_VTOL2 * float(np.min(lim))
+            if tight < opts["constr_viol_tol"]:
+                opts["constr_viol_tol"] = tight
         opts.update(options or {})
         solver = ca.nlpsol(
             "si_shaper",
@@ -550,48 +566,12 @@ def solve_si_nlp(samples: SISample, guess: Shaper, method: str = "ipopt",
 # --------------------------------------------------------------------------------------
 # verification on dense grids
 # --------------------------------------------------------------------------------------
-def _range_local_maxima(shaper, r, n_refine=6):
-    """Max of V over a range (dense grid refined at local maxima); returns (max, peaks).
-
-    ``peaks`` is a list of ``(omega, V)`` of the refined local maxima (end points included).
-    """
-    if r.omega_max == r.omega_min:
-        v = residual_vibration(shaper, r.omega_min, r.zeta)
-        return v, [(r.omega_min, v)]
-    width = r.omega_max - r.omega_min
-    # V oscillates in ω with a period of about 2π / duration: ~40 points per period
-    per = 2.0 * math.pi / max(shaper.duration, 1e-9)
-    npts = int(min(20000, max(400, 40.0 * width / per)))
-    w = np.linspace(r.omega_min, r.omega_max, npts)
-    v = residual_vibration(shaper, w, r.zeta)
-    peaks_idx = [0, npts - 1]
-    interior = np.nonzero((v[1:-1] >= v[:-2]) & (v[1:-1] >= v[2:]))[0] + 1
-    peaks_idx.extend(interior.tolist())
-    peaks_idx = sorted(set(peaks_idx), key=lambda i: -v[i])[:n_refine]
-    peaks = []
-    for i in peaks_idx:
-        if i in (0, npts - 1):
-            peaks.append((w[i], v[i]))
-            continue
-        res = optimize.minimize_scalar(
-            lambda om: -residual_vibration(shaper, om, r.zeta),
-            bounds=(w[i - 1], w[i + 1]),
-            method="bounded",
-            options={"xatol": 1e-10 * max(1.0, w[i])},
-        )
-        om = float(res.x)
-        vv = float(-res.fun)
-        peaks.append((om, vv) if vv >= v[i] else (w[i], v[i]))
-    vmax = max(p[1] for p in peaks)
-    return float(max(vmax, v.max())), peaks
-
-
 def _verify(shaper, ranges):
     """Per-range verified max V and the peaks violating the tolerance."""
     maxima = []
     violations = []  # (omega, range index)
     for i, r in enumerate(ranges):
-        vmax, peaks = _range_local_maxima(shaper, r)
+        vmax, peaks = band_maximum(shaper, r.omega_min, r.omega_max, r.zeta)
         maxima.append(vmax)
         if r.vtol >= 1.0:
             # imposes nothing (V <= 1 for positive shapers); a peak of V = 1 must not be
@@ -684,12 +664,28 @@ def _guess_component(r):
     return candidates[-1].convolve(candidates[0])
 
 
+#: Most impulses the initial guess keeps while the ranges' shapers are convolved one by one
+#: (4³: three two-hump EI shapers convolve unmerged); beyond it the closest impulses are
+#: merged after each convolution, so that the guess and its NLP stay bounded (3^n else).
+GUESS_MAX_IMPULSES = 64
+
+#: Default wall-clock limit of :func:`si_shaper`, s.
+DEFAULT_TIME_LIMIT = 60.0
+
+#: Terms ``n² m`` of the exact Hessian (n impulses, m samples) that CasADi builds per second
+#: of the time limit left: a larger NLP is refused before its build, which cannot be stopped.
+HESSIAN_TERMS_PER_SECOND = 20_000
+
+
 def initial_si_guess(ranges: FrequencyRange | Iterable, n_impulses: int | None = None
                      ) -> Shaper:
     """Start point of the SI design: EI shapers at the range midpoints convolved (§6.1.3).
 
-    Ranges with ``vtol >= 1`` impose nothing and are skipped. With ``n_impulses`` the
-    closest impulses are merged (amplitude-weighted time) until at most that many remain.
+    Ranges with ``vtol >= 1`` impose nothing and are skipped. The shapers are convolved one
+    by one; whenever a convolution has more than :data:`GUESS_MAX_IMPULSES` impulses, the
+    closest adjacent impulses are merged (amplitude-weighted time, summed amplitude) down to
+    that number, so that the guess stays bounded for many ranges. With ``n_impulses`` the
+    closest impulses of the result are then merged until at most that many remain.
 
     Parameters
     ----------
@@ -701,6 +697,11 @@ def initial_si_guess(ranges: FrequencyRange | Iterable, n_impulses: int | None =
     -------
     Shaper
 
+    Raises
+    ------
+    ProblemFileError
+        ``n_impulses < 1``.
+
     Examples
     --------
     >>> hz = 2 * math.pi
@@ -709,26 +710,28 @@ def initial_si_guess(ranges: FrequencyRange | Iterable, n_impulses: int | None =
     ...                       FrequencyRange(20 * hz, 24 * hz, 0.0, 0.05)])
     >>> round(g.duration, 3)
     0.422
+
+    Ten ranges would convolve to 3^10 = 59049 impulses:
+
+    >>> many = [FrequencyRange(f * hz, 1.1 * f * hz, 0.0, 0.05) for f in range(1, 11)]
+    >>> len(initial_si_guess(many)) == GUESS_MAX_IMPULSES
+    True
     """
     ranges = _as_ranges(ranges)
-    parts = [_guess_component(r) for r in ranges if r.vtol < 1.0]
-    if not parts:
-        return Shaper([0.0], [1.0])
-    guess = convolve(*parts)
     if n_impulses is not None:
         n_impulses = int(n_impulses)
         if n_impulses < 1:
             raise ProblemFileError(None, "n_impulses", n_impulses, "must be >= 1")
-        t = list(guess.times)
-        a = list(guess.amplitudes)
-        while len(t) > n_impulses:
-            j = int(np.argmin(np.diff(t)))
-            w = a[j] + a[j + 1]
-            tm = (a[j] * t[j] + a[j + 1] * t[j + 1]) / w if w > 0 else 0.5 * (t[j] + t[j + 1])
-            t[j : j + 2] = [tm]
-            a[j : j + 2] = [w]
-        t[0] = 0.0
-        guess = Shaper(t, a)
+    parts = [_guess_component(r) for r in ranges if r.vtol < 1.0]
+    if not parts:
+        return Shaper([0.0], [1.0])
+    guess = parts[0]
+    for part in parts[1:]:
+        guess = guess.convolve(part)
+        if len(guess) > GUESS_MAX_IMPULSES:
+            guess = merge_closest(guess, GUESS_MAX_IMPULSES)
+    if n_impulses is not None:
+        guess = merge_closest(guess, n_impulses)
     return guess
 
 
@@ -780,6 +783,30 @@ def _fail(ranges, shaper, status, what):
     )
 
 
+def _timed_solve(samples, guess, method, options, deadline, time_limit, done):
+    """:func:`solve_si_nlp` within what is left before ``deadline`` (None: no limit)."""
+    if deadline is None:
+        return solve_si_nlp(samples, guess, method=method, options=options)
+    left = deadline - time.perf_counter()
+    terms = len(guess) ** 2 * len(samples)
+    reason = None
+    if left <= 0.0:
+        reason = f"{time_limit:g} s used after {done} NLP solve(s)"
+    elif method == "ipopt" and terms > HESSIAN_TERMS_PER_SECOND * left:
+        reason = (f"the NLP with {len(guess)} impulses and {len(samples)} samples "
+                  f"({terms:.3g} Hessian terms) cannot be built in the {left:.3g} s left")
+    else:
+        if method == "ipopt":
+            options = dict(options or {})
+            options["max_wall_time"] = min(left, options.get("max_wall_time", left))
+        sol = solve_si_nlp(samples, guess, method=method, options=options)
+        if not sol.status.startswith("Maximum_") or "Time" not in sol.status:
+            return sol
+        reason = f"Ipopt stopped with status '{sol.status}' in NLP solve {done + 1}"
+    raise SolverError(f"SI shaper design stopped by its time limit (time_limit = "
+                      f"{time_limit:g} s): {reason}; pass a larger time_limit (None: no limit)")
+
+
 def si_shaper(
     ranges: FrequencyRange | Iterable,
     n_impulses: int | None = None,
@@ -792,6 +819,7 @@ def si_shaper(
     max_solves: int = 40,
     guess: Shaper | None = None,
     options: dict | None = None,
+    time_limit: float | None = DEFAULT_TIME_LIMIT,
 ) -> SIShaperResult:
     """Design a specified-insensitivity (SI) shaper for one or more frequency ranges.
 
@@ -830,6 +858,11 @@ def si_shaper(
         Start point instead of the convolved EI shapers.
     options : dict, optional
         Solver options passed to :func:`solve_si_nlp`.
+    time_limit : float or None, optional
+        Wall-clock limit of the whole design, s (:data:`DEFAULT_TIME_LIMIT`; None: no
+        limit). Ipopt gets what is left as ``max_wall_time``; an NLP whose exact Hessian has
+        more than :data:`HESSIAN_TERMS_PER_SECOND` terms (n² m, n impulses, m samples) per
+        second left is refused before it is built; SLSQP is checked between solves.
 
     Returns
     -------
@@ -838,8 +871,12 @@ def si_shaper(
     Raises
     ------
     SolverError
-        If a solve fails (naming the range and tolerance at fault and the solver status) or
-        the loop does not settle within ``max_solves`` solves.
+        If a solve fails (naming the range and tolerance at fault and the solver status),
+        the loop does not settle within ``max_solves`` solves, or the time limit is reached
+        (naming ``time_limit``).
+    ProblemFileError
+        ``max_solves < 1``, ``time_limit <= 0``, or a range with ``vtol < verify_tol``
+        (which the verification could not tell from zero).
 
     Examples
     --------
@@ -848,9 +885,17 @@ def si_shaper(
     >>> bool(res.max_prv[0] <= 0.05 + 1e-6), bool(1.0 < res.duration < 1.5)
     (True, True)
     """
+    started = time.perf_counter()
     ranges = _as_ranges(ranges)
     if int(max_solves) < 1:
         raise ProblemFileError(None, "max_solves", max_solves, "must be >= 1")
+    if time_limit is not None:
+        time_limit = number(time_limit, "time_limit", low=0.0, low_open=True,
+                            error=ProblemFileError)
+    for i, r in enumerate(ranges):
+        if r.vtol < verify_tol:
+            raise fail(f"range[{i}].vtol", r.vtol, f"must be >= verify_tol ({verify_tol:g}), "
+                       "the accuracy to which V is verified", error=ProblemFileError)
     active = [r for r in ranges if r.vtol < 1.0]
     if not active:
         trivial = Shaper([0.0], [1.0])
@@ -861,15 +906,21 @@ def si_shaper(
     samples = SISample.from_ranges(ranges, counts)
     current = start
     statuses, iters = [], []
+    deadline = None if time_limit is None else started + time_limit
+
+    def solve(guess_now):
+        return _timed_solve(samples, guess_now, method, options, deadline, time_limit,
+                            len(statuses))
+
     for _ in range(int(max_solves)):
-        sol = solve_si_nlp(samples, current, method=method, options=options)
+        sol = solve(current)
         statuses.append(sol.status)
         iters.append(sol.iterations)
         if not sol.success and current is not start:
             # The pruned previous solution violates the newly added samples; from such an
             # infeasible start Ipopt's restoration phase can end in a point of local
             # infeasibility. Start again from the initial guess on the same samples.
-            retry = solve_si_nlp(samples, start, method=method, options=options)
+            retry = solve(start)
             statuses.append(retry.status)
             iters.append(retry.iterations)
             if retry.success:
