@@ -1,8 +1,9 @@
 """Input shaping (§6.1 of the reference dissertation).
 
 The package reads as its data flow: impulse sequences and their residual vibration
-(:mod:`~casflex.shaping.shapers`, nothing of robots), specified-insensitivity design over
-frequency ranges (:mod:`~casflex.shaping.si`), and the shaper of a planned move of an arm
+(:mod:`~casflex.shaping.shapers`, nothing of robots), frequency ranges and problem files
+(:mod:`~casflex.shaping.ranges`), specified-insensitivity design over them
+(:mod:`~casflex.shaping.si`), and the shaper of a planned move of an arm
 (:mod:`~casflex.shaping.for_moves`). Residual vibration is a *fraction* (0.05 = 5 %);
 units are SI (s, rad, rad/s, m).
 
@@ -28,11 +29,14 @@ Shaping a reference (:mod:`casflex.shaping.shapers`)
 ----------------------------------------------------
 apply_shaper                convolve sampled joint references with a shaper
 
-Specified-insensitivity shapers (:mod:`casflex.shaping.si`)
------------------------------------------------------------
+Frequency ranges (:mod:`casflex.shaping.ranges`)
+------------------------------------------------
 FrequencyRange              band of frequencies with a damping ratio and a tolerance
 ranges_from_mapping         ranges of a parsed shaper problem
 load_shaper_problem         ranges of a shaper problem file (TOML ``[[range]]`` tables)
+
+Specified-insensitivity shapers (:mod:`casflex.shaping.si`)
+-----------------------------------------------------------
 SISample                    sample frequencies of the SI constraints
 NLPSolution                 outcome of one SI NLP solve
 solve_si_nlp                one minimum-duration NLP (Ipopt or SLSQP)
@@ -72,6 +76,7 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
+from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
     Shaper,
     apply_shaper,
@@ -91,13 +96,10 @@ from casflex.shaping.si import (
     DEFAULT_TIME_LIMIT,
     GUESS_MAX_IMPULSES,
     HESSIAN_TERMS_PER_SECOND,
-    FrequencyRange,
     NLPSolution,
     SISample,
     SIShaperResult,
     initial_si_guess,
-    load_shaper_problem,
-    ranges_from_mapping,
     si_shaper,
     si_shaper_slsqp,
     solve_si_nlp,

@@ -31,10 +31,10 @@ from numpy.typing import ArrayLike
 from casflex._validate import fail, number
 from casflex.errors import ModelError, ProblemFileError, SolverError
 from casflex.moves import Move
+from casflex.shaping.ranges import FrequencyRange
 from casflex.shaping.shapers import Shaper, apply_shaper, as_shaper, check_vtol, check_zeta
 from casflex.shaping.si import (
     DEFAULT_TIME_LIMIT,
-    FrequencyRange,
     SIShaperResult,
     initial_si_guess,
     si_shaper,
