@@ -11,9 +11,16 @@ module, so every cache has the same guarantees:
 * **writes are atomic**: a temporary file (or staging directory) in the same directory,
   flushed and then renamed into place, so a build that is killed or races another process
   never leaves a truncated file under a final name;
-* **reads are verified**: a file whose stored key differs (stale, foreign) or that cannot
-  be read (truncated, corrupt) is treated as missing, so it is recomputed and overwritten
-  and a stale cache is never used.
+* **reads are verified**: a file whose stored key or content digest (SHA-256 of every
+  array's dtype, shape and bytes) differs (stale, foreign, altered) or that cannot be read
+  (truncated, corrupt) is treated as missing, so it is recomputed and overwritten and a
+  stale cache is never used;
+* **leftovers are cleaned**: temporary files and staging directories that an interrupted
+  build left behind are removed by the next build (:func:`remove_stale_files`);
+* **work is shared**: processes building the same per-point cache claim points with
+  exclusive-create claim files and use each other's results (:func:`build_shared`);
+* **libraries are private**: a cached file that is loaded as code must be owned by the
+  current user and not writable by others (:func:`unsafe_reason`).
 
 The root is ``$CASFLEX_CACHE`` if set, else ``~/.cache/casflex`` (:func:`default_cache_dir`);
 every function that caches takes ``cache_dir`` (a path, ``None`` for the default, ``False``
@@ -28,9 +35,12 @@ import inspect
 import json
 import os
 import shutil
+import socket
+import stat
 import sys
 import tempfile
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -49,10 +59,20 @@ __all__ = [
     "load_verified",
     "save_verified",
     "staged_directory",
+    "content_digest",
+    "remove_stale_files",
+    "unsafe_reason",
+    "build_shared",
 ]
 
 #: name of the array that holds a file's key in :func:`save_verified` files
 KEY_FIELD = "__key__"
+#: name of the array that holds the content digest in :func:`save_verified` files
+DIGEST_FIELD = "__digest__"
+#: age [s] after which a leftover ``*.tmp`` file or ``.build-*`` directory is removed
+STALE_AGE = 3600.0
+#: age [s] after which a claim whose owner cannot be checked is taken over
+CLAIM_TIMEOUT = 600.0
 
 
 class CacheError(CasflexError, OSError):
@@ -277,8 +297,33 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     _replace_atomically(Path(path), lambda fh: fh.write(text.encode("utf-8")))
 
 
+def content_digest(arrays: Mapping[str, object]) -> str:
+    """SHA-256 (hex) of named arrays: name, dtype, shape and bytes of each, in name order.
+
+    Parameters
+    ----------
+    arrays : mapping of str to array_like
+        The arrays (converted with :func:`numpy.asarray`).
+
+    Examples
+    --------
+    >>> a = content_digest({"x": np.arange(3.0), "y": np.ones(2)})
+    >>> a == content_digest({"y": np.ones(2), "x": np.arange(3.0)})
+    True
+    >>> a == content_digest({"x": np.arange(3), "y": np.ones(2)})   # int, not float
+    False
+    """
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(np.asarray(arrays[name]))
+        h.update(json.dumps([name, a.dtype.str, list(a.shape)]).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def save_verified(path: str | os.PathLike, key: str, **arrays) -> None:
-    """Store ``arrays`` with their ``key`` atomically, for :func:`load_verified`.
+    """Store ``arrays`` with their ``key`` and :func:`content_digest` atomically, for
+    :func:`load_verified`.
 
     Parameters
     ----------
@@ -297,12 +342,15 @@ def save_verified(path: str | os.PathLike, key: str, **arrays) -> None:
     >>> load_verified(p, "k1")["gains"].tolist(), load_verified(p, "other")
     ([1.0, 1.0], None)
     """
-    atomic_savez(path, **{KEY_FIELD: np.array(key)}, **arrays)
+    arrays = {k: np.asarray(v) for k, v in arrays.items()}
+    atomic_savez(path, **{KEY_FIELD: np.array(key),
+                          DIGEST_FIELD: np.array(content_digest(arrays))}, **arrays)
 
 
 def load_verified(path: str | os.PathLike, key: str) -> dict | None:
-    """The arrays stored at ``path`` if the file exists, reads and carries ``key``; else
-    ``None`` (missing, truncated, corrupt or stale: the caller recomputes).
+    """The arrays stored at ``path`` if the file exists, reads, carries ``key`` and its
+    content matches the stored digest; else ``None`` (missing, truncated, corrupt, altered,
+    stale or written without a digest: the caller recomputes).
 
     Parameters
     ----------
@@ -318,9 +366,12 @@ def load_verified(path: str | os.PathLike, key: str) -> dict | None:
     """
     try:
         with np.load(path, allow_pickle=False) as data:
-            if str(data[KEY_FIELD]) != key:
+            if DIGEST_FIELD not in data.files or str(data[KEY_FIELD]) != key:
                 return None
-            return {k: data[k] for k in data.files if k != KEY_FIELD}
+            arrays = {k: data[k] for k in data.files if k not in (KEY_FIELD, DIGEST_FIELD)}
+            if content_digest(arrays) != str(data[DIGEST_FIELD]):
+                return None
+            return arrays
     except Exception:  # missing, truncated, foreign, corrupt: recompute
         return None
 
@@ -363,3 +414,222 @@ def staged_directory(target: str | os.PathLike) -> Iterator[Path]:
                 raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def remove_stale_files(directory: str | os.PathLike, max_age: float = STALE_AGE) -> int:
+    """Remove the ``*.tmp`` files and ``.build-*`` / ``.gen-*`` directories in
+    ``directory`` (not below it) last modified more than ``max_age`` seconds ago: what
+    a killed build left behind. Call it when a build starts; younger ones may belong to a
+    build that is still running and are kept.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        A cache directory (a missing one is fine).
+    max_age : float
+        Age [s] beyond which a leftover is removed.
+
+    Returns
+    -------
+    int
+        Number of files and directories removed.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> old, new = tmp / "p0000000.npz.x1.tmp", tmp / "p0000001.npz.x2.tmp"
+    >>> _ = old.write_text(""); _ = new.write_text("")
+    >>> os.utime(old, (time.time() - 7200, time.time() - 7200))
+    >>> remove_stale_files(tmp), old.exists(), new.exists()
+    (1, False, True)
+    """
+    removed = 0
+    limit = time.time() - max_age
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return 0
+    for entry in entries:
+        name = entry.name
+        try:
+            if entry.stat(follow_symlinks=False).st_mtime >= limit:
+                continue
+            if name.endswith(".tmp") and entry.is_file(follow_symlinks=False):
+                os.unlink(entry.path)
+            elif (name.startswith((".build-", ".gen-"))
+                  and entry.is_dir(follow_symlinks=False)):
+                shutil.rmtree(entry.path)
+            else:
+                continue
+        except OSError:  # gone meanwhile, or not ours to remove: leave it
+            continue
+        removed += 1
+    return removed
+
+
+def unsafe_reason(path: str | os.PathLike) -> str | None:
+    """Why ``path`` must not be trusted as code to load, or ``None`` if it may be: it must
+    be owned by the current user and not writable by group or others (checked where
+    ``os.getuid`` exists).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A cached file or directory.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> unsafe_reason(d) is None
+    True
+    >>> os.chmod(d, 0o777)
+    >>> unsafe_reason(d)
+    'is writable by group or others (mode 0o777); it must be writable only by its owner'
+    """
+    st = os.stat(path)
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return (f"is owned by uid {st.st_uid}, not by the current user (uid {os.getuid()}); "
+                "it must be the current user's")
+    if hasattr(os, "getuid") and st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return (f"is writable by group or others (mode {oct(stat.S_IMODE(st.st_mode))}); "
+                "it must be writable only by its owner")
+    return None
+
+
+def _claim_owner_alive(text: str) -> bool:
+    """Whether the process named by a claim file's ``host pid`` may still be running
+    (``True`` when that cannot be checked: another host, no ``os.kill`` probe)."""
+    host, _, pid = text.strip().rpartition(" ")
+    if host != socket.gethostname() or not pid.isdigit() or sys.platform == "win32":
+        return True
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, belongs to someone else
+        return True
+    return True
+
+
+def _try_claim(claim: Path, timeout: float) -> bool:
+    """Create ``claim`` exclusively (``host pid`` inside); take it over when its owner
+    died or it has not been refreshed for ``timeout`` seconds. ``True`` if it is ours."""
+    make_cache_directory(claim.parent)
+    for _ in range(2):
+        try:
+            fd = os.open(claim, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+        except FileExistsError:
+            try:
+                text = claim.read_text()
+                age = time.time() - claim.stat().st_mtime
+            except OSError:  # released meanwhile: try again
+                continue
+            if _claim_owner_alive(text) and age < timeout:
+                return False
+            with contextlib.suppress(OSError):  # stale: the owner died or hangs
+                claim.unlink()
+            continue
+        except OSError as exc:
+            raise CacheError(claim, exc) from exc
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{socket.gethostname()} {os.getpid()}\n")
+        return True
+    return False
+
+
+def build_shared(items: Iterable[int], path_of: Callable[[int], Path], key: str,
+                 compute: Callable[[list[int]], Iterable[tuple[int, dict]]], *,
+                 timeout: float = CLAIM_TIMEOUT, poll: float = 0.2
+                 ) -> Iterator[tuple[int, dict, bool]]:
+    """Results of ``items`` from a per-item cache that several processes may be filling
+    at once, each item computed by one of them.
+
+    An item whose file verifies (:func:`load_verified`) is read. Otherwise this process
+    claims it by creating ``<file>.claim`` exclusively (``O_CREAT | O_EXCL``), computes
+    the items it claimed through ``compute`` and stores each with :func:`save_verified`;
+    items claimed by another process are waited for and read when their file appears. A
+    claim whose owner died (same host, process gone) or that was not refreshed for
+    ``timeout`` seconds is taken over; an owner refreshes its claims while it computes.
+    Results are the same whichever process computes an item.
+
+    Parameters
+    ----------
+    items : iterable of int
+        Item numbers (e.g. flat grid indices).
+    path_of : callable
+        ``path_of(item)``: the item's ``.npz`` file.
+    key : str
+        The cache key the files carry.
+    compute : callable
+        ``compute(items)`` yields ``(item, arrays)`` for each of ``items`` (any order).
+    timeout : float
+        Age [s] of an unrefreshed claim that is taken over.
+    poll : float
+        Interval [s] between looks at items another process is computing.
+
+    Yields
+    ------
+    item : int
+    arrays : dict
+    computed : bool
+        ``True`` if this process computed the item.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> square = lambda items: ((i, {"v": np.array(i * i)}) for i in items)
+    >>> sorted((i, int(a["v"]), c) for i, a, c in
+    ...        build_shared([2, 3], lambda i: tmp / f"p{i}.npz", "k", square))
+    [(2, 4, True), (3, 9, True)]
+    >>> [c for _, _, c in build_shared([3], lambda i: tmp / f"p{i}.npz", "k", square)]
+    [False]
+    """
+    pending = list(items)
+    while pending:
+        mine, others = [], []
+        for item in pending:
+            path = Path(path_of(item))
+            got = load_verified(path, key)
+            if got is None and _try_claim(path.with_name(path.name + ".claim"), timeout):
+                got = load_verified(path, key)  # finished between the look and the claim
+                if got is None:
+                    mine.append(item)
+                    continue
+                _release(path)
+            if got is None:
+                others.append(item)
+            else:
+                yield item, got, False
+        if mine:
+            yield from _compute_claimed(mine, path_of, key, compute, timeout)
+        elif others:
+            time.sleep(poll)
+        pending = others
+
+
+def _release(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path.with_name(path.name + ".claim"))
+
+
+def _compute_claimed(mine, path_of, key, compute, timeout):
+    """Compute and store the claimed items, refreshing the remaining claims now and then;
+    release every claim still held on the way out (done, failed or interrupted)."""
+    left = {item: Path(path_of(item)) for item in mine}
+    refreshed = time.monotonic()
+    try:
+        for item, arrays in compute(list(mine)):
+            save_verified(left[item], key, **arrays)
+            _release(left.pop(item))
+            yield item, arrays, True
+            if time.monotonic() - refreshed > timeout / 4:
+                for path in left.values():
+                    with contextlib.suppress(OSError):
+                        os.utime(path.with_name(path.name + ".claim"))
+                refreshed = time.monotonic()
+    finally:
+        for path in left.values():
+            _release(path)

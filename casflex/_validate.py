@@ -249,13 +249,14 @@ def square_matrix(value: object, size: int, field: str, *, psd: bool = False,
     return a
 
 
-_C_IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*", re.ASCII)
 
 
 def identifier(value: object, field: str, *, path: str | os.PathLike | None = None,
                error: type[CasflexError] | None = None) -> str:
-    """``value`` if it is a C identifier (``[A-Za-z_][A-Za-z0-9_]*``): a name that becomes
-    a C symbol or file stem of generated code.
+    """``value`` if it is a C identifier (the whole string matches ``[A-Za-z_][A-Za-z0-9_]*``,
+    ASCII only: no trailing newline, no ``é``): a name that becomes a C symbol or file
+    stem of generated code.
 
     Parameters
     ----------
@@ -274,8 +275,12 @@ def identifier(value: object, field: str, *, path: str | os.PathLike | None = No
     Traceback (most recent call last):
         ...
     casflex.errors.ModelError: bundle name = 'my-bundle': not a valid C identifier (...)
+    >>> identifier("arm\\n", "bundle name")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: bundle name = 'arm\\n': not a valid C identifier (...)
     """
-    if not isinstance(value, str) or not _C_IDENTIFIER.match(value):
+    if not isinstance(value, str) or not _C_IDENTIFIER.fullmatch(value):
         raise fail(field, value, "not a valid C identifier ([A-Za-z_][A-Za-z0-9_]*)",
                    path=path, error=error)
     return value

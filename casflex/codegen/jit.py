@@ -15,7 +15,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from casflex._cache import cache_root, staged_directory
+from casflex._cache import cache_root, remove_stale_files, staged_directory, unsafe_reason
 from casflex._validate import identifier
 from casflex.codegen.compiler import find_compiler, run_compiler, shared_library_suffix
 from casflex.codegen.errors import BuildError, CodegenError
@@ -36,6 +36,15 @@ def _compiler_ident(cmd):
             out = ""
         _COMPILER_IDENT[key] = (out.splitlines() or [""])[0]
     return _COMPILER_IDENT[key]
+
+
+def _check_private(path):
+    """Refuse to load code from ``path`` unless it is the user's and private."""
+    reason = unsafe_reason(path)
+    if reason is not None:
+        raise BuildError(f"compile_cached: refusing to load from the library cache: "
+                         f"'{path}' {reason} (fix it with chown/chmod go-w, or pass another "
+                         "cache_dir)")
 
 
 def _write_source(functions, name, directory):
@@ -67,7 +76,14 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
     with the same functions loads it without compiling, and a changed function, flag or
     compiler never reads a stale library. The build goes to a private directory that is
     renamed into place (:func:`casflex._cache.staged_directory`), so an interrupted or
-    concurrent build never leaves a broken library behind.
+    concurrent build never leaves a broken library behind; leftovers of a killed build
+    are removed by a later one (:func:`casflex._cache.remove_stale_files`).
+
+    A shared library runs as code when it is loaded: the ``jit`` directory is created
+    private (mode ``0o700``), and a cached library is loaded only if it, its directory
+    and the ``jit`` directory are owned by the current user and not writable by group or
+    others (:func:`casflex._cache.unsafe_reason`); otherwise :class:`BuildError` names
+    the path and the rule.
 
     Parameters
     ----------
@@ -96,7 +112,8 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
     Raises
     ------
     casflex.codegen.BuildError
-        No C compiler, it failed, or the cache directory cannot be created.
+        No C compiler, it failed, the cache directory cannot be created, or a cached
+        library or its directory is not the current user's or is writable by others.
     casflex.codegen.CodegenError
         ``name`` is not a C identifier, or ``cache_dir`` is ``False``.
 
@@ -121,10 +138,12 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
                            "in a directory (give a path, or None for the default cache)")
     root = base / "jit"
     try:
-        root.mkdir(parents=True, exist_ok=True)
+        root.parent.mkdir(parents=True, exist_ok=True)
+        root.mkdir(mode=0o700, exist_ok=True)
     except OSError as exc:
         raise BuildError(f"compile_cached: cannot create the library cache '{root}': "
                          f"{exc.strerror or exc}; pass another cache_dir") from exc
+    _check_private(root)
     # Hashed incrementally: the serialised graphs can be large.
     h = hashlib.sha256(json.dumps([name, list(flags), _compiler_ident(cmd),
                                    ca.__version__]).encode())
@@ -137,12 +156,17 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
     lib = target / f"lib{name}{shared_library_suffix()}"
     built = False
     if not lib.is_file():
+        remove_stale_files(root)
         with staged_directory(target) as staging:
             source = _write_source(functions, name, staging)
             run_compiler([*cmd, *flags, "-fPIC", "-shared", source.name, "-o", lib.name,
                           "-lm"], staging)
             source.unlink()  # 2-3x the library's size; regenerable
+            built_lib = staging / lib.name  # private whatever the umask
+            os.chmod(built_lib, os.stat(built_lib).st_mode & ~0o022)
         built = True
+    _check_private(target)
+    _check_private(lib)
     loaded = {f.name(): ca.external(f.name(), str(lib)) for f in functions}
     return loaded, {"library": str(lib), "built": built,
                     "seconds": time.perf_counter() - start}

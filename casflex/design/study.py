@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from casflex._problemfile import read_toml
-from casflex._validate import choice, fail, number
+from casflex._validate import choice, fail, identifier, number
 
 if TYPE_CHECKING:
     from casflex.moves import Move
@@ -171,8 +171,7 @@ def _check_settings(path, settings, sensors, sensors_path):
         e["R"] = np.full(sensors.n_outputs, num("estimator.R", e["R"], low=0.0,
                                                 low_open=True))
     g = settings["codegen"]
-    if not (isinstance(g["name"], str) and g["name"].isidentifier()):
-        raise fail("codegen.name", g["name"], "must be a C identifier", path=path)
+    identifier(g["name"], "codegen.name", path=path)
     _flag(path, "codegen.compile", g["compile"])
 
 

@@ -50,7 +50,14 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex._cache import cache_root, digest, load_verified, save_verified, source_digest
+from casflex._cache import (
+    cache_root,
+    digest,
+    load_verified,
+    remove_stale_files,
+    save_verified,
+    source_digest,
+)
 from casflex._validate import choice
 
 if TYPE_CHECKING:
@@ -471,8 +478,9 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
         ``False`` disables it). The file ``plant-<key>.npz`` is keyed on the SHA-256 of the model's
         exact flexible rows (their serialised CasADi graph, modal tables included), the
         grid, every option above, the casflex and CasADi versions and the source of the
-        tabulation code; it is written atomically and carries its key, so a stale or
-        foreign file is never read (it is recomputed and overwritten).
+        tabulation code; it is written atomically and carries its key and a digest of its
+        content, so a stale, foreign or altered file is never read (it is recomputed and
+        overwritten).
         ``info["from_cache"]`` tells which happened.
     prune : float or None
         Leave out of the evaluation (:attr:`FlexiblePlant.keep`) every Fourier coefficient
@@ -546,6 +554,7 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
         if hit is not None:
             return _pruned(_plant_from_arrays(model, mono, shape, fourier, degree, order, hit,
                                               time.perf_counter() - t0), prune)
+        remove_stale_files(root)  # leftovers of killed builds
 
     # all (q, u, x) evaluation points
     nx = 2 * m

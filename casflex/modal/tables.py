@@ -42,9 +42,13 @@ Results are cached on disk under ``cache_dir`` (default ``$CASFLEX_CACHE`` or
     the modes key plus the tracking settings and the quantity function's identity (module,
     name, version attribute, digest of its source).
 
-Every file stores its key and is verified on reading; a file that does not verify (stale,
-foreign, truncated) is recomputed and overwritten, so a stale cache is never used. A build
-that is interrupted resumes where it stopped: finished points are skipped on restart.
+Every file stores its key and a digest of its content and is verified on reading; a file
+that does not verify (stale, foreign, truncated, altered) is recomputed and overwritten,
+so a stale cache is never used. A build that is interrupted resumes where it stopped:
+finished points are skipped on restart, and its leftover temporary files are removed.
+Processes building the same table at once share the work: each point is claimed with a
+``.claim`` file (:func:`casflex._cache.build_shared`), computed by one process and read
+by the others.
 """
 
 from __future__ import annotations
@@ -67,9 +71,11 @@ from numpy.typing import ArrayLike
 import casflex
 from casflex._cache import (
     atomic_write_text,
+    build_shared,
     default_cache_dir,
     digest,
     load_verified,
+    remove_stale_files,
     save_verified,
     source_digest,
 )
@@ -771,6 +777,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
             return table
         mdir = root / f"modes-{modes_key[:32]}"
         atomic_write_text(mdir / "key.json", json.dumps({"key": modes_key}))
+        for directory in (root, mdir, tdir):  # leftovers of killed builds
+            remove_stale_files(directory)
 
     # ---- stage 1: raw modes at every point (parallel, cached per point)
     raw = np.empty(gshape, dtype=object)
@@ -786,14 +794,21 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         e = np.zeros(robot.n_joints)
         e[k] = 1.0
         directions += [e, -e]
-    jobs = [(flat, (robot, q_at(indices[flat]), count, n_points, directions))
-            for flat in missing]
-    for flat, arrays in parallel_map(_point_modes, jobs, client=client, processes=processes,
-                                  progress=progress, desc="TMM"):
-        if use_cache:
-            save_verified(mdir / f"p{flat:07d}.npz", modes_key, **arrays)
+
+    def compute_modes_at(flats):
+        jobs = [(flat, (robot, q_at(indices[flat]), count, n_points, directions))
+                for flat in flats]
+        return parallel_map(_point_modes, jobs, client=client, processes=processes,
+                            progress=progress, desc="TMM")
+
+    computed = 0
+    results = (build_shared(missing, lambda flat: mdir / f"p{flat:07d}.npz", modes_key,
+                            compute_modes_at) if use_cache
+               else ((flat, arrays, True) for flat, arrays in compute_modes_at(missing)))
+    for flat, arrays, by_us in results:
         raw[indices[flat]] = arrays
-    info.update(computed_modes=len(missing), cached_modes=len(indices) - len(missing))
+        computed += by_us
+    info.update(computed_modes=computed, cached_modes=len(indices) - computed)
     t_modes = time.perf_counter()
     shifted = np.zeros(gshape, dtype=bool)
     shapes = np.empty(gshape, dtype=object)
@@ -840,16 +855,20 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 missing.append(flat)
             else:
                 per_point[flat] = got
-        jobs = [(flat, (quantities, robot, q_at(indices[flat]),
-                        _shapes_to_arrays(tracked[indices[flat]]))) for flat in missing]
-        for flat, result in parallel_map(_point_quantities, jobs, client=client,
-                                      processes=processes, progress=progress,
-                                      desc="quantities"):
-            if use_cache:
-                save_verified(tdir / f"q{flat:07d}.npz", table_key,
-                              **result)
+
+        def compute_quantities_at(flats):
+            jobs = [(flat, (quantities, robot, q_at(indices[flat]),
+                            _shapes_to_arrays(tracked[indices[flat]]))) for flat in flats]
+            return parallel_map(_point_quantities, jobs, client=client, processes=processes,
+                                progress=progress, desc="quantities")
+
+        results = (build_shared(missing, lambda flat: tdir / f"q{flat:07d}.npz", table_key,
+                                compute_quantities_at) if use_cache
+                   else ((f, r, True) for f, r in compute_quantities_at(missing)))
+        info["computed_quantities"] = 0
+        for flat, result, by_us in results:
             per_point[flat] = result
-        info["computed_quantities"] = len(missing)
+            info["computed_quantities"] += by_us
         names = sorted(per_point[0])
         for name in names:
             if name == "omega":

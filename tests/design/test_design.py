@@ -70,6 +70,16 @@ def test_bad_studies_fail_before_heavy_work(tmp_path, no_heavy_work, replace, ap
     assert not (tmp_path / "out" / "summary.json").exists()
 
 
+@pytest.mark.parametrize("bad", ['"arm\\n"', '"bras\u00e9"', '""', '"2arm"'])
+def test_codegen_name_must_be_an_ascii_c_identifier(tmp_path, no_heavy_work, bad):
+    path = _study_copy(tmp_path, {'[codegen]\nname = "arm2link"': f"[codegen]\nname = {bad}"})
+    with pytest.raises(ProblemFileError) as info:
+        design.load_study(path)
+    message = str(info.value)
+    assert str(path) in message and "codegen.name" in message
+    assert "not a valid C identifier" in message
+
+
 def test_unknown_sensor_link_names_the_sensor_file(tmp_path, no_heavy_work):
     path = _study_copy(tmp_path)
     sensors = path.parent.parent / "sensors" / "arm2link_accel.toml"
