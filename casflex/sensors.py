@@ -73,7 +73,7 @@ import casadi as ca
 import numpy as np
 
 from casflex._problemfile import TableReader, read_toml
-from casflex._validate import choice, fail, to_float
+from casflex._validate import choice, fail, identifier, to_float
 from casflex.errors import ModelError, ProblemFileError
 
 if TYPE_CHECKING:
@@ -416,8 +416,8 @@ def _sensor_from_table(reader, robot, kind):
         raise reader.error("s", s, f"must lie on the link: 0 <= s <= {link.length} m "
                                    f"(length of '{link.name}')")
     name = reader.string("name", "")
-    if name and not name.isidentifier():
-        raise reader.error("name", name, "must be a C identifier ([A-Za-z_][A-Za-z0-9_]*)")
+    if name:
+        identifier(name, f"{reader.prefix}.name", path=reader.path)
     axes = reader.table.get("axes", "xyz" if kind == "accelerometer" else "xy")
     _check_axes(axes, "xyz" if kind == "accelerometer" else "xy", f"{reader.prefix}.axes",
                 path=reader.path, error=ProblemFileError)
