@@ -34,6 +34,7 @@ import hashlib
 import inspect
 import json
 import os
+import re
 import shutil
 import socket
 import stat
@@ -232,13 +233,36 @@ def source_digest(*objects) -> str:
     return h.hexdigest()
 
 
+# Temporary files carry their writer, ``<name>.<host hash>-<pid>-<random>.tmp``, so that
+# the next build can remove what a killed process left at once (remove_stale_files).
+_HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+_WRITER_PATTERN = re.compile(r"\.([0-9a-f]{8})-(\d+)-[^.]*\.tmp$")
+
+
+def writer_tag(pid: int | None = None) -> str:
+    """``<host hash>-<pid>``: the writer named in this process's temporary file names.
+
+    Parameters
+    ----------
+    pid : int, optional
+        Another process of this host (default this one).
+
+    Examples
+    --------
+    >>> writer_tag(123).endswith("-123")
+    True
+    """
+    return f"{_HOST}-{os.getpid() if pid is None else pid}"
+
+
 def _replace_atomically(path: Path, write) -> None:
     """Write through ``write(binary file)`` to a temporary file beside ``path``, flush it
     to disk and rename it over ``path``; the temporary file is removed on any failure."""
     path = Path(path)
     make_cache_directory(path.parent)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{path.name}.{writer_tag()}-",
+                                   suffix=".tmp")
     except OSError as exc:
         raise CacheError(path, exc) from exc
     try:
@@ -418,9 +442,10 @@ def staged_directory(target: str | os.PathLike) -> Iterator[Path]:
 
 def remove_stale_files(directory: str | os.PathLike, max_age: float = STALE_AGE) -> int:
     """Remove the ``*.tmp`` files and ``.build-*`` / ``.gen-*`` directories in
-    ``directory`` (not below it) last modified more than ``max_age`` seconds ago: what
-    a killed build left behind. Call it when a build starts; younger ones may belong to a
-    build that is still running and are kept.
+    ``directory`` (not below it) last modified more than ``max_age`` seconds ago, and at
+    once the temporary files whose writing process (named in the file name) has ended on
+    this host: what a killed build left behind. Call it when a build starts; younger ones
+    of a live process may belong to a build that is still running and are kept.
 
     Parameters
     ----------
@@ -452,8 +477,12 @@ def remove_stale_files(directory: str | os.PathLike, max_age: float = STALE_AGE)
         return 0
     for entry in entries:
         name = entry.name
+        writer = _WRITER_PATTERN.search(name)
+        orphan = (writer is not None and writer.group(1) == _HOST
+                  and int(writer.group(2)) != os.getpid()
+                  and not _pid_alive(int(writer.group(2))))
         try:
-            if entry.stat(follow_symlinks=False).st_mtime >= limit:
+            if entry.stat(follow_symlinks=False).st_mtime >= limit and not orphan:
                 continue
             if name.endswith(".tmp") and entry.is_file(follow_symlinks=False):
                 os.unlink(entry.path)
@@ -498,19 +527,27 @@ def unsafe_reason(path: str | os.PathLike) -> str | None:
     return None
 
 
-def _claim_owner_alive(text: str) -> bool:
-    """Whether the process named by a claim file's ``host pid`` may still be running
-    (``True`` when that cannot be checked: another host, no ``os.kill`` probe)."""
-    host, _, pid = text.strip().rpartition(" ")
-    if host != socket.gethostname() or not pid.isdigit() or sys.platform == "win32":
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host may still be running (``True`` when that
+    cannot be checked)."""
+    if sys.platform == "win32":
         return True
     try:
-        os.kill(int(pid), 0)
+        os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except OSError:  # exists, belongs to someone else
         return True
     return True
+
+
+def _claim_owner_alive(text: str) -> bool:
+    """Whether the process named by a claim file's ``host pid`` may still be running
+    (``True`` when that cannot be checked: another host, no ``os.kill`` probe)."""
+    host, _, pid = text.strip().rpartition(" ")
+    if host != socket.gethostname() or not pid.isdigit():
+        return True
+    return _pid_alive(int(pid))
 
 
 def _try_claim(claim: Path, timeout: float) -> bool:

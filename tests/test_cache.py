@@ -104,6 +104,22 @@ def test_remove_stale_files_removes_only_old_leftovers(tmp_path):
     assert remove_stale_files(tmp_path / "missing") == 0
 
 
+def test_temporary_file_of_a_killed_writer_is_removed_at_once(tmp_path):
+    """A temporary file names its writer; a writer that has ended (killed mid-write) leaves
+    one that the next build removes however young it is, while a live writer's stays."""
+    from casflex._cache import writer_tag
+
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                           capture_output=True, text=True, check=True)
+    dead_pid = int(child.stdout)  # has exited
+    orphan = tmp_path / f"p0000004.npz.{writer_tag(dead_pid)}-x1y2z3.tmp"
+    live = tmp_path / f"p0000005.npz.{writer_tag()}-x1y2z3.tmp"
+    orphan.write_text("")
+    live.write_text("")
+    assert remove_stale_files(tmp_path) == 1
+    assert not orphan.exists() and live.exists()
+
+
 def test_failed_writes_leave_no_tmp(tmp_path):
     class Boom(Exception):
         pass
