@@ -37,6 +37,9 @@ VERBS = {
     "simulate": "simulate",
     "codegen": "codegen",
     "design": "design",
+    "plan": "plan",
+    "identify": "identify",
+    "calibrate": "calibrate",
 }
 
 
