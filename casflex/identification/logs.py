@@ -1,0 +1,219 @@
+"""Recorded test logs: a time column, joint angles and accelerometer channels.
+
+A log is one impulse or free-decay test at one configuration of the arm, as a CSV file
+(one header row of column names, then one row per sample; lines starting with ``#`` are
+comments) or an NPZ file (one 1-D array per column, all of the same length):
+
+``t``
+    time [s], increasing. The sample rate is taken from it (a least-squares line through
+    the sample times), not from a nominal rate; the sampling must be uniform (a sample
+    may jitter by at most a quarter of a period).
+``q1`` … ``qn``
+    joint angles [rad] (optional; 1-based as in every file). The configuration of the
+    test is their median over the record.
+every other column
+    an accelerometer channel [m/s²], named by its column (``tip_x``, ``acc2_z`` ...).
+    Offsets (gravity, bias) are allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex.errors import ProblemFileError
+
+__all__ = ["TestLog", "read_log", "uniform_sample_rate"]
+
+_JOINT = re.compile(r"^q([1-9][0-9]*)$")
+#: smallest number of samples a log must hold
+MIN_SAMPLES = 64
+
+
+@dataclass(frozen=True)
+class TestLog:
+    """One recorded test.
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        (N,) sample times [s].
+    channels : numpy.ndarray
+        (N, C) accelerometer signals [m/s²].
+    names : tuple of str
+        The C channel names.
+    q : numpy.ndarray or None
+        (N, n) joint angles [rad], or ``None`` when the log has no ``q`` columns.
+    source : str or None
+        File the log was read from.
+
+    Examples
+    --------
+    >>> t = np.arange(100) / 100.0
+    >>> log = TestLog(t, np.zeros((100, 1)), ("tip_z",), None, None)
+    >>> log.sample_rate, log.configuration
+    (100.0, None)
+    """
+
+    t: np.ndarray
+    channels: np.ndarray
+    names: tuple[str, ...]
+    q: np.ndarray | None
+    source: str | None
+
+    @property
+    def sample_rate(self) -> float:
+        """Sample rate [Hz] from the time column."""
+        return uniform_sample_rate(self.t, self.source)
+
+    @property
+    def configuration(self) -> np.ndarray | None:
+        """Median joint angles over the record [rad] (``None`` without ``q`` columns)."""
+        return None if self.q is None else np.median(self.q, axis=0)
+
+
+def uniform_sample_rate(t: ArrayLike, source: str | os.PathLike | None = None) -> float:
+    """Sample rate [Hz] of uniformly sampled times: the slope of a line through them.
+
+    Parameters
+    ----------
+    t : array_like
+        (N,) sample times [s], increasing, N >= 2.
+    source : str, optional
+        File named in errors.
+
+    Returns
+    -------
+    float
+        Samples per second [Hz].
+
+    Raises
+    ------
+    ProblemFileError
+        Times not increasing, or a sample further than a quarter period from the line.
+
+    Examples
+    --------
+    >>> uniform_sample_rate(np.arange(10) / 4987.0)
+    4987.0
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 2 or not np.all(np.diff(t) > 0.0):
+        raise ProblemFileError(source, "t", None, "must increase from sample to sample")
+    k = np.arange(t.size, dtype=float)
+    slope, intercept = np.polyfit(k, t, 1)
+    jitter = np.max(np.abs(t - (intercept + slope * k)))
+    if jitter > 0.25 * slope:
+        i = int(np.argmax(np.abs(t - (intercept + slope * k))))
+        raise ProblemFileError(
+            source, "t", float(t[i]),
+            f"sampling is not uniform: sample {i + 1} lies {jitter / slope:.2f} periods off a "
+            f"uniform grid of {1.0 / slope:.6g} Hz (at most 0.25); resample the log")
+    return float(round(1.0 / slope, 9))
+
+
+def _read_columns(path):
+    if path.suffix.lower() == ".npz":
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return {k: np.asarray(data[k]) for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
+    try:
+        lines = [ln for ln in path.read_text(encoding="utf-8").splitlines()
+                 if ln.strip() and not ln.lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
+    if not lines:
+        raise ProblemFileError(path, "<header>", None, "the file holds no header row")
+    header = [h.strip() for h in lines[0].split(",")]
+    if len(set(header)) != len(header) or not all(header):
+        raise ProblemFileError(path, "<header>", lines[0],
+                               "column names must be non-empty and distinct")
+    rows = []
+    for i, line in enumerate(lines[1:], start=2):
+        cells = line.split(",")
+        if len(cells) != len(header):
+            raise ProblemFileError(path, f"row {i}", line[:60],
+                                   f"has {len(cells)} cells; the header has {len(header)}")
+        try:
+            rows.append([float(c) for c in cells])
+        except ValueError as exc:
+            raise ProblemFileError(path, f"row {i}", line[:60], "every cell must be a number"
+                                   ) from exc
+    data = np.array(rows, dtype=float).reshape(-1, len(header))
+    return {h: data[:, j] for j, h in enumerate(header)}
+
+
+def read_log(path: str | os.PathLike) -> TestLog:
+    """Read a test log (CSV or NPZ, format in the module docstring).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.csv`` or ``.npz`` file.
+
+    Returns
+    -------
+    TestLog
+
+    Raises
+    ------
+    ProblemFileError
+        Unreadable file, no ``t`` column, no channel, a non-finite value, fewer than 64
+        samples, non-uniform sampling; the message names the file and the column.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> t = np.arange(200) / 500.0
+    >>> np.savez(f"{d}/log.npz", t=t, q3=np.full(200, 0.5), tip_z=np.sin(20 * t))
+    >>> log = read_log(f"{d}/log.npz")
+    >>> log.names, log.sample_rate, log.configuration.tolist()
+    (('tip_z',), 500.0, [0.5])
+    """
+    path = Path(path)
+    columns = _read_columns(path)
+    if "t" not in columns:
+        raise ProblemFileError(path, "t", None, "a log needs a time column named 't' [s]")
+    n = None
+    for name, values in columns.items():
+        if values.ndim != 1:
+            raise ProblemFileError(path, name, values.shape, "must be a 1-D column")
+        if n is None:
+            n = values.size
+        elif values.size != n:
+            raise ProblemFileError(path, name, values.size,
+                                   f"has a different length from the other columns ({n})")
+        if not np.issubdtype(values.dtype, np.number) or not np.all(
+                np.isfinite(values.astype(float))):
+            raise ProblemFileError(path, name, None, "must hold finite numbers only")
+    if n < MIN_SAMPLES:
+        raise ProblemFileError(path, "t", n, f"a log needs at least {MIN_SAMPLES} samples")
+    joints = {}
+    for name in columns:
+        m = _JOINT.match(name)
+        if m:
+            joints[int(m.group(1))] = name
+    if joints and sorted(joints) != list(range(1, len(joints) + 1)):
+        raise ProblemFileError(path, "q", sorted(joints),
+                               "joint columns must be q1 .. qn without gaps")
+    names = tuple(k for k in columns if k != "t" and not _JOINT.match(k))
+    if not names:
+        raise ProblemFileError(path, "<header>", list(columns),
+                               "a log needs at least one accelerometer channel")
+    t = columns["t"].astype(float)
+    uniform_sample_rate(t, path)
+    q = (np.column_stack([columns[joints[j]].astype(float) for j in sorted(joints)])
+         if joints else None)
+    channels = np.column_stack([columns[k].astype(float) for k in names])
+    if not math.isfinite(float(np.sum(channels))):
+        raise ProblemFileError(path, "<channels>", None, "values overflow the float range")
+    return TestLog(t, channels, names, q, str(path))
