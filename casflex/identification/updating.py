@@ -1,0 +1,619 @@
+"""Model updating: robot parameters fitted to measured natural frequencies.
+
+The fit is a bounded weighted least squares (:func:`scipy.optimize.least_squares`,
+trust-region reflective) of the TMM natural frequencies against the measurements,
+measured and modelled modes matched by frequency order (column ``fj`` is the j-th lowest
+mode). Residuals are ``(f_model - f_measured) / f_std``, or in Hz when the file gives no
+standard deviations. The Jacobian is a forward difference (relative step 1e-6, far above
+the TMM's 1e-12 root tolerance), its evaluations run in parallel
+(:func:`casflex._parallel.parallel_map`).
+
+Uncertainty and identifiability
+-------------------------------
+The covariance is ``(JᵀJ)⁻¹`` times the reduced chi-square when that exceeds 1 (or when
+no standard deviations are given, when it is the residual variance); it gives the
+standard deviations and the correlation matrix. The Jacobian, with each column scaled to
+unit norm, is decomposed (SVD); a singular value below ``1e-3`` of the largest
+(condition above 1000) marks a direction the data cannot resolve, and every parameter
+with a weight of at least 0.2 in it is *not identifiable* ("only a combination of ... is
+determined"). A parameter the frequencies do not depend on, one whose standard deviation
+exceeds half its value, and one that ends on a bound are not identifiable either; each
+comes with its reason, and its standard deviation is reported as infinite, never as a
+confident number.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from casflex._parallel import parallel_map, progress_bar
+from casflex._problemfile import TableReader, read_toml
+from casflex.errors import ModelError, ProblemFileError, SolverError
+from casflex.identification.parameters import (
+    ParameterPath,
+    parameter_value,
+    parse_parameter_path,
+    with_parameters,
+)
+from casflex.robot import Robot
+
+__all__ = ["Measurements", "FitParameter", "read_measurements", "read_fit", "model_frequencies",
+           "CalibrationResult", "calibrate"]
+
+#: relative singular value below which a parameter direction is not resolved
+COLLINEARITY = 1e-3
+#: weight of a parameter in an unresolved direction that makes it not identifiable
+DIRECTION_WEIGHT = 0.2
+#: relative standard deviation above which a parameter is not identifiable
+MAX_RELATIVE_STD = 0.5
+#: relative finite-difference step of the Jacobian
+STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Measured natural frequencies at several configurations.
+
+    Attributes
+    ----------
+    q : numpy.ndarray
+        (R, n_joints) configurations [rad].
+    frequency_hz : numpy.ndarray
+        (R, m) the m lowest natural frequencies per row [Hz], NaN where not seen.
+    std_hz : numpy.ndarray or None
+        (R, m) their standard deviations [Hz], or ``None`` (unweighted fit).
+    source : str or None
+        File they were read from.
+
+    Examples
+    --------
+    >>> m = Measurements(np.zeros((1, 3)), np.array([[1.0, np.nan]]), None, None)
+    >>> m.n_modes, m.n_values
+    (2, 1)
+    """
+
+    q: np.ndarray
+    frequency_hz: np.ndarray
+    std_hz: np.ndarray | None
+    source: str | None = None
+
+    @property
+    def n_modes(self) -> int:
+        """Number of frequency columns m."""
+        return self.frequency_hz.shape[1]
+
+    @property
+    def n_values(self) -> int:
+        """Number of measured (non-empty) frequencies."""
+        return int(np.isfinite(self.frequency_hz).sum())
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """One free parameter of a fit.
+
+    Attributes
+    ----------
+    path : ParameterPath
+        What it is.
+    low, high : float
+        Bounds, in the parameter's unit.
+    initial : float
+        Start value (the robot file's value inside the bounds, else the fit file's
+        ``initial``, else the middle of the bounds).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> p = FitParameter(parse_parameter_path("link2.material.E", robot), 30e9, 120e9, 69e9)
+    >>> p.name
+    'link2.material.E'
+    """
+
+    path: ParameterPath
+    low: float
+    high: float
+    initial: float
+
+    @property
+    def name(self) -> str:
+        """The path as written."""
+        return self.path.text
+
+
+_F = re.compile(r"^f([1-9][0-9]*)$")
+_FSTD = re.compile(r"^f([1-9][0-9]*)_std$")
+_Q = re.compile(r"^q([1-9][0-9]*)$")
+
+
+def read_measurements(path: str | os.PathLike, n_joints: int) -> Measurements:
+    """Read a measurement file (CSV: ``q1..qn``, ``f1..fm``, optional ``f1_std..fm_std``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        CSV file, one header row, one row per configuration (``#`` lines are comments);
+        angles in rad, frequencies in Hz, an empty cell where a mode was not seen.
+    n_joints : int
+        Joints of the robot (the number of ``q`` columns required).
+
+    Returns
+    -------
+    Measurements
+
+    Raises
+    ------
+    ProblemFileError
+        Naming the file, the row or column, the value and the rule.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "m.csv"
+    >>> _ = f.write_text("q1,q2,q3,f1,f2\\n0,0,0.5,1.66,\\n0,0,1.0,1.5,2.3\\n")
+    >>> m = read_measurements(f, 3)
+    >>> m.frequency_hz.tolist()
+    [[1.66, nan], [1.5, 2.3]]
+    """
+    path = Path(path)
+    try:
+        lines = [ln for ln in path.read_text(encoding="utf-8").splitlines()
+                 if ln.strip() and not ln.lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
+    if len(lines) < 2:
+        raise ProblemFileError(path, "<rows>", len(lines) - 1 if lines else 0,
+                               "needs a header row and at least one configuration")
+    header = [h.strip() for h in lines[0].split(",")]
+    qcols = {int(_Q.match(h).group(1)): i for i, h in enumerate(header) if _Q.match(h)}
+    fcols = {int(_F.match(h).group(1)): i for i, h in enumerate(header) if _F.match(h)}
+    scols = {int(_FSTD.match(h).group(1)): i for i, h in enumerate(header) if _FSTD.match(h)}
+    unknown = [h for h in header if not (_Q.match(h) or _F.match(h) or _FSTD.match(h))]
+    if unknown or len(set(header)) != len(header):
+        raise ProblemFileError(path, "<header>", lines[0],
+                               "columns are q1..qn, f1..fm and optional f1_std..fm_std, "
+                               "each once")
+    if sorted(qcols) != list(range(1, n_joints + 1)):
+        raise ProblemFileError(path, "<header>", sorted(qcols),
+                               f"the robot has {n_joints} joints: give q1..q{n_joints}")
+    m = len(fcols)
+    if m == 0 or sorted(fcols) != list(range(1, m + 1)):
+        raise ProblemFileError(path, "<header>", sorted(fcols), "give f1..fm without gaps")
+    if scols and sorted(scols) != list(range(1, m + 1)):
+        raise ProblemFileError(path, "<header>", sorted(scols),
+                               f"give a standard deviation for every mode: f1_std..f{m}_std")
+    q = np.empty((len(lines) - 1, n_joints))
+    f = np.full((len(lines) - 1, m), np.nan)
+    s = np.full((len(lines) - 1, m), np.nan) if scols else None
+
+    def cell(row, line_no, cells, col, name, empty_ok):
+        text = cells[col].strip()
+        if not text:
+            if empty_ok:
+                return math.nan
+            raise ProblemFileError(path, f"row {line_no}.{name}", "", "must not be empty")
+        try:
+            v = float(text)
+        except ValueError as exc:
+            raise ProblemFileError(path, f"row {line_no}.{name}", text, "must be a number"
+                                   ) from exc
+        if not math.isfinite(v):
+            raise ProblemFileError(path, f"row {line_no}.{name}", text, "must be finite")
+        return v
+
+    for r, line in enumerate(lines[1:]):
+        line_no = r + 2
+        cells = line.split(",")
+        if len(cells) != len(header):
+            raise ProblemFileError(path, f"row {line_no}", line[:60],
+                                   f"has {len(cells)} cells; the header has {len(header)}")
+        for j in range(n_joints):
+            q[r, j] = cell(r, line_no, cells, qcols[j + 1], f"q{j + 1}", False)
+        for j in range(m):
+            v = cell(r, line_no, cells, fcols[j + 1], f"f{j + 1}", True)
+            if v <= 0.0:
+                raise ProblemFileError(path, f"row {line_no}.f{j + 1}", v, "must be > 0 Hz")
+            f[r, j] = v
+            if s is not None:
+                sd = cell(r, line_no, cells, scols[j + 1], f"f{j + 1}_std", not math.isfinite(v))
+                if math.isfinite(v) and sd <= 0.0:
+                    raise ProblemFileError(path, f"row {line_no}.f{j + 1}_std", sd, "must be > 0")
+                s[r, j] = sd
+        seen = f[r][np.isfinite(f[r])]
+        if np.any(np.diff(seen) < 0.0):
+            raise ProblemFileError(path, f"row {line_no}", seen.tolist(),
+                                   "frequencies must ascend (f1 is the lowest mode)")
+    if not np.isfinite(f).any():
+        raise ProblemFileError(path, "<rows>", None, "holds no measured frequency")
+    return Measurements(q, f, s, str(path))
+
+
+def read_fit(path: str | os.PathLike, robot: Robot, raw: dict | None = None
+             ) -> list[FitParameter]:
+    """Read a fit file: ``[[parameter]]`` tables with ``path``, ``min``, ``max`` and an
+    optional ``initial``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        TOML fit file.
+    robot : casflex.robot.Robot
+        The robot the paths refer to.
+    raw : dict, optional
+        The robot file as parsed TOML (for section dimensions).
+
+    Returns
+    -------
+    list of FitParameter
+
+    Raises
+    ------
+    ProblemFileError
+        Naming the file, the field (``parameter[i].min`` ...), the value and the rule.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from casflex.robot import load
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "fit.toml"
+    >>> _ = f.write_text('[[parameter]]\\npath = "link2.tip.mass"\\nmin = 0.0\\nmax = 1.0\\n')
+    >>> [(p.name, p.initial) for p in read_fit(f, load("problems/arm2link.toml"))]
+    [('link2.tip.mass', 0.0)]
+    """
+    data = read_toml(path)
+    top = TableReader(path, data, "")
+    top.used.add("parameter")
+    top.finish()
+    tables = data.get("parameter")
+    if not isinstance(tables, list) or not tables or not all(isinstance(t, dict)
+                                                             for t in tables):
+        raise ProblemFileError(path, "parameter", tables,
+                               "give at least one [[parameter]] table")
+    out, seen = [], set()
+    for i, table in enumerate(tables):
+        r = TableReader(path, table, f"parameter[{i}]")
+        text = r.string("path")
+        if text is None:
+            raise r.error("path", None, "is required")
+        p = parse_parameter_path(text, robot, raw=raw, source=path,
+                                 field=f"parameter[{i}].path")
+        if text in seen:
+            raise r.error("path", text, "names a parameter twice")
+        seen.add(text)
+        low = r.number("min", required=True)
+        high = r.number("max", required=True)
+        if p.nonnegative and low < 0.0:
+            raise r.error("min", low, "must be >= 0 for this parameter")
+        if not p.nonnegative and low <= 0.0:
+            raise r.error("min", low, "must be > 0 for this parameter")
+        if high <= low:
+            raise r.error("max", high, f"must be greater than min = {low}")
+        current = parameter_value(robot, p)
+        initial = r.number("initial", None)
+        if initial is None:
+            initial = (current if current is not None and low <= current <= high
+                       else 0.5 * (low + high))
+        elif not low <= initial <= high:
+            raise r.error("initial", initial, f"must lie in [{low}, {high}]")
+        r.finish()
+        out.append(FitParameter(p, low, high, float(initial)))
+    return out
+
+
+def model_frequencies(robot: Robot, q: np.ndarray, count: int) -> np.ndarray:
+    """The ``count`` lowest natural frequencies at every configuration [Hz] (one TMM sweep;
+    module level so that it pickles for the process pool).
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+        The robot.
+    q : numpy.ndarray
+        (R, n_joints) configurations [rad].
+    count : int
+        Modes per configuration.
+
+    Returns
+    -------
+    numpy.ndarray
+        (R, count) frequencies [Hz].
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> model_frequencies(load("problems/arm2link.toml"), np.zeros((1, 3)), 2).round(3)
+    array([[1.322, 1.905]])
+    """
+    from casflex.tmm import sweep_frequencies
+
+    return sweep_frequencies(robot, q, count) / (2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """The outcome of :func:`calibrate`.
+
+    Attributes
+    ----------
+    names : list of str
+        Parameter paths.
+    initial, values, std : numpy.ndarray
+        (p,) start values, fitted values and standard deviations (infinite for a
+        parameter that is not identifiable), in the parameters' units.
+    correlation : numpy.ndarray
+        (p, p) correlation matrix of the estimates.
+    identifiable : list of bool
+        Per parameter.
+    reasons : list of str
+        Per parameter: why it is not identifiable ("" when it is).
+    measured_hz, before_hz, after_hz : numpy.ndarray
+        (R, m) measured and modelled frequencies before and after the fit [Hz].
+    singular_values : numpy.ndarray
+        Singular values of the column-normalised Jacobian.
+    chi2_reduced : float
+        Sum of squared weighted residuals over the degrees of freedom (NaN without any).
+    tmm_evaluations : int
+        TMM natural-frequency solutions (configurations × parameter sets).
+    robot : casflex.robot.Robot
+        The robot with the fitted values.
+
+    Examples
+    --------
+    >>> r = CalibrationResult(["a"], np.ones(1), np.ones(1), np.zeros(1), np.eye(1),
+    ...                       [True], [""], np.ones((1, 1)), np.full((1, 1), 1.1),
+    ...                       np.ones((1, 1)), np.ones(1), 0.0, 3, None)
+    >>> round(r.rms_before_hz, 3), r.rms_after_hz
+    (0.1, 0.0)
+    """
+
+    names: list[str]
+    initial: np.ndarray
+    values: np.ndarray
+    std: np.ndarray
+    correlation: np.ndarray
+    identifiable: list[bool]
+    reasons: list[str]
+    measured_hz: np.ndarray
+    before_hz: np.ndarray
+    after_hz: np.ndarray
+    singular_values: np.ndarray
+    chi2_reduced: float
+    tmm_evaluations: int
+    robot: Robot | None = field(repr=False, default=None)
+
+    @property
+    def residual_before_hz(self) -> np.ndarray:
+        """(R, m) model minus measurement before the fit [Hz] (NaN: not measured)."""
+        return self.before_hz - self.measured_hz
+
+    @property
+    def residual_hz(self) -> np.ndarray:
+        """(R, m) model minus measurement after the fit [Hz] (NaN: not measured)."""
+        return self.after_hz - self.measured_hz
+
+    @property
+    def rms_before_hz(self) -> float:
+        """RMS of the residuals before the fit [Hz]."""
+        r = self.residual_before_hz
+        return float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2)))
+
+    @property
+    def rms_after_hz(self) -> float:
+        """RMS of the residuals after the fit [Hz]."""
+        r = self.residual_hz
+        return float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2)))
+
+    def as_dict(self) -> dict:
+        """The result as plain values (the JSON of ``casflex calibrate``).
+
+        Returns
+        -------
+        dict
+            ``parameters``, ``initial``, ``std`` (path -> value), ``identifiable`` (path ->
+            bool), ``reasons``, ``correlation``, ``rms_before_hz``, ``rms_after_hz``,
+            ``residual_hz`` and ``residual_before_hz`` (per row and mode, null where not
+            measured), ``chi2_reduced``, ``tmm_evaluations``.
+
+        Examples
+        --------
+        >>> r = CalibrationResult(["a"], np.ones(1), np.ones(1), np.zeros(1), np.eye(1),
+        ...                       [True], [""], np.ones((1, 1)), np.ones((1, 1)),
+        ...                       np.ones((1, 1)), np.ones(1), 0.0, 3, None)
+        >>> sorted(r.as_dict())[:4]
+        ['chi2_reduced', 'correlation', 'identifiable', 'initial']
+        """
+        return {
+            "parameters": dict(zip(self.names, self.values.tolist(), strict=True)),
+            "initial": dict(zip(self.names, self.initial.tolist(), strict=True)),
+            "std": dict(zip(self.names, self.std.tolist(), strict=True)),
+            "identifiable": dict(zip(self.names, self.identifiable, strict=True)),
+            "reasons": {n: r for n, r in zip(self.names, self.reasons, strict=True) if r},
+            "correlation": self.correlation,
+            "rms_before_hz": self.rms_before_hz, "rms_after_hz": self.rms_after_hz,
+            "residual_hz": self.residual_hz, "residual_before_hz": self.residual_before_hz,
+            "chi2_reduced": self.chi2_reduced, "tmm_evaluations": self.tmm_evaluations,
+        }
+
+
+class _Evaluator:
+    """Modelled frequencies at sets of parameter values, in parallel, counted."""
+
+    def __init__(self, robot, params, data, processes, bar):
+        self.robot, self.params, self.data = robot, params, data
+        self.paths = [p.path for p in params]
+        self.processes, self.bar = processes, bar
+        self.evaluations = 0
+
+    def frequencies(self, value_sets):
+        jobs = [(i, (with_parameters(self.robot, self.paths, v), self.data.q,
+                     self.data.n_modes)) for i, v in enumerate(value_sets)]
+        out = [None] * len(jobs)
+        try:
+            for i, f in parallel_map(model_frequencies, jobs, processes=self.processes):
+                out[i] = f
+        except SolverError as exc:
+            raise SolverError(f"TMM at parameters {value_sets}: {exc}") from exc
+        n = len(jobs) * len(self.data.q)
+        self.evaluations += n
+        self.bar.update(n)
+        return out
+
+
+def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
+              processes: int | None = None, progress: bool = False,
+              max_iterations: int = 50) -> CalibrationResult:
+    """Fit the parameters of ``robot`` to measured natural frequencies.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+        The robot file's model.
+    data : Measurements
+        Measured frequencies [Hz] at configurations [rad].
+    params : list of FitParameter
+        Free parameters with bounds.
+    processes : int, optional
+        Local process pool size for the TMM evaluations (default ``os.cpu_count()``;
+        ``1`` runs in this process).
+    progress : bool
+        Progress bar on stderr.
+    max_iterations : int
+        Most Jacobian evaluations of the least-squares solver.
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    ModelError
+        Fewer measured values than parameters, or configurations of the wrong size.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> E = parse_parameter_path("link2.material.E", robot)
+    >>> q = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    >>> truth = model_frequencies(with_parameters(robot, [E], [60e9]), q, 2)
+    >>> fit = calibrate(robot, Measurements(q, truth, None), [FitParameter(E, 30e9, 90e9, 69e9)],
+    ...                 processes=1)
+    >>> round(fit.values[0] / 60e9, 6), fit.identifiable
+    (1.0, [True])
+    """
+    from scipy.optimize import least_squares
+
+    q = np.atleast_2d(np.asarray(data.q, dtype=float))
+    if q.shape[1] != robot.n_joints:
+        raise ModelError(f"measurements: {q.shape[1]} joint columns for robot '{robot.name}' "
+                         f"with {robot.n_joints} joints")
+    p = len(params)
+    if p == 0:
+        raise ModelError("params: give at least one parameter to fit")
+    if data.n_values < p:
+        raise ModelError(f"measurements: {data.n_values} measured frequencies cannot "
+                         f"determine {p} parameters")
+    seen = np.isfinite(data.frequency_hz)
+    f_meas = data.frequency_hz[seen]
+    sigma = np.ones_like(f_meas) if data.std_hz is None else data.std_hz[seen]
+    scale = np.array([max(abs(x.initial), x.high * 1e-3) for x in params])
+    low = np.array([x.low for x in params]) / scale
+    high = np.array([x.high for x in params]) / scale
+    x0 = np.array([x.initial for x in params]) / scale
+
+    with progress_bar(None, "TMM", progress) as bar:  # total unknown: a count
+        ev = _Evaluator(robot, params, data, processes, bar)
+        memo = {}
+
+        def evaluate(xs):
+            todo = [x for x in xs if x.tobytes() not in memo]
+            for x, f in zip(todo, ev.frequencies([x * scale for x in todo]), strict=True):
+                memo[x.tobytes()] = f
+            return [memo[x.tobytes()] for x in xs]
+
+        def residual(x):
+            return (evaluate([x])[0][seen] - f_meas) / sigma
+
+        def jacobian(x):
+            steps = []
+            for j in range(p):
+                h = STEP * max(abs(x[j]), 1.0)
+                if x[j] + h > high[j]:
+                    h = -h
+                xj = x.copy()
+                xj[j] += h
+                steps.append((xj, h))
+            values = evaluate([x] + [s for s, _ in steps])
+            f0 = values[0][seen]
+            return np.column_stack([(v[seen] - f0) / h / sigma
+                                    for v, (_, h) in zip(values[1:], steps, strict=True)])
+
+        before = evaluate([x0])[0]
+        sol = least_squares(residual, x0, jac=jacobian, bounds=(low, high), method="trf",
+                            x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                            max_nfev=max_iterations)
+        x = sol.x
+        after = evaluate([x])[0]
+        J = jacobian(x)
+    values = x * scale
+    r = (after[seen] - f_meas) / sigma
+    dof = f_meas.size - p
+    chi2 = float(r @ r / dof) if dof > 0 else math.nan
+    factor = chi2 if data.std_hz is None else max(1.0, chi2)
+    norms = np.linalg.norm(J, axis=0)
+    identifiable = [True] * p
+    reasons = [""] * p
+    dead = norms <= 1e-9 * max(norms.max(), np.finfo(float).tiny)
+    for j in np.flatnonzero(dead):
+        identifiable[j] = False
+        reasons[j] = "the measured frequencies do not depend on it"
+    live = np.flatnonzero(~dead)
+    sv = np.zeros(0)
+    if live.size:
+        Jn = J[:, live] / norms[live]
+        _, sv, vt = np.linalg.svd(Jn, full_matrices=False)
+        for k in np.flatnonzero(sv < COLLINEARITY * sv[0]):
+            members = live[np.abs(vt[k]) >= DIRECTION_WEIGHT]
+            together = ", ".join(params[m].name for m in members)
+            for m in members:
+                identifiable[m] = False
+                reasons[m] = (f"only a combination of {together} is determined (relative "
+                              f"singular value {sv[k] / sv[0]:.1e} < {COLLINEARITY:g})"
+                              if len(members) > 1 else
+                              f"badly conditioned (relative singular value "
+                              f"{sv[k] / sv[0]:.1e})")
+    cov = np.linalg.pinv(J.T @ J) * (factor if math.isfinite(factor) else math.inf)
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * scale
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.sqrt(np.diag(cov))
+        corr = cov / np.outer(d, d)
+    for j in range(p):
+        if not identifiable[j]:
+            continue
+        if math.isfinite(std[j]) and std[j] > MAX_RELATIVE_STD * abs(values[j]):
+            identifiable[j] = False
+            reasons[j] = (f"the data determine it only to ±{std[j]:.3g} "
+                          f"({100 * std[j] / max(abs(values[j]), 1e-300):.0f} %)")
+        elif abs(x[j] - low[j]) < 1e-9 * max(1.0, abs(low[j])) or abs(
+                x[j] - high[j]) < 1e-9 * max(1.0, abs(high[j])):
+            identifiable[j] = False
+            bound = "min" if abs(x[j] - low[j]) < abs(x[j] - high[j]) else "max"
+            reasons[j] = (f"ended on its bound {bound} = {values[j]:.6g}: the data pull it "
+                          "beyond the bounds given")
+    for j in range(p):
+        if not identifiable[j]:
+            std[j] = math.inf
+    measured = data.frequency_hz
+    return CalibrationResult(
+        names=[x.name for x in params], initial=x0 * scale, values=values, std=std,
+        correlation=corr, identifiable=identifiable, reasons=reasons, measured_hz=measured,
+        before_hz=np.where(seen, before, np.nan), after_hz=np.where(seen, after, np.nan),
+        singular_values=sv, chi2_reduced=chi2, tmm_evaluations=ev.evaluations,
+        robot=with_parameters(robot, [x.path for x in params], values))
