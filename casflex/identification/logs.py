@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 
 from casflex.errors import ProblemFileError
 
-__all__ = ["TestLog", "read_log", "uniform_sample_rate"]
+__all__ = ["VibrationLog", "read_log", "uniform_sample_rate"]
 
 _JOINT = re.compile(r"^q([1-9][0-9]*)$")
 #: smallest number of samples a log must hold
@@ -37,7 +37,7 @@ MIN_SAMPLES = 64
 
 
 @dataclass(frozen=True)
-class TestLog:
+class VibrationLog:
     """One recorded test.
 
     Attributes
@@ -56,7 +56,7 @@ class TestLog:
     Examples
     --------
     >>> t = np.arange(100) / 100.0
-    >>> log = TestLog(t, np.zeros((100, 1)), ("tip_z",), None, None)
+    >>> log = VibrationLog(t, np.zeros((100, 1)), ("tip_z",), None, None)
     >>> log.sample_rate, log.configuration
     (100.0, None)
     """
@@ -151,7 +151,7 @@ def _read_columns(path):
     return {h: data[:, j] for j, h in enumerate(header)}
 
 
-def read_log(path: str | os.PathLike) -> TestLog:
+def read_log(path: str | os.PathLike) -> VibrationLog:
     """Read a test log (CSV or NPZ, format in the module docstring).
 
     Parameters
@@ -161,7 +161,7 @@ def read_log(path: str | os.PathLike) -> TestLog:
 
     Returns
     -------
-    TestLog
+    VibrationLog
 
     Raises
     ------
@@ -174,10 +174,11 @@ def read_log(path: str | os.PathLike) -> TestLog:
     >>> import tempfile
     >>> d = tempfile.mkdtemp()
     >>> t = np.arange(200) / 500.0
-    >>> np.savez(f"{d}/log.npz", t=t, q3=np.full(200, 0.5), tip_z=np.sin(20 * t))
+    >>> q = {f"q{j}": np.full(200, 0.5 * j) for j in (1, 2, 3)}
+    >>> np.savez(f"{d}/log.npz", t=t, tip_z=np.sin(20 * t), **q)
     >>> log = read_log(f"{d}/log.npz")
     >>> log.names, log.sample_rate, log.configuration.tolist()
-    (('tip_z',), 500.0, [0.5])
+    (('tip_z',), 500.0, [0.5, 1.0, 1.5])
     """
     path = Path(path)
     columns = _read_columns(path)
@@ -216,4 +217,4 @@ def read_log(path: str | os.PathLike) -> TestLog:
     channels = np.column_stack([columns[k].astype(float) for k in names])
     if not math.isfinite(float(np.sum(channels))):
         raise ProblemFileError(path, "<channels>", None, "values overflow the float range")
-    return TestLog(t, channels, names, q, str(path))
+    return VibrationLog(t, channels, names, q, str(path))

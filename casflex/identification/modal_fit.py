@@ -382,7 +382,8 @@ def identify_modes(t: ArrayLike, signals: ArrayLike, *, channels: tuple[str, ...
     --------
     >>> rng = np.random.default_rng(1)
     >>> t = np.arange(4000) / 400.0
-    >>> y = np.exp(-0.02 * 2 * np.pi * 3.0 * t) * np.cos(2 * np.pi * 3.0 * t)
+    >>> wn, zeta = 2 * np.pi * 3.0, 0.02                 # 3 Hz, 2 % damping
+    >>> y = np.exp(-zeta * wn * t) * np.cos(wn * np.sqrt(1 - zeta**2) * t)
     >>> est = identify_modes(t, y + 0.001 * rng.standard_normal(t.size))
     >>> est.frequency_hz.round(3).tolist(), est.damping.round(3).tolist()
     ([3.0], [0.02])

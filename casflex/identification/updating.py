@@ -54,6 +54,8 @@ DIRECTION_WEIGHT = 0.2
 MAX_RELATIVE_STD = 0.5
 #: relative finite-difference step of the Jacobian
 STEP = 1e-6
+#: TMM solutions per Jacobian from which the default runs them on a process pool
+POOL_THRESHOLD = 64
 
 
 @dataclass(frozen=True)
@@ -480,8 +482,10 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
     params : list of FitParameter
         Free parameters with bounds.
     processes : int, optional
-        Local process pool size for the TMM evaluations (default ``os.cpu_count()``;
-        ``1`` runs in this process).
+        Local process pool size for the TMM evaluations (``1`` runs in this process).
+        Default: ``os.cpu_count()`` when one Jacobian needs at least
+        ``POOL_THRESHOLD`` TMM solutions, else in this process (a pool's start-up costs
+        more than it saves on fewer, see ``benchmarks/README_calibration.md``).
     progress : bool
         Progress bar on stderr.
     max_iterations : int
@@ -505,7 +509,7 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
     >>> truth = model_frequencies(with_parameters(robot, [E], [60e9]), q, 2)
     >>> fit = calibrate(robot, Measurements(q, truth, None), [FitParameter(E, 30e9, 90e9, 69e9)],
     ...                 processes=1)
-    >>> round(fit.values[0] / 60e9, 6), fit.identifiable
+    >>> round(float(fit.values[0]) / 60e9, 6), fit.identifiable
     (1.0, [True])
     """
     from scipy.optimize import least_squares
@@ -528,6 +532,8 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
     high = np.array([x.high for x in params]) / scale
     x0 = np.array([x.initial for x in params]) / scale
 
+    if processes is None and len(q) * (p + 1) < POOL_THRESHOLD:
+        processes = 1
     with progress_bar(None, "TMM", progress) as bar:  # total unknown: a count
         ev = _Evaluator(robot, params, data, processes, bar)
         memo = {}
@@ -617,3 +623,69 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
         before_hz=np.where(seen, before, np.nan), after_hz=np.where(seen, after, np.nan),
         singular_values=sv, chi2_reduced=chi2, tmm_evaluations=ev.evaluations,
         robot=with_parameters(robot, [x.path for x in params], values))
+
+
+def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
+                           n_modes: int | None = None, progress: bool = False
+                           ) -> tuple[Measurements, list]:
+    """Identify the modes of every log and tabulate them as measurements.
+
+    Each log is one configuration (its ``q1..qn`` columns, median over the record); row
+    ``i`` of the result holds the frequencies identified in log ``i``, lowest first, with
+    their standard errors. Columns beyond a log's modes are empty.
+
+    Parameters
+    ----------
+    paths : list of str or os.PathLike
+        Log files (CSV or NPZ, see :mod:`casflex.identification.logs`).
+    n_joints : int
+        Joints of the robot; every log needs the columns ``q1..qn``.
+    n_modes : int, optional
+        Modes kept per log (the most significant ones).
+    progress : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    (Measurements, list of ModalEstimate)
+
+    Raises
+    ------
+    ProblemFileError
+        A log without joint columns, or with the wrong number.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> t = np.arange(4000) / 400.0
+    >>> wn = 2 * np.pi * 3.0
+    >>> y = np.exp(-0.01 * wn * t) * np.cos(wn * np.sqrt(1 - 1e-4) * t)
+    >>> np.savez(f"{d}/a.npz", t=t, q1=0 * t, acc=y + 1e-4 * np.sin(977 * t))
+    >>> data, _ = measurements_from_logs([f"{d}/a.npz"], 1)
+    >>> data.frequency_hz.round(4).tolist()
+    [[3.0]]
+    """
+    from casflex.identification.logs import read_log
+    from casflex.identification.modal_fit import identify_modes
+
+    rows, estimates = [], []
+    with progress_bar(len(paths), "identify", progress) as bar:
+        for path in paths:
+            log = read_log(path)
+            if log.q is None or log.q.shape[1] != n_joints:
+                got = 0 if log.q is None else log.q.shape[1]
+                raise ProblemFileError(path, "q", got, f"the robot has {n_joints} joints: "
+                                       f"the log needs the columns q1..q{n_joints}")
+            est = identify_modes(log.t, log.channels, channels=log.names, n_modes=n_modes)
+            rows.append((log.configuration, est.frequency_hz, est.frequency_std_hz))
+            estimates.append(est)
+            bar.update(1)
+    m = max(r[1].size for r in rows)
+    q = np.array([r[0] for r in rows])
+    f = np.full((len(rows), m), np.nan)
+    s = np.full((len(rows), m), np.nan)
+    for i, (_, fi, si) in enumerate(rows):
+        f[i, :fi.size], s[i, :si.size] = fi, si
+    source = ", ".join(str(p) for p in paths)
+    return Measurements(q, f, s, source), estimates
