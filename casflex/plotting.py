@@ -18,6 +18,7 @@ from casflex.errors import ModelError
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
+    from casflex.identification import CalibrationResult, ModalEstimate
     from casflex.robot import Robot
     from casflex.shaping import FrequencyRange, MoveShaperResult, Shaper
     from casflex.simulate import SimulationResult
@@ -35,6 +36,8 @@ __all__ = [
     # design report
     "plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
     "plot_estimation_error", "plot_accessibility_along",
+    # identification
+    "plot_identification", "plot_calibration",
 ]
 
 
@@ -587,6 +590,100 @@ def plot_result(result: SimulationResult, title: str | None = None) -> Figure:
             ax.axvline(result.t_move_end, color="0.6", lw=0.8, ls=":")
     for ax in axes[1]:
         ax.set_xlabel("t [s]")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+# ---------------------------------------------------------------------------- identification
+
+def plot_identification(estimate: ModalEstimate, title: str | None = None) -> Figure:
+    """Welch spectrum with the identified modes, and the stabilisation diagram.
+
+    Parameters
+    ----------
+    estimate : casflex.identification.ModalEstimate
+        From :func:`casflex.identification.identify_modes`.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from casflex.identification import identify_modes
+    >>> t = np.arange(2000) / 200.0
+    >>> y = np.exp(-0.3 * t) * np.cos(2 * np.pi * 4.0 * t) + 1e-3 * np.sin(311 * t)
+    >>> len(plot_identification(identify_modes(t, y)).axes)
+    2
+    """
+    fig = Figure(figsize=(9, 6), layout="constrained")
+    ax, ax2 = fig.subplots(2, 1, sharex=True)
+    top = 1.2 * max(estimate.frequency_hz.max(initial=0.0),
+                    max((f.max(initial=0.0) for _, f, _, _ in estimate.stabilisation),
+                        default=0.0))
+    spec = estimate.spectrum
+    if spec is not None:
+        band = spec.f_hz <= max(top, 1e-9)
+        for c, name in enumerate(estimate.channels):
+            ax.semilogy(spec.f_hz[band], spec.psd[band, c], lw=0.8, label=name)
+    for f in estimate.frequency_hz:
+        ax.axvline(f, color="k", lw=0.6, ls="--")
+        ax2.axvline(f, color="k", lw=0.6, ls="--")
+    ax.set_ylabel("PSD [(m/s²)²/Hz]")
+    ax.legend(fontsize="small")
+    ax.grid(True, alpha=0.3)
+    for order, f, _, stable in estimate.stabilisation:
+        ax2.plot(f[~stable], np.full((~stable).sum(), order), "x", color="0.6", ms=3)
+        ax2.plot(f[stable], np.full(stable.sum(), order), "o", color="C3", ms=3)
+    ax2.set_ylabel("model order (o stable, x not)")
+    ax2.set_xlabel("frequency [Hz]")
+    ax2.grid(True, alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def plot_calibration(result: CalibrationResult, title: str | None = None) -> Figure:
+    """Measured and modelled natural frequencies per configuration, before and after a fit.
+
+    Parameters
+    ----------
+    result : casflex.identification.CalibrationResult
+        From :func:`casflex.identification.calibrate`.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from casflex.identification import CalibrationResult
+    >>> r = CalibrationResult(["a"], np.ones(1), np.ones(1), np.zeros(1), np.eye(1),
+    ...                       [True], [""], np.ones((2, 1)), np.full((2, 1), 1.1),
+    ...                       np.ones((2, 1)), np.ones(1), 0.0, 3, None)
+    >>> len(plot_calibration(r).axes)
+    2
+    """
+    fig = Figure(figsize=(9, 6), layout="constrained")
+    ax, ax2 = fig.subplots(2, 1, sharex=True)
+    rows = np.arange(1, result.measured_hz.shape[0] + 1)
+    for j in range(result.measured_hz.shape[1]):
+        c = f"C{j % 10}"
+        ax.plot(rows, result.measured_hz[:, j], "o", color=c, label=f"f{j + 1} measured")
+        ax.plot(rows, result.before_hz[:, j], "x", color=c, alpha=0.5)
+        ax.plot(rows, result.after_hz[:, j], "+", color=c, ms=10)
+        ax2.plot(rows, result.residual_before_hz[:, j], "x", color=c, alpha=0.5)
+        ax2.plot(rows, result.residual_hz[:, j], "+-", color=c, ms=10)
+    ax.set_ylabel("frequency [Hz] (o measured, x before, + after)")
+    ax.legend(fontsize="small", ncol=2)
+    ax2.axhline(0.0, color="k", lw=0.6)
+    ax2.set_ylabel("model − measured [Hz]")
+    ax2.set_xlabel("configuration (row of the measurements)")
+    for a in (ax, ax2):
+        a.grid(True, alpha=0.3)
     if title:
         fig.suptitle(title)
     return fig
