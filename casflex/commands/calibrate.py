@@ -87,7 +87,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     --------
     >>> import tempfile, pathlib
     >>> d = pathlib.Path(tempfile.mkdtemp())
-    >>> _ = (d / "m.csv").write_text("q1,q2,q3,f1,f2\\n0,0,0,1.3136,1.8973\\n0,0,1,2.2102,2.9330\\n")
+    >>> _ = (d / "m.csv").write_text("q1,q2,q3,f1,f2\\n"
+    ...                              "0,0,0,1.3136,1.8973\\n0,0,1,2.2102,2.9330\\n")
     >>> _ = (d / "fit.toml").write_text('[[parameter]]\\npath = "link2.material.E"\\n'
     ...                                 'min = 30e9\\nmax = 120e9\\n')
     >>> a = argparse.Namespace(robot="problems/arm2link.toml", data=str(d / "m.csv"),
