@@ -677,11 +677,13 @@ def plot_calibration(result: CalibrationResult, title: str | None = None) -> Fig
         ax.plot(rows, result.after_hz[:, j], "+", color=c, ms=10)
         ax2.plot(rows, result.residual_before_hz[:, j], "x", color=c, alpha=0.5)
         ax2.plot(rows, result.residual_hz[:, j], "+-", color=c, ms=10)
-    ax.set_ylabel("frequency [Hz] (o measured, x before, + after)")
+    ax.set_ylabel("frequency [Hz]")
+    ax.set_title("o measured, x model before, + model after the fit", fontsize="small")
     ax.legend(fontsize="small", ncol=2)
     ax2.axhline(0.0, color="k", lw=0.6)
     ax2.set_ylabel("model − measured [Hz]")
     ax2.set_xlabel("configuration (row of the measurements)")
+    ax2.set_xticks(rows)
     for a in (ax, ax2):
         a.grid(True, alpha=0.3)
     if title:
