@@ -22,6 +22,7 @@ a joint stiffness on a rigid joint) may be named; its current value is the defau
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, replace
 
@@ -77,8 +78,8 @@ class ParameterPath:
 
 
 def _section_dims(robot, row, raw):
-    """(shape, dims) of a link's section: from the raw TOML table when given, else from
-    the Section (explicit numbers)."""
+    """(shape, dims) of a link's section: from the raw TOML table when given (the numbers
+    as written), else recovered from the Section's properties."""
     sec = robot.links[row].section
     if raw is not None:
         links = raw.get("link", [])
@@ -88,8 +89,13 @@ def _section_dims(robot, row, raw):
         if shape == "explicit" and "Ip" not in dims:
             dims["Ip"] = None  # Ix + Iy
         return shape, tuple(dims.items())
-    if sec.kind in ("rectangle", "tube"):
-        raise ValueError("section dimensions need the raw robot table")
+    if sec.kind == "rectangle":  # A = a b, Ix = b a³ / 12
+        a = math.sqrt(12.0 * sec.Ix / sec.A)
+        return "rectangle", (("a", a), ("b", sec.A / a))
+    if sec.kind == "tube":  # A = π (ro² − ri²), Ix = A (ro² + ri²) / 4
+        s2, d2 = 4.0 * sec.Ix / sec.A, sec.A / math.pi
+        ro, ri = math.sqrt((s2 + d2) / 2.0), math.sqrt(max((s2 - d2) / 2.0, 0.0))
+        return "tube", (("outer_diameter", 2.0 * ro), ("wall", ro - ri))
     return "explicit", tuple((k, getattr(sec, k)) for k in _SECTION_KEYS["explicit"])
 
 
@@ -105,7 +111,8 @@ def parse_parameter_path(text: str, robot: Robot, *, raw: dict | None = None,
     robot : casflex.robot.Robot
         The robot the path refers to.
     raw : dict, optional
-        The robot file as parsed TOML (needed for rectangle and tube dimensions).
+        The robot file as parsed TOML: rectangle and tube dimensions are then taken as
+        written (else recovered from the section's area and second moment).
     source : str or os.PathLike, optional
         File the path was read from (named in errors).
     field : str

@@ -461,7 +461,10 @@ class _Evaluator:
             for i, f in parallel_map(model_frequencies, jobs, processes=self.processes):
                 out[i] = f
         except SolverError as exc:
-            raise SolverError(f"TMM at parameters {value_sets}: {exc}") from exc
+            at = "; ".join(", ".join(f"{p.text} = {v:.6g}" for p, v in zip(self.paths, vs,
+                                                                          strict=True))
+                           for vs in value_sets)
+            raise SolverError(f"TMM at {at}: {exc}") from exc
         n = len(jobs) * len(self.data.q)
         self.evaluations += n
         self.bar.update(n)

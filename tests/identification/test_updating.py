@@ -154,6 +154,11 @@ def test_calibrated_text_keeps_the_file_and_reads_back(tmp_path):
     assert back.links[3].material.E == 6.5e10 and back.links[2].material.E == 69.0e9
     assert new.count("# fitted in a test") == 3
     assert "# The 2-link, 3-joint flexible testbed" in new  # comments kept
+    # a section dimension: the tube is rebuilt from the new wall
+    wall = parse_parameter_path("link2.section.wall", robot)
+    thin = loads(calibrated_text(text, [wall], [0.0003], "thinner"))
+    assert thin.links[3].section.A == pytest.approx(
+        math.pi * (0.00635**2 - 0.00605**2), rel=1e-12)
 
 
 def write_case(tmp_path, data, std=None):
