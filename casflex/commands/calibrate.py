@@ -4,8 +4,11 @@
 [--modes N] [--out CALIBRATED.toml] [--plot FILE.png] [--processes P] [--json]``
 
 ``--data`` is a measurement file (``q1..qn`` [rad], ``f1..fm`` [Hz], optional
-``f1_std..``); ``--logs`` identifies every log first (one configuration each, from its
-``q`` columns) and fits to the frequencies found. The fit file names the free parameters
+``f1_std..``); ``--logs`` identifies every log first and fits to the frequencies found:
+a log is cut into segments of constant joint angles (every ``q`` column within
+``--q-tolerance`` rad of its value at the segment's start for at least ``--min-segment``
+seconds; the moves between are dropped), so one log may hold one configuration or a
+whole test campaign. The fit file names the free parameters
 (``[[parameter]]`` with ``path``, ``min``, ``max``); formats in ``problems/README.md``.
 ``--out`` writes the robot file with the fitted values and a comment saying where they
 came from; a parameter that is not identifiable keeps the robot file's value and is named
@@ -28,6 +31,7 @@ from casflex._problemfile import read_toml
 from casflex._validate import output_file
 from casflex.commands.common import plot_path
 from casflex.errors import ModelError
+from casflex.identification.logs import SEGMENT_MIN_DURATION, SEGMENT_TOLERANCE
 from casflex.robot import load
 
 HELP = "fit robot parameters (E, masses, joint stiffness ...) to measured frequencies"
@@ -60,6 +64,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="free parameters: [[parameter]] path, min, max")
     parser.add_argument("--modes", type=int, default=None, metavar="N",
                         help="with --logs: modes kept per log (the most significant)")
+    parser.add_argument("--q-tolerance", type=float, default=SEGMENT_TOLERANCE, metavar="RAD",
+                        help="with --logs: joint-angle band of a segment of constant "
+                             f"configuration (default {SEGMENT_TOLERANCE} rad)")
+    parser.add_argument("--min-segment", type=float, default=SEGMENT_MIN_DURATION,
+                        metavar="S", help="with --logs: shortest segment identified "
+                                          f"(default {SEGMENT_MIN_DURATION} s)")
     parser.add_argument("--out", default=None, metavar="CALIBRATED.toml",
                         help="write the robot file with the fitted values")
     parser.add_argument("--plot", default=None, metavar="FILE.png",
@@ -93,6 +103,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ...                                 'min = 30e9\\nmax = 120e9\\n')
     >>> a = argparse.Namespace(robot="problems/arm2link.toml", data=str(d / "m.csv"),
     ...                        logs=None, fit=str(d / "fit.toml"), modes=None,
+    ...                        q_tolerance=0.005, min_segment=2.0,
     ...                        out=str(d / "cal.toml"), plot=None, processes=1)
     >>> out = run(a, lambda m: None)
     >>> out["identifiable"], out["rms_after_hz"] < out["rms_before_hz"]
@@ -113,6 +124,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--processes: must be >= 1; got {args.processes}")
     if args.modes is not None and args.modes < 1:
         raise ModelError(f"--modes: must be >= 1; got {args.modes}")
+    for flag, value in (("--q-tolerance", args.q_tolerance), ("--min-segment", args.min_segment)):
+        if not value > 0.0 or value == float("inf"):
+            raise ModelError(f"{flag}: must be a finite number > 0; got {value}")
     robot = load(args.robot)
     raw = read_toml(args.robot)
     params = read_fit(args.fit, robot, raw)
@@ -121,11 +135,14 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         data = read_measurements(args.data, robot.n_joints)
         source = args.data
     else:
-        data, estimates = measurements_from_logs(args.logs, robot.n_joints,
-                                                 n_modes=args.modes, progress=progress)
-        source = f"{len(args.logs)} logs"
-        for path, est in zip(args.logs, estimates, strict=True):
-            log(f"{path}: " + ", ".join(f"{f:.4f}" for f in est.frequency_hz) + " Hz")
+        data, estimates = measurements_from_logs(
+            args.logs, robot.n_joints, n_modes=args.modes, progress=progress,
+            tolerance=args.q_tolerance, min_duration=args.min_segment)
+        source = f"{len(args.logs)} logs ({len(estimates)} configurations)"
+        log(f"segments of constant joint angles: {data.source}")
+        for i, (q, est) in enumerate(zip(data.q, estimates, strict=True)):
+            log(f"  row {i + 1}: q = " + ", ".join(f"{v:.4f}" for v in q) + " rad: "
+                + ", ".join(f"{f:.4f}" for f in est.frequency_hz) + " Hz")
     log(f"{robot.name}: fitting {len(params)} parameters to {data.n_values} frequencies at "
         f"{len(data.q)} configurations")
     result = calibrate(robot, data, params, processes=args.processes, progress=progress)

@@ -7,6 +7,7 @@ Test logs
    VibrationLog              -- one recorded test: times, joint angles, accelerometer channels
    read_log             -- read a CSV or NPZ log
    uniform_sample_rate  -- the sample rate of a log from its time column
+   split_configurations -- cut a log into segments of constant joint angles
 
 Modal identification
 ====================
@@ -38,7 +39,12 @@ Parameter paths
    with_parameters        -- a robot with parameters changed
 """
 
-from casflex.identification.logs import VibrationLog, read_log, uniform_sample_rate
+from casflex.identification.logs import (
+    VibrationLog,
+    read_log,
+    split_configurations,
+    uniform_sample_rate,
+)
 from casflex.identification.modal_fit import (
     ModalEstimate,
     WelchSpectrum,
@@ -68,6 +74,7 @@ __all__ = [
     "VibrationLog",
     "read_log",
     "uniform_sample_rate",
+    "split_configurations",
     # modal identification
     "identify_modes",
     "ModalEstimate",

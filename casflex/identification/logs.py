@@ -14,6 +14,14 @@ comments) or an NPZ file (one 1-D array per column, all of the same length):
 every other column
     an accelerometer channel [m/s²], named by its column (``tip_x``, ``acc2_z`` ...).
     Offsets (gravity, bias) are allowed.
+
+A log may hold several configurations (a test campaign recorded in one file: tap, wait,
+move, tap, ...). :func:`split_configurations` cuts it into *segments of constant joint
+angles*: maximal runs of samples over which every joint stays within ``tolerance`` rad
+(default 0.005 rad, 0.29°) of its value at the run's first sample and which last at least
+``min_duration`` seconds (default 2 s); everything else (the moves between) is dropped.
+Each segment is then one free-decay record at one configuration (the ends of the moves
+that stay within the band belong to it; the identification starts at the impulse).
 """
 
 from __future__ import annotations
@@ -29,11 +37,15 @@ from numpy.typing import ArrayLike
 
 from casflex.errors import ProblemFileError
 
-__all__ = ["VibrationLog", "read_log", "uniform_sample_rate"]
+__all__ = ["VibrationLog", "read_log", "uniform_sample_rate", "split_configurations"]
 
 _JOINT = re.compile(r"^q([1-9][0-9]*)$")
 #: smallest number of samples a log must hold
 MIN_SAMPLES = 64
+#: default joint-angle band of a segment of constant configuration [rad]
+SEGMENT_TOLERANCE = 0.005
+#: default shortest segment kept [s]
+SEGMENT_MIN_DURATION = 2.0
 
 
 @dataclass(frozen=True)
@@ -218,3 +230,75 @@ def read_log(path: str | os.PathLike) -> VibrationLog:
     if not math.isfinite(float(np.sum(channels))):
         raise ProblemFileError(path, "<channels>", None, "values overflow the float range")
     return VibrationLog(t, channels, names, q, str(path))
+
+
+def _run_end(q, start, tolerance):
+    """First index after ``start`` where a joint leaves ``q[start] ± tolerance`` (or the
+    end): searched in doubling blocks, so the cost stays linear over many short runs."""
+    n, block, i = len(q), 64, start + 1
+    while i < n:
+        stop = min(n, i + block)
+        out = np.flatnonzero(np.any(np.abs(q[i:stop] - q[start]) > tolerance, axis=1))
+        if out.size:
+            return i + int(out[0])
+        i, block = stop, 2 * block
+    return n
+
+
+def split_configurations(log: VibrationLog, tolerance: float = SEGMENT_TOLERANCE,
+                         min_duration: float = SEGMENT_MIN_DURATION) -> list[VibrationLog]:
+    """Cut a log into its segments of constant joint angles (rule in the module docstring).
+
+    Parameters
+    ----------
+    log : VibrationLog
+        A log with joint columns.
+    tolerance : float
+        Largest deviation of any joint from its value at the segment's first sample [rad].
+    min_duration : float
+        Shortest segment kept [s] (shorter runs are motion and are dropped).
+
+    Returns
+    -------
+    list of VibrationLog
+        The segments in time order, each with its own ``t``, ``channels`` and ``q``
+        (``source`` names the file and the time span).
+
+    Raises
+    ------
+    ProblemFileError
+        A log without joint columns, or without any segment of ``min_duration``.
+
+    Examples
+    --------
+    >>> t = np.arange(1000) / 100.0
+    >>> q = np.where(t < 4.0, 0.0, np.where(t < 5.0, t - 4.0, 1.0))[:, None]
+    >>> parts = split_configurations(VibrationLog(t, np.zeros((1000, 1)), ("a",), q, None))
+    >>> [(float(p.t[0]), float(p.t[-1]), float(p.configuration[0])) for p in parts]
+    [(0.0, 4.0, 0.0), (5.0, 9.99, 1.0)]
+    """
+    tolerance = float(tolerance)
+    min_duration = float(min_duration)
+    if not (tolerance > 0.0 and math.isfinite(tolerance)):
+        raise ProblemFileError(log.source, "tolerance", tolerance, "must be a finite number > 0")
+    if not (min_duration > 0.0 and math.isfinite(min_duration)):
+        raise ProblemFileError(log.source, "min_duration", min_duration,
+                               "must be a finite number > 0")
+    if log.q is None:
+        raise ProblemFileError(log.source, "q", None,
+                               "splitting by configuration needs the joint columns q1..qn")
+    dt = 1.0 / log.sample_rate
+    segments, start = [], 0
+    while start < len(log.t):
+        end = _run_end(log.q, start, tolerance)
+        if (end - start) * dt >= min_duration and end - start >= MIN_SAMPLES:
+            span = f"t = {log.t[start]:.6g} .. {log.t[end - 1]:.6g} s"
+            segments.append(VibrationLog(log.t[start:end], log.channels[start:end],
+                                         log.names, log.q[start:end],
+                                         f"{log.source}, {span}" if log.source else span))
+        start = end
+    if not segments:
+        raise ProblemFileError(log.source, "q", None,
+                               f"no segment of constant joint angles (within {tolerance:g} rad) "
+                               f"lasts {min_duration:g} s")
+    return segments

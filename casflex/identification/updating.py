@@ -35,6 +35,7 @@ import numpy as np
 from casflex._parallel import parallel_map, progress_bar
 from casflex._problemfile import TableReader, read_toml
 from casflex.errors import ModelError, ProblemFileError, SolverError
+from casflex.identification.logs import SEGMENT_MIN_DURATION, SEGMENT_TOLERANCE
 from casflex.identification.parameters import (
     ParameterPath,
     parameter_value,
@@ -629,13 +630,20 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
 
 
 def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
-                           n_modes: int | None = None, progress: bool = False
+                           n_modes: int | None = None, progress: bool = False,
+                           tolerance: float = SEGMENT_TOLERANCE,
+                           min_duration: float = SEGMENT_MIN_DURATION,
                            ) -> tuple[Measurements, list]:
     """Identify the modes of every log and tabulate them as measurements.
 
-    Each log is one configuration (its ``q1..qn`` columns, median over the record); row
-    ``i`` of the result holds the frequencies identified in log ``i``, lowest first, with
-    their standard errors. Columns beyond a log's modes are empty.
+    Every log is cut into its segments of constant joint angles
+    (:func:`casflex.identification.logs.split_configurations`: every joint within
+    ``tolerance`` of its value at the segment's start for at least ``min_duration``); a
+    log of one test is one segment, a log of a test campaign gives one segment per
+    configuration. Row ``i`` of the result holds the frequencies identified in segment
+    ``i`` (logs in the order given, segments in time order), lowest first, with their
+    standard errors, at the median joint angles of the segment. Columns beyond a
+    segment's modes are empty.
 
     Parameters
     ----------
@@ -647,15 +655,22 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
         Modes kept per log (the most significant ones).
     progress : bool
         Progress bar on stderr.
+    tolerance : float
+        Joint-angle band of a segment [rad].
+    min_duration : float
+        Shortest segment kept [s].
 
     Returns
     -------
     (Measurements, list of ModalEstimate)
+        The measurements and the estimate of every row (its record's ``source`` names the
+        log and the time span in ``Measurements.source``).
 
     Raises
     ------
     ProblemFileError
-        A log without joint columns, or with the wrong number.
+        A log without joint columns, with the wrong number, or without a segment of
+        constant joint angles.
 
     Examples
     --------
@@ -669,10 +684,10 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
     >>> data.frequency_hz.round(4).tolist()
     [[3.0]]
     """
-    from casflex.identification.logs import read_log
+    from casflex.identification.logs import read_log, split_configurations
     from casflex.identification.modal_fit import identify_modes
 
-    rows, estimates = [], []
+    rows, estimates, sources = [], [], []
     with progress_bar(len(paths), "identify", progress) as bar:
         for path in paths:
             log = read_log(path)
@@ -680,9 +695,12 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
                 got = 0 if log.q is None else log.q.shape[1]
                 raise ProblemFileError(path, "q", got, f"the robot has {n_joints} joints: "
                                        f"the log needs the columns q1..q{n_joints}")
-            est = identify_modes(log.t, log.channels, channels=log.names, n_modes=n_modes)
-            rows.append((log.configuration, est.frequency_hz, est.frequency_std_hz))
-            estimates.append(est)
+            for segment in split_configurations(log, tolerance, min_duration):
+                est = identify_modes(segment.t, segment.channels, channels=segment.names,
+                                     n_modes=n_modes)
+                rows.append((segment.configuration, est.frequency_hz, est.frequency_std_hz))
+                estimates.append(est)
+                sources.append(segment.source)
             bar.update(1)
     m = max(r[1].size for r in rows)
     q = np.array([r[0] for r in rows])
@@ -690,5 +708,4 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
     s = np.full((len(rows), m), np.nan)
     for i, (_, fi, si) in enumerate(rows):
         f[i, :fi.size], s[i, :si.size] = fi, si
-    source = ", ".join(str(p) for p in paths)
-    return Measurements(q, f, s, source), estimates
+    return Measurements(q, f, s, "; ".join(sources)), estimates

@@ -1,0 +1,100 @@
+"""Logs holding several configurations: cut into segments of constant joint angles, each
+identified, and the whole campaign fitted (``casflex calibrate --logs`` on one file).
+
+The campaign log is built here: at each configuration a free decay at the natural
+frequencies of the independent FE model of the "real" arm of test_updating.py, the joints
+moving on a ramp between configurations (with the accelerometers shaking meanwhile), and
+encoder noise on the joint columns.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from casflex.cli import main
+from casflex.errors import ProblemFileError
+from casflex.identification import VibrationLog, read_log, split_configurations
+
+FS = 500.0
+ZETA = (0.01, 0.02, 0.015, 0.03)
+
+
+def campaign(configs, f_hz, hold=10.0, ramp=1.5, seed=0):
+    """t, q (N, n), channels (N, 2): holds at ``configs`` joined by linear ramps."""
+    rng = np.random.default_rng(seed)
+    t_parts, q_parts, y_parts = [], [], []
+    t0 = 0.0
+    for i, q in enumerate(configs):
+        if i:
+            n = int(ramp * FS)
+            s = np.arange(n) / n
+            q_parts.append(configs[i - 1] + np.outer(s, q - configs[i - 1]))
+            y_parts.append(0.5 * rng.standard_normal((n, 2)))  # motion: no free decay
+            t_parts.append(t0 + np.arange(n) / FS)
+            t0 += n / FS
+        n = int(hold * FS)
+        t = np.arange(n) / FS
+        y = np.zeros((n, 2)) + [0.0, 9.81]
+        for k, f in enumerate(f_hz[i]):
+            wn = 2 * np.pi * f
+            z = ZETA[k % len(ZETA)]
+            for c in range(2):
+                y[:, c] += (0.3 + 0.1 * c + 0.05 * k) * np.exp(-z * wn * t) * np.cos(
+                    wn * np.sqrt(1 - z * z) * t + rng.uniform(0, 6))
+        y_parts.append(y + 250e-6 * 9.81 * rng.standard_normal(y.shape))
+        q_parts.append(q + 2e-4 * rng.standard_normal((n, q.size)))  # encoder noise
+        t_parts.append(t0 + t)
+        t0 += n / FS
+    return np.concatenate(t_parts), np.vstack(q_parts), np.vstack(y_parts)
+
+
+def test_split_finds_the_holds_and_drops_the_ramps():
+    configs = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, -1.0], [0.0, 0.5, 1.0]])
+    t, q, y = campaign(configs, [[2.0]] * 3, hold=4.0, ramp=1.0)
+    parts = split_configurations(VibrationLog(t, y, ("a", "b"), q, "c.csv"))
+    assert len(parts) == 3
+    for part, qc, start in zip(parts, configs, (0.0, 5.0, 10.0), strict=True):
+        assert part.configuration == pytest.approx(qc, abs=1e-3)  # 2e-4 rad noise
+        # a segment may take in the ramp samples within the 5 mrad band at either end
+        # (the ramps move <= 2 mrad a sample: up to 2.5 samples, plus one for the noise)
+        assert part.t[0] == pytest.approx(start, abs=3.5 / FS)
+        assert part.t[-1] - part.t[0] == pytest.approx(4.0, abs=7.0 / FS)
+        assert "c.csv, t = " in part.source
+    # a minimum duration above the holds leaves nothing: a one-line error
+    with pytest.raises(ProblemFileError, match="lasts 5 s"):
+        split_configurations(VibrationLog(t, y, ("a", "b"), q, "c.csv"), min_duration=5.0)
+    with pytest.raises(ProblemFileError, match="q1..qn"):
+        split_configurations(VibrationLog(t, y, ("a", "b"), None, "c.csv"))
+
+
+@pytest.mark.slow  # four identifications and a fit
+def test_calibrate_from_one_campaign_log(tmp_path):
+    from test_updating import ARM, E_TRUE, MASS_TRUE, Q, fe_frequencies_hz, truth_robot
+
+    truth = truth_robot()
+    configs = Q[[0, 2, 3, 5]]
+    t, q, y = campaign(configs, [fe_frequencies_hz(truth, qc) for qc in configs])
+    cols = {"t": t, **{f"q{j + 1}": q[:, j] for j in range(3)}, "acc_x": y[:, 0],
+            "acc_z": y[:, 1]}
+    np.savez(tmp_path / "campaign.npz", **cols)
+    assert len(split_configurations(read_log(tmp_path / "campaign.npz"))) == 4
+    (tmp_path / "fit.toml").write_text(
+        '[[parameter]]\npath = "link2.material.E"\nmin = 30e9\nmax = 120e9\n'
+        '[[parameter]]\npath = "link2.tip.mass"\nmin = 0.0\nmax = 1.0\n')
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(["calibrate", ARM, "--logs", str(tmp_path / "campaign.npz"), "--fit",
+                       str(tmp_path / "fit.toml"), "--processes", "1", "--json"])
+    assert status == 0, err.getvalue()
+    assert err.getvalue().count("row ") == 4
+    result = json.loads(out.getvalue())
+    assert result["identifiable"] == {"link2.material.E": True, "link2.tip.mass": True}
+    # the issue's targets from exact data; the 250 ug noise moves the identified
+    # frequencies by ~1e-5 relative, far inside them
+    assert result["parameters"]["link2.material.E"] == pytest.approx(E_TRUE, rel=5e-3)
+    assert result["parameters"]["link2.tip.mass"] == pytest.approx(MASS_TRUE, rel=2e-2)
