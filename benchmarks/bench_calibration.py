@@ -7,7 +7,11 @@
   Table 8 arm (link 2's E and a tip mass on link 2, 2 parameters) to the 4 lowest natural
   frequencies at 8 configurations (made by the TMM with E × 0.9 and 0.1 kg), with the
   default process choice. ``calibrate_by_processes_s`` gives the same fit with 1 and 2
-  worker processes, measured side by side.
+  worker processes (one pool kept for the whole fit, :func:`casflex._parallel.worker_pool`),
+  measured side by side: ``[min, median, max]``.
+* ``pool_start_s``: start, one trivial call and shutdown of a 2-process pool
+  (``[min, median, max]``): what a pool per Jacobian (the previous behaviour of
+  ``calibrate``) paid on each of the fit's ~25 TMM batches.
 * ``tmm_evaluations``: TMM natural-frequency solutions of one fit (configurations ×
   parameter sets).
 
@@ -28,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from casflex._parallel import parallel_map, worker_pool
 from casflex.identification import (
     FitParameter,
     Measurements,
@@ -67,6 +72,11 @@ def calibration_case():
     return robot, Measurements(q, f, None), params
 
 
+def pool_round_trip():
+    with worker_pool(2) as pool:
+        return list(parallel_map(abs, [(0, (-1,)), (1, (-2,))], pool=pool))
+
+
 def timed(func, repeat):
     times, out = [], None
     for _ in range(repeat):
@@ -96,6 +106,7 @@ def main():
         for p in (1, 2):
             by_processes[str(p)].append(timed(
                 lambda p=p: calibrate(robot, data, params, processes=p), 1)[0][0])
+    pool_times, _ = timed(pool_round_trip, max(args.repeat, 5))
     result = {
         "identify_s": statistics.median(id_times),
         "calibrate_s": statistics.median(cal_times),
@@ -104,6 +115,7 @@ def main():
         "calibrate_range_s": [min(cal_times), max(cal_times)],
         "calibrate_by_processes_s": {k: [min(v), statistics.median(v), max(v)]
                                      for k, v in by_processes.items()},
+        "pool_start_s": [min(pool_times), statistics.median(pool_times), max(pool_times)],
         "identified_hz": est.frequency_hz.tolist(),
         "fitted": fit.values.tolist(),
         "load_average": list(os.getloadavg()),
@@ -120,6 +132,9 @@ def main():
           f"{fit.tmm_evaluations} TMM solutions")
     for k, v in result["calibrate_by_processes_s"].items():
         print(f"  processes={k}: min {v[0]:.3f} s, median {v[1]:.3f} s, max {v[2]:.3f} s")
+    v = result["pool_start_s"]
+    print(f"  2-process pool start + call + shutdown: min {v[0]:.3f} s, median {v[1]:.3f} s, "
+          f"max {v[2]:.3f} s")
     print(f"load average {result['load_average']}, {result['cpus']} CPUs")
 
 

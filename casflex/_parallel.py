@@ -2,23 +2,29 @@
 pool or on a Dask cluster, with a progress bar on stderr.
 
 :func:`parallel_map` is used for the modal tables (:func:`casflex.modal.tables.build_table`)
-and the CLI's frequency sweep. The per-call work there is short (tens of ms of numpy), so
+and the CLI's frequency sweep, and for the Jacobians of model updating
+(:func:`casflex.identification.calibrate`), which share one pool over all their calls
+through :func:`worker_pool`. The per-call work there is short (tens of ms of numpy), so
 calls travel in chunks and, on Dask, each chunk's arguments and results are pickled into
 one buffer.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from concurrent.futures import Executor
+
     from distributed import Client
     from tqdm import tqdm
 
-__all__ = ["parallel_map", "progress_bar"]
+__all__ = ["parallel_map", "progress_bar", "worker_pool", "WorkerPool"]
 
 
 def progress_bar(total: int, desc: str = "", enabled: bool = True) -> tqdm:
@@ -70,6 +76,64 @@ def _executor(processes):
     return ProcessPoolExecutor(max_workers=processes, mp_context=ctx)
 
 
+@dataclass(frozen=True)
+class WorkerPool:
+    """A process pool kept open across :func:`parallel_map` calls (see :func:`worker_pool`).
+
+    Attributes
+    ----------
+    executor : concurrent.futures.Executor
+        The pool.
+    processes : int
+        Its number of worker processes.
+
+    Examples
+    --------
+    >>> WorkerPool(None, 2).processes
+    2
+    """
+
+    executor: Executor
+    processes: int
+
+
+@contextlib.contextmanager
+def worker_pool(processes: int | None = None) -> Iterator[WorkerPool | None]:
+    """A local process pool kept open for many :func:`parallel_map` calls.
+
+    Starting a pool costs a fork per worker and the workers' first imports; a caller
+    that maps many small batches (an iterative fit: one batch per Jacobian) pays that
+    once by passing the pool to every call.
+
+    Parameters
+    ----------
+    processes : int, optional
+        Worker processes (default ``os.cpu_count()``); ``1`` gives ``None``, which
+        :func:`parallel_map` takes as "run in this process".
+
+    Yields
+    ------
+    WorkerPool or None
+        The pool, shut down when the block ends.
+
+    Examples
+    --------
+    >>> with worker_pool(1) as pool:
+    ...     sorted(parallel_map(abs, [(i, (-i,)) for i in range(3)], pool=pool))
+    [(0, 0), (1, 1), (2, 2)]
+    """
+    if processes is None:
+        processes = os.cpu_count() or 1
+    if processes <= 1:
+        yield None
+        return
+    executor = _executor(processes)
+    try:
+        yield WorkerPool(executor, processes)
+    finally:
+        executor.shutdown(wait=True, cancel_futures=True)
+
+
 def _run_chunk(func, arg_list):
     """Worker side of a chunk: ``[func(*args) for args in arg_list]``."""
     return [func(*args) for args in arg_list]
@@ -88,7 +152,8 @@ def _run_chunk_packed(func, packed_args):
 
 def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None,
                  processes: int | None = None, progress: bool = False, desc: str = "",
-                 chunksize: int | None = None) -> Iterator[tuple]:
+                 chunksize: int | None = None, pool: WorkerPool | None = None
+                 ) -> Iterator[tuple]:
     """Run ``func(*args)`` for every ``(tag, args)`` in ``jobs``; yield ``(tag, result)``
     as results arrive.
 
@@ -111,6 +176,10 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
         Calls per task sent to a worker. The per-point work is short (tens of ms), so
         single calls would be dominated by scheduling and transfer; by default a chunk
         is ``ceil(N / (4 workers))`` calls, at most 16 (1 when running in-process).
+    pool : WorkerPool, optional
+        A pool from :func:`worker_pool` to run on (it stays open for the next call);
+        ``processes`` is then ignored. Without it a pool is started and shut down for
+        this call alone.
 
     Yields
     ------
@@ -130,9 +199,13 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
         return
     if processes is None:
         processes = os.cpu_count() or 1
-    pool = None
-    if client is None and processes > 1 and len(jobs) > 1:
-        pool = _executor(min(processes, len(jobs)))  # before tqdm starts its monitor thread
+    shared = pool is not None and client is None
+    if shared:
+        processes, pool = pool.processes, pool.executor
+    else:
+        pool = None
+        if client is None and processes > 1 and len(jobs) > 1:
+            pool = _executor(min(processes, len(jobs)))  # before tqdm's monitor thread
     if client is not None:
         workers = max(1, sum(client.nthreads().values()))
     else:
@@ -168,11 +241,15 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
         else:
             futures = {pool.submit(_run_chunk, func, [a for _, a in c]): [t for t, _ in c]
                        for c in chunks}
-            for fut in cf_completed(futures):
-                results = fut.result()
-                bar.update(len(results))
-                yield from zip(futures[fut], results, strict=True)
+            try:
+                for fut in cf_completed(futures):
+                    results = fut.result()
+                    bar.update(len(results))
+                    yield from zip(futures[fut], results, strict=True)
+            finally:
+                for fut in futures:  # a shared pool stays open: drop what is left
+                    fut.cancel()
     finally:
         bar.close()
-        if pool is not None:
+        if pool is not None and not shared:
             pool.shutdown(wait=True, cancel_futures=True)

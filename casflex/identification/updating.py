@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from casflex._parallel import parallel_map, progress_bar
+from casflex._parallel import parallel_map, progress_bar, worker_pool
 from casflex._problemfile import TableReader, read_toml
 from casflex.errors import ModelError, ProblemFileError, SolverError
 from casflex.identification.logs import SEGMENT_MIN_DURATION, SEGMENT_TOLERANCE
@@ -448,25 +448,31 @@ class CalibrationResult:
 class _Evaluator:
     """Modelled frequencies at sets of parameter values, in parallel, counted."""
 
-    def __init__(self, robot, params, data, processes, bar):
+    def __init__(self, robot, params, data, pool, bar):
         self.robot, self.params, self.data = robot, params, data
         self.paths = [p.path for p in params]
-        self.processes, self.bar = processes, bar
+        self.pool, self.bar = pool, bar
         self.evaluations = 0
+        # on a pool, each parameter set's configurations go out in one block per worker,
+        # so that even the single-set residual evaluations use every worker
+        blocks = 1 if pool is None else min(pool.processes, len(data.q))
+        self.blocks = np.array_split(np.arange(len(data.q)), blocks)
 
     def frequencies(self, value_sets):
-        jobs = [(i, (with_parameters(self.robot, self.paths, v), self.data.q,
-                     self.data.n_modes)) for i, v in enumerate(value_sets)]
-        out = [None] * len(jobs)
+        q, m = self.data.q, self.data.n_modes
+        jobs = [((i, b), (with_parameters(self.robot, self.paths, v), q[rows], m))
+                for i, v in enumerate(value_sets) for b, rows in enumerate(self.blocks)]
+        out = [np.empty((len(q), m)) for _ in value_sets]
         try:
-            for i, f in parallel_map(model_frequencies, jobs, processes=self.processes):
-                out[i] = f
+            for (i, b), f in parallel_map(model_frequencies, jobs, processes=1,
+                                          pool=self.pool, chunksize=1):
+                out[i][self.blocks[b]] = f
         except SolverError as exc:
             at = "; ".join(", ".join(f"{p.text} = {v:.6g}" for p, v in zip(self.paths, vs,
                                                                           strict=True))
                            for vs in value_sets)
             raise SolverError(f"TMM at {at}: {exc}") from exc
-        n = len(jobs) * len(self.data.q)
+        n = len(value_sets) * len(q)
         self.evaluations += n
         self.bar.update(n)
         return out
@@ -538,8 +544,9 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
 
     if processes is None and len(q) * (p + 1) < POOL_THRESHOLD:
         processes = 1
-    with progress_bar(None, "TMM", progress) as bar:  # total unknown: a count
-        ev = _Evaluator(robot, params, data, processes, bar)
+    # one pool for the whole fit: a pool per Jacobian cost more than it saved
+    with worker_pool(processes) as pool, progress_bar(None, "TMM", progress) as bar:
+        ev = _Evaluator(robot, params, data, pool, bar)
         memo = {}
 
         def evaluate(xs):
