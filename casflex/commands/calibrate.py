@@ -1,14 +1,21 @@
 """``casflex calibrate``: fit robot parameters to measured natural frequencies.
 
 ``casflex calibrate ROBOT.toml (--data MEAS.csv | --logs LOG ...) --fit FIT.toml
-[--modes N] [--out CALIBRATED.toml] [--plot FILE.png] [--processes P] [--json]``
+[--sensors SENSORS.toml] [--mac-min M] [--modes N] [--q-tolerance RAD] [--min-segment S]
+[--out CALIBRATED.toml] [--plot FILE.png] [--processes P] [--json]``
 
 ``--data`` is a measurement file (``q1..qn`` [rad], ``f1..fm`` [Hz], optional
 ``f1_std..``); ``--logs`` identifies every log first and fits to the frequencies found:
 a log is cut into segments of constant joint angles (every ``q`` column within
 ``--q-tolerance`` rad of its value at the segment's start for at least ``--min-segment``
 seconds; the moves between are dropped), so one log may hold one configuration or a
-whole test campaign. The fit file names the free parameters
+whole test campaign.
+
+With ``--sensors`` (a sensor file giving the accelerometer channels' positions), measured
+modes that carry shapes (``f<j>_<channel>`` columns of the measurement file, or the
+identified shapes of the logs) are paired with modelled modes by MAC, the others by
+frequency order; a pair with MAC below ``--mac-min`` (default 0.7) is refused. The fit
+file names the free parameters
 (``[[parameter]]`` with ``path``, ``min``, ``max``); formats in ``problems/README.md``.
 ``--out`` writes the robot file with the fitted values and a comment saying where they
 came from; a parameter that is not identifiable keeps the robot file's value and is named
@@ -16,8 +23,10 @@ in the header comment with the reason.
 
 JSON: ``{"parameters", "initial", "std", "identifiable", "reasons", "correlation",
 "rms_before_hz", "rms_after_hz", "residual_hz", "residual_before_hz", "chi2_reduced",
-"tmm_evaluations", "out"}`` (paths -> values in the parameters' units; residuals per row
-and mode, model minus measurement, null where not measured).
+"tmm_evaluations", "modelled_mode", "mac", "out"}`` (paths -> values in the parameters'
+units; residuals per row and mode, model minus measurement, null where not measured;
+``modelled_mode`` the 1-based modelled partner of each measured mode, ``mac`` its MAC or
+null where matched by frequency order).
 """
 
 from __future__ import annotations
@@ -27,11 +36,14 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from casflex._problemfile import read_toml
 from casflex._validate import output_file
 from casflex.commands.common import plot_path
 from casflex.errors import ModelError
 from casflex.identification.logs import SEGMENT_MIN_DURATION, SEGMENT_TOLERANCE
+from casflex.identification.matching import MAC_MIN
 from casflex.robot import load
 
 HELP = "fit robot parameters (E, masses, joint stiffness ...) to measured frequencies"
@@ -62,6 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "first")
     parser.add_argument("--fit", required=True, metavar="FIT.toml",
                         help="free parameters: [[parameter]] path, min, max")
+    parser.add_argument("--sensors", default=None, metavar="SENSORS.toml",
+                        help="accelerometer positions of the shape channels: match modes "
+                             "by MAC")
+    parser.add_argument("--mac-min", type=float, default=MAC_MIN, metavar="M",
+                        help=f"lowest MAC accepted for a pair (default {MAC_MIN})")
     parser.add_argument("--modes", type=int, default=None, metavar="N",
                         help="with --logs: modes kept per log (the most significant)")
     parser.add_argument("--q-tolerance", type=float, default=SEGMENT_TOLERANCE, metavar="RAD",
@@ -103,7 +120,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ...                                 'min = 30e9\\nmax = 120e9\\n')
     >>> a = argparse.Namespace(robot="problems/arm2link.toml", data=str(d / "m.csv"),
     ...                        logs=None, fit=str(d / "fit.toml"), modes=None,
-    ...                        q_tolerance=0.005, min_segment=2.0,
+    ...                        q_tolerance=0.005, min_segment=2.0, sensors=None,
+    ...                        mac_min=0.7,
     ...                        out=str(d / "cal.toml"), plot=None, processes=1)
     >>> out = run(a, lambda m: None)
     >>> out["identifiable"], out["rms_after_hz"] < out["rms_before_hz"]
@@ -113,6 +131,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         calibrate,
         calibrated_text,
         measurements_from_logs,
+        read_channels,
         read_fit,
         read_measurements,
     )
@@ -130,6 +149,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     robot = load(args.robot)
     raw = read_toml(args.robot)
     params = read_fit(args.fit, robot, raw)
+    if not 0.0 < args.mac_min <= 1.0:
+        raise ModelError(f"--mac-min: must lie in (0, 1]; got {args.mac_min}")
+    channels = None if args.sensors is None else read_channels(args.sensors, robot)
     progress = sys.stderr.isatty()
     if args.data is not None:
         data = read_measurements(args.data, robot.n_joints)
@@ -145,7 +167,12 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
                 + ", ".join(f"{f:.4f}" for f in est.frequency_hz) + " Hz")
     log(f"{robot.name}: fitting {len(params)} parameters to {data.n_values} frequencies at "
         f"{len(data.q)} configurations")
-    result = calibrate(robot, data, params, processes=args.processes, progress=progress)
+    result = calibrate(robot, data, params, processes=args.processes, progress=progress,
+                       channels=channels, mac_min=args.mac_min)
+    if result.mac is not None and np.isfinite(result.mac).any():
+        for r, c in zip(*np.nonzero(np.isfinite(result.mac)), strict=True):
+            log(f"  row {r + 1} f{c + 1} <-> modelled mode {result.pairing[r, c] + 1}: "
+                f"MAC {result.mac[r, c]:.3f}")
     for j, name in enumerate(result.names):
         if result.identifiable[j]:
             log(f"  {name} = {result.values[j]:.6g} ± {result.std[j]:.2g} "

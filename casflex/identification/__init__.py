@@ -30,6 +30,15 @@ Model updating
    calibrated_text        -- the robot file's text with fitted values put in
    measurements_from_logs -- identify every log and tabulate the frequencies
 
+Mode matching
+=============
+
+   Channel               -- one accelerometer axis at a point of a flexible link
+   read_channels         -- the accelerometer channels of a sensor file (plain data)
+   model_channel_shapes  -- modelled frequencies and mode shapes at the channels
+   mac_matrix            -- Modal Assurance Criterion between two sets of shapes
+   match_modes           -- pair measured with modelled modes (MAC, then frequency order)
+
 Parameter paths
 ===============
 
@@ -44,6 +53,13 @@ from casflex.identification.logs import (
     read_log,
     split_configurations,
     uniform_sample_rate,
+)
+from casflex.identification.matching import (
+    Channel,
+    mac_matrix,
+    match_modes,
+    model_channel_shapes,
+    read_channels,
 )
 from casflex.identification.modal_fit import (
     ModalEstimate,
@@ -90,6 +106,12 @@ __all__ = [
     "model_frequencies",
     "calibrated_text",
     "measurements_from_logs",
+    # mode matching
+    "Channel",
+    "read_channels",
+    "model_channel_shapes",
+    "mac_matrix",
+    "match_modes",
     # parameter paths
     "ParameterPath",
     "parse_parameter_path",

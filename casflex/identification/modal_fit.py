@@ -114,6 +114,9 @@ class ModalEstimate:
         Per model order: order, pole frequencies [Hz], damping ratios, stable flags.
     rejected_hz : list of float
         Candidate modes dropped by the significance or damping test [Hz].
+    phase : numpy.ndarray or None
+        (K, C) phase of each mode at each channel, ``A cos(ω_d t − phase)`` from the
+        start of the fitted decay [rad].
 
     Examples
     --------
@@ -139,6 +142,18 @@ class ModalEstimate:
     spectrum: WelchSpectrum | None
     stabilisation: list = field(default_factory=list)
     rejected_hz: list = field(default_factory=list)
+    phase: np.ndarray | None = None
+
+    @property
+    def shape(self) -> np.ndarray | None:
+        """(K, C) real mode shapes at the channels: the amplitudes signed by their phase
+        relative to the channel that sees the mode most (in phase ``+``, opposite ``−``;
+        the modes of a lightly damped structure are real to first order)."""
+        if self.phase is None:
+            return None
+        ref = np.argmax(self.significance, axis=1)
+        rel = self.phase - np.take_along_axis(self.phase, ref[:, None], axis=1)
+        return self.amplitude * np.where(np.cos(rel) >= 0.0, 1.0, -1.0)
 
     @property
     def seen_by(self) -> list[list[str]]:
@@ -285,7 +300,7 @@ def _projected_residual(x, t, Yw):
 
 def _fit(t, Y, omega, zeta):
     """Damped-sinusoid least squares; returns (omega_n, zeta, cov of (w, z), amplitude,
-    amplitude std, channel std)."""
+    amplitude std, channel std, phase)."""
     k = omega.size
     sigma0, wd0 = zeta * omega, omega * np.sqrt(1.0 - zeta**2)
     weight = np.std(Y, axis=0)
@@ -340,7 +355,8 @@ def _fit(t, Y, omega, zeta):
             idx = [base + i, base + k + i]
             grad = np.array([a, b]) / max(amp[ch, i], np.finfo(float).tiny)
             amp_std[ch, i] = np.sqrt(max(grad @ cov[np.ix_(idx, idx)] @ grad, 0.0))
-    return wn, z, cov_wz, amp.T, amp_std.T, weight
+    phase = np.arctan2(coef[k:2 * k], coef[:k])  # (K, C): a cos + b sin = A cos(wt - phase)
+    return wn, z, cov_wz, amp.T, amp_std.T, weight, phase
 
 
 def identify_modes(t: ArrayLike, signals: ArrayLike, *, channels: tuple[str, ...] | None = None,
@@ -466,7 +482,7 @@ def identify_modes(t: ArrayLike, signals: ArrayLike, *, channels: tuple[str, ...
     zeta = np.array([z for _, z in candidates])
     rejected = []
     while True:
-        wn, z, cov, amp, amp_std, noise = _fit(t_fit, yd, omega, zeta)
+        wn, z, cov, amp, amp_std, noise, phase = _fit(t_fit, yd, omega, zeta)
         signif = amp / np.maximum(amp_std, np.finfo(float).tiny)
         bad = (z <= 0.0) | (z >= MAX_DAMPING) | (signif.max(axis=1) <= SEEN_Z)
         # two candidates converged onto one mode: keep the more significant one
@@ -487,7 +503,7 @@ def identify_modes(t: ArrayLike, signals: ArrayLike, *, channels: tuple[str, ...
         strongest = np.sort(np.argsort(signif.max(axis=1))[::-1][:n_modes])
         keep = np.zeros(wn.size, dtype=bool)
         keep[strongest] = True
-        wn, z, cov, amp, amp_std, noise = _fit(t_fit, yd, wn[keep], z[keep])
+        wn, z, cov, amp, amp_std, noise, phase = _fit(t_fit, yd, wn[keep], z[keep])
         signif = amp / np.maximum(amp_std, np.finfo(float).tiny)
     order = np.argsort(wn)
     k = wn.size
@@ -497,4 +513,4 @@ def identify_modes(t: ArrayLike, signals: ArrayLike, *, channels: tuple[str, ...
         damping=z[order], damping_std=std[k:][order], amplitude=amp[order],
         significance=signif[order], channels=channels, sample_rate=fs, fit_rate=rate,
         start=float(td[0]), noise_std=noise, spectrum=spectrum, stabilisation=diagram,
-        rejected_hz=sorted(rejected))
+        rejected_hz=sorted(rejected), phase=phase[order])

@@ -36,6 +36,13 @@ from casflex._parallel import parallel_map, progress_bar, worker_pool
 from casflex._problemfile import TableReader, read_toml
 from casflex.errors import ModelError, ProblemFileError, SolverError
 from casflex.identification.logs import SEGMENT_MIN_DURATION, SEGMENT_TOLERANCE
+from casflex.identification.matching import (
+    EXTRA_MODES,
+    MAC_MIN,
+    Channel,
+    match_modes,
+    model_channel_shapes,
+)
 from casflex.identification.parameters import (
     ParameterPath,
     parameter_value,
@@ -57,6 +64,8 @@ MAX_RELATIVE_STD = 0.5
 STEP = 1e-6
 #: TMM solutions per Jacobian from which the default runs them on a process pool
 POOL_THRESHOLD = 64
+#: most fits with re-matched modes
+MAX_REMATCH = 4
 
 
 @dataclass(frozen=True)
@@ -73,6 +82,12 @@ class Measurements:
         (R, m) their standard deviations [Hz], or ``None`` (unweighted fit).
     source : str or None
         File they were read from.
+    channels : tuple of str
+        Accelerometer channels at which mode shapes were identified (may be empty).
+    shapes : numpy.ndarray or None
+        (R, m, C) identified mode shapes at the channels (signed amplitudes, any unit),
+        NaN where not given; used to match measured and modelled modes by MAC
+        (:mod:`casflex.identification.matching`).
 
     Examples
     --------
@@ -85,6 +100,8 @@ class Measurements:
     frequency_hz: np.ndarray
     std_hz: np.ndarray | None
     source: str | None = None
+    channels: tuple[str, ...] = ()
+    shapes: np.ndarray | None = None
 
     @property
     def n_modes(self) -> int:
@@ -133,17 +150,23 @@ class FitParameter:
 
 _F = re.compile(r"^f([1-9][0-9]*)$")
 _FSTD = re.compile(r"^f([1-9][0-9]*)_std$")
+_FSHAPE = re.compile(r"^f([1-9][0-9]*)_([A-Za-z][A-Za-z0-9_]*)$")
 _Q = re.compile(r"^q([1-9][0-9]*)$")
 
 
 def read_measurements(path: str | os.PathLike, n_joints: int) -> Measurements:
-    """Read a measurement file (CSV: ``q1..qn``, ``f1..fm``, optional ``f1_std..fm_std``).
+    """Read a measurement file (CSV: ``q1..qn``, ``f1..fm``, optional ``f1_std..fm_std``
+    and mode-shape columns ``f<j>_<channel>``).
 
     Parameters
     ----------
     path : str or os.PathLike
         CSV file, one header row, one row per configuration (``#`` lines are comments);
         angles in rad, frequencies in Hz, an empty cell where a mode was not seen.
+        ``f<j>_<channel>`` (e.g. ``f2_tip2_y``) is the identified shape of mode j at an
+        accelerometer channel (signed amplitude, any unit common to the row and mode; an
+        empty cell where not identified); the channels are named as in a sensor file
+        (``<sensor>_<axis>``; ``std`` is reserved).
     n_joints : int
         Joints of the robot (the number of ``q`` columns required).
 
@@ -178,11 +201,14 @@ def read_measurements(path: str | os.PathLike, n_joints: int) -> Measurements:
     qcols = {int(_Q.match(h).group(1)): i for i, h in enumerate(header) if _Q.match(h)}
     fcols = {int(_F.match(h).group(1)): i for i, h in enumerate(header) if _F.match(h)}
     scols = {int(_FSTD.match(h).group(1)): i for i, h in enumerate(header) if _FSTD.match(h)}
-    unknown = [h for h in header if not (_Q.match(h) or _F.match(h) or _FSTD.match(h))]
+    shape_cols = {(int(_FSHAPE.match(h).group(1)), _FSHAPE.match(h).group(2)): i
+                  for i, h in enumerate(header) if _FSHAPE.match(h) and not _FSTD.match(h)}
+    unknown = [h for h in header if not (_Q.match(h) or _F.match(h) or _FSTD.match(h)
+                                         or _FSHAPE.match(h))]
     if unknown or len(set(header)) != len(header):
         raise ProblemFileError(path, "<header>", lines[0],
-                               "columns are q1..qn, f1..fm and optional f1_std..fm_std, "
-                               "each once")
+                               "columns are q1..qn, f1..fm, optional f1_std..fm_std and "
+                               "shape columns f<j>_<channel>, each once")
     if sorted(qcols) != list(range(1, n_joints + 1)):
         raise ProblemFileError(path, "<header>", sorted(qcols),
                                f"the robot has {n_joints} joints: give q1..q{n_joints}")
@@ -192,6 +218,12 @@ def read_measurements(path: str | os.PathLike, n_joints: int) -> Measurements:
     if scols and sorted(scols) != list(range(1, m + 1)):
         raise ProblemFileError(path, "<header>", sorted(scols),
                                f"give a standard deviation for every mode: f1_std..f{m}_std")
+    bad = sorted(j for j, _ in shape_cols if j not in fcols)
+    if bad:
+        raise ProblemFileError(path, "<header>", f"f{bad[0]}_...",
+                               f"a shape column of mode {bad[0]}, which has no f{bad[0]} column")
+    channels = tuple(sorted({c for _, c in shape_cols}))
+    shapes = (np.full((len(lines) - 1, m, len(channels)), np.nan) if channels else None)
     q = np.empty((len(lines) - 1, n_joints))
     f = np.full((len(lines) - 1, m), np.nan)
     s = np.full((len(lines) - 1, m), np.nan) if scols else None
@@ -229,13 +261,19 @@ def read_measurements(path: str | os.PathLike, n_joints: int) -> Measurements:
                 if math.isfinite(v) and sd <= 0.0:
                     raise ProblemFileError(path, f"row {line_no}.f{j + 1}_std", sd, "must be > 0")
                 s[r, j] = sd
+        for (j, c), col in shape_cols.items():
+            v = cell(r, line_no, cells, col, f"f{j}_{c}", True)
+            if math.isfinite(v) and not math.isfinite(f[r, j - 1]):
+                raise ProblemFileError(path, f"row {line_no}.f{j}_{c}", v,
+                                       f"a shape of mode {j}, which this row does not measure")
+            shapes[r, j - 1, channels.index(c)] = v
         seen = f[r][np.isfinite(f[r])]
         if np.any(np.diff(seen) < 0.0):
             raise ProblemFileError(path, f"row {line_no}", seen.tolist(),
                                    "frequencies must ascend (f1 is the lowest mode)")
     if not np.isfinite(f).any():
         raise ProblemFileError(path, "<rows>", None, "holds no measured frequency")
-    return Measurements(q, f, s, str(path))
+    return Measurements(q, f, s, str(path), channels, shapes)
 
 
 def read_fit(path: str | os.PathLike, robot: Robot, raw: dict | None = None
@@ -366,6 +404,11 @@ class CalibrationResult:
         TMM natural-frequency solutions (configurations × parameter sets).
     robot : casflex.robot.Robot
         The robot with the fitted values.
+    pairing : numpy.ndarray or None
+        (R, m) the modelled mode (0-based, in ascending frequency) paired with each
+        measured one at the fitted values (-1: not measured).
+    mac : numpy.ndarray or None
+        (R, m) MAC of each pair at the fitted values (NaN: matched by frequency order).
 
     Examples
     --------
@@ -390,6 +433,8 @@ class CalibrationResult:
     chi2_reduced: float
     tmm_evaluations: int
     robot: Robot | None = field(repr=False, default=None)
+    pairing: np.ndarray | None = None
+    mac: np.ndarray | None = None
 
     @property
     def residual_before_hz(self) -> np.ndarray:
@@ -422,7 +467,9 @@ class CalibrationResult:
             ``parameters``, ``initial``, ``std`` (path -> value), ``identifiable`` (path ->
             bool), ``reasons``, ``correlation``, ``rms_before_hz``, ``rms_after_hz``,
             ``residual_hz`` and ``residual_before_hz`` (per row and mode, null where not
-            measured), ``chi2_reduced``, ``tmm_evaluations``.
+            measured), ``chi2_reduced``, ``tmm_evaluations``, ``modelled_mode`` (per row
+            and mode, the 1-based modelled partner, null where not measured) and ``mac``
+            (its MAC, null where matched by frequency order).
 
         Examples
         --------
@@ -442,6 +489,9 @@ class CalibrationResult:
             "rms_before_hz": self.rms_before_hz, "rms_after_hz": self.rms_after_hz,
             "residual_hz": self.residual_hz, "residual_before_hz": self.residual_before_hz,
             "chi2_reduced": self.chi2_reduced, "tmm_evaluations": self.tmm_evaluations,
+            "modelled_mode": None if self.pairing is None else [
+                [int(k) + 1 if k >= 0 else None for k in row] for row in self.pairing],
+            "mac": self.mac,
         }
 
 
@@ -453,13 +503,14 @@ class _Evaluator:
         self.paths = [p.path for p in params]
         self.pool, self.bar = pool, bar
         self.evaluations = 0
+        self.count = data.n_modes  # modelled modes per configuration
         # on a pool, each parameter set's configurations go out in one block per worker,
         # so that even the single-set residual evaluations use every worker
         blocks = 1 if pool is None else min(pool.processes, len(data.q))
         self.blocks = np.array_split(np.arange(len(data.q)), blocks)
 
     def frequencies(self, value_sets):
-        q, m = self.data.q, self.data.n_modes
+        q, m = self.data.q, self.count
         jobs = [((i, b), (with_parameters(self.robot, self.paths, v), q[rows], m))
                 for i, v in enumerate(value_sets) for b, rows in enumerate(self.blocks)]
         out = [np.empty((len(q), m)) for _ in value_sets]
@@ -478,9 +529,46 @@ class _Evaluator:
         return out
 
 
+class _Pairer:
+    """The modelled partner of every measured mode (by MAC where shapes were identified,
+    by frequency order elsewhere) at given parameter values."""
+
+    def __init__(self, robot, params, data, channels, mac_min):
+        self.robot, self.paths, self.data = robot, [p.path for p in params], data
+        self.mac_min, self.evaluations = mac_min, 0
+        self.rows = []
+        if channels is not None and data.shapes is not None and data.channels:
+            known = {c.name: c for c in channels}
+            missing = [c for c in data.channels if c not in known]
+            if missing:
+                raise ModelError(f"measurements: shape channel {missing[0]} is not in the "
+                                 "sensor file's channels: " + ", ".join(known))
+            self.channels = [known[c] for c in data.channels]
+            self.rows = [r for r in range(len(data.q))
+                         if np.isfinite(data.shapes[r]).any()]
+        self.active = bool(self.rows)
+
+    def __call__(self, values):
+        m = self.data.n_modes
+        pairing = np.tile(np.arange(m), (len(self.data.q), 1))
+        mac = np.full(pairing.shape, np.nan)
+        if not self.active:
+            return pairing, mac
+        robot = with_parameters(self.robot, self.paths, values)
+        for r in self.rows:
+            f, phi = model_channel_shapes(robot, self.data.q[r], self.channels,
+                                          m + EXTRA_MODES)
+            self.evaluations += f.size
+            pair, mac[r] = match_modes(self.data.frequency_hz[r], self.data.shapes[r], f, phi,
+                                       mac_min=self.mac_min, where=f"row {r + 1}: ")
+            pairing[r] = np.where(pair >= 0, pair, 0)
+        return pairing, mac
+
+
 def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
               processes: int | None = None, progress: bool = False,
-              max_iterations: int = 50) -> CalibrationResult:
+              max_iterations: int = 50, channels: list[Channel] | None = None,
+              mac_min: float = MAC_MIN) -> CalibrationResult:
     """Fit the parameters of ``robot`` to measured natural frequencies.
 
     Parameters
@@ -500,6 +588,14 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
         Progress bar on stderr.
     max_iterations : int
         Most Jacobian evaluations of the least-squares solver.
+    channels : list of Channel, optional
+        Geometry of the channels of ``data.shapes``
+        (:func:`casflex.identification.matching.read_channels`). With it, measured modes
+        that carry shapes are paired with modelled ones by MAC (at the start values, and
+        again at the fitted values, refitting if a pair changed); without it, or where a
+        row has no shapes, column ``fj`` is the j-th lowest modelled mode.
+    mac_min : float
+        Lowest MAC accepted for a pair (a lower one raises ModelError).
 
     Returns
     -------
@@ -508,7 +604,9 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
     Raises
     ------
     ModelError
-        Fewer measured values than parameters, or configurations of the wrong size.
+        Fewer measured values than parameters, configurations of the wrong size, a shape
+        channel missing from ``channels``, or a measured shape that matches no modelled
+        mode (MAC below ``mac_min``).
 
     Examples
     --------
@@ -544,16 +642,19 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
 
     if processes is None and len(q) * (p + 1) < POOL_THRESHOLD:
         processes = 1
+    pairer = _Pairer(robot, params, data, channels, mac_min)
     # one pool for the whole fit: a pool per Jacobian cost more than it saved
     with worker_pool(processes) as pool, progress_bar(None, "TMM", progress) as bar:
         ev = _Evaluator(robot, params, data, pool, bar)
         memo = {}
 
         def evaluate(xs):
-            todo = [x for x in xs if x.tobytes() not in memo]
+            # full (R, count) modelled frequencies, then each measured mode's partner
+            todo = [x for x in xs if (x.tobytes(), ev.count) not in memo]
             for x, f in zip(todo, ev.frequencies([x * scale for x in todo]), strict=True):
-                memo[x.tobytes()] = f
-            return [memo[x.tobytes()] for x in xs]
+                memo[x.tobytes(), ev.count] = f
+            return [np.take_along_axis(memo[x.tobytes(), ev.count], pairing, axis=1)
+                    for x in xs]
 
         def residual(x):
             return (evaluate([x])[0][seen] - f_meas) / sigma
@@ -572,11 +673,26 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
             return np.column_stack([(v[seen] - f0) / h / sigma
                                     for v, (_, h) in zip(values[1:], steps, strict=True)])
 
+        pairing, mac = pairer(x0 * scale)
+        ev.count = int(pairing.max()) + 1
         before = evaluate([x0])[0]
-        sol = least_squares(residual, x0, jac=jacobian, bounds=(low, high), method="trf",
-                            x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                            max_nfev=max_iterations)
-        x = sol.x
+        x = x0
+        for _ in range(MAX_REMATCH):
+            sol = least_squares(residual, x, jac=jacobian, bounds=(low, high), method="trf",
+                                x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                max_nfev=max_iterations)
+            x = sol.x
+            if not pairer.active:
+                break
+            # the pairs at the fitted values: refit if a mode changed partner
+            new, mac = pairer(x * scale)
+            if np.array_equal(new, pairing):
+                break
+            pairing = new
+            ev.count = int(pairing.max()) + 1
+        else:
+            raise SolverError(f"mode matching did not settle in {MAX_REMATCH} refits: the "
+                              "measured modes change partner with the fitted values")
         after = evaluate([x])[0]
         J = jacobian(x)
     values = x * scale
@@ -632,8 +748,10 @@ def calibrate(robot: Robot, data: Measurements, params: list[FitParameter], *,
         names=[x.name for x in params], initial=x0 * scale, values=values, std=std,
         correlation=corr, identifiable=identifiable, reasons=reasons, measured_hz=measured,
         before_hz=np.where(seen, before, np.nan), after_hz=np.where(seen, after, np.nan),
-        singular_values=sv, chi2_reduced=chi2, tmm_evaluations=ev.evaluations,
-        robot=with_parameters(robot, [x.path for x in params], values))
+        singular_values=sv, chi2_reduced=chi2,
+        tmm_evaluations=ev.evaluations + pairer.evaluations,
+        robot=with_parameters(robot, [x.path for x in params], values),
+        pairing=np.where(seen, pairing, -1), mac=np.where(seen, mac, np.nan))
 
 
 def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
@@ -649,7 +767,8 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
     log of one test is one segment, a log of a test campaign gives one segment per
     configuration. Row ``i`` of the result holds the frequencies identified in segment
     ``i`` (logs in the order given, segments in time order), lowest first, with their
-    standard errors, at the median joint angles of the segment. Columns beyond a
+    standard errors, at the median joint angles of the segment, and their shapes at the
+    log's channels (:attr:`ModalEstimate.shape`, for matching by MAC). Columns beyond a
     segment's modes are empty.
 
     Parameters
@@ -713,6 +832,12 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
     q = np.array([r[0] for r in rows])
     f = np.full((len(rows), m), np.nan)
     s = np.full((len(rows), m), np.nan)
+    channels = tuple(dict.fromkeys(c for est in estimates for c in est.channels))
+    shapes = np.full((len(rows), m, len(channels)), np.nan)
     for i, (_, fi, si) in enumerate(rows):
         f[i, :fi.size], s[i, :si.size] = fi, si
-    return Measurements(q, f, s, "; ".join(sources)), estimates
+        est = estimates[i]
+        if est.shape is not None:
+            cols = [channels.index(c) for c in est.channels]
+            shapes[i, :fi.size, cols] = est.shape
+    return Measurements(q, f, s, "; ".join(sources), channels, shapes), estimates
