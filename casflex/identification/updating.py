@@ -839,5 +839,5 @@ def measurements_from_logs(paths: list[str | os.PathLike], n_joints: int, *,
         est = estimates[i]
         if est.shape is not None:
             cols = [channels.index(c) for c in est.channels]
-            shapes[i, :fi.size, cols] = est.shape
+            shapes[i][:fi.size, cols] = est.shape  # a view: modes, then columns
     return Measurements(q, f, s, "; ".join(sources), channels, shapes), estimates

@@ -138,3 +138,47 @@ def test_match_modes_frequency_tie_break_and_order_fallback():
     assert idx.tolist() == [0, 2]
     assert mac_matrix(np.array([[1.0, 2.0]]), np.array([[-2.0, -4.0]]))[0, 0] == (
         pytest.approx(1.0))
+
+
+@pytest.mark.slow  # two identifications and two fits
+def test_calibrate_from_logs_matches_by_identified_shapes(case, tmp_path):
+    """Logs of the b family's free decays: the identified (signed) shapes pair the modes."""
+    import contextlib
+    import io
+    import json
+
+    from casflex.cli import main
+
+    robot, channels, b, data = case
+    rng = np.random.default_rng(3)
+    fs = 500.0
+    t = np.arange(int(10 * fs)) / fs
+    logs = []
+    for r, q in enumerate(Q):
+        y = np.zeros((t.size, len(data.channels)))
+        for j, (f, zeta) in enumerate(zip(data.frequency_hz[r], (0.01, 0.02), strict=True)):
+            wn = 2 * np.pi * f
+            decay = np.exp(-zeta * wn * t) * np.cos(wn * np.sqrt(1 - zeta**2) * t + 0.3 + j)
+            phi = data.shapes[r, j] / np.abs(data.shapes[r, j]).max()
+            y += decay[:, None] * (0.5 - 0.2 * j) * phi
+        y += 250e-6 * 9.81 * rng.standard_normal(y.shape)  # the accelerometers' noise
+        path = tmp_path / f"log{r}.npz"
+        np.savez(path, t=t, q1=np.full(t.size, q[0]),
+                 **{c: y[:, i] for i, c in enumerate(data.channels)})
+        logs.append(str(path))
+    (tmp_path / "sensors.toml").write_text(SENSORS)
+    (tmp_path / "fit.toml").write_text('[[parameter]]\npath = "beam.section.b"\n'
+                                       'min = 0.002\nmax = 0.012\ninitial = 0.007\n')
+    (tmp_path / "beam.toml").write_text(BEAM)
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(["calibrate", str(tmp_path / "beam.toml"), "--logs", *logs, "--fit",
+                       str(tmp_path / "fit.toml"), "--sensors", str(tmp_path / "sensors.toml"),
+                       "--processes", "1", "--json"])
+    assert status == 0, err.getvalue()
+    result = json.loads(out.getvalue())
+    assert result["modelled_mode"] == [[1, 3], [1, 3]]
+    # the identified shapes carry the noise: MAC still far above the 0.7 threshold
+    assert min(min(row) for row in result["mac"]) > 0.99
+    assert result["parameters"]["beam.section.b"] == pytest.approx(B_TRUE, rel=5e-3)
+    assert "MAC" in err.getvalue()
