@@ -231,3 +231,15 @@ def test_measurement_and_fit_file_rules(tmp_path):
                                      'max = 1\n')
     with pytest.raises(ProblemFileError, match="E, G and rho"):
         read_fit(tmp_path / "f.toml", robot)
+
+
+@pytest.mark.slow  # a 2-process pool on two shared cores
+def test_one_pool_for_the_fit_gives_the_in_process_result(fe_data):
+    # one pool kept over all Jacobians, each parameter set's configurations split
+    # between the workers: the same TMM solutions, so the same fit to round-off
+    robot = load(ARM)
+    data = Measurements(Q, fe_data, None)
+    one = calibrate(robot, data, fit_params(robot), processes=1)
+    two = calibrate(robot, data, fit_params(robot), processes=2)
+    assert two.values == pytest.approx(one.values, rel=1e-9)
+    assert two.tmm_evaluations == one.tmm_evaluations
