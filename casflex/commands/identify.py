@@ -11,8 +11,9 @@ stabilisation check and a damped-sinusoid least-squares fit give the modes
 (rad, or with a ``deg`` suffix) when the log has no joint columns, or overrides them.
 
 JSON: ``{"log", "q", "frequency_hz", "frequency_std_hz", "damping", "damping_std",
-"seen_by", "sample_rate_hz", "peaks_hz", "rejected_hz"}`` (Hz, rad; ``q`` null when
-unknown).
+"seen_by", "shape", "sample_rate_hz", "peaks_hz", "rejected_hz"}`` (Hz, rad; ``q`` null
+when unknown; ``shape``: per mode, channel -> amplitude signed by its phase, the values
+of the ``f<j>_<channel>`` columns of a measurement file).
 """
 
 from __future__ import annotations

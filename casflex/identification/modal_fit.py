@@ -168,7 +168,8 @@ class ModalEstimate:
         -------
         dict
             ``frequency_hz``, ``frequency_std_hz``, ``damping``, ``damping_std``,
-            ``seen_by``, ``sample_rate_hz``, ``peaks_hz``, ``rejected_hz``.
+            ``seen_by``, ``shape`` (per mode, channel name -> signed amplitude, or null),
+            ``sample_rate_hz``, ``peaks_hz``, ``rejected_hz``.
 
         Examples
         --------
@@ -181,7 +182,10 @@ class ModalEstimate:
         return {
             "frequency_hz": self.frequency_hz, "frequency_std_hz": self.frequency_std_hz,
             "damping": self.damping, "damping_std": self.damping_std,
-            "seen_by": self.seen_by, "sample_rate_hz": self.sample_rate,
+            "seen_by": self.seen_by,
+            "shape": None if self.shape is None else [
+                dict(zip(self.channels, row.tolist(), strict=True)) for row in self.shape],
+            "sample_rate_hz": self.sample_rate,
             "peaks_hz": None if self.spectrum is None else self.spectrum.peaks_hz,
             "rejected_hz": list(self.rejected_hz),
         }
