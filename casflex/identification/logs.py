@@ -19,7 +19,9 @@ A log may hold several configurations (a test campaign recorded in one file: tap
 move, tap, ...). :func:`split_configurations` cuts it into *segments of constant joint
 angles*: maximal runs of samples over which every joint stays within ``tolerance`` rad
 (default 0.005 rad, 0.29°) of its value at the run's first sample and which last at least
-``min_duration`` seconds (default 2 s); everything else (the moves between) is dropped.
+``min_duration`` seconds (default 2 s); two adjacent runs whose median angles lie within
+half the tolerance of each other are one (noise cut the first short); everything else
+(the moves between) is dropped.
 Each segment is then one free-decay record at one configuration (the ends of the moves
 that stay within the band belong to it; the identification starts at the impulse).
 """
@@ -288,15 +290,26 @@ def split_configurations(log: VibrationLog, tolerance: float = SEGMENT_TOLERANCE
         raise ProblemFileError(log.source, "q", None,
                                "splitting by configuration needs the joint columns q1..qn")
     dt = 1.0 / log.sample_rate
-    segments, start = [], 0
+    runs, start = [], 0
     while start < len(log.t):
         end = _run_end(log.q, start, tolerance)
+        # a run cut by encoder noise right after it began (at the end of a move) is
+        # continued by the next one: adjacent runs whose medians lie within half the band
+        # are one (the runs of a slow move lie a whole band apart)
+        if runs and runs[-1][1] == start and np.all(np.abs(
+                np.median(log.q[runs[-1][0]:runs[-1][1]], axis=0)
+                - np.median(log.q[start:end], axis=0)) <= 0.5 * tolerance):
+            runs[-1] = (runs[-1][0], end)
+        else:
+            runs.append((start, end))
+        start = end
+    segments = []
+    for start, end in runs:
         if (end - start) * dt >= min_duration and end - start >= MIN_SAMPLES:
             span = f"t = {log.t[start]:.6g} .. {log.t[end - 1]:.6g} s"
             segments.append(VibrationLog(log.t[start:end], log.channels[start:end],
                                          log.names, log.q[start:end],
                                          f"{log.source}, {span}" if log.source else span))
-        start = end
     if not segments:
         raise ProblemFileError(log.source, "q", None,
                                f"no segment of constant joint angles (within {tolerance:g} rad) "

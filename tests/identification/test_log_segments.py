@@ -65,6 +65,19 @@ def test_split_finds_the_holds_and_drops_the_ramps():
         assert part.t[0] == pytest.approx(start, abs=3.5 / FS)
         assert part.t[-1] - part.t[0] == pytest.approx(4.0, abs=7.0 / FS)
         assert "c.csv, t = " in part.source
+    # a slow move (0.5 rad in 10 s: a 5 mrad band is left every 0.1 s) is no segment,
+    # however long it lasts
+    t2 = np.arange(int(14 * FS)) / FS
+    q2 = np.clip((t2 - 2.0) / 10.0, 0.0, 1.0)[:, None] * [0.0, 0.5, 0.0]
+    parts = split_configurations(VibrationLog(t2, np.zeros((t2.size, 1)), ("a",), q2, None))
+    assert [round(float(p.configuration[1]), 3) for p in parts] == [0.0, 0.5]
+    # a hold whose first sample sits at the band's edge, then noise crossing it: one
+    # segment, not two
+    q3 = np.full((t2.size, 1), 0.0)
+    q3[0] = 0.0045
+    q3[1:] += 2e-4 * np.random.default_rng(1).standard_normal((t2.size - 1, 1))
+    parts = split_configurations(VibrationLog(t2, np.zeros((t2.size, 1)), ("a",), q3, None))
+    assert len(parts) == 1 and parts[0].t.size == t2.size
     # a minimum duration above the holds leaves nothing: a one-line error
     with pytest.raises(ProblemFileError, match="lasts 5 s"):
         split_configurations(VibrationLog(t, y, ("a", "b"), q, "c.csv"), min_duration=5.0)
