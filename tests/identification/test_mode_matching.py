@@ -182,3 +182,34 @@ def test_calibrate_from_logs_matches_by_identified_shapes(case, tmp_path):
     assert min(min(row) for row in result["mac"]) > 0.99
     assert result["parameters"]["beam.section.b"] == pytest.approx(B_TRUE, rel=5e-3)
     assert "MAC" in err.getvalue()
+
+
+def test_cli_shape_channel_errors_are_one_line(case, tmp_path):
+    import contextlib
+    import io
+
+    from casflex.cli import main
+
+    (tmp_path / "beam.toml").write_text(BEAM)
+    (tmp_path / "fit.toml").write_text('[[parameter]]\npath = "beam.section.b"\n'
+                                       'min = 0.002\nmax = 0.012\n')
+    (tmp_path / "sensors.toml").write_text(SENSORS.replace('name = "s3"', 'name = "t3"'))
+    (tmp_path / "m.csv").write_text("q1,f1,f1_s3_x\n0,5.36,0.4\n")
+
+    def run(*extra):
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            status = main(["calibrate", str(tmp_path / "beam.toml"), "--data",
+                           str(tmp_path / "m.csv"), "--fit", str(tmp_path / "fit.toml"),
+                           "--processes", "1", *extra])
+        return status, out.getvalue(), err.getvalue()
+
+    status, out, err = run("--sensors", str(tmp_path / "sensors.toml"))
+    errors = [ln for ln in err.splitlines() if "error" in ln]
+    assert status == 2 and out == "" and len(errors) == 1 and "Traceback" not in err
+    assert "s3_x" in errors[0] and "t3_x" in errors[0]
+    status, _, err = run("--sensors", str(tmp_path / "sensors.toml"), "--mac-min", "1.5")
+    assert status == 2 and "--mac-min" in err
+    (tmp_path / "m.csv").write_text("q1,f1,f2_s1_x\n0,5.36,0.4\n")
+    status, _, err = run()
+    assert status == 2 and "f2" in err and len(err.strip().splitlines()) == 1
