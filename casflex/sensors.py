@@ -194,7 +194,8 @@ class StrainPair:
         _check_axes(self.axes, "xy", f"{self.name}.axes")
         object.__setattr__(self, "distance", tuple(float(v) for v in self.distance))
         for k, v in enumerate(self.distance):
-            plausible(v, "section_dimension", f"{self.name}.distance[{k}]")
+            if v != 0.0:  # 0: not given (no strain on that axis)
+                plausible(v, "section_dimension", f"{self.name}.distance[{k}]")
         if self.noise is not None:
             plausible(self.noise, "noise_strain", f"{self.name}.noise")
 
