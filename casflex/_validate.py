@@ -455,6 +455,9 @@ BOUNDS: dict[str, Bound] = {
                                                     "(seismic sensors) to 1000 g"),
     "noise_strain": Bound(1e-13, 0.1, "-", "strain-gauge noise, from below any gauge's "
                                            "resolution to a strain that breaks the gauge"),
+    "natural_frequency": Bound(1e-3, 1e8, "rad/s", "flexible modes of a robot, from a "
+                                                   "period of 100 min to ultrasound; outside, "
+                                                   "the modal analysis broke down"),
     "vtol": Bound(1e-6, 1.0, "-", "tolerable residual vibration: below 1e-6 is under any "
                                   "model's accuracy (and 1e-300 broke the shaper), 1 is "
                                   "unconstrained"),

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._parallel import parallel_map
+from casflex._validate import BOUNDS
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
@@ -152,13 +153,15 @@ def frequency_sweep(robot: Robot, qs: ArrayLike, count: int, *, track: bool = Fa
 
 
 def _check_frequencies(robot, qs, omega):
-    """Natural frequencies of a constrained flexible arm are finite and > 0: anything else
-    is a numerical breakdown of the modal analysis, not a result."""
-    bad = ~(np.isfinite(omega) & (omega > 0.0))
+    """Natural frequencies of a constrained flexible arm are finite, > 0 and plausible
+    (``BOUNDS["natural_frequency"]``): anything else is a numerical breakdown of the modal
+    analysis (E = 1e40 gave 8e-16 rad/s), not a result."""
+    bound = BOUNDS["natural_frequency"]
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(omega) & (omega >= bound.low) & (omega <= bound.high))
     if np.any(bad):
         i, k = map(int, np.argwhere(bad)[0])
         raise ModelError(f"robot '{robot.name}': natural frequency {k + 1} at configuration "
                          f"{i + 1} of the sweep, q = {np.round(qs[i], 6).tolist()} rad, came "
-                         f"back as {omega[i, k]!r} rad/s; frequencies must be finite and "
-                         "> 0 (the modal analysis broke down there: check the robot's "
-                         "stiffness and mass values)")
+                         f"back as {float(omega[i, k])!r} rad/s; it {bound.rule} (check the "
+                         "robot's stiffness and mass values)")
