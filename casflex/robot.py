@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._problemfile import TableReader, parse_toml, read_toml
-from casflex._validate import plausible
+from casflex._validate import number, plausible
 from casflex.errors import ModelError, ProblemFileError
 
 __all__ = [
@@ -403,6 +403,7 @@ class Robot:
             raise ModelError(f"Robot.gravity = {self.gravity!r}: must be 3 numbers [m/s^2]")
         for k, v in enumerate(gravity):
             plausible(float(v), "gravity", f"Robot.gravity[{k}]")
+        number(self.damping_ratio, "Robot.damping_ratio", low=0.0, high=1.0, high_open=True)
 
     @property
     def n_joints(self) -> int:
