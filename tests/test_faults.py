@@ -244,7 +244,9 @@ def test_breakdown_frequencies_are_a_model_error():
 
     qs = np.zeros((2, 3))
     qs[:, 2] = [0.0, 0.5]
-    with pytest.raises(ModelError) as info:
+    # ModelError from the sweep's check today; the TMM's own breakdown detection (issue 13,
+    # the tmm package) may raise first, with a ModelError or SolverError of its own
+    with pytest.raises((ModelError, SolverError)) as info:
         frequency_sweep(stiff_robot(), qs, 2, processes=1)
     assert "\n" not in str(info.value)
 

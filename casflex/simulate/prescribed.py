@@ -267,7 +267,7 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
         tau = tm(q.T, dq.T, ddq.T, Z[:, :m].T, Z[:, m:].T)[0].full().T
     wall = time.perf_counter() - start
     hint = (f"the step dt = {dt} s is too large for the highest mode (RK4 needs "
-            "omega dt < 2.8), or the move too violent for the model")
+            "omega dt < 2.8), or the move too fast for the model's small deflections")
     check_divergence("simulate_prescribed", t, {"delta": Z[:, :m], "ddelta": Z[:, m:],
                                                 "tau": tau}, hint)
     delta, ddelta = Z[:, :m], Z[:, m:]
