@@ -305,6 +305,24 @@ def test_diverging_torque_simulation_names_time_and_quantity(arm_model):
     assert "\n" not in str(info.value)
 
 
+def test_diverging_sensor_data_names_time_and_quantity():
+    """simulate_data with a step far beyond RK4's stability limit of the one mode."""
+    from casflex.model import FlexibleModel, PointwiseProvider
+    from casflex.sensors import SensorSet
+    from casflex.simulate import simulate_data
+
+    robot = load(ROBOT)
+    sensors = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, sensors.points),
+                          gravity=None)
+    # the first mode is ~8.3 rad/s: dt = 1 s puts omega dt = 8.3 far beyond 2.8
+    with pytest.raises(SolverError, match=r"simulate_data: the integration diverged at "
+                                          r"t = [0-9.e+-]+ s: \|tip_deflection\| = .*"
+                                          r"dt = 1.0 s") as info:
+        simulate_data(model, sensors, Move([0, 0, 0], [0, -1, 0], 2.0), dt=1.0, t_end=600.0)
+    assert "\n" not in str(info.value)
+
+
 # ------------------------------------------------------------------ many shape joints
 
 
