@@ -581,16 +581,16 @@ def _read_section(r):
         if shape == "tube" and dims["wall"] >= dims["outer_diameter"] / 2.0:
             raise r.error("wall", dims["wall"], "must be smaller than the outer radius "
                                                 f"{dims['outer_diameter'] / 2.0} m")
+        why = "beyond the float range; give the dimensions in m"
         try:
             section = getattr(Section, shape)(*dims.values())
-        except ModelError:
-            section = None
+        except ModelError as exc:
+            section, why = None, f"outside their plausibility bounds ({exc})"
         if section is None or min(section.A, section.Ix, section.Iy, section.J,
                                   section.Ip) <= 0.0:
             # the dimension farthest from 1 m (in decades) over- or underflowed
             key = max(keys, key=lambda k: abs(math.log10(dims[k])))
-            raise r.error(key, dims[key], "gives section properties (A, I, J) beyond the "
-                                          "float range; give the dimensions in m")
+            raise r.error(key, dims[key], f"gives section properties (A, I, J) {why}")
     else:
         vals = {k: r.number(k, required=True, positive=True,
                             quantity="section_area" if k == "A" else "section_moment")
