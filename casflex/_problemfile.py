@@ -13,7 +13,7 @@ import tomllib
 from collections.abc import Collection, Sequence
 from pathlib import Path
 
-from casflex._validate import to_float
+from casflex._validate import BOUNDS, to_float
 from casflex.errors import ProblemFileError
 
 __all__ = ["ANGLE_UNITS", "TableReader", "parse_toml", "read_toml"]
@@ -144,8 +144,8 @@ class TableReader:
         return key in self.table
 
     def number(self, key: str, default: float | None = None, *, required: bool = False,
-               angle: bool = False, positive: bool = False,
-               nonnegative: bool = False) -> float | None:
+               angle: bool = False, positive: bool = False, nonnegative: bool = False,
+               quantity: str | None = None) -> float | None:
         """The number under ``key`` as a finite float, or ``default`` when absent.
 
         Parameters
@@ -160,12 +160,20 @@ class TableReader:
             Also accept ``{value = ..., unit = "deg"|"rad"}``; the result is in rad.
         positive, nonnegative : bool
             Require ``> 0`` / ``>= 0``.
+        quantity : str, optional
+            Require the plausibility bounds of this quantity
+            (:data:`casflex._validate.BOUNDS`; the value in SI units, angles in rad).
 
         Examples
         --------
         >>> r = TableReader(None, {"q": {"value": 180, "unit": "deg"}}, "")
         >>> round(r.number("q", angle=True), 6), r.number("d", 0.5)
         (3.141593, 0.5)
+        >>> TableReader("a.toml", {"E": 1e300}, "m").number("E", quantity="E")
+        ...                                            # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+            ...
+        casflex.errors.ProblemFileError: a.toml: field 'm.E' = 1e+300: must lie in [...] Pa: ...
         """
         self.used.add(key)
         if key not in self.table:
@@ -195,9 +203,35 @@ class TableReader:
             raise self.error(key, raw, "must be > 0")
         if nonnegative and value < 0.0:
             raise self.error(key, raw, "must be >= 0")
+        if quantity is not None:
+            self.check_bound(key, raw, value, quantity)
         return value
 
-    def vector(self, key: str, n: int, default: Sequence[float]) -> tuple[float, ...]:
+    def check_bound(self, key: str, raw: object, value: float, quantity: str) -> None:
+        """Raise the :class:`ProblemFileError` of ``key`` unless ``value`` lies within the
+        plausibility bounds of ``quantity`` (:data:`casflex._validate.BOUNDS`).
+
+        Parameters
+        ----------
+        key : str
+            Key in this table.
+        raw : object
+            The value as the file gives it (named in the error).
+        value : float
+            The value in SI units (angles in rad).
+        quantity : str
+            Key of :data:`casflex._validate.BOUNDS`.
+
+        Examples
+        --------
+        >>> TableReader("a.toml", {}, "tip").check_bound("mass", 2.0, 2.0, "tip_mass")
+        """
+        bound = BOUNDS[quantity]
+        if not bound.low <= value <= bound.high:
+            raise self.error(key, raw, bound.rule)
+
+    def vector(self, key: str, n: int, default: Sequence[float],
+               quantity: str | None = None) -> tuple[float, ...]:
         """The list of ``n`` finite numbers under ``key`` as a tuple, or ``default``.
 
         Parameters
@@ -208,6 +242,9 @@ class TableReader:
             Required length.
         default : sequence of float
             Value when the key is absent.
+        quantity : str, optional
+            Require every value within the plausibility bounds of this quantity
+            (:data:`casflex._validate.BOUNDS`).
 
         Examples
         --------
@@ -227,6 +264,8 @@ class TableReader:
             if not math.isfinite(to_float(v)):
                 raise self.error(key, raw, "must be finite (no NaN or inf)")
             out.append(float(v))
+            if quantity is not None:
+                self.check_bound(key, raw, out[-1], quantity)
         return tuple(out)
 
     def string(self, key: str, default: str | None = None,

@@ -11,6 +11,11 @@ rule it broke:
 
 Tables of problem files are read with :class:`casflex._problemfile.TableReader`, which
 adds known-key checking and units on top of the same rules.
+
+:data:`BOUNDS` is the one table of plausibility bounds of physical quantities (a Young's
+modulus, a tip mass, a move duration ...), each with its reason; :func:`plausible` checks
+a value against it. The problem-file loaders and the Python constructors both use it, and
+``problems/README.md`` lists it.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import math
 import os
 import re
 from collections.abc import Collection
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +32,7 @@ import numpy as np
 from casflex.errors import CasflexError, ModelError, ProblemFileError
 
 __all__ = ["fail", "to_float", "number", "choice", "vector", "square_matrix", "identifier",
-           "output_file", "output_directory"]
+           "output_file", "output_directory", "Bound", "BOUNDS", "plausible"]
 
 
 def fail(field: str, value: object, rule: str, *, path: str | os.PathLike | None = None,
@@ -372,3 +378,132 @@ def output_directory(value: str | os.PathLike, field: str, *,
         raise fail(field, str(value), f"the directory {str(existing)!r} is not writable",
                    error=error)
     return path
+
+
+# ------------------------------------------------------------------ plausibility bounds
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The plausible range ``low <= value <= high`` of one physical quantity, and why.
+
+    Attributes
+    ----------
+    low, high : float
+        Inclusive bounds, in ``unit``.
+    unit : str
+        SI unit of the quantity (``"-"`` for a pure number).
+    reason : str
+        Why a value outside is not physical (or not computable), in words.
+
+    Examples
+    --------
+    >>> BOUNDS["E"].rule
+    'must lie in [100000, 1.5e+12] Pa: from soft elastomers (~0.1 MPa) to diamond (~1.2 TPa)'
+    """
+
+    low: float
+    high: float
+    unit: str
+    reason: str
+
+    @property
+    def rule(self) -> str:
+        """The rule as an error message states it."""
+        return f"must lie in [{self.low:g}, {self.high:g}] {self.unit}: {self.reason}"
+
+
+#: Plausibility bounds of every physical quantity casflex reads, keyed by quantity name.
+#: Values outside are rejected at load (ProblemFileError) and by the constructors
+#: (ModelError): they are not physical, and computing with them gives overflow, underflow
+#: or a silently meaningless number. Documented in ``problems/README.md``.
+BOUNDS: dict[str, Bound] = {
+    "E": Bound(1e5, 1.5e12, "Pa", "from soft elastomers (~0.1 MPa) to diamond (~1.2 TPa)"),
+    "G": Bound(3e4, 7e11, "Pa", "shear moduli of the same materials, G = E / (2 (1 + nu)) "
+                                "with -0.5 < nu <= 0.5"),
+    "rho": Bound(1.0, 2.5e4, "kg/m^3", "from aerogels and foams to osmium (22 590 kg/m^3)"),
+    "section_dimension": Bound(1e-5, 10.0, "m", "a side, diameter or wall of a beam "
+                                                "section, from a 10 um foil to 10 m"),
+    "section_area": Bound(1e-10, 100.0, "m^2", "the area of sections of 10 um to 10 m"),
+    "section_moment": Bound(1e-22, 1e3, "m^4", "second moments and torsion constants of "
+                                               "sections of 10 um to 10 m"),
+    "offset": Bound(-100.0, 100.0, "m", "DH offsets, centre-of-mass offsets: no robot "
+                                        "reaches farther than 100 m"),
+    "beam_length": Bound(1e-3, 100.0, "m", "a flexible link from 1 mm to 100 m"),
+    "angle": Bound(-100.0, 100.0, "rad", "constant DH angles and joint positions within 16 "
+                                         "turns; beyond, no cable or encoder follows and "
+                                         "cos/sin lose digits"),
+    "tip_mass": Bound(0.0, 1e4, "kg", "payloads up to 10 t (the heaviest industrial robots "
+                                      "carry 2.3 t)"),
+    "tip_inertia": Bound(0.0, 1e4, "kg m^2", "moments of inertia of bodies up to 10 t and a "
+                                             "few metres"),
+    "motor_inertia": Bound(0.0, 1e3, "kg m^2", "rotor inertias reflected through gears of "
+                                               "industrial drives"),
+    "joint_stiffness": Bound(1e-3, 1e10, "N m/rad", "from micro-robot flexures to the stiffest "
+                                                    "gearboxes; a stiffer joint is rigid: "
+                                                    "leave joint_stiffness out"),
+    "gravity": Bound(-1e3, 1e3, "m/s^2", "a component of gravity (or of a base "
+                                         "acceleration) up to 100 g"),
+    "move_duration": Bound(1e-3, 1e5, "s", "a move from 1 ms (beyond any drive's "
+                                           "bandwidth below) to about a day"),
+    "settle": Bound(0.0, 1e5, "s", "time simulated after a move, at most about a day"),
+    "joint_velocity": Bound(-1e4, 1e4, "rad/s", "peak joint speed of a planned move, up to "
+                                                "about 100 000 rpm"),
+    "joint_acceleration": Bound(-1e6, 1e6, "rad/s^2", "peak joint acceleration of a planned "
+                                                      "move"),
+    "noise_acceleration": Bound(1e-9, 1e4, "m/s^2", "accelerometer noise from 1e-10 g "
+                                                    "(seismic sensors) to 1000 g"),
+    "noise_strain": Bound(1e-13, 0.1, "-", "strain-gauge noise, from below any gauge's "
+                                           "resolution to a strain that breaks the gauge"),
+    "natural_frequency": Bound(1e-3, 1e8, "rad/s", "flexible modes of a robot, from a "
+                                                   "period of 100 min to ultrasound; outside, "
+                                                   "the modal analysis broke down"),
+    "vtol": Bound(1e-6, 1.0, "-", "tolerable residual vibration: below 1e-6 is under any "
+                                  "model's accuracy (and 1e-300 broke the shaper), 1 is "
+                                  "unconstrained"),
+}
+
+
+def plausible(value: object, quantity: str, field: str, *, high: float | None = None,
+              reason: str | None = None, path: str | os.PathLike | None = None,
+              error: type[CasflexError] | None = None) -> float:
+    """``value`` as a finite float within the plausibility bounds of ``quantity``.
+
+    Parameters
+    ----------
+    value : object
+        A real number in the SI unit of ``quantity``.
+    quantity : str
+        Key of :data:`BOUNDS`.
+    field : str
+        Argument name or dotted problem-file field.
+    high : float, optional
+        A tighter upper bound that depends on other values (a gauge no farther from the
+        neutral axis than the section's face, a point on the link); ``reason`` says why.
+    reason : str, optional
+        Reason of ``high``.
+    path, error
+        See :func:`fail`.
+
+    Examples
+    --------
+    >>> plausible(69e9, "E", "material.E")
+    69000000000.0
+    >>> plausible(1e300, "E", "link[2].material.E", path="arm.toml")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ProblemFileError: arm.toml: field 'link[2].material.E' = 1e+300: must ...
+    >>> plausible(0.01, "section_dimension", "distance", high=0.0035,
+    ...           reason="the gauge sits on the section's face")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: distance = 0.01: must be <= 0.0035 m: the gauge sits on ...
+    """
+    bound = BOUNDS[quantity]
+    v = number(value, field, path=path, error=error)
+    if not bound.low <= v <= bound.high:
+        raise fail(field, value, bound.rule, path=path, error=error)
+    if high is not None and v > high:
+        raise fail(field, value, f"must be <= {high!r} {bound.unit}: {reason}", path=path,
+                   error=error)
+    return v

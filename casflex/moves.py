@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._problemfile import read_toml
-from casflex._validate import to_float
+from casflex._validate import BOUNDS, plausible, to_float
 from casflex.errors import ModelError, ProblemFileError
 
 __all__ = ["Move", "ShapedMove", "load_moves", "load_move", "reference_function",
@@ -92,6 +92,29 @@ class Move:
             raise ProblemFileError(None, f"{self.name}.duration", self.duration, "must be > 0")
         if not (math.isfinite(self.settle) and self.settle >= 0.0):
             raise ProblemFileError(None, f"{self.name}.settle", self.settle, "must be >= 0")
+        self._check_plausible()
+
+    def _check_plausible(self):
+        """Plausibility bounds (casflex._validate.BOUNDS): angles, times, peak rates."""
+        def check(value, quantity, key):
+            plausible(value, quantity, f"{self.name}.{key}", error=ProblemFileError)
+
+        for key in ("q0", "qf"):
+            for v in getattr(self, key):
+                check(float(v), "angle", key)
+        check(self.duration, "move_duration", "duration")
+        check(self.settle, "settle", "settle")
+        # bang-bang: peak speed 2 |Δq| / T at T/2, acceleration 4 |Δq| / T² throughout
+        span = float(np.max(np.abs(self.qf - self.q0), initial=0.0))
+        for quantity, what, peak in (
+                ("joint_velocity", "speed 2 |qf - q0| / T", 2.0 * span / self.duration),
+                ("joint_acceleration", "acceleration 4 |qf - q0| / T^2",
+                 4.0 * span / self.duration**2)):
+            bound = BOUNDS[quantity]
+            if peak > bound.high:
+                raise ProblemFileError(None, f"{self.name}.duration", self.duration,
+                                       f"gives a peak joint {what} = {peak:.4g} "
+                                       f"{bound.unit}; that {bound.rule}")
 
     @property
     def n_joints(self) -> int:

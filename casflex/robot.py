@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._problemfile import TableReader, parse_toml, read_toml
+from casflex._validate import number, plausible
 from casflex.errors import ModelError, ProblemFileError
 
 __all__ = [
@@ -114,6 +115,14 @@ class Section:
     Ip: float
     kind: str = "explicit"
 
+    def __post_init__(self):
+        if not all(isinstance(v, (int, float)) and math.isfinite(v)
+                   for v in (self.A, self.Ix, self.Iy, self.J, self.Ip)):
+            return  # overflowed: Section.rectangle / tube say so with their arguments
+        plausible(self.A, "section_area", "Section.A")
+        for name in ("Ix", "Iy", "J", "Ip"):
+            plausible(getattr(self, name), "section_moment", f"Section.{name}")
+
     @classmethod
     def rectangle(cls, a: float, b: float) -> Section:
         """Solid rectangle, ``a`` along local y and ``b`` along local x [m].
@@ -135,6 +144,8 @@ class Section:
         >>> round(s.Ix / s.Iy, 4)   # (b a^3) / (a b^3) = (a/b)^2
         0.5102
         """
+        for name, value in (("a", a), ("b", b)):
+            plausible(value, "section_dimension", f"Section.rectangle {name}")
         try:
             section = cls(
                 A=a * b,
@@ -169,6 +180,8 @@ class Section:
         >>> s.J == s.Ip
         True
         """
+        for name, value in (("outer_diameter", outer_diameter), ("wall", wall)):
+            plausible(value, "section_dimension", f"Section.tube {name}")
         ro = outer_diameter / 2.0
         ri = ro - wall
         try:
@@ -215,6 +228,10 @@ class Material:
     G: float
     rho: float
 
+    def __post_init__(self):
+        for name in ("E", "G", "rho"):
+            plausible(getattr(self, name), name, f"Material.{name}")
+
 
 @dataclass(frozen=True)
 class TipBody:
@@ -242,6 +259,15 @@ class TipBody:
     mass: float = 0.0
     inertia: tuple[float, ...] = (0.0, 0.0, 0.0)
     com_offset: tuple[float, ...] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        plausible(self.mass, "tip_mass", "TipBody.mass")
+        for name, quantity in (("inertia", "tip_inertia"), ("com_offset", "offset")):
+            values = getattr(self, name)
+            if not isinstance(values, (tuple, list)) or len(values) != 3:
+                raise ModelError(f"TipBody.{name} = {values!r}: must be 3 numbers")
+            for k, v in enumerate(values):
+                plausible(v, quantity, f"TipBody.{name}[{k}]")
 
     @property
     def is_empty(self) -> bool:
@@ -304,6 +330,18 @@ class Link:
     motor_inertia: float = 0.0
     joint_stiffness: float | None = None
 
+    def __post_init__(self):
+        who = f"Link {self.name!r}" if self.name else "Link"
+        for key in ("theta", "alpha", "section_angle"):
+            plausible(getattr(self, key), "angle", f"{who}.{key}")
+        for key in ("a", "d"):
+            plausible(getattr(self, key), "offset", f"{who}.{key}")
+        plausible(self.motor_inertia, "motor_inertia", f"{who}.motor_inertia")
+        if self.joint_stiffness is not None:
+            plausible(self.joint_stiffness, "joint_stiffness", f"{who}.joint_stiffness")
+        if self.flexible:
+            plausible(self.length, "beam_length", f"{who}.length")
+
     @property
     def flexible(self) -> bool:
         """True when the row carries a beam."""
@@ -358,6 +396,14 @@ class Robot:
     damping_ratio: float = 0.0
     source: str | None = None
     description: str = ""
+
+    def __post_init__(self):
+        gravity = np.asarray(self.gravity, dtype=float)
+        if gravity.shape != (3,):
+            raise ModelError(f"Robot.gravity = {self.gravity!r}: must be 3 numbers [m/s^2]")
+        for k, v in enumerate(gravity):
+            plausible(float(v), "gravity", f"Robot.gravity[{k}]")
+        number(self.damping_ratio, "Robot.damping_ratio", low=0.0, high=1.0, high_open=True)
 
     @property
     def n_joints(self) -> int:
@@ -530,23 +576,27 @@ def _read_section(r):
         raise r.error("shape", None, "is required: 'rectangle', 'tube' or 'explicit'")
     if shape in ("rectangle", "tube"):
         keys = ("a", "b") if shape == "rectangle" else ("outer_diameter", "wall")
-        dims = {k: r.number(k, required=True, positive=True) for k in keys}
+        dims = {k: r.number(k, required=True, positive=True, quantity="section_dimension")
+                for k in keys}
         if shape == "tube" and dims["wall"] >= dims["outer_diameter"] / 2.0:
             raise r.error("wall", dims["wall"], "must be smaller than the outer radius "
                                                 f"{dims['outer_diameter'] / 2.0} m")
+        why = "beyond the float range; give the dimensions in m"
         try:
             section = getattr(Section, shape)(*dims.values())
-        except ModelError:
-            section = None
+        except ModelError as exc:
+            section, why = None, f"outside their plausibility bounds ({exc})"
         if section is None or min(section.A, section.Ix, section.Iy, section.J,
                                   section.Ip) <= 0.0:
             # the dimension farthest from 1 m (in decades) over- or underflowed
             key = max(keys, key=lambda k: abs(math.log10(dims[k])))
-            raise r.error(key, dims[key], "gives section properties (A, I, J) beyond the "
-                                          "float range; give the dimensions in m")
+            raise r.error(key, dims[key], f"gives section properties (A, I, J) {why}")
     else:
-        vals = {k: r.number(k, required=True, positive=True) for k in ("A", "Ix", "Iy", "J")}
-        ip = r.number("Ip", default=vals["Ix"] + vals["Iy"], positive=True)
+        vals = {k: r.number(k, required=True, positive=True,
+                            quantity="section_area" if k == "A" else "section_moment")
+                for k in ("A", "Ix", "Iy", "J")}
+        ip = r.number("Ip", default=vals["Ix"] + vals["Iy"], positive=True,
+                      quantity="section_moment")
         section = Section(A=vals["A"], Ix=vals["Ix"], Iy=vals["Iy"], J=vals["J"], Ip=ip)
     r.finish()
     return section
@@ -556,13 +606,14 @@ def _read_link(path, raw, index):
     r = TableReader(path, raw, f"link[{index}]")
     name = r.string("name", default=f"row{index + 1}")
     joint = r.string("joint", default="fixed", choices={"revolute", "fixed"})
-    theta = r.number("theta", 0.0, angle=True)
-    d = r.number("d", 0.0)
-    a = r.number("a", 0.0)
-    alpha = r.number("alpha", 0.0, angle=True)
-    section_angle = r.number("section_angle", 0.0, angle=True)
-    motor_inertia = r.number("motor_inertia", 0.0, nonnegative=True)
-    joint_stiffness = r.number("joint_stiffness", None, positive=True)
+    theta = r.number("theta", 0.0, angle=True, quantity="angle")
+    d = r.number("d", 0.0, quantity="offset")
+    a = r.number("a", 0.0, quantity="offset")
+    alpha = r.number("alpha", 0.0, angle=True, quantity="angle")
+    section_angle = r.number("section_angle", 0.0, angle=True, quantity="angle")
+    motor_inertia = r.number("motor_inertia", 0.0, nonnegative=True, quantity="motor_inertia")
+    joint_stiffness = r.number("joint_stiffness", None, positive=True,
+                               quantity="joint_stiffness")
     if joint_stiffness is not None and joint != "revolute":
         raise r.error("joint_stiffness", joint_stiffness,
                       "a joint spring needs a revolute joint in this row")
@@ -578,11 +629,8 @@ def _read_link(path, raw, index):
                       "a flexible link needs both [link.section] and [link.material]")
     if sec_r is not None:
         section = _read_section(sec_r)
-        material = Material(
-            E=mat_r.number("E", required=True, positive=True),
-            G=mat_r.number("G", required=True, positive=True),
-            rho=mat_r.number("rho", required=True, positive=True),
-        )
+        material = Material(**{key: mat_r.number(key, required=True, positive=True,
+                                                 quantity=key) for key in ("E", "G", "rho")})
         mat_r.finish()
         if a == 0.0 and d == 0.0:
             raise r.error("a", a, "a flexible link needs a non-zero length: set a or d (> 0)")
@@ -593,17 +641,21 @@ def _read_link(path, raw, index):
             raise r.error("a", a, "the length of a flexible link must be > 0")
         if d < 0.0:
             raise r.error("d", d, "the length of a flexible link must be > 0")
+        key = "a" if a != 0.0 else "d"
+        r.check_bound(key, r.table[key], abs(a or d), "beam_length")
 
     tip = TipBody()
     tip_r = r.table_("tip")
     if tip_r is not None:
-        tip = TipBody(
-            mass=tip_r.number("mass", 0.0, nonnegative=True),
-            inertia=tip_r.vector("inertia", 3, (0.0, 0.0, 0.0)),
-            com_offset=tip_r.vector("com_offset", 3, (0.0, 0.0, 0.0)),
-        )
-        if min(tip.inertia) < 0.0:
-            raise tip_r.error("inertia", list(tip.inertia), "moments of inertia must be >= 0")
+        mass = tip_r.number("mass", 0.0, nonnegative=True, quantity="tip_mass")
+        inertia = tip_r.vector("inertia", 3, (0.0, 0.0, 0.0))
+        if min(inertia) < 0.0:
+            raise tip_r.error("inertia", list(inertia), "moments of inertia must be >= 0")
+        for v in inertia:
+            tip_r.check_bound("inertia", list(inertia), v, "tip_inertia")
+        tip = TipBody(mass=mass, inertia=inertia,
+                      com_offset=tip_r.vector("com_offset", 3, (0.0, 0.0, 0.0),
+                                              quantity="offset"))
         tip_r.finish()
     r.finish()
     return Link(theta=theta, d=d, a=a, alpha=alpha, joint=joint, name=name, section=section,
@@ -682,7 +734,7 @@ def _from_dict(data, path):
     r = TableReader(path, data, "")
     name = r.string("name", default=Path(path).stem if path else "robot")
     description = r.string("description", default="")
-    gravity = np.array(r.vector("gravity", 3, (0.0, 0.0, -9.81)))
+    gravity = np.array(r.vector("gravity", 3, (0.0, 0.0, -9.81), quantity="gravity"))
     damping = r.number("damping_ratio", 0.0, nonnegative=True)
     if damping >= 1.0:
         raise r.error("damping_ratio", damping, "must be < 1 (underdamped modes)")

@@ -73,7 +73,7 @@ import casadi as ca
 import numpy as np
 
 from casflex._problemfile import TableReader, read_toml
-from casflex._validate import choice, fail, identifier, to_float
+from casflex._validate import choice, fail, identifier, plausible, to_float
 from casflex.errors import ModelError, ProblemFileError
 
 if TYPE_CHECKING:
@@ -143,6 +143,10 @@ class Accelerometer:
         choice(self.frame, f"{self.name}.frame", ("sensor", "inertial"))
         _check_axes(self.axes, "xyz", f"{self.name}.axes")
         object.__setattr__(self, "offset", tuple(float(v) for v in self.offset))
+        for k, v in enumerate(self.offset):
+            plausible(v, "offset", f"{self.name}.offset[{k}]")
+        if self.noise is not None:
+            plausible(self.noise, "noise_acceleration", f"{self.name}.noise")
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -189,6 +193,11 @@ class StrainPair:
             object.__setattr__(self, "name", _default_name("sg", self.row, self.s))
         _check_axes(self.axes, "xy", f"{self.name}.axes")
         object.__setattr__(self, "distance", tuple(float(v) for v in self.distance))
+        for k, v in enumerate(self.distance):
+            if v != 0.0:  # 0: not given (no strain on that axis)
+                plausible(v, "section_dimension", f"{self.name}.distance[{k}]")
+        if self.noise is not None:
+            plausible(self.noise, "noise_strain", f"{self.name}.noise")
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -424,8 +433,15 @@ def _sensor_from_table(reader, robot, kind):
     noise = reader.number("noise")
     if noise is not None and noise <= 0:
         raise reader.error("noise", noise, "must be > 0 (a standard deviation)")
+    if noise is not None:
+        reader.check_bound("noise", noise, noise, "noise_acceleration" if kind ==
+                           "accelerometer" else "noise_strain")
     if kind == "accelerometer":
-        offset = reader.vector("offset", 3, (0.0, 0.0, 0.0))
+        offset = reader.vector("offset", 3, (0.0, 0.0, 0.0), quantity="offset")
+        if math.hypot(*offset) > link.length:
+            raise reader.error("offset", list(offset), "must lie within the link's length "
+                               f"({link.length} m of '{link.name}') from its neutral axis: "
+                               "a sensing element farther away is not on the link")
         flags = {}
         for key in ("gravity", "rigid"):
             v = reader.table.get(key, True)
@@ -446,7 +462,25 @@ def _sensor_from_table(reader, robot, kind):
     if not (isinstance(dist, (list, tuple)) and len(dist) == 2
             and all(_is_number(v) and v > 0 for v in dist)):
         raise reader.error("distance", dist, "must be a positive number or [c_x, c_y] in m")
+    _check_gauge_distance(reader, link, [float(v) for v in dist])
     return StrainPair(row, s, distance=tuple(dist), name=name, axes=axes, noise=noise)
+
+
+def _check_gauge_distance(reader, link, dist):
+    """Gauges sit on the section: no farther from the neutral axis than its faces."""
+    faces = default_strain_distance(link.section)
+    if all(math.isfinite(c) for c in faces):
+        why = "half the section's depth along that axis: the gauges sit on its faces"
+    else:  # explicit section: the extreme fibre is at ~1-2 radii of gyration
+        faces = tuple(10.0 * math.sqrt(i / link.section.A)
+                      for i in (link.section.Iy, link.section.Ix))
+        why = ("ten radii of gyration sqrt(I/A) of the explicit section (a rectangle's "
+               "face is at 1.7)")
+    for axis, c, face in zip("xy", dist, faces, strict=True):
+        reader.check_bound("distance", dist, c, "section_dimension")
+        if c > face * (1 + 1e-9):
+            raise reader.error("distance", dist, f"c_{axis} = {c} m is beyond {face:.4g} m, "
+                                                 f"{why}")
 
 
 def sensors_from_tables(tables: list[dict], robot: Robot,

@@ -4,8 +4,11 @@ Each reproducer of the issue is a parametrized case: the Python loaders raise a
 :class:`~casflex.errors.CasflexError` subclass naming the field and value, and the CLI
 answers exactly one stderr line and exit status 2, before any heavy work. A fuzz test then
 mutates the bundled problem files (huge, tiny and negative numbers, wrong types, unknown
-keys, non-UTF-8 bytes) and requires every failure of the robot, move, sensor and study
-loaders to be a CasflexError.
+keys, non-UTF-8 bytes, finite but physically impossible values) and requires every failure
+of the robot, move, sensor and study loaders to be a CasflexError, and everything they
+accept to lie within the plausibility bounds (``casflex._validate.BOUNDS``). The
+reproducers of issue 13 part 3 (impossible values, numerical breakdown) are in
+``tests/test_faults.py``.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from casflex._cache import CacheError, load_verified, save_verified
+from casflex._validate import BOUNDS
 from casflex.cli import main
 from casflex.design.study import load_study
 from casflex.errors import CasflexError, ModelError, ProblemFileError
@@ -33,6 +37,8 @@ ROBOT = ROOT / "problems" / "arm2link.toml"
 MOVES = ROOT / "problems" / "moves.toml"
 STRAIN = ROOT / "problems" / "sensors" / "arm2link_strain.toml"
 STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
+ACCEL = ROOT / "problems" / "sensors" / "arm2link_accel.toml"
+TESTBED = ROOT / "problems" / "testbed.toml"
 BIG = 10**400  # an integer beyond the float range (TOML integers have no size limit)
 NOT_UTF8 = b"\n# \xff\xfe caf\xe9\n"
 #: an integer literal of more than 4300 digits (Python will not even print it as an int)
@@ -45,12 +51,14 @@ def study_text() -> str:
 
 
 TEXTS = {"robot": lambda: ROBOT.read_text(), "moves": lambda: MOVES.read_text(),
-         "sensors": lambda: STRAIN.read_text(), "study": study_text}
+         "sensors": lambda: STRAIN.read_text(), "study": study_text,
+         "accel": lambda: ACCEL.read_text(), "testbed": lambda: TESTBED.read_text()}
 
 
 def loader(kind: str, arm):
-    return {"robot": load, "moves": load_moves,
-            "sensors": lambda p: load_sensors(p, arm), "study": load_study}[kind]
+    return {"robot": load, "testbed": load, "moves": load_moves,
+            "sensors": lambda p: load_sensors(p, arm), "accel": lambda p: load_sensors(p, arm),
+            "study": load_study}[kind]
 
 
 def edited(kind: str, old: str, new: str) -> str:
@@ -127,7 +135,9 @@ def test_load_move_of_a_non_utf8_file(tmp_path):
                                   lambda: Section.tube(1e200, 1e199)],
                          ids=["rectangle-1e300", "rectangle-bigint", "tube-1e200"])
 def test_section_overflow_is_a_model_error(call):
-    with pytest.raises(ModelError, match="overflow the float range"):
+    # the plausibility bound on the dimensions (10 um to 10 m) rejects them before any
+    # section property can overflow
+    with pytest.raises(ModelError, match=r"must lie in \[1e-05, 10\] m|must be finite"):
         call()
 
 
@@ -270,7 +280,9 @@ class Literal:
 
 HUGE_AND_TINY = [BIG, -BIG, Literal(HUGE_LITERAL), 2**63, -(2**63), 1e308, -1e308,
                  1.7976931348623157e308, 1e-320, 5e-324, -5e-324, 0, 0.0, -0.0, -1, -1.0, 1,
-                 math.nan, math.inf, -math.inf]
+                 math.nan, math.inf, -math.inf,
+                 # issue 13 part 3: finite but physically impossible
+                 1e300, -1e300, 1e-300, 1e-308, 1e40, 9e18, 1e5, 1e-5, 1e-3, 100.0, 1e4]
 WRONG_TYPES = [True, False, "", "x", "deg", "rad", "\u00ff", "link1", "../nope.toml",
                "rectangle", "strain", [], [1], [1.0, 2.0, 3.0], [[1]], ["deg"], [BIG, 0, 0],
                {}, {"value": 1}, {"value": 90, "unit": 5}, {"value": BIG, "unit": "deg"},
@@ -351,13 +363,43 @@ def mutated_files(draw, kind: str) -> bytes:
     return data
 
 
+def assert_plausible(kind: str, result) -> None:
+    """What a loader accepts lies within the plausibility bounds (casflex._validate)."""
+    def within(quantity, value):
+        bound = BOUNDS[quantity]
+        assert bound.low <= value <= bound.high, (quantity, value)
+
+    if kind in ("robot", "testbed"):
+        for link in result.links:
+            for value in (link.a, link.d, *link.tip.com_offset):
+                within("offset", value)
+            within("tip_mass", link.tip.mass)
+            if link.flexible:
+                for key in ("E", "G", "rho"):
+                    within(key, getattr(link.material, key))
+                within("beam_length", link.length)
+            if link.joint_stiffness is not None:
+                within("joint_stiffness", link.joint_stiffness)
+    elif kind == "moves":
+        for move in result.values():
+            within("move_duration", move.duration)
+            for q in (*move.q0, *move.qf):
+                within("angle", q)
+    elif kind in ("sensors", "accel"):
+        for sensor in result:
+            if sensor.noise is not None:
+                within("noise_strain" if sensor.kind == "strain" else "noise_acceleration",
+                       sensor.noise)
+
+
 def fuzz(kind: str, data: bytes, directory: Path, arm) -> None:
     path = directory / f"fuzz_{kind}.toml"
     path.write_bytes(data)
     try:
-        loader(kind, arm)(path)
+        result = loader(kind, arm)(path)
     except CasflexError:
-        pass  # every failure must be one of these; anything else fails the test
+        return  # every failure must be one of these; anything else fails the test
+    assert_plausible(kind, result)
 
 
 FUZZ_SETTINGS = dict(deadline=None, derandomize=True, database=None,

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from casflex._problemfile import read_toml
-from casflex._validate import choice, fail, identifier, number
+from casflex._validate import choice, fail, identifier, number, plausible
 
 if TYPE_CHECKING:
     from casflex.moves import Move
@@ -143,7 +143,8 @@ def _check_settings(path, settings, sensors, sensors_path):
     m["delta_order"] = one_of("model.delta_order", m["delta_order"], (0, 1))
     _flag(path, "model.gravity", m["gravity"])
     s = settings["shaper"]
-    s["vtol"] = num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True)
+    s["vtol"] = plausible(num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True),
+                          "vtol", "shaper.vtol", path=path)
     s["margin"] = num("shaper.margin", s["margin"], low=0.0, high=1.0, high_open=True)
     s["n_samples"] = num("shaper.n_samples", s["n_samples"], low=10, high=5000, integer=True)
     sim = settings["simulation"]

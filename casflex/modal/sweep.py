@@ -15,6 +15,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._parallel import parallel_map
+from casflex._validate import BOUNDS
+from casflex.errors import ModelError
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -133,6 +135,7 @@ def frequency_sweep(robot: Robot, qs: ArrayLike, count: int, *, track: bool = Fa
         for i, w in parallel_map(point_frequencies, jobs, processes=processes,
                                  progress=progress, desc="TMM"):
             omega[i] = w
+        _check_frequencies(robot, qs, omega)
         return FrequencySweep(qs, omega, False, None)
     directions = None
     if joint is not None:
@@ -144,4 +147,21 @@ def frequency_sweep(robot: Robot, qs: ArrayLike, count: int, *, track: bool = Fa
     tracked = track_modes(seq, count=count, robot=robot)
     mac = np.asarray(tracked.mac, dtype=float)
     min_mac = float(np.nanmin(mac)) if np.isfinite(mac).any() else 1.0
-    return FrequencySweep(qs, tracked.omega(seq), True, min_mac)
+    omega = tracked.omega(seq)
+    _check_frequencies(robot, qs, omega)
+    return FrequencySweep(qs, omega, True, min_mac)
+
+
+def _check_frequencies(robot, qs, omega):
+    """Natural frequencies of a constrained flexible arm are finite, > 0 and plausible
+    (``BOUNDS["natural_frequency"]``): anything else is a numerical breakdown of the modal
+    analysis (E = 1e40 gave 8e-16 rad/s), not a result."""
+    bound = BOUNDS["natural_frequency"]
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(omega) & (omega >= bound.low) & (omega <= bound.high))
+    if np.any(bad):
+        i, k = map(int, np.argwhere(bad)[0])
+        raise ModelError(f"robot '{robot.name}': natural frequency {k + 1} at configuration "
+                         f"{i + 1} of the sweep, q = {np.round(qs[i], 6).tolist()} rad, came "
+                         f"back as {float(omega[i, k])!r} rad/s; it {bound.rule} (check the "
+                         "robot's stiffness and mass values)")

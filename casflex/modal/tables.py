@@ -108,6 +108,14 @@ DEGENERATE_SHIFTS = (1e-4, 1e-3, 1e-2)
 TWO_PI = 2.0 * math.pi
 #: below this MAC between tracked grid neighbours build_table warns (RuntimeWarning)
 MIN_MAC = 0.8
+#: Largest grid (points) :func:`build_table` starts on: a grid of ``max_points`` points
+#: holds every point's mode shapes in memory (roughly ``count × flexible links × n_points ×
+#: 12 × 8`` bytes each, ~80 kB for the case-study arm) and costs one TMM solve per point
+#: (~15 ms per flexible link on one core). Override per call (``max_points=``) or with the
+#: environment variable ``CASFLEX_MAX_GRID_POINTS``.
+MAX_GRID_POINTS = 100_000
+#: basis of the time estimate in the grid-size error [s per point and flexible link]
+SECONDS_PER_POINT_AND_LINK = 0.015
 
 
 # ------------------------------------------------------------------ shape joints
@@ -646,6 +654,34 @@ def _check_grid(robot, grid, joints):
     return tuple(grid)
 
 
+def _check_grid_size(robot, grid, joints, count, n_points, max_points):
+    """Refuse a grid too large to tabulate before any work (a 20-link robot: 19-D)."""
+    if max_points is None:
+        env = os.environ.get("CASFLEX_MAX_GRID_POINTS")
+        if env is None:
+            max_points = MAX_GRID_POINTS
+        else:
+            try:
+                max_points = int(env)
+            except ValueError:
+                raise ModelError(f"CASFLEX_MAX_GRID_POINTS = {env!r}: must be a whole "
+                                 "number of grid points") from None
+    points = math.prod(a.size for a in grid)
+    if points <= max_points:
+        return
+    links = max(len(robot.flexible_links), 1)
+    seconds = points * links * SECONDS_PER_POINT_AND_LINK
+    memory = points * count * links * int(n_points) * 12 * 8
+    sizes = " x ".join(str(a.size) for a in grid)
+    raise ModelError(
+        f"robot '{robot.name}': the modal table's grid over the {len(joints)} shape joints "
+        f"{[k + 1 for k in joints]} has {sizes} = {float(points):.3g} points, above the "
+        f"limit of {max_points} (about {seconds / 3600.0:.3g} h of TMM on one core and "
+        f"{memory / 1e9:.3g} GB of mode shapes); use fewer shape joints (lock joints or "
+        "make links rigid), a coarser grid step, or raise max_points / "
+        "CASFLEX_MAX_GRID_POINTS if the grid is meant")
+
+
 def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: int,
                 quantities: (Callable[[Robot, np.ndarray, ModeShapes], Mapping[str, ArrayLike]]
                              | Literal[False] | None) = None,
@@ -653,7 +689,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 client: Client | None = None, processes: int | None = None,
                 progress: bool = False, *, joints: Sequence[int] | None = None,
                 q_fixed: ArrayLike | None = None, extra_modes: int = EXTRA_MODES,
-                n_points: int = 51, weighting: str | None = None) -> ModalTable:
+                n_points: int = 51, weighting: str | None = None,
+                max_points: int | None = None) -> ModalTable:
     """Tabulate tracked modes and model quantities over a grid of the shape joints.
 
     Parameters
@@ -688,6 +725,10 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         Sample points per beam of the TMM shapes.
     weighting : {"mass", "uniform"}, optional
         MAC weighting (see :mod:`casflex.modal.tracking`); default ``"mass"``.
+    max_points : int, optional
+        Largest grid to start on (default ``$CASFLEX_MAX_GRID_POINTS`` or
+        :data:`MAX_GRID_POINTS`); a larger grid is a ``ModelError`` before any work,
+        naming its size, the estimated time and memory, and what to do.
 
     Returns
     -------
@@ -736,9 +777,10 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
                          "modes are the same in every configuration; use casflex.tmm.modes")
     grid = _check_grid(robot, grid, joints)
+    count = int(n_modes) + int(extra_modes)
+    _check_grid_size(robot, grid, joints, count, n_points, max_points)
     q_fixed = (np.zeros(robot.n_joints) if q_fixed is None
                else robot.check_q(q_fixed).astype(float))
-    count = int(n_modes) + int(extra_modes)
     if quantities is None:
         quantities = default_quantities
     gshape = tuple(a.size for a in grid)

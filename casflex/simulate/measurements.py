@@ -31,6 +31,12 @@ from numpy.typing import ArrayLike
 
 from casflex.sensors import SensorSet, measurement_function
 from casflex.simulate.integrators import rk4_step
+from casflex.simulate.results import (
+    DIVERGED_DEFLECTION,
+    check_divergence,
+    robot_reach,
+    tip_positions,
+)
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
@@ -156,9 +162,16 @@ def simulate_data(model: FlexibleModel, sensors: SensorSet, move: Move, dt: floa
         X = np.vstack([xinit, X])
     else:
         X = xinit[None]
+    hint = (f"the step dt = {dt} s is too large for the highest mode (RK4 needs "
+            "omega dt < 2.8), or the move too fast for the model's small deflections")
+    check_divergence("simulate_data", t, {"delta": X[:, :m], "ddelta": X[:, m:]}, hint)
     u = sample(t)
+    tip, tip_rigid = tip_positions(model.functions()["tip"], u[:, :n], X[:, :m])
+    check_divergence("simulate_data", t, {"tip_deflection": tip - tip_rigid}, hint,
+                     limits={"tip_deflection": DIVERGED_DEFLECTION * robot_reach(model.robot)})
     h = measurement_function(model, sensors)
     Y = np.asarray(h.map(N)(X.T, u.T)[len(sensors)]).T
+    check_divergence("simulate_data", t, {"y": Y}, hint)
     rng = np.random.default_rng(seed)
     std = sensors.noise_std if noise is None else np.broadcast_to(
         np.asarray(noise, dtype=float), (sensors.n_outputs,))

@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex.errors import ModelError, SolverError
+from casflex.errors import ModelError
 from casflex.moves import Move, ShapedMove, reference_function, reference_sampler
 from casflex.simulate import poly
 from casflex.simulate.integrators import (
@@ -34,7 +34,13 @@ from casflex.simulate.integrators import (
     step_cache,
     time_grid,
 )
-from casflex.simulate.results import SimulationResult, tip_positions
+from casflex.simulate.results import (
+    DIVERGED_DEFLECTION,
+    SimulationResult,
+    check_divergence,
+    robot_reach,
+    tip_positions,
+)
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
@@ -260,11 +266,14 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
         tm = f["prescribed"].map(t.size)
         tau = tm(q.T, dq.T, ddq.T, Z[:, :m].T, Z[:, m:].T)[0].full().T
     wall = time.perf_counter() - start
-    if not np.all(np.isfinite(Z)):
-        raise SolverError("simulate_prescribed: the modal state became non-finite (step "
-                          f"dt = {dt} s too large for the highest mode?)")
+    hint = (f"the step dt = {dt} s is too large for the highest mode (RK4 needs "
+            "omega dt < 2.8), or the move too fast for the model's small deflections")
+    check_divergence("simulate_prescribed", t, {"delta": Z[:, :m], "ddelta": Z[:, m:],
+                                                "tau": tau}, hint)
     delta, ddelta = Z[:, :m], Z[:, m:]
     tip, tip_rigid = tip_positions(f["tip"], q, delta)
+    check_divergence("simulate_prescribed", t, {"tip_deflection": tip - tip_rigid}, hint,
+                     limits={"tip_deflection": DIVERGED_DEFLECTION * robot_reach(model.robot)})
     return SimulationResult(t=t, q=q, dq=dq, ddq=ddq, tau=tau, delta=delta, ddelta=ddelta,
                             tip=tip, tip_rigid=tip_rigid, t_move_end=t_move_end,
                             method=method, info={"steps": steps, "wall_s": wall, **info})

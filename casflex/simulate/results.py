@@ -12,14 +12,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex.errors import ModelError
+from casflex.errors import ModelError, SolverError
 
-__all__ = ["SimulationResult", "ClosedLoopResult", "decay_time", "tip_positions"]
+if TYPE_CHECKING:
+    from casflex.robot import Robot
+
+__all__ = ["SimulationResult", "ClosedLoopResult", "decay_time", "tip_positions",
+           "check_divergence", "robot_reach", "DIVERGED_DEFLECTION"]
+
+#: A tip deflection larger than this multiple of the robot's reach (the sum of its DH
+#: offsets) is no result: the integration diverged, or the motion lies far outside the
+#: model's small-deflection range (a 10 ms move of the case-study arm "deflects" its 2 m
+#: arm by 3.7 m, with RK4 and CVODES alike).
+DIVERGED_DEFLECTION = 1.0
 
 
 @dataclass
@@ -279,3 +290,89 @@ def tip_positions(tip: ca.Function, q: np.ndarray, delta: np.ndarray
     tipm = tip.map(N)
     return (tipm(q.T, delta.T).full().T,
             tipm(q.T, np.zeros_like(delta.T)).full().T)
+
+
+def check_divergence(where: str, t: np.ndarray, quantities: dict[str, np.ndarray],
+                     hint: str, *, limits: dict[str, float] | None = None) -> None:
+    """Raise a :class:`~casflex.errors.SolverError` naming the first time and quantity at
+    which a simulated history is non-finite or beyond its limit (a diverging integration),
+    instead of returning ``inf``/``nan`` results.
+
+    Parameters
+    ----------
+    where : str
+        The simulating function, named first in the message.
+    t : numpy.ndarray, shape (N,)
+        Sample times [s].
+    quantities : dict of str to numpy.ndarray
+        Histories (rows are times) by name, e.g. ``{"delta": ..., "tau": ...}``.
+    hint : str
+        What to try, appended to the message.
+    limits : dict of str to float, optional
+        Largest plausible absolute value of a quantity (by name); a 2-D history of three
+        columns named ``tip_deflection`` is compared by its row norms [m].
+
+    Examples
+    --------
+    >>> t = np.array([0.0, 0.1, 0.2])
+    >>> check_divergence("sim", t, {"delta": np.array([[0.0], [1.0], [2.0]])}, "smaller dt")
+    >>> check_divergence("sim", t, {"delta": np.array([[0.0], [np.inf], [np.nan]])},
+    ...                  "try a smaller dt")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.SolverError: sim: the integration diverged at t = 0.1 s: delta[1] = inf ...
+    >>> check_divergence("sim", t, {"tip_deflection": [[0, 0, 0.1], [0, 0, 3.0], [0, 0, 0]]},
+    ...                  "a slower move", limits={"tip_deflection": 2.0})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.SolverError: sim: the integration diverged at t = 0.1 s: |tip_deflection| = 3 ...
+    """
+    limits = limits or {}
+    first = None
+    for name, values in quantities.items():
+        a = np.asarray(values, dtype=float)
+        a = a.reshape(a.shape[0], -1) if a.ndim else a.reshape(1, 1)
+        size = np.linalg.norm(a, axis=1, keepdims=True) if name == "tip_deflection" \
+            else np.abs(a)
+        bad = ~np.isfinite(a)
+        if name in limits:
+            bad |= np.broadcast_to(size > limits[name], a.shape)
+        rows = np.flatnonzero(bad.any(axis=1))
+        if rows.size and (first is None or rows[0] < first[0]):
+            k = rows[0]
+            col = int(np.flatnonzero(bad[k])[0])
+            first = (k, name, col, a[k, col], size[k].max() if name == "tip_deflection"
+                     else None)
+    if first is None:
+        return
+    k, name, col, value, norm = first
+    if not math.isfinite(value):
+        what = f"{name}[{col + 1}] = {float(value)!r} (non-finite)"
+    elif norm is not None:
+        what = (f"|{name}| = {norm:.4g} m, beyond {limits[name]:.4g} m "
+                f"({DIVERGED_DEFLECTION:g} x the robot's reach: no small deflection)")
+    else:
+        what = f"|{name}[{col + 1}]| = {abs(value):.4g}, beyond {limits[name]:.4g}"
+    time = float(np.asarray(t, dtype=float).ravel()[min(k, np.size(t) - 1)])
+    raise SolverError(f"{where}: the integration diverged at t = {time:.6g} s: {what}; "
+                      f"{hint}")
+
+
+def robot_reach(robot: Robot) -> float:
+    """Sum of the robot's DH offsets and tip-body offsets [m] (at least 1 mm): no tip
+    is farther than this from the base.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+        The robot.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot_reach(load("problems/arm2link.toml"))
+    2.0
+    """
+    total = sum(abs(link.a) + abs(link.d) + float(np.linalg.norm(link.tip.com_offset))
+                for link in robot.links)
+    return max(total, 1e-3)

@@ -27,7 +27,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex.errors import ModelError, SolverError
+from casflex.errors import ModelError
 from casflex.moves import reference_function
 from casflex.simulate.integrators import (
     casadi_integrator,
@@ -37,7 +37,14 @@ from casflex.simulate.integrators import (
     step_cache,
     time_grid,
 )
-from casflex.simulate.results import ClosedLoopResult, SimulationResult, tip_positions
+from casflex.simulate.results import (
+    DIVERGED_DEFLECTION,
+    ClosedLoopResult,
+    SimulationResult,
+    check_divergence,
+    robot_reach,
+    tip_positions,
+)
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
@@ -246,9 +253,11 @@ def simulate_torque(model: FlexibleModel, controller: TorqueLaw, x0: ArrayLike, 
         X, U = _held_loop(model, f, n, m, t, dt, x0, controller, const, disturbance,
                           method, options)
     wall = time.perf_counter() - start
-    if not np.all(np.isfinite(X)):
-        raise SolverError("simulate_torque: the state became non-finite (unstable closed "
-                          f"loop, or dt = {dt} s too large for the highest mode?)")
+    hint = (f"an unstable closed loop, torques too large, or dt = {dt} s too large for the "
+            "highest mode (RK4 needs omega dt < 2.8)")
+    check_divergence("simulate_torque", t, {"q": X[:, :n], "delta": X[:, n:n + m],
+                                            "dq": X[:, n + m:2 * n + m],
+                                            "ddelta": X[:, 2 * n + m:], "tau": U}, hint)
     N = t.size
     q, delta, dq, ddelta = X[:, :n], X[:, n:n + m], X[:, n + m:2 * n + m], X[:, 2 * n + m:]
     W = _disturbance_samples(disturbance, t, n, m) if disturbance is not None and \
@@ -256,6 +265,8 @@ def simulate_torque(model: FlexibleModel, controller: TorqueLaw, x0: ArrayLike, 
     xdot = f["ode_w"].map(N)(X.T, U.T, W.T).full().T
     ddq = xdot[:, n + m:2 * n + m]
     tip, tip_rigid = tip_positions(f["tip"], q, delta)
+    check_divergence("simulate_torque", t, {"tip_deflection": tip - tip_rigid}, hint,
+                     limits={"tip_deflection": DIVERGED_DEFLECTION * robot_reach(model.robot)})
     return SimulationResult(t=t, q=q, dq=dq, ddq=ddq, tau=U, delta=delta, ddelta=ddelta,
                             tip=tip, tip_rigid=tip_rigid, t_move_end=math.nan, method=method,
                             info={"steps": steps, "wall_s": wall})
@@ -473,8 +484,15 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
     else:
         X, tau_all, x_hat = _run_with_estimator(model, controller, ref, x0, t, dt,
                                                 substeps, kd, jump, estimator)
+    hint = (f"an unstable closed loop, or dt = {dt} s too large for the highest mode (RK4 "
+            "needs omega dt < 2.8)")
+    check_divergence("simulate_closed_loop", t, {"q": X[:, :n], "delta": X[:, n:n + m],
+                                                 "dq": X[:, n + m:2 * n + m],
+                                                 "ddelta": X[:, 2 * n + m:]}, hint)
     qd_all = np.asarray(ref.map(N + 1)(t[None, :])[0]).T
     tip, tip_rigid = tip_positions(f["tip"], X[:, :n], X[:, n:n + m])
+    check_divergence("simulate_closed_loop", t, {"tip_deflection": tip - tip_rigid}, hint,
+                     limits={"tip_deflection": DIVERGED_DEFLECTION * robot_reach(model.robot)})
     return ClosedLoopResult(t=t, x=X, tau=tau_all, qd=qd_all, tip=tip, tip_rigid=tip_rigid,
                             n=n, m=m, x_hat=x_hat)
 
