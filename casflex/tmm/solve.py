@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex.errors import SolverError
+from casflex.errors import ModelError, SolverError
 from casflex.tmm import elements as el
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
 
@@ -71,6 +71,7 @@ class _Stack:
             if [(e.kind, e.row) for e in chain.elements] != signature:
                 raise ValueError("chains of different structures cannot be stacked")
         self.size = len(chains)
+        self.chains = chains
         self.cap = _omega_cap(first)
         # lowest cantilever frequency of the whole length with the softest section: a
         # scale for the first search grid [rad/s]
@@ -78,6 +79,11 @@ class _Stack:
         soft = [b.params["material"].E * min(b.params["section"].Ix, b.params["section"].Iy)
                 / (b.params["material"].rho * b.params["section"].A) for b in first.beams]
         self.reference_frequency = (1.875 / total) ** 2 * np.sqrt(min(soft)) if soft else 1.0
+        # the lowest clamped–free frequency of any beam in bending, torsion or tension: the
+        # scale of the static probe (a robot whose torsion is far softer than its bending
+        # has natural frequencies far below reference_frequency)
+        self.lowest_beam_frequency = min(
+            [self.reference_frequency] + [_lowest_beam_frequency(b) for b in first.beams])
         self.items = []
         for j, e in enumerate(first.elements):
             same = [chain.elements[j] for chain in chains]
@@ -100,6 +106,49 @@ class _Stack:
                 data["axis"] = np.array([x.params["axis"] for x in same])
             self.items.append(data)
 
+    def require_finite(self, values, cfg, omega, quantity):
+        """Raise the breakdown error at the first point whose ``values`` are not finite."""
+        if not np.isfinite(values).all():
+            bad = int(np.flatnonzero(~np.isfinite(values.reshape(omega.size, -1)).all(1))[0])
+            self.breakdown(int(cfg[bad]), float(omega[bad]), f"{quantity} is not finite")
+
+    def breakdown(self, c, omega, what):
+        """Raise a ModelError: configuration ``c``, the element where it broke, the quantity."""
+        chain = self.chains[c]
+        cfg, w = np.array([c]), np.array([omega])
+        where, quantity = None, None
+        forward, backward = [], []
+        with np.errstate(all="ignore"):
+            try:
+                self.system(cfg, w, trace=forward)
+            except (np.linalg.LinAlgError, ValueError):
+                pass
+            for e, element_ok, product_ok in forward:
+                if not element_ok:
+                    where, quantity = e, "its transfer matrix is not finite"
+                    break
+                if not product_ok:
+                    where, quantity = e, "the chain product overflows at it"
+                    break
+            if where is None:
+                try:
+                    self.count(cfg, w, trace=backward)
+                except (np.linalg.LinAlgError, ModelError):
+                    pass
+                for e, added, finite in backward:
+                    if not finite:
+                        where, quantity = e, "its condensed dynamic stiffness is not finite"
+                        break
+                    if what.startswith("the Wittrick") and added[0] > 0:
+                        where, quantity = e, "its condensation adds the spurious count"
+                        break
+        q = np.array2string(chain.q, precision=6, separator=", ")
+        message = f"TMM breakdown at q = {q} rad, ω = {omega:.6g} rad/s: {what}"
+        if where is not None:
+            message += f"; at the {where.label}, {quantity} ({_describe(where)})"
+        message += f"; {_stiffness_spread(chain)}"
+        raise ModelError(message)
+
     def transfer(self, data, cfg, omega):
         """Base-frame transfer matrices of a body, offset or spring at the points (P, 12, 12)."""
         e = data["element"]
@@ -107,11 +156,12 @@ class _Stack:
             return el.point_body_matrix(omega, data["M"][cfg])
         return data["T"][cfg]
 
-    def system(self, cfg, omega, columns=slice(6, 12)):
+    def system(self, cfg, omega, columns=slice(6, 12), trace=None):
         """Columns of the system matrix (eq. 59), (P, 12, k).
 
         By default columns 6–11, the ones that multiply the base reactions of a clamped
-        base; ``columns=slice(None)`` gives the whole 12 × 12 matrix.
+        base; ``columns=slice(None)`` gives the whole 12 × 12 matrix. A list ``trace``
+        receives ``(element, transfer matrix finite, product finite)`` per element.
         """
         start = np.eye(12)[:, columns]
         U = np.broadcast_to(start, (omega.size,) + start.shape).copy()
@@ -123,7 +173,10 @@ class _Stack:
                 B = el.beam_matrix(P["length"], omega, P["section"], P["material"])
                 U = Rb @ (B @ (np.swapaxes(Rb, 1, 2) @ U))
             else:
-                U = self.transfer(data, cfg, omega) @ U
+                B = self.transfer(data, cfg, omega)
+                U = B @ U
+            if trace is not None:
+                trace.append((e, bool(np.isfinite(B).all()), bool(np.isfinite(U).all())))
         return U
 
     def det(self, cfg, omega):
@@ -136,14 +189,19 @@ class _Stack:
         """Sign and log-magnitude of ``det subU`` at the points."""
         return np.linalg.slogdet(self.system(cfg, omega)[:, 6:12, :])
 
-    def count(self, cfg, omega):
-        """Wittrick–Williams count of natural frequencies below each point's ω."""
+    def count(self, cfg, omega, trace=None):
+        """Wittrick–Williams count of natural frequencies below each point's ω.
+
+        A list ``trace`` receives ``(element, negative pivots added, condensed stiffness
+        finite)`` per element, tip first (for the breakdown diagnosis).
+        """
         n = omega.size
         Z = np.zeros((n, 6, 6))
         count = np.zeros(n)
         w2 = omega**2
         for data in reversed(self.items):
             e = data["element"]
+            before = count.copy() if trace is not None else None
             if e.kind == "body":
                 Z = Z - w2[:, None, None] * data["M"][cfg]
             elif e.kind == "offset":
@@ -161,10 +219,49 @@ class _Stack:
                 R6t = np.swapaxes(R6, 1, 2)
                 K00, K01, K10, K11 = _beam_stiffness(e, omega)
                 pivot = K11 + R6t @ Z @ R6
+                if trace is None:
+                    self.require_finite(pivot, cfg, omega, "the condensed dynamic stiffness")
                 count += _negatives(pivot)
                 Z = R6 @ (K00 - K01 @ _solve(pivot, K10)) @ R6t
                 count += _beam_j0(e, omega)
+            if trace is not None:
+                trace.append((e, count - before, bool(np.isfinite(Z).all())))
+        if trace is None:  # comparisons with NaN are False: NaN would undercount
+            self.require_finite(Z, cfg, omega, "the condensed dynamic stiffness")
         return count.astype(int)
+
+
+def _describe(element):
+    """The parameters of an element that set its stiffness and inertia, for messages."""
+    P = element.params
+    if element.kind == "beam":
+        mat, sec = P["material"], P["section"]
+        return (f"E = {mat.E:g} Pa, G = {mat.G:g} Pa, rho = {mat.rho:g} kg/m^3, "
+                f"A = {sec.A:g} m^2, Ix = {sec.Ix:g} m^4, Iy = {sec.Iy:g} m^4, "
+                f"J = {sec.J:g} m^4, L = {P['length']:g} m")
+    if element.kind == "body":
+        return f"mass = {P['mass']:g} kg, inertia = {np.asarray(P['inertia']).tolist()} kg m^2"
+    if element.kind == "spring":
+        return f"stiffness = {P['stiffness']:g} N m/rad"
+    return f"offset = {np.linalg.norm(P['r']):g} m"
+
+
+def _stiffness_spread(chain):
+    """How far apart the beams' stiffnesses are, as the spread of their frequencies."""
+    rows = []
+    for b in chain.beams:
+        P = b.params
+        mat, L = P["material"], P["length"]
+        with np.errstate(all="ignore"):
+            rows += [(_lowest_beam_frequency(b), b.label),
+                     (np.pi / (2.0 * L) * np.sqrt(mat.E / mat.rho), b.label)]
+    rows = [r for r in rows if np.isfinite(r[0]) and r[0] > 0.0]
+    if not rows:
+        return "no beam has a finite frequency"
+    (lo, lo_at), (hi, hi_at) = min(rows), max(rows)
+    return (f"the beams' clamped-free frequencies span {lo:.3g} rad/s ({lo_at}) to "
+            f"{hi:.3g} rad/s in tension ({hi_at}), a stiffness ratio of {(hi / lo) ** 2:.3g} "
+            "where double precision resolves about 1e15")
 
 
 def _single(chain, omega):
@@ -231,7 +328,9 @@ def _clamped_bending_count(beta):
     """Clamped–clamped Euler–Bernoulli frequencies with λL below ``beta``."""
     i = np.floor(beta / np.pi)
     sgn = np.sign(1.0 - np.cosh(beta) * np.cos(beta))
-    return i - (1.0 - (-1.0) ** i * sgn) / 2.0
+    # below the first root (λL = 4.730) the count is 0; the formula's sign rounds to 0
+    # there when β⁴/6 < eps (a stiff beam at a very low ω)
+    return np.where(beta < 4.0, 0.0, i - (1.0 - (-1.0) ** i * sgn) / 2.0)
 
 
 def _beam_j0(element, omega):
@@ -328,6 +427,10 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
     for _ in range(rounds):
         x = a[:, None] + (b - a)[:, None] * frac[None, :]
         sign, logabs = stack.slogdet(np.repeat(cfg, frac.size), x.ravel())
+        if np.isnan(logabs).any() or np.isposinf(logabs).any():
+            i = int(np.flatnonzero(~(logabs < np.inf))[0])
+            stack.breakdown(int(np.repeat(cfg, frac.size)[i]), float(x.ravel()[i]),
+                            "det subU is not finite")
         logabs = logabs.reshape(x.shape)
         f = sign.reshape(x.shape) * np.exp(logabs - logabs.max(axis=1, keepdims=True))
         change = np.signbit(f[:, :-1]) != np.signbit(f[:, 1:])
@@ -365,6 +468,40 @@ def _omega_cap(chain, lambda_l=80.0):
     return cap
 
 
+#: the static probe of the root search, relative to the lowest beam frequency
+_STATIC_PROBE = 1e-6
+
+
+def _lowest_beam_frequency(beam):
+    """Lowest clamped–free frequency of one beam alone in bending, torsion or tension."""
+    P = beam.params
+    sec, mat, L = P["section"], P["material"], P["length"]
+    with np.errstate(all="ignore"):
+        bending = (1.875 / L) ** 2 * np.sqrt(mat.E * min(sec.Ix, sec.Iy) / (mat.rho * sec.A))
+        torsion = np.pi / (2.0 * L) * np.sqrt(mat.G * sec.J / (mat.rho * sec.Ip))
+        axial = np.pi / (2.0 * L) * np.sqrt(mat.E / mat.rho)
+    finite = [w for w in (bending, torsion, axial) if np.isfinite(w) and w > 0.0]
+    return min(finite) if finite else np.inf
+
+
+def _check_counts(stack, points, counts):
+    """Breakdown unless the counts are 0 at the probe and never decrease with ω."""
+    spurious = counts[:, 0] > 0
+    if spurious.any():
+        c = int(np.flatnonzero(spurious)[0])
+        stack.breakdown(c, float(points[0]), (
+            f"the Wittrick–Williams count finds {counts[c, 0]} natural frequencies below "
+            f"{points[0]:.3g} rad/s, where a clamped structure has none (its static "
+            "stiffness came out indefinite: ill-conditioned)"))
+    falling = np.diff(counts, axis=1) < 0
+    if falling.any():
+        c, j = (int(v[0]) for v in np.nonzero(falling))
+        stack.breakdown(c, float(points[j + 1]), (
+            f"the Wittrick–Williams count falls from {counts[c, j]} at {points[j]:.6g} rad/s "
+            f"to {counts[c, j + 1]} at {points[j + 1]:.6g} rad/s (it can only grow: "
+            "ill-conditioned)"))
+
+
 def _roots(stack, count, omega_max, double_tol, rtol):
     """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
     C = stack.size
@@ -373,14 +510,22 @@ def _roots(stack, count, omega_max, double_tol, rtol):
         grid = np.geomspace(1e-3 * ref, 1e2 * ref, 36)
     else:
         grid = np.geomspace(min(1e-2, omega_max / 10.0), omega_max, 32)
-    cfg_all = np.repeat(np.arange(C), grid.size)
-    counts = stack.count(cfg_all, np.tile(grid, C)).reshape(C, grid.size)
+    # with the grid, a probe far below any physical natural frequency (1e-6 of the softest
+    # beam's cantilever frequency): a clamped structure has a positive definite static
+    # stiffness, so a count above 0 there means the condensation lost its precision
+    probe = _STATIC_PROBE * stack.lowest_beam_frequency
+    points = np.concatenate([[probe], grid])
+    cfg_all = np.repeat(np.arange(C), points.size)
+    counts = stack.count(cfg_all, np.tile(points, C)).reshape(C, points.size)
+    _check_counts(stack, np.concatenate([[probe], grid]), counts)
+    counts = counts[:, 1:]
     if omega_max is None:
         while counts[:, -1].min() < count and grid[-1] < stack.cap:
             more = np.geomspace(grid[-1] * 2.0, min(grid[-1] * 256.0, stack.cap), 8)
             extra = stack.count(np.repeat(np.arange(C), more.size), np.tile(more, C))
             grid = np.concatenate([grid, more])
             counts = np.concatenate([counts, extra.reshape(C, more.size)], axis=1)
+            _check_counts(stack, grid, counts)
         if counts[:, -1].min() < count:
             c = int(np.argmin(counts[:, -1]))
             raise SolverError(
@@ -441,6 +586,11 @@ def _roots(stack, count, omega_max, double_tol, rtol):
     roots = np.concatenate([r] + [m[0] for m in multiples])
     mult = np.concatenate([np.ones(r.size, int)] + [m[1] for m in multiples]).astype(int)
     rcfg = np.concatenate([scfg] + [m[2] for m in multiples]).astype(int)
+    bad = ~(roots > probe) | ~np.isfinite(roots)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        stack.breakdown(int(rcfg[i]), float(probe), f"a natural frequency of {roots[i]:.6g} "
+                        f"rad/s, at or below the static probe {probe:.3g} rad/s")
 
     out = []
     for c in range(C):
