@@ -32,6 +32,13 @@ from numpy.typing import ArrayLike
 from casflex.errors import ModelError, SolverError
 from casflex.tmm import elements as el
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
+from casflex.tmm.conditioning import (
+    check_chain,
+    describe,
+    format_q,
+    lowest_beam_frequency,
+    stiffness_spread,
+)
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -72,6 +79,7 @@ class _Stack:
                 raise ValueError("chains of different structures cannot be stacked")
         self.size = len(chains)
         self.chains = chains
+        check_chain(first)
         self.cap = _omega_cap(first)
         # lowest cantilever frequency of the whole length with the softest section: a
         # scale for the first search grid [rad/s]
@@ -83,7 +91,7 @@ class _Stack:
         # scale of the static probe (a robot whose torsion is far softer than its bending
         # has natural frequencies far below reference_frequency)
         self.lowest_beam_frequency = min(
-            [self.reference_frequency] + [_lowest_beam_frequency(b) for b in first.beams])
+            [self.reference_frequency] + [lowest_beam_frequency(b) for b in first.beams])
         self.items = []
         for j, e in enumerate(first.elements):
             same = [chain.elements[j] for chain in chains]
@@ -142,11 +150,10 @@ class _Stack:
                     if what.startswith("the Wittrick") and added[0] > 0:
                         where, quantity = e, "its condensation adds the spurious count"
                         break
-        q = np.array2string(chain.q, precision=6, separator=", ")
-        message = f"TMM breakdown at q = {q} rad, ω = {omega:.6g} rad/s: {what}"
+        message = f"TMM breakdown at q = {format_q(chain.q)} rad, ω = {omega:.6g} rad/s: {what}"
         if where is not None:
-            message += f"; at the {where.label}, {quantity} ({_describe(where)})"
-        message += f"; {_stiffness_spread(chain)}"
+            message += f"; at the {where.label}, {quantity} ({describe(where)})"
+        message += f"; {stiffness_spread(chain)[1]}"
         raise ModelError(message)
 
     def transfer(self, data, cfg, omega):
@@ -229,39 +236,6 @@ class _Stack:
         if trace is None:  # comparisons with NaN are False: NaN would undercount
             self.require_finite(Z, cfg, omega, "the condensed dynamic stiffness")
         return count.astype(int)
-
-
-def _describe(element):
-    """The parameters of an element that set its stiffness and inertia, for messages."""
-    P = element.params
-    if element.kind == "beam":
-        mat, sec = P["material"], P["section"]
-        return (f"E = {mat.E:g} Pa, G = {mat.G:g} Pa, rho = {mat.rho:g} kg/m^3, "
-                f"A = {sec.A:g} m^2, Ix = {sec.Ix:g} m^4, Iy = {sec.Iy:g} m^4, "
-                f"J = {sec.J:g} m^4, L = {P['length']:g} m")
-    if element.kind == "body":
-        return f"mass = {P['mass']:g} kg, inertia = {np.asarray(P['inertia']).tolist()} kg m^2"
-    if element.kind == "spring":
-        return f"stiffness = {P['stiffness']:g} N m/rad"
-    return f"offset = {np.linalg.norm(P['r']):g} m"
-
-
-def _stiffness_spread(chain):
-    """How far apart the beams' stiffnesses are, as the spread of their frequencies."""
-    rows = []
-    for b in chain.beams:
-        P = b.params
-        mat, L = P["material"], P["length"]
-        with np.errstate(all="ignore"):
-            rows += [(_lowest_beam_frequency(b), b.label),
-                     (np.pi / (2.0 * L) * np.sqrt(mat.E / mat.rho), b.label)]
-    rows = [r for r in rows if np.isfinite(r[0]) and r[0] > 0.0]
-    if not rows:
-        return "no beam has a finite frequency"
-    (lo, lo_at), (hi, hi_at) = min(rows), max(rows)
-    return (f"the beams' clamped-free frequencies span {lo:.3g} rad/s ({lo_at}) to "
-            f"{hi:.3g} rad/s in tension ({hi_at}), a stiffness ratio of {(hi / lo) ** 2:.3g} "
-            "where double precision resolves about 1e15")
 
 
 def _single(chain, omega):
@@ -472,18 +446,6 @@ def _omega_cap(chain, lambda_l=80.0):
 _STATIC_PROBE = 1e-6
 
 
-def _lowest_beam_frequency(beam):
-    """Lowest clamped–free frequency of one beam alone in bending, torsion or tension."""
-    P = beam.params
-    sec, mat, L = P["section"], P["material"], P["length"]
-    with np.errstate(all="ignore"):
-        bending = (1.875 / L) ** 2 * np.sqrt(mat.E * min(sec.Ix, sec.Iy) / (mat.rho * sec.A))
-        torsion = np.pi / (2.0 * L) * np.sqrt(mat.G * sec.J / (mat.rho * sec.Ip))
-        axial = np.pi / (2.0 * L) * np.sqrt(mat.E / mat.rho)
-    finite = [w for w in (bending, torsion, axial) if np.isfinite(w) and w > 0.0]
-    return min(finite) if finite else np.inf
-
-
 def _check_counts(stack, points, counts):
     """Breakdown unless the counts are 0 at the probe and never decrease with ω."""
     spurious = counts[:, 0] > 0
@@ -491,8 +453,9 @@ def _check_counts(stack, points, counts):
         c = int(np.flatnonzero(spurious)[0])
         stack.breakdown(c, float(points[0]), (
             f"the Wittrick–Williams count finds {counts[c, 0]} natural frequencies below "
-            f"{points[0]:.3g} rad/s, where a clamped structure has none (its static "
-            "stiffness came out indefinite: ill-conditioned)"))
+            f"{points[0]:.3g} rad/s, 1e-6 of the lowest beam frequency, where a clamped "
+            "robot of plausible proportions has none: its static stiffness came out "
+            "indefinite (ill-conditioned) or a mass or spring is out of proportion"))
     falling = np.diff(counts, axis=1) < 0
     if falling.any():
         c, j = (int(v[0]) for v in np.nonzero(falling))
