@@ -786,12 +786,16 @@ def mode_shapes(chain: Chain, omega: ArrayLike, multiplicity: ArrayLike | None =
     >>> mode_shapes(chain, w, n_points=11).displacement.shape
     (2, 2, 11, 3)
     """
+    return _shapes(chain, _Stack([chain]), omega, multiplicity, n_points)
+
+
+def _shapes(chain, stack, omega, multiplicity, n_points):
+    """:func:`mode_shapes` with the chain's stack already built."""
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
     m = omega.size
     mult = np.ones(m, dtype=int) if multiplicity is None else np.asarray(multiplicity, int)
     # base reactions f0 of every mode; a k-fold root contributes k basis vectors
     f0 = np.empty((m, 6))
-    stack = _Stack([chain])
     cfg = np.zeros(m, dtype=int)
     vt = _null_vectors(stack.system(cfg, omega)[:, 6:12, :])
     j = 0
@@ -925,9 +929,11 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     >>> (shapes.omega / (2 * np.pi)).round(3)
     array([1.322, 1.905, 3.62 ])
     """
+    if count is None and omega_max is None:
+        raise ValueError("give count, omega_max or both")
     chain = build_chain(robot, q)
-    w, mult = natural_frequencies(chain, count=count, omega_max=omega_max,
-                                  return_multiplicity=True)
+    stack = _Stack([chain])  # one stack for the roots and the shapes
+    w, _ = _roots(stack, count, omega_max, 1e-9, 1e-12)[0]  # natural_frequencies' defaults
     # a k-fold root cut short by `count` keeps the entries present: that many basis vectors
     _, inverse, present = np.unique(w, return_inverse=True, return_counts=True)
-    return mode_shapes(chain, w, present[inverse], n_points=n_points)
+    return _shapes(chain, stack, w, present[inverse], n_points)
