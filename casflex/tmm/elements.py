@@ -112,7 +112,7 @@ def beam_field(s: ArrayLike, omega: ArrayLike, EA: float, EIx: float, EIy: float
     s, omega = np.broadcast_arrays(np.asarray(s, dtype=float), np.asarray(omega, dtype=float))
     shape = s.shape
     s, omega = s.ravel(), omega.ravel()
-    table = _layout(float(EA), float(EIx), float(EIy), float(GJ), float(rho_A), float(rho_Ip))
+    table = layout(float(EA), float(EIx), float(EIy), float(GJ), float(rho_A), float(rho_Ip))
     # values[j] holds quantity j for the two rows below; one gather places all 40 entries
     values = np.empty((10, 2, s.size))
 
@@ -167,7 +167,7 @@ _WAVE = ((2, 2), (2, 11), (11, 2), (11, 11), (5, 5), (5, 8), (8, 5), (8, 8))
 
 
 @functools.lru_cache(maxsize=256)
-def _layout(EA, EIx, EIy, GJ, rho_A, rho_Ip):
+def layout(EA, EIx, EIy, GJ, rho_A, rho_Ip):
     """Constants of one beam: flat indices of the 40 non-zero entries, the gather from
     the quantities computed by :func:`beam_field`, the bending sign ratios, the axial and
     torsional stiffness and wavenumber factors, the bending wavenumber factors."""

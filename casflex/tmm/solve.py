@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError, SolverError
 from casflex.tmm import elements as el
+from casflex.tmm import kernels
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
 from casflex.tmm.conditioning import (
     check_chain,
@@ -113,6 +114,7 @@ class _Stack:
                                       for x in same])
                 data["axis"] = np.array([x.params["axis"] for x in same])
             self.items.append(data)
+        self.kernel = kernels.pack(self.items, self.size) if kernels.AVAILABLE else None
 
     def require_finite(self, values, cfg, omega, quantity):
         """Raise the breakdown error at the first point whose ``values`` are not finite."""
@@ -194,6 +196,15 @@ class _Stack:
 
     def slogdet(self, cfg, omega):
         """Sign and log-magnitude of ``det subU`` at the points."""
+        if self.kernel is not None:
+            k = self.kernel
+            try:
+                return kernels.slogdet_points(
+                    np.ascontiguousarray(cfg, dtype=np.int64),
+                    np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
+                    k["flat"], k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+            except (np.linalg.LinAlgError, ZeroDivisionError):
+                pass  # the numpy path below
         return np.linalg.slogdet(self.system(cfg, omega)[:, 6:12, :])
 
     def count(self, cfg, omega, trace=None):
@@ -202,6 +213,18 @@ class _Stack:
         A list ``trace`` receives ``(element, negative pivots added, condensed stiffness
         finite)`` per element, tip first (for the breakdown diagnosis).
         """
+        if self.kernel is not None and trace is None:
+            k = self.kernel
+            try:
+                counts, finite = kernels.count_points(
+                    np.ascontiguousarray(cfg, dtype=np.int64),
+                    np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
+                    k["flat"], k["gather"], k["ratio"], k["R6"], k["M"], k["G"], k["axis"],
+                    k["stiffness"])
+                if finite.all():
+                    return counts.astype(int)
+            except (np.linalg.LinAlgError, ZeroDivisionError):
+                pass  # a singular matrix at one point: the numpy path's branches below
         n = omega.size
         Z = np.zeros((n, 6, 6))
         count = np.zeros(n)

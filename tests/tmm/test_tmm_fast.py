@@ -80,3 +80,54 @@ def test_modes_equals_the_two_public_steps(arm, seed):
     np.testing.assert_array_equal(shapes.omega, reference.omega)
     for name in MODE_FIELDS:
         np.testing.assert_array_equal(getattr(shapes, name), getattr(reference, name))
+
+
+# ----------------------------------------------------------------- compiled kernels
+
+
+def both_paths(chains, monkeypatch):
+    """The stack of ``chains`` with the compiled kernels and without (the numpy path)."""
+    from casflex.tmm import kernels, solve
+    if not kernels.AVAILABLE:
+        pytest.skip("numba is not installed: only the numpy path runs")
+    compiled = solve._Stack(chains)
+    monkeypatch.setattr(kernels, "AVAILABLE", False)
+    reference = solve._Stack(chains)
+    assert compiled.kernel is not None and reference.kernel is None
+    return compiled, reference
+
+
+@pytest.mark.parametrize("name", ["arm2link", "testbed", "arm2link_actuated"])
+def test_kernels_equal_the_numpy_path(name, monkeypatch):
+    robot = load(f"problems/{name}.toml")
+    rng = np.random.default_rng(7)
+    qs = rng.uniform(-np.pi, np.pi, (5, robot.n_joints))
+    compiled, reference = both_paths([build_chain(robot, q) for q in qs], monkeypatch)
+    cfg = np.repeat(np.arange(5), 60)
+    # up to 10x the softest link's cantilever frequency, where the lowest modes lie:
+    # λL ≤ 5.9, cosh λL ≤ 190
+    top = 10.0 * compiled.reference_frequency
+    omega = np.tile(np.geomspace(1e-2, top, 60), 5) * rng.uniform(0.97, 1.03, 300)
+    # the count is an integer: equal wherever no natural frequency lies within round-off
+    # of the point (none of these random points does)
+    np.testing.assert_array_equal(compiled.count(cfg, omega), reference.count(cfg, omega))
+    sign, logabs = compiled.slogdet(cfg, omega)
+    sign_ref, logabs_ref = reference.slogdet(cfg, omega)
+    np.testing.assert_array_equal(sign, sign_ref)
+    # same products in another order: log|det| agrees to the round-off of the chain
+    # product, eps·cosh²(λL) ≈ 1e-11 relative on the cancelling entries; 1e-9 absolute
+    np.testing.assert_allclose(logabs, logabs_ref, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["arm2link", "testbed"])
+def test_roots_with_and_without_kernels(name, monkeypatch):
+    from casflex.tmm import solve
+    robot = load(f"problems/{name}.toml")
+    qs = np.random.default_rng(11).uniform(-np.pi, np.pi, (6, robot.n_joints))
+    compiled, reference = both_paths([build_chain(robot, q) for q in qs], monkeypatch)
+    new = solve._roots(compiled, 5, None, 1e-9, 1e-12)
+    old = solve._roots(reference, 5, None, 1e-9, 1e-12)
+    for (w_new, m_new), (w_old, m_old) in zip(new, old, strict=True):
+        np.testing.assert_array_equal(m_new, m_old)
+        # both refine to rtol 1e-12 from determinants equal to round-off
+        np.testing.assert_allclose(w_new, w_old, rtol=1e-11)
