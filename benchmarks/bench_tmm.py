@@ -16,6 +16,9 @@
   left out of the FE side (the FE merges coincident nodes).
 * ``ratio_fe`` = FE time / TMM time with shapes (> 1: the TMM is faster);
   ``ratio_fe_frequencies`` the same for frequencies only.
+* ``numpy_*``: the same TMM figures with the compiled kernels switched off
+  (``casflex.tmm.kernels.AVAILABLE = False``, the numpy path), measured alternately with
+  the compiled ones.
 
 TMM and FE are timed alternately, configuration by configuration, so that both see the
 same machine load; ``load_average`` is the 1-minute load when the run ended.
@@ -40,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from casflex.robot import load
-from casflex.tmm import build_chain, modes, natural_frequencies, sweep_frequencies
+from casflex.tmm import build_chain, kernels, modes, natural_frequencies, sweep_frequencies
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -96,14 +99,20 @@ def main():
     converged = max(np.max(np.abs(fe_modes(robot, q, 4 * n_fe)[0] / w - 1.0))
                     for q, w in zip(fe_configurations, reference, strict=True))
 
-    single, frequencies, fe_times = [], [], []
+    compiled = kernels.AVAILABLE
+    paths = (True, False) if compiled else (False,)
+    single = {p: [] for p in paths}
+    frequencies = {p: [] for p in paths}
+    fe_times = []
     for q in configurations:
-        t = time.perf_counter()
-        modes(robot, q, count=5)
-        single.append(time.perf_counter() - t)
-        t = time.perf_counter()
-        natural_frequencies(robot, q, count=5)
-        frequencies.append(time.perf_counter() - t)
+        for path in paths:
+            kernels.AVAILABLE = path
+            t = time.perf_counter()
+            modes(robot, q, count=5)
+            single[path].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            natural_frequencies(robot, q, count=5)
+            frequencies[path].append(time.perf_counter() - t)
         if not folded(robot, q):
             t = time.perf_counter()
             fe_modes(robot, q, n_fe)
@@ -111,19 +120,26 @@ def main():
 
     qs = np.zeros((240, 3))
     qs[:, 2] = np.radians(np.arange(240) * 1.5 - 180.0)
-    sweeps = []
+    sweeps = {p: [] for p in paths}
     for _ in range(args.repeat):
-        t = time.perf_counter()
-        sweep_frequencies(robot, qs, 5)
-        sweeps.append(time.perf_counter() - t)
+        for path in paths:
+            kernels.AVAILABLE = path
+            t = time.perf_counter()
+            sweep_frequencies(robot, qs, 5)
+            sweeps[path].append(time.perf_counter() - t)
+    kernels.AVAILABLE = compiled
 
-    per_configuration = statistics.median(single)
-    frequencies_only = statistics.median(frequencies)
+    per_configuration = statistics.median(single[compiled])
+    frequencies_only = statistics.median(frequencies[compiled])
     fe_time = statistics.median(fe_times)
     result = {
+        "compiled_kernels": compiled,
         "per_configuration_s": per_configuration,
         "frequencies_only_s": frequencies_only,
-        "sweep_s": statistics.median(sweeps),
+        "sweep_s": statistics.median(sweeps[compiled]),
+        "numpy_per_configuration_s": statistics.median(single[False]),
+        "numpy_frequencies_only_s": statistics.median(frequencies[False]),
+        "numpy_sweep_s": statistics.median(sweeps[False]),
         "configurations": int(qs.shape[0]),
         "fe_equal_accuracy_s": fe_time,
         "fe_elements_per_link": n_fe,
@@ -144,6 +160,9 @@ def main():
         print(f"frequencies only: {1e3 * frequencies_only:.2f} ms (target ≤ 0.3 ms)")
         print(f"q3 sweep, {result['configurations']} configurations: "
               f"{result['sweep_s']:.3f} s (target ≤ 0.2 s)")
+        print(f"numpy path: {1e3 * result['numpy_per_configuration_s']:.2f} ms with shapes, "
+              f"{1e3 * result['numpy_frequencies_only_s']:.2f} ms frequencies only, sweep "
+              f"{result['numpy_sweep_s']:.3f} s (compiled kernels: {compiled})")
         print(f"beam FE, {n_fe} elements per link (max error {fe_error:.1e}; "
               f"{4 * n_fe} elements: {converged:.1e}): {1e3 * fe_time:.2f} ms")
         print(f"FE / TMM: {result['ratio_fe']:.2f} with shapes, "

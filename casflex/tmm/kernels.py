@@ -135,32 +135,123 @@ def _beam_local(c, flat, gather, ratio, w):
     return out.reshape(12, 12)
 
 
+def _point_slogdet(c, w, kind, beam, flat, gather, ratio, R12, M, T):
+    """Sign and log|det subU| of configuration c at ω."""
+    U = np.zeros((12, 6))
+    for i in range(6):
+        U[6 + i, i] = 1.0
+    for j in range(kind.size):
+        if kind[j] == 0:
+            R = R12[c, j]
+            B = _beam_local(beam[j], flat[j], gather[j], ratio[j], w)
+            U = R @ (B @ (R.T @ U))
+        elif kind[j] == 1:
+            w2 = w * w
+            jump = M[c, j] @ np.ascontiguousarray(U[0:6, :])  # [force; moment] rows
+            U = U.copy()
+            U[6:9, :] -= w2 * jump[3:6, :]
+            U[9:12, :] -= w2 * jump[0:3, :]
+        else:
+            U = T[c, j] @ U
+    return np.linalg.slogdet(np.ascontiguousarray(U[6:12, :]))
+
+
 def _slogdet(cfg, omega, kind, beam, flat, gather, ratio, R12, M, T):
     n = omega.size
     sign = np.empty(n)
     logabs = np.empty(n)
     for p in range(n):
-        c, w = cfg[p], omega[p]
-        U = np.zeros((12, 6))
-        for i in range(6):
-            U[6 + i, i] = 1.0
-        for j in range(kind.size):
-            if kind[j] == 0:
-                R = R12[c, j]
-                B = _beam_local(beam[j], flat[j], gather[j], ratio[j], w)
-                U = R @ (B @ (R.T @ U))
-            elif kind[j] == 1:
-                w2 = w * w
-                jump = M[c, j] @ np.ascontiguousarray(U[0:6, :])  # [force; moment] rows
-                U = U.copy()
-                U[6:9, :] -= w2 * jump[3:6, :]
-                U[9:12, :] -= w2 * jump[0:3, :]
-            else:
-                U = T[c, j] @ U
-        sub = np.ascontiguousarray(U[6:12, :])
-        s, la = np.linalg.slogdet(sub)
+        s, la = _point_slogdet(cfg[p], omega[p], kind, beam, flat, gather, ratio, R12, M, T)
         sign[p], logabs[p] = s, la
     return sign, logabs
+
+
+def _refine(cfg, lo, hi, kind, beam, flat, gather, ratio, R12, M, T):
+    """Brent's method on det subU in every bracket [lo, hi] holding one simple root.
+
+    The determinant is scaled per bracket by its magnitude at ``lo`` (from slogdet: no
+    overflow). Returns the roots, a flag per bracket (False: no sign change at the ends,
+    or a non-finite determinant) and the number of determinant evaluations.
+    """
+    n = lo.size
+    roots = np.empty(n)
+    ok = np.ones(n, dtype=np.bool_)
+    evaluations = 0
+    eps = 2.220446049250313e-16
+    for i in range(n):
+        c = cfg[i]
+        a, b = lo[i], hi[i]
+        sa, la = _point_slogdet(c, a, kind, beam, flat, gather, ratio, R12, M, T)
+        sb, lb = _point_slogdet(c, b, kind, beam, flat, gather, ratio, R12, M, T)
+        evaluations += 2
+        if not (math.isfinite(la) or sa == 0.0) or not (math.isfinite(lb) or sb == 0.0):
+            ok[i] = False
+            roots[i] = 0.5 * (a + b)
+            continue
+        ref = la if math.isfinite(la) else lb
+        fa = sa * math.exp(la - ref) if sa != 0.0 else 0.0
+        fb = sb * math.exp(lb - ref) if sb != 0.0 else 0.0
+        if fa == 0.0:
+            roots[i] = a
+            continue
+        if fb == 0.0:
+            roots[i] = b
+            continue
+        if (fa > 0.0) == (fb > 0.0):
+            ok[i] = False
+            roots[i] = 0.5 * (a + b)
+            continue
+        # Brent (zeroin): b is the best estimate, c2 the contrapoint
+        c2, fc = a, fa
+        d = e = b - a
+        for _ in range(200):
+            if (fb > 0.0) == (fc > 0.0):
+                c2, fc = a, fa
+                d = e = b - a
+            if abs(fc) < abs(fb):
+                a, fa = b, fb
+                b, fb = c2, fc
+                c2, fc = a, fa
+            tol = 2.0 * eps * abs(b) + 0.5e-14 * abs(b)
+            m = 0.5 * (c2 - b)
+            if abs(m) <= tol or fb == 0.0:
+                break
+            if abs(e) >= tol and abs(fa) > abs(fb):
+                s = fb / fa
+                if a == c2:
+                    p = 2.0 * m * s
+                    q = 1.0 - s
+                else:
+                    q = fa / fc
+                    r = fb / fc
+                    p = s * (2.0 * m * q * (q - r) - (b - a) * (r - 1.0))
+                    q = (q - 1.0) * (r - 1.0) * (s - 1.0)
+                if p > 0.0:
+                    q = -q
+                else:
+                    p = -p
+                if 2.0 * p < min(3.0 * m * q - abs(tol * q), abs(e * q)):
+                    e = d
+                    d = p / q
+                else:
+                    d = m
+                    e = m
+            else:
+                d = m
+                e = m
+            a, fa = b, fb
+            if abs(d) > tol:
+                b += d
+            else:
+                b += tol if m > 0.0 else -tol
+            sb, lb = _point_slogdet(c, b, kind, beam, flat, gather, ratio, R12, M, T)
+            evaluations += 1
+            if not (math.isfinite(lb) or sb == 0.0):
+                ok[i] = False
+                break
+            fb = sb * math.exp(lb - ref) if sb != 0.0 else 0.0
+        roots[i] = b
+    return roots, ok, evaluations
 
 
 def _solve(A, B):
@@ -306,7 +397,9 @@ if AVAILABLE:
     _clamped_bending_count = numba.njit(cache=True)(_clamped_bending_count)
     _solve = numba.njit(cache=True)(_solve)
     _negative_eigenvalues = numba.njit(cache=True)(_negative_eigenvalues)
+    _point_slogdet = numba.njit(cache=True)(_point_slogdet)
     slogdet_points = numba.njit(cache=True)(_slogdet)
+    refine_brackets = numba.njit(cache=True)(_refine)
     count_points = numba.njit(cache=True)(_count)
 else:  # pragma: no cover
-    slogdet_points = count_points = None
+    slogdet_points = count_points = refine_brackets = None

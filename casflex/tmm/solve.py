@@ -414,9 +414,17 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
     cubic interpolation through the four samples around the sign change, which is
     accurate to far below 1e-12 relative at that spacing. Values are ``sign · exp(log
     |det| − max)`` per bracket (from ``slogdet``): no overflow, and no kinks from a
-    varying scaling. Returns the roots and a mask of the brackets where a sign change
-    was found.
+    varying scaling. With the compiled kernels, Brent's method runs on each bracket
+    instead (about 10 evaluations per root, to 5e-15 relative). Returns the roots and a
+    mask of the brackets where a sign change was found.
     """
+    if stack.kernel is not None:  # Brent's method per bracket, compiled
+        k = stack.kernel
+        root, ok, _ = kernels.refine_brackets(
+            np.ascontiguousarray(cfg, dtype=np.int64), np.ascontiguousarray(a, dtype=float),
+            np.ascontiguousarray(b, dtype=float), k["kind"], k["beam"], k["flat"],
+            k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+        return root, ok
     n = a.size
     rows = np.arange(n)
     frac = np.linspace(0.0, 1.0, points + 2)
