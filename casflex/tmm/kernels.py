@@ -137,6 +137,32 @@ def _beam_local(c, flat, gather, ratio, w):
 
 def _point_slogdet(c, w, kind, beam, flat, gather, ratio, R12, M, T):
     """Sign and log|det subU| of configuration c at ω."""
+    U = _point_system(c, w, kind, beam, flat, gather, ratio, R12, M, T)
+    return np.linalg.slogdet(np.ascontiguousarray(U[6:12, :]))
+
+
+def _system(cfg, omega, kind, beam, flat, gather, ratio, R12, M, T):
+    """Columns 6–11 of the system matrix at every point, (n, 12, 6)."""
+    out = np.empty((omega.size, 12, 6))
+    for p in range(omega.size):
+        out[p] = _point_system(cfg[p], omega[p], kind, beam, flat, gather, ratio, R12, M, T)
+    return out
+
+
+def _field(c, flat, gather, ratio, s, omega, z):
+    """Local states ``U(s_p, ω_m) z_m`` of one beam, (m, P, 12)."""
+    out = np.empty((omega.size, s.size, 12))
+    cs = c.copy()
+    for m in range(omega.size):
+        for p in range(s.size):
+            cs[0] = s[p]
+            U = _beam_local(cs, flat, gather, ratio, omega[m])
+            out[m, p] = U @ z[m]
+    return out
+
+
+def _point_system(c, w, kind, beam, flat, gather, ratio, R12, M, T):
+    """Columns 6–11 of the system matrix of configuration c at ω (12 × 6)."""
     U = np.zeros((12, 6))
     for i in range(6):
         U[6 + i, i] = 1.0
@@ -153,7 +179,7 @@ def _point_slogdet(c, w, kind, beam, flat, gather, ratio, R12, M, T):
             U[9:12, :] -= w2 * jump[0:3, :]
         else:
             U = T[c, j] @ U
-    return np.linalg.slogdet(np.ascontiguousarray(U[6:12, :]))
+    return U
 
 
 def _slogdet(cfg, omega, kind, beam, flat, gather, ratio, R12, M, T):
@@ -397,9 +423,12 @@ if AVAILABLE:
     _clamped_bending_count = numba.njit(cache=True)(_clamped_bending_count)
     _solve = numba.njit(cache=True)(_solve)
     _negative_eigenvalues = numba.njit(cache=True)(_negative_eigenvalues)
+    _point_system = numba.njit(cache=True)(_point_system)
     _point_slogdet = numba.njit(cache=True)(_point_slogdet)
+    system_points = numba.njit(cache=True)(_system)
+    field_points = numba.njit(cache=True)(_field)
     slogdet_points = numba.njit(cache=True)(_slogdet)
     refine_brackets = numba.njit(cache=True)(_refine)
     count_points = numba.njit(cache=True)(_count)
 else:  # pragma: no cover
-    slogdet_points = count_points = refine_brackets = None
+    slogdet_points = count_points = refine_brackets = system_points = field_points = None

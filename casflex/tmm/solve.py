@@ -172,6 +172,15 @@ class _Stack:
         base; ``columns=slice(None)`` gives the whole 12 × 12 matrix. A list ``trace``
         receives ``(element, transfer matrix finite, product finite)`` per element.
         """
+        if self.kernel is not None and trace is None and columns == slice(6, 12):
+            k = self.kernel
+            try:
+                return kernels.system_points(
+                    np.ascontiguousarray(cfg, dtype=np.int64),
+                    np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
+                    k["flat"], k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+            except ZeroDivisionError:
+                pass  # the numpy path below
         start = np.eye(12)[:, columns]
         U = np.broadcast_to(start, (omega.size,) + start.shape).copy()
         for data in self.items:
@@ -846,17 +855,23 @@ def _shapes(chain, stack, omega, multiplicity, n_points):
     body_state, body_local, body_position, body_rows = [], [], [], []
     spring_rotation, spring_rows = [], []
     ib = 0
-    for element, data in zip(chain.elements, stack.items, strict=True):
+    for j, (element, data) in enumerate(zip(chain.elements, stack.items, strict=True)):
         if element.kind == "beam":
             P = element.params
             sec, mat = P["section"], P["material"]
-            Rt = el.rotation_matrix(element.R.T)
+            Rt = data["R12"][0].T  # blockdiag(Rᵀ): base to local components
             z_loc = z @ Rt.T  # (m, 12) local components at the beam start
-            U = el.beam_field(
-                s[ib][None, :], omega[:, None], mat.E * sec.A, mat.E * sec.Ix,
-                mat.E * sec.Iy, mat.G * sec.J, mat.rho * sec.A, mat.rho * sec.Ip,
-            )  # (m, n_points, 12, 12)
-            local[:, ib] = np.einsum("mpij,mj->mpi", U, z_loc)
+            if stack.kernel is not None:
+                k = stack.kernel
+                local[:, ib] = kernels.field_points(
+                    k["beam"][j], k["flat"][j], k["gather"][j], k["ratio"][j],
+                    np.ascontiguousarray(s[ib]), omega, np.ascontiguousarray(z_loc))
+            else:
+                U = el.beam_field(
+                    s[ib][None, :], omega[:, None], mat.E * sec.A, mat.E * sec.Ix,
+                    mat.E * sec.Iy, mat.G * sec.J, mat.rho * sec.A, mat.rho * sec.Ip,
+                )  # (m, n_points, 12, 12)
+                local[:, ib] = np.einsum("mpij,mj->mpi", U, z_loc)
             position[ib] = element.start + s[ib][:, None] * element.R[:, 2]
             z = local[:, ib, -1] @ Rt  # back to base components at the beam end
             ib += 1

@@ -131,3 +131,24 @@ def test_roots_with_and_without_kernels(name, monkeypatch):
         np.testing.assert_array_equal(m_new, m_old)
         # both refine to rtol 1e-12 from determinants equal to round-off
         np.testing.assert_allclose(w_new, w_old, rtol=1e-11)
+
+
+@pytest.mark.parametrize("name", ["arm2link", "testbed"])
+def test_shapes_with_and_without_kernels(name, monkeypatch):
+    from casflex.tmm import solve
+    robot = load(f"problems/{name}.toml")
+    for q in np.random.default_rng(5).uniform(-np.pi, np.pi, (3, robot.n_joints)):
+        chain = build_chain(robot, q)
+        compiled, reference = both_paths([chain], monkeypatch)
+        monkeypatch.undo()
+        w, mult = natural_frequencies(chain, count=5, return_multiplicity=True)
+        new = solve._shapes(chain, compiled, w, mult, 51)
+        old = solve._shapes(chain, reference, w, mult, 51)
+        for field in MODE_FIELDS:
+            a, b = getattr(new, field), getattr(old, field)
+            # unit-peak shapes from null vectors of subU at the roots: the two paths'
+            # subU differ by round-off, amplified by the null space's conditioning (the
+            # gap to the next singular value, ~1e-3 of the largest): 1e-9 of each field's
+            # largest entry
+            scale = np.abs(b).max() if b.size else 1.0
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * scale, err_msg=field)
