@@ -24,7 +24,7 @@ import numpy as np
 
 try:
     import numba
-except ImportError:  # pragma: no cover - numba is a dependency; kept optional here
+except ImportError:  # pragma: no cover - numba is the optional "fast" extra
     numba = None
 
 __all__ = ["AVAILABLE", "pack"]
