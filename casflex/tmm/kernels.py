@@ -1,4 +1,5 @@
-"""Compiled point kernels of the root search: ``det subU`` and the Wittrick–Williams count.
+"""Compiled point kernels of the TMM: the Wittrick–Williams count, Brent's method on
+``det subU`` per bracket, the system columns and the sampled beam field of the shapes.
 
 The root search of :mod:`casflex.tmm.solve` evaluates the same two quantities at batches
 of (configuration, ω) points. In numpy each evaluation is a few hundred calls on 6 × 6
@@ -180,16 +181,6 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R12, M, T):
         else:
             U = T[c, j] @ U
     return U
-
-
-def _slogdet(cfg, omega, kind, beam, flat, gather, ratio, R12, M, T):
-    n = omega.size
-    sign = np.empty(n)
-    logabs = np.empty(n)
-    for p in range(n):
-        s, la = _point_slogdet(cfg[p], omega[p], kind, beam, flat, gather, ratio, R12, M, T)
-        sign[p], logabs[p] = s, la
-    return sign, logabs
 
 
 def _refine(cfg, lo, hi, kind, beam, flat, gather, ratio, R12, M, T):
@@ -427,8 +418,7 @@ if AVAILABLE:
     _point_slogdet = numba.njit(cache=True)(_point_slogdet)
     system_points = numba.njit(cache=True)(_system)
     field_points = numba.njit(cache=True)(_field)
-    slogdet_points = numba.njit(cache=True)(_slogdet)
     refine_brackets = numba.njit(cache=True)(_refine)
     count_points = numba.njit(cache=True)(_count)
 else:  # pragma: no cover
-    slogdet_points = count_points = refine_brackets = system_points = field_points = None
+    count_points = refine_brackets = system_points = field_points = None

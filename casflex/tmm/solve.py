@@ -205,15 +205,6 @@ class _Stack:
 
     def slogdet(self, cfg, omega):
         """Sign and log-magnitude of ``det subU`` at the points."""
-        if self.kernel is not None:
-            k = self.kernel
-            try:
-                return kernels.slogdet_points(
-                    np.ascontiguousarray(cfg, dtype=np.int64),
-                    np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
-                    k["flat"], k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
-            except (np.linalg.LinAlgError, ZeroDivisionError):
-                pass  # the numpy path below
         return np.linalg.slogdet(self.system(cfg, omega)[:, 6:12, :])
 
     def count(self, cfg, omega, trace=None):

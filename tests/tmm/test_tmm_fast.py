@@ -19,6 +19,8 @@ from casflex.tmm import (
     MODE_FIELDS,
     beam_field,
     build_chain,
+    count_below,
+    frequency_determinant,
     mode_shapes,
     modes,
     natural_frequencies,
@@ -85,15 +87,15 @@ def test_modes_equals_the_two_public_steps(arm, seed):
 # ----------------------------------------------------------------- compiled kernels
 
 
-def both_paths(chains, monkeypatch):
-    """The stack of ``chains`` with the compiled kernels and without (the numpy path)."""
-    from casflex.tmm import kernels, solve
+def both(monkeypatch, compute):
+    """``compute()`` with the compiled kernels and with the numpy path."""
+    from casflex.tmm import kernels
     if not kernels.AVAILABLE:
         pytest.skip("numba is not installed: only the numpy path runs")
-    compiled = solve._Stack(chains)
+    compiled = compute()
     monkeypatch.setattr(kernels, "AVAILABLE", False)
-    reference = solve._Stack(chains)
-    assert compiled.kernel is not None and reference.kernel is None
+    reference = compute()
+    monkeypatch.undo()
     return compiled, reference
 
 
@@ -101,54 +103,44 @@ def both_paths(chains, monkeypatch):
 def test_kernels_equal_the_numpy_path(name, monkeypatch):
     robot = load(f"problems/{name}.toml")
     rng = np.random.default_rng(7)
-    qs = rng.uniform(-np.pi, np.pi, (5, robot.n_joints))
-    compiled, reference = both_paths([build_chain(robot, q) for q in qs], monkeypatch)
-    cfg = np.repeat(np.arange(5), 60)
-    # up to 10x the softest link's cantilever frequency, where the lowest modes lie:
-    # λL ≤ 5.9, cosh λL ≤ 190
-    top = 10.0 * compiled.reference_frequency
-    omega = np.tile(np.geomspace(1e-2, top, 60), 5) * rng.uniform(0.97, 1.03, 300)
-    # the count is an integer: equal wherever no natural frequency lies within round-off
-    # of the point (none of these random points does)
-    np.testing.assert_array_equal(compiled.count(cfg, omega), reference.count(cfg, omega))
-    sign, logabs = compiled.slogdet(cfg, omega)
-    sign_ref, logabs_ref = reference.slogdet(cfg, omega)
-    np.testing.assert_array_equal(sign, sign_ref)
-    # same products in another order: log|det| agrees to the round-off of the chain
-    # product, eps·cosh²(λL) ≈ 1e-11 relative on the cancelling entries; 1e-9 absolute
-    np.testing.assert_allclose(logabs, logabs_ref, rtol=0, atol=1e-9)
-
-
-@pytest.mark.parametrize("name", ["arm2link", "testbed"])
-def test_roots_with_and_without_kernels(name, monkeypatch):
-    from casflex.tmm import solve
-    robot = load(f"problems/{name}.toml")
-    qs = np.random.default_rng(11).uniform(-np.pi, np.pi, (6, robot.n_joints))
-    compiled, reference = both_paths([build_chain(robot, q) for q in qs], monkeypatch)
-    new = solve._roots(compiled, 5, None, 1e-9, 1e-12)
-    old = solve._roots(reference, 5, None, 1e-9, 1e-12)
-    for (w_new, m_new), (w_old, m_old) in zip(new, old, strict=True):
-        np.testing.assert_array_equal(m_new, m_old)
-        # both refine to rtol 1e-12 from determinants equal to round-off
-        np.testing.assert_allclose(w_new, w_old, rtol=1e-11)
-
-
-@pytest.mark.parametrize("name", ["arm2link", "testbed"])
-def test_shapes_with_and_without_kernels(name, monkeypatch):
-    from casflex.tmm import solve
-    robot = load(f"problems/{name}.toml")
-    for q in np.random.default_rng(5).uniform(-np.pi, np.pi, (3, robot.n_joints)):
+    for q in rng.uniform(-np.pi, np.pi, (4, robot.n_joints)):
         chain = build_chain(robot, q)
-        compiled, reference = both_paths([chain], monkeypatch)
-        monkeypatch.undo()
-        w, mult = natural_frequencies(chain, count=5, return_multiplicity=True)
-        new = solve._shapes(chain, compiled, w, mult, 51)
-        old = solve._shapes(chain, reference, w, mult, 51)
+        # up to 10x the lowest modes' range (λL ≤ 6 on these links, cosh λL ≤ 200)
+        top = 10.0 * natural_frequencies(chain, count=1)[0]
+        omega = np.geomspace(1e-2, top, 60) * rng.uniform(0.97, 1.03, 60)
+        # the count is an integer: equal wherever no natural frequency lies within
+        # round-off of the point (none of these random points does)
+        new, old = both(monkeypatch, lambda c=chain, w=omega: count_below(c, w))
+        np.testing.assert_array_equal(new, old)
+        new, old = both(monkeypatch, lambda c=chain, w=omega: frequency_determinant(c, w))
+        np.testing.assert_array_equal(np.sign(new), np.sign(old))
+        # same products in another order: the row-scaled determinant (|d| ≤ 6³) agrees
+        # to the round-off of the chain product, eps·cosh²(λL) ≈ 1e-11
+        np.testing.assert_allclose(new, old, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["arm2link", "testbed"])
+def test_roots_and_shapes_with_and_without_kernels(name, monkeypatch):
+    robot = load(f"problems/{name}.toml")
+    for q in np.random.default_rng(11).uniform(-np.pi, np.pi, (4, robot.n_joints)):
+        new, old = both(monkeypatch, lambda q=q: modes(robot, q, count=5))
+        np.testing.assert_array_equal(new.multiplicity, old.multiplicity)
+        # Brent (compiled) and batched subdivision + inverse cubic interpolation (numpy)
+        # both refine to ~1e-13 from determinants equal to round-off
+        np.testing.assert_allclose(new.omega, old.omega, rtol=1e-11)
+        # the scaling makes the largest displacement +1; a mode whose largest |entry| is
+        # reached twice with opposite signs (to round-off) may come out with either sign
+        m_count = old.displacement.shape[0]
+        flip = np.sign(np.sum(new.displacement.reshape(m_count, -1)
+                              * old.displacement.reshape(m_count, -1), axis=1))
+        for m in np.flatnonzero(flip < 0):
+            flat = old.displacement[m].ravel()
+            assert abs(flat.max() + flat.min()) < 1e-8, f"mode {m} flipped without a tie"
         for field in MODE_FIELDS:
             a, b = getattr(new, field), getattr(old, field)
-            # unit-peak shapes from null vectors of subU at the roots: the two paths'
-            # subU differ by round-off, amplified by the null space's conditioning (the
-            # gap to the next singular value, ~1e-3 of the largest): 1e-9 of each field's
-            # largest entry
+            a = a * flip.reshape((-1,) + (1,) * (a.ndim - 1))
+            # unit-peak shapes from null vectors of subU at roots that differ by 1e-11:
+            # the shapes move by that times the null space's sensitivity; 1e-8 of each
+            # field's largest entry
             scale = np.abs(b).max() if b.size else 1.0
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * scale, err_msg=field)
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-8 * scale, err_msg=field)
