@@ -1,12 +1,30 @@
-"""Benchmark of the transfer-matrix modal analysis (issue 2, §6).
+"""Benchmark of the transfer-matrix modal analysis against a beam FE (issues 2 and 17).
 
 * ``per_configuration_s``: median wall time of the first 5 natural frequencies and mode
   shapes (51 points per link) of the Table 8 arm at one configuration
-  (``casflex.tmm.modes``), over configurations spread along q3.
+  (``casflex.tmm.modes``), over 40 configurations spread along q3.
+* ``frequencies_only_s``: the same for the 5 frequencies alone
+  (``casflex.tmm.natural_frequencies``).
 * ``sweep_s``: the q3 sweep at 1.5° over 360° (240 configurations, 5 frequencies each)
   with ``casflex.tmm.sweep_frequencies``, median of repeated runs.
+* ``fe_equal_accuracy_s``: median wall time of the 3-D Euler–Bernoulli frame FE of
+  ``tests/reference_fem.py`` (assembly, eigen-solution, mass-normalised shapes) at the
+  smallest number of elements per link whose 5 frequencies are within 1e-4 (relative) of
+  the TMM's on every configuration (``fe_elements_per_link``, ``fe_max_rel_error``); that
+  the FE converges to the TMM's values is checked at 4× the elements
+  (``fe_converged_rel_error``). Configurations where link 2 folds back onto link 1 are
+  left out of the FE side (the FE merges coincident nodes).
+* ``ratio_fe`` = FE time / TMM time with shapes (> 1: the TMM is faster);
+  ``ratio_fe_frequencies`` the same for frequencies only.
+* ``numpy_*``: the same TMM figures with the compiled kernels switched off
+  (``casflex.tmm.kernels.AVAILABLE = False``, the numpy path), measured alternately with
+  the compiled ones.
 
-Targets on one core: ≤ 5 ms per configuration, ≤ 1 s for the sweep.
+TMM and FE are timed alternately, configuration by configuration, so that both see the
+same machine load; ``load_average`` is the 1-minute load when the run ended.
+
+Targets (issue 17): ≤ 1 ms per configuration with shapes, ≤ 0.3 ms frequencies only,
+sweep ≤ 0.2 s, ``ratio_fe`` ≥ 10.
 
 Usage: ``python benchmarks/bench_tmm.py [--json] [--repeat N]``
 """
@@ -18,15 +36,55 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from casflex.robot import load
-from casflex.tmm import modes, sweep_frequencies
+from casflex.tmm import build_chain, modes, natural_frequencies, sweep_frequencies
+
+try:  # absent before the compiled kernels (to measure an older checkout side by side)
+    from casflex.tmm import kernels
+except ImportError:  # pragma: no cover
+    kernels = None
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import reference_fem as fem  # noqa: E402  (the tests' independent FE model)
+
+ACCURACY = 1e-4
+
+
+def fe_modes(robot, q, n_elements, n_modes=5):
+    """Frequencies [rad/s] and shapes of the frame FE at the chain's geometry."""
+    chain = build_chain(robot, q)
+    segments = []
+    for e in chain.beams:
+        sec, mat = e.params["section"], e.params["material"]
+        segments.append(fem.Segment(
+            e.start, e.end, e.R[:, 0], E=mat.E, G=mat.G, rho=mat.rho, A=sec.A, Ix=sec.Ix,
+            Iy=sec.Iy, J=sec.J, Ip=sec.Ip, n_elements=n_elements))
+    return fem.modes(segments, clamp=chain.elements[0].start, n_modes=n_modes)
+
+
+def folded(robot, q):
+    """True when the two links' sample points come within 1 mm (the FE would merge them)."""
+    beams = build_chain(robot, q).beams
+    s = np.linspace(0.0, 1.0, 21)[1:]
+    a = [b.start + np.outer(s, b.end - b.start) for b in beams]
+    return bool(np.min(np.linalg.norm(a[0][:, None] - a[1][None], axis=2)) < 1e-3)
+
+
+def fe_elements(robot, qs, reference):
+    """Smallest elements per link reaching ACCURACY on every configuration, its error."""
+    for n in range(2, 16):
+        err = max(np.max(np.abs(fe_modes(robot, q, n)[0] / w - 1.0))
+                  for q, w in zip(qs, reference, strict=True))
+        if err <= ACCURACY:
+            return n, float(err)
+    raise RuntimeError("the FE does not reach the accuracy with 15 elements per link")
 
 
 def main():
@@ -37,35 +95,86 @@ def main():
 
     robot = load(ROOT / "problems" / "arm2link.toml")
     q3 = np.linspace(-np.pi, np.pi, 40, endpoint=False)
+    configurations = [np.array([0.0, 0.0, v]) for v in q3]
+    fe_configurations = [q for q in configurations if not folded(robot, q)]
     modes(robot, [0.0, 0.0, 0.0], count=5)  # warm-up (imports, caches)
-    single = []
-    for value in q3:
-        t = time.perf_counter()
-        modes(robot, [0.0, 0.0, value], count=5)
-        single.append(time.perf_counter() - t)
+
+    reference = [natural_frequencies(robot, q, count=5) for q in fe_configurations]
+    n_fe, fe_error = fe_elements(robot, fe_configurations, reference)
+    converged = max(np.max(np.abs(fe_modes(robot, q, 4 * n_fe)[0] / w - 1.0))
+                    for q, w in zip(fe_configurations, reference, strict=True))
+
+    compiled = kernels is not None and kernels.AVAILABLE
+    paths = (True, False) if compiled else (False,)
+    single = {p: [] for p in paths}
+    frequencies = {p: [] for p in paths}
+    fe_times = []
+    for q in configurations:
+        for path in paths:
+            if kernels is not None:
+                kernels.AVAILABLE = path
+            t = time.perf_counter()
+            modes(robot, q, count=5)
+            single[path].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            natural_frequencies(robot, q, count=5)
+            frequencies[path].append(time.perf_counter() - t)
+        if not folded(robot, q):
+            t = time.perf_counter()
+            fe_modes(robot, q, n_fe)
+            fe_times.append(time.perf_counter() - t)
 
     qs = np.zeros((240, 3))
     qs[:, 2] = np.radians(np.arange(240) * 1.5 - 180.0)
-    sweeps = []
+    sweeps = {p: [] for p in paths}
     for _ in range(args.repeat):
-        t = time.perf_counter()
-        sweep_frequencies(robot, qs, 5)
-        sweeps.append(time.perf_counter() - t)
+        for path in paths:
+            if kernels is not None:
+                kernels.AVAILABLE = path
+            t = time.perf_counter()
+            sweep_frequencies(robot, qs, 5)
+            sweeps[path].append(time.perf_counter() - t)
+    if kernels is not None:
+        kernels.AVAILABLE = compiled
 
+    per_configuration = statistics.median(single[compiled])
+    frequencies_only = statistics.median(frequencies[compiled])
+    fe_time = statistics.median(fe_times)
     result = {
-        "per_configuration_s": statistics.median(single),
-        "sweep_s": statistics.median(sweeps),
+        "compiled_kernels": compiled,
+        "per_configuration_s": per_configuration,
+        "frequencies_only_s": frequencies_only,
+        "sweep_s": statistics.median(sweeps[compiled]),
+        "numpy_per_configuration_s": statistics.median(single[False]),
+        "numpy_frequencies_only_s": statistics.median(frequencies[False]),
+        "numpy_sweep_s": statistics.median(sweeps[False]),
         "configurations": int(qs.shape[0]),
+        "fe_equal_accuracy_s": fe_time,
+        "fe_elements_per_link": n_fe,
+        "fe_max_rel_error": fe_error,
+        "fe_converged_rel_error": float(converged),
+        "ratio_fe": fe_time / per_configuration,
+        "ratio_fe_frequencies": fe_time / frequencies_only,
+        "load_average": os.getloadavg()[0],
     }
     if args.json:
         print(json.dumps(result))
     else:
         print(f"machine: {platform.processor() or platform.machine()}, "
-              f"{os.cpu_count()} cores, Python {platform.python_version()}")
-        print(f"per configuration (5 modes + shapes): {1e3 * result['per_configuration_s']:.2f} ms"
-              " (target ≤ 5 ms)")
+              f"{os.cpu_count()} cores, Python {platform.python_version()}, "
+              f"load {result['load_average']:.2f}")
+        print(f"per configuration (5 modes + shapes): {1e3 * per_configuration:.2f} ms"
+              " (target ≤ 1 ms)")
+        print(f"frequencies only: {1e3 * frequencies_only:.2f} ms (target ≤ 0.3 ms)")
         print(f"q3 sweep, {result['configurations']} configurations: "
-              f"{result['sweep_s']:.3f} s (target ≤ 1 s)")
+              f"{result['sweep_s']:.3f} s (target ≤ 0.2 s)")
+        print(f"numpy path: {1e3 * result['numpy_per_configuration_s']:.2f} ms with shapes, "
+              f"{1e3 * result['numpy_frequencies_only_s']:.2f} ms frequencies only, sweep "
+              f"{result['numpy_sweep_s']:.3f} s (compiled kernels: {compiled})")
+        print(f"beam FE, {n_fe} elements per link (max error {fe_error:.1e}; "
+              f"{4 * n_fe} elements: {converged:.1e}): {1e3 * fe_time:.2f} ms")
+        print(f"FE / TMM: {result['ratio_fe']:.2f} with shapes, "
+              f"{result['ratio_fe_frequencies']:.2f} frequencies only (target ≥ 10)")
 
 
 if __name__ == "__main__":

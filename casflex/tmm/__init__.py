@@ -13,6 +13,11 @@ Chain assembly
    Element       -- one transfer element posed in the base frame
    build_chain   -- pose every element of a robot at joint variables q
 
+Conditioning
+============
+
+   check_chain  -- refuse a chain the TMM cannot solve in double precision, saying where
+
 Natural frequencies
 ===================
 
@@ -49,6 +54,7 @@ Transfer matrices (12 × 12, state ``[u, θ, M, F]``)
 """
 
 from casflex.tmm.chain import Chain, Element, build_chain
+from casflex.tmm.conditioning import check_chain
 from casflex.tmm.elements import (
     DISSERTATION_ORDER,
     beam_field,
@@ -81,6 +87,8 @@ __all__ = [
     "Chain",
     "Element",
     "build_chain",
+    # conditioning
+    "check_chain",
     # natural frequencies
     "natural_frequencies",
     "sweep_frequencies",

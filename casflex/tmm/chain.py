@@ -54,6 +54,8 @@ class Element:
         Kind-specific data: beam — ``length``, ``section``, ``material``; body — ``mass``,
         ``inertia``, ``com_offset`` (local); offset — ``r`` (base frame); spring —
         ``stiffness``, ``axis`` (base frame).
+    link : str
+        Name of the robot link (DH row) the element belongs to.
 
     Examples
     --------
@@ -72,6 +74,20 @@ class Element:
     start: np.ndarray
     row: int
     params: dict[str, Any] = field(default_factory=dict)
+    link: str = ""
+
+    @property
+    def label(self) -> str:
+        """Where the element sits, for messages: kind, link name and 1-based DH row.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> build_chain(load("problems/arm2link.toml"), [0.0, 0.0, 0.0]).elements[0].label
+        "beam of link 'link1' (DH row 3)"
+        """
+        name = f" of link '{self.link}'" if self.link else ""
+        return f"{self.kind}{name} (DH row {self.row + 1})"
 
     @cached_property
     def rotation12(self) -> np.ndarray:
@@ -158,7 +174,7 @@ def build_chain(robot: Robot, q: ArrayLike) -> Chain:
         if not tip.is_empty:
             out.append(Element("body", R_local, p.copy(), row, {
                 "mass": tip.mass, "inertia": np.array(tip.inertia),
-                "com_offset": np.array(tip.com_offset)}))
+                "com_offset": np.array(tip.com_offset)}, link.name))
 
     for row, link in enumerate(robot.links):
         R = R @ _rx(link.alpha)
@@ -166,25 +182,29 @@ def build_chain(robot: Robot, q: ArrayLike) -> Chain:
             # local z along x_{i-1}, local y along the axis of joint i (current z)
             Rl = np.column_stack([R[:, 1], R[:, 2], R[:, 0]]) @ _rz(link.section_angle)
             out.append(Element("beam", Rl, p.copy(), row, {
-                "length": link.length, "section": link.section, "material": link.material}))
+                "length": link.length, "section": link.section, "material": link.material},
+                link.name))
             p = p + R[:, 0] * link.a
             add_body(link, row, Rl)
         elif link.a != 0.0:
-            out.append(Element("offset", R.copy(), p.copy(), row, {"r": R[:, 0] * link.a}))
+            out.append(Element("offset", R.copy(), p.copy(), row, {"r": R[:, 0] * link.a},
+                               link.name))
             p = p + R[:, 0] * link.a
         R = R @ _rz(theta[row])
         if link.joint_stiffness is not None:
             out.append(Element("spring", R.copy(), p.copy(), row, {
-                "stiffness": link.joint_stiffness, "axis": R[:, 2].copy()}))
+                "stiffness": link.joint_stiffness, "axis": R[:, 2].copy()}, link.name))
         if link.beam_along == "d":
             Rl = R @ _rz(link.section_angle)
             out.append(Element("beam", Rl, p.copy(), row, {
-                "length": link.length, "section": link.section, "material": link.material}))
+                "length": link.length, "section": link.section, "material": link.material},
+                link.name))
             p = p + R[:, 2] * link.d
             add_body(link, row, Rl)
         else:
             if link.d != 0.0:
-                out.append(Element("offset", R.copy(), p.copy(), row, {"r": R[:, 2] * link.d}))
+                out.append(Element("offset", R.copy(), p.copy(), row, {"r": R[:, 2] * link.d},
+                                   link.name))
                 p = p + R[:, 2] * link.d
             if link.beam_along is None:
                 add_body(link, row, R.copy())

@@ -112,41 +112,48 @@ def beam_field(s: ArrayLike, omega: ArrayLike, EA: float, EIx: float, EIy: float
     s, omega = np.broadcast_arrays(np.asarray(s, dtype=float), np.asarray(omega, dtype=float))
     shape = s.shape
     s, omega = s.ravel(), omega.ravel()
-    table = _layout(float(EA), float(EIx), float(EIy), float(GJ))
+    table = layout(float(EA), float(EIx), float(EIy), float(GJ), float(rho_A), float(rho_Ip))
+    # values[j] holds quantity j for the two rows below; one gather places all 40 entries
+    values = np.empty((10, 2, s.size))
 
     # axial (u_z' = F_z/EA, F_z' = -ω² ρA u_z) and torsion (θ_z' = M_z/GJ,
     # M_z' = -ω² ρIp θ_z), stacked as two rows
-    stiff = np.array([[EA], [GJ]])
-    k = omega * np.sqrt(np.array([[rho_A / EA], [rho_Ip / GJ]]))
-    c, sn = np.cos(k * s), np.sin(k * s)
+    stiff = table["stiff"]
+    k = omega * table["wave"]
+    np.cos(k * s, out=values[0])
+    sn = np.sin(k * s)
     if np.all(k != 0.0):
         sinc = sn / k
     else:
         sinc = np.where(k == 0.0, s, sn / np.where(k == 0.0, 1.0, k))
-    wave = np.stack([c, sinc / stiff, -stiff * k * sn, c], axis=-1)  # (2, P, 4)
+    np.divide(sinc, stiff, out=values[1])
+    np.multiply(-stiff * k, sn, out=values[2])
 
     # bending in the x–z (EIy) and y–z (EIx) planes, stacked as two rows: with
     # y = (w, dw, d2w, d3w), y(s) = K y(0), K_ab = λ^(a-b) F_(a-b) of the Krylov–Duncan
     # functions S, T, U, V
-    lam = np.sqrt(omega) * (rho_A / np.array([[EIy], [EIx]])) ** 0.25  # λ⁴ = ω² ρA / EI
+    lam = np.sqrt(omega) * table["bend"]  # λ⁴ = ω² ρA / EI
     x = lam * s
     ch, sh, co, si = np.cosh(x), np.sinh(x), np.cos(x), np.sin(x)
     S, T = 0.5 * (ch + co), 0.5 * (sh + si)
     U, V = 0.5 * (ch - co), 0.5 * (sh - si)
+    values[3] = S
     if np.all(lam > 0.0):
-        t1, u2, v3 = T / lam, U / lam**2, V / lam**3
+        np.divide(T, lam, out=values[4])
+        np.divide(U, lam**2, out=values[5])
+        np.divide(V, lam**3, out=values[6])
     else:  # ω = 0: the static limits T/λ → s, U/λ² → s²/2, V/λ³ → s³/6
         small = lam == 0.0
         ls = np.where(small, 1.0, lam)
-        t1 = np.where(small, s, T / ls)
-        u2 = np.where(small, s**2 / 2.0, U / ls**2)
-        v3 = np.where(small, s**3 / 6.0, V / ls**3)
-    F = np.stack([S, t1, u2, v3, lam * V, lam**2 * U, lam**3 * T], axis=-1)  # (2, P, 7)
-    bend = F[:, :, _KRYLOV] * table["ratio"][:, None, :]  # (2, P, 16)
+        values[4] = np.where(small, s, T / ls)
+        values[5] = np.where(small, s**2 / 2.0, U / ls**2)
+        values[6] = np.where(small, s**3 / 6.0, V / ls**3)
+    np.multiply(lam, V, out=values[7])
+    np.multiply(lam**2, U, out=values[8])
+    np.multiply(lam**3, T, out=values[9])
 
     out = np.zeros((s.size, 144))
-    out[:, table["flat"]] = np.concatenate(
-        [wave[0], wave[1], bend[0], bend[1]], axis=1)
+    out[:, table["flat"]] = (values.reshape(20, -1)[table["gather"]] * table["ratio"]).T
     return out.reshape(shape + (12, 12))
 
 
@@ -160,14 +167,26 @@ _WAVE = ((2, 2), (2, 11), (11, 2), (11, 11), (5, 5), (5, 8), (8, 5), (8, 8))
 
 
 @functools.lru_cache(maxsize=256)
-def _layout(EA, EIx, EIy, GJ):
-    """Flat indices of the 40 non-zero entries and the bending sign ratios."""
+def layout(EA, EIx, EIy, GJ, rho_A, rho_Ip):
+    """Constants of one beam: flat indices of the 40 non-zero entries, the gather from
+    the quantities computed by :func:`beam_field`, the bending sign ratios, the axial and
+    torsional stiffness and wavenumber factors, the bending wavenumber factors."""
     signs = (np.array([1.0, 1.0, EIy, -EIy]), np.array([1.0, -1.0, -EIx, -EIx]))
     ratio = np.array([np.outer(sg, 1.0 / sg).ravel() for sg in signs])
     flat = [12 * r + c for r, c in _WAVE]
     for idx in (_BEND_XZ, _BEND_YZ):
         flat += [12 * idx[a] + idx[b] for a in range(4) for b in range(4)]
-    return {"flat": np.array(flat), "ratio": ratio}
+    # quantity j of row r sits at 2 j + r: wave rows (c, sinc/stiff, -stiff k sin, c),
+    # bending rows F_KRYLOV with F = (S, T/λ, U/λ², V/λ³, λV, λ²U, λ³T) from j = 3
+    gather = ([0, 2, 4, 0], [1, 3, 5, 1], 2 * (3 + _KRYLOV), 2 * (3 + _KRYLOV) + 1)
+    return {
+        "flat": np.array(flat),
+        "gather": np.concatenate(gather),
+        "ratio": np.concatenate([np.ones(8), ratio[0], ratio[1]])[:, None],
+        "stiff": np.array([[EA], [GJ]]),
+        "wave": np.sqrt(np.array([[rho_A / EA], [rho_Ip / GJ]])),
+        "bend": (rho_A / np.array([[EIy], [EIx]])) ** 0.25,
+    }
 
 
 def beam_matrix(length: float, omega: ArrayLike, section: Section,

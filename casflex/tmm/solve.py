@@ -29,9 +29,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from casflex.errors import SolverError
+from casflex.errors import ModelError, SolverError
 from casflex.tmm import elements as el
+from casflex.tmm import kernels
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
+from casflex.tmm.conditioning import (
+    check_chain,
+    describe,
+    format_q,
+    lowest_beam_frequency,
+    stiffness_spread,
+)
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -71,6 +79,8 @@ class _Stack:
             if [(e.kind, e.row) for e in chain.elements] != signature:
                 raise ValueError("chains of different structures cannot be stacked")
         self.size = len(chains)
+        self.chains = chains
+        check_chain(first)
         self.cap = _omega_cap(first)
         # lowest cantilever frequency of the whole length with the softest section: a
         # scale for the first search grid [rad/s]
@@ -78,6 +88,11 @@ class _Stack:
         soft = [b.params["material"].E * min(b.params["section"].Ix, b.params["section"].Iy)
                 / (b.params["material"].rho * b.params["section"].A) for b in first.beams]
         self.reference_frequency = (1.875 / total) ** 2 * np.sqrt(min(soft)) if soft else 1.0
+        # the lowest clamped–free frequency of any beam in bending, torsion or tension: the
+        # scale of the static probe (a robot whose torsion is far softer than its bending
+        # has natural frequencies far below reference_frequency)
+        self.lowest_beam_frequency = min(
+            [self.reference_frequency] + [lowest_beam_frequency(b) for b in first.beams])
         self.items = []
         for j, e in enumerate(first.elements):
             same = [chain.elements[j] for chain in chains]
@@ -99,6 +114,49 @@ class _Stack:
                                       for x in same])
                 data["axis"] = np.array([x.params["axis"] for x in same])
             self.items.append(data)
+        self.kernel = kernels.pack(self.items, self.size) if kernels.AVAILABLE else None
+
+    def require_finite(self, values, cfg, omega, quantity):
+        """Raise the breakdown error at the first point whose ``values`` are not finite."""
+        if not np.isfinite(values).all():
+            bad = int(np.flatnonzero(~np.isfinite(values.reshape(omega.size, -1)).all(1))[0])
+            self.breakdown(int(cfg[bad]), float(omega[bad]), f"{quantity} is not finite")
+
+    def breakdown(self, c, omega, what):
+        """Raise a ModelError: configuration ``c``, the element where it broke, the quantity."""
+        chain = self.chains[c]
+        cfg, w = np.array([c]), np.array([omega])
+        where, quantity = None, None
+        forward, backward = [], []
+        with np.errstate(all="ignore"):
+            try:
+                self.system(cfg, w, trace=forward)
+            except (np.linalg.LinAlgError, ValueError):
+                pass
+            for e, element_ok, product_ok in forward:
+                if not element_ok:
+                    where, quantity = e, "its transfer matrix is not finite"
+                    break
+                if not product_ok:
+                    where, quantity = e, "the chain product overflows at it"
+                    break
+            if where is None:
+                try:
+                    self.count(cfg, w, trace=backward)
+                except (np.linalg.LinAlgError, ModelError):
+                    pass
+                for e, added, finite in backward:
+                    if not finite:
+                        where, quantity = e, "its condensed dynamic stiffness is not finite"
+                        break
+                    if what.startswith("the Wittrick") and added[0] > 0:
+                        where, quantity = e, "its condensation adds the spurious count"
+                        break
+        message = f"TMM breakdown at q = {format_q(chain.q)} rad, ω = {omega:.6g} rad/s: {what}"
+        if where is not None:
+            message += f"; at the {where.label}, {quantity} ({describe(where)})"
+        message += f"; {stiffness_spread(chain)[1]}"
+        raise ModelError(message)
 
     def transfer(self, data, cfg, omega):
         """Base-frame transfer matrices of a body, offset or spring at the points (P, 12, 12)."""
@@ -107,12 +165,22 @@ class _Stack:
             return el.point_body_matrix(omega, data["M"][cfg])
         return data["T"][cfg]
 
-    def system(self, cfg, omega, columns=slice(6, 12)):
+    def system(self, cfg, omega, columns=slice(6, 12), trace=None):
         """Columns of the system matrix (eq. 59), (P, 12, k).
 
         By default columns 6–11, the ones that multiply the base reactions of a clamped
-        base; ``columns=slice(None)`` gives the whole 12 × 12 matrix.
+        base; ``columns=slice(None)`` gives the whole 12 × 12 matrix. A list ``trace``
+        receives ``(element, transfer matrix finite, product finite)`` per element.
         """
+        if self.kernel is not None and trace is None and columns == slice(6, 12):
+            k = self.kernel
+            try:
+                return kernels.system_points(
+                    np.ascontiguousarray(cfg, dtype=np.int64),
+                    np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
+                    k["flat"], k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+            except ZeroDivisionError:
+                pass  # the numpy path below
         start = np.eye(12)[:, columns]
         U = np.broadcast_to(start, (omega.size,) + start.shape).copy()
         for data in self.items:
@@ -123,7 +191,10 @@ class _Stack:
                 B = el.beam_matrix(P["length"], omega, P["section"], P["material"])
                 U = Rb @ (B @ (np.swapaxes(Rb, 1, 2) @ U))
             else:
-                U = self.transfer(data, cfg, omega) @ U
+                B = self.transfer(data, cfg, omega)
+                U = B @ U
+            if trace is not None:
+                trace.append((e, bool(np.isfinite(B).all()), bool(np.isfinite(U).all())))
         return U
 
     def det(self, cfg, omega):
@@ -136,14 +207,31 @@ class _Stack:
         """Sign and log-magnitude of ``det subU`` at the points."""
         return np.linalg.slogdet(self.system(cfg, omega)[:, 6:12, :])
 
-    def count(self, cfg, omega):
-        """Wittrick–Williams count of natural frequencies below each point's ω."""
+    def count(self, cfg, omega, trace=None):
+        """Wittrick–Williams count of natural frequencies below each point's ω.
+
+        A list ``trace`` receives ``(element, negative pivots added, condensed stiffness
+        finite)`` per element, tip first (for the breakdown diagnosis).
+        """
+        if self.kernel is not None and trace is None:
+            k = self.kernel
+            try:
+                counts, finite = kernels.count_points(
+                    np.ascontiguousarray(cfg, dtype=np.int64),
+                    np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
+                    k["flat"], k["gather"], k["ratio"], k["R6"], k["M"], k["G"], k["axis"],
+                    k["stiffness"])
+                if finite.all():
+                    return counts.astype(int)
+            except (np.linalg.LinAlgError, ZeroDivisionError):
+                pass  # a singular matrix at one point: the numpy path's branches below
         n = omega.size
         Z = np.zeros((n, 6, 6))
         count = np.zeros(n)
         w2 = omega**2
         for data in reversed(self.items):
             e = data["element"]
+            before = count.copy() if trace is not None else None
             if e.kind == "body":
                 Z = Z - w2[:, None, None] * data["M"][cfg]
             elif e.kind == "offset":
@@ -161,9 +249,15 @@ class _Stack:
                 R6t = np.swapaxes(R6, 1, 2)
                 K00, K01, K10, K11 = _beam_stiffness(e, omega)
                 pivot = K11 + R6t @ Z @ R6
+                if trace is None:
+                    self.require_finite(pivot, cfg, omega, "the condensed dynamic stiffness")
                 count += _negatives(pivot)
                 Z = R6 @ (K00 - K01 @ _solve(pivot, K10)) @ R6t
                 count += _beam_j0(e, omega)
+            if trace is not None:
+                trace.append((e, count - before, bool(np.isfinite(Z).all())))
+        if trace is None:  # comparisons with NaN are False: NaN would undercount
+            self.require_finite(Z, cfg, omega, "the condensed dynamic stiffness")
         return count.astype(int)
 
 
@@ -231,7 +325,9 @@ def _clamped_bending_count(beta):
     """Clamped–clamped Euler–Bernoulli frequencies with λL below ``beta``."""
     i = np.floor(beta / np.pi)
     sgn = np.sign(1.0 - np.cosh(beta) * np.cos(beta))
-    return i - (1.0 - (-1.0) ** i * sgn) / 2.0
+    # below the first root (λL = 4.730) the count is 0; the formula's sign rounds to 0
+    # there when β⁴/6 < eps (a stiff beam at a very low ω)
+    return np.where(beta < 4.0, 0.0, i - (1.0 - (-1.0) ** i * sgn) / 2.0)
 
 
 def _beam_j0(element, omega):
@@ -318,9 +414,17 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
     cubic interpolation through the four samples around the sign change, which is
     accurate to far below 1e-12 relative at that spacing. Values are ``sign · exp(log
     |det| − max)`` per bracket (from ``slogdet``): no overflow, and no kinks from a
-    varying scaling. Returns the roots and a mask of the brackets where a sign change
-    was found.
+    varying scaling. With the compiled kernels, Brent's method runs on each bracket
+    instead (about 10 evaluations per root, to 5e-15 relative). Returns the roots and a
+    mask of the brackets where a sign change was found.
     """
+    if stack.kernel is not None:  # Brent's method per bracket, compiled
+        k = stack.kernel
+        root, ok, _ = kernels.refine_brackets(
+            np.ascontiguousarray(cfg, dtype=np.int64), np.ascontiguousarray(a, dtype=float),
+            np.ascontiguousarray(b, dtype=float), k["kind"], k["beam"], k["flat"],
+            k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+        return root, ok
     n = a.size
     rows = np.arange(n)
     frac = np.linspace(0.0, 1.0, points + 2)
@@ -328,6 +432,10 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
     for _ in range(rounds):
         x = a[:, None] + (b - a)[:, None] * frac[None, :]
         sign, logabs = stack.slogdet(np.repeat(cfg, frac.size), x.ravel())
+        if np.isnan(logabs).any() or np.isposinf(logabs).any():
+            i = int(np.flatnonzero(~(logabs < np.inf))[0])
+            stack.breakdown(int(np.repeat(cfg, frac.size)[i]), float(x.ravel()[i]),
+                            "det subU is not finite")
         logabs = logabs.reshape(x.shape)
         f = sign.reshape(x.shape) * np.exp(logabs - logabs.max(axis=1, keepdims=True))
         change = np.signbit(f[:, :-1]) != np.signbit(f[:, 1:])
@@ -365,6 +473,29 @@ def _omega_cap(chain, lambda_l=80.0):
     return cap
 
 
+#: the static probe of the root search, relative to the lowest beam frequency
+_STATIC_PROBE = 1e-6
+
+
+def _check_counts(stack, points, counts):
+    """Breakdown unless the counts are 0 at the probe and never decrease with ω."""
+    spurious = counts[:, 0] > 0
+    if spurious.any():
+        c = int(np.flatnonzero(spurious)[0])
+        stack.breakdown(c, float(points[0]), (
+            f"the Wittrick–Williams count finds {counts[c, 0]} natural frequencies below "
+            f"{points[0]:.3g} rad/s, 1e-6 of the lowest beam frequency, where a clamped "
+            "robot of plausible proportions has none: its static stiffness came out "
+            "indefinite (ill-conditioned) or a mass or spring is out of proportion"))
+    falling = np.diff(counts, axis=1) < 0
+    if falling.any():
+        c, j = (int(v[0]) for v in np.nonzero(falling))
+        stack.breakdown(c, float(points[j + 1]), (
+            f"the Wittrick–Williams count falls from {counts[c, j]} at {points[j]:.6g} rad/s "
+            f"to {counts[c, j + 1]} at {points[j + 1]:.6g} rad/s (it can only grow: "
+            "ill-conditioned)"))
+
+
 def _roots(stack, count, omega_max, double_tol, rtol):
     """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
     C = stack.size
@@ -373,14 +504,22 @@ def _roots(stack, count, omega_max, double_tol, rtol):
         grid = np.geomspace(1e-3 * ref, 1e2 * ref, 36)
     else:
         grid = np.geomspace(min(1e-2, omega_max / 10.0), omega_max, 32)
-    cfg_all = np.repeat(np.arange(C), grid.size)
-    counts = stack.count(cfg_all, np.tile(grid, C)).reshape(C, grid.size)
+    # with the grid, a probe far below any physical natural frequency (1e-6 of the softest
+    # beam's cantilever frequency): a clamped structure has a positive definite static
+    # stiffness, so a count above 0 there means the condensation lost its precision
+    probe = _STATIC_PROBE * stack.lowest_beam_frequency
+    points = np.concatenate([[probe], grid])
+    cfg_all = np.repeat(np.arange(C), points.size)
+    counts = stack.count(cfg_all, np.tile(points, C)).reshape(C, points.size)
+    _check_counts(stack, np.concatenate([[probe], grid]), counts)
+    counts = counts[:, 1:]
     if omega_max is None:
         while counts[:, -1].min() < count and grid[-1] < stack.cap:
             more = np.geomspace(grid[-1] * 2.0, min(grid[-1] * 256.0, stack.cap), 8)
             extra = stack.count(np.repeat(np.arange(C), more.size), np.tile(more, C))
             grid = np.concatenate([grid, more])
             counts = np.concatenate([counts, extra.reshape(C, more.size)], axis=1)
+            _check_counts(stack, grid, counts)
         if counts[:, -1].min() < count:
             c = int(np.argmin(counts[:, -1]))
             raise SolverError(
@@ -441,6 +580,11 @@ def _roots(stack, count, omega_max, double_tol, rtol):
     roots = np.concatenate([r] + [m[0] for m in multiples])
     mult = np.concatenate([np.ones(r.size, int)] + [m[1] for m in multiples]).astype(int)
     rcfg = np.concatenate([scfg] + [m[2] for m in multiples]).astype(int)
+    bad = ~(roots > probe) | ~np.isfinite(roots)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        stack.breakdown(int(rcfg[i]), float(probe), f"a natural frequency of {roots[i]:.6g} "
+                        f"rad/s, at or below the static probe {probe:.3g} rad/s")
 
     out = []
     for c in range(C):
@@ -673,12 +817,16 @@ def mode_shapes(chain: Chain, omega: ArrayLike, multiplicity: ArrayLike | None =
     >>> mode_shapes(chain, w, n_points=11).displacement.shape
     (2, 2, 11, 3)
     """
+    return _shapes(chain, _Stack([chain]), omega, multiplicity, n_points)
+
+
+def _shapes(chain, stack, omega, multiplicity, n_points):
+    """:func:`mode_shapes` with the chain's stack already built."""
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
     m = omega.size
     mult = np.ones(m, dtype=int) if multiplicity is None else np.asarray(multiplicity, int)
     # base reactions f0 of every mode; a k-fold root contributes k basis vectors
     f0 = np.empty((m, 6))
-    stack = _Stack([chain])
     cfg = np.zeros(m, dtype=int)
     vt = _null_vectors(stack.system(cfg, omega)[:, 6:12, :])
     j = 0
@@ -698,17 +846,23 @@ def mode_shapes(chain: Chain, omega: ArrayLike, multiplicity: ArrayLike | None =
     body_state, body_local, body_position, body_rows = [], [], [], []
     spring_rotation, spring_rows = [], []
     ib = 0
-    for element, data in zip(chain.elements, stack.items, strict=True):
+    for j, (element, data) in enumerate(zip(chain.elements, stack.items, strict=True)):
         if element.kind == "beam":
             P = element.params
             sec, mat = P["section"], P["material"]
-            Rt = el.rotation_matrix(element.R.T)
+            Rt = data["R12"][0].T  # blockdiag(Rᵀ): base to local components
             z_loc = z @ Rt.T  # (m, 12) local components at the beam start
-            U = el.beam_field(
-                s[ib][None, :], omega[:, None], mat.E * sec.A, mat.E * sec.Ix,
-                mat.E * sec.Iy, mat.G * sec.J, mat.rho * sec.A, mat.rho * sec.Ip,
-            )  # (m, n_points, 12, 12)
-            local[:, ib] = np.einsum("mpij,mj->mpi", U, z_loc)
+            if stack.kernel is not None:
+                k = stack.kernel
+                local[:, ib] = kernels.field_points(
+                    k["beam"][j], k["flat"][j], k["gather"][j], k["ratio"][j],
+                    np.ascontiguousarray(s[ib]), omega, np.ascontiguousarray(z_loc))
+            else:
+                U = el.beam_field(
+                    s[ib][None, :], omega[:, None], mat.E * sec.A, mat.E * sec.Ix,
+                    mat.E * sec.Iy, mat.G * sec.J, mat.rho * sec.A, mat.rho * sec.Ip,
+                )  # (m, n_points, 12, 12)
+                local[:, ib] = np.einsum("mpij,mj->mpi", U, z_loc)
             position[ib] = element.start + s[ib][:, None] * element.R[:, 2]
             z = local[:, ib, -1] @ Rt  # back to base components at the beam end
             ib += 1
@@ -812,9 +966,11 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     >>> (shapes.omega / (2 * np.pi)).round(3)
     array([1.322, 1.905, 3.62 ])
     """
+    if count is None and omega_max is None:
+        raise ValueError("give count, omega_max or both")
     chain = build_chain(robot, q)
-    w, mult = natural_frequencies(chain, count=count, omega_max=omega_max,
-                                  return_multiplicity=True)
+    stack = _Stack([chain])  # one stack for the roots and the shapes
+    w, _ = _roots(stack, count, omega_max, 1e-9, 1e-12)[0]  # natural_frequencies' defaults
     # a k-fold root cut short by `count` keeps the entries present: that many basis vectors
     _, inverse, present = np.unique(w, return_inverse=True, return_counts=True)
-    return mode_shapes(chain, w, present[inverse], n_points=n_points)
+    return _shapes(chain, stack, w, present[inverse], n_points)
