@@ -391,11 +391,13 @@ def robot_fingerprint(robot: Robot) -> str:
 def _tmm_digest():
     import casflex.robot
     import casflex.tmm.chain
+    import casflex.tmm.conditioning
     import casflex.tmm.elements
+    import casflex.tmm.kernels
     import casflex.tmm.solve
 
     return source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
-                          casflex.robot)
+                          casflex.tmm.kernels, casflex.tmm.conditioning, casflex.robot)
 
 
 def _function_identity(func):
