@@ -44,7 +44,8 @@ Real-time loop (:mod:`casflex.codegen.rtloop`)
 make_controller     the loop's controller by name (composite or inversion)
 rt_step_function    estimator and controller in one function, ``rt_step``
 rt_units            units of the ``rt_step`` ports
-rt_bundle           the bundle of ``rt_step``
+rt_bundle           the bundle of ``rt_step`` (guarded: with torque limits)
+add_status_defines  the status bits of guarded steps appended to a bundle header
 loop_step_function  one closed-loop sample: plant, sensors and ``rt_step``
 closed_loop_bundle  the bundle of the closed-loop sample
 run_closed_loop_c   the whole closed loop run in C over a move
@@ -120,6 +121,7 @@ from casflex.codegen.jit import compile_cached
 from casflex.codegen.replay import HarnessResult, harness, run_harness
 from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
 from casflex.codegen.rtloop import (
+    add_status_defines,
     closed_loop_bundle,
     loop_step_function,
     make_controller,
@@ -157,6 +159,7 @@ __all__ = [
     "rt_step_function",
     "rt_units",
     "rt_bundle",
+    "add_status_defines",
     "loop_step_function",
     "closed_loop_bundle",
     "run_closed_loop_c",

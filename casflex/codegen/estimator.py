@@ -45,7 +45,7 @@ from casflex.codegen.templates import covariance_run_source
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
-    from casflex.estimation import FlexiblePlant
+    from casflex.estimation import FlexiblePlant, Guard
     from casflex.model import FlexibleModel
     from casflex.sensors import SensorSet
 
@@ -96,7 +96,7 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
                plant: FlexiblePlant | None = None, sqrt: bool = False,
                prefilter: float | None = None, coriolis: bool = True,
                stiffness_scale: float = 1.0, prefix: str = "",
-               jacobians: str = "exact") -> Bundle:
+               jacobians: str = "exact", guard: Guard | None = None) -> Bundle:
     """Generate the EKF bundle (C source, header, README, Makefile, manifest).
 
     Parameters
@@ -112,6 +112,10 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
         High-pass cut-off [rad/s] (:func:`casflex.estimation.ekf_step_function`).
     prefix : str
         Prefix of the C function names.
+    guard : casflex.estimation.Guard, optional
+        Generate the guarded step (:mod:`casflex.estimation.guard`: inputs ``u_last``,
+        outputs ``u_next``, ``status``); the header defines the status bits
+        (``CASFLEX_STATUS_*``).
 
     Returns
     -------
@@ -145,17 +149,26 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
     funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
                           coriolis=coriolis, stiffness_scale=stiffness_scale, prefix=prefix,
                           jacobians=jacobians)
-    if prefilter is not None:
+    if prefilter is not None or guard is not None:
         funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
                                               coriolis=coriolis,
                                               stiffness_scale=stiffness_scale,
                                               prefilter=prefilter, name=prefix + "ekf_step",
-                                              jacobians=jacobians)
+                                              jacobians=jacobians, guard=guard)
     order = ["ekf_step", "plant", "measurement", "rigid_signals"]
     units = ekf_units(sensors, prefix)
     if sqrt:
         units[prefix + "ekf_step"].pop("x_next", None)
-    return generate([funcs[k] for k in order], out_dir, name=name, units=units)
+    if guard is not None:
+        uu = units[prefix + "ekf_step"]["u"]
+        units[prefix + "ekf_step"].update({"u_last": uu, "u_next": uu,
+                                           "status": "status bits (CASFLEX_STATUS_*)"})
+    bundle = generate([funcs[k] for k in order], out_dir, name=name, units=units)
+    if guard is not None:
+        from casflex.codegen.rtloop import add_status_defines
+
+        add_status_defines(bundle)
+    return bundle
 
 
 def model_bundle(model: FlexibleModel, out_dir: str | os.PathLike, *,

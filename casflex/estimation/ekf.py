@@ -423,7 +423,7 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last):
     """The outputs of a step with the input checks substituted and the outputs checked
     (:mod:`casflex.estimation.guard`); ``[..., u_next, status]`` appended."""
     P_reset, x_reset = ca.DM(guard.P_reset), ca.DM(guard.x_reset)
-    u_in, flags["input_held"] = gd.held(u, u_last)
+    u_in, u_held = gd.held(u, u_last)
     x_ok = gd.all_of(gd.is_finite(x))
     Psym = 0.5 * (Pin + Pin.T)
     P_ok = ca.logic_and(x_ok, gd.covariance_ok(Psym, guard.floor, guard.ceiling))
@@ -438,6 +438,7 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last):
     outs[0] = ca.if_else(xn_ok, xn, x_reset)
     outs[1] = ca.if_else(Pn_ok, Pn, P_reset)
     outs[2] = ca.if_else(xn_ok, xp, x_reset)
+    flags["input_held"] = u_held  # of the raw u: not substituted
     flags["state_reset"] = ca.logic_or(1 - x_ok, 1 - xn_ok)
     flags["covariance_reset"] = ca.logic_or(1 - P_ok, 1 - Pn_ok)
     status = sum(gd.STATUS_BITS[k] * v for k, v in flags.items())
