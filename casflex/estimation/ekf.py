@@ -435,6 +435,9 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last):
     xn, Pn, xp = outs[:3]
     xn_ok = ca.logic_and(gd.all_of(gd.is_finite(xn)), gd.all_of(gd.is_finite(xp)))
     Pn_ok = ca.logic_and(xn_ok, gd.covariance_ok(Pn, guard.floor, guard.ceiling))
+    # a held input makes the prediction uncertain by an unknown amount: restart from P_reset
+    # (else the gate may reject the true samples that follow, whose innovations grew)
+    Pn_ok = ca.logic_and(Pn_ok, 1 - u_held)
     outs[0] = ca.if_else(xn_ok, xn, x_reset)
     outs[1] = ca.if_else(Pn_ok, Pn, P_reset)
     outs[2] = ca.if_else(xn_ok, xp, x_reset)
