@@ -53,7 +53,6 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike
 from scipy.special import erfcinv
 
 from casflex._validate import fail, number, square_matrix
@@ -306,7 +305,8 @@ def covariance_ok(P: ca.SX, floor: float, ceiling: float) -> ca.SX:
     --------
     >>> P = ca.SX.sym("P", 2, 2)
     >>> f = ca.Function("f", [P], [covariance_ok(P, 1e-9, 10.0)])
-    >>> float(f(np.eye(2))), float(f(np.ones((2, 2)))), float(f(np.array([[1, np.nan], [np.nan, 1]])))
+    >>> bad = np.array([[1, np.nan], [np.nan, 1]])
+    >>> float(f(np.eye(2))), float(f(np.ones((2, 2)))), float(f(bad))
     (1.0, 0.0, 0.0)
     """
     r = P.shape[0]
