@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.compiler import find_compiler, run_compiler
 from casflex.codegen.errors import BuildError
-from casflex.codegen.templates import covariance_run_source
+from casflex.codegen.templates import covariance_run_source, status_header_text
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.sensors import SensorSet
 
-__all__ = ["ekf_units", "ekf_bundle", "model_bundle", "covariance_run"]
+__all__ = ["ekf_units", "ekf_bundle", "model_bundle", "covariance_run", "add_status_defines"]
 
 
 def ekf_units(sensors: SensorSet, prefix: str = "") -> dict[str, dict[str, str]]:
@@ -165,10 +165,36 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
                                            "status": "status bits (CASFLEX_STATUS_*)"})
     bundle = generate([funcs[k] for k in order], out_dir, name=name, units=units)
     if guard is not None:
-        from casflex.codegen.rtloop import add_status_defines
-
         add_status_defines(bundle)
     return bundle
+
+
+def add_status_defines(bundle: Bundle, torque_limits: ArrayLike | None = None) -> None:
+    """Append the status bits (and torque limits) of the guarded steps to a bundle's
+    header (:func:`casflex.codegen.templates.status_header_text`).
+
+    Parameters
+    ----------
+    bundle : casflex.codegen.Bundle
+        With a header.
+    torque_limits : array_like, optional
+        Per-joint torque limits [N·m] of its ``rt_step``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = generate([ca.Function("f", [x], [x])], tempfile.mkdtemp())
+    >>> add_status_defines(b, [5.0])
+    >>> "#define CASFLEX_STATUS_COVARIANCE_RESET 8" in b.header.read_text()
+    True
+    """
+    from casflex.estimation.guard import STATUS_BITS
+
+    with open(bundle.header, "a") as fh:
+        fh.write(status_header_text(STATUS_BITS, None if torque_limits is None
+                                    else [float(v) for v in np.ravel(torque_limits)]))
 
 
 def model_bundle(model: FlexibleModel, out_dir: str | os.PathLike, *,

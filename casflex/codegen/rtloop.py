@@ -83,7 +83,7 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import choice, number, vector
 from casflex.codegen.bundle import Bundle, generate
-from casflex.codegen.estimator import ekf_units
+from casflex.codegen.estimator import add_status_defines, ekf_units
 from casflex.codegen.replay import run_harness
 from casflex.errors import ModelError
 from casflex.estimation import guard as gd
@@ -100,7 +100,6 @@ __all__ = [
     "rt_step_function",
     "rt_units",
     "rt_bundle",
-    "add_status_defines",
     "loop_step_function",
     "closed_loop_bundle",
     "run_closed_loop_c",
@@ -376,33 +375,6 @@ def rt_bundle(ekf_step: ca.Function, controller: ca.Function, sensors: SensorSet
         limits = np.broadcast_to(np.asarray(torque_limits, float), (f.size1_in("q"),))
         add_status_defines(bundle, limits)
     return bundle
-
-
-def add_status_defines(bundle: Bundle, torque_limits: ArrayLike | None = None) -> None:
-    """Append the status bits (and torque limits) of the guarded steps to a bundle's
-    header (:func:`casflex.codegen.templates.status_header_text`).
-
-    Parameters
-    ----------
-    bundle : casflex.codegen.Bundle
-        With a header.
-    torque_limits : array_like, optional
-        Per-joint torque limits [N·m] of its ``rt_step``.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> x = ca.SX.sym("x")
-    >>> b = generate([ca.Function("f", [x], [x])], tempfile.mkdtemp())
-    >>> add_status_defines(b, [5.0])
-    >>> "#define CASFLEX_STATUS_COVARIANCE_RESET 8" in b.header.read_text()
-    True
-    """
-    from casflex.codegen.templates import status_header_text
-
-    with open(bundle.header, "a") as fh:
-        fh.write(status_header_text(gd.STATUS_BITS, None if torque_limits is None
-                                    else [float(v) for v in np.ravel(torque_limits)]))
 
 
 def loop_step_function(model: FlexibleModel, sensors: SensorSet, rt_step: ca.Function,
