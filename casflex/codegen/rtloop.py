@@ -223,8 +223,9 @@ def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
         raise ModelError("rt_step_function: torque_limits must be given with a guarded "
                          "ekf_step (guard=Guard(...)) and only with one")
     if guarded:
-        torque_limits = np.broadcast_to(np.asarray(torque_limits, dtype=float), (n,))
-        torque_limits = vector(torque_limits, n, "torque_limits")
+        lim = np.asarray(torque_limits, dtype=float).ravel()
+        torque_limits = vector(np.full(n, lim[0]) if lim.size == 1 else lim, n,
+                               "torque_limits")
         if not np.all(torque_limits > 0) or not np.all(np.isfinite(torque_limits)):
             raise ModelError(f"torque_limits = {torque_limits.tolist()}: must be positive "
                              "finite torques [N m]")

@@ -5,10 +5,14 @@ simulated move with the faults injected (same statuses, same numbers to round-of
 for finiteness, the torque limits and positive definiteness of P.
 """
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from casflex import codegen
+from casflex.cli import main
 from casflex.codegen import rtloop
 from casflex.errors import ModelError
 from casflex.estimation import (
@@ -24,6 +28,7 @@ from casflex.estimation import (
     tabulate_plant,
 )
 
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.filterwarnings("ignore:modal table of:RuntimeWarning")
 DT = 1e-3
 Q_EKF = 5e-6
@@ -178,3 +183,39 @@ def test_torque_limits_go_with_a_guarded_step():
     ctrl = ca.Function("c", [ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("d"), xc], [xc[0]])
     with pytest.raises(ModelError, match="torque_limits"):
         rtloop.rt_step_function(ekf, ctrl, 1e-3, torque_limits=[1.0])
+
+
+@pytest.mark.slow
+def test_cli_codegen_guarded(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
+    argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
+            str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
+            "--step", "30", "--no-model", "--controller", "inversion", "--guard",
+            "--torque-limit", "30", "20", "10", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    manifest = json.loads(Path(next(f for f in out["files"] if f.endswith(".json")))
+                          .read_text())
+    rt = next(f for f in manifest["functions"] if f["name"] == "rt_step")
+    assert [p["name"] for p in rt["inputs"]][-2:] == ["q_prev", "tau_prev"]
+    assert [p["name"] for p in rt["outputs"]][-2:] == ["q_next", "status"]
+    ekf = next(f for f in manifest["functions"] if f["name"] == "ekf_step")
+    assert [p["name"] for p in ekf["outputs"]][-1] == "status"
+    header = Path(next(f for f in out["files"] if f.endswith(".h"))).read_text()
+    assert "#define CASFLEX_STATUS_SAMPLE_REJECTED 1\n" in header
+    assert "#define CASFLEX_TORQUE_LIMIT_3 10.0" in header
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--torque-limit", "5"], "--torque-limit and --gate need --guard"),
+    (["--guard", "--controller", "inversion"], "--torque-limit must be given"),
+    (["--guard", "--sqrt"], "not with --sqrt"),
+    (["--guard", "--gate", "-1"], "--gate: must be > 0"),
+])
+def test_cli_codegen_guard_errors(tmp_path, capsys, extra, message):
+    argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
+            str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
+            *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
