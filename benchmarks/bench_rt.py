@@ -109,7 +109,7 @@ def main(argv=None):
         if args.guarded:
             P0 = 1e-4 * np.eye(2 * m)
             ekf_g = ekf_step_function(plant, sensors, Q, R, dt, guard=Guard(P0))
-            limits = 10 * np.abs(run["tau"]).max(axis=0) + 1.0
+            limits = 10 * np.nanmax(np.abs(run["tau"]), axis=0) + 1.0  # never reached
             bundle_g = rtloop.rt_bundle(ekf_g, ctrl, sensors, dt, Path(tmp) / "rtg",
                                         torque_limits=limits)
             init = {"x": np.zeros(2 * m), "P": P0, "dq_prev": x[0, n + m:2 * n + m]}

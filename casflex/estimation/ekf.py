@@ -27,6 +27,12 @@ row of ``H`` and its innovation (NaN-safe: the masked ``y`` is never used in ari
 and replaces its variance by 1 with no correlation, so the gain column of that channel is
 exactly zero — the update of that channel is skipped without branches, in Python and in C.
 
+Bad samples: with ``guard=Guard(P0)`` (:mod:`casflex.estimation.guard`) the step skips
+non-finite samples and samples that fail a per-channel innovation gate (as dropouts),
+holds a non-finite ``u`` at its last valid value, resets a non-finite state or a
+covariance outside its bounds, and returns a status word; on clean data it computes the
+same numbers as the unguarded step.
+
 The square-root form (§5.4.4.1, ``sqrt=True``) carries ``S`` with ``P = S Sᵀ`` and
 replaces both covariance steps by triangularisations of the array algorithms,
 ``[√R, H S; 0, S] → [S_e, 0; K̄, S⁺]`` and ``[Φ S⁺, √(Q dt)] → [S_{k+1}, 0]`` (QR of the
