@@ -418,16 +418,18 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     outs, flags = both[:len(outs)], dict(zip(keys, both[len(outs):], strict=True))
     if guard is not None:
         u_last = ca.SX.sym("u_last", 3 * n)
-        outs = _guarded(outs, flags, guard, x, Pin, u, u_last)
+        outs = _guarded(outs, flags, guard, x, Pin, u, u_last,
+                        filt if prefilter is not None else None)
         ins.append(u_last)
         names_in.append("u_last")
         names_out += ["u_next", "status"]
     return ca.Function(name, ins, outs, names_in, names_out, {"cse": bool(cse)})
 
 
-def _guarded(outs, flags, guard, x, Pin, u, u_last):
+def _guarded(outs, flags, guard, x, Pin, u, u_last, filt=None):
     """The outputs of a step with the input checks substituted and the outputs checked
-    (:mod:`casflex.estimation.guard`); ``[..., u_next, status]`` appended."""
+    (:mod:`casflex.estimation.guard`); ``[..., u_next, status]`` appended. A non-finite
+    entry of the prefilter state ``filt`` is restarted at 0 (reported as a state reset)."""
     P_reset, x_reset = ca.DM(guard.P_reset), ca.DM(guard.x_reset)
     u_in, u_held = gd.held(u, u_last)
     x_ok = gd.all_of(gd.is_finite(x))
@@ -436,7 +438,13 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last):
     x_in = ca.if_else(x_ok, x, x_reset)
     P_in = ca.if_else(P_ok, Psym, P_reset)
     keys = list(flags)
-    both = ca.substitute([*outs, *flags.values()], [x, Pin, u], [x_in, P_in, u_in])
+    old, new = [x, Pin, u], [x_in, P_in, u_in]
+    f_bad = ca.SX(0)
+    if filt is not None:
+        f_in, f_bad = gd.held(filt, ca.DM.zeros(filt.numel()))
+        old.append(filt)
+        new.append(f_in)
+    both = ca.substitute([*outs, *flags.values()], old, new)
     outs, flags = both[:len(outs)], dict(zip(keys, both[len(outs):], strict=True))
     xn, Pn, xp = outs[:3]
     xn_ok = ca.logic_and(gd.all_of(gd.is_finite(xn)), gd.all_of(gd.is_finite(xp)))
@@ -448,7 +456,7 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last):
     outs[1] = ca.if_else(Pn_ok, Pn, P_reset)
     outs[2] = ca.if_else(xn_ok, xp, x_reset)
     flags["input_held"] = u_held  # of the raw u: not substituted
-    flags["state_reset"] = ca.logic_or(1 - x_ok, 1 - xn_ok)
+    flags["state_reset"] = ca.logic_or(ca.logic_or(1 - x_ok, 1 - xn_ok), f_bad)
     flags["covariance_reset"] = ca.logic_or(1 - P_ok, 1 - Pn_ok)
     status = sum(gd.STATUS_BITS[k] * v for k, v in flags.items())
     return [*outs, u_in, status]

@@ -166,3 +166,28 @@ def test_guard_options_are_checked():
     with pytest.raises(ModelError, match="ceiling"):
         Guard(P_reset=np.eye(2), floor=1.0, ceiling=0.5)
     assert Guard(P_reset=np.eye(2), gate=None).gate == np.inf
+
+
+def test_prefilter_state_and_samples_guarded():
+    """With the prefilter: a NaN filter state restarts at rest, a NaN sample holds its
+    channel's filter (as a dropout) and the other channel is filtered as without guard."""
+    from casflex.model import FlexibleModel, PointwiseProvider
+    from casflex.robot import load
+    from casflex.sensors import SensorSet, StrainPair
+
+    robot = load("problems/arm2link.toml")
+    ss = SensorSet([StrainPair(2, 0.05, (3.5e-3, 2.5e-3))])
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    plant = tabulate_plant(model, cache_dir=False)
+    P = np.eye(2) * 1e-4
+    g = ekf_step_function(plant, ss, 5e-6, 9e-14, 1e-3, guard=Guard(P, gate=None),
+                          prefilter=1.0)
+    plain = ekf_step_function(plant, ss, 5e-6, 9e-14, 1e-3, prefilter=1.0)
+    out = g([0, 0], P, np.zeros(9), [0, 0], [1, 1], np.full(8, np.nan), np.zeros(9))
+    assert status_names(out[5]) == ["state_reset"]
+    np.testing.assert_array_equal(np.asarray(out[3]).ravel(), np.zeros(8))
+    out = g([0, 0], P, np.zeros(9), [1e-6, np.nan], [1, 1], np.zeros(8), np.zeros(9))
+    ref = plain([0, 0], P, np.zeros(9), [1e-6, 0], [1, 0], np.zeros(8))
+    assert status_names(out[5]) == ["sample_nonfinite"]
+    for a, b in zip(out[:4], ref, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
