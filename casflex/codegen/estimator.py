@@ -310,6 +310,9 @@ def covariance_run(bundle: Bundle, u: ArrayLike, y: ArrayLike, x0: ArrayLike, P0
     True
     """
     info = bundle.function(function)
+    if any(p.name == "u_last" for p in info.inputs):
+        raise ModelError(f"covariance_run: '{function}' is a guarded step (input u_last); "
+                         "the long-run harness runs the unguarded step only")
     nx = info.inputs[0].rows
     nu = info.inputs[2].rows
     ny = info.inputs[3].rows
