@@ -32,8 +32,9 @@ bad samples and always returns finite torques within the limits::
         -> tau, x_next, P_next, dq_next, x_post (, f_next), q_next[n], status
 
 * a non-finite encoder reading (``q`` or ``dq``) is replaced by the last valid one
-  (``q_prev``, ``dq_prev``; feed ``q_next``, ``dq_next`` back) and the step reports
-  ``STATUS_INPUT_HELD``;
+  (``q_prev``, ``dq_prev``; feed ``q_next``, ``dq_next`` back; ``q̈ = 0`` for that
+  sample) by the EKF's own input hold, which reports ``STATUS_INPUT_HELD`` and restarts
+  ``P`` from ``P_reset`` (``STATUS_COVARIANCE_RESET``);
 * a non-finite torque of the controller (e.g. from a non-finite reference) is replaced
   by the previous torque ``tau_prev`` (feed ``tau`` back; 0 for the first call), status
   ``STATUS_TORQUE_HELD``: a drive that keeps its last command is the least surprising
@@ -238,12 +239,13 @@ def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
     y, mask = ca.SX.sym("y", r), ca.SX.sym("mask", r)
     extra = [ca.SX.sym("f", ekf_step.size1_in("f"))] if "f" in ekf_step.name_in() else []
     if guarded:
+        # the EKF holds a non-finite entry of u at u_last (and reports it, restarting P):
+        # q, q̇ at their last valid values, q̈ = 0 (its backward difference is unknown)
         q_prev, tau_prev = ca.SX.sym("q_prev", n), ca.SX.sym("tau_prev", n)
-        q_in, q_held = gd.held(q, q_prev)
-        dq_in, dq_held = gd.held(dq, dq_prev)
-        dq_before, _ = gd.held(dq_prev, dq_in)  # no rate before: q̈ = 0
-        u = ca.vertcat(q_in, dq_in, (dq_in - dq_before) / dt)
-        outs = ekf_step(x, P, u, y, mask, *extra, u)
+        u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
+        outs = ekf_step(x, P, u, y, mask, *extra, ca.vertcat(q_prev, dq_prev, ca.SX.zeros(n)))
+        u_held = outs[ekf_step.index_out("u_next")]
+        q_in, dq_in = u_held[:n], u_held[n:2 * n]
     else:
         q_in, dq_in = q, dq
         u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
@@ -259,10 +261,7 @@ def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
     names_out += ["f_next"] if extra else []
     if guarded:
         tau, flags = _safe_torque(tau, tau_prev, torque_limits)
-        status_ekf = outs[-1]
-        # the EKF sees a finite u; should it still hold one (q̈ overflowing), count it once
-        ekf_held = ca.fmod(ca.floor(status_ekf / gd.STATUS_INPUT_HELD), 2)
-        flags["input_held"] = ca.logic_and(ca.logic_or(q_held, dq_held), 1 - ekf_held)
+        status_ekf = outs[ekf_step.index_out("status")]
         res[0] = tau
         ins += [q_prev, tau_prev]
         names_in += ["q_prev", "tau_prev"]
