@@ -128,7 +128,7 @@ def test_fault_is_survived_and_recovered(setup, kind):
 
 @pytest.mark.slow
 def test_unguarded_step_breaks(setup):
-    """The failure the guard prevents (issue 13): one 1e4 g sample with mask 1 makes the
+    """The failure the guard prevents (issue 13): one NaN sample with mask 1 makes the
     unguarded state non-finite for the rest of the run."""
     d = setup["data"]
     y = d.y.copy()
