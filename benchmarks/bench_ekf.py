@@ -22,7 +22,11 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
-[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]]``
+[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded]``
+
+``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
+innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
+rounds in the same run: key ``guarded`` (``c_step_us`` of both, ``cost_ratio``).
 """
 
 from __future__ import annotations
@@ -141,12 +145,14 @@ def main(argv=None):
     parser.add_argument("--flags", default=NATIVE, help="C compiler flags")
     parser.add_argument("--compare", action="store_true",
                         help="also time the configurations of VARIANTS in this run")
+    parser.add_argument("--guarded", action="store_true",
+                        help="also time the guarded step against the plain one")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
 
     from casflex import codegen
-    from casflex.estimation import ekf_step_function, run_ekf, tabulate_plant
+    from casflex.estimation import Guard, ekf_step_function, run_ekf, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import load_move
     from casflex.robot import load
@@ -179,10 +185,13 @@ def main(argv=None):
     def time_c(stp, flags, runs=1):
         with tempfile.TemporaryDirectory() as tmp:
             bundle = codegen.generate([stp], tmp, name="bench_ekf")
+            initial, feedback = {"x": x0, "P": P0}, {"x_next": "x", "P_next": "P"}
+            if "u_last" in stp.name_in():  # guarded step
+                initial["u_last"] = data.u[0]
+                feedback["u_next"] = "u_last"
             res = codegen.run_harness(bundle, "ekf_step",
                                       {"u": data.u, "y": data.y, "mask": mask},
-                                      {"x": x0, "P": P0},
-                                      feedback={"x_next": "x", "P_next": "P"},
+                                      initial, feedback=feedback,
                                       repeat=args.repeat, flags=tuple(flags.split()))
             ref = run_ekf(stp, data.u, data.y, x0, P0)
             dev = float(np.max(np.abs(res.outputs["x_post"] - ref.x)) / np.max(np.abs(ref.x)))
@@ -222,6 +231,25 @@ def main(argv=None):
                 v["c_step_us"] = float(np.median(v["rounds_us"]))
                 log(f"[{rnd}] {label:62s} {us:7.2f} us  {stp.n_instructions()} instr  "
                     f"dev {dev:.1e}")
+    guarded = {}
+    if args.guarded:
+        gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                                  update=args.update, guard=Guard(P0))
+        for rnd in range(args.rounds):
+            for label, stp in (("plain", step), ("guarded", gstep)):
+                us, dev, _ = time_c(stp, args.flags)
+                v = guarded.setdefault(label, {
+                    "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
+                    "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
+                v["rounds_us"].append(us)
+                v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
+                v["load_avg_1min"].append(os.getloadavg()[0])
+                v["c_step_us"] = float(np.median(v["rounds_us"]))
+                log(f"[{rnd}] {label:8s} {us:7.2f} us  {stp.n_instructions()} instr")
+        guarded["cost_ratio"] = guarded["guarded"]["c_step_us"] / guarded["plain"]["c_step_us"]
+        guarded["rounds_ratio"] = [g / p for g, p in zip(guarded["guarded"]["rounds_us"],
+                                                         guarded["plain"]["rounds_us"],
+                                                         strict=True)]
     c_us, c_dev, sz_w = time_c(step, args.flags, runs=max(1, args.runs))
     c_runs = list(run_medians)
     ref = run_ekf(step, data.u, data.y, x0, P0)
@@ -268,6 +296,8 @@ def main(argv=None):
         "nproc": os.cpu_count(),
         "load_avg_1min": os.getloadavg()[0],
     }
+    if guarded:
+        out["guarded"] = guarded
     if variants:
         out["variants"] = variants
     if args.json:

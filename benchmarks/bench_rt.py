@@ -12,8 +12,12 @@ noise, ``rt_step``) runs in C over move 3 (``casflex.codegen.run_closed_loop_c``
 reference and accelerometer samples, with ``x``, ``P`` and ``dq_prev`` fed back, each call
 timed inside C (``clock_gettime``); ``rt_step_us`` is the median over all calls.
 
+``--guarded`` also times the guarded ``rt_step`` (``casflex.estimation.Guard``, torque
+limits) on the same samples, alternating plain and guarded builds (``--rounds`` each) in
+one run: ``rt_step_guarded_us`` and ``guard_cost_ratio`` (median guarded / median plain).
+
 Usage: ``python benchmarks/bench_rt.py [--json] [--steps 3000] [--repeat 5] [--step-deg 7.5]
-[--controller composite|inversion]``
+[--controller composite|inversion] [--guarded] [--rounds 2]``
 """
 
 from __future__ import annotations
@@ -41,13 +45,17 @@ def main(argv=None):
     parser.add_argument("--controller", choices=("composite", "inversion"),
                         default="composite")
     parser.add_argument("--flags", default="-O2", help="C compiler flags of the timed step")
+    parser.add_argument("--guarded", action="store_true",
+                        help="also time the guarded rt_step, alternating with the plain one")
+    parser.add_argument("--rounds", type=int, default=2,
+                        help="alternations of plain and guarded timings (--guarded)")
     args = parser.parse_args(argv)
 
     import warnings
 
     from casflex import codegen
     from casflex.codegen import rtloop
-    from casflex.estimation import ekf_step_function, tabulate_plant
+    from casflex.estimation import Guard, ekf_step_function, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import load_move
     from casflex.robot import load
@@ -97,6 +105,37 @@ def main(argv=None):
         dev = float(np.max(np.abs(res.outputs["tau"] - run["tau"]))
                     / np.max(np.abs(run["tau"])))
         info = bundle.function("rt_step")
+        guarded = {}
+        if args.guarded:
+            P0 = 1e-4 * np.eye(2 * m)
+            ekf_g = ekf_step_function(plant, sensors, Q, R, dt, guard=Guard(P0))
+            limits = 10 * np.nanmax(np.abs(run["tau"]), axis=0) + 1.0  # never reached
+            bundle_g = rtloop.rt_bundle(ekf_g, ctrl, sensors, dt, Path(tmp) / "rtg",
+                                        torque_limits=limits)
+            init = {"x": np.zeros(2 * m), "P": P0, "dq_prev": x[0, n + m:2 * n + m]}
+            plain_us, guard_us, statuses = [], [], None
+            for rnd in range(args.rounds):
+                for b, extra, fb, sink in (
+                        (bundle, {}, {}, plain_us),
+                        (bundle_g, {"q_prev": x[0, :n], "tau_prev": np.zeros(n)},
+                         {"q_next": "q_prev", "tau": "tau_prev"}, guard_us)):
+                    r = codegen.run_harness(
+                        b, "rt_step", inputs, {**init, **extra},
+                        feedback={"x_next": "x", "P_next": "P", "dq_next": "dq_prev", **fb},
+                        repeat=args.repeat, flags=tuple(args.flags.split()))
+                    sink.append(r.timing["median_step_ns"] / 1e3)
+                    if b is bundle_g:
+                        statuses = r.outputs["status"]
+                        dev_g = float(np.max(np.abs(r.outputs["tau"] - res.outputs["tau"]))
+                                      / np.max(np.abs(res.outputs["tau"])))
+                log(f"[{rnd}] plain {plain_us[-1]:.2f} us, guarded {guard_us[-1]:.2f} us")
+            rt_g = rtloop.rt_step_function(ekf_g, ctrl, dt, torque_limits=limits)
+            guarded = {"rt_step_plain_rounds_us": plain_us, "rt_step_guarded_rounds_us": guard_us,
+                       "rt_step_guarded_us": float(np.median(guard_us)),
+                       "guard_cost_ratio": float(np.median(guard_us) / np.median(plain_us)),
+                       "guarded_instructions": rt_g.n_instructions(),
+                       "guarded_nonzero_status": int(np.count_nonzero(statuses)),
+                       "guarded_tau_rel_deviation_vs_plain": dev_g}
     out = {
         "rt_step_us": res.timing["median_step_ns"] / 1e3,
         "rt_step_mean_us": res.timing["mean_step_ns"] / 1e3,
@@ -112,6 +151,7 @@ def main(argv=None):
         "tau_rel_deviation_vs_loop": dev,
         "load_average": os.getloadavg()[0],
         "timer_overhead_ns": res.timing["timer_overhead_ns"],
+        **guarded,
     }
     if args.json:
         print(json.dumps(out))

@@ -38,13 +38,14 @@ ekf_bundle      the EKF bundle: ``ekf_step``, ``plant``, ``measurement``, ``rigi
 model_bundle    functions of the model (default its forward dynamics)
 ekf_units       units of the EKF functions' ports
 covariance_run  ``ekf_step`` for millions of steps in C, checking the covariance
+add_status_defines  the status bits of guarded steps appended to a bundle header
 
 Real-time loop (:mod:`casflex.codegen.rtloop`)
 ----------------------------------------------
 make_controller     the loop's controller by name (composite or inversion)
 rt_step_function    estimator and controller in one function, ``rt_step``
 rt_units            units of the ``rt_step`` ports
-rt_bundle           the bundle of ``rt_step``
+rt_bundle           the bundle of ``rt_step`` (guarded: with torque limits)
 loop_step_function  one closed-loop sample: plant, sensors and ``rt_step``
 closed_loop_bundle  the bundle of the closed-loop sample
 run_closed_loop_c   the whole closed loop run in C over a move
@@ -115,7 +116,13 @@ Examples
 from casflex.codegen.bundle import Bundle, FunctionInfo, Port, densified, generate
 from casflex.codegen.compiler import build, find_compiler, load, run_compiler
 from casflex.codegen.errors import BuildError, CodegenError
-from casflex.codegen.estimator import covariance_run, ekf_bundle, ekf_units, model_bundle
+from casflex.codegen.estimator import (
+    add_status_defines,
+    covariance_run,
+    ekf_bundle,
+    ekf_units,
+    model_bundle,
+)
 from casflex.codegen.jit import compile_cached
 from casflex.codegen.replay import HarnessResult, harness, run_harness
 from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
@@ -157,6 +164,7 @@ __all__ = [
     "rt_step_function",
     "rt_units",
     "rt_bundle",
+    "add_status_defines",
     "loop_step_function",
     "closed_loop_bundle",
     "run_closed_loop_c",

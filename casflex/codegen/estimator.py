@@ -41,15 +41,15 @@ from numpy.typing import ArrayLike
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.compiler import find_compiler, run_compiler
 from casflex.codegen.errors import BuildError
-from casflex.codegen.templates import covariance_run_source
+from casflex.codegen.templates import covariance_run_source, status_header_text
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
-    from casflex.estimation import FlexiblePlant
+    from casflex.estimation import FlexiblePlant, Guard
     from casflex.model import FlexibleModel
     from casflex.sensors import SensorSet
 
-__all__ = ["ekf_units", "ekf_bundle", "model_bundle", "covariance_run"]
+__all__ = ["ekf_units", "ekf_bundle", "model_bundle", "covariance_run", "add_status_defines"]
 
 
 def ekf_units(sensors: SensorSet, prefix: str = "") -> dict[str, dict[str, str]]:
@@ -96,7 +96,7 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
                plant: FlexiblePlant | None = None, sqrt: bool = False,
                prefilter: float | None = None, coriolis: bool = True,
                stiffness_scale: float = 1.0, prefix: str = "",
-               jacobians: str = "exact") -> Bundle:
+               jacobians: str = "exact", guard: Guard | None = None) -> Bundle:
     """Generate the EKF bundle (C source, header, README, Makefile, manifest).
 
     Parameters
@@ -112,6 +112,10 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
         High-pass cut-off [rad/s] (:func:`casflex.estimation.ekf_step_function`).
     prefix : str
         Prefix of the C function names.
+    guard : casflex.estimation.Guard, optional
+        Generate the guarded step (:mod:`casflex.estimation.guard`: inputs ``u_last``,
+        outputs ``u_next``, ``status``); the header defines the status bits
+        (``CASFLEX_STATUS_*``).
 
     Returns
     -------
@@ -145,17 +149,52 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
     funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
                           coriolis=coriolis, stiffness_scale=stiffness_scale, prefix=prefix,
                           jacobians=jacobians)
-    if prefilter is not None:
+    if prefilter is not None or guard is not None:
         funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
                                               coriolis=coriolis,
                                               stiffness_scale=stiffness_scale,
                                               prefilter=prefilter, name=prefix + "ekf_step",
-                                              jacobians=jacobians)
+                                              jacobians=jacobians, guard=guard)
     order = ["ekf_step", "plant", "measurement", "rigid_signals"]
     units = ekf_units(sensors, prefix)
     if sqrt:
         units[prefix + "ekf_step"].pop("x_next", None)
-    return generate([funcs[k] for k in order], out_dir, name=name, units=units)
+    if guard is not None:
+        uu = units[prefix + "ekf_step"]["u"]
+        units[prefix + "ekf_step"].update({"u_last": uu, "u_next": uu,
+                                           "status": "status bits (CASFLEX_STATUS_*)"})
+    bundle = generate([funcs[k] for k in order], out_dir, name=name, units=units)
+    if guard is not None:
+        add_status_defines(bundle)
+    return bundle
+
+
+def add_status_defines(bundle: Bundle, torque_limits: ArrayLike | None = None) -> None:
+    """Append the status bits (and torque limits) of the guarded steps to a bundle's
+    header (:func:`casflex.codegen.templates.status_header_text`).
+
+    Parameters
+    ----------
+    bundle : casflex.codegen.Bundle
+        With a header.
+    torque_limits : array_like, optional
+        Per-joint torque limits [N·m] of its ``rt_step``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = generate([ca.Function("f", [x], [x])], tempfile.mkdtemp())
+    >>> add_status_defines(b, [5.0])
+    >>> "#define CASFLEX_STATUS_COVARIANCE_RESET 8" in b.header.read_text()
+    True
+    """
+    from casflex.estimation.guard import STATUS_BITS
+
+    with open(bundle.header, "a") as fh:
+        fh.write(status_header_text(STATUS_BITS, None if torque_limits is None
+                                    else [float(v) for v in np.ravel(torque_limits)]))
 
 
 def model_bundle(model: FlexibleModel, out_dir: str | os.PathLike, *,
@@ -271,6 +310,9 @@ def covariance_run(bundle: Bundle, u: ArrayLike, y: ArrayLike, x0: ArrayLike, P0
     True
     """
     info = bundle.function(function)
+    if any(p.name == "u_last" for p in info.inputs):
+        raise ModelError(f"covariance_run: '{function}' is a guarded step (input u_last); "
+                         "the long-run harness runs the unguarded step only")
     nx = info.inputs[0].rows
     nu = info.inputs[2].rows
     ny = info.inputs[3].rows

@@ -30,12 +30,12 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import number, output_directory
 from casflex.codegen.bundle import Bundle, generate
-from casflex.codegen.estimator import ekf_units, model_bundle
+from casflex.codegen.estimator import add_status_defines, ekf_units, model_bundle
 from casflex.codegen.rtloop import make_controller, rt_step_function, rt_units
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
-    from casflex.estimation import FlexiblePlant
+    from casflex.estimation import FlexiblePlant, Guard
     from casflex.model import FlexibleModel
     from casflex.robot import Robot
     from casflex.sensors import SensorSet
@@ -51,7 +51,8 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
                  prefilter: bool = False, jacobians: str = "first_order",
                  controller: str | None = None, kp: ArrayLike = 1.0, kd: ArrayLike = 2.0,
                  q_weight: ArrayLike = 1.0, r_weight: ArrayLike = 10.0,
-                 plant: FlexiblePlant | None = None
+                 plant: FlexiblePlant | None = None, guard: Guard | None = None,
+                 torque_limits: ArrayLike | None = None
                  ) -> tuple[dict[str, ca.Function], dict[str, dict[str, str]]]:
     """The named functions and units of the estimator bundle.
 
@@ -82,6 +83,12 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
         LQR weights ``Q``, ``R`` of the composite controller's fast part.
     plant : casflex.estimation.FlexiblePlant, optional
         Default :func:`casflex.estimation.tabulate_plant` of ``model``.
+    guard : casflex.estimation.Guard, optional
+        Guarded ``ekf_step`` and ``rt_step`` (:mod:`casflex.estimation.guard`; not with
+        ``sqrt``).
+    torque_limits : float or array_like, optional
+        Per-joint torque limits [N·m] of the guarded ``rt_step`` (required with ``guard``
+        and ``controller``).
 
     Returns
     -------
@@ -136,17 +143,25 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
         plant = tabulate_plant(model)
     funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
                           jacobians=jacobians)
-    if prefilter:
-        wc = highpass_cutoff(model, np.zeros(model.n))
+    if prefilter or guard is not None:
+        wc = highpass_cutoff(model, np.zeros(model.n)) if prefilter else None
         funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
-                                              prefilter=wc, jacobians=jacobians)
+                                              prefilter=wc, jacobians=jacobians, guard=guard)
     units = ekf_units(sensors)
+    if guard is not None:
+        units["ekf_step"].update({"u_last": units["ekf_step"]["u"],
+                                  "u_next": units["ekf_step"]["u"],
+                                  "status": "status bits (CASFLEX_STATUS_*)"})
+        if controller and torque_limits is None:
+            raise ModelError("torque_limits (--torque-limit) must be given for the guarded "
+                             "rt_step")
     if controller:
         ctrl = make_controller(model, controller, Kp=kp, Kd=kd, Q=q_weight, R=r_weight)
         step = funcs["ekf_step"]
-        funcs["rt_step"] = rt_step_function(step, ctrl, dt)
-        rt = rt_units(sensors, cov=step.name_in(1))
-        if step.n_in() > 5:
+        funcs["rt_step"] = rt_step_function(
+            step, ctrl, dt, torque_limits=torque_limits if guard is not None else None)
+        rt = rt_units(sensors, cov=step.name_in(1), guarded=guard is not None)
+        if "f" in step.name_in():
             rt["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
         units.update(rt)
     return funcs, units
@@ -159,7 +174,8 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
                      sqrt: bool = False, prefilter: bool = False,
                      jacobians: str = "first_order", controller: str | None = None,
                      kp: ArrayLike = 1.0, kd: ArrayLike = 2.0, q_weight: ArrayLike = 1.0,
-                     r_weight: ArrayLike = 10.0,
+                     r_weight: ArrayLike = 10.0, guard: Guard | None = None,
+                     torque_limits: ArrayLike | None = None,
                      log: Callable[[str], object] | None = None) -> list[Bundle]:
     """Build the model of a robot for its sensors and write its real-time bundles.
 
@@ -184,8 +200,11 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         Model with the robot's gravity.
     model : bool
         Also write the forward-dynamics bundle.
-    Q, R, dt, sqrt, prefilter, jacobians, controller, kp, kd, q_weight, r_weight
+    Q, R, dt, sqrt, prefilter, jacobians, controller, kp, kd, q_weight, r_weight, guard
         As for :func:`rt_functions`.
+    torque_limits : float or array_like, optional
+        As for :func:`rt_functions`; also written to the estimator bundle's header
+        (``CASFLEX_TORQUE_LIMIT_<j>``, with the status bits ``CASFLEX_STATUS_*``).
     log : callable, optional
         ``log(message)`` receives one line per stage.
 
@@ -232,10 +251,15 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     funcs, units = rt_functions(flexible, sensors, Q=Q, R=R, dt=dt, sqrt=sqrt,
                                 prefilter=prefilter, jacobians=jacobians,
                                 controller=controller, kp=kp, kd=kd, q_weight=q_weight,
-                                r_weight=r_weight)
+                                r_weight=r_weight, guard=guard, torque_limits=torque_limits)
     names = [k for k in _EKF_ORDER if k in funcs] + [k for k in funcs if k not in _EKF_ORDER]
     bundles = [generate([funcs[k] for k in names], out / f"{name}_ekf", name=f"{name}_ekf",
                         units={k: v for k, v in units.items() if k in names})]
+    if guard is not None:
+        limits = None
+        if controller:
+            limits = np.broadcast_to(np.asarray(torque_limits, float), (flexible.n,))
+        add_status_defines(bundles[0], limits)
     if model:
         bundles.append(model_bundle(flexible, out / f"{name}_model", name=f"{name}_model"))
     return bundles

@@ -22,6 +22,29 @@ The state carried from one call to the next is ``(x, P, dq_prev)`` (feed ``x_nex
 exactly the loop of :func:`casflex.simulate.simulate_closed_loop` with
 ``estimator={..., "ddq": "difference"}``.
 
+Guarded ``rt_step``
+-------------------
+With a guarded EKF step (``ekf_step_function(..., guard=Guard(P0))``,
+:mod:`casflex.estimation.guard`) and per-joint ``torque_limits``, ``rt_step`` survives
+bad samples and always returns finite torques within the limits::
+
+    rt_step(x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask (, f), q_prev[n], tau_prev[n])
+        -> tau, x_next, P_next, dq_next, x_post (, f_next), q_next[n], status
+
+* a non-finite encoder reading (``q`` or ``dq``) is replaced by the last valid one
+  (``q_prev``, ``dq_prev``; feed ``q_next``, ``dq_next`` back; ``q̈ = 0`` for that
+  sample) by the EKF's own input hold, which reports ``STATUS_INPUT_HELD`` and restarts
+  ``P`` from ``P_reset`` (``STATUS_COVARIANCE_RESET``);
+* a non-finite torque of the controller (e.g. from a non-finite reference) is replaced
+  by the previous torque ``tau_prev`` (feed ``tau`` back; 0 for the first call), status
+  ``STATUS_TORQUE_HELD``: a drive that keeps its last command is the least surprising
+  reaction for one bad sample — the loop must act on the status if it persists;
+* every torque is clipped to ``[−limit_j, limit_j]`` [N·m] (``STATUS_TORQUE_CLIPPED``);
+  the limits are constants of the generated code, given when the bundle is generated
+  (:func:`rt_bundle`, ``torque_limits``);
+* the EKF's own checks (samples, gating, covariance) and status bits as in
+  :mod:`casflex.estimation.guard`; the status word is their sum (disjoint bits).
+
 Closing the loop in C
 ---------------------
 :func:`loop_step_function` wraps ``rt_step`` with the plant: the sensor sample at
@@ -61,9 +84,10 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import choice, number, vector
 from casflex.codegen.bundle import Bundle, generate
-from casflex.codegen.estimator import ekf_units
+from casflex.codegen.estimator import add_status_defines, ekf_units
 from casflex.codegen.replay import run_harness
 from casflex.errors import ModelError
+from casflex.estimation import guard as gd
 from casflex.simulate.integrators import rk4_step
 
 if TYPE_CHECKING:
@@ -137,7 +161,8 @@ def make_controller(model: FlexibleModel, kind: str, Kp: ArrayLike = 1.0, Kd: Ar
 
 
 def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
-                     name: str = "rt_step") -> ca.Function:
+                     name: str = "rt_step", *,
+                     torque_limits: ArrayLike | None = None) -> ca.Function:
     """Estimator and controller in one SX function (module docstring).
 
     Parameters
@@ -151,17 +176,23 @@ def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
     dt : float
         Sample time [s] (the backward difference of the joint rates).
     name : str
+    torque_limits : float or array_like, optional
+        Per-joint torque limits [N·m] (positive; a scalar for all joints). Required with
+        a guarded ``ekf_step`` (one with the input ``u_last``), which makes the guarded
+        ``rt_step`` of the module docstring; not allowed without.
 
     Returns
     -------
     casadi.Function
         Inputs ``x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask[, f]``; outputs ``tau,
-        x_next, P_next, dq_next, x_post[, f_next]`` (``dq_next`` = ``dq``).
+        x_next, P_next, dq_next, x_post[, f_next]`` (``dq_next`` = ``dq``). Guarded:
+        inputs ``q_prev, tau_prev`` and outputs ``q_next, status`` appended.
 
     Raises
     ------
     ModelError
-        Sizes of the EKF and of the controller do not fit, or ``dt <= 0``.
+        Sizes of the EKF and of the controller do not fit, ``dt <= 0``, or
+        ``torque_limits`` missing for a guarded step (given for an unguarded one).
 
     Examples
     --------
@@ -188,6 +219,17 @@ def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
         raise ModelError(f"rt_step_function: the EKF takes u of {ekf_step.size1_in(2)} and "
                          f"x of {nx} values, the controller {n} joints and a state of "
                          f"{controller.size1_in(3)}; they must be 3n, 2m and 2(n + m)")
+    guarded = "u_last" in ekf_step.name_in()
+    if guarded != (torque_limits is not None):
+        raise ModelError("rt_step_function: torque_limits must be given with a guarded "
+                         "ekf_step (guard=Guard(...)) and only with one")
+    if guarded:
+        lim = np.asarray(torque_limits, dtype=float).ravel()
+        torque_limits = vector(np.full(n, lim[0]) if lim.size == 1 else lim, n,
+                               "torque_limits")
+        if not np.all(torque_limits > 0) or not np.all(np.isfinite(torque_limits)):
+            raise ModelError(f"torque_limits = {torque_limits.tolist()}: must be positive "
+                             "finite torques [N m]")
     cov = ekf_step.name_in(1)
     x = ca.SX.sym("x", nx)
     P = ca.SX.sym(cov, ekf_step.size1_in(1), ekf_step.size2_in(1))
@@ -195,22 +237,55 @@ def rt_step_function(ekf_step: ca.Function, controller: ca.Function, dt: float,
                                      ("dq_prev", "q", "dq", "qd", "dqd", "ddqd"))
     r = ekf_step.size1_in(3)
     y, mask = ca.SX.sym("y", r), ca.SX.sym("mask", r)
-    extra = [ca.SX.sym("f", ekf_step.size1_in(5))] if ekf_step.n_in() > 5 else []
-    u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
-    outs = ekf_step(x, P, u, y, mask, *extra)
+    extra = [ca.SX.sym("f", ekf_step.size1_in("f"))] if "f" in ekf_step.name_in() else []
+    if guarded:
+        # the EKF holds a non-finite entry of u at u_last (and reports it, restarting P):
+        # q, q̇ at their last valid values, q̈ = 0 (its backward difference is unknown)
+        q_prev, tau_prev = ca.SX.sym("q_prev", n), ca.SX.sym("tau_prev", n)
+        u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
+        outs = ekf_step(x, P, u, y, mask, *extra, ca.vertcat(q_prev, dq_prev, ca.SX.zeros(n)))
+        u_held = outs[ekf_step.index_out("u_next")]
+        q_in, dq_in = u_held[:n], u_held[n:2 * n]
+    else:
+        q_in, dq_in = q, dq
+        u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
+        outs = ekf_step(x, P, u, y, mask, *extra)
     xn, Pn, xp = outs[:3]
-    xc = ca.vertcat(q, xp[:m], dq, xp[m:])
+    xc = ca.vertcat(q_in, xp[:m], dq_in, xp[m:])
     tau = controller(qd, dqd, ddqd, xc)
     ins = [x, P, dq_prev, q, dq, qd, dqd, ddqd, y, mask, *extra]
     names_in = ["x", cov, "dq_prev", "q", "dq", "qd", "dqd", "ddqd", "y", "mask"]
     names_in += ["f"] if extra else []
-    res = [tau, xn, Pn, dq, xp] + ([outs[3]] if extra else [])
+    res = [tau, xn, Pn, dq_in, xp] + ([outs[3]] if extra else [])
     names_out = ["tau", "x_next", cov + "_next", "dq_next", "x_post"]
     names_out += ["f_next"] if extra else []
+    if guarded:
+        tau, flags = _safe_torque(tau, tau_prev, torque_limits)
+        status_ekf = outs[ekf_step.index_out("status")]
+        res[0] = tau
+        ins += [q_prev, tau_prev]
+        names_in += ["q_prev", "tau_prev"]
+        res += [q_in, status_ekf + sum(gd.STATUS_BITS[k] * v for k, v in flags.items())]
+        names_out += ["q_next", "status"]
     return ca.Function(name, ins, res, names_in, names_out, {"cse": True})
 
 
-def rt_units(sensors: SensorSet, cov: str = "P") -> dict[str, dict[str, str]]:
+def _safe_torque(tau, tau_prev, limits):
+    """Finite torques within ``±limits``: a non-finite one is the previous (0 if that
+    is not finite either), then all are clipped; the flags of both."""
+    n = tau.numel()
+    before, _ = gd.held(tau_prev, ca.DM.zeros(n))
+    ok = gd.is_finite(tau)
+    held = ca.vertcat(*[ca.if_else(ok[i], tau[i], before[i]) for i in range(n)])
+    lim = ca.DM(limits)
+    out = ca.fmin(ca.fmax(held, -lim), lim)
+    clipped = gd.any_of([ca.fabs(held[i]) > limits[i] for i in range(n)])
+    return out, {"torque_held": gd.any_of([1 - ok[i] for i in range(n)]),
+                 "torque_clipped": clipped}
+
+
+def rt_units(sensors: SensorSet, cov: str = "P",
+             guarded: bool = False) -> dict[str, dict[str, str]]:
     """Units of the ``rt_step`` ports for the bundle README.
 
     Parameters
@@ -219,6 +294,8 @@ def rt_units(sensors: SensorSet, cov: str = "P") -> dict[str, dict[str, str]]:
         The signals' unit comes from the sensor kinds.
     cov : {"P", "S"}
         Name of the covariance port (``"S"``: square-root form).
+    guarded : bool
+        Add the ports of the guarded ``rt_step`` (module docstring).
 
     Returns
     -------
@@ -233,7 +310,9 @@ def rt_units(sensors: SensorSet, cov: str = "P") -> dict[str, dict[str, str]]:
     """
     e = ekf_units(sensors)["ekf_step"]
     xu = e["x"]
-    return {"rt_step": {"x": xu, "x_next": xu, "x_post": xu, "y": e["y"],
+    more = {"q_prev": "rad", "q_next": "rad", "tau_prev": "N m",
+            "status": "status bits (CASFLEX_STATUS_*), cast to int"} if guarded else {}
+    return {"rt_step": {**more, "x": xu, "x_next": xu, "x_post": xu, "y": e["y"],
                         "mask": e["mask"], "dq_prev": "rad/s", "dq_next": "rad/s",
                         "q": "rad", "dq": "rad/s", "qd": "rad", "dqd": "rad/s",
                         "ddqd": "rad/s^2", "tau": "N m",
@@ -244,8 +323,12 @@ def rt_units(sensors: SensorSet, cov: str = "P") -> dict[str, dict[str, str]]:
 
 def rt_bundle(ekf_step: ca.Function, controller: ca.Function, sensors: SensorSet, dt: float,
               out_dir: str | os.PathLike, *, name: str = "casflex_rt",
-              extra: Sequence[ca.Function] = ()) -> Bundle:
+              extra: Sequence[ca.Function] = (),
+              torque_limits: ArrayLike | None = None) -> Bundle:
     """Generate the C bundle of ``rt_step`` (and optionally other functions).
+
+    With a guarded ``ekf_step`` the header also defines the status bits
+    (``CASFLEX_STATUS_*``) and the torque limits (``CASFLEX_TORQUE_LIMIT_<j>``).
 
     Parameters
     ----------
@@ -258,6 +341,9 @@ def rt_bundle(ekf_step: ca.Function, controller: ca.Function, sensors: SensorSet
         Bundle name.
     extra : sequence of casadi.Function
         More functions for the same bundle (e.g. the controller alone).
+    torque_limits : float or array_like, optional
+        Per-joint torque limits [N·m] of a guarded ``rt_step``
+        (:func:`rt_step_function`); they become constants of the generated code.
 
     Returns
     -------
@@ -279,11 +365,16 @@ def rt_bundle(ekf_step: ca.Function, controller: ca.Function, sensors: SensorSet
     >>> [f.name for f in b.functions], b.function("rt_step").outputs[0].unit
     (['rt_step'], 'N m')
     """
-    f = rt_step_function(ekf_step, controller, dt)
-    units = rt_units(sensors, cov=ekf_step.name_in(1))
-    if ekf_step.n_in() > 5:
+    f = rt_step_function(ekf_step, controller, dt, torque_limits=torque_limits)
+    guarded = "status" in f.name_out()
+    units = rt_units(sensors, cov=ekf_step.name_in(1), guarded=guarded)
+    if "f" in ekf_step.name_in():
         units["rt_step"].update({"f": "prefilter state", "f_next": "prefilter state"})
-    return generate([f, *extra], out_dir, name=name, units=units)
+    bundle = generate([f, *extra], out_dir, name=name, units=units)
+    if guarded:
+        limits = np.broadcast_to(np.asarray(torque_limits, float), (f.size1_in("q"),))
+        add_status_defines(bundle, limits)
+    return bundle
 
 
 def loop_step_function(model: FlexibleModel, sensors: SensorSet, rt_step: ca.Function,

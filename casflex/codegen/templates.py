@@ -23,6 +23,7 @@ __all__ = [
     "makefile_text",
     "harness_source",
     "covariance_run_source",
+    "status_header_text",
 ]
 
 #: first token of a harness input file (format in :mod:`casflex.codegen`)
@@ -622,3 +623,43 @@ def covariance_run_source(header: str, function: str, *, nx: int, nu: int, ny: i
     """
     return _RUN_C % {"header": header, "nx": nx, "nu": nu, "ny": ny, "nf": nf, "k": samples,
                      "fn": function, "sqrt": int(sqrt)}
+
+
+def status_header_text(bits: dict[str, int],
+                       torque_limits: Sequence[float] | None = None) -> str:
+    """``#define`` lines of the status bits of a guarded step, appended to a bundle header.
+
+    Parameters
+    ----------
+    bits : dict of str to int
+        Bit name to value (:data:`casflex.estimation.STATUS_BITS`); the macro is
+        ``CASFLEX_STATUS_<NAME>``.
+    torque_limits : sequence of float, optional
+        Per-joint torque limits [N·m] compiled into ``rt_step``, written as
+        ``CASFLEX_TORQUE_LIMIT_<j>`` (1-based joints) for the loop's information.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> print(status_header_text({"sample_rejected": 1}, [5.0]), end="")
+    <BLANKLINE>
+    /* status word of the guarded steps (output "status", a double: cast to int) */
+    #ifndef CASFLEX_STATUS_SAMPLE_REJECTED
+    #define CASFLEX_STATUS_SAMPLE_REJECTED 1
+    #endif
+    #ifndef CASFLEX_TORQUE_LIMIT_1
+    #define CASFLEX_TORQUE_LIMIT_1 5.0 /* N m, clipped inside rt_step */
+    #endif
+    """
+    lines = ["", '/* status word of the guarded steps (output "status", a double: cast to int) */']
+    for key, value in bits.items():
+        macro = f"CASFLEX_STATUS_{key.upper()}"
+        lines += [f"#ifndef {macro}", f"#define {macro} {int(value)}", "#endif"]
+    for j, lim in enumerate(torque_limits or (), start=1):
+        macro = f"CASFLEX_TORQUE_LIMIT_{j}"
+        lines += [f"#ifndef {macro}", f"#define {macro} {float(lim)!r} /* N m, clipped inside "
+                  "rt_step */", "#endif"]
+    return "\n".join(lines) + "\n"

@@ -84,6 +84,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="composite: LQR Q = w I (default 1)")
     parser.add_argument("--r-weight", type=float, default=10.0,
                         help="composite: LQR R = w I (default 10)")
+    parser.add_argument("--guard", action="store_true",
+                        help="guarded ekf_step/rt_step: NaN/inf inputs skipped or held, "
+                             "innovation gate, covariance bounds, status word")
+    parser.add_argument("--P0", type=float, default=1e-4,
+                        help="--guard: reset covariance P0 I (default 1e-4)")
+    parser.add_argument("--gate", type=float, default=None,
+                        help="--guard: threshold of nu^2/S per channel (default: the "
+                             "chi-square(1) quantile of 1 - 1e-9, 37.3)")
+    parser.add_argument("--torque-limit", type=float, nargs="+", default=None,
+                        metavar="NM", help="--guard with --controller: torque limit of "
+                        "each joint (one value for all, or one per joint 1..n), N m")
 
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
@@ -130,13 +141,34 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if not (args.dt > 0 and math.isfinite(args.dt)):
         raise ModelError(f"--dt: must be > 0 s; got {args.dt}")
     output_directory(args.out, "--out")  # before any heavy work
+    guard = None
+    if args.guard:
+        from casflex.estimation import DEFAULT_GATE, Guard
+
+        if args.sqrt:
+            raise ModelError("--guard: not with --sqrt")
+        if args.controller and args.torque_limit is None:
+            raise ModelError("--guard with --controller: --torque-limit must be given")
+        if not (args.P0 > 0 and math.isfinite(args.P0)):
+            raise ModelError(f"--P0: must be > 0; got {args.P0}")
+        gate = DEFAULT_GATE if args.gate is None else args.gate
+        if not gate > 0:
+            raise ModelError(f"--gate: must be > 0; got {gate}")
+        guard = Guard(P_reset=args.P0 * np.eye(2 * args.modes), gate=gate)
+    elif args.torque_limit is not None or args.gate is not None:
+        raise ModelError("--torque-limit and --gate need --guard")
+    limits = args.torque_limit
+    if limits is not None and not all(v > 0 and math.isfinite(v) for v in limits):
+        raise ModelError(f"--torque-limit: must be > 0 N m; got {limits}")
+    if limits is not None and len(limits) == 1:
+        limits = limits[0]
     bundles = realtime_bundles(
         args.robot, args.sensors, args.out, n_modes=args.modes, name=args.name,
         step=None if args.step is None else np.radians(args.step),
         gravity=not args.no_gravity, model=not args.no_model, Q=args.Q, R=args.R,
         dt=args.dt, sqrt=args.sqrt, prefilter=args.prefilter, jacobians=args.jacobians,
         controller=args.controller, kp=args.kp, kd=args.kd, q_weight=args.q_weight,
-        r_weight=args.r_weight, log=log)
+        r_weight=args.r_weight, guard=guard, torque_limits=limits, log=log)
     files, functions = [], []
     for b in bundles:
         files += [str(p) for p in (b.source, b.header, b.readme, b.makefile, b.manifest)

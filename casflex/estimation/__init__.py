@@ -24,6 +24,15 @@ Filter steps (:mod:`casflex.estimation.ekf`)
    ekf_functions            -- the named functions of a real-time estimator
    rigid_signal_function    -- ``u -> y_rigid``, the rigid-motion part of the signals
 
+Guards of the real-time path (:mod:`casflex.estimation.guard`)
+--------------------------------------------------------------
+.. autosummary::
+
+   Guard         -- options of a guarded step: innovation gate, covariance bounds, resets
+   DEFAULT_GATE  -- the default gate, the χ²(1) quantile of 1 − 1e-9
+   STATUS_BITS   -- the bits of the status word (``STATUS_*`` constants)
+   status_names  -- the names of the bits set in a status word
+
 Runs and prefilter (:mod:`casflex.estimation.runs`)
 ---------------------------------------------------
 .. autosummary::
@@ -66,6 +75,19 @@ from casflex.estimation.ekf import (
     full_state_step_function,
     rigid_signal_function,
 )
+from casflex.estimation.guard import (
+    DEFAULT_GATE,
+    STATUS_BITS,
+    STATUS_COVARIANCE_RESET,
+    STATUS_INPUT_HELD,
+    STATUS_SAMPLE_NONFINITE,
+    STATUS_SAMPLE_REJECTED,
+    STATUS_STATE_RESET,
+    STATUS_TORQUE_CLIPPED,
+    STATUS_TORQUE_HELD,
+    Guard,
+    status_names,
+)
 from casflex.estimation.plant import FlexiblePlant, exact_plant_function, tabulate_plant
 from casflex.estimation.runs import (
     EKFResult,
@@ -89,6 +111,17 @@ __all__ = [
     "highpass_cutoff",
     "prefilter_initial",
     "rigid_signal_function",
+    "Guard",
+    "DEFAULT_GATE",
+    "STATUS_BITS",
+    "STATUS_SAMPLE_REJECTED",
+    "STATUS_SAMPLE_NONFINITE",
+    "STATUS_INPUT_HELD",
+    "STATUS_COVARIANCE_RESET",
+    "STATUS_STATE_RESET",
+    "STATUS_TORQUE_CLIPPED",
+    "STATUS_TORQUE_HELD",
+    "status_names",
     "SimulatedData",
     "simulate_data",
 ]

@@ -27,6 +27,12 @@ row of ``H`` and its innovation (NaN-safe: the masked ``y`` is never used in ari
 and replaces its variance by 1 with no correlation, so the gain column of that channel is
 exactly zero — the update of that channel is skipped without branches, in Python and in C.
 
+Bad samples: with ``guard=Guard(P0)`` (:mod:`casflex.estimation.guard`) the step skips
+non-finite samples and samples that fail a per-channel innovation gate (as dropouts),
+holds a non-finite ``u`` at its last valid value, resets a non-finite state or a
+covariance outside its bounds, and returns a status word; on clean data it computes the
+same numbers as the unguarded step.
+
 The square-root form (§5.4.4.1, ``sqrt=True``) carries ``S`` with ``P = S Sᵀ`` and
 replaces both covariance steps by triangularisations of the array algorithms,
 ``[√R, H S; 0, S] → [S_e, 0; K̄, S⁺]`` and ``[Φ S⁺, √(Q dt)] → [S_{k+1}, 0]`` (QR of the
@@ -56,6 +62,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._validate import choice, fail, number, square_matrix
+from casflex.estimation import guard as gd
 from casflex.estimation.plant import FlexiblePlant, tabulate_plant
 from casflex.sensors import SensorSet, kinematic_measurement
 from casflex.simulate.integrators import rk4_step
@@ -123,7 +130,8 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       stiffness_scale: float = 1.0, rigid_removed: bool = False,
                       linear_measurement: bool = False, prefilter: float | None = None,
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
-                      update: str = "auto", lean: bool = True) -> ca.Function:
+                      update: str = "auto", lean: bool = True,
+                      guard: gd.Guard | None = None) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
     Parameters
@@ -189,12 +197,19 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         Evaluate in the measurement model only the modal-table entries it uses, from one
         small B-spline (:func:`casflex.sensors.kinematic_measurement`, ``lean``): the
         same expressions to rounding; ``False``: the model's spline of every quantity.
+    guard : casflex.estimation.Guard, optional
+        Guarded step (:mod:`casflex.estimation.guard`: non-finite inputs, innovation
+        gating, covariance bounds, status word; not with ``sqrt``). Adds the input
+        ``u_last`` (the last valid ``u``, feed ``u_next`` back) and the outputs ``u_next``
+        and ``status``. Where no check triggers, the outputs are those of the unguarded
+        step.
 
     Returns
     -------
     casadi.Function
-        ``(x, P, u, y, mask[, f]) -> (x_next, P_next, x_post[, f_next])``: the prior of the
-        next step, its covariance, and the filtered estimate ``x̂_{k|k}``.
+        ``(x, P, u, y, mask[, f][, u_last]) -> (x_next, P_next, x_post[, f_next][, u_next,
+        status])``: the prior of the next step, its covariance, and the filtered estimate
+        ``x̂_{k|k}`` (and, with ``guard``, the input held and the status word).
 
     Examples
     --------
@@ -213,6 +228,15 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     >>> xb = g([1e-3, 0], np.eye(2) * 1e-4, np.zeros(9), [0, 0], [1, 1])[2]
     >>> bool(np.allclose(xb, xp, rtol=1e-9, atol=1e-15))   # strain is linear in δ: same H
     True
+
+    Guarded: a sample of 1 (a strain of 100 %) is rejected, the step only predicts:
+
+    >>> from casflex.estimation import Guard, status_names
+    >>> h = ekf_step_function(tabulate_plant(model), ss, 5e-6, 9e-14, 1e-3,
+    ...                       guard=Guard(np.eye(2) * 1e-4))
+    >>> out = h([1e-3, 0], np.eye(2) * 1e-4, np.zeros(9), [1.0, 0], [1, 1], np.zeros(9))
+    >>> status_names(out[4])
+    ['sample_rejected']
     """
     model = plant.model
     n, m = model.n, model.m
@@ -222,6 +246,10 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     choice(jacobians, "jacobians", ("exact", "first_order", "linearized"))
     Qc = square_matrix(Q, nx, "Q", psd=True)
     Rm_ = square_matrix(R, ny, "R", psd=True)
+    if guard is not None and sqrt:
+        raise fail("guard", "Guard(...)", "needs the plain form (sqrt=False)")
+    if guard is not None and guard.P_reset.shape != (nx, nx):
+        raise fail("guard.P_reset", guard.P_reset.shape, f"must be {nx} x {nx}")
     hkin = kinematic_measurement(model, sensors, lean=lean)
     x = ca.SX.sym("x", nx)
     Pin = ca.SX.sym("S" if sqrt else "P", nx, nx)
@@ -278,22 +306,48 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         hx = hx - rigid_signal_function(model, sensors)(u)
     valid = ca.vertcat(*[mask[i] > 0.5 for i in range(ny)])
     if prefilter is not None:
+        wc = number(float(prefilter), "prefilter", low=0.0, low_open=True)
+
+    # a guarded step never does arithmetic with a non-finite sample
+    yv = y if guard is None else ca.vertcat(*[ca.if_else(gd.is_finite(y[i]), y[i], 0)
+                                              for i in range(ny)])
+
+    def innovation(valid):
+        if prefilter is None:
+            return ca.vertcat(*[ca.if_else(valid[i], yv[i] - hx[i], 0)
+                                for i in range(ny)]), None
         # the same first-order high-pass (Tustin) on the signals and on the predicted
         # signals; the innovation compares the two (offsets and the low-frequency part
         # drop out of both). State f = [y_prev, hp_y, h_prev, hp_h]; a missing sample
         # holds the filter of its channel.
-        wc = number(float(prefilter), "prefilter", low=0.0, low_open=True)
         fa = (2.0 - wc * dt) / (2.0 + wc * dt)
         fb = 2.0 / (2.0 + wc * dt)
         yprev, hpy, hprev, hph = (filt[i * ny:(i + 1) * ny] for i in range(4))
-        yin = ca.vertcat(*[ca.if_else(valid[i], y[i], yprev[i]) for i in range(ny)])
+        yin = ca.vertcat(*[ca.if_else(valid[i], yv[i], yprev[i]) for i in range(ny)])
         hin = ca.vertcat(*[ca.if_else(valid[i], hx[i], hprev[i]) for i in range(ny)])
         hpy_n = fa * hpy + fb * (yin - yprev)
         hph_n = fa * hph + fb * (hin - hprev)
-        f_next = ca.vertcat(yin, hpy_n, hin, hph_n)
         e = ca.vertcat(*[ca.if_else(valid[i], hpy_n[i] - hph_n[i], 0) for i in range(ny)])
-    else:
-        e = ca.vertcat(*[ca.if_else(valid[i], y[i] - hx[i], 0) for i in range(ny)])
+        return e, ca.vertcat(yin, hpy_n, hin, hph_n)
+
+    flags = {}
+    if guard is not None:
+        # a non-finite sample is a dropout (y itself is replaced by 0 below)
+        finite_y = gd.is_finite(y)
+        flags["sample_nonfinite"] = gd.any_of([ca.logic_and(valid[i], 1 - finite_y[i])
+                                               for i in range(ny)])
+        valid = ca.vertcat(*[ca.logic_and(valid[i], finite_y[i]) for i in range(ny)])
+    e, f_next = innovation(valid)
+    if guard is not None and np.isfinite(guard.gate):
+        # normalised innovation of every channel against the prior: ν² / S_ii > gate
+        Pg = 0.5 * (Pin + Pin.T)
+        reject = []
+        for i in range(ny):
+            Sii = ca.dot(H[i, :].T, Pg @ H[i, :].T) + float(Rm_[i, i])
+            reject.append(ca.logic_and(valid[i], e[i] * e[i] > guard.gate * Sii))
+        flags["sample_rejected"] = gd.any_of(reject)
+        valid = ca.vertcat(*[ca.logic_and(valid[i], 1 - reject[i]) for i in range(ny)])
+        e, f_next = innovation(valid)
     Mv = ca.diag(valid)
     Hm = Mv @ H
     Rm = Mv @ ca.DM(Rm_) @ Mv + ca.diag(1 - valid)
@@ -359,8 +413,53 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         names_in.append("f")
         outs.append(f_next)
         names_out.append("f_next")
-    outs = ca.substitute(outs, [holders], [values])
+    keys = list(flags)
+    both = ca.substitute([*outs, *flags.values()], [holders], [values])
+    outs, flags = both[:len(outs)], dict(zip(keys, both[len(outs):], strict=True))
+    if guard is not None:
+        u_last = ca.SX.sym("u_last", 3 * n)
+        outs = _guarded(outs, flags, guard, x, Pin, u, u_last,
+                        filt if prefilter is not None else None)
+        ins.append(u_last)
+        names_in.append("u_last")
+        names_out += ["u_next", "status"]
     return ca.Function(name, ins, outs, names_in, names_out, {"cse": bool(cse)})
+
+
+def _guarded(outs, flags, guard, x, Pin, u, u_last, filt=None):
+    """The outputs of a step with the input checks substituted and the outputs checked
+    (:mod:`casflex.estimation.guard`); ``[..., u_next, status]`` appended. A non-finite
+    entry of the prefilter state ``filt`` is restarted at 0 (reported as a state reset)."""
+    P_reset, x_reset = ca.DM(guard.P_reset), ca.DM(guard.x_reset)
+    u_in, u_held = gd.held(u, u_last)
+    x_ok = gd.all_of(gd.is_finite(x))
+    Psym = 0.5 * (Pin + Pin.T)
+    P_ok = ca.logic_and(x_ok, gd.covariance_ok(Psym, guard.floor, guard.ceiling))
+    x_in = ca.if_else(x_ok, x, x_reset)
+    P_in = ca.if_else(P_ok, Psym, P_reset)
+    keys = list(flags)
+    old, new = [x, Pin, u], [x_in, P_in, u_in]
+    f_bad = ca.SX(0)
+    if filt is not None:
+        f_in, f_bad = gd.held(filt, ca.DM.zeros(filt.numel()))
+        old.append(filt)
+        new.append(f_in)
+    both = ca.substitute([*outs, *flags.values()], old, new)
+    outs, flags = both[:len(outs)], dict(zip(keys, both[len(outs):], strict=True))
+    xn, Pn, xp = outs[:3]
+    xn_ok = ca.logic_and(gd.all_of(gd.is_finite(xn)), gd.all_of(gd.is_finite(xp)))
+    Pn_ok = ca.logic_and(xn_ok, gd.covariance_ok(Pn, guard.floor, guard.ceiling))
+    # a held input makes the prediction uncertain by an unknown amount: restart from P_reset
+    # (else the gate may reject the true samples that follow, whose innovations grew)
+    Pn_ok = ca.logic_and(Pn_ok, 1 - u_held)
+    outs[0] = ca.if_else(xn_ok, xn, x_reset)
+    outs[1] = ca.if_else(Pn_ok, Pn, P_reset)
+    outs[2] = ca.if_else(xn_ok, xp, x_reset)
+    flags["input_held"] = u_held  # of the raw u: not substituted
+    flags["state_reset"] = ca.logic_or(ca.logic_or(1 - x_ok, 1 - xn_ok), f_bad)
+    flags["covariance_reset"] = ca.logic_or(1 - P_ok, 1 - Pn_ok)
+    status = sum(gd.STATUS_BITS[k] * v for k, v in flags.items())
+    return [*outs, u_in, status]
 
 
 def _scalar_joseph(P, x, h, e, r):

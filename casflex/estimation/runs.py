@@ -44,6 +44,9 @@ class EKFResult:
         (N + 1, 2m) priors ``x̂_{k|k−1}`` (row 0: the initial guess).
     P : numpy.ndarray
         (N + 1, 2m, 2m) prior covariances (``S Sᵀ`` for the square-root form).
+    status : numpy.ndarray or None
+        (N,) status words of a guarded step (:mod:`casflex.estimation.guard`), else
+        ``None``.
 
     Examples
     --------
@@ -62,6 +65,7 @@ class EKFResult:
     x: np.ndarray
     x_prior: np.ndarray
     P: np.ndarray
+    status: np.ndarray | None = None
 
 
 def prefilter_initial(plant: FlexiblePlant, sensors: SensorSet, x0: ArrayLike, u0: ArrayLike,
@@ -180,7 +184,7 @@ def highpass(signal: ArrayLike, dt: float, omega_c: float, start: str = "rest") 
 
 def run_ekf(step: ca.Function, u: ArrayLike | None, y: ArrayLike, x0: ArrayLike,
             P0: ArrayLike, mask: ArrayLike | None = None,
-            f0: ArrayLike | None = None) -> EKFResult:
+            f0: ArrayLike | None = None, u_last: ArrayLike | None = None) -> EKFResult:
     """Run an EKF step function over recorded arrays (one CasADi ``mapaccum`` call).
 
     Parameters
@@ -192,7 +196,8 @@ def run_ekf(step: ca.Function, u: ArrayLike | None, y: ArrayLike, x0: ArrayLike,
         (N, 3n) measured ``[q, q̇, q̈]``; ``None`` for steps without inputs
         (:func:`casflex.estimation.full_state_step_function`).
     y : array_like
-        (N, r) signals; NaN marks a missing sample.
+        (N, r) signals; NaN marks a missing sample (an unguarded step never sees it: it
+        is masked here; a guarded step gets the raw sample and ``mask`` as given).
     x0, P0 : array_like
         Initial guess and its covariance (or square root).
     mask : array_like, optional
@@ -200,6 +205,9 @@ def run_ekf(step: ca.Function, u: ArrayLike | None, y: ArrayLike, x0: ArrayLike,
     f0 : array_like, optional
         Initial prefilter state (steps with ``prefilter``); default 0, the filter at rest.
         :func:`prefilter_initial` starts it in steady state on the first samples.
+    u_last : array_like, optional
+        Guarded steps: the last valid input before the first sample (default ``u[0]``;
+        its non-finite entries count as 0).
 
     Returns
     -------
@@ -221,18 +229,28 @@ def run_ekf(step: ca.Function, u: ArrayLike | None, y: ArrayLike, x0: ArrayLike,
     N = u.shape[0]
     if y.shape[0] != N:
         raise fail("y", y.shape, f"must have as many samples (rows) as u: {N}")
-    valid = np.isfinite(y)
-    if mask is not None:
-        valid &= np.asarray(mask, dtype=bool)
-    yc = np.where(valid, y, 0.0)
+    guarded = "u_last" in step.name_in()
+    if guarded:  # the step checks the samples itself
+        valid = np.ones(y.shape, bool) if mask is None else np.asarray(mask, bool)
+        yc = y
+    else:
+        valid = np.isfinite(y)
+        if mask is not None:
+            valid &= np.asarray(mask, dtype=bool)
+        yc = np.where(valid, y, 0.0)
     nx = step.size1_in(0)
     args = [np.asarray(x0, dtype=float).reshape(nx, 1), np.asarray(P0, dtype=float),
             u.T, yc.T, valid.astype(float).T]
-    if step.n_in() == 6:  # prefilter state
-        F = step.mapaccum("ekf_run", N, [0, 1, 5], [0, 1, 3])
+    acc_in, acc_out = [0, 1], [0, 1]
+    if "f" in step.name_in():  # prefilter state
+        acc_in.append(step.index_in("f"))
+        acc_out.append(step.index_out("f_next"))
         args.append(np.zeros(step.size1_in(5)) if f0 is None else np.asarray(f0, float))
-    else:
-        F = step.mapaccum("ekf_run", N, [0, 1], [0, 1])
+    if guarded:
+        acc_in.append(step.index_in("u_last"))
+        acc_out.append(step.index_out("u_next"))
+        args.append(u[0] if u_last is None else np.asarray(u_last, float))
+    F = step.mapaccum("ekf_run", N, acc_in, acc_out)
     out = F(*args)
     xn = np.asarray(out[0]).T
     Pn = np.asarray(out[1]).reshape(nx, N, nx).transpose(1, 0, 2)
@@ -244,7 +262,9 @@ def run_ekf(step: ca.Function, u: ArrayLike | None, y: ArrayLike, x0: ArrayLike,
         P0m = S0 @ S0.T
     else:
         P0m = np.asarray(P0, dtype=float)
+    status = (np.asarray(out[step.index_out("status")]).ravel().astype(np.int64)
+              if guarded else None)
     return EKFResult(x=xp, x_prior=np.vstack([np.asarray(x0, dtype=float).ravel(), xn]),
-                     P=np.concatenate([P0m[None], Pn]))
+                     P=np.concatenate([P0m[None], Pn]), status=status)
 
 
