@@ -506,8 +506,13 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     >>> plant.fourier_joints, plant.info["check_rel_error"] < 1e-6
     ((1, 2), True)
     >>> full = tabulate_plant(model, prune=None)   # every Fourier coefficient evaluated
-    >>> full.keep is None, plant.keep.shape, int(plant.keep.sum()), plant.info["pruned"]
-    (True, (25, 31), 435, 340)
+    >>> full.keep is None, plant.keep.shape, plant.info["pruned"] > 300
+    (True, (25, 31), True)
+
+    How many are kept depends on round-off: an entry that is zero by structure comes out of
+    the TMM as exact zeros or as round-off depending on its code path (compiled kernels or
+    numpy), and round-off entries keep their largest coefficients (435 of 775 kept with the
+    numpy path here, 455 with the kernels).
     """
     from casflex.modal.tables import ModalTable
     from casflex.model import default_grid
