@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
 from reference_beam_dynamics import BangBang, PlanarBeam, TwoLinkArm
 
 # Table 8 arm (problems/arm2link.toml): aluminium links of 1 m, 5 mm (along the joint

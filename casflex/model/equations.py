@@ -224,7 +224,7 @@ class FlexibleModel:
     def __init__(self, robot: Robot, provider: Any,
                  gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
                  damping_ratio: float | None = None, delta_order: int = 1,
-                 modal_mass: str = "first_order") -> None:
+                 modal_mass: str = "first_order", *, shape_rates: bool = False) -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
         self.robot = robot
@@ -254,6 +254,7 @@ class FlexibleModel:
             raise ModelError("modal_mass must be 'first_order', 'identity' or 'kinematic'; "
                              f"got {modal_mass!r}")
         self.modal_mass = modal_mass
+        self.shape_rates = bool(shape_rates)
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
@@ -274,6 +275,7 @@ class FlexibleModel:
     def _quantities(self, provider):
         expected = quantity_shapes(self.robot, self.m)
         self.Q = {}
+        self._pieces = {}
         placeholders, values = [], []
         # one interpolant call for every tabulated quantity when the provider offers it
         evaluate = getattr(provider, "evaluate", None)
@@ -305,6 +307,7 @@ class FlexibleModel:
             else:
                 value = ca.SX(f(self.q_shape))
             values.append(value[keep.tolist()] if keep.size else ca.SX(0, 1))
+            self._pieces[name] = (placeholders[-1], values[-1], value)
             if name == "omega":
                 self.omega = value
         self._placeholders = ca.vertcat(*placeholders)
@@ -420,6 +423,7 @@ class FlexibleModel:
         Vg = ca.SX(0)
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
+        rates = self._shape_rate_terms() if self.shape_rates and m else None
         for body in self.bodies:
             # the pose to one order more than M: ∂T/∂δ must be right to `order`
             T = _taylor(body["T"], d, order + 1)
@@ -438,7 +442,21 @@ class FlexibleModel:
             for r in range(3):
                 Tr_ = T[r, :].T  # 4 x 1
                 JT = ca.jacobian(Tr_, X)  # 4 x N
+                if rates is not None:
+                    # the end transforms of inboard links follow the shape joints
+                    Ppose, dPdX = rates["pose"]
+                    JT = JT + ca.jacobian(Tr_, Ppose) @ dPdX
                 M += JT.T @ Psi @ JT
+                if rates is not None and body["beam"] is not None:
+                    # the link's own shapes follow the shape joints: ∫ L J ∂L/∂qᵀ
+                    # = Σ_k δ_k ∂C1_k/∂q to first order in δ
+                    for col, dC1 in rates["dC1"]:
+                        E = ca.SX.zeros(4, 4)
+                        for k in range(m):
+                            E += d[k] * _mat4(dC1, (body["beam"] * m + k) * 16)
+                        B = JT.T @ (E @ Tr_)  # N x 1
+                        M[:, col] += B
+                        M[col, :] += B.T
                 if D:
                     B = JT.T @ ca.horzcat(*[Dk @ Tr_ for Dk in D])  # N x m
                     M[:, n:] += B
@@ -450,6 +468,19 @@ class FlexibleModel:
         for k, row in enumerate(self.robot.joint_rows):
             M[k, k] += self.robot.links[row].motor_inertia
         return M, Vg
+
+    def _shape_rate_terms(self):
+        """What the ``∂w/∂q q̇ δ`` velocity terms need: the pose placeholders with the
+        Jacobian of their values, and ``∂C1/∂q`` per shape joint."""
+        ph, vals = [], []
+        for name in ("end_u", "end_theta", "spring_phi"):
+            p, v, _ = self._pieces[name]
+            ph.append(p)
+            vals.append(v)
+        Ppose, Vpose = ca.vertcat(*ph), ca.vertcat(*vals)
+        dC1 = [(j, ca.jacobian(self._pieces["C1"][2], self.q[j]))
+               for j in self.provider.shape_joints]
+        return {"pose": (Ppose, ca.jacobian(Vpose, self.X)), "dC1": dC1}
 
     def _dynamics(self):
         n, m = self.n, self.m
