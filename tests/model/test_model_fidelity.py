@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fidelity_cases import BEAM, PlanarMove, casflex_run, compare, on_grid, reference_run
+from fidelity_cases import BEAM, MOVES, PlanarMove, casflex_run, compare, on_grid, reference_run
 from reference_beam_dynamics import TwoLinkArm
 
 
@@ -90,3 +90,39 @@ def test_small_slow_move_agrees(arm_model, ref_cache, shape_rates):
     ref = reference_run(SMALL_SLOW, 16, 1e-3, ref_cache)
     c = compare(casflex_run(model, SMALL_SLOW), ref, SMALL_SLOW.duration)
     assert abs(c["peak_pct"]) < 2.0 and c["gap_pct"] < 2.0, c
+
+
+# The targets of issue 19: peak within 2 %, residual within 5 %, time history within 5 %
+# of the peak, against the converged reference (16 elements, 1 ms: 32 elements and 0.5 ms
+# move it by < 0.5 % of the peak). Measured with 5 modes, default 1.5° grid, RK4 at 1 ms
+# (benchmarks/README_fidelity.md); a model variant that misses is xfail(strict) with its
+# numbers, so that a fix shows as XPASS.
+_MISSES = {
+    ("move2", False): "peak +0.90 %, residual +0.53 %, gap 8.4 % of peak",
+    ("elbow2_1s", False): "peak +5.66 %, residual +1.68 %, gap 24.9 % of peak",
+    ("elbow2_2s", False): "peak +1.39 %, residual +5.44 %, gap 20.7 % of peak",
+    ("elbow2_1s", True): "peak +1.43 %, residual +5.71 %, gap 4.3 % of peak",
+}
+
+
+def _target_cases():
+    for name in MOVES:
+        for rates in (False, True):
+            reason = _MISSES.get((name, rates))
+            marks = [pytest.mark.slow]
+            if reason:
+                marks.append(pytest.mark.xfail(strict=True, reason=f"issue 19, measured: "
+                                               f"{reason}"))
+            yield pytest.param(name, rates, marks=marks,
+                               id=f"{name}-{'rates' if rates else 'default'}")
+
+
+@pytest.mark.parametrize("name, shape_rates", list(_target_cases()))
+def test_fidelity_targets(arm_model, ref_cache, name, shape_rates):
+    move = MOVES[name]
+    model, _ = arm_model(5, step_deg=1.5, gravity=None, shape_rates=shape_rates)
+    c = compare(casflex_run(model, move), reference_run(move, 16, 1e-3, ref_cache),
+                move.duration)
+    assert abs(c["peak_pct"]) < 2.0, c
+    assert abs(c["residual_pct"]) < 5.0, c
+    assert c["gap_pct"] < 5.0, c
