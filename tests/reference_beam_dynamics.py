@@ -131,7 +131,7 @@ class TwoLinkArm:
         # element matrices (vectorised over elements): mass, bending, slope interpolation
         Me, Kb = [], []
         self.dS = []
-        for h, EI, rA in zip(self.h, self.EI, self.rhoA):
+        for h, EI, rA in zip(self.h, self.EI, self.rhoA, strict=True):
             N, dN, d2N = _hermite(xi, h)
             S, S1, S2 = _expand(N), _expand(dN), _expand(d2N)
             Me.append(rA * h * np.einsum("g,gai,gaj->ij", self.wg, S, S))

@@ -80,8 +80,25 @@ returned as a column vector holding the array flattened in C (row-major) order
 interpolants of the modal tables). The interpolants are called on SX symbols; the
 resulting graph is never built in MX and expanded.
 
-Modes follow the configuration through the tables only: velocities contain no
-``∂w/∂q q̇ δ`` terms (eq. 70), as in the dissertation.
+Modes follow the configuration through the tables. By default (``shape_rates=False``)
+velocities contain no ``∂w/∂q q̇ δ`` terms (eq. 70), as in the dissertation.
+
+Rates of the mode shapes (``shape_rates=True``)
+-----------------------------------------------
+The deflection ``Σ δ_j w_j(s; q)`` of a link is a Ritz expansion on a basis that moves
+with the shape joints, so the velocity of a point also has the part
+``Σ δ_j ∂w_j/∂q q̇``. With the option, ``M`` gets, to the same first order in δ,
+
+* the shape-joint derivatives of the inboard end transforms and joint springs inside
+  the pose Jacobians (the base of link 2 moves with ``∂w_1(L)/∂q q̇ δ``): the Jacobians
+  differentiate the tabulated ``end_u``, ``end_theta``, ``spring_phi`` as well;
+* the link's own part ``Tr(∂_aT (Σ_k δ_k ∂C1_k/∂q) Tᵀ)`` in the shape-joint row and
+  column (``∫ L0 J ∂L_kᵀ = ∂C1_k/∂q``, from the tables' B-spline derivatives).
+
+Left out: ``δ_k ∫ Tr(L_j J ∂L_kᵀ)`` in ``M_δq`` (first order in δ; it needs the
+rates of the shapes inside the link, which the tables do not hold) and everything of
+second order in δ (the model's truncation). The option costs a larger graph (measured in
+``benchmarks/README_fidelity.md``) and is off by default.
 """
 
 from __future__ import annotations
@@ -186,6 +203,9 @@ class FlexibleModel:
         Order in δ kept in ``M`` and in the gravitational potential (module docstring).
     modal_mass : {"first_order", "identity", "kinematic"}
         The modal block of ``M`` (module docstring).
+    shape_rates : bool
+        Keep the velocity terms of mode shapes that change with the shape joints
+        (module docstring; default off).
 
     Attributes
     ----------
