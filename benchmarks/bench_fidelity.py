@@ -9,8 +9,10 @@ deflection — tip minus rigid tip, in the plane — identically on both sides).
 Tables printed (one per model variant): for every move, the peak tip deflection and the
 residual (after the move), as signed differences from the reference in % of the
 reference's value, and the worst gap ``max_t |d_model − d_ref|`` in % of the reference's
-peak. The reference's own convergence (16 → 32 elements per link, 1 ms → 0.5 ms) is
-printed first.
+peak, also split into its components along the rigid link 2 and normal to it. ``--moves``
+takes the names of ``MOVES`` and ``DIAGNOSTIC_MOVES`` of ``tests/fidelity_cases.py``.
+The reference's own convergence (16 → 32 elements per link, 1 ms → 0.5 ms) is printed
+first.
 
 Usage::
 
@@ -35,7 +37,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from fidelity_cases import MOVES, casflex_run, compare, on_grid, reference_run  # noqa: E402
+from fidelity_cases import (  # noqa: E402
+    DIAGNOSTIC_MOVES,
+    MOVES,
+    casflex_run,
+    compare,
+    on_grid,
+    reference_run,
+)
 
 VARIANTS = {
     "base": {},                                   # the default model
@@ -75,7 +84,8 @@ def main(argv=None):
     from casflex.robot import load
 
     robot = load(ROOT / "problems" / "arm2link.toml")
-    moves = [MOVES[k] for k in args.moves.split(",")]
+    known = {**MOVES, **DIAGNOSTIC_MOVES}
+    moves = [known[k] for k in args.moves.split(",")]
     out = {"reference": {"elements": 16, "dt_s": 1e-3}, "variants": {}}
     if not args.no_convergence:
         out["reference_convergence_gap_pct"] = convergence(args.cache)
@@ -87,7 +97,7 @@ def main(argv=None):
             rows = {}
             for move in moves:
                 ref = reference_run(move, 16, 1e-3, args.cache)
-                rows[move.name] = compare(casflex_run(model, move), ref, move.duration)
+                rows[move.name] = compare(casflex_run(model, move), ref, move.duration, move)
             out["variants"][f"{variant}_{m}modes"] = {
                 "options": {k: float(v) if isinstance(v, float) else v
                             for k, v in VARIANTS[variant].items()},
@@ -95,10 +105,12 @@ def main(argv=None):
             if not args.json:
                 print(f"\n{variant}, {m} modes")
                 print(f"{'move':12s} {'peak ref mm':>11s} {'peak %':>7s} {'resid %':>8s} "
-                      f"{'gap %':>6s}")
+                      f"{'gap %':>6s} {'along':>6s} {'normal':>6s}")
                 for name, c in rows.items():
                     print(f"{name:12s} {c['peak_ref_mm']:11.2f} {c['peak_pct']:+7.2f} "
-                          f"{c['residual_pct']:+8.2f} {c['gap_pct']:6.2f}", flush=True)
+                          f"{c['residual_pct']:+8.2f} {c['gap_pct']:6.2f} "
+                          f"{c['gap_along_pct']:6.2f} "
+                          f"{c['gap_normal_pct']:6.2f}", flush=True)
     if args.json:
         print(json.dumps(out, default=float))
     elif "reference_convergence_gap_pct" in out:
