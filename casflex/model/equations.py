@@ -80,8 +80,25 @@ returned as a column vector holding the array flattened in C (row-major) order
 interpolants of the modal tables). The interpolants are called on SX symbols; the
 resulting graph is never built in MX and expanded.
 
-Modes follow the configuration through the tables only: velocities contain no
-``∂w/∂q q̇ δ`` terms (eq. 70), as in the dissertation.
+Modes follow the configuration through the tables. By default (``shape_rates=False``)
+velocities contain no ``∂w/∂q q̇ δ`` terms (eq. 70), as in the dissertation.
+
+Rates of the mode shapes (``shape_rates=True``)
+-----------------------------------------------
+The deflection ``Σ δ_j w_j(s; q)`` of a link is a Ritz expansion on a basis that moves
+with the shape joints, so the velocity of a point also has the part
+``Σ δ_j ∂w_j/∂q q̇``. With the option, ``M`` gets, to the same first order in δ,
+
+* the shape-joint derivatives of the inboard end transforms and joint springs inside
+  the pose Jacobians (the base of link 2 moves with ``∂w_1(L)/∂q q̇ δ``): the Jacobians
+  differentiate the tabulated ``end_u``, ``end_theta``, ``spring_phi`` as well;
+* the link's own part ``Tr(∂_aT (Σ_k δ_k ∂C1_k/∂q) Tᵀ)`` in the shape-joint row and
+  column (``∫ L0 J ∂L_kᵀ = ∂C1_k/∂q``, from the tables' B-spline derivatives).
+
+Left out: ``δ_k ∫ Tr(L_j J ∂L_kᵀ)`` in ``M_δq`` (first order in δ; it needs the
+rates of the shapes inside the link, which the tables do not hold) and everything of
+second order in δ (the model's truncation). The option costs a larger graph (measured in
+``benchmarks/README_fidelity.md``) and is off by default.
 """
 
 from __future__ import annotations
@@ -186,6 +203,9 @@ class FlexibleModel:
         Order in δ kept in ``M`` and in the gravitational potential (module docstring).
     modal_mass : {"first_order", "identity", "kinematic"}
         The modal block of ``M`` (module docstring).
+    shape_rates : bool
+        Keep the velocity terms of mode shapes that change with the shape joints
+        (module docstring; default off).
 
     Attributes
     ----------
@@ -224,7 +244,7 @@ class FlexibleModel:
     def __init__(self, robot: Robot, provider: Any,
                  gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
                  damping_ratio: float | None = None, delta_order: int = 1,
-                 modal_mass: str = "first_order") -> None:
+                 modal_mass: str = "first_order", *, shape_rates: bool = False) -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
         self.robot = robot
@@ -254,6 +274,7 @@ class FlexibleModel:
             raise ModelError("modal_mass must be 'first_order', 'identity' or 'kinematic'; "
                              f"got {modal_mass!r}")
         self.modal_mass = modal_mass
+        self.shape_rates = bool(shape_rates)
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
@@ -274,6 +295,7 @@ class FlexibleModel:
     def _quantities(self, provider):
         expected = quantity_shapes(self.robot, self.m)
         self.Q = {}
+        self._pieces = {}
         placeholders, values = [], []
         # one interpolant call for every tabulated quantity when the provider offers it
         evaluate = getattr(provider, "evaluate", None)
@@ -305,6 +327,7 @@ class FlexibleModel:
             else:
                 value = ca.SX(f(self.q_shape))
             values.append(value[keep.tolist()] if keep.size else ca.SX(0, 1))
+            self._pieces[name] = (placeholders[-1], values[-1], value)
             if name == "omega":
                 self.omega = value
         self._placeholders = ca.vertcat(*placeholders)
@@ -420,6 +443,7 @@ class FlexibleModel:
         Vg = ca.SX(0)
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
+        rates = self._shape_rate_terms() if self.shape_rates and m else None
         for body in self.bodies:
             # the pose to one order more than M: ∂T/∂δ must be right to `order`
             T = _taylor(body["T"], d, order + 1)
@@ -438,7 +462,21 @@ class FlexibleModel:
             for r in range(3):
                 Tr_ = T[r, :].T  # 4 x 1
                 JT = ca.jacobian(Tr_, X)  # 4 x N
+                if rates is not None:
+                    # the end transforms of inboard links follow the shape joints
+                    Ppose, dPdX = rates["pose"]
+                    JT = JT + ca.jacobian(Tr_, Ppose) @ dPdX
                 M += JT.T @ Psi @ JT
+                if rates is not None and body["beam"] is not None:
+                    # the link's own shapes follow the shape joints: ∫ L J ∂L/∂qᵀ
+                    # = Σ_k δ_k ∂C1_k/∂q to first order in δ
+                    for col, dC1 in rates["dC1"]:
+                        E = ca.SX.zeros(4, 4)
+                        for k in range(m):
+                            E += d[k] * _mat4(dC1, (body["beam"] * m + k) * 16)
+                        B = JT.T @ (E @ Tr_)  # N x 1
+                        M[:, col] += B
+                        M[col, :] += B.T
                 if D:
                     B = JT.T @ ca.horzcat(*[Dk @ Tr_ for Dk in D])  # N x m
                     M[:, n:] += B
@@ -450,6 +488,19 @@ class FlexibleModel:
         for k, row in enumerate(self.robot.joint_rows):
             M[k, k] += self.robot.links[row].motor_inertia
         return M, Vg
+
+    def _shape_rate_terms(self):
+        """What the ``∂w/∂q q̇ δ`` velocity terms need: the pose placeholders with the
+        Jacobian of their values, and ``∂C1/∂q`` per shape joint."""
+        ph, vals = [], []
+        for name in ("end_u", "end_theta", "spring_phi"):
+            p, v, _ = self._pieces[name]
+            ph.append(p)
+            vals.append(v)
+        Ppose, Vpose = ca.vertcat(*ph), ca.vertcat(*vals)
+        dC1 = [(j, ca.jacobian(self._pieces["C1"][2], self.q[j]))
+               for j in self.provider.shape_joints]
+        return {"pose": (Ppose, ca.jacobian(Vpose, self.X)), "dC1": dC1}
 
     def _dynamics(self):
         n, m = self.n, self.m

@@ -1,0 +1,128 @@
+"""Fidelity of the modal model on planar moves, against an independent nonlinear beam model.
+
+The reference (tests/reference_beam_dynamics.py) is a planar ANCF Euler–Bernoulli model of
+the Table 8 arm with prescribed joints, written without casflex; tests/fidelity_cases.py
+maps the arm and the moves into its plane and defines the tip deflection identically on
+both sides (issue 19). Reference runs are cached in pytest's cache directory, keyed by the
+reference's source, the move, the element count and the step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fidelity_cases import BEAM, MOVES, PlanarMove, casflex_run, compare, on_grid, reference_run
+from reference_beam_dynamics import TwoLinkArm
+
+
+@pytest.fixture(scope="module")
+def ref_cache(pytestconfig):
+    return pytestconfig.cache.mkdir("casflex_ancf_reference")
+
+
+def _in_plane(omega_tmm, omega_ref):
+    """The TMM frequency nearest to each reference frequency (the in-plane modes)."""
+    omega_tmm = np.asarray(omega_tmm)
+    return np.array([omega_tmm[np.argmin(np.abs(omega_tmm - w))] for w in omega_ref])
+
+
+@pytest.mark.parametrize("q3", [-1.0, 0.0, 1.2])
+def test_reference_frequencies_match_tmm(q3):
+    """The linearised reference has the TMM's in-plane frequencies: same arm, same plane.
+
+    Tolerance 2e-5: the cubic elements' discretisation error at 16 elements per link is
+    ~3e-6 on the third in-plane mode (O(h⁴)), the TMM is exact to round-off.
+    """
+    from casflex.robot import load
+    from casflex.tmm import modes
+
+    robot = load("problems/arm2link.toml")
+    omega_tmm = modes(robot, [0.0, 0.3, q3], count=8).omega
+    arm = TwoLinkArm((BEAM, BEAM), 16)
+    omega_ref = arm.frequencies(0.3, q3 + 0.5 * np.pi, 3)
+    np.testing.assert_allclose(_in_plane(omega_tmm, omega_ref), omega_ref, rtol=2e-5)
+
+
+def test_reference_rigid_when_stiff():
+    """A very stiff arm follows the joints rigidly: tip deflection → 0 as EI, EA → ∞
+    (checks the prescribed-motion constraints ``B(t)``, ``g(t)`` and their rates)."""
+    from reference_beam_dynamics import BangBang, PlanarBeam
+
+    stiff = PlanarBeam(1.0, BEAM.EA * 1e4, BEAM.EI * 1e4, BEAM.rhoA)
+    th, ph = BangBang(0.0, -0.8, 0.5), BangBang(0.5 * np.pi, 0.5 * np.pi + 1.2, 0.5)
+
+    def deflection(beam):
+        run = TwoLinkArm((beam, beam), 2).simulate(th, ph, 0.5, 2e-3)
+        return np.abs(run["tip"] - run["tip_rigid"]).max()
+
+    d_soft, d_hard = deflection(BEAM), deflection(stiff)
+    # quasi-static deflection scales as 1/EI: 1e4 stiffer -> ~1e-4 of the deflection
+    assert d_hard < 3e-4 * d_soft
+
+
+CONVERGENCE_MOVE = PlanarMove("elbow2_1s_short", -0.8, 1.2, 1.0, settle=1.0)
+
+
+@pytest.mark.slow
+def test_reference_converged_in_elements_and_step(ref_cache):
+    """16 vs 32 elements per link and 1 ms vs 0.5 ms give the same tip deflection history
+    within 0.5 % of its peak (the budget the fidelity targets leave to the reference)."""
+    base = reference_run(CONVERGENCE_MOVE, 16, 1e-3, ref_cache)
+    fine = reference_run(CONVERGENCE_MOVE, 32, 1e-3, ref_cache)
+    short = reference_run(CONVERGENCE_MOVE, 16, 5e-4, ref_cache)
+    peak = np.linalg.norm(base["d"], axis=1).max()
+    for other in (fine, short):
+        gap = np.linalg.norm(on_grid(other, base["t"]) - base["d"], axis=1).max()
+        assert gap < 5e-3 * peak
+
+
+SMALL_SLOW = PlanarMove("small_slow", -0.05, 0.06, 2.0, settle=1.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shape_rates", [False, True])
+def test_small_slow_move_agrees(arm_model, ref_cache, shape_rates):
+    """Where the theory says the modal model is right — deflections and joint rates small,
+    so every neglected term (second order in δ, foreshortening, δ·q̇ terms) is small —
+    casflex (5 modes: the two lowest in-plane modes) follows the reference within 2 % of
+    the peak: the third in-plane mode (161 rad/s) is left out and the grid is 7.5°."""
+    model, _ = arm_model(5, step_deg=7.5, gravity=None, shape_rates=shape_rates)
+    ref = reference_run(SMALL_SLOW, 16, 1e-3, ref_cache)
+    c = compare(casflex_run(model, SMALL_SLOW), ref, SMALL_SLOW.duration)
+    assert abs(c["peak_pct"]) < 2.0 and c["gap_pct"] < 2.0, c
+
+
+# The targets of issue 19: peak within 2 %, residual within 5 %, time history within 5 %
+# of the peak, against the converged reference (16 elements, 1 ms: 32 elements and 0.5 ms
+# move it by < 0.5 % of the peak). Measured with 5 modes, default 1.5° grid, RK4 at 1 ms
+# (benchmarks/README_fidelity.md); a model variant that misses is xfail(strict) with its
+# numbers, so that a fix shows as XPASS.
+_MISSES = {
+    ("move2", False): "peak +0.90 %, residual +0.53 %, gap 8.4 % of peak",
+    ("elbow2_1s", False): "peak +5.66 %, residual +1.68 %, gap 24.9 % of peak",
+    ("elbow2_2s", False): "peak +1.39 %, residual +5.44 %, gap 20.7 % of peak",
+    ("elbow2_1s", True): "peak +1.43 %, residual +5.71 %, gap 4.3 % of peak",
+}
+
+
+def _target_cases():
+    for name in MOVES:
+        for rates in (False, True):
+            reason = _MISSES.get((name, rates))
+            marks = [pytest.mark.slow]
+            if reason:
+                marks.append(pytest.mark.xfail(strict=True, reason=f"issue 19, measured: "
+                                               f"{reason}"))
+            yield pytest.param(name, rates, marks=marks,
+                               id=f"{name}-{'rates' if rates else 'default'}")
+
+
+@pytest.mark.parametrize("name, shape_rates", list(_target_cases()))
+def test_fidelity_targets(arm_model, ref_cache, name, shape_rates):
+    move = MOVES[name]
+    model, _ = arm_model(5, step_deg=1.5, gravity=None, shape_rates=shape_rates)
+    c = compare(casflex_run(model, move), reference_run(move, 16, 1e-3, ref_cache),
+                move.duration)
+    assert abs(c["peak_pct"]) < 2.0, c
+    assert abs(c["residual_pct"]) < 5.0, c
+    assert c["gap_pct"] < 5.0, c
