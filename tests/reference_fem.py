@@ -67,8 +67,15 @@ __all__ = [
     "ModeShapes",
     "PointBody",
     "Segment",
+    "angle_value",
+    "dh_frames",
     "element_matrices",
     "modes",
+    "prandtl_torsion_constant",
+    "rectangle_torsion_constant",
+    "robot_model",
+    "robot_modes",
+    "section_constants",
     "section_frame",
 ]
 
@@ -602,7 +609,8 @@ def section_constants(section: dict) -> dict:
     raise ValueError(f"unknown section shape {shape!r}")
 
 
-def _angle(v) -> float:
+def angle_value(v) -> float:
+    """An angle of a problem file [rad]: a number (rad) or ``{value, unit}``."""
     if isinstance(v, dict):
         value = float(v["value"])
         return math.radians(value) if v.get("unit", "rad") == "deg" else value
@@ -625,11 +633,11 @@ def dh_frames(rows: Sequence[dict], q) -> list[np.ndarray]:
     T = np.eye(4)
     out = []
     for row in rows:
-        theta = _angle(row.get("theta", 0.0))
+        theta = angle_value(row.get("theta", 0.0))
         if row.get("joint", "fixed") == "revolute":
             theta += q.pop(0)
         step = np.eye(4)
-        step[:3, :3] = _rot_x(_angle(row.get("alpha", 0.0))) @ _rot_z(theta)
+        step[:3, :3] = _rot_x(angle_value(row.get("alpha", 0.0))) @ _rot_z(theta)
         # Rx(α) Tx(a) Rz(θ) Tz(d): origin at Rx(α)·(a, 0, 0) + R·(0, 0, d)
         step[:3, 3] = np.array([float(row.get("a", 0.0)), 0.0, 0.0]) + step[:3, :3] @ [
             0.0, 0.0, float(row.get("d", 0.0))]
@@ -647,12 +655,12 @@ def robot_model(data: dict, q, n_elements: int = 40):
     segments, bodies, springs = [], [], []
     prev = np.eye(4)
     for row, T in zip(rows, frames, strict=True):
-        R_alpha = prev[:3, :3] @ _rot_x(_angle(row.get("alpha", 0.0)))
+        R_alpha = prev[:3, :3] @ _rot_x(angle_value(row.get("alpha", 0.0)))
         joint_point = prev[:3, 3] + R_alpha[:, 0] * float(row.get("a", 0.0))
         section = row.get("section")
         along_a = section is not None and float(row.get("a", 0.0)) != 0.0
         if section is not None:
-            turn = _rot_z(_angle(row.get("section_angle", 0.0)))
+            turn = _rot_z(angle_value(row.get("section_angle", 0.0)))
             if along_a:
                 # local x, y, z = y_{i-1}, z_{i-1} (after Rx(α)), x_{i-1}
                 local = np.column_stack([R_alpha[:, 1], R_alpha[:, 2], R_alpha[:, 0]]) @ turn
