@@ -162,23 +162,23 @@ MUTANTS = [
     # ------------------------------------------------------------------ shaping
     mutant("shaping_prv_damping_exponent", "casflex/shaping/shapers.py",
            "decay = np.exp(-z * w * (tn - t))", "decay = np.exp(-z * wd * (tn - t))",
-           ["tests/shaping/test_shaping_shapers.py", "tests/shaping/test_shaping_mutants.py"],
+           ["tests/shaping/test_shaping_shapers.py"],
            "residual vibration decays with the damped frequency ζω_d instead of ζω"),
     mutant("shaping_zv_root", "casflex/shaping/shapers.py",
            "k = math.exp(-zeta * math.pi / root)\n    return Shaper([0.0, math.pi / (omega * "
            "root)]",
            "k = math.exp(-zeta * math.pi)\n    return Shaper([0.0, math.pi / (omega * root)]",
-           ["tests/shaping/test_shaping_shapers.py", "tests/shaping/test_shaping_mutants.py"],
+           ["tests/shaping/test_shaping_shapers.py"],
            "ZV amplitude ratio without √(1−ζ²)"),
     # ------------------------------------------------------------------ simulate, moves
     mutant("rk4_stage", "casflex/simulate/integrators.py",
            "k3 = f(x + 0.5 * h * k2, u_half)", "k3 = f(x + 0.5 * h * k1, u_half)",
-           ["tests/simulate/test_rk4_mutants.py", "tests/simulate/test_simulate.py"],
+           ["tests/simulate/test_integration_order.py", "tests/simulate/test_simulate.py"],
            "third RK4 stage from k1 (a second-order scheme)"),
     mutant("moves_hermite_off_by_one", "casflex/moves.py",
            'np.searchsorted(t_ref, t, side="right") - 1, 0',
            'np.searchsorted(t_ref, t, side="right"), 0',
-           ["tests/test_moves.py", "tests/simulate/test_rk4_mutants.py"],
+           ["tests/test_moves.py", "tests/simulate/test_integration_order.py"],
            "reference interpolation in the next interval (off-by-one)"),
     # ------------------------------------------------------------------ sensors
     mutant("sensors_strain_distance_swapped", "casflex/sensors.py",
