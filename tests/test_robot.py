@@ -80,13 +80,12 @@ def test_section_constants_match_independent_formulas(table):
         assert getattr(section, key) == pytest.approx(ref[key], rel=1e-12), key
 
 
-def test_frames_match_independent_dh_walk():
+def test_frames_match_independent_dh_walk(rng):
     # reference_fem.dh_frames walks the rows of the file itself (tomllib, own rotations)
     for name in ("arm2link", "testbed"):
         robot = load(f"problems/{name}.toml")
         with open(f"problems/{name}.toml", "rb") as fh:
             rows = tomllib.load(fh)["link"]
-        rng = np.random.default_rng(3)
         for _ in range(3):
             q = rng.uniform(-np.pi, np.pi, robot.n_joints)
             np.testing.assert_allclose(robot.frames(q), np.array(dh_frames(rows, q)),

@@ -102,7 +102,6 @@ with open("problems/testbed.toml", "rb") as _fh:
     TESTBED_DATA = tomllib.load(_fh)
 #: the problem-file numbers of each robot, for the references written in this module
 DATA = {"arm2link": ARM_DATA, "testbed": TESTBED_DATA, "odd": tomllib.loads(ODD_TEXT)}
-RNG = np.random.default_rng(20240611)
 
 
 # ------------------------------------------------------------------ independent references
@@ -206,22 +205,22 @@ def _model(robot, q, count, **kw):
 
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED, ODD], ids=["arm", "testbed", "odd"])
-def test_rigid_mass_matrix_matches_jacobian_reference(robot):
+def test_rigid_mass_matrix_matches_jacobian_reference(robot, rng):
     f = FlexibleModel(robot, rigid_provider(robot)).functions()
     for _ in range(5):
-        q = RNG.uniform(-np.pi, np.pi, robot.n_joints)
+        q = rng.uniform(-np.pi, np.pi, robot.n_joints)
         M = f["mass"](q, []).full()
         ref = rigid_mass_matrix(DATA[robot.name], q)
         assert np.abs(M - ref).max() <= 1e-9 * np.abs(ref).max()
 
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED, ODD], ids=["arm", "testbed", "odd"])
-def test_flexible_mass_matrix_at_zero_deflection_is_rigid(robot):
-    q0 = RNG.uniform(-1.0, 1.0, robot.n_joints)
+def test_flexible_mass_matrix_at_zero_deflection_is_rigid(robot, rng):
+    q0 = rng.uniform(-1.0, 1.0, robot.n_joints)
     _, model = _model(robot, q0, 3)
     f = model.functions()
     for _ in range(3):
-        q = RNG.uniform(-np.pi, np.pi, robot.n_joints)
+        q = rng.uniform(-np.pi, np.pi, robot.n_joints)
         M = f["mass"](q, np.zeros(3)).full()
         ref = rigid_mass_matrix(DATA[robot.name], q)
         n = robot.n_joints
@@ -230,11 +229,11 @@ def test_flexible_mass_matrix_at_zero_deflection_is_rigid(robot):
 
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED, ODD], ids=["arm", "testbed", "odd"])
-def test_kinematic_modal_mass_is_identity_and_tip_follows_tmm(robot):
+def test_kinematic_modal_mass_is_identity_and_tip_follows_tmm(robot, rng):
     """The Book-style kinematics (link-local deflections, end transforms, springs)
     reproduce the TMM's absolute modes: the kinetic energy they give at δ = 0 is the
     identity, and the tip moves as the TMM's absolute tip displacement."""
-    q = RNG.uniform(-1.0, 1.0, robot.n_joints)
+    q = rng.uniform(-1.0, 1.0, robot.n_joints)
     provider, model = _model(robot, q, 4, modal_mass="kinematic")
     n = robot.n_joints
     M = model.functions()["mass"](q, np.zeros(4)).full()
@@ -250,19 +249,19 @@ def test_kinematic_modal_mass_is_identity_and_tip_follows_tmm(robot):
 # ------------------------------------------------------------------ Coriolis
 
 
-def _random_state(n, m, scale_delta=0.01):
-    return (RNG.uniform(-np.pi, np.pi, n), RNG.normal(0, 1.0, n),
-            RNG.normal(0, scale_delta, m), RNG.normal(0, 0.1, m))
+def _random_state(rng, n, m, scale_delta=0.01):
+    return (rng.uniform(-np.pi, np.pi, n), rng.normal(0, 1.0, n),
+            rng.normal(0, scale_delta, m), rng.normal(0, 0.1, m))
 
 
 @pytest.mark.parametrize("modal_mass", ["first_order", "identity"])
 @pytest.mark.parametrize("robot", [ARM, ODD], ids=["arm", "odd"])
-def test_mdot_minus_2c_is_skew(robot, modal_mass):
+def test_mdot_minus_2c_is_skew(robot, modal_mass, rng):
     _, model = _model(robot, np.zeros(robot.n_joints), 3, modal_mass=modal_mass)
     f = model.functions()
     n, m = robot.n_joints, 3
     for _ in range(4):
-        q, dq, d, dd = _random_state(n, m)
+        q, dq, d, dd = _random_state(rng, n, m)
         C = f["coriolis"](q, d, dq, dd).full()
         h = 1e-6  # central difference of M along the velocity
         Mp = f["mass"](q + h * dq, d + h * dd).full()
@@ -333,8 +332,8 @@ def test_free_motion_conserves_energy(modal_mass, gravity):
 
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED], ids=["arm", "testbed"])
-def test_locked_linearization_oscillates_at_tmm_frequencies(robot):
-    q = RNG.uniform(-1.0, 1.0, robot.n_joints)
+def test_locked_linearization_oscillates_at_tmm_frequencies(robot, rng):
+    q = rng.uniform(-1.0, 1.0, robot.n_joints)
     provider, model = _model(robot, q, 4, gravity=None, modal_mass="kinematic")
     n, m = model.n, model.m
     # q locked: the prescribed-motion form with q̇ = q̈ = 0
@@ -349,11 +348,11 @@ def test_locked_linearization_oscillates_at_tmm_frequencies(robot):
 
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED], ids=["arm", "testbed"])
-def test_locked_linearization_decays_at_the_damping_ratio(robot):
+def test_locked_linearization_decays_at_the_damping_ratio(robot, rng):
     # modal damping ratio ζ: each locked mode is ẍ + 2ζωẋ + ω²x = 0, eigenvalues
     # −ζω ± iω√(1 − ζ²) (the definition of ζ, with ω from the TMM); to 1e-8 as above
     zeta = 0.03
-    q = RNG.uniform(-1.0, 1.0, robot.n_joints)
+    q = rng.uniform(-1.0, 1.0, robot.n_joints)
     provider, model = _model(robot, q, 4, gravity=None, modal_mass="kinematic",
                              damping_ratio=zeta)
     n, m = model.n, model.m
@@ -370,15 +369,15 @@ def test_locked_linearization_decays_at_the_damping_ratio(robot):
 
 
 @pytest.mark.parametrize("robot", [ARM, ODD], ids=["arm", "odd"])
-def test_forward_dynamics_is_m_c_g_d(robot):
+def test_forward_dynamics_is_m_c_g_d(robot, rng):
     """The ``forward`` and ``ode`` Functions solve M Ẍ + C Ẋ + G + [0; D δ̇] = [τ; 0] with
     the separately built M, C (checked by the skew property above), G and D."""
     _, model = _model(robot, np.zeros(robot.n_joints), 3, damping_ratio=0.02)
     f = model.functions()
     n, m = robot.n_joints, 3
     for _ in range(3):
-        q, dq, d, dd = _random_state(n, m)
-        tau = RNG.normal(0, 1.0, n)
+        q, dq, d, dd = _random_state(rng, n, m)
+        tau = rng.normal(0, 1.0, n)
         ddq, dddelta = (v.full().ravel() for v in f["forward"](q, dq, d, dd, tau))
         M = f["mass"](q, d).full()
         C = f["coriolis"](q, d, dq, dd).full()
@@ -391,11 +390,11 @@ def test_forward_dynamics_is_m_c_g_d(robot):
         np.testing.assert_allclose(xdot, np.r_[dq, dd, ddq, dddelta], rtol=1e-12, atol=1e-12)
 
 
-def test_prescribed_motion_inverts_forward_dynamics():
+def test_prescribed_motion_inverts_forward_dynamics(rng):
     _, model = _model(ODD, np.zeros(3), 3, damping_ratio=0.02)
     f = model.functions()
-    q, dq, d, dd = _random_state(3, 3)
-    ddq = RNG.normal(0, 1.0, 3)
+    q, dq, d, dd = _random_state(rng, 3, 3)
+    ddq = rng.normal(0, 1.0, 3)
     tau, dddelta = f["prescribed"](q, dq, ddq, d, dd)
     ddq2, dddelta2 = f["forward"](q, dq, d, dd, tau)
     assert np.allclose(ddq2.full().ravel(), ddq, atol=1e-9)
@@ -406,8 +405,8 @@ def test_prescribed_motion_inverts_forward_dynamics():
 
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED, ODD], ids=["arm", "testbed", "odd"])
-def test_gravity_matches_independent_integrals(robot):
-    q = RNG.uniform(-1.0, 1.0, robot.n_joints)
+def test_gravity_matches_independent_integrals(robot, rng):
+    q = rng.uniform(-1.0, 1.0, robot.n_joints)
     provider = PointwiseProvider(robot, q, count=3)
     model = FlexibleModel(robot, provider)
     g = np.asarray(robot.gravity)
