@@ -38,8 +38,10 @@ from casflex.tmm import (
 
 try:
     import reference_fem as fem
+    import regression_pins as pins
 except ImportError:  # pragma: no cover - when tests/ is imported as a package
     from tests import reference_fem as fem
+    from tests import regression_pins as pins
 
 ROOT = Path(__file__).resolve().parents[2]
 E, G, RHO = 69.0e9, 26.9e9, 2700.0
@@ -351,6 +353,9 @@ def test_arm2link_q0_dissertation(arm):
     # §3.3.7 / Table 14 (q = 0): 8.26, 11.93, 23.37 rad/s
     w = natural_frequencies(arm, [0.0, 0.0, 0.0], count=3)
     np.testing.assert_allclose(w, [8.26, 11.93, 23.37], rtol=0.03)
+    # and casflex's own value, a regression pin (tests/regression_pins.py)
+    np.testing.assert_allclose(w, pins.ARM2LINK_Q0_OMEGA, rtol=0,
+                               atol=pins.ARM2LINK_Q0_OMEGA_ATOL)
 
 
 def test_arm2link_q3_sweep_table14(arm):
