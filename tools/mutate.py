@@ -20,6 +20,10 @@ Usage (from the repository root)::
     python tools/mutate.py --json > mutants.json
     python tools/mutate.py --timeout 300 --no-baseline --report mutants.txt
 
+To keep editing while it runs, run it from a snapshot (``git archive HEAD | tar -x -C
+/tmp/snap && python /tmp/snap/tools/mutate.py``): the copies are taken from the tree the
+script sits in.
+
 Exit status 0 when the killed fraction reaches ``--target`` (default 0.9), else 1; 2 on a
 stale mutant (its original snippet is not found exactly once).
 """
@@ -203,10 +207,15 @@ MUTANTS = [
 
 
 def source_files(root: Path) -> list[str]:
-    """Files of the working tree: tracked and untracked-but-not-ignored."""
-    out = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=root,
-                         capture_output=True, check=True).stdout.decode()
-    return [f for f in out.split("\0") if f and (root / f).is_file()]
+    """Files of the working tree: tracked and untracked-but-not-ignored (every file but
+    caches when ``root`` is not a git checkout, e.g. a ``git archive`` snapshot)."""
+    proc = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=root,
+                          capture_output=True)
+    if proc.returncode == 0 and (root / ".git").exists():
+        return [f for f in proc.stdout.decode().split("\0") if f and (root / f).is_file()]
+    skip = {"__pycache__", ".pytest_cache", ".ruff_cache", ".git"}
+    return [str(p.relative_to(root)) for p in root.rglob("*")
+            if p.is_file() and not skip & set(p.relative_to(root).parts)]
 
 
 def make_copy(root: Path, files: list[str], dest: Path) -> None:
