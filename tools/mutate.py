@@ -35,6 +35,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -258,19 +259,23 @@ def run_tests(copy: Path, tests: list[str], timeout: float) -> dict:
     cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-rfE", "-p", "no:cacheprovider",
            "-p", "no:randomly", *tests]
     start = time.monotonic()
+    proc = subprocess.Popen(cmd, cwd=copy, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
-        proc = subprocess.run(cmd, cwd=copy, env=env, capture_output=True, text=True,
-                              timeout=timeout)
+        stdout, _ = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"status": "timeout", "killer": None, "seconds": time.monotonic() - start}
     finally:
+        if proc.poll() is None:  # timeout, or this script stopped: its pytest goes too
+            proc.kill()
+            proc.communicate()
         shutil.rmtree(cache, ignore_errors=True)
     seconds = time.monotonic() - start
     if proc.returncode == 0:
         return {"status": "passed", "killer": None, "seconds": seconds}
-    hits = FAILED.findall(proc.stdout)
+    hits = FAILED.findall(stdout)
     killer = hits[0][1] if hits else f"pytest exit {proc.returncode}"
-    tail = "\n".join(proc.stdout.strip().splitlines()[-15:])
+    tail = "\n".join(stdout.strip().splitlines()[-15:])
     return {"status": "failed", "killer": killer, "seconds": seconds, "tail": tail}
 
 
@@ -376,5 +381,10 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if fraction >= args.target else 1
 
 
+def _stop(signum, frame):
+    raise KeyboardInterrupt  # unwinds through run_tests, which kills its pytest
+
+
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _stop)
     sys.exit(main())
