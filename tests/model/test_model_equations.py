@@ -333,6 +333,9 @@ def test_free_motion_conserves_energy(modal_mass, gravity):
 
 @pytest.mark.parametrize("robot", [ARM, TESTBED], ids=["arm", "testbed"])
 def test_locked_linearization_oscillates_at_tmm_frequencies(robot, rng):
+    """With ``modal_mass="kinematic"`` the modal block of M comes from the kinematics
+    (not set to I), so the locked frequencies √(ω²/M_δδ) test that kinetic energy; K =
+    diag(ω²) itself is set by the model (the damped test below checks D against ζ)."""
     q = rng.uniform(-1.0, 1.0, robot.n_joints)
     provider, model = _model(robot, q, 4, gravity=None, modal_mass="kinematic")
     n, m = model.n, model.m
