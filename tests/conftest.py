@@ -12,11 +12,21 @@ their path from there. Markers (registered in ``pyproject.toml``, ``--strict-mar
 Models are built through :func:`arm_model`, a session-wide memo keyed by the build
 options, with their modal tables in one session cache directory: two test modules that
 ask for the same model share one build.
+
+State and order: the whole session runs on a temporary cache (``$CASFLEX_CACHE`` is set
+to a fresh directory when pytest starts, before collection, and removed at the end, so no
+test reads or writes the user's cache and tables are built once per session); tests that
+draw random numbers take the ``rng`` fixture, seeded from the test's own id, so that a
+failure seen in the full run reproduces with ``-k``.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
 import sys
+import tempfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +43,34 @@ TESTBED_FILE = ROOT / "problems" / "testbed.toml"
 ACCEL_FILE = ROOT / "problems" / "sensors" / "arm2link_accel.toml"
 STRAIN_FILE = ROOT / "problems" / "sensors" / "arm2link_strain.toml"
 MOVES_FILE = ROOT / "problems" / "moves.toml"
+
+
+_CACHE_ENV = {}
+
+
+def pytest_configure(config):
+    """Point ``$CASFLEX_CACHE`` at a fresh directory for the session (subprocesses too)."""
+    _CACHE_ENV["previous"] = os.environ.get("CASFLEX_CACHE")
+    _CACHE_ENV["path"] = tempfile.mkdtemp(prefix="casflex-test-cache-")
+    os.environ["CASFLEX_CACHE"] = _CACHE_ENV["path"]
+
+
+def pytest_unconfigure(config):
+    path = _CACHE_ENV.pop("path", None)
+    previous = _CACHE_ENV.pop("previous", None)
+    if previous is None:
+        os.environ.pop("CASFLEX_CACHE", None)
+    else:
+        os.environ["CASFLEX_CACHE"] = previous
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.fixture
+def rng(request):
+    """A numpy Generator seeded from the test's node id: the same numbers in the full run
+    and with ``-k``, different streams for different tests."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
 
 
 @pytest.fixture(scope="session")

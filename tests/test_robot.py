@@ -1,12 +1,18 @@
 """Robot descriptions: loading, geometry, and every ProblemFileError rule."""
 
 import math
+import tomllib
 
 import numpy as np
 import pytest
 
 from casflex.errors import ModelError, ProblemFileError
 from casflex.robot import Section, load, loads, rectangle_torsion_constant
+
+try:
+    from reference_fem import dh_frames, section_constants
+except ImportError:  # pragma: no cover - when tests/ is imported as a package
+    from tests.reference_fem import dh_frames, section_constants
 
 FLEX = """
 [[link]]
@@ -48,15 +54,47 @@ def test_frames_follow_modified_dh():
 
 def test_rectangle_section_and_torsion_constant():
     s = Section.rectangle(0.005, 0.007)  # a along y, b along x
-    assert s.Ix == pytest.approx(0.007 * 0.005**3 / 12)
-    assert s.Iy == pytest.approx(0.005 * 0.007**3 / 12)
-    assert s.Ip == pytest.approx(s.Ix + s.Iy)
+    # second moments of a few 1e-11 m^4: pytest.approx's default abs = 1e-12 would accept
+    # anything within 1 %; closed forms, so round-off (1e-12 relative, abs = 0)
+    assert s.Ix == pytest.approx(0.007 * 0.005**3 / 12, rel=1e-12, abs=0)
+    assert s.Iy == pytest.approx(0.005 * 0.007**3 / 12, rel=1e-12, abs=0)
+    assert s.Ip == pytest.approx(s.Ix + s.Iy, rel=1e-12, abs=0)
     # St-Venant constants of rectangles (Timoshenko & Goodier table: k1 a b^3)
     for ratio, k1 in [(1.0, 0.1406), (2.0, 0.2287), (4.0, 0.2808), (10.0, 0.3123)]:
         assert rectangle_torsion_constant(ratio, 1.0) == pytest.approx(k1 * ratio, rel=2e-3)
     # thin strip tends to a b^3 / 3 (1 - 0.630 b/a)
     assert rectangle_torsion_constant(100.0, 1.0) == pytest.approx(
         100.0 / 3.0 * (1 - 0.630 / 100.0), rel=1e-3)
+
+
+@pytest.mark.parametrize("table", [
+    {"shape": "rectangle", "a": 0.005, "b": 0.007},
+    {"shape": "rectangle", "a": 0.02, "b": 0.004},
+    {"shape": "tube", "outer_diameter": 0.0127, "wall": 0.00041},
+])
+def test_section_constants_match_independent_formulas(table):
+    # reference_fem computes A, Ix, Iy, J (Saint-Venant's series, its own code) and Ip from
+    # the file's numbers; both sides are closed forms: agreement to round-off (1e-12)
+    section = (Section.rectangle(table["a"], table["b"]) if table["shape"] == "rectangle"
+               else Section.tube(table["outer_diameter"], table["wall"]))
+    ref = section_constants(table)
+    for key in ("A", "Ix", "Iy", "Ip"):
+        assert getattr(section, key) == pytest.approx(ref[key], rel=1e-12, abs=0), key
+    # J: casflex sums 50 odd terms of the series, whose tail (~1/(4·100⁴) of a sum of ~1)
+    # leaves ~1e-9; the reference sums 200. 1e-8 allowed (a 0.05 % error is 5e-4)
+    assert section.J == pytest.approx(ref["J"], rel=1e-8, abs=0)
+
+
+def test_frames_match_independent_dh_walk(rng):
+    # reference_fem.dh_frames walks the rows of the file itself (tomllib, own rotations)
+    for name in ("arm2link", "testbed"):
+        robot = load(f"problems/{name}.toml")
+        with open(f"problems/{name}.toml", "rb") as fh:
+            rows = tomllib.load(fh)["link"]
+        for _ in range(3):
+            q = rng.uniform(-np.pi, np.pi, robot.n_joints)
+            np.testing.assert_allclose(robot.frames(q), np.array(dh_frames(rows, q)),
+                                       rtol=0, atol=1e-14)
 
 
 def test_angles_accept_units():

@@ -10,10 +10,12 @@ from casflex.estimation import exact_plant_function
 from casflex.modal.normalize import local_state
 from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
+from casflex.robot import Section
 from casflex.sensors import (
     Accelerometer,
     SensorSet,
     StrainPair,
+    default_strain_distance,
     kinematic_measurement,
     load_sensors,
     measurement_function,
@@ -173,6 +175,17 @@ def test_shipped_sensor_files(robot):
     assert sg.points == [(2, 0.05), (3, 0.05)] and sg.n_outputs == 4
     np.testing.assert_allclose(acc.noise_std, 250e-6 * 9.8, rtol=1e-12)
     np.testing.assert_allclose(sg.noise_std**2, 9e-14, rtol=1e-12)
+
+
+def test_default_strain_distance_is_the_half_depth(robot):
+    # the gauges sit on the faces: c_x = b/2 (side b along local x), c_y = a/2 (side a
+    # along local y), from problems/arm2link.toml's section a = 5 mm, b = 7 mm; a tube's
+    # faces are at the outer radius
+    sg = sensors_from_tables([{"type": "strain", "link": "link1", "s": 0.1}], robot)
+    assert sg.sensors[0].distance == pytest.approx((0.007 / 2, 0.005 / 2), rel=1e-12)
+    tube = Section.tube(0.0127, 0.00041)
+    assert default_strain_distance(tube) == pytest.approx((0.0127 / 2, 0.0127 / 2),
+                                                          rel=1e-12)
 
 
 def test_sensor_tables_in_robot_file(robot, tmp_path):

@@ -38,6 +38,11 @@ from casflex.simulate import (
 )
 from casflex.simulate.integrators import STEP_CACHE
 
+try:
+    import regression_pins as pins
+except ImportError:  # pragma: no cover - when tests/ is imported as a package
+    from tests import regression_pins as pins
+
 ARM = load("problems/arm2link.toml")
 
 
@@ -188,6 +193,10 @@ def test_table9_moves_give_centimetre_deflections(moves):
         # deflections of centimetres to decimetres (quasi-static a_tip / ω² ≈ 3 cm)
         assert 5e-3 < r.max_tip_deflection < 0.5, name
         assert 0.0 < r.residual_tip_deflection <= r.max_tip_deflection
+        # casflex's own values, regression pins (tests/regression_pins.py)
+        np.testing.assert_allclose(
+            (r.max_tip_deflection, r.residual_tip_deflection),
+            pins.TABLE9_TIP_DEFLECTION[name], rtol=pins.TABLE9_TIP_DEFLECTION_RTOL)
         np.testing.assert_allclose(r.tip_deflection, r.tip - r.tip_rigid)
         d = r.to_dict()
         assert json.loads(json.dumps(d))["max_tip_deflection"] == r.max_tip_deflection

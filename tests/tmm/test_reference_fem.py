@@ -256,3 +256,34 @@ def test_soft_hinge_at_clamp_gives_rigid_pendulum_frequency():
     assert np.allclose(shapes.at([0, 0, 0], side="inboard"), 0)
     root = shapes.at([0, 0, 0], side="outboard")[0]
     assert np.allclose(root[:3], 0) and np.allclose(root[4:], 0) and abs(root[3]) > 0
+
+
+# ----------------------------------------------------------------------------- sections
+try:
+    from reference_fem import prandtl_torsion_constant, rectangle_torsion_constant
+except ImportError:  # pragma: no cover - when tests/ is imported as a package
+    from tests.reference_fem import prandtl_torsion_constant, rectangle_torsion_constant
+
+#: Timoshenko & Goodier, Theory of Elasticity (3rd ed., 1970), §109 table: J = k1 · b t³
+#: of a rectangle with sides b >= t, printed to three digits
+TIMOSHENKO_K1 = {1.0: 0.141, 1.5: 0.196, 2.0: 0.229, 2.5: 0.249, 3.0: 0.263, 4.0: 0.281,
+                 5.0: 0.291, 10.0: 0.312}
+
+
+def test_rectangle_torsion_series_against_published_table():
+    for ratio, k1 in TIMOSHENKO_K1.items():
+        # the table's rounding: half a unit of the third digit
+        assert abs(rectangle_torsion_constant(ratio, 1.0) / ratio - k1) <= 5e-4, ratio
+        assert rectangle_torsion_constant(1.0, ratio) == rectangle_torsion_constant(ratio, 1.0)
+    # thin strip: b t³ / 3 (1 − 0.630 t/b)
+    assert rectangle_torsion_constant(50.0, 1.0) == pytest.approx(50 / 3 * (1 - 0.630 / 50),
+                                                                  rel=1e-4)
+
+
+@pytest.mark.parametrize("a, b", [(1.0, 1.0), (0.005, 0.007), (0.02, 0.01)])
+def test_rectangle_torsion_series_against_prandtl_solution(a, b):
+    # second-order finite differences on 40 and 80 cells across, Richardson-extrapolated:
+    # the remaining h⁴ error is 1.0e-6 (square) .. 3e-7; 3e-6 allowed
+    coarse, fine = (prandtl_torsion_constant(a, b, n) for n in (40, 80))
+    assert (4 * fine - coarse) / 3 == pytest.approx(rectangle_torsion_constant(a, b), rel=3e-6,
+                                                    abs=0)
