@@ -62,7 +62,8 @@ def rectangle_torsion_constant(a: float, b: float, terms: int = 50) -> float:
     a, b : float
         Side lengths [m].
     terms : int
-        Number of odd terms of the series (50 gives machine precision).
+        Number of odd terms of the series (the n-th term falls like n⁻⁵: 50 terms leave
+        about 1e-9 relative).
 
     Returns
     -------
