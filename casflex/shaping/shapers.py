@@ -39,6 +39,7 @@ __all__ = [
     "convolve",
     "merge_closest",
     "residual_vibration",
+    "DEFINITIONS",
     "residual_vibration_casadi",
     "sensitivity_curve",
     "band_maximum",
@@ -430,11 +431,11 @@ def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: Arra
 
     A tiny late impulse shrinks eq. 187's V, not the vibration left at the same instant:
 
-    >>> late = Shaper([0.0, 0.1, 10.0], [0.5, 0.4999, 0.0001])
-    >>> round(float(residual_vibration(late, 20.0, 0.05)), 3)
-    0.0
-    >>> round(float(residual_vibration(late, 20.0, 0.05, definition="same_instant")), 3)
-    0.5
+    >>> late = Shaper([0.0, 0.064, 2.59], [0.5135, 0.485, 0.0015])
+    >>> round(float(residual_vibration(late, 162.6, 0.005)), 3)
+    0.059
+    >>> round(float(residual_vibration(late, 162.6, 0.005, definition="same_instant")), 3)
+    0.487
     """
     same_instant = _definition(definition)
     shaper = as_shaper(shaper)
