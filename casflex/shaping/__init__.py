@@ -26,6 +26,12 @@ ei                          extra-insensitive
 ei_two_hump                 two-hump extra-insensitive
 ei_three_hump               three-hump extra-insensitive
 
+More closed-form shapers (:mod:`casflex.shaping.family`)
+--------------------------------------------------------
+mzv                         modified ZV: three impulses 3/8 of a damped period apart
+um_zv                       unity-magnitude (negative) ZV: impulses +1, -1, +1
+UM_ZV_PEAK_FACTOR           bound of a UM-ZV-shaped command's peak over the unshaped one
+
 Shaping a reference (:mod:`casflex.shaping.shapers`)
 ----------------------------------------------------
 apply_shaper                convolve sampled joint references with a shaper
@@ -85,6 +91,7 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
+from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, um_zv
 from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_optimum
 from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
@@ -134,6 +141,9 @@ __all__ = [
     "ei",
     "ei_two_hump",
     "ei_three_hump",
+    "mzv",
+    "um_zv",
+    "UM_ZV_PEAK_FACTOR",
     # shaping a reference
     "apply_shaper",
     # specified-insensitivity shapers
