@@ -79,6 +79,7 @@ residual_amplitude          largest deflection after the move
 
 from __future__ import annotations
 
+from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, um_zv
 from casflex.shaping.for_moves import (
     MoveShaperResult,
     frequencies_along,
@@ -91,7 +92,6 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
-from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, um_zv
 from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_optimum
 from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
