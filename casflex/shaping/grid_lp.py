@@ -53,21 +53,24 @@ _SEARCH_RTOL = 1e-3
 #: Steps of the coarse grid that brackets the optimum before the fine grid's bisection.
 _COARSE_STEPS = 32
 
+#: Fewest coarse-grid points per period of the highest sample frequency.
+_COARSE_PER_PERIOD = 8
 
-def _bisect(feasible, lo, hi, max_doublings, step):
-    """Smallest feasible K in (lo, hi] (hi doubled while infeasible): (K, A, largest
-    infeasible K found)."""
-    best = feasible(hi)
-    doublings = 0
-    while best is None:
-        if doublings >= max_doublings:
+
+def _search(feasible, k0, k_max, step):
+    """Smallest feasible K: doubling from k0 up to k_max, then bisection. Returns (K, A,
+    largest K proven infeasible)."""
+    lo, k = 0, max(1, k0)
+    while True:
+        best = feasible(k)
+        if best is not None:
+            break
+        if k >= k_max:
             raise SolverError(
                 f"no shaper on a grid of {step:.6g} s meets the samples within "
-                f"{hi * step:.6g} s (cutting-plane LP, HiGHS)")
-        lo, hi = hi, 2 * hi
-        doublings += 1
-        best = feasible(hi)
-    return _bisect_between(feasible, max(lo, 0), hi, best)
+                f"{k_max * step:.6g} s (cutting-plane LP, HiGHS)")
+        lo, k = k, min(2 * k, k_max)
+    return _bisect_between(feasible, lo, k, best)
 
 
 def _bisect_between(feasible, lo, hi, best):
@@ -238,13 +241,20 @@ def grid_optimum(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, *, step: fl
         return _lp_feasible(k, h, omega, zeta, vtol, angles, counter, rtol)
 
     hi = max(1, int(math.ceil(horizon / step)))
+    k_max = hi * 2**max_doublings
+    # the search doubles from half a period of the highest sample frequency (no shorter
+    # shaper can keep V < 1 there): small LPs until the duration is bracketed
+    shortest = math.pi / float(np.max(omega))
     # a coarse grid (a multiple of the step, about _COARSE_STEPS steps to the horizon)
-    # brackets the optimum cheaply; the fine grid contains it, so r K1 is feasible there
-    ratio = max(1, hi // _COARSE_STEPS)
+    # brackets the optimum cheaply; the fine grid contains it, so r K1 is feasible there.
+    # It keeps at least _COARSE_PER_PERIOD points per period of the highest sample
+    # frequency: a coarser grid cannot place impulses where that mode needs them
+    per_period = 2.0 * math.pi / float(np.max(omega)) / (_COARSE_PER_PERIOD * step)
+    ratio = max(1, min(hi // _COARSE_STEPS, int(per_period)))
     if ratio > 1:
-        coarse = _bisect(lambda k: feasible(k, step * ratio), -1, -(-hi // ratio),
-                         max_doublings, step * ratio)
-        hi, best = coarse[0] * ratio, coarse[1]
+        h = step * ratio
+        k1, best, _ = _search(lambda k: feasible(k, h), int(shortest / h), -(-k_max // ratio), h)
+        hi = k1 * ratio
         spread = np.zeros(hi + 1)
         spread[::ratio] = best
         best = spread
@@ -259,7 +269,7 @@ def grid_optimum(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, *, step: fl
         lo = max(lo, 0)
         hi, best, lo = _bisect_between(lambda k: feasible(k, step), lo, hi, best)
     else:
-        hi, best, lo = _bisect(lambda k: feasible(k, step), -1, hi, max_doublings, step)
+        hi, best, lo = _search(lambda k: feasible(k, step), int(shortest / step), k_max, step)
     # the search accepted 0.1 % excess: the final K is solved to _CUT_RTOL (a K found
     # feasible only within the search tolerance moves up)
     for _ in range(_COARSE_STEPS):

@@ -645,7 +645,8 @@ def _timed_solve(samples, guess, method, options, deadline, time_limit, done):
     raise _time_limit_error(time_limit, reason)
 
 
-#: Steps of the LP's time grid up to the horizon (the convolved EI duration).
+#: Steps of the LP's time grid up to the horizon (the convolved EI duration); the step is
+#: also at most 1/16 of the shortest period of the ranges.
 LP_GRID_STEPS = 128
 
 #: Most sample frequencies (all ranges) for which the grid LP start is tried; beyond, the
@@ -661,6 +662,11 @@ def _lp_samples(ranges, duration):
         counts.append(int(min(200, max(5, math.ceil(6.0 * width * duration / (2.0 * math.pi))
                                        + 1))))
     return SISample.from_ranges(ranges, counts)
+
+
+def _lp_step(samples, horizon):
+    """LP grid step: LP_GRID_STEPS to the horizon, and 16 per shortest period."""
+    return min(horizon / LP_GRID_STEPS, 2.0 * math.pi / float(np.max(samples.omega)) / 16.0)
 
 
 def _cluster(shaper, gap):
@@ -861,7 +867,7 @@ def si_shaper(
             try:
                 lp = grid_optimum(lp_samples.omega, lp_samples.zeta,
                                   lp_samples.vtol * (1.0 - _VTOL_MARGIN),
-                                  step=horizon / LP_GRID_STEPS, horizon=horizon,
+                                  step=_lp_step(lp_samples, horizon), horizon=horizon,
                                   check_time=check_time)
             except _TimeLimitError:
                 raise
