@@ -419,16 +419,17 @@ fig.tight_layout()
 # With the impulse times fixed on a grid the design is a linear program per duration;
 # bisection on the duration gives the shortest grid shaper (`grid_optimum`, HiGHS), which
 # starts the Ipopt polish and bounds it. Below: random problems (1–3 ranges in 1–30 Hz,
-# widths 5–60 %, Vtol 2–20 %, ζ 0–0.05), the designed duration and the one reached from the
-# dissertation's convolved-EI start, relative to the grid optimum. (The tests compare
-# casflex on 30 such problems with an LP written independently in the test module.)
+# widths 5–60 %, Vtol 2–20 %, ζ 0–0.05): the designed duration relative to the grid
+# optimum. The polish, free to move the impulses off the grid, ends shorter. (The tests
+# compare casflex on 30 such problems with an LP written independently in the test module;
+# from the dissertation's convolved-EI start these problems mostly run out of the 60 s
+# time limit on this machine, which is why they are not drawn.)
 
 # %%
-from casflex.errors import SolverError  # noqa: E402
 from casflex.plotting import plot_digital_shaper, plot_si_optimality  # noqa: E402
 
 rng = np.random.default_rng(2014)
-lp_opt, polished, from_ei = [], [], []
+lp_opt, polished = [], []
 start = time.perf_counter()
 for _ in range(6):
     problem = []
@@ -439,12 +440,8 @@ for _ in range(6):
     res = si_shaper(problem)
     lp_opt.append(res.lp_duration)
     polished.append(res.duration)
-    try:
-        from_ei.append(si_shaper(problem, start="ei").duration)
-    except SolverError:
-        from_ei.append(float("nan"))
-print(f"{len(polished)} problems, two designs each: {time.perf_counter() - start:.0f} s")
-plot_si_optimality(lp_opt, polished, from_ei)
+print(f"{len(polished)} problems: {time.perf_counter() - start:.0f} s")
+plot_si_optimality(lp_opt, polished)
 
 # %% [markdown]
 # The design job's loop runs at `dt = 1 ms` (`problems/studies/arm2link_move1.toml`): its

@@ -56,6 +56,7 @@ si_shaper                   SI design: solves, prune-and-merge, dense-grid verif
 si_shaper_slsqp             the same with SciPy's SLSQP
 LP_GRID_STEPS               steps of the grid LP's time grid up to its horizon
 LP_MAX_SAMPLES              most samples for which the grid LP start is tried
+LP_TIME_SHARE               share of the time limit the grid LP search may use
 
 Shapers on a time grid (:mod:`casflex.shaping.grid_lp`)
 -------------------------------------------------------
@@ -116,6 +117,7 @@ from casflex.shaping.si import (
     HESSIAN_TERMS_PER_SECOND,
     LP_GRID_STEPS,
     LP_MAX_SAMPLES,
+    LP_TIME_SHARE,
     NLPSolution,
     SISample,
     SIShaperResult,
@@ -162,6 +164,7 @@ __all__ = [
     "si_shaper_slsqp",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
+    "LP_TIME_SHARE",
     # shapers on a time grid
     "GridOptimum",
     "grid_optimum",

@@ -102,6 +102,9 @@ class GridOptimum:
         unless the last cutting-plane solve moved K up).
     lp_solves : int
         Number of LPs solved.
+    complete : bool
+        False when ``budget`` stopped the search: the shortest grid shaper found so far
+        (met to a relative 1e-3 only) and the best bound proven so far.
 
     Examples
     --------
@@ -115,6 +118,7 @@ class GridOptimum:
     duration: float
     lower_bound: float
     lp_solves: int
+    complete: bool = True
 
 
 def _lp_feasible(k_steps, step, omega, zeta, vtol, angles, counter, rtol=_CUT_RTOL):
@@ -185,9 +189,14 @@ def grid_feasible(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, step: floa
     return _lp_feasible(int(k_steps), float(step), omega, zeta, vtol, angles, [0])
 
 
+class _OutOfBudget(Exception):
+    """The search's budget ran out (caught in grid_optimum)."""
+
+
 def grid_optimum(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, *, step: float,
                  horizon: float, max_doublings: int = 3,
-                 check_time: Callable[[], None] | None = None) -> GridOptimum:
+                 check_time: Callable[[], None] | None = None,
+                 budget: Callable[[], bool] | None = None) -> GridOptimum:
     """Shortest shaper on the grid ``t_k = k h`` meeting ``V <= vtol`` at every sample.
 
     V is the residual vibration at the same instant. The smallest feasible number of steps
@@ -208,6 +217,10 @@ def grid_optimum(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, *, step: fl
         Doublings of the horizon allowed before giving up.
     check_time : callable, optional
         Called before every LP; raises to stop the search (a time limit).
+    budget : callable, optional
+        Called before every LP; False stops the search, which then returns the shortest
+        grid shaper found so far (``complete`` False), or raises SolverError if it found
+        none.
 
     Returns
     -------
@@ -233,13 +246,55 @@ def grid_optimum(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, *, step: fl
               for p in range(_POLYGON)]
     counter = [0]
 
+    found = {"feasible": None, "infeasible": 0.0}
+
     def feasible(k, h, rtol=_SEARCH_RTOL):
         if k <= 0:
             return None  # one impulse: V = 1 > vtol
         if check_time is not None:
             check_time()
-        return _lp_feasible(k, h, omega, zeta, vtol, angles, counter, rtol)
+        if budget is not None and not budget():
+            raise _OutOfBudget
+        a = _lp_feasible(k, h, omega, zeta, vtol, angles, counter, rtol)
+        if a is None and h == step:  # a coarse grid's infeasibility bounds nothing here
+            found["infeasible"] = max(found["infeasible"], k * h)
+        elif found["feasible"] is None or k * h < found["feasible"][0] * found["feasible"][1]:
+            found["feasible"] = (k, h, a)
+        return a
 
+    try:
+        hi, best, lo = _search_both(feasible, omega, step, horizon, max_doublings)
+        # the search accepted 0.1 % excess: the final K is solved to _CUT_RTOL (a K found
+        # feasible only within the search tolerance moves up)
+        for _ in range(_COARSE_STEPS):
+            tight = feasible(hi, step, _CUT_RTOL)
+            if tight is not None:
+                best = tight
+                break
+            hi += 1
+        else:
+            raise SolverError(f"the grid LP did not converge to a relative {_CUT_RTOL:g} "
+                              f"near {hi * step:.6g} s (cutting planes, HiGHS)")
+    except _OutOfBudget:
+        if found["feasible"] is None:
+            raise SolverError("the grid LP search ran out of its budget before it found a "
+                              "feasible grid shaper") from None
+        k, h, a = found["feasible"]
+        return _result(a, h, k * h, min(found["infeasible"], k * h), counter[0], False)
+    return _result(best, step, hi * step, max(lo, 0) * step, counter[0], True)
+
+
+def _result(best, step, duration, lower_bound, solves, complete):
+    keep = best > 1e-12
+    times = step * np.arange(best.size)[keep]
+    amps = best[keep]
+    shaper = Shaper(times - times[0], amps / amps.sum())
+    return GridOptimum(shaper=shaper, step=step, duration=duration,
+                       lower_bound=lower_bound, lp_solves=solves, complete=complete)
+
+
+def _search_both(feasible, omega, step, horizon, max_doublings):
+    """Coarse bracket, fine walk down and bisection: (K, A, largest infeasible K)."""
     hi = max(1, int(math.ceil(horizon / step)))
     k_max = hi * 2**max_doublings
     # the search doubles from half a period of the highest sample frequency (no shorter
@@ -270,20 +325,4 @@ def grid_optimum(omega: ArrayLike, zeta: ArrayLike, vtol: ArrayLike, *, step: fl
         hi, best, lo = _bisect_between(lambda k: feasible(k, step), lo, hi, best)
     else:
         hi, best, lo = _search(lambda k: feasible(k, step), int(shortest / step), k_max, step)
-    # the search accepted 0.1 % excess: the final K is solved to _CUT_RTOL (a K found
-    # feasible only within the search tolerance moves up)
-    for _ in range(_COARSE_STEPS):
-        tight = feasible(hi, step, _CUT_RTOL)
-        if tight is not None:
-            best = tight
-            break
-        hi += 1
-    else:
-        raise SolverError(f"the grid LP did not converge to a relative {_CUT_RTOL:g} near "
-                          f"{hi * step:.6g} s (cutting planes, HiGHS)")
-    keep = best > 1e-12
-    times = step * np.arange(best.size)[keep]
-    amps = best[keep]
-    shaper = Shaper(times - times[0], amps / amps.sum())
-    return GridOptimum(shaper=shaper, step=step, duration=hi * step,
-                       lower_bound=max(lo, 0) * step, lp_solves=counter[0])
+    return hi, best, lo

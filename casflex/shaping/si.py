@@ -57,6 +57,7 @@ __all__ = [
     "si_shaper_slsqp",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
+    "LP_TIME_SHARE",
 ]
 
 
@@ -646,27 +647,31 @@ def _timed_solve(samples, guess, method, options, deadline, time_limit, done):
 
 
 #: Steps of the LP's time grid up to the horizon (the convolved EI duration); the step is
-#: also at most 1/16 of the shortest period of the ranges.
+#: also at most 1/12 of the shortest period of the ranges.
 LP_GRID_STEPS = 128
 
 #: Most sample frequencies (all ranges) for which the grid LP start is tried; beyond, the
 #: design starts from the convolved EI shapers.
 LP_MAX_SAMPLES = 800
 
+#: Share of the time limit the grid LP search may use: then the shortest grid shaper found
+#: so far starts the polish (the convolved EI start if it found none).
+LP_TIME_SHARE = 0.25
+
 
 def _lp_samples(ranges, duration):
-    """Sample frequencies of the grid LP: about six per oscillation of V(ω)."""
+    """Sample frequencies of the grid LP: about four per oscillation of V(ω)."""
     counts = []
     for r in ranges:
         width = r.omega_max - r.omega_min
-        counts.append(int(min(200, max(5, math.ceil(6.0 * width * duration / (2.0 * math.pi))
+        counts.append(int(min(200, max(5, math.ceil(4.0 * width * duration / (2.0 * math.pi))
                                        + 1))))
     return SISample.from_ranges(ranges, counts)
 
 
 def _lp_step(samples, horizon):
-    """LP grid step: LP_GRID_STEPS to the horizon, and 16 per shortest period."""
-    return min(horizon / LP_GRID_STEPS, 2.0 * math.pi / float(np.max(samples.omega)) / 16.0)
+    """LP grid step: LP_GRID_STEPS to the horizon, and 12 per shortest period."""
+    return min(horizon / LP_GRID_STEPS, 2.0 * math.pi / float(np.max(samples.omega)) / 12.0)
 
 
 def _cluster(shaper, gap):
@@ -732,7 +737,7 @@ def si_shaper(
 
     **Global start and certificate** (``start="lp"``). With the impulse times on a grid the
     problem is a linear program per duration (:func:`~casflex.shaping.grid_lp.grid_optimum`,
-    HiGHS): bisection on the duration gives the shortest grid shaper on about eight samples
+    HiGHS): bisection on the duration gives the shortest grid shaper on about four samples
     per oscillation of V, of :data:`LP_GRID_STEPS` steps up to the convolved EI duration,
     with the samples augmented until that shaper verifies on every range. Its adjacent
     impulses merged start the polish. The result records the grid optimum
@@ -785,8 +790,10 @@ def si_shaper(
         left is refused before it is built; SLSQP is checked between solves.
     start : {"lp", "ei"}, optional
         Start of the polish: the grid LP (default; the convolved EI shapers when the LP
-        would have more than :data:`LP_MAX_SAMPLES` samples) or the convolved EI shapers
-        (the dissertation's algorithm).
+        would have more than :data:`LP_MAX_SAMPLES` samples or finds no grid shaper within
+        :data:`LP_TIME_SHARE` of the time limit; the search stopped by that share starts
+        from the shortest grid shaper it found) or the convolved EI shapers (the
+        dissertation's algorithm).
     dt : float, optional
         Sample time of the loop that runs the shaper, s: impulses on ``k dt``.
 
@@ -846,6 +853,12 @@ def si_shaper(
         if deadline is not None and time.perf_counter() > deadline:
             raise _time_limit_error(time_limit, "reached during the grid LP search")
 
+    lp_deadline = (None if time_limit is None
+                   else time.perf_counter() + LP_TIME_SHARE * time_limit)
+
+    def lp_budget():
+        return lp_deadline is None or time.perf_counter() < lp_deadline
+
     check_time()
     ei_start = initial_si_guess(ranges, n_impulses)
     horizon = max(ei_start.duration, 1e-3)
@@ -868,7 +881,7 @@ def si_shaper(
                 lp = grid_optimum(lp_samples.omega, lp_samples.zeta,
                                   lp_samples.vtol * (1.0 - _VTOL_MARGIN),
                                   step=_lp_step(lp_samples, horizon), horizon=horizon,
-                                  check_time=check_time)
+                                  check_time=check_time, budget=lp_budget)
             except _TimeLimitError:
                 raise
             except SolverError:

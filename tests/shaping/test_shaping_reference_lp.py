@@ -96,7 +96,9 @@ FAST_SWEEP = [0.005, 0.02814]  # the issue's failures
 
 def check_against_reference(problem):
     ranges = [FrequencyRange(*p) for p in problem]
-    res = si_shaper(ranges)  # must not fail
+    # must not fail; no time limit: these tests judge the result, the benchmark the speed
+    # (the shared test machine can be many times slower than an idle one)
+    res = si_shaper(ranges, time_limit=None)
     t, a = res.shaper.times, res.shaper.amplitudes
     assert np.all(a >= 0.0) and abs(a.sum() - 1.0) < 1e-12
     for (lo, hi, zeta, vtol), reported in zip(problem, res.max_prv, strict=True):
