@@ -593,12 +593,9 @@ def _prune(shaper, eps_amplitude, eps_time):
 def _initial_samples_per_range(ranges, duration, samples_per_range):
     if samples_per_range is not None:
         return samples_per_range
-    counts = []
-    for r in ranges:
-        width = r.omega_max - r.omega_min
-        # about four samples per oscillation of V(ω) (period 2π / duration)
-        counts.append(int(min(60, max(5, math.ceil(4.0 * width * duration / (2.0 * math.pi)) + 1))))
-    return counts
+    # about four samples per oscillation of V(ω) (period 2π / duration)
+    return [int(min(60, max(5, math.ceil(4.0 * (r.omega_max - r.omega_min) * duration
+                                         / (2.0 * math.pi)) + 1))) for r in ranges]
 
 
 def _fail(ranges, shaper, status, what):
@@ -701,8 +698,7 @@ def _grid_design(ranges, samples, step, horizon, check_time, max_rounds=8, lp=No
         vmax, violations = _verify(lp.shaper, ranges)
         if not violations:
             return lp, samples, vmax
-        samples = samples.with_points([p[0] for p in violations],
-                                      [p[1] for p in violations], ranges)
+        samples = samples.with_points(*zip(*violations, strict=True), ranges)
         horizon, lp = lp.duration, None
     raise SolverError(f"the grid LP shaper (grid {step:.6g} s) still violates a range after "
                       f"{max_rounds} rounds of added samples")
@@ -727,13 +723,10 @@ def si_shaper(
     """Design a specified-insensitivity (SI) shaper for one or more frequency ranges.
 
     **What is constrained.** V is the residual vibration *at the same instant*
-    (:func:`~casflex.shaping.residual_vibration` with ``definition="same_instant"``): the
-    vibration left after the last impulse relative to the unshaped response at the same
-    time. Eq. 187 divides by the unshaped response one shaper duration earlier; with damping
-    a tiny late impulse then lowers eq. 187's V through ``exp(-ζ ω t_n)`` while the
-    vibration actually left stays large, so an optimiser can meet eq. 187 by postponing
-    ``t_n``. The same-instant V is never below eq. 187's (equal when undamped), so a
-    shaper designed here meets eq. 187 too; ``max_prv_eq187`` reports eq. 187's numbers.
+    (:func:`~casflex.shaping.residual_vibration`, ``definition="same_instant"``): eq. 187
+    can be met by a tiny late impulse that only postpones ``t_n`` (its ``exp(-ζ ω t_n)``),
+    the same-instant V cannot; it is never below eq. 187's (equal when undamped), which
+    ``max_prv_eq187`` reports.
 
     **Global start and certificate** (``start="lp"``). With the impulse times on a grid the
     problem is a linear program per duration (:func:`~casflex.shaping.grid_lp.grid_optimum`,
@@ -745,12 +738,10 @@ def si_shaper(
 
     **Polish** (§6.1.3): minimise the last impulse time subject to ``V <= vtol`` at the
     samples (:func:`solve_si_nlp`), drop impulses below ``eps_amplitude``, merge impulses
-    closer than ``eps_time`` and solve again until nothing changes; after every solve V is
-    evaluated on a dense grid of every range refined at its local maxima and the violating
-    peaks are added to the samples. The polished shaper is returned only if it verifies
-    (``V <= vtol``, no slack) and is not longer than the grid LP's shaper; otherwise the
-    verified LP shaper is returned. A solve that fails from the pruned previous solution is
-    repeated once from the start on the same samples.
+    closer than ``eps_time``, verify every range on a dense grid refined at its local
+    maxima (``V <= vtol``, no slack; violating peaks become samples) and solve again until
+    nothing changes. If that fails or ends longer than the grid LP's shaper, the polish from
+    the convolved EI start is tried too, and the shortest verified shaper is returned.
 
     **Digital shapers** (``dt``): the grid LP on the sample grid ``t_k = k dt`` *is* the
     design (impulses stay on the grid, no polish), verified like the others.
@@ -892,16 +883,28 @@ def si_shaper(
                     first = merge_closest(first, int(n_impulses))
         elif start == "lp":
             kind = "ei"
+    polish = (samples_per_range, method, options, eps_amplitude, eps_time, max_solves,
+              deadline, time_limit)
     try:
-        result = _polish(ranges, first, lp_samples if lp is not None else None,
-                         samples_per_range, method, options, eps_amplitude, eps_time,
-                         max_solves, deadline, time_limit)
+        result = _polish(ranges, first, lp_samples if lp is not None else None, *polish)
     except _TimeLimitError:
         raise
     except SolverError:
         if lp is None or (n_impulses is not None and len(lp.shaper) > int(n_impulses)):
             raise
         result = None
+    if guess is None and lp is not None and (
+            result is None or result[0].duration > lp.shaper.duration):
+        # the polish from the grid start failed or stopped in a worse local optimum: the
+        # dissertation's EI start too, then the shortest verified of the three
+        try:
+            other = _polish(ranges, ei_start, None, *polish)
+        except _TimeLimitError:
+            raise
+        except SolverError:
+            other = None
+        if other is not None and (result is None or other[0].duration < result[0].duration):
+            result, kind = other, "ei"
     if lp is not None and (result is None or result[0].duration > lp.shaper.duration):
         # the polish failed or ended longer than the grid optimum: the LP shaper, verified
         # (samples added where it is not), unless it too ends longer
@@ -924,8 +927,7 @@ def si_shaper(
 
 
 def _eq187_maxima(shaper, ranges):
-    return np.array([band_maximum(shaper, r.omega_min, r.omega_max, r.zeta)[0]
-                     for r in ranges])
+    return np.array([band_maximum(shaper, r.omega_min, r.omega_max, r.zeta)[0] for r in ranges])
 
 
 def _polish(ranges, start, samples, samples_per_range, method, options, eps_amplitude,
@@ -947,9 +949,8 @@ def _polish(ranges, start, samples, samples_per_range, method, options, eps_ampl
         statuses.append(sol.status)
         iters.append(sol.iterations)
         if not sol.success and current is not start:
-            # The pruned previous solution violates the newly added samples; from such an
-            # infeasible start Ipopt's restoration phase can end in a point of local
-            # infeasibility. Start again from the start on the same samples.
+            # from the pruned previous solution (infeasible for the added samples) Ipopt's
+            # restoration can end in local infeasibility: restart on the same samples
             retry = solve(start)
             statuses.append(retry.status)
             iters.append(retry.iterations)
@@ -960,11 +961,8 @@ def _polish(ranges, start, samples, samples_per_range, method, options, eps_ampl
         pruned = _prune(sol.shaper, eps_amplitude, eps_time)
         vmax, violations = _verify(sol.shaper, ranges)
         if violations:
-            samples = samples.with_points([p[0] for p in violations],
-                                          [p[1] for p in violations], ranges)
-            current = pruned
-            continue
-        if len(pruned) != len(sol.shaper):
+            samples = samples.with_points(*zip(*violations, strict=True), ranges)
+        if violations or len(pruned) != len(sol.shaper):
             current = pruned
             continue
         return sol.shaper, vmax, statuses, iters, samples, current
