@@ -16,9 +16,27 @@ Vtol = 5 %):
 Also reported (single run, not medians): both solvers on the final formulation started
 from the convolved-EI initial guess (``*_from_ei_*`` keys).
 
+Issue 14 figures:
+
+``si_design_ei_start_s`` / ``si_design_cpu_s`` / ``si_design_ei_start_cpu_s``
+    the design from the convolved EI start (the dissertation's algorithm) next to the
+    default grid-LP start, wall and CPU (``time.process_time``) medians;
+``lp_gap``
+    optimality gap of the design: duration / grid-LP lower bound - 1;
+``digital_1khz_duration``
+    duration of the digital shaper on a 1 kHz loop's sample grid, s;
+``closed_form_us``
+    one damped EI shaper (ζ = 0.05, ``ei(2π, 0.05, 0.05)``), µs (median);
+``family``
+    duration (periods) and the contiguous ≤ 5 % band (relative frequency) of ZV, ZVD, MZV,
+    EI, two- and three-hump EI and UM-ZV, undamped.
+
+``--many`` adds ``many_ranges_10_s``: the design of ten ±5 % ranges at 1 Hz · 1.37^k
+(single run, slow).
+
 Usage::
 
-    python benchmarks/bench_shaping.py [--json] [--repeat N]
+    python benchmarks/bench_shaping.py [--json] [--repeat N] [--many]
 
 Timings are medians of ``--repeat`` repetitions (default 7).
 """
@@ -32,7 +50,21 @@ import statistics
 import sys
 import time
 
-from casflex.shaping import FrequencyRange, si_shaper, solve_si_nlp
+import numpy as np
+
+from casflex.shaping import (
+    FrequencyRange,
+    ei,
+    ei_three_hump,
+    ei_two_hump,
+    mzv,
+    residual_vibration,
+    si_shaper,
+    solve_si_nlp,
+    um_zv,
+    zv,
+    zvd,
+)
 
 HZ = 2.0 * math.pi
 RANGES = [
@@ -51,7 +83,40 @@ def _median_time(fn, repeat):
     return statistics.median(times), out
 
 
-def run(repeat=7):
+def _cpu_median(fn, repeat):
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return statistics.median(times)
+
+
+def family_table():
+    """Duration in periods and the ≤ 5 % band around the design frequency, undamped."""
+    nu = np.linspace(0.2, 1.8, 160001)
+    out = {}
+    for name, fun in [("ZV", zv), ("ZVD", zvd), ("MZV", mzv),
+                      ("EI", lambda w: ei(w, 0.0, 0.05)),
+                      ("EI2", lambda w: ei_two_hump(w, 0.0, 0.05)),
+                      ("EI3", lambda w: ei_three_hump(w, 0.0, 0.05)), ("UM-ZV", um_zv)]:
+        s = fun(HZ)
+        v = residual_vibration(s, nu * HZ)
+        lo = hi = int(np.argmin(np.abs(nu - 1.0)))
+        while lo > 0 and v[lo - 1] <= 0.05:
+            lo -= 1
+        while hi < nu.size - 1 and v[hi + 1] <= 0.05:
+            hi += 1
+        out[name] = {"periods": s.duration, "band": [nu[lo] - 1.0, nu[hi] - 1.0]}
+    return out
+
+
+def many_ranges(n):
+    return [FrequencyRange(0.95 * f * HZ, 1.05 * f * HZ, 0.0, 0.05)
+            for f in (1.37**k for k in range(n))]
+
+
+def run(repeat=7, many=False):
     """Run the benchmark and return the figures as a dict (s)."""
     si_shaper(RANGES)  # warm-up: loads the Ipopt plugin
     design_s, res = _median_time(lambda: si_shaper(RANGES), repeat)
@@ -63,7 +128,31 @@ def run(repeat=7):
     t0 = time.perf_counter()
     sq_ei = solve_si_nlp(res.samples, res.initial_guess, "slsqp")
     sq_ei_s = time.perf_counter() - t0
+    ei_design_s, _ = _median_time(lambda: si_shaper(RANGES, start="ei"), repeat)
+    design_cpu_s = _cpu_median(lambda: si_shaper(RANGES), repeat)
+    ei_design_cpu_s = _cpu_median(lambda: si_shaper(RANGES, start="ei"), repeat)
+    digital = si_shaper(RANGES, dt=1e-3)
+    ei(HZ, 0.05, 0.05)
+    closed_s, _ = _median_time(lambda: ei(HZ, 0.05, 0.05), repeat)
+    extra = {}
+    if many:
+        t0 = time.perf_counter()
+        res10 = si_shaper(many_ranges(10))
+        extra = {"many_ranges_10_s": time.perf_counter() - t0,
+                 "many_ranges_10_duration": res10.duration,
+                 "many_ranges_10_start": res10.start}
     return {
+        **extra,
+        "si_design_ei_start_s": ei_design_s,
+        "si_design_cpu_s": design_cpu_s,
+        "si_design_ei_start_cpu_s": ei_design_cpu_s,
+        "lp_gap": res.lp_gap,
+        "lp_duration": res.lp_duration,
+        "lp_lower_bound": res.lp_lower_bound,
+        "digital_1khz_duration": digital.duration,
+        "digital_1khz_impulses": len(digital.shaper),
+        "closed_form_us": 1e6 * closed_s,
+        "family": family_table(),
         "si_design_s": design_s,
         "si_solve_s": ipopt_s,
         "slsqp_solve_s": slsqp_s,
@@ -93,14 +182,20 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--repeat", type=int, default=7, help="repetitions (median)")
+    parser.add_argument("--many", action="store_true", help="also time ten ranges (slow)")
     args = parser.parse_args(argv)
-    out = run(args.repeat)
+    out = run(args.repeat, args.many)
     if args.json:
         sys.stdout.write(json.dumps(out) + "\n")
         return 0
     print(f"SI shaper benchmark, three-range example (median of {out['repeat']})")
     rows = [
         ("whole SI design (all solves, pruning, verification)", out["si_design_s"], "<= 1 s"),
+        ("  its CPU time", out["si_design_cpu_s"], ""),
+        ("the same from the convolved-EI start", out["si_design_ei_start_s"], ""),
+        ("  its CPU time", out["si_design_ei_start_cpu_s"], ""),
+        ("one damped EI shaper (closed_form_us, in ms here)", 1e-6 * out["closed_form_us"],
+         "<= 50 us"),
         ("one Ipopt solve of the final formulation", out["si_solve_s"], "<= 0.1 s"),
         ("  of which problem build", out["ipopt_build_s"], ""),
         ("one SLSQP solve, same formulation and start", out["slsqp_solve_s"], ""),
@@ -124,6 +219,17 @@ def main(argv=None):
         f"({out['ipopt_iterations_from_ei']} it), SLSQP {out['duration_slsqp_from_ei']:.6f} s "
         f"({out['slsqp_iterations_from_ei']} it)"
     )
+    print(f"  grid LP: optimum {out['lp_duration']:.6f} s, lower bound "
+          f"{out['lp_lower_bound']:.6f} s, gap {100 * out['lp_gap']:.2f} %; 1 kHz digital "
+          f"shaper {out['digital_1khz_duration']:.6f} s ({out['digital_1khz_impulses']} "
+          "impulses)")
+    for name, row in out["family"].items():
+        lo, hi = row["band"]
+        print(f"  {name:<6s} {row['periods']:.3f} periods, <= 5 % on {100 * lo:+.1f} .. "
+              f"{100 * hi:+.1f} %")
+    if "many_ranges_10_s" in out:
+        print(f"  ten ranges: {out['many_ranges_10_s']:.1f} s, duration "
+              f"{out['many_ranges_10_duration']:.4f} s ({out['many_ranges_10_start']} start)")
     return 0
 
 

@@ -30,7 +30,7 @@ __all__ = [
     # simulation
     "plot_result",
     # input shaping
-    "plot_prv", "plot_move_shaper",
+    "plot_prv", "plot_move_shaper", "plot_si_optimality", "plot_digital_shaper",
     # control
     "plot_accessibility",
     # design report
@@ -688,4 +688,90 @@ def plot_calibration(result: CalibrationResult, title: str | None = None) -> Fig
         a.grid(True, alpha=0.3)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+# ------------------------------------------------- input shaping: optimality and sampling
+
+def plot_si_optimality(grid_optimum: ArrayLike, polished: ArrayLike,
+                       ei_start: ArrayLike | None = None) -> Figure:
+    """SI shaper durations of several problems against their grid-LP optimum.
+
+    Parameters
+    ----------
+    grid_optimum : array_like, shape (p,)
+        Duration of the shortest shaper on the LP's time grid of every problem, s.
+    polished : array_like, shape (p,)
+        Duration of the designed (polished) shaper, s.
+    ei_start : array_like, shape (p,), optional
+        Duration reached from the convolved EI start, s (NaN where that design failed).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Durations relative to the grid optimum (%), problem by problem, with the ±1 % band.
+
+    Examples
+    --------
+    >>> fig = plot_si_optimality([0.3, 0.5], [0.299, 0.498], [0.31, float("nan")])
+    >>> fig.axes[0].get_ylabel()
+    'duration / grid optimum - 1 (%)'
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    ref = np.asarray(grid_optimum, float)
+    idx = np.arange(ref.size)
+    fig = Figure(figsize=(7.0, 3.8))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.axhspan(-1.0, 1.0, color="0.9", label="±1 %")
+    ax.plot(idx, 100.0 * (np.asarray(polished, float) / ref - 1.0), "o",
+            label="grid-LP start, polished")
+    if ei_start is not None:
+        ax.plot(idx, 100.0 * (np.asarray(ei_start, float) / ref - 1.0), "x",
+                label="convolved-EI start (§6.1.3)")
+    ax.set_xlabel("problem")
+    ax.set_ylabel("duration / grid optimum - 1 (%)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
+def plot_digital_shaper(analogue: Shaper, digital: Shaper, dt: float) -> Figure:
+    """Impulses of an analogue shaper and of its digital twin on a loop's sample grid.
+
+    Parameters
+    ----------
+    analogue, digital : casflex.shaping.Shaper
+        Free impulse times, and impulses on ``k dt``.
+    dt : float
+        Sample time of the loop, s.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from casflex.shaping import zv
+    >>> fig = plot_digital_shaper(zv(10.0), zv(10.0), 1e-3)
+    >>> fig.axes[0].get_xlabel()
+    'time (s)'
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = Figure(figsize=(7.0, 3.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.vlines(analogue.times, 0.0, analogue.amplitudes, colors="C0", lw=3, alpha=0.6,
+              label=f"analogue: {len(analogue)} impulses, {analogue.duration:.4f} s")
+    ax.vlines(digital.times, 0.0, digital.amplitudes, colors="C1", lw=1.5,
+              label=f"on the {1e3 * dt:g} ms grid: {len(digital)} impulses, "
+              f"{digital.duration:.4f} s")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("amplitude")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
     return fig

@@ -2,11 +2,14 @@
 
 Two forms:
 
-``casflex shaper PROBLEM.toml [--plot FILE.png] [--time-limit S] [--json]``
+``casflex shaper PROBLEM.toml [--dt S] [--plot FILE.png] [--time-limit S] [--json]``
     reads a shaper problem (a TOML file with ``[[range]]`` tables, see
     ``problems/shapers/README.md``), designs the SI shaper with
     :func:`casflex.shaping.si_shaper` and returns the impulses and the verified maximum
-    residual vibration of every range (times in s, frequencies in rad/s).
+    residual vibration of every range (times in s, frequencies in rad/s), at the same
+    instant (the constrained definition) and by eq. 187, with the grid LP's optimum, lower
+    bound and gap. ``--dt S`` puts the impulses on the sample grid of a loop of period S
+    (a digital shaper).
 
 ``casflex shaper ROBOT.toml --move FILE:NAME [--modes 3] [--margin 0.2] [--vtol 0.05]
 [--plot FILE.png] [--json]``
@@ -105,8 +108,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="worker processes for the tables (default: all CPUs; 1 = no pool)")
     robot.add_argument("--cache-dir", default=None, metavar="DIR",
                        help="cache directory of the modal tables (default: casflex's cache)")
-    robot.add_argument("--dt", type=float, default=1e-3,
-                       help="simulation and reference sample step, s (default 1e-3)")
+    parser.add_argument("--dt", type=float, default=None, metavar="S",
+                        help="shaper problem: sample time of the loop that runs the shaper, "
+                        "s; the impulses are put on its grid (a digital shaper, default: "
+                        "none); robot form: simulation and reference sample step, s "
+                        "(default 1e-3)")
     robot.add_argument("--no-simulate", action="store_true",
                        help="design only; do not simulate the unshaped and shaped moves")
 
@@ -124,8 +130,10 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     Returns
     -------
     dict
-        ``{"times": [...], "amplitudes": [...], "duration": s, "ranges": [{"omega_min",
-        "omega_max", "zeta", "vtol", "max_prv"}, ...]}`` (s, rad/s, fractions).
+        ``{"times": [...], "amplitudes": [...], "duration": s, "dt": s or None, "start",
+        "lp_duration", "lp_lower_bound", "lp_gap", "ranges": [{"omega_min", "omega_max",
+        "zeta", "vtol", "max_prv", "max_prv_eq187"}, ...]}`` (s, rad/s, fractions;
+        ``max_prv`` is the vibration left at the same instant, the constrained one).
 
     Examples
     --------
@@ -133,8 +141,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "one.toml"
     >>> _ = p.write_text("[[range]]\\nomega_min = 5.0\\nomega_max = 6.0\\nvtol = 0.05\\n")
     >>> out = run(argparse.Namespace(problem=str(p), plot=None), lambda m: None)
-    >>> sorted(out)
-    ['amplitudes', 'duration', 'ranges', 'times']
+    >>> sorted(out)[:5]
+    ['amplitudes', 'dt', 'duration', 'lp_duration', 'lp_gap']
     """
     path = Path(args.problem)
     data = read_toml(path)
@@ -156,16 +164,23 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         )
     ranges = ranges_from_mapping(data, str(path))
     log(f"designing an SI shaper for {len(ranges)} frequency range(s) from {path}")
-    result = si_shaper(ranges, time_limit=_time_limit(args))
+    dt = getattr(args, "dt", None)
+    if dt is not None:
+        dt = number(float(dt), "--dt", low=0.0, low_open=True, high=0.1)
+    result = si_shaper(ranges, time_limit=_time_limit(args), dt=dt)
     log(
         f"{len(result.shaper)} impulses, duration {result.duration:.6f} s, "
-        f"{result.iterations} NLP solve(s)"
+        f"{result.iterations} NLP solve(s), start: {result.start}"
+        + ("" if dt is None else f", on the {dt:g} s sample grid")
     )
+    if result.lp_gap is not None:
+        log(f"grid LP: optimum {result.lp_duration:.6f} s on a {result.lp_step:.3g} s grid, "
+            f"lower bound {result.lp_lower_bound:.6f} s (gap {100 * result.lp_gap:.2f} %)")
     _log_impulses(result.shaper, log)
-    for r, v in zip(result.ranges, result.max_prv, strict=True):
+    for r, v, v187 in zip(result.ranges, result.max_prv, result.max_prv_eq187, strict=True):
         log(
             f"  range {r.omega_min:.4f}-{r.omega_max:.4f} rad/s, zeta {r.zeta:g}: "
-            f"max V = {100 * v:.3f} % (Vtol {100 * r.vtol:.3f} %)"
+            f"max V = {100 * v:.3f} % (Vtol {100 * r.vtol:.3f} %; eq. 187: {100 * v187:.3f} %)"
         )
     if getattr(args, "plot", None):
         from casflex.plotting import plot_prv
@@ -186,6 +201,11 @@ def _shaper_json(result):
         "times": result.shaper.times.tolist(),
         "amplitudes": result.shaper.amplitudes.tolist(),
         "duration": result.duration,
+        "dt": result.lp_step if result.start == "digital" else None,
+        "start": result.start,
+        "lp_duration": result.lp_duration,
+        "lp_lower_bound": result.lp_lower_bound,
+        "lp_gap": result.lp_gap,
         "ranges": [
             {
                 "omega_min": r.omega_min,
@@ -193,8 +213,10 @@ def _shaper_json(result):
                 "zeta": r.zeta,
                 "vtol": r.vtol,
                 "max_prv": float(v),
+                "max_prv_eq187": float(v187),
             }
-            for r, v in zip(result.ranges, result.max_prv, strict=True)
+            for r, v, v187 in zip(result.ranges, result.max_prv, result.max_prv_eq187,
+                                  strict=True)
         ],
     }
 
@@ -245,7 +267,8 @@ def _run_robot(args, path, log):
                     high_open=True)
     vtol = number(float(getattr(args, "vtol", 0.05)), "--vtol", low=0.0, low_open=True,
                   high=1.0)
-    dt = number(float(getattr(args, "dt", 1e-3)), "--dt", low=0.0, low_open=True, high=0.1)
+    dt = getattr(args, "dt", None)
+    dt = number(float(1e-3 if dt is None else dt), "--dt", low=0.0, low_open=True, high=0.1)
     step = getattr(args, "step", None)
     step = None if step is None else parse_angle(step, "--step")
     model, result = shaper_for_robot_move(

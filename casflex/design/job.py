@@ -149,7 +149,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     say("frequencies and modal contributions along the move; SI shaper (Ipopt) ...")
     design = shaping.shaper_for_move(model, move, vtol=study.shaper["vtol"],
                                      margin=study.shaper["margin"],
-                                     n_samples=study.shaper["n_samples"])
+                                     n_samples=study.shaper["n_samples"],
+                                     dt=dt)  # impulses on the loop's sample grid
     t_f, omega_along = shaping.frequencies_along(model, move,
                                                  n_samples=study.shaper["n_samples"])
     timings["shaper_s"] = time.perf_counter() - t0

@@ -12,7 +12,8 @@ Shapers and residual vibration (:mod:`casflex.shaping.shapers`)
 Shaper                      impulse times (s) and amplitudes (sum 1)
 convolve                    multi-mode shaper from several shapers
 merge_closest               closest impulses merged down to a number of impulses
-residual_vibration          PRV fraction V(ω, ζ) of a shaper (eq. 187–189)
+residual_vibration          PRV fraction V(ω, ζ) of a shaper (eq. 187–189, or same instant)
+DEFINITIONS                 the two definitions of V: "eq187", "same_instant"
 residual_vibration_casadi   the same as a CasADi expression (for NLPs)
 sensitivity_curve           V over a band of frequencies
 band_maximum                largest V over a band (grid refined at its maxima)
@@ -24,6 +25,12 @@ zvd                         zero vibration and derivative
 ei                          extra-insensitive
 ei_two_hump                 two-hump extra-insensitive
 ei_three_hump               three-hump extra-insensitive
+
+More closed-form shapers (:mod:`casflex.shaping.family`)
+--------------------------------------------------------
+mzv                         modified ZV: three impulses 3/8 of a damped period apart
+um_zv                       unity-magnitude (negative) ZV: impulses +1, -1, +1
+UM_ZV_PEAK_FACTOR           bound of a UM-ZV-shaped command's peak over the unshaped one
 
 Shaping a reference (:mod:`casflex.shaping.shapers`)
 ----------------------------------------------------
@@ -47,6 +54,15 @@ DEFAULT_TIME_LIMIT          default wall-clock limit of an SI design, s
 HESSIAN_TERMS_PER_SECOND    NLP size allowed per second of the time limit left
 si_shaper                   SI design: solves, prune-and-merge, dense-grid verification
 si_shaper_slsqp             the same with SciPy's SLSQP
+LP_GRID_STEPS               steps of the grid LP's time grid up to its horizon
+LP_MAX_SAMPLES              most samples for which the grid LP start is tried
+LP_TIME_SHARE               share of the time limit the grid LP search may use
+
+Shapers on a time grid (:mod:`casflex.shaping.grid_lp`)
+-------------------------------------------------------
+GridOptimum                 the shortest shaper on a time grid, with its lower bound
+grid_optimum                bisection on the duration, one cutting-plane LP per duration
+grid_feasible               one feasibility LP on a given grid
 
 Shapers for planned moves (:mod:`casflex.shaping.for_moves`)
 ------------------------------------------------------------
@@ -64,6 +80,7 @@ residual_amplitude          largest deflection after the move
 
 from __future__ import annotations
 
+from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, um_zv
 from casflex.shaping.for_moves import (
     MoveShaperResult,
     frequencies_along,
@@ -76,8 +93,10 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
+from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_optimum
 from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
+    DEFINITIONS,
     Shaper,
     apply_shaper,
     band_maximum,
@@ -96,6 +115,9 @@ from casflex.shaping.si import (
     DEFAULT_TIME_LIMIT,
     GUESS_MAX_IMPULSES,
     HESSIAN_TERMS_PER_SECOND,
+    LP_GRID_STEPS,
+    LP_MAX_SAMPLES,
+    LP_TIME_SHARE,
     NLPSolution,
     SISample,
     SIShaperResult,
@@ -111,6 +133,7 @@ __all__ = [
     "convolve",
     "merge_closest",
     "residual_vibration",
+    "DEFINITIONS",
     "residual_vibration_casadi",
     "sensitivity_curve",
     "band_maximum",
@@ -120,6 +143,9 @@ __all__ = [
     "ei",
     "ei_two_hump",
     "ei_three_hump",
+    "mzv",
+    "um_zv",
+    "UM_ZV_PEAK_FACTOR",
     # shaping a reference
     "apply_shaper",
     # specified-insensitivity shapers
@@ -136,6 +162,13 @@ __all__ = [
     "HESSIAN_TERMS_PER_SECOND",
     "si_shaper",
     "si_shaper_slsqp",
+    "LP_GRID_STEPS",
+    "LP_MAX_SAMPLES",
+    "LP_TIME_SHARE",
+    # shapers on a time grid
+    "GridOptimum",
+    "grid_optimum",
+    "grid_feasible",
     # shapers for planned moves
     "modal_displacements",
     "modal_contributions",

@@ -39,6 +39,7 @@ __all__ = [
     "convolve",
     "merge_closest",
     "residual_vibration",
+    "DEFINITIONS",
     "residual_vibration_casadi",
     "sensitivity_curve",
     "band_maximum",
@@ -370,9 +371,21 @@ def as_shaper(shaper: Shaper | tuple[ArrayLike, ArrayLike]) -> Shaper:
     return Shaper(times, amplitudes)
 
 
+#: The two definitions of the residual vibration fraction (see :func:`residual_vibration`).
+DEFINITIONS = ("eq187", "same_instant")
+
+
+def _definition(definition):
+    if definition not in DEFINITIONS:
+        raise ProblemFileError(None, "definition", definition,
+                               f"must be one of {', '.join(DEFINITIONS)}")
+    return definition == "same_instant"
+
+
 def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: ArrayLike,
-                       zeta: ArrayLike = 0.0) -> float | np.ndarray:
-    """Residual vibration fraction V(ω, ζ) of a shaper (eq. 187–189).
+                       zeta: ArrayLike = 0.0, *, definition: str = "eq187"
+                       ) -> float | np.ndarray:
+    """Residual vibration fraction V(ω, ζ) of a shaper (eq. 187–189, or at the same instant).
 
     ``V = exp(-ζ ω t_n) * sqrt(C² + S²)`` with
     ``C = Σ A_i exp(ζ ω t_i) cos(ω sqrt(1-ζ²) t_i)`` and ``S`` the same with ``sin``: the
@@ -384,6 +397,13 @@ def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: Arra
     The dissertation calls it the percentage residual vibration (PRV); here it is a fraction
     (0.05 means 5 %).
 
+    With ``definition="same_instant"`` the factor ``exp(-ζ ω t_n)`` is dropped:
+    ``V = sqrt(C² + S²)`` is the residual oscillation of the shaped command divided by that
+    of the unshaped command (a unit step at t = 0) *at the same instant*, the same ratio at
+    every time after the last impulse. It is never smaller than eq. 187's value (equal when
+    undamped), and unlike eq. 187 it cannot be lowered by a tiny late impulse that only
+    postpones ``t_n``: that is why the SI design constrains it (:func:`casflex.shaping.si_shaper`).
+
     Parameters
     ----------
     shaper : Shaper or (times, amplitudes)
@@ -392,6 +412,9 @@ def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: Arra
         Natural frequency (frequencies), rad/s.
     zeta : float or array_like, optional
         Damping ratio(s), broadcast against ``omega``.
+    definition : {"eq187", "same_instant"}, optional
+        Normalisation of eq. 187 (default), or relative to the unshaped response at the
+        same instant.
 
     Returns
     -------
@@ -405,7 +428,16 @@ def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: Arra
     0.0
     >>> residual_vibration(s, [5.0, 10.0]).shape
     (2,)
+
+    A tiny late impulse shrinks eq. 187's V, not the vibration left at the same instant:
+
+    >>> late = Shaper([0.0, 0.064, 2.59], [0.5135, 0.485, 0.0015])
+    >>> round(float(residual_vibration(late, 162.6, 0.005)), 3)
+    0.059
+    >>> round(float(residual_vibration(late, 162.6, 0.005, definition="same_instant")), 3)
+    0.487
     """
+    same_instant = _definition(definition)
     shaper = as_shaper(shaper)
     omega_b, zeta_b = np.broadcast_arrays(
         np.asarray(omega, dtype=float), np.asarray(zeta, dtype=float)
@@ -413,7 +445,7 @@ def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: Arra
     w = omega_b.reshape(-1, 1)
     z = zeta_b.reshape(-1, 1)
     t = shaper.times.reshape(1, -1)
-    tn = shaper.times[-1]
+    tn = 0.0 if same_instant else shaper.times[-1]
     wd = w * np.sqrt(1.0 - z**2)
     decay = np.exp(-z * w * (tn - t))
     c = (shaper.amplitudes * decay * np.cos(wd * t)).sum(axis=1)
@@ -425,7 +457,8 @@ def residual_vibration(shaper: Shaper | tuple[ArrayLike, ArrayLike], omega: Arra
 def residual_vibration_casadi(times: ca.SX | ca.MX | ca.DM | ArrayLike,
                               amplitudes: ca.SX | ca.MX | ca.DM | ArrayLike,
                               omega: ArrayLike, zeta: ArrayLike = 0.0,
-                              squared: bool = False) -> ca.SX | ca.MX | ca.DM:
+                              squared: bool = False, *, definition: str = "eq187"
+                              ) -> ca.SX | ca.MX | ca.DM:
     """CasADi expression of the residual vibration fraction V(ω, ζ) (eq. 187–189).
 
     The impulse times must be ordered so that the last entry is the last impulse.
@@ -440,6 +473,8 @@ def residual_vibration_casadi(times: ca.SX | ca.MX | ca.DM | ArrayLike,
         Damping ratio(s), broadcast against ``omega``.
     squared : bool, optional
         Return V² instead of V (smooth everywhere; preferable as an NLP constraint).
+    definition : {"eq187", "same_instant"}, optional
+        See :func:`residual_vibration`.
 
     Returns
     -------
@@ -464,6 +499,7 @@ def residual_vibration_casadi(times: ca.SX | ca.MX | ca.DM | ArrayLike,
             return ca.vertcat(*x)
         return ca.DM(np.asarray(x, dtype=float).reshape(-1, 1))
 
+    same_instant = _definition(definition)
     t = _col(times)
     a = _col(amplitudes)
     n = t.numel()
@@ -473,7 +509,7 @@ def residual_vibration_casadi(times: ca.SX | ca.MX | ca.DM | ArrayLike,
     w = ca.DM(omega_b.reshape(-1, 1))
     zw = ca.DM((zeta_b * omega_b).reshape(-1, 1))
     wd = ca.DM((omega_b * np.sqrt(1.0 - zeta_b**2)).reshape(-1, 1))
-    tn = t[n - 1]
+    tn = 0.0 if same_instant else t[n - 1]
     ones_row = ca.DM.ones(1, n)
     phase = ca.mtimes(wd, t.T)  # (m, n)
     decay = ca.exp(-ca.mtimes(zw, ones_row) * (tn - ca.mtimes(ca.DM.ones(w.numel(), 1), t.T)))
@@ -517,7 +553,8 @@ def sensitivity_curve(shaper: Shaper, omega_min: float, omega_max: float, zeta: 
 
 
 def band_maximum(shaper: Shaper, omega_min: float, omega_max: float, zeta: float = 0.0,
-                 n_refine: int = 6) -> tuple[float, list[tuple[float, float]]]:
+                 n_refine: int = 6, *, definition: str = "eq187"
+                 ) -> tuple[float, list[tuple[float, float]]]:
     """Largest residual vibration over a band: dense grid refined at its local maxima.
 
     V oscillates in ω with a period of about 2π / duration; the grid has about 40 points
@@ -533,6 +570,8 @@ def band_maximum(shaper: Shaper, omega_min: float, omega_max: float, zeta: float
         Damping ratio.
     n_refine : int, optional
         Number of grid maxima refined.
+    definition : {"eq187", "same_instant"}, optional
+        See :func:`residual_vibration`.
 
     Returns
     -------
@@ -548,14 +587,14 @@ def band_maximum(shaper: Shaper, omega_min: float, omega_max: float, zeta: float
     (0.1564, [9.0, 11.0])
     """
     if omega_max == omega_min:
-        v = residual_vibration(shaper, omega_min, zeta)
+        v = residual_vibration(shaper, omega_min, zeta, definition=definition)
         return v, [(omega_min, v)]
     width = omega_max - omega_min
     # V oscillates in ω with a period of about 2π / duration: ~40 points per period
     per = 2.0 * math.pi / max(shaper.duration, 1e-9)
     npts = int(min(20000, max(400, 40.0 * width / per)))
     w = np.linspace(omega_min, omega_max, npts)
-    v = residual_vibration(shaper, w, zeta)
+    v = residual_vibration(shaper, w, zeta, definition=definition)
     peaks_idx = [0, npts - 1]
     interior = np.nonzero((v[1:-1] >= v[:-2]) & (v[1:-1] >= v[2:]))[0] + 1
     peaks_idx.extend(interior.tolist())
@@ -566,7 +605,7 @@ def band_maximum(shaper: Shaper, omega_min: float, omega_max: float, zeta: float
             peaks.append((w[i], v[i]))
             continue
         res = optimize.minimize_scalar(
-            lambda om: -residual_vibration(shaper, om, zeta),
+            lambda om: -residual_vibration(shaper, om, zeta, definition=definition),
             bounds=(w[i - 1], w[i + 1]),
             method="bounded",
             options={"xatol": 1e-10 * max(1.0, w[i])},

@@ -51,8 +51,8 @@ def test_si_three_ranges_dissertation_example():
     assert np.all(res.shaper.amplitudes >= 0)
     assert res.shaper.amplitudes.sum() == pytest.approx(1.0, abs=1e-12)
     for r, vmax in zip(ranges, res.max_prv, strict=True):
-        assert dense_max(res.shaper, r) <= r.vtol + 1e-6
-        assert vmax <= r.vtol + 1e-6
+        assert dense_max(res.shaper, r) <= r.vtol
+        assert vmax <= r.vtol
     assert all(s in ("Solve_Succeeded", "Solved_To_Acceptable_Level") for s in res.statuses)
     assert res.iterations == len(res.statuses)
 
@@ -66,7 +66,7 @@ def test_si_optimal_vtol_cases(vtols, bound):
     res = si_shaper(ranges)
     assert res.duration <= bound
     for r in ranges:
-        assert dense_max(res.shaper, r) <= r.vtol + 1e-6
+        assert dense_max(res.shaper, r) <= r.vtol
 
 
 def test_si_single_range_is_ei_like():
@@ -80,8 +80,9 @@ def test_si_single_range_is_ei_like():
 def test_si_damped_range_and_unconstrained_range():
     ranges = [FrequencyRange(8.0, 10.0, 0.1, 0.05), FrequencyRange(30.0, 40.0, 0.02, 1.0)]
     res = si_shaper(ranges)
-    assert dense_max(res.shaper, ranges[0]) <= 0.05 + 1e-6
+    assert dense_max(res.shaper, ranges[0]) <= 0.05
     assert res.max_prv.shape == (2,)
+    assert np.all(res.max_prv_eq187 <= res.max_prv)
 
 
 def test_slsqp_same_formulation_same_optimum():
@@ -187,3 +188,45 @@ def test_shipped_problem_matches_text():
     ]
 
 
+
+
+# ------------------------------------------------------ the definition that cannot be gamed
+def vibration_left(times, amplitudes, omega, zeta):
+    """Residual oscillation after the last impulse over the unshaped one at that instant:
+    both decay as exp(-ζωt), so the ratio is |Σ A_k exp(ζω t_k) exp(iω_d t_k)|."""
+    s = zeta * omega + 1j * omega * math.sqrt(1.0 - zeta**2)
+    return np.abs(np.exp(np.outer(s, times)) @ amplitudes)
+
+
+def test_trailing_impulse_cannot_meet_the_tolerance():
+    """The issue's 2.59 s shaper meets eq. 187 through exp(-ζωt_n) alone."""
+    gamed = ([0.0, 0.064, 2.59], [0.5135, 0.485, 0.0015])
+    w = np.linspace(137.13, 162.60, 2001)
+    assert residual_vibration(gamed, w, 0.005).max() < 0.06  # eq. 187: looks fine
+    left = vibration_left(np.array(gamed[0]), np.array(gamed[1]), w, 0.005)
+    assert left.max() > 0.45  # but nearly half the vibration is left
+    np.testing.assert_allclose(
+        residual_vibration(gamed, w, 0.005, definition="same_instant"), left, rtol=1e-12)
+    res = si_shaper([FrequencyRange(137.13, 162.60, 0.005, 0.0567)])
+    assert res.duration < 0.036  # the grid optimum is 0.0357 s (issue)
+    t, a = res.shaper.times, res.shaper.amplitudes
+    assert vibration_left(t, a, w, 0.005).max() <= 0.0567
+
+
+def test_definition_is_checked():
+    with pytest.raises(ProblemFileError, match="definition"):
+        residual_vibration(([0.0], [1.0]), 1.0, definition="eq188")
+
+
+def test_ei_start_keeps_the_dissertation_algorithm():
+    res = si_shaper(three_ranges(), start="ei")
+    assert res.start == "ei" and res.lp_gap is None
+    assert res.duration <= 0.3192 + 1e-9
+    lp = si_shaper(three_ranges())
+    assert lp.start == "lp"
+    # the LP's lower bound holds for shapers on its grid: a free shaper can beat it by
+    # less than one grid step
+    assert lp.lp_lower_bound - lp.lp_step <= lp.duration <= lp.lp_duration
+    assert lp.lp_gap == pytest.approx(lp.duration / lp.lp_lower_bound - 1.0)
+    with pytest.raises(ProblemFileError, match="start"):
+        si_shaper(three_ranges(), start="zv")

@@ -1,0 +1,117 @@
+"""More closed-form shapers: modified ZV (MZV) and unity-magnitude (negative) ZV.
+
+* :func:`mzv`: three positive impulses 3/8 of a damped period apart with zero residual
+  vibration at the design frequency; shorter than ZVD (3/4 of a period instead of one)
+  and less sensitive than ZV.
+* :func:`um_zv`: the unity-magnitude ZV shaper, impulses ``+1, -1, +1``: a step command
+  shaped by it switches between the full command and zero (an on-off actuator can run it),
+  and it is the shortest shaper with zero vibration whose partial sums stay in [0, 1]
+  (one third of a period undamped).
+
+**Peak-input limit of negative shapers.** A shaper with negative impulses applied to a
+command ``u(t)`` gives ``Σ A_i u(t - t_i)``, bounded by ``Σ |A_i|`` times the peak of
+``|u|`` (3 for UM-ZV): only for a step (or a command that is constant over the shaper's
+duration) do the partial sums ``1, 0, 1`` bound it by the command itself. Shaping a
+planned joint move with UM-ZV can therefore demand up to three times the move's peak
+velocity and acceleration; positive shapers never exceed the unshaped peaks.
+
+The multi-mode shaper of several of these is their convolution
+(:func:`~casflex.shaping.convolve`). Units: rad/s, s; damping ratios dimensionless.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+from scipy import optimize
+
+from casflex._validate import fail
+from casflex.errors import ProblemFileError
+from casflex.shaping.shapers import Shaper, check_omega, check_zeta
+
+__all__ = ["mzv", "um_zv", "UM_ZV_PEAK_FACTOR"]
+
+#: Bound of the shaped command's peak over the unshaped one for UM-ZV (Σ |A_i|).
+UM_ZV_PEAK_FACTOR = 3.0
+
+
+def mzv(omega: float, zeta: float = 0.0) -> Shaper:
+    """Modified zero-vibration (MZV) shaper: three impulses 3/8 of a damped period apart.
+
+    Amplitudes ``[1 - 1/√2, (√2 - 1) K, (1 - 1/√2) K²]`` normalised to sum 1, with
+    ``K = exp(-0.75 ζ π / sqrt(1-ζ²))``, at ``0, 3T_d/8, 3T_d/4``
+    (``T_d = 2π / (ω sqrt(1-ζ²))``): the residual vector ``Σ A_i exp(ζω t_i + iω_d t_i)``
+    vanishes at ω (the phases 0°, 135°, 270° with amplitudes 1 : √2 : 1 close a triangle).
+
+    Parameters
+    ----------
+    omega : float
+        Natural frequency, rad/s.
+    zeta : float, optional
+        Damping ratio, 0 <= zeta < 1.
+
+    Returns
+    -------
+    Shaper
+
+    Examples
+    --------
+    >>> s = mzv(2 * math.pi)
+    >>> s.times.tolist(), s.amplitudes.round(4).tolist()
+    ([0.0, 0.375, 0.75], [0.2929, 0.4142, 0.2929])
+    """
+    omega = check_omega(omega)
+    zeta = check_zeta(zeta)
+    root = math.sqrt(1.0 - zeta**2)
+    k = math.exp(-0.75 * zeta * math.pi / root)
+    a1 = 1.0 - 1.0 / math.sqrt(2.0)
+    amps = [a1, (math.sqrt(2.0) - 1.0) * k, a1 * k * k]
+    total = sum(amps)
+    step = 0.75 * math.pi / (omega * root)
+    return Shaper([0.0, step, 2.0 * step], [a / total for a in amps])
+
+
+def um_zv(omega: float, zeta: float = 0.0) -> Shaper:
+    """Unity-magnitude zero-vibration shaper: impulses ``+1, -1, +1`` (sum 1).
+
+    Undamped the impulses are at ``0, T/6, T/3``. With damping the amplitudes stay
+    ``±1`` and the times solve ``1 - exp(s t2) + exp(s t3) = 0`` (``s = ζω + iω_d``): for
+    a real ``t3 = log(exp(s t2) - 1) / s`` the imaginary part must vanish, a scalar root
+    in ``t2`` found by Brent's method between the undamped value and half a period. See the
+    module docstring for the peak-input limit (:data:`UM_ZV_PEAK_FACTOR`).
+
+    Parameters
+    ----------
+    omega : float
+        Natural frequency, rad/s.
+    zeta : float, optional
+        Damping ratio, 0 <= zeta < 0.5.
+
+    Returns
+    -------
+    Shaper
+
+    Examples
+    --------
+    >>> s = um_zv(2 * math.pi)
+    >>> s.times.round(6).tolist(), s.amplitudes.tolist()
+    ([0.0, 0.166667, 0.333333], [1.0, -1.0, 1.0])
+    """
+    omega = check_omega(omega)
+    zeta = check_zeta(zeta)
+    if zeta == 0.0:
+        period = 2.0 * math.pi / omega
+        return Shaper([0.0, period / 6.0, period / 3.0], [1.0, -1.0, 1.0])
+    if zeta >= 0.5:
+        raise fail("zeta", zeta, "must be < 0.5 for the unity-magnitude ZV shaper",
+                   error=ProblemFileError)
+    wd = omega * math.sqrt(1.0 - zeta**2)
+    s = complex(zeta * omega, wd)
+
+    def t3_of(t2):
+        return cmath.log(cmath.exp(s * t2) - 1.0) / s
+
+    t2 = optimize.brentq(lambda x: t3_of(x).imag, 1e-3 * math.pi / wd, math.pi / wd,
+                         xtol=1e-15, rtol=1e-15)
+    return Shaper([0.0, t2, t3_of(t2).real], [1.0, -1.0, 1.0])
