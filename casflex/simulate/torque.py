@@ -557,10 +557,13 @@ def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, kd, jump, e
     if not isinstance(ekf, ca.Function):
         raise ModelError("loop='mapaccum' needs the estimator's 'step' as a casadi.Function "
                          "(casflex.estimation.ekf_step_function)")
-    step = _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny,
-                                  ddq_source)
-    if jit is not False:
-        step = _compiled_sample_step(step, jit, cache_dir)
+    if jit is False:
+        step = _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny,
+                                      ddq_source)
+    else:
+        step = _compiled_sample_step(
+            _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny,
+                                   ddq_source, ca.MX), jit, cache_dir)
     return _estimator_mapaccum(step, model, x0, t, kd, jump, noise, xprior0, P0)
 
 
@@ -618,16 +621,19 @@ def _estimator_python(model, controller, ref, x0, t, dt, substeps, kd, jump, ekf
     return X, TAU, XH
 
 
-def _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny, ddq_source):
+def _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny, ddq_source,
+                           sym=ca.SX):
     """One sample of the loop with the EKF as one SX Function
     ``(s_k, t_k, noise_k) -> (s_{k+1}, x̂_{k|k}, τ_k)``, with the carried state
     ``s = [x; x̂_prior; vec P; q̈_prev; q̇_prev]`` (``q̇_prev``: the joint rates of the
-    previous sample, for the backward difference)."""
+    previous sample, for the backward difference). ``sym=ca.SX`` inlines everything (the
+    fastest in CasADi's VM); ``ca.MX`` keeps calls to the model's, the controller's and
+    the EKF's Functions (built in milliseconds instead of seconds, for compiling)."""
     n, m = model.n, model.m
     nx, nh = 2 * (n + m), 2 * m
-    s = ca.SX.sym("s", nx + nh + nh * nh + 2 * n)
-    t_s = ca.SX.sym("t")
-    e = ca.SX.sym("noise", ny)
+    s = sym.sym("s", nx + nh + nh * nh + 2 * n)
+    t_s = sym.sym("t")
+    e = sym.sym("noise", ny)
     x = s[:nx]
     xprior = s[nx:nx + nh]
     P = ca.reshape(s[nx + nh:nx + nh + nh * nh], nh, nh)
@@ -643,7 +649,7 @@ def _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny, ddq
     xn, tau, acc = _plant_sample(model, controller, ref, dt, substeps, x, xpost, t_s)
     s_next = ca.vertcat(xn, out[0], ca.reshape(out[1], nh * nh, 1), acc, dq)
     return ca.Function("casflex_closed_loop_ekf", [s, t_s, e], [s_next, xpost, tau],
-                       {"cse": True})
+                       {"cse": sym is ca.SX})
 
 
 def _compiled_sample_step(step, jit, cache_dir):
