@@ -12,8 +12,10 @@ The machinery: :func:`~casflex.simulate.integrators.rk4_interval` (RK4 substeps 
 sample with the one :func:`~casflex.simulate.integrators.rk4_step`), :func:`impulse_jump`
 (the state after an impulsive tip force), and three runners — a ``mapaccum`` of a
 symbolic sample step over the grid (split at the impulse), a loop over the samples for
-laws that run in Python (callables, the estimator), and an adaptive CasADi integrator
-restarted at the switches.
+laws that run in Python (callables, an estimator step that is not a ``casadi.Function``),
+and an adaptive CasADi integrator restarted at the switches. With an EKF in the loop the
+sample step (measurements, EKF update, controller, plant RK4) is one Function whose
+carried state holds the filter's prior and covariance, optionally compiled to C.
 """
 
 from __future__ import annotations
