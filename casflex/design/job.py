@@ -183,7 +183,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                  "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
                  "ddq": "difference"}
     loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
-                                estimator=estimator, sampled=True)
+                                estimator=estimator, sampled=True,  # compiled when C is wanted
+                                jit=study.codegen["compile"], cache_dir=cache_dir)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite:

@@ -12,15 +12,18 @@ The machinery: :func:`~casflex.simulate.integrators.rk4_interval` (RK4 substeps 
 sample with the one :func:`~casflex.simulate.integrators.rk4_step`), :func:`impulse_jump`
 (the state after an impulsive tip force), and three runners — a ``mapaccum`` of a
 symbolic sample step over the grid (split at the impulse), a loop over the samples for
-laws that run in Python (callables, the estimator), and an adaptive CasADi integrator
-restarted at the switches.
+laws that run in Python (callables, an estimator step that is not a ``casadi.Function``),
+and an adaptive CasADi integrator restarted at the switches. With an EKF in the loop the
+sample step (measurements, EKF update, controller, plant RK4) is one Function whose
+carried state holds the filter's prior and covariance, optionally compiled to C.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import casadi as ca
@@ -372,7 +375,9 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
                          impulse: tuple[float, ArrayLike] | None = None,
                          method: str = "cvodes", substeps: int = 1, sampled: bool = False,
                          estimator: dict | None = None, rtol: float = 1e-8,
-                         atol: float = 1e-10) -> ClosedLoopResult:
+                         atol: float = 1e-10, loop: str = "auto",
+                         jit: bool | str | Sequence[str] = False,
+                         cache_dir: str | os.PathLike | None = None) -> ClosedLoopResult:
     """Simulate the model under a tracking controller.
 
     By default the control law acts continuously, as in the dissertation's simulations,
@@ -425,6 +430,18 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
         ``[q, δ̂, q̇, δ̂̇]`` with the filtered estimate ``x̂_{k|k}``.
     rtol, atol : float
         CVODES tolerances.
+    loop : {"auto", "mapaccum", "python"}
+        With an estimator: one CasADi Function per sample (plant RK4, controller,
+        measurements, EKF update) run by ``mapaccum`` over the samples, or the loop over
+        the samples in Python (needed when ``estimator["step"]`` is a Python callable);
+        ``"auto"``: ``mapaccum`` when the step is a ``casadi.Function``. Both give the
+        same numbers to round-off.
+    jit : bool or str or sequence of str
+        With ``loop="mapaccum"``: compile the sample Function to C
+        (:func:`casflex.codegen.jit.compile_cached`; ``True`` is ``-O1``, or the compiler
+        flags), kept in the on-disk cache so a later run only loads it.
+    cache_dir : str or pathlib.Path, optional
+        Cache root of the compiled library (default the casflex cache directory).
 
     Returns
     -------
@@ -448,6 +465,8 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
     dt = float(dt)
     if method not in ("cvodes", "rk4"):
         raise ModelError(f"method must be 'cvodes' or 'rk4'; got {method!r}")
+    if loop not in ("auto", "mapaccum", "python"):
+        raise ModelError(f"loop must be 'auto', 'mapaccum' or 'python'; got {loop!r}")
     t, N = time_grid(0.0, move.t_end if t_end is None else float(t_end), dt)
     if x0 is None:
         x0 = np.r_[move.q0, np.zeros(m), np.zeros(n), np.zeros(m)]
@@ -483,7 +502,8 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
         X, tau_all = _run_mapaccum(step, x0, t, kd, jump)
     else:
         X, tau_all, x_hat = _run_with_estimator(model, controller, ref, x0, t, dt,
-                                                substeps, kd, jump, estimator)
+                                                substeps, kd, jump, estimator, loop, jit,
+                                                cache_dir)
     hint = (f"an unstable closed loop, or dt = {dt} s too large for the highest mode (RK4 "
             "needs omega dt < 2.8)")
     check_divergence("simulate_closed_loop", t, {"q": X[:, :n], "delta": X[:, n:n + m],
@@ -497,18 +517,17 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
                             n=n, m=m, x_hat=x_hat)
 
 
-def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, kd, jump, est):
-    """Sampled closed loop with an EKF between plant and controller."""
+def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, kd, jump, est, loop,
+                        jit, cache_dir):
+    """Sampled closed loop with an EKF between plant and controller: the sample step in
+    Python (``loop="python"``) or one CasADi Function per sample under ``mapaccum``."""
     from casflex.sensors import measurement_function
 
-    n, m = model.n, model.m
-    nx = 2 * (n + m)
-    ode = model.functions()["ode"]
+    m = model.m
     ekf = est["step"]
     sensors = est["sensors"]
     h = measurement_function(model, sensors)
     ny = sensors.n_outputs
-    rng = np.random.default_rng(est.get("seed", 0))
     ddq_source = est.get("ddq", "plant")
     if ddq_source not in ("plant", "difference"):
         raise ModelError(f"estimator['ddq'] must be 'plant' or 'difference'; got "
@@ -519,49 +538,168 @@ def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, kd, jump, e
         if noise.shape != (t.size, ny):
             raise ModelError(f"estimator['noise']: expected shape {(t.size, ny)} (one row "
                              f"of {ny} signals per sample); got {noise.shape}")
-    Rn = est.get("R")
-    Lr = None if Rn is None else np.linalg.cholesky(
-        np.atleast_2d(np.asarray(Rn, dtype=float)) * np.eye(ny) if np.ndim(Rn) < 2
-        else np.asarray(Rn, dtype=float))
-    # one sample: torque from (reference, plant joints, estimate), then RK4 of the plant
-    t_s = ca.SX.sym("t")
-    x_s = ca.SX.sym("x", nx)
-    xh = ca.SX.sym("xh", 2 * m)
+    else:
+        Rn = est.get("R")
+        if Rn is None:
+            noise = np.zeros((t.size, ny))
+        else:
+            Lr = np.linalg.cholesky(
+                np.atleast_2d(np.asarray(Rn, dtype=float)) * np.eye(ny) if np.ndim(Rn) < 2
+                else np.asarray(Rn, dtype=float))
+            # one draw of ny per sample, in sample order (as many calls of size ny would)
+            draws = np.random.default_rng(est.get("seed", 0)).standard_normal((t.size, ny))
+            noise = np.array([Lr @ z for z in draws])
+    xprior0 = np.asarray(est.get("x0", np.zeros(2 * m)), dtype=float).ravel()
+    P0 = np.asarray(est.get("P0", np.eye(2 * m) * 1e-4), dtype=float)
+    if loop == "auto":
+        loop = "mapaccum" if isinstance(ekf, ca.Function) else "python"
+    if loop == "python":
+        return _estimator_python(model, controller, ref, x0, t, dt, substeps, kd, jump, ekf,
+                                 h, noise, ddq_source, xprior0, P0)
+    if not isinstance(ekf, ca.Function):
+        raise ModelError("loop='mapaccum' needs the estimator's 'step' as a casadi.Function "
+                         "(casflex.estimation.ekf_step_function)")
+    if jit is False:
+        step = _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny,
+                                      ddq_source)
+    else:
+        step = _compiled_sample_step(
+            _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny,
+                                   ddq_source, ca.MX), jit, cache_dir)
+    return _estimator_mapaccum(step, model, x0, t, kd, jump, noise, xprior0, P0)
+
+
+def _plant_sample(model, controller, ref, dt, substeps, x_s, xh, t_s):
+    """Torque from (reference, plant joints, estimate ``xh``) held over one sample, the
+    plant's RK4 over it, and its joint accelerations just before the next sample."""
+    n, m = model.n, model.m
+    ode = model.functions()["ode"]
     xc = ca.vertcat(x_s[:n], xh[:m], x_s[n + m:2 * n + m], xh[m:])
     tau = controller(*ref(t_s), xc)
     xn = rk4_interval(lambda xx, s: ode(xx, tau), x_s, t_s, dt, substeps)
     acc = ode(xn, tau)[n + m:2 * (n + m)]  # what the sensors see just before t_{k+1}
-    plant_step = ca.Function("plant_step", [x_s, xh, t_s], [xn, tau, acc], {"cse": True})
+    return xn, tau, acc[:n]
+
+
+def _estimator_python(model, controller, ref, x0, t, dt, substeps, kd, jump, ekf, h, noise,
+                      ddq_source, xprior0, P0):
+    """The loop over the samples in Python (an estimator step that is not a Function)."""
+    n, m = model.n, model.m
+    nx = 2 * (n + m)
+    t_s = ca.SX.sym("t")
+    x_s = ca.SX.sym("x", nx)
+    xh = ca.SX.sym("xh", 2 * m)
+    plant_step = ca.Function("plant_step", [x_s, xh, t_s],
+                             list(_plant_sample(model, controller, ref, dt, substeps, x_s,
+                                                xh, t_s)), {"cse": True})
+    ny = noise.shape[1]
     N = t.size - 1
     TAU = np.zeros((N + 1, n))
     XH = np.zeros((N + 1, 2 * m))
-    loop = {"xprior": np.asarray(est.get("x0", np.zeros(2 * m)), dtype=float),
-            "P": np.asarray(est.get("P0", np.eye(2 * m) * 1e-4), dtype=float),
-            "ddq_prev": np.zeros(n)}
+    state = {"xprior": xprior0, "P": P0, "ddq_prev": np.zeros(n)}
     mask = np.ones(ny)
 
     def sample(k, X):
         x = X[k].copy()
-        u = np.r_[x[:n], x[n + m:2 * n + m], loop["ddq_prev"]]
-        y = np.asarray(h(np.r_[x[n:n + m], x[2 * n + m:]], u)[-1]).ravel()
-        if noise is not None:
-            y = y + noise[k]
-        elif Lr is not None:
-            y = y + Lr @ rng.standard_normal(ny)
+        u = np.r_[x[:n], x[n + m:2 * n + m], state["ddq_prev"]]
+        y = np.asarray(h(np.r_[x[n:n + m], x[2 * n + m:]], u)[-1]).ravel() + noise[k]
         if ddq_source == "difference":
             dq_k = x[n + m:2 * n + m]
             u = np.r_[x[:n], dq_k, (dq_k - (X[k - 1, n + m:2 * n + m] if k else dq_k)) / dt]
-        xprior_next, loop["P"], xpost = ekf(loop["xprior"], loop["P"], u, y, mask)
-        xpost = np.asarray(xpost).ravel()
+        out = ekf(state["xprior"], state["P"], u, y, mask)
+        xpost = np.asarray(out[2]).ravel()
         XH[k] = xpost
         if k == N:
             return None
         xn_, tau_, acc_ = plant_step(x, xpost, t[k])
         TAU[k] = np.asarray(tau_).ravel()
-        loop["ddq_prev"] = np.asarray(acc_).ravel()[:n]
-        loop["xprior"] = np.asarray(xprior_next).ravel()
+        state["ddq_prev"] = np.asarray(acc_).ravel()
+        state["xprior"] = np.asarray(out[0]).ravel()
+        state["P"] = out[1]
         return np.asarray(xn_).ravel()
 
     X = _run_samples(x0, t, sample, kd, jump)
+    TAU[N] = TAU[N - 1]
+    return X, TAU, XH
+
+
+def _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny, ddq_source,
+                           sym=ca.SX):
+    """One sample of the loop with the EKF as one SX Function
+    ``(s_k, t_k, noise_k) -> (s_{k+1}, x̂_{k|k}, τ_k)``, with the carried state
+    ``s = [x; x̂_prior; vec P; q̈_prev; q̇_prev]`` (``q̇_prev``: the joint rates of the
+    previous sample, for the backward difference). ``sym=ca.SX`` inlines everything (the
+    fastest in CasADi's VM); ``ca.MX`` keeps calls to the model's, the controller's and
+    the EKF's Functions (built in milliseconds instead of seconds, for compiling)."""
+    n, m = model.n, model.m
+    nx, nh = 2 * (n + m), 2 * m
+    s = sym.sym("s", nx + nh + nh * nh + 2 * n)
+    t_s = sym.sym("t")
+    e = sym.sym("noise", ny)
+    x = s[:nx]
+    xprior = s[nx:nx + nh]
+    P = ca.reshape(s[nx + nh:nx + nh + nh * nh], nh, nh)
+    ddq_prev = s[nx + nh + nh * nh:nx + nh + nh * nh + n]
+    dq_prev = s[nx + nh + nh * nh + n:]
+    q, dq = x[:n], x[n + m:2 * n + m]
+    u = ca.vertcat(q, dq, ddq_prev)
+    y = h.call([ca.vertcat(x[n:n + m], x[2 * n + m:]), u])[-1] + e
+    if ddq_source == "difference":
+        u = ca.vertcat(q, dq, (dq - dq_prev) / dt)
+    out = ekf.call([xprior, P, u, y, ca.DM.ones(ny)])
+    xpost = out[2]
+    xn, tau, acc = _plant_sample(model, controller, ref, dt, substeps, x, xpost, t_s)
+    s_next = ca.vertcat(xn, out[0], ca.reshape(out[1], nh * nh, 1), acc, dq)
+    return ca.Function("casflex_closed_loop_ekf", [s, t_s, e], [s_next, xpost, tau],
+                       {"cse": sym is ca.SX})
+
+
+def _compiled_sample_step(step, jit, cache_dir):
+    """The sample step compiled to C (:func:`casflex.codegen.jit.compile_cached`: built
+    once, then loaded from the on-disk cache)."""
+    if jit is True:
+        flags = ("-O1",)
+    elif isinstance(jit, str):
+        flags = tuple(jit.split())
+    else:
+        try:
+            flags = tuple(str(x) for x in jit)
+        except TypeError:
+            raise ModelError(f"jit must be True, False, a flags string or a sequence of "
+                             f"compiler flags; got {jit!r}") from None
+    from casflex.codegen.jit import compile_cached
+
+    funs, _ = compile_cached([step], step.name(), cache_dir=cache_dir, flags=flags)
+    return funs[step.name()]
+
+
+def _estimator_mapaccum(step, model, x0, t, kd, jump, noise, xprior0, P0):
+    """States, torques and filtered estimates from ``step`` under ``mapaccum`` over the
+    samples ``0 … N`` (split at the impulse sample ``kd``; the plant step of sample N is
+    not used)."""
+    n, m = model.n, model.m
+    nx = 2 * (n + m)
+    N = t.size - 1
+    s = np.r_[x0, xprior0, P0.ravel(order="F"), np.zeros(n), x0[n + m:2 * n + m]]
+    segments = [(0, N + 1)] if kd is None else [(0, kd), (kd, N + 1)]
+    X = np.zeros((N + 1, nx))
+    XH = np.zeros((N + 1, 2 * m))
+    TAU = np.zeros((N + 1, n))
+    for i, (k0, k1) in enumerate(segments):
+        if i == 1:
+            s = s.copy()
+            s[:nx] = jump(s[:nx])
+            if k0 == 0:  # the difference at sample 0 is zero: q̇_prev is the jumped q̇
+                s[-n:] = s[n + m:2 * n + m]
+        if k1 == k0:
+            continue
+        S, XHs, TAUs = step.mapaccum("closed_loop_ekf", k1 - k0)(
+            s, t[None, k0:k1], noise[k0:k1].T)
+        S = np.asarray(S)
+        X[k0] = s[:nx]
+        X[k0 + 1:k1] = S[:nx, :-1].T
+        XH[k0:k1] = np.asarray(XHs).T
+        TAU[k0:k1] = np.asarray(TAUs).T
+        s = S[:, -1]
     TAU[N] = TAU[N - 1]
     return X, TAU, XH
