@@ -62,6 +62,7 @@ Shapers on a time grid (:mod:`casflex.shaping.grid_lp`)
 -------------------------------------------------------
 GridOptimum                 the shortest shaper on a time grid, with its lower bound
 grid_optimum                bisection on the duration, one cutting-plane LP per duration
+grid_near                   the grid shaper nearest an analogue one (digital shapers)
 grid_feasible               one feasibility LP on a given grid
 
 Shapers for planned moves (:mod:`casflex.shaping.for_moves`)
@@ -93,7 +94,7 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
-from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_optimum
+from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_near, grid_optimum
 from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
     DEFINITIONS,
@@ -168,6 +169,7 @@ __all__ = [
     # shapers on a time grid
     "GridOptimum",
     "grid_optimum",
+    "grid_near",
     "grid_feasible",
     # shapers for planned moves
     "modal_displacements",

@@ -30,7 +30,7 @@ from scipy import optimize
 
 from casflex._validate import fail, number
 from casflex.errors import ProblemFileError, SolverError
-from casflex.shaping.grid_lp import grid_optimum
+from casflex.shaping.grid_lp import grid_near, grid_optimum
 from casflex.shaping.ranges import FrequencyRange, as_ranges
 from casflex.shaping.shapers import (
     Shaper,
@@ -688,10 +688,16 @@ def _cluster(shaper, gap):
     return Shaper(np.array(t), a / a.sum())
 
 
-def _grid_design(ranges, samples, step, horizon, check_time, max_rounds=8, lp=None):
-    """Grid LP with the samples augmented until the LP shaper verifies on every range."""
+def _grid_design(ranges, samples, step, horizon, check_time, max_rounds=8, lp=None,
+                 near=None):
+    """Grid LP with the samples augmented until the LP shaper verifies on every range
+    (the LP only near the impulses of the shaper ``near`` if it is given)."""
     for _ in range(max_rounds):
-        if lp is None:
+        if lp is None and near is not None:
+            lp = grid_near(near, samples.omega, samples.zeta,
+                           samples.vtol * (1.0 - _VTOL_MARGIN), step=step,
+                           check_time=check_time)
+        elif lp is None:
             lp = grid_optimum(samples.omega, samples.zeta,
                               samples.vtol * (1.0 - _VTOL_MARGIN), step=step,
                               horizon=horizon, check_time=check_time)
@@ -743,8 +749,11 @@ def si_shaper(
     nothing changes. If that fails or ends longer than the grid LP's shaper, the polish from
     the convolved EI start is tried too, and the shortest verified shaper is returned.
 
-    **Digital shapers** (``dt``): the grid LP on the sample grid ``t_k = k dt`` *is* the
-    design (impulses stay on the grid, no polish), verified like the others.
+    **Digital shapers** (``dt``): the analogue design first, then the grid LP on the
+    sample grid ``t_k = k dt`` restricted to a few samples around each analogue impulse
+    (:func:`~casflex.shaping.grid_near`; the LP over the whole grid,
+    :func:`~casflex.shaping.grid_optimum`, if that neighbourhood has no shaper). The
+    impulses stay on the grid (no polish), verified like the others.
 
     Ranges with ``vtol >= 1`` are checked and reported but never add samples.
 
@@ -854,8 +863,22 @@ def si_shaper(
     ei_start = initial_si_guess(ranges, n_impulses)
     horizon = max(ei_start.duration, 1e-3)
     if dt is not None:
-        samples = _lp_samples(ranges, horizon)
-        lp, samples, vmax = _grid_design(ranges, samples, dt, horizon, check_time)
+        # the analogue design first, then its neighbourhood on the sample grid: a few
+        # small LPs where the grid LP over the whole duration costs a bisection over
+        # duration / dt columns (a second at 1 kHz); the whole grid if the neighbourhood
+        # has no shaper
+        left = None if deadline is None else max(deadline - time.perf_counter(), 1e-3)
+        analogue = si_shaper(ranges, n_impulses, method=method,
+                             samples_per_range=samples_per_range,
+                             eps_amplitude=eps_amplitude, eps_time=eps_time,
+                             verify_tol=verify_tol, max_solves=max_solves, guess=guess,
+                             options=options, time_limit=left, start=start)
+        samples = _lp_samples(ranges, max(analogue.shaper.duration, 1e-3))
+        try:
+            lp, samples, vmax = _grid_design(ranges, samples, dt, horizon, check_time,
+                                             near=analogue.shaper)
+        except SolverError:
+            lp, samples, vmax = _grid_design(ranges, samples, dt, horizon, check_time)
         return SIShaperResult(
             lp.shaper, ranges, vmax, 0, [], [], samples, lp.shaper, lp.shaper,
             max_prv_eq187=_eq187_maxima(lp.shaper, ranges), start="digital",
