@@ -116,7 +116,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     ['accessibility.png', 'estimation.png']
     """
     from casflex import control, shaping
-    from casflex.estimation import ekf_step_function, tabulate_plant
+    from casflex.estimation import DEFAULT_GATE, Guard, ekf_step_function, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import Move, ShapedMove
     from casflex.simulate import simulate_closed_loop, simulate_prescribed
@@ -195,7 +195,14 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     # 6. C bundle -----------------------------------------------------------------------------
     t0 = time.perf_counter()
     say("generating the C bundle ...")
-    c_bundle = _c_bundle(study, model, plant, ekf, controller, out / "c", dt)
+    limits = _torque_limits(study, shaped_run, loop) if study.codegen["guard"] else None
+    c_ekf = ekf
+    gate = None
+    if study.codegen["guard"]:
+        gate = DEFAULT_GATE if e["gate"] is None else e["gate"]
+        c_ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt,
+                                  guard=Guard(np.eye(2 * m) * e["P0"], gate=gate))
+    c_bundle = _c_bundle(study, model, plant, c_ekf, controller, out / "c", dt, limits)
     timings["codegen_s"] = time.perf_counter() - t0
 
     # 7. figures and report ---------------------------------------------------------------------
@@ -207,6 +214,9 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     summary = _summary(study, model, table, design, unshaped_run, shaped_run, loop,
                        shaped.duration, loop_finite, stability, eps, c_bundle, timings,
                        figures)
+    summary["c_guard"] = {"guarded": bool(study.codegen["guard"]),
+                          "torque_limits": None if limits is None else limits.tolist(),
+                          "gate": gate}
     c_files = c_bundle[0]
     files = [*write_report(out, study, summary), *figures] + [out / "c" / f for f in c_files]
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)
@@ -339,10 +349,27 @@ def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, er
 # ------------------------------------------------------------------------------ C bundle
 
 
-def _c_bundle(study, model, plant, ekf, controller, c_dir, dt):
+def _torque_limits(study, shaped_run, loop):
+    """Per-joint torque limits of the guarded ``rt_step`` [N m]: the study's, or twice the
+    peak |τ| of the shaped move (prescribed joints and closed loop, whichever is larger),
+    so that the designed motion is never clipped; a joint that never needs torque gets the
+    largest joint's limit."""
+    given = study.codegen["torque_limits"]
+    if given is not None:
+        return np.asarray(given, dtype=float)
+    peaks = [shaped_run.torque_peak]
+    if np.all(np.isfinite(loop.tau)):
+        peaks.append(np.max(np.abs(loop.tau), axis=0))
+    limits = 2.0 * np.max(peaks, axis=0)
+    return np.where(limits > 0, limits, np.max(limits))
+
+
+def _c_bundle(study, model, plant, ekf, controller, c_dir, dt, torque_limits=None):
     """Generate (and compile, unless unchanged or switched off) the real-time C bundle:
     ``rt_step`` (:mod:`casflex.codegen.rtloop`: encoders, reference and sensor sample to torques and
-    the updated estimator), plus ``ekf_step`` and the controller alone."""
+    the updated estimator), plus ``ekf_step`` and the controller alone. A guarded ``ekf``
+    (``codegen.guard``) makes ``rt_step`` skip bad samples, hold non-finite inputs, keep P
+    positive definite, return a status word and clip the torques to ``torque_limits``."""
     from casflex import codegen
     from casflex.codegen import rt_bundle
 
@@ -353,7 +380,7 @@ def _c_bundle(study, model, plant, ekf, controller, c_dir, dt):
 
     def generate(directory):
         return rt_bundle(ekf, controller, study.sensors, dt, directory, name=name,
-                         extra=(ekf, controller))
+                         extra=(ekf, controller), torque_limits=torque_limits)
 
     bundle = generate(staging)
     digest = _digest(staging)

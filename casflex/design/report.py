@@ -168,9 +168,22 @@ def _markdown(study, s):
         f"{', '.join(f'`{f}`' for f in s['c_files'])}. The bundle's README gives the call "
         "signatures and the build command.",
         "",
+        *_guard_lines(s.get("c_guard")),
         "## Timings [s]",
         "",
         " | ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()),
         "",
     ]
     return "\n".join(lines)
+
+
+def _guard_lines(guard):
+    """The report's sentence on the guarded real-time step (``summary["c_guard"]``)."""
+    if not guard or not guard.get("guarded"):
+        return ["`rt_step` is not guarded: a NaN or outlier sample reaches the estimate and "
+                "the torques (`codegen.guard = false`).", ""]
+    limits = ", ".join(f"{v:.3g}" for v in guard["torque_limits"])
+    return [f"`rt_step` is guarded: a sample whose normalised innovation ν²/S exceeds "
+            f"{guard['gate']:.3g} is rejected as a dropout, non-finite inputs are skipped "
+            "or held, P is kept positive definite, the step returns a status word "
+            f"(`CASFLEX_STATUS_*`) and the torques are clipped to ±[{limits}] N m.", ""]

@@ -39,8 +39,8 @@ _SECTIONS = {
     "simulation": {"dt": 1e-3, "settle": None},
     "controller": {"law": "composite", "Kp": 1.0, "Kd": 2.0, "Q": 1.0, "R": 10.0,
                    "gains": "scheduled", "schedule_points": 30},
-    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0},
-    "codegen": {"name": "casflex", "compile": True},
+    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
+    "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
 }
 # the top-level keys of a study file besides the sections
 _TOP = ("name", "description", "robot", "move", "sensors")
@@ -128,7 +128,7 @@ def _flag(path, key, value):
     return value
 
 
-def _check_settings(path, settings, sensors, sensors_path):
+def _check_settings(path, settings, sensors, sensors_path, n_joints):
     """Convert and check the values of every section in place."""
     def num(key, value, **bounds):
         return number(value, key, path=path, **bounds)
@@ -171,9 +171,24 @@ def _check_settings(path, settings, sensors, sensors_path):
     else:
         e["R"] = np.full(sensors.n_outputs, num("estimator.R", e["R"], low=0.0,
                                                 low_open=True))
+    if e["gate"] is not None:  # ν²/S per channel above which a sample is rejected
+        e["gate"] = num("estimator.gate", e["gate"], low=1.0)
     g = settings["codegen"]
     identifier(g["name"], "codegen.name", path=path)
     _flag(path, "codegen.compile", g["compile"])
+    _flag(path, "codegen.guard", g["guard"])
+    if g["torque_limits"] is not None:
+        limits = np.atleast_1d(np.asarray(g["torque_limits"], dtype=object))
+        if limits.ndim != 1 or limits.size not in (1, n_joints):
+            raise fail("codegen.torque_limits", g["torque_limits"],
+                       f"must be one number or {n_joints} (one per joint) [N m]", path=path)
+        g["torque_limits"] = np.broadcast_to(np.array([
+            num(f"codegen.torque_limits[{k + 1}]", v, low=0.0, low_open=True)
+            for k, v in enumerate(limits)]), (n_joints,)).copy()
+        if not g["guard"]:
+            raise fail("codegen.torque_limits", g["torque_limits"].tolist(),
+                       "needs codegen.guard = true (the limits are applied by the guarded "
+                       "rt_step)", path=path)
 
 
 def load_study(path: str | os.PathLike) -> Study:
@@ -223,7 +238,7 @@ def load_study(path: str | os.PathLike) -> Study:
                    f"has {robot.n_joints}", path=path)
     sensors = load_sensors(sensors_path, robot)
 
-    _check_settings(path, settings, sensors, sensors_path)
+    _check_settings(path, settings, sensors, sensors_path, robot.n_joints)
     name = raw.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise fail("name", name, "must be a non-empty string", path=path)
