@@ -48,12 +48,13 @@ class ScaledFrequencyProvider:
         self.provider = provider
         self.factor = number(factor, "factor", low=0.0, low_open=True)
         self.shape_joints = tuple(provider.shape_joints)
+        if not hasattr(provider, "evaluate"):
+            # the model asks getattr(provider, "evaluate", None): no batched evaluation
+            self.evaluate = None
 
     def __getattr__(self, name: str) -> Any:
         # zero_entries, names, ...: as the wrapped provider has them (evaluate is below)
         if name in ("provider", "factor", "shape_joints"):
-            raise AttributeError(name)
-        if name == "evaluate" and not hasattr(self.provider, "evaluate"):
             raise AttributeError(name)
         return getattr(self.provider, name)
 

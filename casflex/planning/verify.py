@@ -254,7 +254,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     n_modes : int
         Modes of the model.
     objective, duration, robust, intervals
-        As for :func:`casflex.planning.plan_move`.
+        As for :func:`casflex.planning.plan_move` (an ``"energy"`` plan lasts as long as
+        the shaped move unless ``duration`` [s] is given).
     end : "rest" or "free" or float, optional
         End condition of the plan (default: the shaped move's residual [m]).
     step : float, optional
@@ -345,6 +346,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
         f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"
         + (f", robust ±{robust:g}" if robust else ""))
+    if objective == "energy" and duration is None:
+        duration = float(shaped.duration)
     t0 = time.perf_counter()
     plan = plan_move(model, move, objective=objective, duration=duration,
                      intervals=intervals, torque_limit=limits["torque"],
