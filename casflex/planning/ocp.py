@@ -45,8 +45,7 @@ from casflex.errors import SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
 from casflex.planning.planned import PlannedMove
-from casflex.planning.scenarios import (frequency_shifted_model, static_deflection,
-                                        tip_jacobian)
+from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES"]
