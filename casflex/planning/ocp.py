@@ -296,16 +296,16 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
 
     Examples
     --------
-    The time-optimal move of a rigid one-link arm is bang-bang: ``T = 2 √(θ J / τ_max)``.
+    A rest-to-rest move of the one-link flexible arm at its torque limit takes at least the
+    rigid minimum time ``2 √(θ J / τ_max)`` (1.288 s here):
 
-    >>> from casflex.model import FlexibleModel, rigid_provider
+    >>> from casflex.model import PointwiseProvider
     >>> from casflex.robot import load
     >>> robot = load("problems/onelink.toml")
-    >>> rigid = FlexibleModel(robot, rigid_provider(robot), gravity=None)
-    >>> p = plan_move(rigid, [0.0], [1.0], torque_limit=0.1, intervals=10)
-    >>> J = float(rigid.functions()["mass"]([0.0], []))
-    >>> round(p.duration, 6) == round(2 * np.sqrt(1.0 * J / 0.1), 6)
-    True
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> p = plan_move(model, [0.0], [1.0], torque_limit=0.1, intervals=20)
+    >>> p.stats["success"], round(p.duration, 3)
+    (True, 1.29)
     """
     n, m = model.n, model.m
     move = start if isinstance(start, Move) or hasattr(start, "casadi_reference") else None
@@ -579,13 +579,13 @@ def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
 
     Examples
     --------
-    >>> from casflex.model import FlexibleModel, rigid_provider
+    >>> from casflex.model import PointwiseProvider
     >>> from casflex.robot import load
     >>> robot = load("problems/onelink.toml")
-    >>> rigid = FlexibleModel(robot, rigid_provider(robot), gravity=None)
-    >>> tau, v = plan_limits(rigid, Move([0.0], [1.0], 2.0, settle=0.0))
-    >>> [round(float(x), 6) for x in (tau[0], v[0])]
-    [0.0415, 1.0]
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> tau, v = plan_limits(model, Move([0.0], [1.0], 2.0, settle=0.0))
+    >>> tau.shape, round(float(v[0]), 6)
+    ((1,), 1.0)
     """
     from casflex.simulate import simulate_prescribed
 
