@@ -97,7 +97,7 @@ class ScaledFrequencyProvider:
         ...                        processes=1)
         >>> v = ScaledFrequencyProvider(model.provider, 1.5).evaluate(ca.DM([0.0]))
         >>> round(float(ca.evalf(v["omega"])), 3)
-        12.46
+        12.461
         """
         values = dict(self.provider.evaluate(q_shape))
         values["omega"] = self.factor * values["omega"]
