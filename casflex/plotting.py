@@ -31,6 +31,8 @@ __all__ = [
     "plot_result",
     # input shaping
     "plot_prv", "plot_move_shaper", "plot_si_optimality", "plot_digital_shaper",
+    # planning
+    "plot_plan",
     # control
     "plot_accessibility",
     # design report
@@ -774,4 +776,61 @@ def plot_digital_shaper(analogue: Shaper, digital: Shaper, dt: float) -> Figure:
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right")
     fig.tight_layout()
+    return fig
+
+
+# ---------------------------------------------------------------------------- planning
+
+
+def plot_plan(comparison: object) -> Figure:
+    """Shaped vs planned move: joint angles, torques and tip deflection over time.
+
+    Parameters
+    ----------
+    comparison : casflex.planning.PlanComparison
+        Its ``verification["runs"]["prescribed"]`` and
+        ``shaped_verification["run"]`` are the two simulations with the joints on the
+        moves (``SimulationResult``).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> from casflex.simulate import SimulationResult
+    >>> r = SimulationResult(t=np.arange(3.0), q=np.zeros((3, 1)), dq=np.zeros((3, 1)),
+    ...                      ddq=np.zeros((3, 1)), tau=np.zeros((3, 1)),
+    ...                      delta=np.zeros((3, 1)), ddelta=np.zeros((3, 1)),
+    ...                      tip=np.zeros((3, 3)), tip_rigid=np.zeros((3, 3)))
+    >>> c = SimpleNamespace(verification={"runs": {"prescribed": r}},
+    ...                     shaped_verification={"run": r},
+    ...                     plan=SimpleNamespace(duration=1.0, name="p"),
+    ...                     shaped=SimpleNamespace(duration=2.0))
+    >>> len(plot_plan(c).axes)
+    3
+    """
+    planned = comparison.verification["runs"]["prescribed"]
+    shaped = comparison.shaped_verification["run"]
+    fig = Figure(figsize=(10, 8), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    for run, style, label, T in ((shaped, "--", "shaped", comparison.shaped.duration),
+                                 (planned, "-", "planned", comparison.plan.duration)):
+        for j in range(run.q.shape[1]):
+            axes[0].plot(run.t, run.q[:, j], style, color=f"C{j}",
+                         label=f"q{j + 1} {label}")
+            axes[1].plot(run.t, run.tau[:, j], style, color=f"C{j}", lw=0.9,
+                         label=f"τ{j + 1} {label}")
+        axes[2].plot(run.t, 1e3 * np.linalg.norm(run.tip_deflection, axis=1), style,
+                     color="k" if label == "planned" else "0.5", label=f"{label} ({T:.3f} s)")
+        for ax in axes:
+            ax.axvline(T, color="0.6" if label == "shaped" else "0.2", lw=0.8, ls=":")
+    for ax, ylabel in zip(axes, ("joint angle [rad]", "torque [N m]",
+                                 "|tip deflection| [mm]"), strict=True):
+        ax.set_ylabel(ylabel)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small", ncol=2)
+    axes[2].set_xlabel("t [s] (joints on the move; dotted: end of each move)")
+    fig.suptitle(f"{getattr(comparison.plan, 'name', 'plan')}: shaped vs planned")
     return fig

@@ -1,0 +1,99 @@
+"""Benchmark of the planner (casflex.planning) on move 1 of the design study.
+
+The model of ``problems/studies/arm2link_move1.toml`` (Table 8 arm with the testbed's
+actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
+``problems/moves.toml`` shaped by its SI shaper (±20 %, Vtol 5 %). Measures
+
+``solve_s``
+    one cold plan (guess: the shaped move) at the shaped move's peak torques and
+    velocities, end bound = the shaped move's residual tip deflection (problem build +
+    Ipopt);
+``solve_warm_s``
+    the same plan with the end bound 5 % tighter, warm-started from the first solution
+    (a neighbouring problem);
+``duration`` / ``shaped_duration``
+    planned and shaped durations, s;
+``residual`` / ``shaped_residual``
+    residual tip deflections with the joints on the move, simulated at 1 ms, m;
+``intervals``
+    shooting intervals.
+
+Usage::
+
+    python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Run the benchmark; print a table or (``--json``) one JSON object.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments.
+
+    Returns
+    -------
+    dict
+        The measured figures (see the module docstring).
+    """
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--intervals", type=int, default=20)
+    parser.add_argument("--lbfgs", action="store_true",
+                        help="limited-memory Hessian in Ipopt (default: exact)")
+    args = parser.parse_args(argv)
+
+    from casflex.design.study import load_study
+    from casflex.model import build_model
+    from casflex.moves import ShapedMove, load_move
+    from casflex.planning import plan_limits, plan_move, verify_plan
+    from casflex.shaping import shaper_for_move
+    from casflex.simulate import simulate_prescribed
+
+    os.chdir(ROOT)
+    study = load_study("problems/studies/arm2link_move1.toml")
+    model, _ = build_model(study.robot, 3, step=study.model["grid_step"], gravity=None,
+                           delta_order=0, processes=1)
+    move = load_move("problems/moves.toml:move1")
+    shaped = ShapedMove(move, shaper_for_move(model, move, vtol=0.05, margin=0.2).shaper)
+    run = simulate_prescribed(model, shaped, dt=1e-3)
+    shaped_residual = run.residual_tip_deflection
+    tau, vel = plan_limits(model, shaped)
+    options = {"hessian_approximation": "limited-memory"} if args.lbfgs else {}
+    kw = {"intervals": args.intervals, "torque_limit": tau, "velocity_limit": vel,
+          "ipopt_options": options}
+    t0 = time.perf_counter()
+    plan = plan_move(model, move, end=shaped_residual, guess=shaped, **kw)
+    solve_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    warm = plan_move(model, move, end=0.95 * shaped_residual, guess=plan, **kw)
+    solve_warm_s = time.perf_counter() - t0
+    check = verify_plan(model, plan, torque=False)
+    out = {"solve_s": solve_s, "solve_warm_s": solve_warm_s, "duration": plan.duration,
+           "shaped_duration": shaped.duration, "residual": check["prescribed"],
+           "shaped_residual": shaped_residual, "intervals": args.intervals,
+           "substeps": plan.stats["substeps"], "iterations": plan.stats["iterations"],
+           "iterations_warm": warm.stats["iterations"], "status": plan.stats["status"],
+           "status_warm": warm.stats["status"], "load": os.getloadavg()[0]}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for key, value in out.items():
+            print(f"{key:>18}: {value}", file=sys.stdout)
+    return out
+
+
+if __name__ == "__main__":
+    main()

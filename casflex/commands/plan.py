@@ -1,0 +1,203 @@
+"""``casflex plan``: optimal point-to-point motion of a robot on its flexible model.
+
+``casflex plan ROBOT.toml --move FILE:NAME [--objective time|energy] [--duration T]
+[--robust R] [--modes N] [--intervals N] [--end rest|free|TOL] [--out DIR]
+[--plot FILE.png] [--json]``
+
+runs :func:`casflex.planning.plan_robot_move`: the gravity-free modal model of the robot
+(tables cached), the SI-shaped version of the move (as ``casflex shaper`` designs it),
+the optimal control problem at the shaped move's peak torques and velocities (so that
+the comparison is fair; ``--torque-limit`` / ``--velocity-limit`` override them) with
+the shaped move's residual tip deflection as the end tolerance (``--end``), and the
+verification of the plan by simulation at ``--dt``: the planned joint motion with the
+prescribed-motion simulator and the planned torques with the torque-driven simulator.
+``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too,
+and evaluates both moves there.
+
+JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_peak``
+(rad/s), ``residual_tip_deflection`` (verified with the joints on the plan, m),
+``residual_torque_driven`` and ``residual_ocp`` (m), ``robust`` (residuals at ±R),
+``shaped`` {``duration``, ``residual_tip_deflection``, ``torque_peak``,
+``velocity_peak``}, ``shortening`` (1 − planned / shaped duration), ``limits``,
+``solve_s``, ``status``, ``iterations``, ``intervals``, ``substeps``, ``objective``,
+``timings``. ``--out DIR`` writes ``trajectory.csv`` (t, q, q̇, q̈, τ) and
+``plan.png``; ``--plot FILE.png`` the same figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+from casflex._validate import number, output_directory
+from casflex.commands.common import parse_angle, plot_path
+
+HELP = ("Plan the optimal (minimum-time or minimum-energy) motion of a move on the flexible "
+        "model, at the limits of its SI-shaped version, and verify it by simulation.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``plan`` arguments to ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's sub-parser (the CLI adds ``--json`` itself).
+
+    Examples
+    --------
+    >>> import argparse
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> a = p.parse_args(["r.toml", "--move", "m.toml:a", "--robust", "0.1"])
+    >>> a.robust, a.objective, a.intervals
+    (0.1, 'time', 40)
+    """
+    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description")
+    parser.add_argument("--move", metavar="FILE:NAME", required=True,
+                        help="planned move, e.g. problems/moves.toml:move1")
+    parser.add_argument("--objective", choices=("time", "energy"), default="time",
+                        help="minimum time (default) or minimum energy ∫τᵀτ dt for "
+                        "--duration")
+    parser.add_argument("--duration", type=float, default=None, metavar="T",
+                        help="duration of an energy plan, s (default: the shaped move's)")
+    parser.add_argument("--robust", type=float, default=0.0, metavar="R",
+                        help="relative frequency error the end condition must withstand "
+                        "(e.g. 0.1 = ±10 %%; default 0)")
+    parser.add_argument("--modes", type=int, default=3, metavar="N",
+                        help="number of modes of the model (default 3)")
+    parser.add_argument("--intervals", type=int, default=40, metavar="N",
+                        help="shooting intervals of the OCP (default 40)")
+    parser.add_argument("--end", default=None, metavar="rest|free|TOL",
+                        help="end condition of the modes: at rest, free, or a residual tip "
+                        "deflection bound in m (default: the shaped move's residual)")
+    parser.add_argument("--torque-limit", type=float, nargs="+", default=None, metavar="N_M",
+                        help="torque limit per joint (or one for all), N m (default: the "
+                        "shaped move's peaks)")
+    parser.add_argument("--velocity-limit", type=float, nargs="+", default=None,
+                        metavar="RAD_S", help="velocity limit per joint (or one for all), "
+                        "rad/s (default: the shaped move's peaks)")
+    parser.add_argument("--step", default=None, metavar="S",
+                        help="grid step of the modal tables, rad or with a 'deg' suffix")
+    parser.add_argument("--delta-order", type=int, choices=(0, 1), default=1,
+                        help="order in δ of the mass matrix (default 1)")
+    parser.add_argument("--dt", type=float, default=1e-3,
+                        help="simulation step of the verification, s (default 1e-3)")
+    parser.add_argument("--max-iter", type=int, default=500, metavar="K",
+                        help="Ipopt iteration limit (default 500)")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="write trajectory.csv and plan.png to DIR")
+    parser.add_argument("--plot", default=None, metavar="FILE.png",
+                        help="figure: shaped vs planned joint motion, torques and tip "
+                        "deflection")
+    parser.add_argument("--processes", type=int, default=None, metavar="P",
+                        help="worker processes for the tables (default: all CPUs)")
+    parser.add_argument("--cache-dir", default=None, metavar="DIR",
+                        help="cache directory of the modal tables")
+
+
+def _end(text):
+    if text is None or text in ("rest", "free"):
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    return number(value if value is not None else text, "--end", low=0.0, low_open=True)
+
+
+def _limit(values, n, option):
+    if values is None:
+        return {}
+    if len(values) not in (1, n):
+        from casflex._validate import fail
+
+        raise fail(option, values, f"give one value or one per joint ({n})")
+    for v in values:
+        number(v, option, low=0.0, low_open=True)
+    return {"torque_limit" if "torque" in option else "velocity_limit":
+            values * n if len(values) == 1 else list(values)}
+
+
+def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
+    """Plan ``args.move`` for ``args.robot``; return the comparison with the shaped move.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments (see :func:`add_arguments`).
+    log : callable
+        ``log(message)`` writes one human-readable line (to stderr in the CLI).
+
+    Returns
+    -------
+    dict
+        See the module docstring (SI units).
+
+    Examples
+    --------
+    >>> import argparse
+    >>> try:
+    ...     run(argparse.Namespace(robot="problems/onelink.toml", move="x.toml:a",
+    ...                            robust=2.0), lambda m: None)
+    ... except Exception as exc:
+    ...     print(type(exc).__name__)
+    ModelError
+    """
+    from casflex.moves import load_move
+    from casflex.planning import plan_robot_move
+    from casflex.robot import load
+
+    robust = number(float(getattr(args, "robust", 0.0)), "--robust", low=0.0, high=1.0,
+                    high_open=True)
+    modes = number(getattr(args, "modes", 3), "--modes", low=1, integer=True)
+    intervals = number(getattr(args, "intervals", 40), "--intervals", low=2, integer=True)
+    dt = number(float(getattr(args, "dt", 1e-3)), "--dt", low=0.0, low_open=True, high=0.1)
+    max_iter = number(getattr(args, "max_iter", 500), "--max-iter", low=1, integer=True)
+    duration = getattr(args, "duration", None)
+    if duration is not None:
+        duration = number(float(duration), "--duration", low=0.0, low_open=True)
+    end = _end(getattr(args, "end", None))
+    out = getattr(args, "out", None)
+    out = output_directory(out, "--out") if out else None
+    plot = plot_path(getattr(args, "plot", None))
+    step = getattr(args, "step", None)
+    step = None if step is None else parse_angle(step, "--step")
+    robot = load(args.robot)
+    move = load_move(args.move)
+    options = {**_limit(getattr(args, "torque_limit", None), robot.n_joints, "--torque-limit"),
+               **_limit(getattr(args, "velocity_limit", None), robot.n_joints,
+                        "--velocity-limit")}
+    objective = getattr(args, "objective", "time")
+    comparison = plan_robot_move(
+        robot, move, modes, objective=objective, duration=duration, robust=robust,
+        intervals=intervals, end=end, step=step,
+        delta_order=getattr(args, "delta_order", 1), dt=dt,
+        cache_dir=getattr(args, "cache_dir", None),
+        processes=getattr(args, "processes", None), progress=True, log=log,
+        max_iter=max_iter, **options)
+    summary = comparison.summary()
+    log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "
+        f"({100 * summary['shortening']:.1f} % shorter); residual tip deflection planned "
+        f"{1e3 * summary['residual_tip_deflection']:.3f} mm (torque-driven "
+        f"{1e3 * summary['residual_torque_driven']:.3f} mm, OCP "
+        f"{1e3 * summary['residual_ocp']:.3f} mm), shaped "
+        f"{1e3 * summary['shaped']['residual_tip_deflection']:.3f} mm")
+    for r in summary["robust"]:
+        log(f"  frequency error {100 * r['error']:+g} %: planned "
+            f"{1e3 * r['residual_tip_deflection']:.3f} mm, shaped "
+            f"{1e3 * r['shaped_residual_tip_deflection']:.3f} mm")
+    figure = None
+    if plot or out:
+        from casflex.plotting import plot_plan
+
+        figure = plot_plan(comparison)
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+        comparison.plan.to_csv(out / "trajectory.csv")
+        figure.savefig(out / "plan.png", dpi=120)
+        log(f"wrote {out / 'trajectory.csv'} and {out / 'plan.png'}")
+    if plot:
+        figure.savefig(plot, dpi=120)
+        log(f"wrote {plot}")
+    return summary

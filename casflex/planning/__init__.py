@@ -1,0 +1,89 @@
+"""Optimal point-to-point motion on the flexible model (``casflex plan``).
+
+The planner solves the rest-to-rest motion of the arm as an optimal control problem on
+the torque-driven flexible model (direct multiple shooting, RK4, Ipopt): minimum time or
+energy within per-joint torque, velocity and position limits, with the vibration at the
+end as a constraint, optionally robust to a frequency error. Its result is a
+:class:`PlannedMove`, usable wherever a move is, and it is verified by simulating it on
+paths that do not share the OCP's discretisation.
+
+Planning (:mod:`casflex.planning.ocp`)
+--------------------------------------
+plan_move
+    The optimal control problem: objectives, limits, end conditions, robust scenarios.
+plan_limits
+    Peak torques and velocities of a reference with the joints on it (the default limits).
+predicted_residual
+    The residual tip deflection of the free vibration from an end state.
+OBJECTIVES
+    The objectives of :func:`plan_move`.
+
+The result (:mod:`casflex.planning.planned`)
+--------------------------------------------
+PlannedMove
+    Dense trajectory, node values, torques, solver statistics; sampling, torque law, CSV.
+
+Verification (:mod:`casflex.planning.verify`)
+---------------------------------------------
+verify_plan
+    Residual tip deflections of a plan simulated with the joints on it and under its
+    torques, nominal and at frequency errors.
+plan_robot_move
+    Build the model of a robot, shape the move, plan it at the shaped move's limits and
+    verify both (what ``casflex plan`` runs).
+PlanComparison
+    Result of :func:`plan_robot_move`.
+
+Models with shifted frequencies (:mod:`casflex.planning.scenarios`)
+-------------------------------------------------------------------
+frequency_shifted_model
+    The model with every natural frequency off by a factor ``1 + r``.
+ScaledFrequencyProvider
+    The provider wrapper behind it.
+static_deflection
+    Modal amplitudes of the arm at rest (zero without gravity).
+tip_jacobian
+    ``∂tip/∂δ`` at δ = 0.
+
+Examples
+--------
+>>> import numpy as np
+>>> from casflex.model import FlexibleModel, PointwiseProvider
+>>> from casflex.robot import load
+>>> robot = load("problems/onelink.toml")
+>>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+>>> plan = plan_move(model, [0.0], [0.5], torque_limit=0.2, intervals=12)
+>>> plan.stats["success"], bool(plan.duration >= 2 * np.sqrt(0.5 * 0.0415 / 0.2))
+(True, True)
+"""
+
+from __future__ import annotations
+
+from casflex.planning.ocp import OBJECTIVES, plan_limits, plan_move, predicted_residual
+from casflex.planning.planned import PlannedMove
+from casflex.planning.scenarios import (
+    ScaledFrequencyProvider,
+    frequency_shifted_model,
+    static_deflection,
+    tip_jacobian,
+)
+from casflex.planning.verify import PlanComparison, plan_robot_move, verify_plan
+
+__all__ = [
+    # planning
+    "plan_move",
+    "plan_limits",
+    "predicted_residual",
+    "OBJECTIVES",
+    # the result
+    "PlannedMove",
+    # verification
+    "verify_plan",
+    "plan_robot_move",
+    "PlanComparison",
+    # models with shifted frequencies
+    "frequency_shifted_model",
+    "ScaledFrequencyProvider",
+    "static_deflection",
+    "tip_jacobian",
+]

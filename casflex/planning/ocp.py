@@ -1,0 +1,596 @@
+"""Optimal point-to-point motion of a flexible arm as an optimal control problem (Ipopt).
+
+:func:`plan_move` takes the arm from rest at ``start`` to rest at ``goal``:
+
+* dynamics: the torque-driven model ``ẋ = ode(x, τ)``, ``x = [q; δ; q̇; δ̇]``
+  (:meth:`casflex.model.FlexibleModel.functions`: configuration-dependent tables through
+  the interpolants, gravity and damping as the model has them);
+* transcription: direct multiple shooting on ``N`` intervals of equal length ``T / N``
+  with the torque constant on each, ``substeps`` steps of
+  :func:`casflex.simulate.integrators.rk4_step` per interval; the free final time ``T``
+  is the time-scaling variable;
+* objectives: ``"time"`` (min ``T``), ``"energy"`` (min ``∫ τᵀτ dt`` for a given
+  duration) and ``"weighted"`` (min ``T + weight ∫ τᵀτ dt``);
+* constraints: per-joint torque bounds on every interval, velocity and position bounds
+  at every node, joints at rest at both ends, the modes at rest at the start
+  (``δ`` = its static value — zero without gravity — and ``δ̇ = 0``) and at the end either
+  the same (``end="rest"``) or the residual tip deflection below a tolerance
+  (``end=<float>``, m) or nothing (``end="free"``); optionally the tip deflection at
+  every node below a bound;
+* robust option: with ``robust=r`` the modal rows of the models whose frequencies are
+  off by ``±r`` (:func:`casflex.planning.frequency_shifted_model`) are driven by the same
+  joint motion (that of the nominal model under the shared torques, as a joint servo
+  would impose it) and must meet the same end condition.
+
+The residual tip deflection at the end uses the tip Jacobian ``v_j = ∂tip/∂δ_j`` at the
+goal (the kinematics of the model, as the simulators compute the tip deflection) and the
+amplitude ``A_j = ((δ_j − δ_sj)² + (δ̇_j / ω_j)²)^½`` of every mode's free vibration:
+``Σ_j ‖v_j‖ A_j`` bounds ``max_t ‖Σ_j v_j (δ_j(t) − δ_sj)‖`` of the undamped free
+vibration from above, so it is the constraint; the OCP's own prediction of the residual
+(``stats["ocp_residual"]``) is that maximum, sampled over the settle time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex._validate import choice, fail, number, vector
+from casflex.errors import SolverError
+from casflex.model import FlexibleModel
+from casflex.moves import Move
+from casflex.planning.planned import PlannedMove
+from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
+from casflex.simulate.integrators import rk4_step
+
+__all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES"]
+
+#: the objectives of :func:`plan_move`
+OBJECTIVES = ("time", "energy", "weighted")
+
+#: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
+_OMEGA_H = 0.25
+
+
+def _limit(value, n, field, unit):
+    if value is None:
+        return np.full(n, np.inf)
+    v = np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy() \
+        if np.ndim(value) == 0 else vector(value, n, field, unit=unit)
+    if np.any(v <= 0.0) or np.any(np.isnan(v)):
+        raise fail(field, value, f"must be > 0 [{unit}] for every joint")
+    return v
+
+
+def _augmented_ode(model, shifted):
+    """``ẋa = f(xa, τ)``: the nominal state and the modal state of every shifted model,
+    the latter driven by the nominal joint motion (prescribed-motion modal rows)."""
+    n, m = model.n, model.m
+    nx = 2 * (n + m)
+    f = model.functions()
+    rows = [s.functions()["dddelta"] for s in shifted]
+
+    def ode(xa, tau):
+        x = xa[:nx]
+        xdot = f["ode"](x, tau)
+        if not rows:
+            return xdot
+        q, dq = x[:n], x[n + m:2 * n + m]
+        ddq = xdot[n + m:2 * n + m]
+        out = [xdot]
+        for k, row in enumerate(rows):
+            z = xa[nx + 2 * m * k:nx + 2 * m * (k + 1)]
+            out += [z[m:], row(q, dq, ddq, z[:m], z[m:])]
+        return ca.vertcat(*out)
+
+    return ode
+
+
+def _interval_function(ode, nxa, n, substeps):
+    """``F(x, τ, h) -> (x_end, states)``: ``substeps`` RK4 steps of length ``h``.
+
+    One step is an SX function; the substeps are a ``mapaccum`` of it, so the
+    derivatives of the step are built once, not once per substep."""
+    x = ca.SX.sym("x", nxa)
+    u = ca.SX.sym("tau", n)
+    h = ca.SX.sym("h")
+    step = ca.Function("rk4", [x, u, h], [rk4_step(ode, x, h, u)])
+    try:  # the model's Functions are SX inside: one flat SX step is faster
+        step = step.expand()
+    except RuntimeError:
+        pass
+    acc = step.mapaccum("substeps", substeps, [0], [0])
+    xm = ca.MX.sym("x", nxa)
+    um = ca.MX.sym("tau", n)
+    hm = ca.MX.sym("h")
+    states = acc(xm, ca.repmat(um, 1, substeps), ca.repmat(hm, 1, substeps))
+    return ca.Function("interval", [xm, um, hm], [states[:, -1], states],
+                       ["x", "tau", "h"], ["xf", "states"])
+
+
+def _propagator(model, substeps):
+    """``(x, τ, s) -> (x(s), ẋ(s))`` for columns of samples: ``substeps`` RK4 steps of
+    ``s / substeps`` on the nominal model (the OCP's interval at ``s = T / N``)."""
+    ode = model.functions()["ode"]
+    nx = 2 * (model.n + model.m)
+    x = ca.SX.sym("x", nx)
+    u = ca.SX.sym("tau", model.n)
+    s = ca.SX.sym("s")
+    xs = x
+    for _ in range(substeps):
+        xs = rk4_step(lambda y, v: ode(y, v), xs, s / substeps, u)
+    G = ca.Function("propagate", [x, u, s], [xs, ode(xs, u)])
+    cache = {}
+
+    def propagate(X, U, S):
+        k = X.shape[1]
+        if k not in cache:
+            cache[k] = G.map(k)
+        xt, xdot = cache[k](X, U, S)
+        return xt.full(), xdot.full()
+
+    return propagate
+
+
+def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
+    """Duration of a bang-bang move within the limits on the diagonal inertia."""
+    M = model.functions()["mass"](q0, np.zeros(model.m)).full()
+    d = np.abs(qf - q0)
+    T = 1e-3
+    for j in range(model.n):
+        if d[j] == 0.0:
+            continue
+        J = M[j, j]
+        if np.isfinite(tau_max[j]):
+            T = max(T, 2.0 * math.sqrt(d[j] * J / tau_max[j]))
+        if np.isfinite(v_max[j]):
+            T = max(T, 2.0 * d[j] / v_max[j])
+    return T
+
+
+def _guess_trajectory(model, reference, N, substeps, x0):
+    """States and torques of ``reference`` on the node grid (joints on the reference)."""
+    from casflex.simulate import simulate_prescribed
+
+    T = float(reference.duration)
+    dt = T / (N * substeps)
+    m = model.m
+    run = simulate_prescribed(model, reference, dt=dt, t_end=T,
+                              delta0=x0[model.n:model.n + m] if m else None)
+    idx = np.arange(N + 1) * substeps
+    idx = np.minimum(idx, run.t.size - 1)
+    X = np.hstack([run.q[idx], run.delta[idx], run.dq[idx], run.ddelta[idx]])
+    U = np.array([run.tau[k * substeps:(k + 1) * substeps].mean(axis=0) for k in range(N)])
+    return T, X, U
+
+
+def _residual_terms(v_norm, omega, d, dd, d_static, eps):
+    """Σ_j ‖v_j‖ A_j with the free-vibration amplitude A_j (smoothed by ``eps``)."""
+    total = 0
+    for j in range(omega.size):
+        a2 = (d[j] - d_static[j]) ** 2 + (dd[j] / omega[j]) ** 2
+        total += v_norm[j] * ca.sqrt(a2 + eps**2)
+    return total
+
+
+def predicted_residual(model: FlexibleModel, q: ArrayLike, delta: ArrayLike,
+                       ddelta: ArrayLike, t_span: float = 3.0) -> float:
+    """Largest tip deflection of the undamped free vibration from ``(δ, δ̇)`` at rest at
+    ``q`` (linear in δ, frequencies at ``q``), sampled over ``t_span``.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    q : array_like, shape (n,)
+        Joint values at rest [rad].
+    delta, ddelta : array_like, shape (m,)
+        Modal amplitudes [√kg m] and rates at the end of the move.
+    t_span : float
+        Time span sampled [s] (4000 samples per second).
+
+    Returns
+    -------
+    float
+        [m], relative to the static deflection at ``q``.
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> round(predicted_residual(model, [0.0], [1e-3], [0.0]), 6)
+    0.006506
+    """
+    q = np.asarray(q, dtype=float).ravel()
+    if not model.m:
+        return 0.0
+    V = tip_jacobian(model, q)
+    omega = np.sqrt(np.diag(model.functions()["stiffness"](q).full()))
+    d = np.asarray(delta, dtype=float).ravel() - static_deflection(model, q)
+    dd = np.asarray(ddelta, dtype=float).ravel()
+    t = np.linspace(0.0, t_span, max(int(4000 * t_span), 2))
+    modal = d[None, :] * np.cos(omega * t[:, None]) + \
+        (dd / omega)[None, :] * np.sin(omega * t[:, None])
+    return float(np.max(np.linalg.norm(modal @ V.T, axis=1)))
+
+
+def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | None = None,
+              *, objective: str = "time", duration: float | None = None,
+              weight: float = 0.0, intervals: int = 40, substeps: int | None = None,
+              torque_limit: ArrayLike | None = None, velocity_limit: ArrayLike | None = None,
+              position_limits: tuple[ArrayLike, ArrayLike] | None = None,
+              end: str | float = "rest", deflection_bound: float | None = None,
+              robust: float = 0.0, guess: str | Any = "rigid",
+              max_duration: float | None = None, max_iter: int = 500,
+              ipopt_options: dict | None = None, settle: float | None = None,
+              name: str | None = None) -> PlannedMove:
+    """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    start : array_like or casflex.moves.Move
+        Start joint values [rad], or a move: its ``q0`` and ``qf`` (then ``goal`` must be
+        ``None``), its ``settle`` and name, and — for ``objective="energy"`` without
+        ``duration`` — its duration.
+    goal : array_like, optional
+        End joint values [rad].
+    objective : {"time", "energy", "weighted"}
+        Minimum time, minimum ``∫ τᵀτ dt`` [N² m² s] for the given ``duration``, or
+        minimum ``T + weight ∫ τᵀτ dt``.
+    duration : float, optional
+        Duration [s] of an ``"energy"`` plan (required there, not allowed otherwise).
+    weight : float
+        Weight of the energy in ``"weighted"`` [1 / (N² m²)].
+    intervals : int
+        Shooting intervals N (torque constant on each).
+    substeps : int, optional
+        RK4 steps per interval (default: enough that ``ω_max h <= 0.25`` for the initial
+        duration, the frequencies taken along the straight path and at ``1 + robust``).
+    torque_limit, velocity_limit : float or array_like, optional
+        Per-joint bounds on ``|τ|`` [N m] and ``|q̇|`` [rad/s] (default none).
+    position_limits : (array_like, array_like), optional
+        Lower and upper joint bounds [rad] at every node.
+    end : "rest" or "free" or float
+        End condition of the modes: at rest (``δ`` static, ``δ̇ = 0``), no condition, or
+        the residual tip deflection bound (module docstring) [m].
+    deflection_bound : float, optional
+        Bound on the tip deflection ‖tip − tip_rigid‖ at every node [m].
+    robust : float
+        Relative frequency error r (0 <= r < 1): the modal rows of the models at ``1 ± r``
+        must meet the end condition too.
+    guess : "rigid" or move-like
+        Initial guess: ``"rigid"`` (the bang-bang move whose diagonal inertia meets the
+        limits), or any reference with ``duration`` and ``sample`` (a ``Move``, a
+        ``ShapedMove``, a ``PlannedMove``; a ``PlannedMove`` with the same number of
+        intervals is taken node by node: a warm start).
+    max_duration : float, optional
+        Upper bound on T [s] (default 20 times the guess's duration).
+    max_iter : int
+        Ipopt iteration limit.
+    ipopt_options : dict, optional
+        Extra Ipopt options (``{"tol": 1e-8}``...).
+    settle : float, optional
+        ``settle`` of the result [s] (default the move's, or 3).
+    name : str, optional
+        Name of the result (default the move's name with ``+planned``).
+
+    Returns
+    -------
+    PlannedMove
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        Malformed arguments (one line naming the argument).
+    casflex.errors.SolverError
+        No feasible plan: the torque limit cannot hold the arm against gravity at the start
+        or the goal, or Ipopt failed; the message names the limits active at its last
+        iterate.
+
+    Examples
+    --------
+    A rest-to-rest move of the one-link flexible arm at its torque limit takes at least the
+    rigid minimum time ``2 √(θ J / τ_max)`` (1.288 s here):
+
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> p = plan_move(model, [0.0], [1.0], torque_limit=0.1, intervals=20)
+    >>> p.stats["success"], round(p.duration, 2)
+    (True, 1.29)
+    """
+    n, m = model.n, model.m
+    move = start if isinstance(start, Move) or hasattr(start, "casadi_reference") else None
+    if move is not None:
+        if goal is not None:
+            raise fail("goal", goal, "must be None when start is a move")
+        q0, qf = np.asarray(move.q0, dtype=float), np.asarray(move.qf, dtype=float)
+        if move.n_joints != n:
+            raise fail("start", move.name, f"has {move.n_joints} joints; the model has {n}")
+    else:
+        q0 = vector(start, n, "start", unit="rad")
+        if goal is None:
+            raise fail("goal", None, "is required when start is not a move")
+        qf = vector(goal, n, "goal", unit="rad")
+    objective = choice(objective, "objective", OBJECTIVES)
+    if objective == "energy":
+        if duration is None and move is not None:
+            duration = float(move.duration)
+        if duration is None:
+            raise fail("duration", None, "is required for objective 'energy' [s]")
+        duration = number(duration, "duration", low=0.0, low_open=True)
+    elif duration is not None:
+        raise fail("duration", duration, f"is fixed only for objective 'energy'; "
+                   f"'{objective}' minimises the duration")
+    weight = number(weight, "weight", low=0.0)
+    N = number(intervals, "intervals", low=2, integer=True)
+    tau_max = _limit(torque_limit, n, "torque_limit", "N m")
+    v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
+    robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
+    if isinstance(end, str):
+        end = choice(end, "end", ("rest", "free"))
+    else:
+        end = number(end, "end", low=0.0, low_open=True)
+    if deflection_bound is not None:
+        deflection_bound = number(deflection_bound, "deflection_bound", low=0.0,
+                                  low_open=True)
+    max_iter = number(max_iter, "max_iter", low=1, integer=True)
+    settle = float(move.settle) if settle is None and move is not None else \
+        (3.0 if settle is None else number(settle, "settle", low=0.0))
+    if name is None:
+        name = f"{move.name}+planned" if move is not None else "planned"
+    lo = hi = None
+    if position_limits is not None:
+        lo = vector(position_limits[0], n, "position_limits[0]", unit="rad")
+        hi = vector(position_limits[1], n, "position_limits[1]", unit="rad")
+        for label, q in (("start", q0), ("goal", qf)):
+            if np.any(q < lo) or np.any(q > hi):
+                raise fail(label, q.tolist(), f"lies outside position_limits "
+                           f"[{lo.tolist()}, {hi.tolist()}] [rad]")
+
+    f = model.functions()
+    d0, df = static_deflection(model, q0), static_deflection(model, qf)
+    # holding torques at rest: the joint rows of the potential forces
+    hold0 = f["potential_forces"](q0, d0).full().ravel()[:n]
+    holdf = f["potential_forces"](qf, df).full().ravel()[:n]
+    for label, hold in (("start", hold0), ("goal", holdf)):
+        over = np.flatnonzero(np.abs(hold) > tau_max)
+        if over.size:
+            j = int(over[0])
+            raise SolverError(
+                f"plan_move: no feasible plan: the torque limit of joint {j + 1} "
+                f"({tau_max[j]:.6g} N m) is below the torque that holds the arm against "
+                f"gravity at the {label} ({abs(hold[j]):.6g} N m)")
+
+    # scenarios: the modal rows of the frequency-shifted models
+    errors = [-robust, robust] if robust > 0.0 and m else []
+    shifted = [frequency_shifted_model(model, r) for r in errors]
+    nx = 2 * (n + m)
+    nxa = nx + 2 * m * len(shifted)
+    x0 = np.r_[q0, d0, np.zeros(n + m)]
+    z0s = [np.r_[static_deflection(s, q0), np.zeros(m)] for s in shifted]
+    xa0 = np.r_[x0, *z0s] if shifted else x0
+
+    # the initial guess and the substeps
+    warm = isinstance(guess, PlannedMove) and guess.node_tau.shape[0] == N and \
+        guess.node_x.shape[1] == nx
+    if isinstance(guess, str):
+        choice(guess, "guess", ("rigid",))
+        # the rigid bang-bang stretched by 30 %: a start that the flexible end conditions
+        # leave feasible (at the rigid bound itself Ipopt may stall in restoration)
+        T_guess = duration if duration is not None else \
+            1.3 * _rigid_guess_duration(model, q0, qf, tau_max, v_max)
+        reference = Move(q0, qf, T_guess, settle=0.0)
+    else:
+        if not hasattr(guess, "sample") or not hasattr(guess, "duration"):
+            raise fail("guess", type(guess).__name__, "must be 'rigid' or a move")
+        reference = guess
+        T_guess = duration if duration is not None else float(guess.duration)
+    if max_duration is None:
+        max_duration = 20.0 * T_guess
+    max_duration = number(max_duration, "max_duration", low=0.0, low_open=True)
+    omega_max = _omega_max(model, q0, qf) * (1.0 + robust)
+    if substeps is None:
+        substeps = max(1, math.ceil(omega_max * 1.5 * T_guess / (N * _OMEGA_H)))
+    substeps = number(substeps, "substeps", low=1, integer=True)
+    if warm:
+        T_guess = guess.duration
+        X_guess, U_guess = guess.node_x, guess.node_tau
+    else:
+        if duration is not None and not isinstance(guess, str):
+            reference = _stretched(reference, duration)
+        T_guess, X_guess, U_guess = _guess_trajectory(model, reference, N, substeps, x0)
+    Z_guess = [np.hstack([X_guess[:, n:n + m], X_guess[:, 2 * n + m:]]) for _ in shifted]
+
+    ode = _augmented_ode(model, shifted)
+    F = _interval_function(ode, nxa, n, substeps)
+    opti = ca.Opti()
+    X = opti.variable(nxa, N + 1)
+    U = opti.variable(n, N)
+    if duration is None:
+        T = opti.variable()
+        opti.subject_to(opti.bounded(1e-3, T, max_duration))
+        opti.set_initial(T, T_guess)
+    else:
+        T = duration
+    h = T / (N * substeps)
+    Xf, _ = F.map(N)(X[:, :N], U, h)
+    opti.subject_to(X[:, 1:] == Xf)
+    opti.subject_to(X[:, 0] == xa0)
+    opti.subject_to(X[:n, N] == qf)
+    opti.subject_to(X[n + m:2 * n + m, N] == 0)
+    finite_tau = np.isfinite(tau_max)
+    for j in np.flatnonzero(finite_tau):
+        opti.subject_to(opti.bounded(-tau_max[j], U[int(j), :], tau_max[j]))
+    for j in np.flatnonzero(np.isfinite(v_max)):
+        opti.subject_to(opti.bounded(-v_max[j], X[n + m + int(j), 1:N], v_max[j]))
+    if lo is not None:
+        for j in range(n):
+            opti.subject_to(opti.bounded(lo[j], X[j, 1:N], hi[j]))
+    # end condition of the modes, in every scenario
+    scen = [(model, X[n:n + m, N], X[2 * n + m:nx, N])] + [
+        (s, X[nx + 2 * m * k:nx + 2 * m * k + m, N], X[nx + 2 * m * k + m:nx + 2 * m * (k + 1), N])
+        for k, s in enumerate(shifted)]
+    v_norm = np.linalg.norm(tip_jacobian(model, qf), axis=0) if m else np.zeros(0)
+    residual_cons = []
+    if m and end != "free":
+        for s, d, dd in scen:
+            ds = static_deflection(s, qf)
+            if end == "rest":
+                opti.subject_to(d == ds)
+                opti.subject_to(dd == 0)
+            else:
+                omega = np.sqrt(np.diag(s.functions()["stiffness"](qf).full()))
+                expr = _residual_terms(v_norm, omega, d, dd, ds, 1e-3 * end / max(m, 1))
+                residual_cons.append(expr)
+                opti.subject_to(expr <= end)
+    if deflection_bound is not None and m:
+        tip = f["tip"]
+        for k in range(1, N + 1):
+            qk, dk = X[:n, k], X[n:n + m, k]
+            defl = tip(qk, dk) - tip(qk, ca.DM.zeros(m))
+            opti.subject_to(ca.sumsqr(defl) <= deflection_bound**2)
+    energy = ca.sumsqr(U) * T / N
+    if objective == "time":
+        opti.minimize(T)
+    elif objective == "energy":
+        opti.minimize(energy)
+    else:
+        opti.minimize(T + weight * energy)
+    opti.set_initial(X, np.vstack([X_guess.T, *[z.T for z in Z_guess]]) if shifted
+                     else X_guess.T)
+    opti.set_initial(U, np.clip(U_guess.T, -tau_max[:, None], tau_max[:, None]))
+    options = {"max_iter": max_iter, "print_level": 0, "sb": "yes", "tol": 1e-8,
+               "acceptable_tol": 1e-6, "mu_strategy": "adaptive"}
+    options.update(ipopt_options or {})
+    opti.solver("ipopt", {"print_time": False}, options)
+    t_start = time.perf_counter()
+    try:
+        sol = opti.solve()
+        ok = True
+        values = sol.value
+    except RuntimeError:
+        ok = False
+        values = opti.debug.value
+    solve_s = time.perf_counter() - t_start
+    stats = opti.stats()
+    status = str(stats.get("return_status", "unknown"))
+    Tv = float(values(T)) if duration is None else float(T)
+    Xv = np.asarray(values(X), dtype=float).reshape(nxa, N + 1)
+    Uv = np.asarray(values(U), dtype=float).reshape(n, N)
+    if not ok:
+        raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
+                                    n, m, N, duration))
+    # the dense trajectory: the substeps of every interval
+    hv = Tv / (N * substeps)
+    _, states = F.map(N)(Xv[:, :N], Uv, hv)
+    S = np.asarray(states.full(), dtype=float)  # nxa x N*substeps
+    dense = np.hstack([Xv[:, :1], S])[:nx].T
+    t_dense = np.arange(dense.shape[0]) * hv
+    t_dense[-1] = Tv
+    tau_dense = np.repeat(Uv.T, substeps, axis=0)
+    tau_dense = np.vstack([tau_dense, Uv[:, -1]])
+    xdot = f["ode"].map(dense.shape[0])(dense.T, tau_dense.T).full().T
+    ddq = xdot[:, n + m:2 * n + m]
+    ocp_residual = predicted_residual(model, qf, Xv[n:n + m, N], Xv[2 * n + m:nx, N],
+                                      max(settle, 1.0)) if m else 0.0
+    info = {
+        "status": status, "success": bool(stats.get("success", ok)),
+        "iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
+        "objective": objective, "objective_value": float(values(opti.f)),
+        "energy": float(values(energy)), "intervals": N, "substeps": substeps,
+        "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
+        "warm_start": warm,
+    }
+    if residual_cons:
+        info["residual_bound"] = [float(values(e)) for e in residual_cons]
+    return PlannedMove(
+        t=t_dense, q=dense[:, :n], dq=dense[:, n + m:2 * n + m], ddq=ddq, tau=tau_dense,
+        delta=dense[:, n:n + m], ddelta=dense[:, 2 * n + m:], node_t=np.linspace(0, Tv, N + 1),
+        node_x=Xv[:nx].T.copy(), node_tau=Uv.T.copy(), hold_torque=holdf, stats=info,
+        settle=settle, name=name, propagator=_propagator(model, substeps),
+        description=f"{objective}-optimal plan, {N} intervals, end {end!r}"
+                    + (f", robust ±{robust:g}" if errors else ""))
+
+
+def _stretched(reference, duration):
+    """A bang-bang move of ``duration`` with the reference's end points."""
+    return Move(np.asarray(reference.q0), np.asarray(reference.qf), duration, settle=0.0)
+
+
+def _omega_max(model, q0, qf):
+    if not model.m:
+        return 0.0
+    K = model.functions()["stiffness"]
+    s = np.linspace(0.0, 1.0, 9)
+    return float(max(np.sqrt(np.max(np.diag(K(q0 + a * (qf - q0)).full()))) for a in s))
+
+
+def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
+    """One line on why Ipopt failed: the status and the limits active at its last iterate."""
+    active = []
+    for j in range(n):
+        if np.isfinite(tau_max[j]):
+            share = float(np.mean(np.abs(U[j]) >= tau_max[j] * (1.0 - 1e-3)))
+            if share >= 0.5:
+                active.append(f"the torque limit of joint {j + 1} ({tau_max[j]:.6g} N m) "
+                              f"on {100 * share:.0f} % of the intervals")
+        if np.isfinite(v_max[j]):
+            share = float(np.mean(np.abs(X[n + m + j]) >= v_max[j] * (1.0 - 1e-3)))
+            if share >= 0.3:
+                active.append(f"the velocity limit of joint {j + 1} ({v_max[j]:.6g} rad/s) "
+                              f"at {100 * share:.0f} % of the nodes")
+    if duration is None and T >= max_duration * (1.0 - 1e-3):
+        active.append(f"the duration at its upper bound max_duration = {max_duration:.6g} s")
+    where = "; active at the last iterate: " + ", ".join(active) if active else \
+        " (no limit is active at the last iterate)"
+    why = (" - the limits are too low to reach the goal"
+           + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
+    return f"plan_move: Ipopt found no plan ({status}){where}{why}"
+
+
+def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Peak joint torques and velocities of a reference with the joints on it.
+
+    The comparison of a planned and a shaped move is fair when the planner gets the
+    shaped move's peaks as its limits (:func:`casflex.simulate.simulate_prescribed`
+    gives the torques that produce the shaped motion).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    reference : casflex.moves.Move or ShapedMove or PlannedMove
+    dt : float
+        Simulation step [s].
+
+    Returns
+    -------
+    torque_peak : numpy.ndarray, shape (n,)
+        [N m]
+    velocity_peak : numpy.ndarray, shape (n,)
+        [rad/s]
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> tau, v = plan_limits(model, Move([0.0], [1.0], 2.0, settle=0.0))
+    >>> tau.shape, round(float(v[0]), 6)
+    ((1,), 1.0)
+    """
+    from casflex.simulate import simulate_prescribed
+
+    run = simulate_prescribed(model, reference, dt=dt, t_end=float(reference.duration))
+    return run.torque_peak, np.max(np.abs(run.dq), axis=0)
+

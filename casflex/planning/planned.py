@@ -1,0 +1,325 @@
+"""The result of the planner: a joint motion with its torques, usable as a move.
+
+A :class:`PlannedMove` holds the optimal trajectory on a dense grid (the RK4 substeps of
+the optimal control problem) and behaves like :class:`casflex.moves.Move` wherever a
+reference is sampled (:func:`casflex.moves.reference_sampler`,
+:func:`casflex.moves.reference_function`, :func:`casflex.simulate.simulate_prescribed`,
+closed-loop tracking): before 0 it rests at ``q0``, after ``duration`` at ``qf``. Its
+torques are a torque law for :func:`casflex.simulate.simulate_torque`
+(:meth:`PlannedMove.torque_law`).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex._validate import output_file
+from casflex.moves import reference_function, reference_sampler
+
+__all__ = ["PlannedMove"]
+
+
+@dataclass
+class PlannedMove:
+    """An optimal point-to-point motion (:func:`casflex.planning.plan_move`).
+
+    Attributes
+    ----------
+    t : numpy.ndarray, shape (K,)
+        Times of the dense grid, 0 to ``duration`` [s].
+    q, dq, ddq : numpy.ndarray, shape (K, n)
+        Joint positions [rad], velocities [rad/s], accelerations [rad/s²].
+    tau : numpy.ndarray, shape (K, n)
+        Joint torques [N m] (piecewise constant over the intervals; at an interval
+        boundary the torque of the interval that starts there, at the end the last one).
+    delta, ddelta : numpy.ndarray, shape (K, m)
+        Modal amplitudes [√kg m] and rates of the nominal model.
+    node_t : numpy.ndarray, shape (N + 1,)
+        Times of the shooting nodes [s].
+    node_x : numpy.ndarray, shape (N + 1, 2 (n + m))
+        States ``[q; δ; q̇; δ̇]`` at the nodes.
+    node_tau : numpy.ndarray, shape (N, n)
+        Torque of every interval [N m].
+    hold_torque : numpy.ndarray, shape (n,)
+        Torque that holds the arm at rest at ``qf`` after the move [N m].
+    stats : dict
+        Solver statistics: ``status``, ``success``, ``iterations``, ``solve_s``,
+        ``objective``, ``intervals``, ``substeps``, ``scenarios`` (frequency errors),
+        ``ocp_residual`` (the residual tip deflection the OCP's end state predicts, m).
+    settle : float
+        Time simulated after the move [s] (as :attr:`casflex.moves.Move.settle`).
+    name, description : str
+    propagator : callable, optional
+        ``propagator(x, tau, s) -> (x(s), ẋ(s))``: the model's state a time ``s`` after a
+        node state ``x`` under the constant torque ``tau`` (arrays with one column per
+        sample; the OCP's RK4 substeps scaled to ``s``). With it, :meth:`sample`
+        integrates from the node before every sample time, so the joint motion is the
+        one the torques produce, acceleration jumps at the nodes included; without it
+        the dense samples are interpolated.
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 1.0, 11)
+    >>> q = (3 * t**2 - 2 * t**3)[:, None]
+    >>> dq, ddq = (6 * t - 6 * t**2)[:, None], (6 - 12 * t)[:, None]
+    >>> p = PlannedMove(t=t, q=q, dq=dq, ddq=ddq, tau=ddq, delta=np.zeros((11, 0)),
+    ...                 ddelta=np.zeros((11, 0)), node_t=t, node_x=np.c_[q, dq],
+    ...                 node_tau=ddq[:-1], hold_torque=np.zeros(1))
+    >>> p.duration, p.t_end, p.qf.tolist()
+    (1.0, 4.0, [1.0])
+    >>> [round(float(a[0]), 6) for a in p.sample(0.5)]
+    [0.5, 1.5, 0.0]
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    ddq: np.ndarray
+    tau: np.ndarray
+    delta: np.ndarray
+    ddelta: np.ndarray
+    node_t: np.ndarray
+    node_x: np.ndarray
+    node_tau: np.ndarray
+    hold_torque: np.ndarray
+    stats: dict = field(default_factory=dict)
+    settle: float = 3.0
+    name: str = "planned"
+    description: str = ""
+    propagator: Callable | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def duration(self) -> float:
+        """Duration of the motion [s]."""
+        return float(self.t[-1])
+
+    @property
+    def t_end(self) -> float:
+        """End of the simulated interval, ``duration + settle`` [s]."""
+        return self.duration + self.settle
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints."""
+        return self.q.shape[1]
+
+    @property
+    def q0(self) -> np.ndarray:
+        """Start joint values [rad]."""
+        return self.q[0].copy()
+
+    @property
+    def qf(self) -> np.ndarray:
+        """End joint values [rad]."""
+        return self.q[-1].copy()
+
+    @property
+    def breakpoints(self) -> np.ndarray:
+        """Times [s] where the torque (and the joint acceleration) jumps: the nodes."""
+        return np.asarray(self.node_t, dtype=float)
+
+    @property
+    def torque_peak(self) -> np.ndarray:
+        """Peak absolute planned torque per joint [N m]."""
+        return np.max(np.abs(self.node_tau), axis=0)
+
+    @property
+    def velocity_peak(self) -> np.ndarray:
+        """Peak absolute joint velocity of the dense trajectory per joint [rad/s]."""
+        return np.max(np.abs(self.dq), axis=0)
+
+    def _samples(self):
+        return (self.t, self.q, self.dq, self.ddq)
+
+    def sample(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint position, velocity and acceleration at times ``t``.
+
+        With a ``propagator`` the state is integrated from the node that starts the
+        interval holding ``t`` (the right limit at a node); otherwise, between the dense
+        samples, ``q`` and ``q̇`` are cubic Hermite interpolants and ``q̈`` is linear
+        (:func:`casflex.moves.reference_sampler`). Before 0 the joints rest at ``q0``,
+        after ``duration`` at ``qf``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times [s].
+
+        Returns
+        -------
+        q, qd, qdd : numpy.ndarray
+            Each of shape ``(len(t), n_joints)`` [rad, rad/s, rad/s²]
+            (``(n_joints,)`` for a scalar ``t``).
+
+        Examples
+        --------
+        >>> t = np.array([0.0, 1.0])
+        >>> p = PlannedMove(t=t, q=np.c_[[0.0, 1.0]], dq=np.zeros((2, 1)),
+        ...                 ddq=np.zeros((2, 1)), tau=np.zeros((2, 1)),
+        ...                 delta=np.zeros((2, 0)), ddelta=np.zeros((2, 0)), node_t=t,
+        ...                 node_x=np.zeros((2, 2)), node_tau=np.zeros((1, 1)),
+        ...                 hold_torque=np.zeros(1))
+        >>> [a.ravel().tolist() for a in p.sample([-1.0, 2.0])]
+        [[0.0, 1.0], [0.0, 0.0], [0.0, 0.0]]
+        """
+        scalar = np.ndim(t) == 0
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        if self.propagator is None:
+            q, dq, ddq = reference_sampler(self._samples(), self.n_joints).sample(tt)
+        else:
+            q, dq, ddq = self._propagated(tt)
+        before, after = tt < 0.0, tt > self.duration
+        q[before], dq[before], ddq[before] = self.q[0], 0.0, 0.0
+        q[after], dq[after], ddq[after] = self.q[-1], 0.0, 0.0
+        if scalar:
+            return q[0], dq[0], ddq[0]
+        return q, dq, ddq
+
+    def _propagated(self, tt):
+        n = self.n_joints
+        nx = self.node_x.shape[1]
+        m = nx // 2 - n
+        q = np.empty((tt.size, n))
+        dq, ddq = np.zeros_like(q), np.zeros_like(q)
+        inside = (tt >= 0.0) & (tt <= self.duration)
+        ti = tt[inside]
+        if ti.size:
+            k = np.clip(np.searchsorted(self.node_t, ti, side="right") - 1, 0,
+                        self.node_tau.shape[0] - 1)
+            x, xdot = self.propagator(self.node_x[k].T, self.node_tau[k].T,
+                                      (ti - self.node_t[k])[None, :])
+            x, xdot = np.asarray(x).T, np.asarray(xdot).T
+            q[inside], dq[inside] = x[:, :n], x[:, n + m:2 * n + m]
+            ddq[inside] = xdot[:, n + m:2 * n + m]
+        return q, dq, ddq
+
+    def casadi_reference(self) -> ca.Function:
+        """``reference (t) -> (qd, dqd, ddqd)``: piecewise-linear in the dense samples.
+
+        The samples are extended to rest at ``qf`` until ``t_end``
+        (:func:`casflex.moves.reference_function`).
+
+        Examples
+        --------
+        >>> t = np.array([0.0, 1.0])
+        >>> p = PlannedMove(t=t, q=np.c_[[0.0, 1.0]], dq=np.zeros((2, 1)),
+        ...                 ddq=np.zeros((2, 1)), tau=np.zeros((2, 1)),
+        ...                 delta=np.zeros((2, 0)), ddelta=np.zeros((2, 0)), node_t=t,
+        ...                 node_x=np.zeros((2, 2)), node_tau=np.zeros((1, 1)),
+        ...                 hold_torque=np.zeros(1))
+        >>> [float(v) for v in p.casadi_reference()(0.5)]
+        [0.5, 0.0, 0.0]
+        """
+        t, q, dq, ddq = self._samples()
+        if self.settle > 0.0:
+            t = np.r_[t, self.t_end]
+            q = np.vstack([q, q[-1]])
+            dq = np.vstack([dq, np.zeros_like(dq[-1])])
+            ddq = np.vstack([ddq, np.zeros_like(ddq[-1])])
+        return reference_function((t, q, dq, ddq))
+
+    def time_grid(self, dt: float) -> np.ndarray:
+        """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
+
+        Parameters
+        ----------
+        dt : float
+            Time step [s].
+
+        Examples
+        --------
+        >>> t = np.array([0.0, 1.0])
+        >>> p = PlannedMove(t=t, q=np.zeros((2, 1)), dq=np.zeros((2, 1)),
+        ...                 ddq=np.zeros((2, 1)), tau=np.zeros((2, 1)),
+        ...                 delta=np.zeros((2, 0)), ddelta=np.zeros((2, 0)), node_t=t,
+        ...                 node_x=np.zeros((2, 2)), node_tau=np.zeros((1, 1)),
+        ...                 hold_torque=np.zeros(1), settle=0.5)
+        >>> p.time_grid(0.5).tolist()
+        [0.0, 0.5, 1.0, 1.5]
+        """
+        n = int(round(self.t_end / dt))
+        return np.arange(n + 1) * dt
+
+    def torque_law(self):
+        """The planned torques as a law ``u(t, x) -> τ`` for
+        :func:`casflex.simulate.simulate_torque`.
+
+        The torque of the interval that holds ``t`` (piecewise constant); before 0 and
+        after ``duration`` the holding torque at the end (the start's for ``t < 0``).
+
+        Returns
+        -------
+        callable
+            ``u(t, x) -> numpy.ndarray`` of shape (n,) [N m].
+
+        Examples
+        --------
+        >>> t = np.array([0.0, 0.5, 1.0])
+        >>> p = PlannedMove(t=t, q=np.zeros((3, 1)), dq=np.zeros((3, 1)),
+        ...                 ddq=np.zeros((3, 1)), tau=np.zeros((3, 1)),
+        ...                 delta=np.zeros((3, 0)), ddelta=np.zeros((3, 0)), node_t=t,
+        ...                 node_x=np.zeros((3, 2)), node_tau=np.c_[[1.0, -1.0]],
+        ...                 hold_torque=np.zeros(1))
+        >>> u = p.torque_law()
+        >>> [float(u(s, None)[0]) for s in (0.1, 0.6, 1.2)]
+        [1.0, -1.0, 0.0]
+        """
+        node_t = np.asarray(self.node_t, dtype=float)
+        taus = np.asarray(self.node_tau, dtype=float)
+        hold = np.asarray(self.hold_torque, dtype=float)
+        T = float(node_t[-1])
+        # a step that starts a hair before a node belongs to the interval after it: the
+        # simulator's step times are sums of dt and carry round-off
+        eps = 1e-9 * max(T, 1.0)
+
+        def law(t: float, x: object) -> np.ndarray:
+            if t >= T - eps:
+                return hold
+            k = int(np.searchsorted(node_t, t + eps, side="right") - 1)
+            return taus[min(max(k, 0), taus.shape[0] - 1)]
+
+        return law
+
+    def to_csv(self, path: str | os.PathLike) -> Path:
+        """Write the dense trajectory: columns ``t, q1.., dq1.., ddq1.., tau1..``.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Output file (checked before writing).
+
+        Returns
+        -------
+        pathlib.Path
+
+        Examples
+        --------
+        >>> import tempfile
+        >>> t = np.array([0.0, 1.0])
+        >>> p = PlannedMove(t=t, q=np.c_[[0.0, 1.0]], dq=np.zeros((2, 1)),
+        ...                 ddq=np.zeros((2, 1)), tau=np.zeros((2, 1)),
+        ...                 delta=np.zeros((2, 0)), ddelta=np.zeros((2, 0)), node_t=t,
+        ...                 node_x=np.zeros((2, 2)), node_tau=np.zeros((1, 1)),
+        ...                 hold_torque=np.zeros(1))
+        >>> out = p.to_csv(Path(tempfile.mkdtemp()) / "trajectory.csv")
+        >>> out.read_text().splitlines()[0]
+        't,q1,dq1,ddq1,tau1'
+        """
+        out = output_file(path, "path")
+        n = self.n_joints
+        header = ["t"] + [f"{k}{j + 1}" for k in ("q", "dq", "ddq", "tau") for j in range(n)]
+        rows = np.column_stack([self.t, self.q, self.dq, self.ddq, self.tau])
+        with open(out, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for row in rows:
+                w.writerow([repr(float(v)) for v in row])
+        return out

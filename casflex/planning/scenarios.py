@@ -1,0 +1,208 @@
+"""Models with shifted natural frequencies and the static state of a model at rest.
+
+The robust planner and the verification at a frequency error need the same model with
+its stiffness scaled so that every natural frequency is off by a factor ``1 + r``: the
+modal stiffness is ``Ω²`` (:class:`casflex.model.FlexibleModel`), so scaling the
+provider's ``omega`` by ``1 + r`` scales the stiffness by ``(1 + r)²`` and leaves the
+mode shapes, the mass matrix and the kinematics as they are. :mod:`casflex.model` has no
+such option, so :class:`ScaledFrequencyProvider` wraps the model's provider here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from casflex._validate import number
+from casflex.model import FlexibleModel
+
+__all__ = ["ScaledFrequencyProvider", "frequency_shifted_model", "static_deflection",
+           "tip_jacobian"]
+
+
+class ScaledFrequencyProvider:
+    """A provider whose natural frequencies are those of ``provider`` times ``factor``.
+
+    Parameters
+    ----------
+    provider : object
+        A provider of :mod:`casflex.model.providers`.
+    factor : float
+        Frequency factor ``1 + r`` (> 0).
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> p = PointwiseProvider(robot, [0.0], count=1)
+    >>> s = ScaledFrequencyProvider(p, 1.1)
+    >>> round(float(s.function("omega")([])) / float(p.function("omega")([])), 12)
+    1.1
+    """
+
+    def __init__(self, provider: Any, factor: float) -> None:
+        self.provider = provider
+        self.factor = number(factor, "factor", low=0.0, low_open=True)
+        self.shape_joints = tuple(provider.shape_joints)
+        if not hasattr(provider, "evaluate"):
+            # the model asks getattr(provider, "evaluate", None): no batched evaluation
+            self.evaluate = None
+
+    def __getattr__(self, name: str) -> Any:
+        # zero_entries, names, ...: as the wrapped provider has them (evaluate is below)
+        if name in ("provider", "factor", "shape_joints"):
+            raise AttributeError(name)
+        return getattr(self.provider, name)
+
+    def function(self, name: str) -> ca.Function:
+        """The wrapped provider's function ``name``; ``omega`` scaled by ``factor``.
+
+        Parameters
+        ----------
+        name : str
+            A quantity of :func:`casflex.modal.integrals.configuration_quantities`.
+
+        Examples
+        --------
+        >>> from casflex.model import PointwiseProvider
+        >>> from casflex.robot import load
+        >>> p = PointwiseProvider(load("problems/onelink.toml"), [0.0], count=1)
+        >>> ScaledFrequencyProvider(p, 2.0).function("omega").name()
+        'omega_scaled'
+        """
+        f = self.provider.function(name)
+        if name != "omega":
+            return f
+        args = [ca.SX.sym(f"x{i}", f.sparsity_in(i)) for i in range(f.n_in())]
+        return ca.Function("omega_scaled", args, [self.factor * f(*args)])
+
+    def evaluate(self, q_shape: ca.SX) -> dict[str, ca.SX]:
+        """Every quantity at ``q_shape`` (the wrapped provider's), ``omega`` scaled.
+
+        Parameters
+        ----------
+        q_shape : casadi.SX
+            The shape joints [rad].
+
+        Examples
+        --------
+        >>> from casflex.model import build_model
+        >>> from casflex.robot import load
+        >>> model, _ = build_model(load("problems/arm2link.toml"), n_modes=1,
+        ...                        grid=[np.radians([0, 10, 20, 30])], cache_dir=False,
+        ...                        processes=1)
+        >>> v = ScaledFrequencyProvider(model.provider, 1.5).evaluate(ca.DM([0.0]))
+        >>> round(float(ca.evalf(v["omega"])), 3)
+        12.461
+        """
+        values = dict(self.provider.evaluate(q_shape))
+        values["omega"] = self.factor * values["omega"]
+        return values
+
+
+def frequency_shifted_model(model: FlexibleModel, error: float) -> FlexibleModel:
+    """``model`` with every natural frequency multiplied by ``1 + error``.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    error : float
+        Relative frequency error ``r`` (> -1): the stiffness is scaled by ``(1 + r)²``.
+
+    Returns
+    -------
+    casflex.model.FlexibleModel
+        Same robot, gravity, damping ratio, ``delta_order`` and ``modal_mass``; ``model``
+        itself for ``error == 0``.
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> K = frequency_shifted_model(model, -0.1).functions()["stiffness"]([0.0])
+    >>> round(float(K) / float(model.functions()["stiffness"]([0.0])), 12)
+    0.81
+    """
+    error = number(error, "frequency error", low=-1.0, low_open=True)
+    if error == 0.0:
+        return model
+    return FlexibleModel(model.robot, ScaledFrequencyProvider(model.provider, 1.0 + error),
+                         gravity=model.gravity, damping_ratio=model.damping_ratio,
+                         delta_order=model.delta_order, modal_mass=model.modal_mass)
+
+
+def static_deflection(model: FlexibleModel, q: ArrayLike) -> np.ndarray:
+    """Modal amplitudes of the arm at rest at ``q``: ``Ω² δ + g_δ(q, δ) = 0``.
+
+    Zero without gravity. With gravity the modal rows of the potential forces are affine
+    in δ (``delta_order`` 0 or 1), so one Newton step from δ = 0 solves them exactly; a
+    second step checks it.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    q : array_like, shape (n,)
+        Joint values [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (m,)
+        δ [√kg m].
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> static_deflection(model, [0.3]).tolist()
+    [0.0]
+    """
+    n, m = model.n, model.m
+    q = np.asarray(q, dtype=float).ravel()
+    d = np.zeros(m)
+    if not m or not np.any(model.gravity):
+        return d
+    G = model.functions()["potential_forces"]
+    dsym = ca.SX.sym("d", m)
+    r = G(q, dsym)[n:]
+    jac = ca.Function("jac", [dsym], [r, ca.jacobian(r, dsym)])
+    for _ in range(2):
+        res, J = jac(d)
+        d = d - np.linalg.solve(J.full(), res.full().ravel())
+    return d
+
+
+def tip_jacobian(model: FlexibleModel, q: ArrayLike) -> np.ndarray:
+    """Tip displacement per unit modal amplitude at ``q``: ``∂tip/∂δ`` at δ = 0.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    q : array_like, shape (n,)
+        Joint values [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, m)
+        [m / (√kg m)].
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> tip_jacobian(model, [0.0]).round(3).ravel().tolist()
+    [0.0, 6.506, 0.0]
+    """
+    d = ca.SX.sym("d", model.m)
+    tip = model.functions()["tip"](np.asarray(q, dtype=float).ravel(), d)
+    J = ca.Function("J", [d], [ca.jacobian(tip, d)])(np.zeros(model.m))
+    return np.asarray(J.full(), dtype=float).reshape(3, model.m)

@@ -1,0 +1,366 @@
+"""Verification of a plan by other paths than the OCP's, and the shaped-vs-planned study.
+
+:func:`verify_plan` simulates a :class:`~casflex.planning.PlannedMove` twice, with the
+simulators of :mod:`casflex.simulate` at their own step (1 ms by default), not with the
+OCP's discretisation:
+
+* the planned joint motion with the prescribed-motion simulator (the joints on the plan,
+  as a stiff joint servo would impose it);
+* the planned torques, open loop, with the torque-driven simulator;
+
+and reports both residual tip deflections next to the OCP's own prediction, for the
+nominal model and for the models whose frequencies are off by the given errors.
+
+:func:`plan_robot_move` is what ``casflex plan`` runs: the model of a robot, the
+SI-shaped version of a move (:func:`casflex.shaping.shaper_for_move`), the plan at the
+shaped move's peak torques and velocities, and the verification of both.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from casflex._validate import fail, number
+from casflex.model import FlexibleModel
+from casflex.planning.ocp import plan_limits, plan_move
+from casflex.planning.planned import PlannedMove
+from casflex.planning.scenarios import frequency_shifted_model, static_deflection
+
+if TYPE_CHECKING:
+    from casflex.moves import Move
+    from casflex.robot import Robot
+
+__all__ = ["verify_plan", "plan_robot_move", "PlanComparison"]
+
+
+def _residual_after(t, deflection, t_from):
+    sel = t >= t_from - 1e-12
+    return float(np.max(np.linalg.norm(deflection[sel], axis=1)))
+
+
+def verify_plan(model: FlexibleModel, plan: PlannedMove, *, dt: float = 1e-3,
+                errors: Sequence[float] = (), torque: bool = True,
+                settle: float | None = None) -> dict:
+    """Residual tip deflections of ``plan`` simulated with the joints on it and under its
+    torques.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        The model the plan is checked on (the nominal one).
+    plan : PlannedMove
+    dt : float
+        Simulation step [s].
+    errors : sequence of float
+        Relative frequency errors at which the plan is simulated too
+        (:func:`casflex.planning.frequency_shifted_model`).
+    torque : bool
+        Also run the torque-driven simulations.
+    settle : float, optional
+        Time simulated after the move [s] (default ``plan.settle``).
+
+    Returns
+    -------
+    dict
+        ``ocp`` (the OCP's prediction, m), ``prescribed`` and ``torque`` (residual tip
+        deflection, largest ‖tip deflection‖ after ``duration``, m; ``torque`` is
+        ``None`` without ``torque``), ``torque_peak`` (of the prescribed run, N m),
+        ``velocity_peak`` (rad/s), ``end_error`` (‖q − qf‖ at the end of the torque run,
+        rad) and ``errors``: one dict ``{"error", "prescribed", "torque"}`` per error.
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> plan = plan_move(model, [0.0], [0.5], torque_limit=0.5, intervals=12, settle=0.5)
+    >>> v = verify_plan(model, plan)
+    >>> bool(v["prescribed"] < 2e-4 and v["torque"] < 2e-4)
+    True
+    """
+    from casflex.simulate import simulate_prescribed, simulate_torque
+
+    dt = number(dt, "dt", low=0.0, low_open=True)
+    T = plan.duration
+    t_end = T + (plan.settle if settle is None else number(settle, "settle", low=0.0))
+    n = model.n
+
+    def runs(mod):
+        m = mod.m
+        d0 = static_deflection(mod, plan.q0)
+        pres = simulate_prescribed(mod, plan, dt=dt, t_end=t_end, delta0=d0 if m else None)
+        out = {"prescribed": _residual_after(pres.t, pres.tip_deflection, T),
+               "torque": None, "run": pres, "torque_run": None}
+        if torque:
+            x0 = np.r_[plan.q0, d0, np.zeros(n + m)]
+            tr = simulate_torque(mod, plan.torque_law(), x0, t_end=t_end, dt=dt)
+            out["torque"] = _residual_after(tr.t, tr.tip_deflection, T)
+            out["torque_run"] = tr
+        return out
+
+    nominal = runs(model)
+    pres = nominal["run"]
+    result = {
+        "ocp": float(plan.stats.get("ocp_residual", float("nan"))),
+        "prescribed": nominal["prescribed"],
+        "torque": nominal["torque"],
+        "torque_peak": pres.torque_peak.tolist(),
+        "velocity_peak": np.max(np.abs(pres.dq), axis=0).tolist(),
+        "end_error": None,
+        "errors": [],
+        "runs": {"prescribed": pres, "torque": nominal["torque_run"]},
+    }
+    if nominal["torque_run"] is not None:
+        tr = nominal["torque_run"]
+        k = int(np.searchsorted(tr.t, T - 1e-12))
+        result["end_error"] = float(np.linalg.norm(tr.q[min(k, tr.t.size - 1)] - plan.qf))
+    for r in errors:
+        shifted = runs(frequency_shifted_model(model, float(r)))
+        result["errors"].append({"error": float(r), "prescribed": shifted["prescribed"],
+                                 "torque": shifted["torque"]})
+    return result
+
+
+@dataclass
+class PlanComparison:
+    """A planned move next to the SI-shaped version of the same move
+    (:func:`plan_robot_move`).
+
+    Attributes
+    ----------
+    model : casflex.model.FlexibleModel
+    move : casflex.moves.Move
+    shaped : casflex.moves.ShapedMove
+    plan : PlannedMove
+    limits : dict
+        ``torque`` [N m] and ``velocity`` [rad/s] limits the plan was given.
+    verification : dict
+        :func:`verify_plan` of the plan.
+    shaped_verification : dict
+        ``residual`` (m), ``torque_peak`` (N m), ``velocity_peak`` (rad/s) of the shaped
+        move with the joints on it, and ``errors`` (``{"error", "residual"}``).
+    timings : dict
+        Seconds spent in each step.
+
+    Examples
+    --------
+    >>> c = PlanComparison(model=None, move=None, shaped=None, plan=None, limits={},
+    ...                    verification={}, shaped_verification={"residual": 0.01})
+    >>> c.shaped_verification["residual"]
+    0.01
+    """
+
+    model: Any
+    move: Any
+    shaped: Any
+    plan: Any
+    limits: dict
+    verification: dict
+    shaped_verification: dict
+    timings: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        """The JSON result of ``casflex plan`` (SI units).
+
+        Returns
+        -------
+        dict
+            ``duration``, ``torque_peak``, ``velocity_peak``, ``residual_tip_deflection``
+            (verified: prescribed-motion run, m), ``residual_torque_driven``,
+            ``residual_ocp``, ``robust`` (residuals at the frequency errors), ``shaped``
+            {``duration``, ``residual_tip_deflection``, ``torque_peak``, ...},
+            ``solve_s``, ``status``, ``iterations``, ``intervals``, ``substeps``,
+            ``limits``, ``shortening`` (1 − planned / shaped duration).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> t = np.array([0.0, 1.0])
+        >>> p = PlannedMove(t=t, q=np.zeros((2, 1)), dq=np.zeros((2, 1)),
+        ...                 ddq=np.zeros((2, 1)), tau=np.zeros((2, 1)),
+        ...                 delta=np.zeros((2, 0)), ddelta=np.zeros((2, 0)), node_t=t,
+        ...                 node_x=np.zeros((2, 2)), node_tau=np.zeros((1, 1)),
+        ...                 hold_torque=np.zeros(1), stats={"status": "Solve_Succeeded"})
+        >>> class Shaped:
+        ...     duration = 2.0
+        >>> c = PlanComparison(None, None, Shaped(), p, {"torque": [1.0], "velocity": [1.0]},
+        ...                    {"prescribed": 0.0, "torque": 0.0, "ocp": 0.0, "errors": [],
+        ...                     "torque_peak": [0.0], "velocity_peak": [0.0]},
+        ...                    {"residual": 0.0, "torque_peak": [1.0], "velocity_peak": [1.0],
+        ...                     "errors": []})
+        >>> c.summary()["shortening"]
+        0.5
+        """
+        v, s, p = self.verification, self.shaped_verification, self.plan
+        return {
+            "move": getattr(self.move, "name", None),
+            "duration": p.duration,
+            "torque_peak": v["torque_peak"],
+            "velocity_peak": v["velocity_peak"],
+            "residual_tip_deflection": v["prescribed"],
+            "residual_torque_driven": v["torque"],
+            "residual_ocp": v["ocp"],
+            "end_error_torque_driven": v.get("end_error"),
+            "robust": [{"error": e["error"], "residual_tip_deflection": e["prescribed"],
+                        "residual_torque_driven": e["torque"],
+                        "shaped_residual_tip_deflection": se["residual"]}
+                       for e, se in zip(v["errors"], s["errors"], strict=True)],
+            "shaped": {"duration": float(self.shaped.duration),
+                       "residual_tip_deflection": s["residual"],
+                       "torque_peak": s["torque_peak"],
+                       "velocity_peak": s["velocity_peak"]},
+            "shortening": 1.0 - p.duration / float(self.shaped.duration),
+            "limits": {k: list(map(float, val)) for k, val in self.limits.items()},
+            "solve_s": p.stats.get("solve_s"),
+            "status": p.stats.get("status"),
+            "iterations": p.stats.get("iterations"),
+            "intervals": p.stats.get("intervals"),
+            "substeps": p.stats.get("substeps"),
+            "objective": p.stats.get("objective"),
+            "timings": dict(self.timings),
+        }
+
+
+def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: str = "time",
+                    duration: float | None = None, robust: float = 0.0,
+                    intervals: int = 40, end: str | float | None = None,
+                    step: float | None = None, delta_order: int = 1,
+                    vtol: float = 0.05, margin: float = 0.20, dt: float = 1e-3,
+                    cache_dir: str | os.PathLike | None = None,
+                    processes: int | None = None, progress: bool = False,
+                    log: Callable[[str], None] | None = None,
+                    **plan_options: Any) -> PlanComparison:
+    """Plan a move of a robot at the limits of its SI-shaped version and verify both.
+
+    The model is :func:`casflex.model.build_model` without gravity (as the shaper's,
+    :func:`casflex.shaping.shaper_for_robot_move`: the deflection is vibration only). The
+    SI shaper of the move (:func:`casflex.shaping.shaper_for_move`) gives the shaped move;
+    its peak torques and velocities with the joints on it (:func:`plan_limits`) are the
+    planner's limits, so the comparison is fair. The plan's end condition is, by default,
+    the residual tip deflection of the shaped move (with the joints on it). Both are
+    simulated at ``dt`` (:func:`verify_plan`), and at ``±robust`` when ``robust > 0``.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    move : casflex.moves.Move
+    n_modes : int
+        Modes of the model.
+    objective, duration, robust, intervals
+        As for :func:`casflex.planning.plan_move` (an ``"energy"`` plan lasts as long as
+        the shaped move unless ``duration`` [s] is given).
+    end : "rest" or "free" or float, optional
+        End condition of the plan (default: the shaped move's residual [m]).
+    step : float, optional
+        Grid step of the modal tables [rad].
+    delta_order : {1, 0}
+        Of the model (:class:`casflex.model.FlexibleModel`).
+    vtol, margin : float
+        Of the shaper (:func:`casflex.shaping.shaper_for_move`).
+    dt : float
+        Simulation step of the verification [s].
+    cache_dir, processes, progress
+        For the modal tables (:func:`casflex.model.build_model`).
+    log : callable, optional
+        ``log(message)``: one line per step.
+    **plan_options
+        More keywords of :func:`casflex.planning.plan_move` (``torque_limit``... override
+        the shaped move's).
+
+    Returns
+    -------
+    PlanComparison
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from casflex.moves import Move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> c = plan_robot_move(robot, Move([0.0, 0.0, 0.0], [-0.5, 0.0, 0.0], 2.0, settle=1.0),
+    ...                     n_modes=1, intervals=10, step=np.radians(30.0), processes=1,
+    ...                     cache_dir=tempfile.mkdtemp())
+    >>> s = c.summary()
+    >>> bool(s["duration"] < s["shaped"]["duration"])
+    True
+    """
+    from casflex.model import build_model
+    from casflex.moves import ShapedMove
+    from casflex.shaping import shaper_for_move
+    from casflex.simulate import simulate_prescribed
+
+    if move.n_joints != robot.n_joints:
+        raise fail("move", move.name, f"has {move.n_joints} joint(s) but robot "
+                   f"'{robot.name}' has {robot.n_joints}")
+    robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
+    say = log or (lambda message: None)
+    timings = {}
+    t0 = time.perf_counter()
+    say(f"building the {n_modes}-mode model of '{robot.name}' (tables cached)")
+    model, _ = build_model(robot, n_modes=n_modes, step=step, gravity=None,
+                           delta_order=delta_order, cache_dir=cache_dir,
+                           processes=processes, progress=progress)
+    timings["model_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    say(f"designing the SI shaper of {move.name} (margin ±{100 * margin:g} %)")
+    design = shaper_for_move(model, move, vtol=vtol, margin=margin)
+    shaped = ShapedMove(move, design.shaper)
+    timings["shaper_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    errors = [-robust, robust] if robust > 0.0 else []
+    run = simulate_prescribed(model, shaped, dt=dt, t_end=shaped.t_end)
+    shaped_check = {
+        "residual": _residual_after(run.t, run.tip_deflection, shaped.duration),
+        "torque_peak": run.torque_peak.tolist(),
+        "velocity_peak": np.max(np.abs(run.dq), axis=0).tolist(),
+        "errors": [],
+        "run": run,
+    }
+    for r in errors:
+        rr = simulate_prescribed(frequency_shifted_model(model, r), shaped, dt=dt,
+                                 t_end=shaped.t_end)
+        shaped_check["errors"].append(
+            {"error": r, "residual": _residual_after(rr.t, rr.tip_deflection,
+                                                     shaped.duration)})
+    tau_lim, v_lim = plan_limits(model, shaped, dt=dt)
+    # a joint the shaped move does not drive keeps a small limit (Ipopt needs an interior)
+    tau_lim = np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()), 1e-12))
+    v_lim = np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12))
+    limits = {"torque": plan_options.pop("torque_limit", tau_lim),
+              "velocity": plan_options.pop("velocity_limit", v_lim)}
+    limits = {k: np.broadcast_to(np.asarray(val, dtype=float), (robot.n_joints,))
+              for k, val in limits.items()}
+    timings["shaped_s"] = time.perf_counter() - t0
+    if end is None:
+        # the worst residual of the shaped move over the scenarios the plan must meet
+        end = max([shaped_check["residual"]] +
+                  [e["residual"] for e in shaped_check["errors"]])
+    say(f"planning {move.name}: objective {objective}, {intervals} intervals, limits "
+        f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
+        f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"
+        + (f", robust ±{robust:g}" if robust else ""))
+    if objective == "energy" and duration is None:
+        duration = float(shaped.duration)
+    t0 = time.perf_counter()
+    plan = plan_move(model, move, objective=objective, duration=duration,
+                     intervals=intervals, torque_limit=limits["torque"],
+                     velocity_limit=limits["velocity"], end=end, robust=robust,
+                     guess=plan_options.pop("guess", shaped), **plan_options)
+    timings["plan_s"] = time.perf_counter() - t0
+    say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s), Ipopt "
+        f"{plan.stats['status']} in {plan.stats['iterations']} iterations, "
+        f"{plan.stats['solve_s']:.2f} s")
+    t0 = time.perf_counter()
+    say(f"verifying: prescribed-motion and torque-driven simulations at dt = {dt:g} s")
+    verification = verify_plan(model, plan, dt=dt, errors=errors)
+    timings["verify_s"] = time.perf_counter() - t0
+    return PlanComparison(model=model, move=move, shaped=shaped, plan=plan,
+                          limits=limits, verification=verification,
+                          shaped_verification=shaped_check, timings=timings)

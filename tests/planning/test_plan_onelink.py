@@ -1,0 +1,164 @@
+"""The planner on the one-link flexible arm (problems/onelink.toml), whose modal model and
+rigid time-optimal motion are known in closed form."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from casflex.errors import SolverError
+from casflex.model import FlexibleModel, PointwiseProvider, rigid_provider
+from casflex.planning import PlannedMove, frequency_shifted_model, plan_move, verify_plan
+from casflex.robot import load, loads
+
+ONELINK = "problems/onelink.toml"
+# beam of problems/onelink.toml
+E, RHO, L = 69.0e9, 2700.0, 1.0
+A_Y, B_X = 0.007, 0.005            # section, local y and x (x lies in the plane of motion)
+HUB = 0.01                         # motor inertia of the hub, kg m^2
+TAU_MAX = 0.1                      # N m
+THETA = 1.0                        # rad
+# The simulators sample q'' at the start, middle and end of each step; at every torque
+# switch of the plan the joint acceleration jumps by up to 2 tau_max / J_res ~ 20 rad/s^2
+# (J_res = J - M_qd^2 ~ 0.01 kg m^2), which the step that straddles it integrates with an
+# error of up to dt / 2. With dt = 1 ms this moves the residual by up to ~3 % of it, with
+# 0.1 ms by < 0.5 % (measured: 2.058 / 2.012 / 2.006 mm at 1 / 0.25 / 0.1 ms for a 2 mm
+# bound); the OCP's own RK4 (omega h <= 0.25) adds ~0.3 %. Hence dt and the 1 % budget.
+DT = 1e-4
+BUDGET = 1.01
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load(ONELINK)
+
+
+@pytest.fixture(scope="module")
+def flexible(robot):
+    """The arm with its first in-plane bending mode (the only one the joint drives)."""
+    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+
+
+def test_onelink_frequencies_are_clamped_free(robot):
+    # joint locked: a clamped-free Euler-Bernoulli beam, omega_k = (beta_k L)^2
+    # sqrt(E I / (rho A L^4)). The TMM beam has shear and rotary inertia (Timoshenko);
+    # for L / h = 200 they lower the first modes by ~(h / L)^2 ~ 1e-5 relative, so 1e-4.
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=3), gravity=None)
+    omega = np.sqrt(np.diag(model.functions()["stiffness"]([0.0]).full()))
+    area = A_Y * B_X
+    in_plane = math.sqrt(E * A_Y * B_X**3 / 12.0 / (RHO * area * L**4))
+    out_of_plane = math.sqrt(E * B_X * A_Y**3 / 12.0 / (RHO * area * L**4))
+    expected = [1.87510407**2 * in_plane, 1.87510407**2 * out_of_plane,
+                4.69409113**2 * in_plane]
+    np.testing.assert_allclose(omega, expected, rtol=1e-4)
+
+
+def test_rigid_time_optimal_is_bang_bang():
+    # The rigid arm: hub + beam as one body, J = J_hub + rho A L^3 / 3 (the beam's section
+    # inertia about its own axis adds ~1e-5 relative). A second joint at the beam end with
+    # nothing outboard but its rotor keeps the model at two joints (decoupled from q1).
+    text = open(ONELINK).read().replace('joint = "fixed"',
+                                        'joint = "revolute"\nmotor_inertia = 0.002')
+    arm = loads(text)
+    rigid = FlexibleModel(arm, rigid_provider(arm), gravity=None)
+    J = HUB + RHO * A_Y * B_X * L**3 / 3.0
+    plan = plan_move(rigid, [0.0, 0.0], [THETA, 0.0], torque_limit=[TAU_MAX, 0.01],
+                     intervals=10)
+    T = 2.0 * math.sqrt(THETA / (TAU_MAX / J))
+    assert plan.duration == pytest.approx(T, rel=2e-5)
+    # bang-bang: full torque for the first half, the opposite for the second
+    tau = plan.node_tau[:, 0]
+    np.testing.assert_allclose(tau, np.r_[np.full(5, TAU_MAX), np.full(5, -TAU_MAX)],
+                               atol=1e-6 * TAU_MAX)
+
+
+def test_vibration_off_and_rest(flexible):
+    J = HUB + RHO * A_Y * B_X * L**3 / 3.0
+    T_rigid = 2.0 * math.sqrt(THETA / (TAU_MAX / J))
+    free = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
+                     end="free", settle=1.0)
+    rest = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
+                     end="rest", settle=1.0)
+    # the rigid-body coordinate psi = q + (M_qd / J) delta obeys J psi'' = tau exactly, so
+    # a rest-to-rest move of the flexible arm takes at least the rigid minimum time; with
+    # the vibration left free the end of psi is free too and the move may be shorter
+    assert rest.duration >= T_rigid * (1 - 1e-9)
+    assert free.duration < rest.duration
+    # both accelerate and brake at the limit (the rigid solution's bang-bang at the ends)
+    for plan in (free, rest):
+        tau = plan.node_tau[:, 0]
+        assert tau[0] == pytest.approx(TAU_MAX, rel=1e-6)
+        assert tau[-1] == pytest.approx(-TAU_MAX, rel=1e-6)
+    v_free = verify_plan(flexible, free, torque=False)
+    v_rest = verify_plan(flexible, rest)
+    # at rest the 1 ms simulations leave < 1 % of the free plan's residual (the OCP's
+    # RK4 substeps and the 1 ms zero-order hold of its torques are the differences)
+    assert v_rest["prescribed"] < 0.01 * v_free["prescribed"]
+    assert v_rest["torque"] < 0.01 * v_free["prescribed"]
+
+
+def test_residual_tolerance_is_met(flexible):
+    tol = 2e-3
+    plan = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
+                     end=tol, settle=1.0)
+    v = verify_plan(flexible, plan, dt=DT)
+    assert v["ocp"] <= tol * (1 + 1e-6)
+    assert v["prescribed"] <= tol * BUDGET
+    assert v["torque"] <= tol * BUDGET
+    assert plan.torque_peak.max() <= TAU_MAX * (1 + 1e-6)
+
+
+def test_robust_plan_keeps_tolerance_under_frequency_error(flexible):
+    tol, r = 2e-3, 0.1
+    kw = {"torque_limit": TAU_MAX, "intervals": 20, "end": tol, "settle": 1.0}
+    nominal = plan_move(flexible, [0.0], [THETA], **kw)
+    robust = plan_move(flexible, [0.0], [THETA], robust=r, **kw)
+    vn = verify_plan(flexible, nominal, errors=(-r, r), torque=False, dt=DT)
+    vr = verify_plan(flexible, robust, errors=(-r, r), torque=False, dt=DT)
+    worst_nominal = max(e["prescribed"] for e in vn["errors"])
+    worst_robust = max(e["prescribed"] for e in vr["errors"])
+    assert worst_nominal > 1.5 * tol
+    assert worst_robust <= tol * BUDGET
+    assert robust.duration > nominal.duration
+
+
+def test_infeasible_duration_names_the_torque_limit(flexible):
+    # an energy plan in half the rigid minimum time cannot exist at this torque limit
+    J = HUB + RHO * A_Y * B_X * L**3 / 3.0
+    T_rigid = 2.0 * math.sqrt(THETA / (TAU_MAX / J))
+    with pytest.raises(SolverError, match="torque limit of joint 1"):
+        plan_move(flexible, [0.0], [THETA], objective="energy", duration=0.5 * T_rigid,
+                  torque_limit=TAU_MAX, intervals=10, end="free", max_iter=200)
+
+
+def test_gravity_hold_is_checked_before_solving(arm):
+    rigid = FlexibleModel(arm, rigid_provider(arm))          # gravity of the robot file
+    with pytest.raises(SolverError, match="joint 2 .* holds the arm against gravity"):
+        plan_move(rigid, [0.0, 0.5, 0.0], [0.0, 0.5, 0.3], torque_limit=0.01)
+
+
+def test_planned_move_is_a_move(flexible, tmp_path):
+    from casflex.moves import reference_function
+    from casflex.simulate import simulate_prescribed
+
+    plan = plan_move(flexible, [0.0], [0.5], torque_limit=TAU_MAX, intervals=12,
+                     settle=0.5)
+    assert isinstance(plan, PlannedMove)
+    run = simulate_prescribed(flexible, plan, dt=1e-3)
+    assert run.t[-1] == pytest.approx(plan.t_end, abs=1e-3)   # on the 1 ms grid
+    assert run.t_move_end == pytest.approx(plan.duration)
+    # the planned joint motion is reproduced and ends at rest at the goal
+    q, dq, _ = plan.sample(plan.node_t)
+    np.testing.assert_allclose(q, plan.node_x[:, :1], atol=1e-9)
+    np.testing.assert_allclose(dq[-1], 0.0, atol=1e-9)
+    ref = reference_function(plan)
+    assert float(ref(plan.t_end)[0]) == pytest.approx(0.5)
+    text = plan.to_csv(tmp_path / "trajectory.csv").read_text().splitlines()
+    assert text[0] == "t,q1,dq1,ddq1,tau1"
+    assert len(text) == plan.t.size + 1
+    # scenario models are the same arm with the frequencies scaled
+    w = flexible.functions()["stiffness"]([0.0])
+    w2 = frequency_shifted_model(flexible, 0.1).functions()["stiffness"]([0.0])
+    assert float(w2) == pytest.approx(1.21 * float(w), rel=1e-12)
