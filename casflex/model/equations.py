@@ -549,8 +549,11 @@ class FlexibleModel:
         self.ddq = ca.SX.sym("ddq", n)
         h_q, h_d = self.h[:n], self.h[n:]
         Mqq, Mqd, Mdd = M[:n, :n], M[:n, n:], M[n:, n:]
-        r = -(Mqd.T @ self.ddq) - h_d
-        dddelta = r if self.modal_mass == "identity" else ca.solve(Mdd, r)
+        if m:
+            r = -(Mqd.T @ self.ddq) - h_d
+            dddelta = r if self.modal_mass == "identity" else ca.solve(Mdd, r)
+        else:  # rigid: no modal rows (slicing a 1 × 1 h would give 1 × 0, not 0 × 1)
+            dddelta = ca.SX(0, 1)
         self.prescribed_dddelta = dddelta
         self.prescribed_tau = Mqq @ self.ddq + Mqd @ dddelta + h_q
 
