@@ -110,7 +110,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError
-from casflex.modal.integrals import QUANTITY_KEYS, quantity_shapes, rigid_pseudo_inertias
+from casflex.modal.integrals import (
+    QUANTITY_KEYS,
+    RATE_KEYS,
+    quantity_shapes,
+    rate_samples,
+    rigid_pseudo_inertias,
+)
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -300,7 +306,7 @@ class FlexibleModel:
         # one interpolant call for every tabulated quantity when the provider offers it
         evaluate = getattr(provider, "evaluate", None)
         self.table_values = evaluate(self.q_shape) if evaluate is not None else None
-        for name in QUANTITY_KEYS:
+        for name in QUANTITY_KEYS + (RATE_KEYS if self.shape_rates else ()):
             f = provider.function(name)
             size = int(np.prod(expected[name]))
             if f.numel_out(0) != size:
@@ -484,10 +490,38 @@ class FlexibleModel:
                     for j in range(m):
                         for k in range(m):
                             M[n + j, n + k] += Tr_.T @ C2[j][k] @ Tr_
+            if rates is not None and body["beam"] is not None:
+                self._add_inside_link_rates(M, body, rates)
             Vg -= gh.T @ T @ Psi[:, 3]
         for k, row in enumerate(self.robot.joint_rows):
             M[k, k] += self.robot.links[row].motor_inertia
         return M, Vg
+
+    def _add_inside_link_rates(self, M, body, rates):
+        """``M_δq += Σ_k δ_k ∫ Tr(L_j J ∂L_kᵀ/∂q)``: a link's own mode j against the rate
+        of its own shapes. The base pose drops out (``Tr(T A Tᵀ) = tr A[:3, :3]`` for an
+        ``A`` with zero last row and column; its δ-dependence is of second order)."""
+        n, m, d = self.n, self.m, self.delta
+        b = body["beam"]
+        s, J = rate_samples(self.robot.links[body["row"]])
+        S = s.size
+        rows = []  # per sample: the 3 × 4 top block of L_j, flattened by rows (12 × m)
+        for p in range(S):
+            cols = []
+            for j in range(m):
+                k = ((b * S + p) * m + j) * 3
+                Lj = ca.horzcat(_skew(rates["samples"]["sample_theta"][k:k + 3]),
+                                rates["samples"]["sample_u"][k:k + 3])
+                cols.append(_vec(Lj.T))
+            rows.append(ca.horzcat(*cols))
+        for col in rates["shape_cols"]:
+            H = ca.SX.zeros(m, m)
+            for p in range(S):
+                dA = ca.reshape(ca.jacobian(_vec(rows[p]), self.q[col]), 12, m)
+                H += rows[p].T @ (ca.DM(np.kron(np.eye(3), J[p])) @ dA)
+            B = H @ d  # B_j = Σ_k δ_k H_jk
+            M[n:, col] += B
+            M[col, n:] += B.T
 
     def _shape_rate_terms(self):
         """What the ``∂w/∂q q̇ δ`` velocity terms need: the pose placeholders with the
@@ -500,7 +534,14 @@ class FlexibleModel:
         Ppose, Vpose = ca.vertcat(*ph), ca.vertcat(*vals)
         dC1 = [(j, ca.jacobian(self._pieces["C1"][2], self.q[j]))
                for j in self.provider.shape_joints]
-        return {"pose": (Ppose, ca.jacobian(Vpose, self.X)), "dC1": dC1}
+        samples = {}
+        for name in ("sample_u", "sample_theta"):
+            size = self._pieces[name][2].numel()
+            zero = _zero_mask(self.provider, name, size)
+            value = self._pieces[name][2]
+            samples[name] = ca.vertcat(*[0 if zero[i] else value[i] for i in range(size)])
+        return {"pose": (Ppose, ca.jacobian(Vpose, self.X)), "dC1": dC1,
+                "samples": samples, "shape_cols": tuple(self.provider.shape_joints)}
 
     def _dynamics(self):
         n, m = self.n, self.m
