@@ -95,9 +95,16 @@ with the shape joints, so the velocity of a point also has the part
 * the link's own part ``Tr(∂_aT (Σ_k δ_k ∂C1_k/∂q) Tᵀ)`` in the shape-joint row and
   column (``∫ L0 J ∂L_kᵀ = ∂C1_k/∂q``, from the tables' B-spline derivatives).
 
-Left out: ``δ_k ∫ Tr(L_j J ∂L_kᵀ)`` in ``M_δq`` (first order in δ; it needs the
-rates of the shapes inside the link, which the tables do not hold) and everything of
-second order in δ (the model's truncation). The option costs a larger graph (measured in
+* the link's own mode ``j`` against the rate of its own shapes,
+  ``M_δ_j q += Σ_k δ_k ∫ Tr(L_j J ∂L_kᵀ/∂q)`` (the base pose drops out of the trace),
+  from the shapes sampled at Gauss points inside each link (``sample_u``,
+  ``sample_theta``, :func:`~casflex.modal.integrals.rate_samples`) and their B-spline
+  derivatives along the shape joints.
+
+With these, ``M`` is the kinetic energy of the moving shapes to first order in δ (tested
+against the energy of the sampled points). Left out: everything of second order in δ (the
+model's truncation), among it the beams' foreshortening (centrifugal stiffening). The
+option costs a larger graph (measured in
 ``benchmarks/README_fidelity.md``) and is off by default.
 """
 
@@ -211,7 +218,10 @@ class FlexibleModel:
         The modal block of ``M`` (module docstring).
     shape_rates : bool
         Keep the velocity terms of mode shapes that change with the shape joints
-        (module docstring; default off).
+        (module docstring; default off). Needs ``delta_order=1`` and a provider with the
+        ``sample_u``/``sample_theta`` quantities (every provider of
+        :mod:`casflex.model.providers` built from
+        :func:`~casflex.modal.integrals.configuration_quantities`).
 
     Attributes
     ----------
@@ -281,6 +291,9 @@ class FlexibleModel:
                              f"got {modal_mass!r}")
         self.modal_mass = modal_mass
         self.shape_rates = bool(shape_rates)
+        if self.shape_rates and delta_order == 0:
+            raise ModelError("shape_rates=True needs delta_order=1: its terms are of first "
+                             "order in delta and would all be dropped")
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
