@@ -318,7 +318,11 @@ class FlexibleModel:
         placeholders, values = [], []
         # one interpolant call for every tabulated quantity when the provider offers it
         evaluate = getattr(provider, "evaluate", None)
-        self.table_values = evaluate(self.q_shape) if evaluate is not None else None
+        # (the shapes sampled inside the links only when the model reads them: the spline
+        # computes every output it holds)
+        self.table_values = None if evaluate is None else evaluate(
+            self.q_shape, [k for k in provider.names
+                           if self.shape_rates or k not in RATE_KEYS])
         for name in QUANTITY_KEYS + (RATE_KEYS if self.shape_rates else ()):
             f = provider.function(name)
             size = int(np.prod(expected[name]))
