@@ -18,6 +18,11 @@ Usage::
 
     python benchmarks/bench_fidelity.py [--json] [--variants base,rates] [--modes 5,8]
         [--cache DIR] [--no-convergence]
+    python benchmarks/bench_fidelity.py --cost [--json]
+
+``--cost`` instead measures what ``shape_rates`` costs: ``bench_model.py``'s
+``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls) off and
+on, alternated in one process, and the CasADi instruction counts.
 
 Reference runs are cached as ``.npz`` in ``--cache`` (default: a folder in the system's
 temporary directory), keyed by the reference's source, the move, the elements and step.
@@ -69,6 +74,52 @@ def convergence(cache):
     return rows
 
 
+def cost(repeats=3):
+    """``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes, ``poly`` with
+    ``jit=True``, the library compiled once; median of warm calls) and the CasADi
+    instruction counts, with ``shape_rates`` off and on in one process, warm calls
+    alternated so that both see the same machine load."""
+    import os
+
+    from casflex.model import build_model
+    from casflex.moves import load_move
+    from casflex.robot import load
+    from casflex.simulate import simulate_prescribed
+
+    robot = load(ROOT / "problems" / "arm2link.toml")
+    move = load_move(ROOT / "problems/moves.toml:move1")
+    out = {"loadavg_start": os.getloadavg()[0]}
+    models = {}
+    with tempfile.TemporaryDirectory() as jit_cache:
+        for label, rates in (("off", False), ("on", True)):
+            t0 = time.perf_counter()
+            model, _ = build_model(robot, 5, gravity=None, shape_rates=rates)
+            f = model.functions()
+            models[label] = model
+            out[label] = {"model_build_s": time.perf_counter() - t0,
+                          "instructions": {k: int(f[k].n_instructions())
+                                           for k in ("mass", "dddelta", "prescribed", "ode")}}
+            t0 = time.perf_counter()
+            r = simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
+                                    cache_dir=jit_cache)
+            out[label]["jit_compile_call_s"] = time.perf_counter() - t0
+            out[label]["max_tip_deflection_m"] = r.max_tip_deflection
+            out[label]["warm_s"] = []
+        for _ in range(repeats):
+            for label in ("off", "on"):
+                t0 = time.perf_counter()
+                simulate_prescribed(models[label], move, dt=1e-3, method="poly", jit=True,
+                                    cache_dir=jit_cache)
+                out[label]["warm_s"].append(time.perf_counter() - t0)
+    for label in ("off", "on"):
+        out[label]["simulate_move1_s"] = float(np.median(out[label]["warm_s"]))
+    out["ratio_on_off"] = out["on"]["simulate_move1_s"] / out["off"]["simulate_move1_s"]
+    out["ratio_per_repeat"] = [b / a for a, b in zip(out["off"]["warm_s"],
+                                                     out["on"]["warm_s"], strict=True)]
+    out["loadavg_end"] = os.getloadavg()[0]
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
@@ -78,7 +129,12 @@ def main(argv=None):
     parser.add_argument("--cache", default=str(Path(tempfile.gettempdir())
                                                / "casflex_fidelity_reference"))
     parser.add_argument("--no-convergence", action="store_true")
+    parser.add_argument("--cost", action="store_true",
+                        help="only the cost of shape_rates (move 1, off vs on)")
     args = parser.parse_args(argv)
+    if args.cost:
+        print(json.dumps(cost(), default=float, indent=None if args.json else 1))
+        return
 
     from casflex.model import build_model
     from casflex.robot import load

@@ -26,6 +26,9 @@ Model quantities
    rigid_pseudo_inertias     -- constant pseudo-inertias of every rigid piece of a robot
    QUANTITY_KEYS             -- keys of configuration_quantities without sensor points
    POINT_KEYS                -- keys added when sensor points are requested
+   RATE_KEYS                 -- keys of the shapes sampled inside each link (shape rates)
+   RATE_SAMPLES              -- Gauss–Legendre points per beam of the sampled shapes
+   rate_samples              -- sample points of a beam and their pseudo-inertias
 
 Mode tracking
 =============
@@ -59,9 +62,12 @@ Frequency sweeps
 from casflex.modal.integrals import (
     POINT_KEYS,
     QUANTITY_KEYS,
+    RATE_KEYS,
+    RATE_SAMPLES,
     configuration_quantities,
     pseudo_inertia,
     quantity_shapes,
+    rate_samples,
     rigid_pseudo_inertias,
     section_pseudo_inertia,
 )
@@ -109,6 +115,9 @@ __all__ = [
     "rigid_pseudo_inertias",
     "QUANTITY_KEYS",
     "POINT_KEYS",
+    "RATE_KEYS",
+    "RATE_SAMPLES",
+    "rate_samples",
     # mode tracking
     "track",
     "Tracking",

@@ -83,12 +83,19 @@ key                     shape            meaning [unit]
 ``end_u``               (nb, m, 3)       ``w_j(L)``, local end deflection [kg^-1/2 m]
 ``end_theta``           (nb, m, 3)       ``ϑ_j(L)``, local end rotation [kg^-1/2 rad]
 ``spring_phi``          (ns, m)          rotation of each joint spring [kg^-1/2 rad]
+``sample_u``            (nb, S, m, 3)    ``w_j(s)`` at the rate samples of
+                                         :func:`rate_samples` [kg^-1/2 m]
+``sample_theta``        (nb, S, m, 3)    ``ϑ_j(s)`` there [kg^-1/2 rad]
 ``point_u``             (P, m, 3)        ``w_j(s)`` at the sensor points [kg^-1/2 m]
 ``point_theta``         (P, m, 3)        ``ϑ_j(s)`` at the sensor points [kg^-1/2 rad]
 ``point_curvature``     (P, m, 2)        ``w_x'', w_y''`` [kg^-1/2 / m]
 ``point_twist_rate``    (P, m)           ``θ_z'`` [kg^-1/2 rad/m]
 ``point_axial_strain``  (P, m)           ``w_z'`` [kg^-1/2]
 ======================  ===============  ====================================================
+
+The ``sample_*`` keys (``S = RATE_SAMPLES + 1``: Gauss–Legendre points and the beam's
+end) let the model differentiate the shapes inside a link along the shape joints
+(``FlexibleModel(shape_rates=True)``: ``∫ Tr(L_j J ∂L_kᵀ/∂q)``).
 
 All vectors are in the local beam frame of the link (``z`` along the beam, see
 :mod:`casflex.robot`). The ``point_*`` keys are present only when ``points`` is given.
@@ -115,6 +122,9 @@ __all__ = [
     "POINT_KEYS",
     "configuration_quantities",
     "quantity_shapes",
+    "RATE_KEYS",
+    "RATE_SAMPLES",
+    "rate_samples",
     "pseudo_inertia",
     "rigid_pseudo_inertias",
     "section_pseudo_inertia",
@@ -122,6 +132,11 @@ __all__ = [
 
 #: Keys of :func:`configuration_quantities` without sensor points.
 QUANTITY_KEYS = ("omega", "C1", "C2", "N", "eps", "end_u", "end_theta", "spring_phi")
+#: Keys of the shapes sampled inside each link (always computed; the model reads them only
+#: with ``shape_rates=True``).
+RATE_KEYS = ("sample_u", "sample_theta")
+#: Gauss–Legendre points per beam of the ``sample_*`` keys (the end point comes on top).
+RATE_SAMPLES = 16
 #: Keys added when sensor points are requested.
 POINT_KEYS = ("point_u", "point_theta", "point_curvature", "point_twist_rate",
               "point_axial_strain")
@@ -247,6 +262,43 @@ def rigid_pseudo_inertias(robot: Robot) -> list[tuple[str, int, np.ndarray]]:
     return out
 
 
+def rate_samples(link: Link) -> tuple[np.ndarray, np.ndarray]:
+    """Sample points of a beam and their pseudo-inertia weights (the ``sample_*`` keys).
+
+    ``RATE_SAMPLES`` Gauss–Legendre points along the beam and its end, with the section's
+    pseudo-inertia times the quadrature weight, and the tip body's at the end, so that
+    ``Σ_p L_j(s_p) J_p L_k(s_p)ᵀ`` approximates ``C2_jk`` (module docstring).
+
+    Parameters
+    ----------
+    link : casflex.robot.Link
+        A flexible row.
+
+    Returns
+    -------
+    s : numpy.ndarray, shape (RATE_SAMPLES + 1,)
+        Arc lengths [m].
+    J : numpy.ndarray, shape (RATE_SAMPLES + 1, 4, 4)
+        Pseudo-inertia of each sample [kg, kg m, kg m²].
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> link = load("problems/arm2link.toml").links[2]
+    >>> s, J = rate_samples(link)
+    >>> s.shape, bool(np.isclose(J[:, 3, 3].sum(), link.mass_per_length * link.length
+    ...                          + link.tip.mass))
+    ((17,), True)
+    """
+    L = link.length
+    xg, wg = gauss_legendre(RATE_SAMPLES)
+    s = np.r_[0.5 * L * (xg + 1.0), L]
+    J = np.einsum("p,ab->pab", np.r_[0.5 * L * wg, 0.0], section_pseudo_inertia(link))
+    if not link.tip.is_empty:
+        J[-1] += pseudo_inertia(link.tip.mass, link.tip.inertia, link.tip.com_offset)
+    return s, J
+
+
 def quantity_shapes(robot: Robot, n_modes: int, n_points: int = 0) -> dict[str, tuple[int, ...]]:
     """Array shape of every key of :func:`configuration_quantities`.
 
@@ -272,7 +324,8 @@ def quantity_shapes(robot: Robot, n_modes: int, n_points: int = 0) -> dict[str, 
     ns = sum(1 for link in robot.links if link.joint_stiffness is not None)
     out = {"omega": (m,), "C1": (nb, m, 4, 4), "C2": (nb, m, m, 4, 4), "N": (nb, m, m),
            "eps": (nb, m, 3), "end_u": (nb, m, 3), "end_theta": (nb, m, 3),
-           "spring_phi": (ns, m)}
+           "spring_phi": (ns, m), "sample_u": (nb, RATE_SAMPLES + 1, m, 3),
+           "sample_theta": (nb, RATE_SAMPLES + 1, m, 3)}
     if n_points:
         P = int(n_points)
         out.update({"point_u": (P, m, 3), "point_theta": (P, m, 3),
@@ -359,6 +412,8 @@ def configuration_quantities(robot: Robot, q: ArrayLike, shapes_normalized: Mode
     eps = np.zeros((nb, m, 3))
     end_u = np.zeros((nb, m, 3))
     end_th = np.zeros((nb, m, 3))
+    sample_u = np.zeros((nb, RATE_SAMPLES + 1, m, 3))
+    sample_th = np.zeros((nb, RATE_SAMPLES + 1, m, 3))
     for b, row in enumerate(shapes.rows):
         link = robot.links[row]
         L = link.length
@@ -381,6 +436,9 @@ def configuration_quantities(robot: Robot, q: ArrayLike, shapes_normalized: Mode
         C2[b] = np.einsum("jpab,pbc,kpdc->jkad", Lj, Jw, Lj)
         eps[b] = C1[b][:, 3, :3]
         end_u[b], end_th[b] = w[:, -1], th[:, -1]
+        sr = np.r_[0.0, rate_samples(link)[0]]
+        w, th = _relative(local_state(robot, shapes, b, sr), sr)
+        sample_u[b], sample_th[b] = np.swapaxes(w[:, 1:], 0, 1), np.swapaxes(th[:, 1:], 0, 1)
     out = {
         "omega": omega.copy(),
         "C1": C1,
@@ -390,6 +448,8 @@ def configuration_quantities(robot: Robot, q: ArrayLike, shapes_normalized: Mode
         "end_u": end_u,
         "end_theta": end_th,
         "spring_phi": np.asarray(shapes.spring_rotation, dtype=float).T.reshape(-1, m).copy(),
+        "sample_u": sample_u,
+        "sample_theta": sample_th,
     }
     if points:
         out.update(_point_values(robot, shapes, points))

@@ -263,8 +263,8 @@ def default_quantities(robot: Robot, q: np.ndarray, shapes: ModeShapes) -> dict[
     >>> robot = load("problems/arm2link.toml")
     >>> q = np.zeros(3)
     >>> values = default_quantities(robot, q, modes(robot, q, count=2))
-    >>> sorted(values)
-    ['C1', 'C2', 'N', 'end_theta', 'end_u', 'eps', 'omega', 'spring_phi']
+    >>> print(*sorted(values))
+    C1 C2 N end_theta end_u eps omega sample_theta sample_u spring_phi
     >>> values["omega"].round(3), values["C2"].shape
     (array([ 8.307, 11.97 ]), (2, 2, 2, 4, 4))
     """

@@ -95,9 +95,16 @@ with the shape joints, so the velocity of a point also has the part
 * the link's own part ``Tr(∂_aT (Σ_k δ_k ∂C1_k/∂q) Tᵀ)`` in the shape-joint row and
   column (``∫ L0 J ∂L_kᵀ = ∂C1_k/∂q``, from the tables' B-spline derivatives).
 
-Left out: ``δ_k ∫ Tr(L_j J ∂L_kᵀ)`` in ``M_δq`` (first order in δ; it needs the
-rates of the shapes inside the link, which the tables do not hold) and everything of
-second order in δ (the model's truncation). The option costs a larger graph (measured in
+* the link's own mode ``j`` against the rate of its own shapes,
+  ``M_δ_j q += Σ_k δ_k ∫ Tr(L_j J ∂L_kᵀ/∂q)`` (the base pose drops out of the trace),
+  from the shapes sampled at Gauss points inside each link (``sample_u``,
+  ``sample_theta``, :func:`~casflex.modal.integrals.rate_samples`) and their B-spline
+  derivatives along the shape joints.
+
+With these, ``M`` is the kinetic energy of the moving shapes to first order in δ (tested
+against the energy of the sampled points). Left out: everything of second order in δ (the
+model's truncation), among it the beams' foreshortening (centrifugal stiffening). The
+option costs a larger graph (measured in
 ``benchmarks/README_fidelity.md``) and is off by default.
 """
 
@@ -110,7 +117,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError
-from casflex.modal.integrals import QUANTITY_KEYS, quantity_shapes, rigid_pseudo_inertias
+from casflex.modal.integrals import (
+    QUANTITY_KEYS,
+    RATE_KEYS,
+    quantity_shapes,
+    rate_samples,
+    rigid_pseudo_inertias,
+)
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -205,7 +218,10 @@ class FlexibleModel:
         The modal block of ``M`` (module docstring).
     shape_rates : bool
         Keep the velocity terms of mode shapes that change with the shape joints
-        (module docstring; default off).
+        (module docstring; default off). Needs ``delta_order=1`` and a provider with the
+        ``sample_u``/``sample_theta`` quantities (every provider of
+        :mod:`casflex.model.providers` built from
+        :func:`~casflex.modal.integrals.configuration_quantities`).
 
     Attributes
     ----------
@@ -275,6 +291,9 @@ class FlexibleModel:
                              f"got {modal_mass!r}")
         self.modal_mass = modal_mass
         self.shape_rates = bool(shape_rates)
+        if self.shape_rates and delta_order == 0:
+            raise ModelError("shape_rates=True needs delta_order=1: its terms are of first "
+                             "order in delta and would all be dropped")
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
@@ -299,8 +318,12 @@ class FlexibleModel:
         placeholders, values = [], []
         # one interpolant call for every tabulated quantity when the provider offers it
         evaluate = getattr(provider, "evaluate", None)
-        self.table_values = evaluate(self.q_shape) if evaluate is not None else None
-        for name in QUANTITY_KEYS:
+        # (the shapes sampled inside the links only when the model reads them: the spline
+        # computes every output it holds)
+        self.table_values = None if evaluate is None else evaluate(
+            self.q_shape, [k for k in provider.names
+                           if self.shape_rates or k not in RATE_KEYS])
+        for name in QUANTITY_KEYS + (RATE_KEYS if self.shape_rates else ()):
             f = provider.function(name)
             size = int(np.prod(expected[name]))
             if f.numel_out(0) != size:
@@ -484,10 +507,38 @@ class FlexibleModel:
                     for j in range(m):
                         for k in range(m):
                             M[n + j, n + k] += Tr_.T @ C2[j][k] @ Tr_
+            if rates is not None and body["beam"] is not None:
+                self._add_inside_link_rates(M, body, rates)
             Vg -= gh.T @ T @ Psi[:, 3]
         for k, row in enumerate(self.robot.joint_rows):
             M[k, k] += self.robot.links[row].motor_inertia
         return M, Vg
+
+    def _add_inside_link_rates(self, M, body, rates):
+        """``M_δq += Σ_k δ_k ∫ Tr(L_j J ∂L_kᵀ/∂q)``: a link's own mode j against the rate
+        of its own shapes. The base pose drops out (``Tr(T A Tᵀ) = tr A[:3, :3]`` for an
+        ``A`` with zero last row and column; its δ-dependence is of second order)."""
+        n, m, d = self.n, self.m, self.delta
+        b = body["beam"]
+        s, J = rate_samples(self.robot.links[body["row"]])
+        S = s.size
+        rows = []  # per sample: the 3 × 4 top block of L_j, flattened by rows (12 × m)
+        for p in range(S):
+            cols = []
+            for j in range(m):
+                k = ((b * S + p) * m + j) * 3
+                Lj = ca.horzcat(_skew(rates["samples"]["sample_theta"][k:k + 3]),
+                                rates["samples"]["sample_u"][k:k + 3])
+                cols.append(_vec(Lj.T))
+            rows.append(ca.horzcat(*cols))
+        for col in rates["shape_cols"]:
+            H = ca.SX.zeros(m, m)
+            for p in range(S):
+                dA = ca.reshape(ca.jacobian(_vec(rows[p]), self.q[col]), 12, m)
+                H += rows[p].T @ (ca.DM(np.kron(np.eye(3), J[p])) @ dA)
+            B = H @ d  # B_j = Σ_k δ_k H_jk
+            M[n:, col] += B
+            M[col, n:] += B.T
 
     def _shape_rate_terms(self):
         """What the ``∂w/∂q q̇ δ`` velocity terms need: the pose placeholders with the
@@ -500,7 +551,14 @@ class FlexibleModel:
         Ppose, Vpose = ca.vertcat(*ph), ca.vertcat(*vals)
         dC1 = [(j, ca.jacobian(self._pieces["C1"][2], self.q[j]))
                for j in self.provider.shape_joints]
-        return {"pose": (Ppose, ca.jacobian(Vpose, self.X)), "dC1": dC1}
+        samples = {}
+        for name in ("sample_u", "sample_theta"):
+            size = self._pieces[name][2].numel()
+            zero = _zero_mask(self.provider, name, size)
+            value = self._pieces[name][2]
+            samples[name] = ca.vertcat(*[0 if zero[i] else value[i] for i in range(size)])
+        return {"pose": (Ppose, ca.jacobian(Vpose, self.X)), "dC1": dC1,
+                "samples": samples, "shape_cols": tuple(self.provider.shape_joints)}
 
     def _dynamics(self):
         n, m = self.n, self.m

@@ -248,7 +248,8 @@ class TableProvider:
         """Every quantity the table provides (``"omega"`` included)."""
         return sorted(set(self.table.values) | {"omega"})
 
-    def evaluate(self, q_shape: ca.SX) -> dict[str, ca.SX]:
+    def evaluate(self, q_shape: ca.SX, names: Sequence[str] | None = None
+                 ) -> dict[str, ca.SX]:
         """Every quantity at the symbolic shape-joint values ``q_shape``, from ONE B-spline.
 
         The nonzero entries of all the quantities are interpolated by a single
@@ -260,6 +261,9 @@ class TableProvider:
         ----------
         q_shape : casadi.SX
             Column of the shape-joint values [rad] (``len(shape_joints)`` rows).
+        names : sequence of str, optional
+            The quantities to interpolate (default: all of :attr:`names`); the others
+            stay out of the spline (the B-spline computes every output it holds).
 
         Returns
         -------
@@ -281,12 +285,17 @@ class TableProvider:
         >>> bool(np.allclose(f(0.2).full(), provider.function("C1")(0.2).full(), atol=0))
         True
         """
-        if self._combined is None:
+        wanted = tuple(sorted(self.names if names is None else set(names)))
+        unknown = set(wanted) - set(self.names)
+        if unknown:
+            raise ModelError(f"the table has no quantities {sorted(unknown)}; it has "
+                             f"{self.names}")
+        if self._combined is None or self._combined[2] != wanted:
             from casflex.modal.tables import ModalTable
 
             nd = len(self.table.shape)
             parts, layout, start = [], {}, 0
-            for name in self.names:
+            for name in wanted:
                 data = self.table.omega if name == "omega" and "omega" not in \
                     self.table.values else self.table.values[name]
                 data = np.asarray(data, dtype=float)
@@ -301,8 +310,8 @@ class TableProvider:
                                 values={"all": flat}, omega=self.table.omega,
                                 periodic=self.table.periodic)
             self._combined = (joined.function("all", method=self.method) if start else None,
-                              layout)
-        fun, layout = self._combined
+                              layout, wanted)
+        fun, layout, _ = self._combined
         y = fun(q_shape) if fun is not None else None
         out = {}
         for name, (size, keep, start) in layout.items():

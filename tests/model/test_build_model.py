@@ -20,3 +20,13 @@ def test_tabulated_model_matches_pointwise(arm, arm_model):
                                    fr["mass"](q, [0, 0, 0]).full(), atol=tol)
         np.testing.assert_allclose(f["stiffness"](q).full(), fr["stiffness"](q).full(),
                                    rtol=tol)
+
+
+def test_build_model_forwards_shape_rates(arm_model):
+    """build_model passes shape_rates on to FlexibleModel (the study files' route)."""
+    plain, _ = arm_model(3, step_deg=15, gravity=None)
+    rates, _ = arm_model(3, step_deg=15, gravity=None, shape_rates=True)
+    assert (plain.shape_rates, rates.shape_rates) == (False, True)
+    q, d = [0.3, -0.4, 0.9], [0.02, -0.01, 0.015]
+    diff = rates.functions()["mass"](q, d).full() - plain.functions()["mass"](q, d).full()
+    assert np.abs(diff[:, 2]).max() > 1e-6  # the shape-joint column carries the rates
