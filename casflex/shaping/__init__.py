@@ -26,6 +26,13 @@ ei                          extra-insensitive
 ei_two_hump                 two-hump extra-insensitive
 ei_three_hump               three-hump extra-insensitive
 
+EI family in normalised time (:mod:`casflex.shaping.ei_family`)
+---------------------------------------------------------------
+ei_family_normalised        EI-family times (ω t) and amplitudes: closed form, fit or solve
+EI_KINDS                    the kinds: "ei", "ei2", "ei3"
+EI_FIT_ZETA_MAX             largest damping ratio of the Chebyshev fit
+EI_FIT_VTOLS                hump heights for which the fit exists
+
 More closed-form shapers (:mod:`casflex.shaping.family`)
 --------------------------------------------------------
 mzv                         modified ZV: three impulses 3/8 of a damped period apart
@@ -80,6 +87,12 @@ residual_amplitude          largest deflection after the move
 
 from __future__ import annotations
 
+from casflex.shaping.ei_family import (
+    EI_FIT_VTOLS,
+    EI_FIT_ZETA_MAX,
+    EI_KINDS,
+    ei_family_normalised,
+)
 from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, um_zv
 from casflex.shaping.for_moves import (
     MoveShaperResult,
@@ -143,6 +156,10 @@ __all__ = [
     "ei",
     "ei_two_hump",
     "ei_three_hump",
+    "ei_family_normalised",
+    "EI_KINDS",
+    "EI_FIT_ZETA_MAX",
+    "EI_FIT_VTOLS",
     "mzv",
     "um_zv",
     "UM_ZV_PEAK_FACTOR",
