@@ -151,24 +151,23 @@ def _solve(kind, zeta, vtol):
     return tau, amp / amp.sum()
 
 
+#: (kind, vtol) -> (orders k, coefficients transposed to (2 n - 1, degree + 1))
+_FIT_ROWS = {key: (np.arange(c.shape[0], dtype=float), np.ascontiguousarray(c.T))
+             for key, c in FIT_TABLE.items()}
+
+
 def _fitted(kind, zeta, vtol):
     """Times and amplitudes from the Chebyshev fit, or None outside its coverage."""
-    coeffs = FIT_TABLE.get((kind, vtol))
-    if coeffs is None or zeta > FIT_ZETA_MAX:
+    rows = _FIT_ROWS.get((kind, vtol))
+    if rows is None or zeta > FIT_ZETA_MAX:
         return None
-    x = 2.0 * zeta / FIT_ZETA_MAX - 1.0
-    # T_k(x) by the three-term recurrence, then one matrix product for every series
-    t = [1.0, x]
-    two_x = 2.0 * x
-    for _ in range(coeffs.shape[0] - 2):
-        t.append(two_x * t[-1] - t[-2])
-    values = np.dot(t, coeffs)
+    orders, coeffs = rows
+    # T_k(x) = cos(k arccos x) on [-1, 1]: one vectorised cosine, then one product
+    values = coeffs @ np.cos(orders * math.acos(2.0 * zeta / FIT_ZETA_MAX - 1.0))
     n = (values.size + 1) // 2
-    amp = values[:n]
-    tau = np.empty(n)
-    tau[0] = 0.0
-    tau[1:] = values[n:]
-    return tau, amp / amp.sum()
+    amp = values[:n] / values[:n].sum()  # a copy: values[n - 1] is reused below
+    values[n - 1] = 0.0  # the first time, τ_1 = 0, in place of the last amplitude
+    return values[n - 1:], amp
 
 
 def ei_family_normalised(kind: str, zeta: float, vtol: float, method: str = "auto"
