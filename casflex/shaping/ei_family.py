@@ -16,9 +16,9 @@ times by ``1/ω``.
   ``ζ`` on ``[0, EI_FIT_ZETA_MAX]`` of every impulse time and amplitude, fitted offline to
   the exact solve at Chebyshev nodes for each hump height of :data:`EI_FIT_VTOLS`
   (``tools/gen_ei_fit.py`` writes :mod:`casflex.shaping.ei_fit_table`). Evaluating it
-  takes microseconds and meets the defining conditions to about 1e-12
-  (tests/shaping/test_ei_family_fit.py re-solves at random ζ). Elsewhere the exact solve
-  is used.
+  takes microseconds; it agrees with the exact solve to 1e-10 and meets the defining
+  conditions to 1e-9 (tests/shaping/test_ei_family_fit.py re-solves at random ζ and checks
+  them with its own V). Elsewhere the exact solve is used.
 """
 
 from __future__ import annotations

@@ -704,7 +704,7 @@ def ei(omega: float, zeta: float = 0.0, vtol: float = 0.05) -> Shaper:
     (``dV/dω = 0``), and V exactly zero at two frequencies below and above ω (both
     components of the residual vector vanish there); the impulse times are free. They are
     taken from a Chebyshev fit in ζ of the exact solution (microseconds, conditions met to
-    about 1e-12) where it exists, else solved numerically (tens of ms); see
+    1e-9) where it exists, else solved numerically (tens of ms); see
     :func:`casflex.shaping.ei_family_normalised`.
 
     Parameters
