@@ -33,7 +33,7 @@ Issue 14 figures:
     ``ei_family_normalised("ei", 0.05, 0.05, method="solve")``);
 ``family``
     duration (periods) and the contiguous ≤ 5 % band (relative frequency) of ZV, ZVD, MZV,
-    EI, two- and three-hump EI and UM-ZV, undamped.
+    EI, two- and three-hump EI, UM-ZV and SNA-ZV (N = 0.5), undamped.
 
 ``--many`` adds ``many_ranges_10_s``: the design of ten ±5 % ranges at 1 Hz · 1.37^k
 (single run, slow).
@@ -65,6 +65,7 @@ from casflex.shaping import (
     mzv,
     residual_vibration,
     si_shaper,
+    sna_zv,
     solve_si_nlp,
     um_zv,
     zv,
@@ -104,7 +105,8 @@ def family_table():
     for name, fun in [("ZV", zv), ("ZVD", zvd), ("MZV", mzv),
                       ("EI", lambda w: ei(w, 0.0, 0.05)),
                       ("EI2", lambda w: ei_two_hump(w, 0.0, 0.05)),
-                      ("EI3", lambda w: ei_three_hump(w, 0.0, 0.05)), ("UM-ZV", um_zv)]:
+                      ("EI3", lambda w: ei_three_hump(w, 0.0, 0.05)), ("UM-ZV", um_zv),
+                      ("SNA-ZV", lambda w: sna_zv(w, 0.0, 0.5))]:
         s = fun(HZ)
         v = residual_vibration(s, nu * HZ)
         lo = hi = int(np.argmin(np.abs(nu - 1.0)))
