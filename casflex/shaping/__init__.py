@@ -62,6 +62,7 @@ DEFAULT_TIME_LIMIT          default wall-clock limit of an SI design, s
 HESSIAN_TERMS_PER_SECOND    NLP size allowed per second of the time limit left
 si_shaper                   SI design: solves, prune-and-merge, dense-grid verification
 si_shaper_slsqp             the same with SciPy's SLSQP
+si_nlp_with_hessian         the SI NLP in MX with its exact Hessian as matrix products
 LP_GRID_STEPS               steps of the grid LP's time grid up to its horizon
 LP_MAX_SAMPLES              most samples for which the grid LP start is tried
 LP_TIME_SHARE               share of the time limit the grid LP search may use
@@ -140,6 +141,7 @@ from casflex.shaping.si import (
     si_shaper_slsqp,
     solve_si_nlp,
 )
+from casflex.shaping.si_hessian import si_nlp_with_hessian
 
 __all__ = [
     # shapers and residual vibration
@@ -181,6 +183,7 @@ __all__ = [
     "HESSIAN_TERMS_PER_SECOND",
     "si_shaper",
     "si_shaper_slsqp",
+    "si_nlp_with_hessian",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
     "LP_TIME_SHARE",
