@@ -26,11 +26,19 @@ ei                          extra-insensitive
 ei_two_hump                 two-hump extra-insensitive
 ei_three_hump               three-hump extra-insensitive
 
+EI family in normalised time (:mod:`casflex.shaping.ei_family`)
+---------------------------------------------------------------
+ei_family_normalised        EI-family times (ω t) and amplitudes: closed form, fit or solve
+EI_KINDS                    the kinds: "ei", "ei2", "ei3"
+EI_FIT_ZETA_MAX             largest damping ratio of the Chebyshev fit
+EI_FIT_VTOLS                hump heights for which the fit exists
+
 More closed-form shapers (:mod:`casflex.shaping.family`)
 --------------------------------------------------------
 mzv                         modified ZV: three impulses 3/8 of a damped period apart
 um_zv                       unity-magnitude (negative) ZV: impulses +1, -1, +1
 UM_ZV_PEAK_FACTOR           bound of a UM-ZV-shaped command's peak over the unshaped one
+sna_zv                      specified-negative-amplitude ZV: impulses A1, -N, A3 (peak 1+2N)
 
 Shaping a reference (:mod:`casflex.shaping.shapers`)
 ----------------------------------------------------
@@ -54,6 +62,7 @@ DEFAULT_TIME_LIMIT          default wall-clock limit of an SI design, s
 HESSIAN_TERMS_PER_SECOND    NLP size allowed per second of the time limit left
 si_shaper                   SI design: solves, prune-and-merge, dense-grid verification
 si_shaper_slsqp             the same with SciPy's SLSQP
+si_nlp_with_hessian         the SI NLP in MX with its exact Hessian as matrix products
 LP_GRID_STEPS               steps of the grid LP's time grid up to its horizon
 LP_MAX_SAMPLES              most samples for which the grid LP start is tried
 LP_TIME_SHARE               share of the time limit the grid LP search may use
@@ -81,7 +90,13 @@ residual_amplitude          largest deflection after the move
 
 from __future__ import annotations
 
-from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, um_zv
+from casflex.shaping.ei_family import (
+    EI_FIT_VTOLS,
+    EI_FIT_ZETA_MAX,
+    EI_KINDS,
+    ei_family_normalised,
+)
+from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, sna_zv, um_zv
 from casflex.shaping.for_moves import (
     MoveShaperResult,
     frequencies_along,
@@ -127,6 +142,7 @@ from casflex.shaping.si import (
     si_shaper_slsqp,
     solve_si_nlp,
 )
+from casflex.shaping.si_hessian import si_nlp_with_hessian
 
 __all__ = [
     # shapers and residual vibration
@@ -144,9 +160,14 @@ __all__ = [
     "ei",
     "ei_two_hump",
     "ei_three_hump",
+    "ei_family_normalised",
+    "EI_KINDS",
+    "EI_FIT_ZETA_MAX",
+    "EI_FIT_VTOLS",
     "mzv",
     "um_zv",
     "UM_ZV_PEAK_FACTOR",
+    "sna_zv",
     # shaping a reference
     "apply_shaper",
     # specified-insensitivity shapers
@@ -163,6 +184,7 @@ __all__ = [
     "HESSIAN_TERMS_PER_SECOND",
     "si_shaper",
     "si_shaper_slsqp",
+    "si_nlp_with_hessian",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
     "LP_TIME_SHARE",

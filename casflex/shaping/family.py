@@ -3,6 +3,8 @@
 * :func:`mzv`: three positive impulses 3/8 of a damped period apart with zero residual
   vibration at the design frequency; shorter than ZVD (3/4 of a period instead of one)
   and less sensitive than ZV.
+* :func:`sna_zv`: the specified-negative-amplitude ZV shaper, impulses ``A, -N, A'`` with
+  the negative one chosen (``N = 1``: UM-ZV undamped; ``N = 0``: ZV);
 * :func:`um_zv`: the unity-magnitude ZV shaper, impulses ``+1, -1, +1``: a step command
   shaped by it switches between the full command and zero (an on-off actuator can run it),
   and it is the shortest shaper with zero vibration whose partial sums stay in [0, 1]
@@ -10,8 +12,9 @@
 
 **Peak-input limit of negative shapers.** A shaper with negative impulses applied to a
 command ``u(t)`` gives ``Σ A_i u(t - t_i)``, bounded by ``Σ |A_i|`` times the peak of
-``|u|`` (3 for UM-ZV): only for a step (or a command that is constant over the shaper's
-duration) do the partial sums ``1, 0, 1`` bound it by the command itself. Shaping a
+``|u|`` (3 for UM-ZV, ``1 + 2N`` for SNA-ZV): only for a step (or a command that is
+constant over the shaper's duration) do the partial sums (``1, 0, 1`` for UM-ZV) bound it
+by the command itself. Shaping a
 planned joint move with UM-ZV can therefore demand up to three times the move's peak
 velocity and acceleration; positive shapers never exceed the unshaped peaks.
 
@@ -30,7 +33,7 @@ from casflex._validate import fail
 from casflex.errors import ProblemFileError
 from casflex.shaping.shapers import Shaper, check_omega, check_zeta
 
-__all__ = ["mzv", "um_zv", "UM_ZV_PEAK_FACTOR"]
+__all__ = ["mzv", "um_zv", "UM_ZV_PEAK_FACTOR", "sna_zv"]
 
 #: Bound of the shaped command's peak over the unshaped one for UM-ZV (Σ |A_i|).
 UM_ZV_PEAK_FACTOR = 3.0
@@ -115,3 +118,71 @@ def um_zv(omega: float, zeta: float = 0.0) -> Shaper:
     t2 = optimize.brentq(lambda x: t3_of(x).imag, 1e-3 * math.pi / wd, math.pi / wd,
                          xtol=1e-15, rtol=1e-15)
     return Shaper([0.0, t2, t3_of(t2).real], [1.0, -1.0, 1.0])
+
+
+def sna_zv(omega: float, zeta: float = 0.0, negative: float = 1.0) -> Shaper:
+    """Specified-negative-amplitude zero-vibration (SNA-ZV) shaper: impulses ``A1, -N, A3``.
+
+    Undamped: ``A1 = A3 = (1+N)/2`` at ``0, θ/ω, 2θ/ω`` with ``cos θ = N/(1+N)``, zero
+    vibration at ω (``A2 + 2 A1 cos θ = 0`` about the middle impulse); among three-impulse
+    zero-vibration shapers with middle amplitude ``-N`` this is the shortest (for a fixed
+    ``A1 + A3`` the largest product ``A1 A3`` allows the smallest angle). ``N = 0`` is ZV
+    (two impulses), ``N = 1`` is UM-ZV. Damped, the same decay compensation as ZV, ZVD and MZV: the
+    impulse phases of the undamped form with a parameter ``N'`` at the damped frequency
+    ``ω_d``, amplitudes ``Ā_i exp(-ζω t_i)`` normalised to sum 1, and ``N'`` found (Brent)
+    so that the middle amplitude is exactly ``-N`` (with damping and ``N = 1`` this is not
+    :func:`um_zv`, whose outer impulses stay exactly +1).
+
+    **Peak-input limit**: the shaped command is bounded by ``Σ|A_i| = 1 + 2N`` times the
+    peak of the command (a step stays within ``[A1 - N, 1]``).
+
+    Parameters
+    ----------
+    omega : float
+        Natural frequency, rad/s.
+    zeta : float, optional
+        Damping ratio, 0 <= zeta < 1.
+    negative : float, optional
+        ``N >= 0``, the magnitude of the negative impulse (dimensionless).
+
+    Returns
+    -------
+    Shaper
+
+    Examples
+    --------
+    >>> s = sna_zv(2 * math.pi, 0.0, 0.5)
+    >>> s.amplitudes.tolist(), round(s.duration, 6)
+    ([0.75, -0.5, 0.75], 0.391827)
+    >>> float(abs(sna_zv(2 * math.pi, 0.1, 0.5).amplitudes[1]))
+    0.5
+    """
+    omega = check_omega(omega)
+    zeta = check_zeta(zeta)
+    if not isinstance(negative, (int, float)) or not math.isfinite(negative) or negative < 0:
+        raise fail("negative", negative, "must be a finite number >= 0", error=ProblemFileError)
+    n = float(negative)
+    root = math.sqrt(1.0 - zeta**2)
+
+    def form(n_bar):
+        theta = math.acos(n_bar / (1.0 + n_bar))
+        k = math.exp(-zeta * theta / root)
+        amps = [0.5 * (1.0 + n_bar), -n_bar * k, 0.5 * (1.0 + n_bar) * k * k]
+        total = sum(amps)
+        return theta, [a / total for a in amps]
+
+    n_bar = n
+    if zeta > 0.0 and n > 0.0:
+        # the middle amplitude grows from 0 without bound with N' (k -> 1 as θ -> 0)
+        hi = max(1.0, n)
+        while -form(hi)[1][1] < n:
+            hi *= 2.0
+        n_bar = optimize.brentq(lambda x: -form(x)[1][1] - n, 0.0, hi, xtol=1e-15,
+                                rtol=1e-15)
+    theta, amps = form(n_bar)
+    amps[1] = -n if zeta > 0.0 else amps[1]  # exact by construction (to the root's 1e-15)
+    amps[0] = 1.0 - amps[1] - amps[2]
+    step = theta / (omega * root)
+    if n == 0.0:  # ZV: no middle impulse
+        return Shaper([0.0, 2.0 * step], [amps[0], amps[2]])
+    return Shaper([0.0, step, 2.0 * step], amps)

@@ -10,7 +10,7 @@
   (:func:`residual_vibration_casadi`). It is returned as a *fraction* (``0`` = no residual
   vibration, ``1`` = as much as a single unit impulse), never multiplied by 100;
 * closed-form shapers: ZV (eq. 190–191), ZVD, extra-insensitive (EI) and its two- and
-  three-hump variants;
+  three-hump variants (damped forms from :mod:`casflex.shaping.ei_family`);
 * :func:`apply_shaper` to shape sampled joint references.
 
 :func:`check_omega`, :func:`check_zeta` and :func:`check_vtol` are the argument checks of
@@ -32,7 +32,8 @@ from numpy.typing import ArrayLike
 from scipy import optimize
 
 from casflex._validate import number
-from casflex.errors import ProblemFileError, SolverError
+from casflex.errors import ProblemFileError
+from casflex.shaping.ei_family import ei_family_normalised
 
 __all__ = [
     "Shaper",
@@ -679,124 +680,32 @@ def zvd(omega: float, zeta: float = 0.0) -> Shaper:
     return Shaper([0.0, half, 2.0 * half], [1.0 / d, 2.0 * k / d, k * k / d])
 
 
-# --- undamped closed forms (time in units of 1/omega, i.e. tau = omega * t) -------------
-def _ei_undamped(vtol):
-    a = np.array([(1.0 + vtol) / 4.0, (1.0 - vtol) / 2.0, (1.0 + vtol) / 4.0])
-    return np.arange(3) * math.pi, a
-
-
-def _ei2_undamped(vtol):
-    x = (vtol**2 * (math.sqrt(1.0 - vtol**2) + 1.0)) ** (1.0 / 3.0)
-    # vtol² underflows for vtol < 1e-162; a1 -> 1/8 as vtol -> 0 (reached in double already)
-    a1 = (3.0 * x**2 + 2.0 * x + 3.0 * vtol**2) / (16.0 * x) if x > 0.0 else 0.125
-    a2 = 0.5 - a1
-    return np.arange(4) * math.pi, np.array([a1, a2, a2, a1])
-
-
-def _ei3_undamped(vtol):
-    a1 = (1.0 + 3.0 * vtol + 2.0 * math.sqrt(2.0 * vtol * (vtol + 1.0))) / 16.0
-    a2 = (1.0 - vtol) / 4.0
-    a3 = 1.0 - 2.0 * (a1 + a2)
-    return np.arange(5) * math.pi, np.array([a1, a2, a3, a2, a1])
-
-
-#: kind -> (undamped closed form, feature at the design frequency)
-_HUMP_KINDS = {
-    "ei": (_ei_undamped, "hump"),
-    "ei2": (_ei2_undamped, "zero"),
-    "ei3": (_ei3_undamped, "hump"),
-}
-
-
-def _g_and_dg(tau, amp, nu, zeta):
-    """Complex residual G(ν) and dG/dν of a normalised shaper (τ = ω0 t, ν = ω/ω0)."""
-    s = math.sqrt(1.0 - zeta**2)
-    tn = tau[-1]
-    expo = nu * (zeta * (tau - tn) + 1j * s * tau)
-    z = amp * np.exp(expo)
-    g = z.sum()
-    dg = (z * (zeta * (tau - tn) + 1j * s * tau)).sum()
-    return g, dg
-
-
-def _undamped_features(tau, amp, centre):
-    """Locate the zeros and humps of the undamped curve in (0, 2) ν except the centre one."""
-    nu = np.linspace(1e-3, 2.0 - 1e-3, 40001)
-    v = np.abs(np.exp(1j * np.outer(nu, tau)) @ amp)
-    inner = slice(1, -1)
-    is_min = (v[inner] <= v[:-2]) & (v[inner] <= v[2:])
-    is_max = (v[inner] >= v[:-2]) & (v[inner] >= v[2:])
-    idx = np.arange(1, nu.size - 1)
-    zeros = [nu[i] for i in idx[is_min] if v[i] < 1e-3 and abs(nu[i] - 1.0) > 1e-3]
-    humps = [nu[i] for i in idx[is_max] if abs(nu[i] - 1.0) > 1e-3 and v[i] < 0.999]
-    return zeros, humps
-
-
 def _hump_shaper(kind, omega, zeta, vtol):
-    """EI-family shaper; damped forms solved numerically from the defining conditions."""
-    closed, centre = _HUMP_KINDS[kind]
-    tau0, amp0 = closed(vtol)
-    if zeta == 0.0:
-        return Shaper(tau0 / omega, amp0)
-    zeros, humps = _undamped_features(tau0, amp0, centre)
-    n = tau0.size
-    nz = len(zeros)
-
-    def unpack(x):
-        amp = x[:n]
-        tau = np.concatenate([[0.0], x[n : 2 * n - 1]])
-        nu_z = x[2 * n - 1 : 2 * n - 1 + nz]
-        nu_h = x[2 * n - 1 + nz :]
-        return amp, tau, nu_z, nu_h
-
-    def residuals(x, z):
-        amp, tau, nu_z, nu_h = unpack(x)
-        res = [amp.sum() - 1.0]
-        g, dg = _g_and_dg(tau, amp, 1.0, z)
-        if centre == "hump":
-            res += [abs(g) ** 2 - vtol**2, 2.0 * (np.conj(g) * dg).real]
-        else:
-            res += [g.real, g.imag]
-        for nu in nu_z:
-            g, _ = _g_and_dg(tau, amp, nu, z)
-            res += [g.real, g.imag]
-        for nu in nu_h:
-            g, dg = _g_and_dg(tau, amp, nu, z)
-            res += [abs(g) ** 2 - vtol**2, 2.0 * (np.conj(g) * dg).real]
-        return np.array(res)
-
-    x = np.concatenate([amp0, tau0[1:], zeros, humps])
-    steps = max(1, math.ceil(zeta / 0.02))
-    for z in np.linspace(0.0, zeta, steps + 1)[1:]:
-        # stretch the times to the damped period as a predictor
-        sol, info, ier, msg = optimize.fsolve(residuals, x, args=(z,), full_output=True, xtol=1e-13)
-        if ier != 1 or np.max(np.abs(info["fvec"])) > 1e-9:
-            ls = optimize.least_squares(residuals, x, args=(z,), xtol=1e-15, ftol=1e-15, gtol=1e-15)
-            sol, msg = ls.x, ls.message
-            worst = float(np.max(np.abs(ls.fun)))
-        else:
-            worst = float(np.max(np.abs(info["fvec"])))
-        amp, tau, _, _ = unpack(sol)
-        if worst > 1e-9 or np.any(amp < -1e-12) or np.any(np.diff(tau) <= 0.0):
-            raise SolverError(
-                f"damped {kind} shaper: the defining conditions could not be solved at "
-                f"zeta={z:.4g} (omega={omega:.6g} rad/s, vtol={vtol:.4g}): {str(msg).strip()}"
-            )
-        x = sol
-    amp, tau, _, _ = unpack(x)
-    amp = np.clip(amp, 0.0, None)
-    return Shaper(tau / omega, amp / amp.sum())
+    tau, amp = ei_family_normalised(kind, zeta, vtol)
+    # the family's times are sorted and finite and its amplitudes sum to 1 by construction
+    # (checked in tests/shaping/test_ei_family_fit.py): skip the constructor's checks, which
+    # would cost more than the fitted form itself
+    times = tau / omega
+    times.setflags(write=False)
+    amp = np.array(amp)
+    amp.setflags(write=False)
+    shaper = object.__new__(Shaper)
+    object.__setattr__(shaper, "times", times)
+    object.__setattr__(shaper, "amplitudes", amp)
+    return shaper
 
 
 def ei(omega: float, zeta: float = 0.0, vtol: float = 0.05) -> Shaper:
     """Extra-insensitive (EI) shaper: three impulses, V(ω) = vtol at the design frequency.
 
     Undamped (``zeta == 0``) the closed form ``A = [(1+V)/4, (1-V)/2, (1+V)/4]`` at
-    ``0, T/2, T`` (``T = 2π/ω``) is returned. With damping the defining conditions are
-    solved numerically (:func:`scipy.optimize.fsolve`, continuation in ζ from the undamped
-    form): amplitudes sum to 1, ``V(ω) = vtol`` with a local maximum of V at ω
+    ``0, T/2, T`` (``T = 2π/ω``) is returned. With damping the shaper meets its defining
+    conditions: amplitudes sum to 1, ``V(ω) = vtol`` with a local maximum of V at ω
     (``dV/dω = 0``), and V exactly zero at two frequencies below and above ω (both
-    components of the residual vector vanish there); the impulse times are free.
+    components of the residual vector vanish there); the impulse times are free. They are
+    taken from a Chebyshev fit in ζ of the exact solution (microseconds, conditions met to
+    1e-9) where it exists, else solved numerically (tens of ms); see
+    :func:`casflex.shaping.ei_family_normalised`.
 
     Parameters
     ----------
@@ -833,8 +742,8 @@ def ei_two_hump(omega: float, zeta: float = 0.0, vtol: float = 0.05) -> Shaper:
     ``A2 = A3 = 1/2 - A1`` at ``0, T/2, T, 3T/2``. V is zero at the design frequency with
     two humps of height vtol on either side. With damping the defining conditions (zero at
     ω, humps of height vtol with zero slope at two free frequencies, zeros at two further
-    free frequencies, amplitudes summing to 1) are solved numerically with
-    :func:`scipy.optimize.fsolve` by continuation in ζ from the undamped form.
+    free frequencies, amplitudes summing to 1) are met by the Chebyshev fit in ζ or, outside
+    its coverage, solved numerically (:func:`casflex.shaping.ei_family_normalised`).
 
     Parameters
     ----------
@@ -866,7 +775,8 @@ def ei_three_hump(omega: float, zeta: float = 0.0, vtol: float = 0.05) -> Shaper
     ``A3 = 1 - 2(A1 + A2)`` at ``0, T/2, T, 3T/2, 2T``; V equals vtol at the design
     frequency and at two further humps. With damping the defining conditions (hump of height
     vtol with zero slope at ω and at two free frequencies, four free zeros, amplitudes summing
-    to 1) are solved numerically with :func:`scipy.optimize.fsolve` by continuation in ζ.
+    to 1) are met by the Chebyshev fit in ζ or, outside its coverage, solved numerically
+    (:func:`casflex.shaping.ei_family_normalised`).
 
     Parameters
     ----------

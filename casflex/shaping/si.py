@@ -43,6 +43,7 @@ from casflex.shaping.shapers import (
     residual_vibration,
     residual_vibration_casadi,
 )
+from casflex.shaping.si_hessian import si_nlp_with_hessian
 
 __all__ = [
     "SISample",
@@ -287,7 +288,8 @@ def solve_si_nlp(samples: SISample, guess: Shaper, method: str = "ipopt",
     x0 = np.clip(x0, lbx, ubx)
     if method == "ipopt":
         t0 = time.perf_counter()
-        g = ca.vertcat(g_sum, g_order, v2)
+        # the same NLP in MX with its Hessian as matrix products (no O(m n²) SX build)
+        nlp, hess = si_nlp_with_hessian(samples.omega, samples.zeta, n)
         m = v2.numel()
         lbg = np.concatenate([[0.0], np.zeros(n - 1), np.full(m, -np.inf)])
         ubg = np.concatenate([[0.0], np.full(n - 1, np.inf), lim])
@@ -299,12 +301,8 @@ def solve_si_nlp(samples: SISample, guess: Shaper, method: str = "ipopt",
             if tight < opts["constr_viol_tol"]:
                 opts["constr_viol_tol"] = tight
         opts.update(options or {})
-        solver = ca.nlpsol(
-            "si_shaper",
-            "ipopt",
-            {"x": x, "f": f, "g": g},
-            {"ipopt": opts, "print_time": False, "error_on_fail": False},
-        )
+        solver = ca.nlpsol("si_shaper", "ipopt", nlp, {
+            "hess_lag": hess, "ipopt": opts, "print_time": False, "error_on_fail": False})
         t1 = time.perf_counter()
         res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         t2 = time.perf_counter()

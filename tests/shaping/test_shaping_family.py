@@ -16,6 +16,7 @@ from casflex.shaping import (
     ei_three_hump,
     ei_two_hump,
     mzv,
+    sna_zv,
     um_zv,
     zv,
     zvd,
@@ -120,3 +121,36 @@ def test_published_durations_and_bands(name):
         # the published bands are read off plots to about 2-3 % of the frequency
         assert lo == pytest.approx(published_band[0], abs=0.035)
         assert hi == pytest.approx(published_band[1], abs=0.03)
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.03, 0.1, 0.3])
+@pytest.mark.parametrize("n", [0.0, 0.25, 1.0, 3.0])
+def test_sna_zv_zero_vibration_specified_negative_and_peak(zeta, n):
+    w = 2.5 * HZ
+    s = sna_zv(w, zeta, n)
+    assert residual(s, w, zeta)[0] < 1e-12  # |A| <= 1 + 2N, times ~1: round-off level
+    assert len(s) == (3 if n else 2)
+    assert (s.amplitudes[1] if n else 0.0) == pytest.approx(-n, abs=1e-13)
+    assert s.amplitudes.sum() == pytest.approx(1.0, abs=1e-14)
+    assert np.abs(s.amplitudes).sum() == pytest.approx(1.0 + 2.0 * n, abs=1e-12)
+    assert np.all(np.diff(s.times) > 0.0)
+    if zeta == 0.0:
+        # the shortest: no three-impulse shaper A1, -N, 1+N-A1 (brute force over A1 and
+        # the angles, written here) has V(ω) = 0 with a shorter last time
+        theta3 = w * s.duration
+        for a1 in np.linspace(0.05, 1.0 + n - 0.05, 41):
+            a3 = 1.0 + n - a1
+            c3 = (n * n - a1 * a1 - a3 * a3) / (2.0 * a1 * a3)  # |A1 + A3 e^{iθ3}| = N
+            if -1.0 <= c3 <= 1.0:
+                assert math.acos(c3) >= theta3 - 1e-9
+    if n == 1.0 and zeta == 0.0:  # damped UM-ZV keeps +1 outer impulses, SNA-ZV does not
+        np.testing.assert_allclose(s.times, um_zv(w, zeta).times, rtol=0, atol=1e-9)
+
+
+def test_sna_zv_endpoints_and_errors():
+    w = 3.0 * HZ
+    np.testing.assert_allclose(sna_zv(w, 0.1, 0.0).times, zv(w, 0.1).times, atol=1e-15)
+    np.testing.assert_allclose(sna_zv(w, 0.1, 0.0).amplitudes, zv(w, 0.1).amplitudes,
+                               atol=1e-15)
+    with pytest.raises(ProblemFileError, match="negative"):
+        sna_zv(w, 0.0, -0.5)
