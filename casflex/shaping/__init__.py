@@ -56,8 +56,6 @@ SISample                    sample frequencies of the SI constraints
 NLPSolution                 outcome of one SI NLP solve
 solve_si_nlp                one minimum-duration NLP (Ipopt or SLSQP)
 SIShaperResult              result of the SI design
-initial_si_guess            convolved EI shapers at the range midpoints
-GUESS_MAX_IMPULSES          most impulses the initial guess keeps
 DEFAULT_TIME_LIMIT          default wall-clock limit of an SI design, s
 HESSIAN_TERMS_PER_SECOND    NLP size allowed per second of the time limit left
 si_shaper                   SI design: solves, prune-and-merge, dense-grid verification
@@ -73,6 +71,11 @@ GridOptimum                 the shortest shaper on a time grid, with its lower b
 grid_optimum                bisection on the duration, one cutting-plane LP per duration
 grid_near                   the grid shaper nearest an analogue one (digital shapers)
 grid_feasible               one feasibility LP on a given grid
+
+The convolved EI start (:mod:`casflex.shaping.si_start`)
+--------------------------------------------------------
+initial_si_guess            convolved EI shapers at the range midpoints
+GUESS_MAX_IMPULSES          most impulses the initial guess keeps
 
 Shapers for planned moves (:mod:`casflex.shaping.for_moves`)
 ------------------------------------------------------------
@@ -129,7 +132,6 @@ from casflex.shaping.shapers import (
 )
 from casflex.shaping.si import (
     DEFAULT_TIME_LIMIT,
-    GUESS_MAX_IMPULSES,
     HESSIAN_TERMS_PER_SECOND,
     LP_GRID_STEPS,
     LP_MAX_SAMPLES,
@@ -137,12 +139,12 @@ from casflex.shaping.si import (
     NLPSolution,
     SISample,
     SIShaperResult,
-    initial_si_guess,
     si_shaper,
     si_shaper_slsqp,
     solve_si_nlp,
 )
 from casflex.shaping.si_hessian import si_nlp_with_hessian
+from casflex.shaping.si_start import GUESS_MAX_IMPULSES, initial_si_guess
 
 __all__ = [
     # shapers and residual vibration
