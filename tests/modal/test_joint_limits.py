@@ -50,11 +50,18 @@ def test_limited_table_matches_direct_tmm_inside_the_limits(arm, rng):
     assert table.grid[0][0] == limits[0] and table.grid[0][-1] == limits[1]
     assert table.periodic == (False,)  # not a full turn: no padding, no wrap
     omega = table.function("omega")
-    for q3 in [limits[0], limits[1], *rng.uniform(*limits, size=8)]:
-        q = np.array([rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi), q3])
-        tabulated = np.asarray(omega(q3)).ravel()
-        direct = natural_frequencies(limited, q, count=5)
-        # cubic B-spline of a smooth ω(q3) on a 3° grid: interpolation error h⁴ ω''''/384
-        # ≈ 1e-7 relative (ω changes by tens of % over a radian); 1e-6 leaves room for the
-        # one-sided end conditions at the limits, far below the issue's 1e-3 target
-        assert _nearest_relative_error(tabulated, direct) < 1e-6, q
+    h = np.radians(3.0)
+    interior = rng.uniform(limits[0] + 2 * h, limits[1] - 2 * h, size=6)
+    ends = [limits[0], limits[1], *rng.uniform(limits[0], limits[0] + 2 * h, size=2),
+            *rng.uniform(limits[1] - 2 * h, limits[1], size=2)]
+    for q3s, tolerance in ((interior, 1e-6), (ends, 1e-5)):
+        for q3 in q3s:
+            q = np.array([rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi), q3])
+            tabulated = np.asarray(omega(q3)).ravel()
+            direct = natural_frequencies(limited, q, count=5)
+            # cubic B-spline of a smooth ω(q3) on a 3° grid: h⁴ error ≈ 1e-8–1e-7 relative
+            # inside (measured), so 1e-6; within two steps of a limit the spline has no
+            # neighbours beyond it and its end conditions cost a decade more (measured up
+            # to 2e-6 in the last half step), so 1e-5 there: both far below the 1e-3 the
+            # issue asks for
+            assert _nearest_relative_error(tabulated, direct) < tolerance, q
