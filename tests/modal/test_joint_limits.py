@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from casflex.model import default_grid
 from casflex.modal.tables import build_table
+from casflex.model import default_grid
 from casflex.tmm import natural_frequencies
 
 
