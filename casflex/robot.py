@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._problemfile import TableReader, parse_toml, read_toml
-from casflex._validate import number, plausible
+from casflex._validate import fail, number, plausible
 from casflex.errors import ModelError, ProblemFileError
 
 __all__ = [
@@ -383,12 +383,18 @@ class Robot:
         Modal damping ratio applied to every flexible mode.
     source : str or None
         File the description was read from.
+    joint_limits : tuple of (float, float) or None
+        Per joint variable, in order: ``(low, high)`` of q_k [rad] with ``low < high``,
+        or ``None`` for a joint that turns freely (a full turn). ``()`` (the default)
+        means no joint is limited; it is normalised to one ``None`` per joint.
 
     Examples
     --------
     >>> robot = load("problems/arm2link.toml")
     >>> robot.n_joints, [link.name for link in robot.flexible_links]
     (3, ['link1', 'link2'])
+    >>> robot.joint_limits
+    (None, None, None)
     """
 
     links: tuple[Link, ...]
@@ -397,6 +403,7 @@ class Robot:
     damping_ratio: float = 0.0
     source: str | None = None
     description: str = ""
+    joint_limits: tuple[tuple[float, float] | None, ...] = ()
 
     def __post_init__(self):
         gravity = np.asarray(self.gravity, dtype=float)
@@ -405,6 +412,8 @@ class Robot:
         for k, v in enumerate(gravity):
             plausible(float(v), "gravity", f"Robot.gravity[{k}]")
         number(self.damping_ratio, "Robot.damping_ratio", low=0.0, high=1.0, high_open=True)
+        object.__setattr__(self, "joint_limits", _checked_limits(self.joint_limits,
+                                                                 self.n_joints))
 
     @property
     def n_joints(self) -> int:
@@ -444,6 +453,48 @@ class Robot:
         theta = np.array([link.theta for link in self.links], dtype=float)
         theta[list(self.joint_rows)] += q
         return theta
+
+    def within_limits(self, q: ArrayLike, what: str = "q") -> np.ndarray:
+        """Return ``q`` (as :meth:`check_q`) or raise ModelError if a joint leaves its limits.
+
+        Parameters
+        ----------
+        q : array_like, shape (n_joints,)
+            Joint variables [rad].
+        what : str
+            What ``q`` is, for the message (e.g. ``"move 'move1' target qf"``).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_joints,)
+
+        Raises
+        ------
+        ModelError
+            Naming the joint (1-based), its value and its limits (in degrees and rad).
+
+        Examples
+        --------
+        >>> import dataclasses, math
+        >>> robot = load("problems/arm2link.toml")
+        >>> limited = dataclasses.replace(robot, joint_limits=(None, None, (-1.0, 1.0)))
+        >>> limited.within_limits([3.0, 0.0, 0.5]).tolist()
+        [3.0, 0.0, 0.5]
+        >>> limited.within_limits([0.0, 0.0, 1.5], "move 'm' target qf")
+        ...                                               # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+            ...
+        casflex.errors.ModelError: move 'm' target qf: q3 = 85.944 deg (1.5 rad) lies ...
+        """
+        q = self.check_q(q)
+        for k, (value, limits) in enumerate(zip(q, self.joint_limits, strict=True)):
+            if limits is not None and not limits[0] <= value <= limits[1]:
+                low, high = np.degrees(limits)
+                raise ModelError(
+                    f"{what}: q{k + 1} = {math.degrees(value):.3f} deg ({value:.6g} rad) "
+                    f"lies outside the joint limits [{low:.3f}, {high:.3f}] deg of robot "
+                    f"'{self.name}'")
+        return q
 
     def check_q(self, q: ArrayLike) -> np.ndarray:
         """Return ``q`` as a float array of length ``n_joints`` or raise ModelError.
@@ -535,6 +586,29 @@ class Robot:
         for row, k in zip(self.joint_rows, stiffness, strict=True):
             links[row] = replace(links[row], joint_stiffness=k)
         return replace(self, links=tuple(links))
+
+
+def _checked_limits(limits, n_joints):
+    """Joint limits as one ``(low, high)`` [rad] or ``None`` per joint, validated."""
+    limits = tuple(limits or ())
+    if all(item is None for item in limits):
+        return (None,) * n_joints  # nothing limited: fits any number of joints
+    if len(limits) != n_joints:
+        raise ModelError(f"Robot.joint_limits = {limits!r}: needs one (low, high) or None "
+                         f"per joint variable ({n_joints})")
+    out = []
+    for k, item in enumerate(limits):
+        if item is None:
+            out.append(None)
+            continue
+        field_ = f"Robot.joint_limits[{k}]"
+        if not isinstance(item, (tuple, list, np.ndarray)) or len(item) != 2:
+            raise fail(field_, item, "must be (low, high) [rad] or None")
+        low, high = (plausible(v, "angle", field_) for v in item)
+        if not low < high:
+            raise fail(field_, [low, high], "the lower limit must be < the upper limit")
+        out.append((low, high))
+    return tuple(out)
 
 
 def dh_transform(alpha: float, a: float, theta: float, d: float) -> np.ndarray:
@@ -645,6 +719,21 @@ def _read_link(path, raw, index):
         key = "a" if a != 0.0 else "d"
         r.check_bound(key, r.table[key], abs(a or d), "beam_length")
 
+    limits = None
+    q_min = r.number("q_min", None, angle=True, quantity="angle")
+    q_max = r.number("q_max", None, angle=True, quantity="angle")
+    if (q_min is None) != (q_max is None):
+        missing = "q_max" if q_max is None else "q_min"
+        raise r.error(missing, None, "joint limits need both q_min and q_max")
+    if q_min is not None:
+        if joint != "revolute":
+            raise r.error("q_min", r.table["q_min"], "joint limits need a revolute joint "
+                                                     "in this row")
+        if not q_min < q_max:
+            raise r.error("q_max", r.table["q_max"],
+                          f"must be > q_min ({q_min:.6g} rad = {math.degrees(q_min):.6g} deg)")
+        limits = (q_min, q_max)
+
     tip = TipBody()
     tip_r = r.table_("tip")
     if tip_r is not None:
@@ -661,7 +750,7 @@ def _read_link(path, raw, index):
     r.finish()
     return Link(theta=theta, d=d, a=a, alpha=alpha, joint=joint, name=name, section=section,
                 material=material, section_angle=section_angle, tip=tip,
-                motor_inertia=motor_inertia, joint_stiffness=joint_stiffness)
+                motor_inertia=motor_inertia, joint_stiffness=joint_stiffness), limits
 
 
 def loads(text: str, path: str | os.PathLike[str] | None = None) -> Robot:
@@ -747,8 +836,11 @@ def _from_dict(data, path):
     if not isinstance(raw_links, list) or not all(isinstance(x, dict) for x in raw_links):
         raise r.error("link", raw_links, "must be an array of tables ([[link]])")
     r.finish()
-    links = tuple(_read_link(path, raw, i) for i, raw in enumerate(raw_links))
+    rows = [_read_link(path, raw, i) for i, raw in enumerate(raw_links)]
+    links = tuple(link for link, _ in rows)
     if not any(link.joint == "revolute" for link in links):
         raise ProblemFileError(path, "link", len(links), "needs at least one revolute joint")
+    limits = tuple(lim for link, lim in rows if link.joint == "revolute")
     return Robot(links=links, name=name, gravity=gravity, damping_ratio=damping,
-                 source=None if path is None else str(path), description=description)
+                 source=None if path is None else str(path), description=description,
+                 joint_limits=limits)

@@ -1,5 +1,6 @@
 """Robot descriptions: loading, geometry, and every ProblemFileError rule."""
 
+import dataclasses
 import math
 import tomllib
 
@@ -174,3 +175,84 @@ def test_q_is_checked():
         arm.frames([0.0, 0.0])
     with pytest.raises(ModelError, match="finite"):
         arm.frames([0.0, np.nan, 0.0])
+
+
+# ------------------------------------------------------------------ joint limits
+
+
+LIMITED = """
+[[link]]
+joint = "revolute"
+[[link]]
+joint = "revolute"
+a = 0.5
+q_min = { value = -90.0, unit = "deg" }
+q_max = 1.0
+"""
+
+
+def test_joint_limits_read_with_units():
+    """Limits are angles like the file's others: deg converted to rad, rad as given;
+    a row without limits turns freely (None)."""
+    robot = loads(LIMITED, path="robot.toml")
+    assert robot.joint_limits == (None, (-math.pi / 2.0, 1.0))
+    four = load("problems/arm4_spatial.toml")
+    assert four.joint_limits[0] is None
+    np.testing.assert_allclose(np.degrees(four.joint_limits[2]), [-150.0, 150.0], rtol=1e-15)
+    assert load("problems/arm2link.toml").joint_limits == (None, None, None)
+
+
+def test_joint_limit_rules():
+    e = _err(LIMITED.replace("q_max = 1.0", "q_max = -2.0"), "must be > q_min")
+    assert e.field == "link[1].q_max" and e.value == -2.0
+    e = _err(LIMITED.replace("q_max = 1.0\n", ""), "need both q_min and q_max")
+    assert e.field == "link[1].q_max"
+    e = _err(LIMITED.replace("q_max = 1.0", "q_max = 1000.0"), "must lie in")
+    assert e.field == "link[1].q_max"  # the plausibility bound of angles (BOUNDS["angle"])
+    e = _err(LIMITED.replace('joint = "revolute"\na = 0.5', 'joint = "fixed"\na = 0.5'),
+             "need a revolute joint")
+    assert e.field == "link[1].q_min"
+    _err(LIMITED.replace("q_max = 1.0", 'q_max = { value = 1.0, unit = "grad" }'),
+         "unknown angle unit")
+
+
+def test_joint_limits_in_python():
+    arm = load("problems/arm2link.toml")
+    with pytest.raises(ModelError, match="lower limit must be < the upper"):
+        dataclasses.replace(arm, joint_limits=(None, None, (1.0, 1.0)))
+    with pytest.raises(ModelError, match="one .low, high. or None per joint"):
+        dataclasses.replace(arm, joint_limits=((0.0, 1.0),))
+    with pytest.raises(ModelError, match="must lie in"):
+        dataclasses.replace(arm, joint_limits=(None, None, (-1.0, 1e3)))
+    limited = dataclasses.replace(arm, joint_limits=(None, [-1.0, 2.0], None))
+    assert limited.joint_limits == (None, (-1.0, 2.0), None)
+    # the limits are inclusive; outside, the message names the joint (1-based) and limits
+    limited.within_limits([10.0, 2.0, 0.0])
+    with pytest.raises(ModelError, match=r"q2 = 171\.887 deg .* \[-57\.296, 114\.592\] deg"):
+        limited.within_limits([0.0, 3.0, 0.0], "target")
+
+
+def test_move_outside_the_limits_is_refused_by_simulate():
+    """Where the move meets the robot (casflex simulate), before any table is built."""
+    import argparse
+
+    from casflex.commands import simulate
+
+    p = argparse.ArgumentParser()
+    simulate.add_arguments(p)
+    args = p.parse_args(["problems/arm4_spatial.toml", "--move", "problems/moves.toml:move1"])
+    with pytest.raises(ModelError, match="4 joints"):
+        simulate.run(args, print)
+    # the Table 8 move 1 on a copy of the arm whose elbow stops at -45 deg
+    import tempfile
+    from pathlib import Path
+
+    text = Path("problems/arm2link.toml").read_text().replace(
+        'joint = "revolute"            # q3', 'q_min = { value = -45.0, unit = "deg" }\n'
+        'q_max = { value = 45.0, unit = "deg" }\njoint = "revolute"            # q3')
+    with tempfile.TemporaryDirectory() as tmp:
+        robot_file = Path(tmp) / "limited.toml"
+        robot_file.write_text(text)
+        args = p.parse_args([str(robot_file), "--move", "problems/moves.toml:move1"])
+        with pytest.raises(ModelError, match=r"target qf: q3 = -57\.296 deg"):
+            simulate.run(args, print)

@@ -92,7 +92,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     Raises
     ------
     ModelError
-        A move for another number of joints, ``--modes < 1``, a bad ``--dt``, or
+        A move for another number of joints or outside the robot's joint limits,
+        ``--modes < 1``, a bad ``--dt``, or
         ``--jit`` without ``--method poly``.
 
     Examples
@@ -121,6 +122,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if move.n_joints != robot.n_joints:
         raise ModelError(f"--move {args.move}: the move has {move.n_joints} joint values; "
                          f"robot '{robot.name}' ({args.robot}) has {robot.n_joints} joints")
+    robot.within_limits(move.q0, f"--move {args.move}: start q0")
+    robot.within_limits(move.qf, f"--move {args.move}: target qf")
     if args.modes < 1:
         raise ModelError(f"--modes: must be >= 1; got {args.modes}")
     if not (math.isfinite(args.dt) and args.dt > 0.0):
@@ -132,7 +135,10 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
                                          gravity=args.gravity, method=args.method, jit=jit,
                                          cache_dir=args.cache_dir)
-    log(f"model of '{robot.name}': {model.m} modes over {table.omega.shape[0]} points of "
+    sizes = table.omega.shape[:-1]  # one axis per shape joint
+    points = " × ".join(str(s) for s in sizes) + (f" = {math.prod(sizes)}" if len(sizes) > 1
+                                                   else "")
+    log(f"model of '{robot.name}': {model.m} modes over {points} grid points of "
         f"joint(s) {[j + 1 for j in table.shape_joints]} ({result.info['model_s']:.1f} s)")
     log(f"{move.name}: {result.t[-1]:.3f} s simulated in {result.info['wall_s']:.2f} s "
         f"({args.method}, dt = {args.dt} s)")

@@ -140,6 +140,10 @@ def _fourier_basis(theta, K):
     return out
 
 
+#: exact-row evaluations per chunk of tabulate_plant (memory ~ 200 bytes per evaluation)
+CHUNK_EVALUATIONS = 1 << 17
+
+
 @dataclass
 class FlexiblePlant:
     """The flexible rows to first or second order in Δ,
@@ -579,46 +583,37 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
                 e = np.zeros(nx)
                 e[a] = e[b] = eps2
                 xdes += [e, -e]
-    Us, Xs = [], []
-    for gp in gpoints:
-        for fs in fsamples:
-            q = np.zeros(n)
-            for ax, j in enumerate(shape):
-                q[j] = table_grid[ax][gp[ax]]
-            for a, j in enumerate(fourier):
-                q[j] = thetas[fs[a]]
-            for dq, ddq in designs:
-                for x in xdes:
-                    Us.append(np.r_[q, dq, ddq])
-                    Xs.append(x)
-    U = np.array(Us).T
-    X = np.array(Xs).T
-    N = U.shape[1]
-    R = np.asarray(fexact.map(N)(U, X))  # (m, N)
-    nd, ndes = len(designs), len(xdes)
-    R = R.reshape(m, len(gpoints), len(fsamples), nd, ndes)
-    cols = np.empty((m, len(gpoints), len(fsamples), nd, 2 * m + 1 + len(pairs)))
-    cols[..., 0] = R[..., 0]
-    for i in range(nx):
-        cols[..., 1 + i] = (R[..., 1 + 2 * i] - R[..., 2 + 2 * i]) / (2.0 * eps)
-    if order == 2:
-        base = 1 + 2 * nx
-
-        def even(k):  # (f(+e) + f(-e) - 2 f(0)) / (2 eps2^2) for design pair k
-            return (R[..., base + 2 * k] + R[..., base + 2 * k + 1] - 2.0 * R[..., 0]) / (
-                2.0 * eps2**2)
-
-        diag = [even(i) for i in range(nx)]
-        k = nx
-        for c, (a, b) in enumerate(pairs):
-            if a == b:
-                cols[..., 1 + nx + c] = diag[a]
-            else:
-                cols[..., 1 + nx + c] = even(k) - diag[a] - diag[b]
-                k += 1
-    # monomial coefficients, then Fourier coefficients
-    coef = np.einsum("kd,igfdc->gfkic", Dinv, cols)  # (G, F, mono, m, 2m+1)
-    coef = np.einsum("lf,gfkic->glkic", Binv, coef)  # (G, L, mono, m, 2m+1)
+    # The designs are evaluated a chunk of grid points at a time: all of them at once are
+    # grid points × Fourier samples × (q̇, q̈) designs × Δ designs columns (75 million on
+    # two shape joints at 3°: tens of GB), while the coefficients kept are per grid point.
+    nd, ndes, nf = len(designs), len(xdes), len(fsamples)
+    Q = np.zeros((len(gpoints), nf, n))  # q of every (grid point, Fourier sample)
+    for gi, gp in enumerate(gpoints):
+        for ax, j in enumerate(shape):
+            Q[gi, :, j] = table_grid[ax][gp[ax]]
+    for fi, fs in enumerate(fsamples):
+        for a, j in enumerate(fourier):
+            Q[:, fi, j] = thetas[fs[a]]
+    DQ = np.array([dq for dq, _ in designs]).reshape(nd, n)
+    DDQ = np.array([ddq for _, ddq in designs]).reshape(nd, n)
+    XD = np.array(xdes)
+    N = len(gpoints) * nf * nd * ndes
+    chunk = max(1, CHUNK_EVALUATIONS // (nf * nd * ndes))
+    coef = np.empty((len(gpoints), nf, len(mono), m, 2 * m + 1 + len(pairs)))
+    maps = {}
+    for g0 in range(0, len(gpoints), chunk):
+        g1 = min(g0 + chunk, len(gpoints))
+        block = (g1 - g0, nf, nd, ndes)
+        U = np.concatenate([np.broadcast_to(Q[g0:g1, :, None, None, :], block + (n,)),
+                            np.broadcast_to(DQ[None, None, :, None, :], block + (n,)),
+                            np.broadcast_to(DDQ[None, None, :, None, :], block + (n,))],
+                           axis=-1).reshape(-1, 3 * n).T
+        X = np.broadcast_to(XD[None, None, None], block + (nx,)).reshape(-1, nx).T
+        if U.shape[1] not in maps:
+            maps[U.shape[1]] = fexact.map(U.shape[1])
+        R = np.asarray(maps[U.shape[1]](U, X)).reshape((m,) + block)
+        coef[g0:g1] = _chunk_coefficients(R, Dinv, Binv, nx, pairs, eps, eps2, order)
+        del U, X, R
     scale = np.max(np.abs(coef), axis=(0, 1), keepdims=True)
     big = np.max(np.abs(coef))
     pattern = (scale[0, 0] > 1e-11 * big)
@@ -660,6 +655,34 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     return plant
 
 
+def _chunk_coefficients(R, Dinv, Binv, nx, pairs, eps, eps2, order):
+    """Fourier coefficients of the monomial coefficients of the Δ expansion, from the exact
+    rows ``R`` (m, grid points, Fourier samples, (q̇, q̈) designs, Δ designs) of a chunk of
+    grid points: (grid points, L, monomials, m, 2m + 1 + pairs)."""
+    cols = np.empty(R.shape[:-1] + (nx + 1 + len(pairs),))
+    cols[..., 0] = R[..., 0]
+    for i in range(nx):
+        cols[..., 1 + i] = (R[..., 1 + 2 * i] - R[..., 2 + 2 * i]) / (2.0 * eps)
+    if order == 2:
+        base = 1 + 2 * nx
+
+        def even(k):  # (f(+e) + f(-e) - 2 f(0)) / (2 eps2^2) for design pair k
+            return (R[..., base + 2 * k] + R[..., base + 2 * k + 1] - 2.0 * R[..., 0]) / (
+                2.0 * eps2**2)
+
+        diag = [even(i) for i in range(nx)]
+        k = nx
+        for c, (a, b) in enumerate(pairs):
+            if a == b:
+                cols[..., 1 + nx + c] = diag[a]
+            else:
+                cols[..., 1 + nx + c] = even(k) - diag[a] - diag[b]
+                k += 1
+    # monomial coefficients, then Fourier coefficients
+    coef = np.einsum("kd,igfdc->gfkic", Dinv, cols)  # (G, F, mono, m, 2m+1)
+    return np.einsum("lf,gfkic->glkic", Binv, coef)  # (G, L, mono, m, 2m+1)
+
+
 def _pruned(plant, prune):
     """The plant with :attr:`FlexiblePlant.keep` set by the relative threshold ``prune``
     (see :func:`tabulate_plant`)."""
@@ -693,7 +716,7 @@ def _plant_key(fexact, grid, periodic, fourier, **options):
         "grid": [np.asarray(a, dtype=float).tolist() for a in (grid or ())],
         "source": source_digest(tabulate_plant, _depends, _monomials, _designs,
                                 _monomial_values, _fourier_basis, _check_plant,
-                                _plant_from_arrays, FlexiblePlant),
+                                _plant_from_arrays, FlexiblePlant, _chunk_coefficients),
     })
 
 

@@ -39,12 +39,17 @@ __all__ = ["build_model", "default_grid", "sensor_quantities"]
 
 def default_grid(robot: Robot | None, joints: Sequence[int],
                  step: float | None = None) -> list[np.ndarray]:
-    """A full-turn grid per shape joint [rad]: 1.5° for one joint, 6° for more.
+    """A grid per shape joint [rad]: 1.5° for one joint, 6° for more; inside joint limits.
+
+    A joint without limits (or whose limits span a full turn or more) gets the full-turn
+    axis from −π (included) to π (excluded), which the tables wrap periodically. A limited
+    joint gets a uniform axis from its lower to its upper limit, both included, with the
+    largest step not above ``step`` (at least 4 points, for the cubic splines).
 
     Parameters
     ----------
     robot : casflex.robot.Robot or None
-        Unused (kept for a uniform signature).
+        Its ``joint_limits`` bound the axes; ``None``: full turns.
     joints : sequence of int
         The shape joints (0-based), one axis each.
     step : float, optional
@@ -53,20 +58,39 @@ def default_grid(robot: Robot | None, joints: Sequence[int],
     Returns
     -------
     list of numpy.ndarray
-        One axis per shape joint, from −π (included) to π (excluded) [rad].
+        One strictly increasing axis per shape joint [rad].
 
     Examples
     --------
     >>> len(default_grid(None, (2,))[0])
     240
+    >>> import dataclasses
+    >>> from casflex.robot import load
+    >>> arm = load("problems/arm2link.toml")
+    >>> limited = dataclasses.replace(arm, joint_limits=(None, None, (-1.0, 1.0)))
+    >>> axis = default_grid(limited, (2,), step=np.radians(6.0))[0]
+    >>> axis.size, float(axis[0]), float(axis[-1])
+    (21, -1.0, 1.0)
     """
     if step is None:
         step = np.radians(1.5) if len(joints) == 1 else np.radians(6.0)
     n = int(round(2.0 * np.pi / step))
     if n < 8:
         raise ModelError(f"grid step {step} rad is too coarse: a full turn needs >= 8 points")
-    axis = -np.pi + 2.0 * np.pi * np.arange(n) / n
-    return [axis] * len(joints)
+    full_turn = -np.pi + 2.0 * np.pi * np.arange(n) / n
+    limits = (None,) * (max(joints, default=-1) + 1) if robot is None else robot.joint_limits
+    axes = []
+    for k in joints:
+        bounds = limits[k]
+        if bounds is None or bounds[1] - bounds[0] >= 2.0 * np.pi:
+            axes.append(full_turn)
+            continue
+        low, high = bounds
+        points = max(int(np.ceil((high - low) / step * (1.0 - 1e-12))) + 1, 4)
+        axis = np.linspace(low, high, points)
+        axis[-1] = high  # the limit itself, not low + (points - 1) * step rounded
+        axes.append(axis)
+    return axes
 
 
 def sensor_quantities(robot: Robot, q: ArrayLike, shapes: ModeShapes,
