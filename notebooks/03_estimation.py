@@ -192,13 +192,13 @@ table([["no prefilter", *[f"{v:.1f}" for v in ratios(d.x, raw.x)],
 
 # %%
 # checked: the offset biases the velocities by several RMS without the prefilter; with it
-# the errors are zero-mean (mean below 5 % of the RMS state) and as small as without the
-# offset (RMS ratios at least 0.8 times the nominal ones)
+# the errors are zero-mean (mean below 5 % of the RMS state), δ as accurate as without the
+# offset (RMS ratio at least 0.8 times the nominal one) and δ̇ within a factor 2.5 of it
 bias_raw = np.abs((raw.x - d.x).mean(0) / scale)[3:].max()
 bias_hp = np.abs((hp.x - d.x).mean(0) / scale).max()
 got, ref = ratios(d.x, hp.x), ratios(d.x, nominal["move1", "acc"].x)
 assert bias_raw > 2.0 and bias_hp < 0.05, (bias_raw, bias_hp)
-assert min(g / r for g, r in zip(got, ref, strict=True)) > 0.8, (got, ref)
+assert got[0] > 0.8 * ref[0] and got[1] > ref[1] / 2.5, (got, ref)
 
 # %%
 fig, ax = plt.subplots(1, 2, figsize=(11, 3.5), sharex=True)
@@ -224,7 +224,8 @@ fig.tight_layout()
 # * The initial guess of 0.1 (a tip deflection of ~0.5 m!) is recovered within a second.
 # * A constant offset biases the velocities (mean error of several RMS, as in Fig. 63);
 #   the high-pass prefilter (applied to the signals and to their prediction) removes the
-#   bias: the errors are zero-mean and as small as without offset.
+#   bias: the errors are zero-mean, δ is as accurate as without offset and the δ̇ errors
+#   are about twice as large (RMS ratio ~65 instead of ~125 on move 1).
 # * A 40 % stiffness error keeps the filter stable with bounded errors (accelerometers: δ
 #   error about a third of the states, in line with the "4 times smaller" of Fig. 65; the
 #   velocity error is of the size of the velocities, where Fig. 65 reports 20 times
