@@ -279,12 +279,12 @@ assert abs(designs["move3", 0.0].duration - 0.39) < 0.005
 
 # %% [markdown]
 # The contributions agree with the dissertation's figures within 0.005 (the rounding of
-# its two-decimal figures; [0.650, 1, 0.132] for move 1 against its [0.647, 1, 0.13],
-# [1, 0, 0.381] for move 3), and so do the tolerances
-# (0.36 in the text for mode 3 of move 1 is 0.05/0.139; eq. 198 with its own r = 0.13,
-# 0.125–0.135 before rounding, gives 0.370–0.400, casflex 0.380). The frequency spans
-# differ by 1–3 % because the models differ slightly (at q = 0 casflex has 8.31, 11.97,
-# 22.75 rad/s, the dissertation 8.26, 11.93, 23.37); the shapers designed on them are 2 % longer for moves 1 and 2 and equal
+# its two-decimal figures; [0.650, 1, 0.132] for move 1 against its [0.647, 1, 0.13], [1,
+# 0, 0.381] for move 3), and so do the tolerances (0.36 in the text for mode 3 of move 1
+# is 0.05/0.139; eq. 198 with its own r = 0.13, 0.125–0.135 before rounding, gives
+# 0.370–0.400, casflex 0.380). The frequency spans differ by 1–3 % because the models
+# differ slightly (at q = 0 casflex has 8.31, 11.97, 22.75 rad/s, the dissertation 8.26,
+# 11.93, 23.37); the shapers designed on them are 2 % longer for moves 1 and 2 and equal
 # for move 3 (0.39 s).
 #
 # Move 3's 0.39 s is a shaper for the three single frequencies: move 3 does not change q3,
