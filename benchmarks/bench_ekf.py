@@ -7,9 +7,12 @@ Three implementations of the same step (casflex.estimation.ekf_step_function):
   (default 7): the median of the runs' medians, each run's figure in
   ``c_step_us_runs`` (on this shared machine whole runs land in quiet or busy spells);
 * ``python_step_us``: the CasADi function called from Python (median per call);
-* ``numpy_step_us``: a plain numpy EKF step with the same equations; the plant
-  coefficients, the measurement and its Jacobian come from CasADi functions evaluated
-  numerically.
+* ``numpy_step_us``: a plain numpy EKF step with the same equations and no CasADi call
+  in it (``numpy_step_factory``): the plant coefficients and the measurement with its
+  Jacobian are translated once from their SX operation lists into Python code on floats,
+  their B-spline tables into numpy piecewise cubics; the filter is numpy matrix algebra.
+  Its estimates are asserted equal to the CasADi step's within ``NUMPY_RTOL``;
+  ``numpy_vs_c_ratio = numpy_step_us / c_step_us``.
 
 The step is that of the second-order plant (``tabulate_plant(order=2)``, Fourier
 coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_order"``,
@@ -48,6 +51,9 @@ from casflex.simulate.integrators import rk4_step
 
 ROOT = Path(__file__).resolve().parents[1]
 
+#: largest relative deviation of the numpy baseline's estimates from the CasADi step's
+#: (round-off of ~10⁴ operations per step, amplified by the update; measured ≤ 1e-14)
+NUMPY_RTOL = 1e-10
 NATIVE = "-O3 -march=native -ffp-contract=off"
 FIRST = {"jacobians": "first_order"}
 BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False}
@@ -69,28 +75,202 @@ VARIANTS = [
 ]
 
 
+# ------------------------------------------------------------------ plain numpy baseline
+# CasADi is used once, when the step is built: the plant coefficients and the measurement
+# with its Jacobian are translated from their (expanded) SX operation lists into straight
+# Python code on floats, and the B-spline tables they call into numpy piecewise cubics
+# (Taylor coefficients at each grid interval's midpoint). The step itself makes no CasADi
+# call: numpy matrix algebra for the filter, Python floats for the model functions.
+
+_UNARY = {ca.OP_NEG: "-{0}", ca.OP_SQ: "{0}*{0}", ca.OP_TWICE: "2.0*{0}",
+          ca.OP_SIN: "_m.sin({0})", ca.OP_COS: "_m.cos({0})", ca.OP_TAN: "_m.tan({0})",
+          ca.OP_EXP: "_m.exp({0})", ca.OP_LOG: "_m.log({0})", ca.OP_SQRT: "_m.sqrt({0})",
+          ca.OP_FLOOR: "float(_m.floor({0}))", ca.OP_CEIL: "float(_m.ceil({0}))",
+          ca.OP_FABS: "abs({0})", ca.OP_INV: "1.0/{0}", ca.OP_NOT: "float(not {0})",
+          ca.OP_ASSIGN: "{0}"}
+_BINARY = {ca.OP_ADD: "{0}+{1}", ca.OP_SUB: "{0}-{1}", ca.OP_MUL: "{0}*{1}",
+           ca.OP_DIV: "{0}/{1}", ca.OP_POW: "{0}**{1}", ca.OP_CONSTPOW: "{0}**{1}",
+           ca.OP_LT: "float({0}<{1})", ca.OP_LE: "float({0}<={1})",
+           ca.OP_EQ: "float({0}=={1})", ca.OP_NE: "float({0}!={1})",
+           ca.OP_AND: "float(bool({0}) and bool({1}))",
+           ca.OP_OR: "float(bool({0}) or bool({1}))",
+           ca.OP_IF_ELSE_ZERO: "({1} if {0} else 0.0)", ca.OP_FMIN: "min({0},{1})",
+           ca.OP_FMAX: "max({0},{1})", ca.OP_ATAN2: "_m.atan2({0},{1})"}
+
+
+class PiecewiseCubic:
+    """A 1-D cubic B-spline interpolant of CasADi (one input, a vector out) as numpy
+    piecewise cubics on ``breaks``: value and first/second derivative at a point."""
+
+    def __init__(self, spline: ca.Function, breaks: np.ndarray):
+        x = ca.MX.sym("x")
+        f = spline(x)
+        d1 = ca.jacobian(f, x)
+        d2 = ca.jacobian(d1, x)
+        d3 = ca.jacobian(d2, x)
+        taylor = ca.Function("taylor", [x], [f, d1, d2, d3])
+        self.breaks = np.asarray(breaks, dtype=float)
+        self.mid = 0.5 * (self.breaks[1:] + self.breaks[:-1])
+        c = [np.asarray(v) for v in taylor.map(self.mid.size)(self.mid)]
+        # rows: intervals; columns: outputs; p(x) = c0 + c1 d + c2 d² + c3 d³, d = x - mid
+        self.c = [c[0].T, c[1].T, c[2].T / 2.0, c[3].T / 6.0]
+
+    def _piece(self, x):
+        i = min(max(int(np.searchsorted(self.breaks, x, side="right")) - 1, 0),
+                self.mid.size - 1)
+        return i, x - self.mid[i]
+
+    def value(self, x):
+        i, d = self._piece(x)
+        c0, c1, c2, c3 = (c[i] for c in self.c)
+        return c0 + d * (c1 + d * (c2 + d * c3))
+
+    def derivative(self, x):
+        i, d = self._piece(x)
+        _, c1, c2, c3 = (c[i] for c in self.c)
+        return c1 + d * (2.0 * c2 + d * 3.0 * c3)
+
+    def second_derivative(self, x):
+        i, d = self._piece(x)
+        return 2.0 * self.c[2][i] + 6.0 * d * self.c[3][i]
+
+
+def numpy_call(fun: ca.Function, breaks: np.ndarray, splines: dict):
+    """A numpy evaluation of a call node of the step: a B-spline interpolant, its first
+    forward derivative ``f'(x) s`` or its second ``f''(x) s s₂ + f'(x) s₂'`` (the forms
+    CasADi's forward mode produces; checked against CasADi where the step is built)."""
+    base = fun.name()
+    for prefix in ("fwd1_fwd1_", "fwd1_"):
+        base = base.removeprefix(prefix)
+    if base not in splines:
+        raise ValueError(f"no numpy form for the call node {fun.name()!r}")
+    sp = splines[base]
+    if fun.name().startswith("fwd1_fwd1_"):
+        def call(x, s, s2, s2d):
+            return sp.second_derivative(x) * (s * s2) + sp.derivative(x) * s2d
+    elif fun.name().startswith("fwd1_"):
+        def call(x, s):
+            return sp.derivative(x) * s
+    else:
+        def call(x):
+            return sp.value(x)
+    return call
+
+
+def sx_to_python(fun: ca.Function, breaks: np.ndarray):
+    """Translate an SX function into Python code on floats (its B-spline call nodes into
+    :class:`PiecewiseCubic`): ``f(*inputs) -> list of dense numpy outputs``."""
+    fun = fun.expand() if not fun.is_a("SXFunction") else fun
+    sx = fun.instructions_sx()
+    calls = {}
+    # the B-spline interpolants called (their derivatives' call nodes name them)
+    splines = {}
+    for k in range(fun.n_instructions()):
+        if fun.instruction_id(k) == ca.OP_CALL:
+            g = sx[k].which_function()
+            if g.class_name() == "BSplineInterpolant" and g.name() not in splines:
+                splines[g.name()] = PiecewiseCubic(g, breaks)
+    lines = [f"o{i} = [0.0] * {fun.nnz_out(i)}" for i in range(fun.n_out())]
+    for k in range(fun.n_instructions()):
+        op, ins, res = fun.instruction_id(k), fun.instruction_input(k), \
+            fun.instruction_output(k)
+        w = [f"w{i}" for i in ins]
+        if op == ca.OP_INPUT:
+            lines.append(f"w{res[0]} = a{ins[0]}[{ins[1]}]")
+        elif op == ca.OP_OUTPUT:
+            # now: CasADi reuses the work slot afterwards
+            lines.append(f"o{res[0]}[{res[1]}] = w{ins[0]}")
+        elif op == ca.OP_CONST:
+            lines.append(f"w{res[0]} = {float(fun.instruction_constant(k))!r}")
+        elif op == ca.OP_CALL:
+            g = sx[k].which_function()
+            calls[k] = numpy_call(g, breaks, splines)
+            _check_call(g, calls[k])
+            targets = ", ".join(f"w{r}" if r >= 0 else "_" for r in res)
+            lines.append(f"{targets}, = c{k}({', '.join(w)})")
+        elif op in _UNARY:
+            lines.append(f"w{res[0]} = " + _UNARY[op].format(*w))
+        elif op in _BINARY:
+            lines.append(f"w{res[0]} = " + _BINARY[op].format(*w))
+        else:
+            raise ValueError(f"operation {op} of {fun.name()} has no Python form")
+    ret = [f"o{i}" for i in range(fun.n_out())]
+    args = ", ".join(f"a{i}" for i in range(fun.n_in()))
+    src = f"def f({args}):\n    " + "\n    ".join(lines) + \
+        f"\n    return [{', '.join(ret)}]\n"
+    scope = {"_m": __import__("math"), **{f"c{k}": c for k, c in calls.items()}}
+    exec(compile(src, f"<numpy {fun.name()}>", "exec"), scope)
+    flat = scope["f"]
+    shapes, scatter = [], []
+    for i in range(fun.n_out()):
+        sp = fun.sparsity_out(i)
+        rows, cols = (np.asarray(v, dtype=int) for v in sp.get_triplet())
+        shapes.append((sp.size1(), sp.size2()))
+        scatter.append((rows, cols))
+
+    def evaluate(*inputs):
+        vals = flat(*[np.asarray(a, dtype=float).ravel(order="F").tolist() for a in inputs])
+        out = []
+        for v, shape, (rows, cols) in zip(vals, shapes, scatter, strict=True):
+            dense = np.zeros(shape)
+            dense[rows, cols] = v
+            out.append(dense)
+        return out
+
+    return evaluate
+
+
+def _check_call(fun: ca.Function, call, trials=5):
+    """The numpy form of a call node equals CasADi's evaluation (random inputs)."""
+    rng = np.random.default_rng(0)
+    lo, hi = -np.pi, np.pi
+    for _ in range(trials):
+        x = rng.uniform(lo, hi)
+        seeds = rng.standard_normal(3)
+        args, nargs = [], []
+        for i in range(fun.n_in()):
+            if fun.nnz_in(i) == 0:
+                args.append(ca.DM.zeros(fun.sparsity_in(i)))
+                continue
+            v = x if not nargs else seeds[len(nargs) - 1]
+            args.append(v)
+            nargs.append(v)
+        ref = np.asarray(fun(*args)).ravel()
+        got = np.asarray(call(*nargs)).ravel()
+        scale = max(np.max(np.abs(ref)), 1e-300)
+        if np.max(np.abs(got - ref)) > 1e-11 * scale:
+            raise AssertionError(f"numpy form of {fun.name()} differs from CasADi by "
+                                 f"{np.max(np.abs(got - ref)) / scale:.1e}")
+
+
 def numpy_step_factory(plant, sensors, Q, R, dt):
-    """A numpy EKF step ``(x, P, u, y, mask) -> (x_next, P_next, x_post)`` (the equations
-    of ``ekf_step_function(..., jacobians="first_order", update="batch")``; the default
-    sequential update is the same to rounding)."""
+    """A plain numpy EKF step ``(x, P, u, y, mask) -> (x_next, P_next, x_post)``: the
+    equations of ``ekf_step_function(..., jacobians="first_order", update="batch")``
+    (the default sequential update is the same to rounding), with no CasADi call in it."""
     from casflex.sensors import kinematic_measurement
 
     m = plant.m
     nx = 2 * m
-    coef = plant.function()
+    table = plant.model.provider.table
+    grid = np.asarray(table.grid[0], dtype=float)
+    h_grid = float(np.median(np.diff(grid)))
+    # every knot of the (periodically padded) splines is on the uniform grid's lattice
+    breaks = grid[0] + h_grid * np.arange(-4, round((grid[-1] - grid[0]) / h_grid) + 6)
+    coef = sx_to_python(plant.function(), breaks)
     pairs = plant.pairs
-    hk = kinematic_measurement(plant.model, sensors)
+    hk = kinematic_measurement(plant.model, sensors, lean=True)
     xs, us, acs = ca.SX.sym("x", nx), ca.SX.sym("u", 3 * plant.n), ca.SX.sym("a", m)
     hs = hk(xs, us, acs)
-    hjac = ca.Function("hjac", [xs, us, acs],
-                       [hs, ca.jtimes(hs, ca.vertcat(xs, acs), ca.SX.eye(hs.numel()),
-                                      True).T])
+    hjac = sx_to_python(ca.Function("hjac", [xs, us, acs],
+                                    [hs, ca.jtimes(hs, ca.vertcat(xs, acs),
+                                                   ca.SX.eye(hs.numel()), True).T]),
+                        breaks)
     Qd = Q * dt * np.eye(nx)
     Rm = np.asarray(R, dtype=float) * np.eye(sensors.n_outputs) if np.ndim(R) == 0 else R
     eye = np.eye(nx)
 
     def step(x, P, u, y, mask):
-        c = [np.asarray(v) for v in coef(u)]
+        c = coef(u)
         r0, Jd, Jv = c[0].ravel(), c[1], c[2]
         W = c[3] if pairs else np.zeros((m, 0))
 
@@ -105,7 +285,7 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
         F[:m, m:] = np.eye(m)
         F[m:, :m], F[m:, m:] = Jd, Jv
         acc = accel(x)
-        h, Jxa = (np.asarray(v) for v in hjac(x, u, acc))
+        h, Jxa = hjac(x, u, acc)
         h = h.ravel()
         H = Jxa[:, :nx] + Jxa[:, nx:] @ np.hstack([Jd, Jv])
         valid = mask > 0.5
@@ -275,12 +455,18 @@ def main(argv=None):
         dev = max(dev, float(np.max(np.abs(xp - ref.x[k])) / np.max(np.abs(ref.x))))
         x, P = xn, Pn
     np_us = float(np.median(times)) * 1e6
+    # same equations, other order of operations (and batch vs sequential update, equal to
+    # ≤ 2e-14): anything above round-off is a wrong baseline, not a slow one
+    if dev > NUMPY_RTOL:
+        raise AssertionError(f"numpy baseline differs from the CasADi step by {dev:.1e} "
+                             f"(> {NUMPY_RTOL:.0e})")
 
     out = {
         "c_step_us": c_us,
         "c_step_us_runs": c_runs,
         "python_step_us": py_us,
         "numpy_step_us": np_us,
+        "numpy_vs_c_ratio": np_us / c_us,
         "states": 6,
         "outputs": sensors.n_outputs,
         "sx_instructions": int(step.n_instructions()),

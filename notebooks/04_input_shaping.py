@@ -259,11 +259,30 @@ table([[j + 1, f"{lo}–{hi}", f"{a:.2f}–{b:.2f}"]
                                                d0.omega_min, d0.omega_max, strict=True))],
       ["mode", "Table 14 [rad/s]", "casflex [rad/s]"])
 
+# %%
+# checked: contributions and tolerances within 0.005 of the dissertation's (the rounding
+# of its two-decimal figures; mode 3 of move 1 against eq. 198 with its rounded r = 0.13,
+# i.e. 0.05 / [0.135, 0.125], see below), the spans' shaper durations 0-3 % longer than
+# its (equal for move 3), and the ±20 % durations quoted below
+for name in moves:
+    d0, d2 = designs[name, 0.0], designs[name, 0.2]
+    r, v, dur = DIS[name]
+    assert np.allclose(np.abs(d0.contributions), r, rtol=0, atol=0.005), (name, r)
+    tol = np.array(d0.tolerances)
+    if name == "move1":
+        assert 0.05 / 0.135 <= tol[2] <= 0.05 / 0.125, tol
+        tol[2], v = v[2], list(v)  # the text's 0.36 is 0.05/0.139, compared above instead
+    assert np.allclose(tol, v, rtol=0, atol=0.005), (name, d0.tolerances)
+    assert 1.0 - 0.005 / dur <= d0.duration / dur <= 1.03, (name, d0.duration, dur)
+    assert round(d2.duration, 2) == {"move1": 1.21, "move2": 0.81, "move3": 0.87}[name]
+assert abs(designs["move3", 0.0].duration - 0.39) < 0.005
+
 # %% [markdown]
-# The contributions agree with the dissertation to the rounding of its figures
-# ([0.650, 1, 0.132] for move 1, [1, 0, 0.381] for move 3), and so do the tolerances
-# (0.36 in the text for mode 3 of move 1 is 0.05/0.139; eq. 198 with its own r = 0.13
-# gives 0.385, casflex 0.380). The frequency spans differ by 1–3 % because the models
+# The contributions agree with the dissertation's figures within 0.005 (the rounding of
+# its two-decimal figures; [0.650, 1, 0.132] for move 1 against its [0.647, 1, 0.13], [1,
+# 0, 0.381] for move 3), and so do the tolerances (0.36 in the text for mode 3 of move 1
+# is 0.05/0.139; eq. 198 with its own r = 0.13, 0.125–0.135 before rounding, gives
+# 0.370–0.400, casflex 0.380). The frequency spans differ by 1–3 % because the models
 # differ slightly (at q = 0 casflex has 8.31, 11.97, 22.75 rad/s, the dissertation 8.26,
 # 11.93, 23.37); the shapers designed on them are 2 % longer for moves 1 and 2 and equal
 # for move 3 (0.39 s).
