@@ -309,6 +309,8 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     if move.n_joints != robot.n_joints:
         raise ModelError(f"move '{move.name}' has {move.n_joints} joints; robot "
                          f"'{robot.name}' has {robot.n_joints}")
+    for end in ("q0", "qf"):  # bang-bang moves are monotone: the ends bound the path
+        robot.within_limits(getattr(move, end), f"move '{move.name}' {end}")
     choice(controller, "controller", ("inversion", "composite"))
     number(n_modes, "n_modes", low=1, integer=True)
     number(dt, "dt", low=0.0, low_open=True)  # [s]

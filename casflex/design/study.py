@@ -24,6 +24,7 @@ import numpy as np
 
 from casflex._problemfile import read_toml
 from casflex._validate import choice, fail, identifier, number, plausible
+from casflex.errors import ModelError
 
 if TYPE_CHECKING:
     from casflex.moves import Move
@@ -236,6 +237,12 @@ def load_study(path: str | os.PathLike) -> Study:
     if move.n_joints != robot.n_joints:
         raise fail("move", move_ref, f"has {move.n_joints} joints; robot '{robot.name}' "
                    f"has {robot.n_joints}", path=path)
+    for end in ("q0", "qf"):  # bang-bang moves are monotone: the ends bound the path
+        try:
+            robot.within_limits(getattr(move, end), f"move '{move.name}' {end}")
+        except ModelError as exc:
+            raise fail("move", move_ref, f"leaves the robot's joint limits ({exc})",
+                       path=path) from None
     sensors = load_sensors(sensors_path, robot)
 
     _check_settings(path, settings, sensors, sensors_path, robot.n_joints)

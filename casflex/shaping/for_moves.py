@@ -723,6 +723,8 @@ def shaper_for_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, vtol: f
     if move.n_joints != robot.n_joints:
         raise fail("move", move.name, f"has {move.n_joints} joint(s) but robot "
                    f"'{robot.name}' has {robot.n_joints}")
+    for end in ("q0", "qf"):  # bang-bang moves are monotone: the ends bound the path
+        robot.within_limits(getattr(move, end), f"move '{move.name}' {end}")
     say = log or (lambda message: None)
     say(f"building the {n_modes}-mode model of '{robot.name}' (tables cached)")
     model, _ = build_model(robot, n_modes=n_modes, step=step, gravity=None,
