@@ -12,7 +12,8 @@ The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``jacobians="first_or
 :func:`casflex.estimation.ekf_step_function`), sequential scalar updates when ``R`` is
 diagonal. With a controller the model is built as in the control studies
 (``delta_order=0``, the dissertation's ``M(q)``); the composite law uses fast gains
-scheduled over the configuration grid.
+scheduled on a 30-point full-turn axis per scheduled joint, cached on disk
+(:func:`casflex.codegen.make_controller`).
 
 Extending the bundle: :func:`rt_functions` returns its named CasADi functions and their
 units; add yours to both before generating them with :func:`casflex.codegen.generate`.
