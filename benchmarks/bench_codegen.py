@@ -21,19 +21,45 @@ Figures (µs per step, medians over ``--steps`` steps × ``--repeat`` loops):
 ``timer_overhead_ns``
     median cost of an empty ``clock_gettime`` pair in the harness (not subtracted).
 
+The README tour command (``--tour``)::
+
+    casflex codegen problems/arm2link.toml --sensors problems/sensors/arm2link_accel.toml \
+        [--controller composite] --out DIR
+
+run in a subprocess, timed from outside (wall clock and the child's CPU time):
+
+``cold_s`` / ``cold_cpu_s``
+    from an empty cache directory (``$CASFLEX_CACHE`` set to a fresh one): modal tables,
+    plant, gain schedule, code generation (``--no-cold`` skips it);
+``warm_s`` / ``warm_cpu_s``
+    the same command again with that cache warm;
+``c_bytes``
+    size of each bundle's C source (``{"casflex_ekf": ..., "casflex_model": ...}``);
+``compile_s``
+    ``cc -O2 -fPIC -c`` of each bundle's source (wall clock).
+
+Keys are prefixed ``composite_`` for the run with ``--controller composite``. ``--code DIR``
+puts ``DIR`` first on ``PYTHONPATH`` of the subprocess (old vs new side by side).
+
 Usage::
 
     python benchmarks/bench_codegen.py [--json] [--steps N] [--repeat R]
+    python benchmarks/bench_codegen.py --tour [--json] [--no-cold] [--code DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -143,12 +169,72 @@ def run(steps=1000, repeat=5):
     return out
 
 
+TOUR = ["codegen", "problems/arm2link.toml", "--sensors", "problems/sensors/arm2link_accel.toml"]
+
+
+def _timed(cmd, env):
+    """Run ``cmd``; return (wall s, CPU s of the child)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def run_tour(controller, cold=True, code=None, cache=None):
+    """Time the tour command (cold, warm), the size and the -O2 compile of its C."""
+    env = dict(os.environ)
+    if code is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(code), env.get("PYTHONPATH", "")])
+    out = {}
+    with tempfile.TemporaryDirectory() as work:
+        env["CASFLEX_CACHE"] = str(cache) if cache is not None else f"{work}/cache"
+        cmd = [sys.executable, "-m", "casflex.cli", *TOUR, "--out", f"{work}/rt"]
+        if controller:
+            cmd += ["--controller", controller]
+        if cold:
+            shutil.rmtree(env["CASFLEX_CACHE"], ignore_errors=True)
+            out["cold_s"], out["cold_cpu_s"] = _timed(cmd, env)
+        elif cache is None:
+            _timed(cmd, env)  # warm the cache, untimed
+        shutil.rmtree(f"{work}/rt", ignore_errors=True)
+        out["warm_s"], out["warm_cpu_s"] = _timed(cmd, env)
+        out["c_bytes"], out["compile_s"] = {}, {}
+        for src in sorted(Path(f"{work}/rt").glob("*/*.c")):
+            out["c_bytes"][src.stem] = src.stat().st_size
+            t0 = time.perf_counter()
+            subprocess.run([os.environ.get("CC", "cc"), "-O2", "-fPIC", "-c", str(src), "-o",
+                            str(src.with_suffix(".o"))], check=True)
+            out["compile_s"][src.stem] = time.perf_counter() - t0
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", action="store_true", help="print exactly one JSON object")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--tour", action="store_true",
+                        help="time the README's casflex codegen command instead")
+    parser.add_argument("--no-cold", action="store_true",
+                        help="--tour: skip the run from an empty cache")
+    parser.add_argument("--code", default=None,
+                        help="--tour: directory put first on the subprocess's PYTHONPATH")
+    parser.add_argument("--cache", default=None,
+                        help="--tour: a cache directory to use (warm runs only)")
     args = parser.parse_args(argv)
+    if args.tour:
+        res = {"load_before": os.getloadavg()[0]}
+        for controller in (None, "composite"):
+            got = run_tour(controller, cold=not args.no_cold and args.cache is None,
+                           code=args.code, cache=args.cache)
+            prefix = f"{controller}_" if controller else ""
+            res.update({prefix + k: v for k, v in got.items()})
+        res["load_after"] = os.getloadavg()[0]
+        print(json.dumps(res) if args.json else json.dumps(res, indent=1))
+        return 0
     res = run(args.steps, args.repeat)
     if args.json:
         print(json.dumps(res))

@@ -308,6 +308,41 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
     return step
 
 
+def op_counts(f):
+    """``(arithmetic operations, calls)`` among the SX instructions of ``f``: every
+    instruction but inputs, outputs, constants and assignments is one floating-point
+    operation (sqrt, division and the comparisons of the guard each count as one);
+    calls are the B-spline lookups, counted apart."""
+    import casadi as ca
+
+    skip = {ca.OP_INPUT, ca.OP_OUTPUT, ca.OP_CONST, ca.OP_ASSIGN, ca.OP_PARAMETER}
+    ids = [f.instruction_id(k) for k in range(f.n_instructions())]
+    calls = sum(1 for i in ids if i == ca.OP_CALL)
+    return sum(1 for i in ids if i not in skip and i != ca.OP_CALL), calls
+
+
+def cpu_ghz():
+    """Clock of this machine's CPU [GHz] from /proc/cpuinfo (None where unknown)."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("cpu MHz"):
+                    return float(line.split(":")[1]) / 1e3
+    except OSError:
+        pass
+    return None
+
+
+def flop_limit(step):
+    """Operations per step and the time they need at the scalar limit of this machine:
+    two double-precision operations per cycle (two FP ports, scalar code: ``-O2`` without
+    ``-march`` neither vectorises nor fuses), at the clock of :func:`cpu_ghz`."""
+    flops, calls = op_counts(step)
+    ghz = cpu_ghz()
+    return {"flops_per_step": flops, "calls_per_step": calls, "cpu_ghz": ghz,
+            "flop_limit_us": None if ghz is None else flops / (2.0 * ghz * 1e3)}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -471,6 +506,7 @@ def main(argv=None):
         "outputs": sensors.n_outputs,
         "sx_instructions": int(step.n_instructions()),
         "sz_w": sz_w,
+        **flop_limit(step),
         "order": args.order,
         "jacobians": args.jacobians,
         "update": args.update,

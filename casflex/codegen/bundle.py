@@ -10,6 +10,7 @@ nonzeros, units and the workspace sizes of the generated ``<f>_SZ_*`` macros.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -325,6 +326,26 @@ def _static_state(source_text):
     return tuple(found)
 
 
+_TABLE = re.compile(r"(static const casadi_real casadi_c\d+\[\d+\] = )\s*\{([^}]*)\};")
+
+
+def _compact_tables(source_text):
+    """The source with every constant table written in the shortest decimal form that
+    reads back to the same double (``repr``), 16 numbers a line: CasADi writes ``%.16e``,
+    e.g. ``-3.1415926535897931e+00``; the values, hence the compiled code, are unchanged.
+    Tables with a non-finite entry are left as CasADi wrote them."""
+
+    def shorter(match):
+        values = [float(v) for v in match.group(2).split(",") if v.strip()]
+        if not all(math.isfinite(v) for v in values):
+            return match.group(0)
+        text = [repr(v) for v in values]
+        lines = [", ".join(text[i:i + 16]) for i in range(0, len(text), 16)]
+        return match.group(1) + "{\n  " + ",\n  ".join(lines) + "};"
+
+    return _TABLE.sub(shorter, source_text)
+
+
 def generate(functions: ca.Function | Sequence[ca.Function], out_dir: str | os.PathLike,
              name: str = "casflex_rt", with_header: bool = True, *,
              casadi_real: str = "double", casadi_int: str = "long long int",
@@ -443,7 +464,8 @@ def generate(functions: ca.Function | Sequence[ca.Function], out_dir: str | os.P
 
     source = out_dir / f"{name}.c"
     header = out_dir / f"{name}.h" if with_header else None
-    source_text = source.read_text()
+    source_text = _compact_tables(source.read_text())
+    source.write_text(source_text)
     header_text = header.read_text() if header is not None else ""
     infos = []
     for f in functions:

@@ -12,7 +12,8 @@ The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``jacobians="first_or
 :func:`casflex.estimation.ekf_step_function`), sequential scalar updates when ``R`` is
 diagonal. With a controller the model is built as in the control studies
 (``delta_order=0``, the dissertation's ``M(q)``); the composite law uses fast gains
-scheduled over the configuration grid.
+scheduled on a 30-point full-turn axis per scheduled joint, cached on disk
+(:func:`casflex.codegen.make_controller`).
 
 Extending the bundle: :func:`rt_functions` returns its named CasADi functions and their
 units; add yours to both before generating them with :func:`casflex.codegen.generate`.
@@ -28,6 +29,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from casflex._parallel import progress_bar
 from casflex._validate import number, output_directory
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.estimator import add_status_defines, ekf_units, model_bundle
@@ -52,7 +54,8 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
                  controller: str | None = None, kp: ArrayLike = 1.0, kd: ArrayLike = 2.0,
                  q_weight: ArrayLike = 1.0, r_weight: ArrayLike = 10.0,
                  plant: FlexiblePlant | None = None, guard: Guard | None = None,
-                 torque_limits: ArrayLike | None = None
+                 torque_limits: ArrayLike | None = None,
+                 controller_function: ca.Function | None = None
                  ) -> tuple[dict[str, ca.Function], dict[str, dict[str, str]]]:
     """The named functions and units of the estimator bundle.
 
@@ -89,12 +92,18 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
     torque_limits : float or array_like, optional
         Per-joint torque limits [N·m] of the guarded ``rt_step`` (required with ``guard``
         and ``controller``).
+    controller_function : casadi.Function, optional
+        The ``controller`` already built (:func:`casflex.codegen.make_controller` with
+        these arguments); default: built here.
 
     Returns
     -------
     functions : dict of str to casadi.Function
         ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals`` and, with a
-        controller, ``rt_step``.
+        controller, ``rt_step``. ``measurement`` is the sensors' kinematic model from a
+        B-spline of just the table entries they use
+        (:func:`casflex.sensors.kinematic_measurement`, ``lean=True``: what ``ekf_step``
+        evaluates; the same as the model's to rounding).
     units : dict
         ``{function: {port: unit}}`` for the README.
 
@@ -129,6 +138,7 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
         highpass_cutoff,
         tabulate_plant,
     )
+    from casflex.sensors import kinematic_measurement
 
     if R is None:
         std = sensors.noise_std
@@ -143,6 +153,12 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
         plant = tabulate_plant(model)
     funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
                           jacobians=jacobians)
+    # the measurement from the B-spline of just the table entries the sensors use (what
+    # ekf_step evaluates inside), not the model's spline of all of them and its first and
+    # second derivatives: three tables of every entry were 2.9 MB of the C source
+    lean = kinematic_measurement(model, sensors, lean=True)
+    funcs["measurement"] = ca.Function("measurement", lean.sx_in(), lean.call(lean.sx_in()),
+                                       lean.name_in(), lean.name_out())
     if prefilter or guard is not None:
         wc = highpass_cutoff(model, np.zeros(model.n)) if prefilter else None
         funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
@@ -156,7 +172,9 @@ def rt_functions(model: FlexibleModel, sensors: SensorSet, *, Q: ArrayLike = 5e-
             raise ModelError("torque_limits (--torque-limit) must be given for the guarded "
                              "rt_step")
     if controller:
-        ctrl = make_controller(model, controller, Kp=kp, Kd=kd, Q=q_weight, R=r_weight)
+        ctrl = controller_function
+        if ctrl is None:
+            ctrl = make_controller(model, controller, Kp=kp, Kd=kd, Q=q_weight, R=r_weight)
         step = funcs["ekf_step"]
         funcs["rt_step"] = rt_step_function(
             step, ctrl, dt, torque_limits=torque_limits if guard is not None else None)
@@ -176,7 +194,8 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
                      kp: ArrayLike = 1.0, kd: ArrayLike = 2.0, q_weight: ArrayLike = 1.0,
                      r_weight: ArrayLike = 10.0, guard: Guard | None = None,
                      torque_limits: ArrayLike | None = None,
-                     log: Callable[[str], object] | None = None) -> list[Bundle]:
+                     log: Callable[[str], object] | None = None,
+                     progress: bool = False) -> list[Bundle]:
     """Build the model of a robot for its sensors and write its real-time bundles.
 
     Building the model tabulates modes over a grid (seconds to minutes), so the example
@@ -207,6 +226,8 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         (``CASFLEX_TORQUE_LIMIT_<j>``, with the status bits ``CASFLEX_STATUS_*``).
     log : callable, optional
         ``log(message)`` receives one line per stage.
+    progress : bool
+        Progress bars on stderr: one over the stages, and the modal tables' own.
 
     Returns
     -------
@@ -228,6 +249,7 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         ...
     casflex.errors.ModelError: n_modes = 0: must be >= 1
     """
+    from casflex.estimation import tabulate_plant
     from casflex.model import build_model
     from casflex.robot import load
     from casflex.sensors import load_sensors
@@ -242,24 +264,45 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         robot = load(robot)
     if isinstance(sensors, (str, os.PathLike)):
         sensors = load_sensors(sensors, robot)
-    log(f"building the model of '{robot.name}' with {n_modes} modes ...")
-    options = {"delta_order": 0} if controller else {}
-    flexible, _ = build_model(robot, n_modes=n_modes, step=step, points=sensors.points,
-                              gravity="robot" if gravity else None, **options)
-    log("tabulating the flexible plant for the EKF"
-        + (f" and building the {controller} controller ..." if controller else " ..."))
-    funcs, units = rt_functions(flexible, sensors, Q=Q, R=R, dt=dt, sqrt=sqrt,
-                                prefilter=prefilter, jacobians=jacobians,
-                                controller=controller, kp=kp, kd=kd, q_weight=q_weight,
-                                r_weight=r_weight, guard=guard, torque_limits=torque_limits)
-    names = [k for k in _EKF_ORDER if k in funcs] + [k for k in funcs if k not in _EKF_ORDER]
-    bundles = [generate([funcs[k] for k in names], out / f"{name}_ekf", name=f"{name}_ekf",
-                        units={k: v for k, v in units.items() if k in names})]
-    if guard is not None:
-        limits = None
+    stages = progress_bar(4 + bool(controller) + bool(model), desc="codegen",
+                          enabled=progress)
+    with stages:
+        log(f"building the model of '{robot.name}' with {n_modes} modes ...")
+        options = {"delta_order": 0} if controller else {}
+        flexible, _ = build_model(robot, n_modes=n_modes, step=step, points=sensors.points,
+                                  gravity="robot" if gravity else None, progress=progress,
+                                  **options)
+        stages.update()
+        log("tabulating the flexible plant for the EKF ...")
+        plant = tabulate_plant(flexible)  # cached on disk
+        stages.update()
+        ctrl = None
         if controller:
-            limits = np.broadcast_to(np.asarray(torque_limits, float), (flexible.n,))
-        add_status_defines(bundles[0], limits)
-    if model:
-        bundles.append(model_bundle(flexible, out / f"{name}_model", name=f"{name}_model"))
+            log(f"building the {controller} controller ...")
+            ctrl = make_controller(flexible, controller, Kp=kp, Kd=kd, Q=q_weight,
+                                   R=r_weight)  # its gain schedule is cached on disk
+            stages.update()
+        log("building the estimator's functions ...")
+        funcs, units = rt_functions(flexible, sensors, Q=Q, R=R, dt=dt, sqrt=sqrt,
+                                    prefilter=prefilter, jacobians=jacobians,
+                                    controller=controller, kp=kp, kd=kd, q_weight=q_weight,
+                                    r_weight=r_weight, plant=plant, guard=guard,
+                                    torque_limits=torque_limits, controller_function=ctrl)
+        stages.update()
+        log("generating C ...")
+        names = [k for k in _EKF_ORDER if k in funcs] + [k for k in funcs
+                                                         if k not in _EKF_ORDER]
+        bundles = [generate([funcs[k] for k in names], out / f"{name}_ekf",
+                            name=f"{name}_ekf",
+                            units={k: v for k, v in units.items() if k in names})]
+        if guard is not None:
+            limits = None
+            if controller:
+                limits = np.broadcast_to(np.asarray(torque_limits, float), (flexible.n,))
+            add_status_defines(bundles[0], limits)
+        stages.update()
+        if model:
+            bundles.append(model_bundle(flexible, out / f"{name}_model",
+                                        name=f"{name}_model"))
+            stages.update()
     return bundles

@@ -82,6 +82,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from casflex._json import jsonable
 from casflex._validate import choice, number, vector
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.estimator import add_status_defines, ekf_units
@@ -112,7 +113,8 @@ _CONTROLLERS = ("composite", "inversion")
 def make_controller(model: FlexibleModel, kind: str, Kp: ArrayLike = 1.0, Kd: ArrayLike = 2.0,
                     Q: ArrayLike = 1.0, R: ArrayLike = 10.0,
                     gain: ArrayLike | GainSchedule | None = None,
-                    epsilon: float | None = None) -> ca.Function:
+                    epsilon: float | None = None, schedule_points: int = 30,
+                    cache_dir: str | os.PathLike | bool | None = None) -> ca.Function:
     """The controller of the real-time loop by name.
 
     Parameters
@@ -120,8 +122,11 @@ def make_controller(model: FlexibleModel, kind: str, Kp: ArrayLike = 1.0, Kd: Ar
     model : casflex.model.FlexibleModel
     kind : {"composite", "inversion"}
         ``"composite"``: :func:`casflex.control.composite_controller` with the fast
-        gains scheduled over the configuration grid (:func:`casflex.control.gain_schedule`,
-        B-spline interpolated, so they code-generate) unless ``gain`` is given;
+        gains scheduled over the configuration grid (B-spline interpolated, so they
+        code-generate) unless ``gain`` is given: for a model with a modal table, a
+        full-turn axis of ``schedule_points`` points per scheduled joint, cached on disk
+        (:func:`casflex.control.cached_gain_schedule`, as the design job does); else
+        :func:`casflex.control.gain_schedule` on its default grid;
         ``"inversion"``: :func:`casflex.control.inversion_controller`.
     Kp, Kd : float or array_like
         Joint gains [1/s², 1/s].
@@ -131,6 +136,14 @@ def make_controller(model: FlexibleModel, kind: str, Kp: ArrayLike = 1.0, Kd: Ar
         Fast gain instead of the schedule (composite).
     epsilon : float, optional
         Perturbation parameter [s] (default :func:`casflex.control.perturbation_parameter`).
+    schedule_points : int
+        Points of the schedule's full-turn axis per scheduled joint (composite, model with
+        a table; default 30, the design studies' ``controller.schedule_points``). The
+        table's own grid (240 points per joint for the Table 8 arm) would mean 57 600 LQR
+        solutions and a 31 MB C source for gains that vary smoothly.
+    cache_dir : str, os.PathLike or False, optional
+        Cache directory of the schedule (default ``$CASFLEX_CACHE``, else
+        ``~/.cache/casflex``; ``False``: none).
 
     Returns
     -------
@@ -156,7 +169,16 @@ def make_controller(model: FlexibleModel, kind: str, Kp: ArrayLike = 1.0, Kd: Ar
     if kind == "inversion":
         return control.inversion_controller(model, Kp=Kp, Kd=Kd)
     if gain is None:
-        gain = control.gain_schedule(model, Q=Q, R=R, epsilon=epsilon)
+        table = getattr(model.provider, "table", None)
+        if table is None:
+            gain = control.gain_schedule(model, Q=Q, R=R, epsilon=epsilon)
+        else:
+            points = number(schedule_points, "schedule_points", low=8, integer=True)
+            if epsilon is None:
+                epsilon = control.perturbation_parameter(model, table=table)
+            axis = -np.pi + 2.0 * np.pi * np.arange(points) / points
+            gain = control.cached_gain_schedule(model, jsonable(Q), jsonable(R), epsilon,
+                                                table, axis, cache_dir)
     return control.composite_controller(model, Kp=Kp, Kd=Kd, gain=gain, epsilon=epsilon)
 
 

@@ -168,7 +168,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         gravity=not args.no_gravity, model=not args.no_model, Q=args.Q, R=args.R,
         dt=args.dt, sqrt=args.sqrt, prefilter=args.prefilter, jacobians=args.jacobians,
         controller=args.controller, kp=args.kp, kd=args.kd, q_weight=args.q_weight,
-        r_weight=args.r_weight, guard=guard, torque_limits=limits, log=log)
+        r_weight=args.r_weight, guard=guard, torque_limits=limits, log=log,
+        progress=True)
     files, functions = [], []
     for b in bundles:
         files += [str(p) for p in (b.source, b.header, b.readme, b.makefile, b.manifest)
