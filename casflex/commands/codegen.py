@@ -14,7 +14,7 @@ With ``--controller composite|inversion`` the EKF bundle also gets ``rt_step``
 (:func:`casflex.codegen.rt_step_function`): encoder readings, reference and accelerometer
 sample to the joint torques and the updated estimator state in one call. The model is then
 built as in the control studies (``delta_order=0``, the dissertation's ``M(q)``); the
-composite law uses fast gains scheduled over the configuration grid.
+composite law uses fast gains scheduled on a 30-point axis per shape joint, cached on disk.
 
 JSON: ``{"files": [source, header, README, Makefile, manifest of each bundle],
 "functions": [C function names]}``.
