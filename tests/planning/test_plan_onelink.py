@@ -74,6 +74,7 @@ def test_rigid_time_optimal_is_bang_bang():
                                atol=1e-6 * TAU_MAX)
 
 
+@pytest.mark.slow  # verification simulations of 1.3 s moves at 0.1 / 1 ms
 def test_vibration_off_and_rest(flexible):
     J = HUB + RHO * A_Y * B_X * L**3 / 3.0
     T_rigid = 2.0 * math.sqrt(THETA / (TAU_MAX / J))
@@ -99,6 +100,7 @@ def test_vibration_off_and_rest(flexible):
     assert v_rest["torque"] < 0.01 * v_free["prescribed"]
 
 
+@pytest.mark.slow  # verification simulations of 1.3 s moves at 0.1 / 1 ms
 def test_residual_tolerance_is_met(flexible):
     tol = 2e-3
     plan = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
@@ -110,6 +112,7 @@ def test_residual_tolerance_is_met(flexible):
     assert plan.torque_peak.max() <= TAU_MAX * (1 + 1e-6)
 
 
+@pytest.mark.slow  # verification simulations of 1.3 s moves at 0.1 / 1 ms
 def test_robust_plan_keeps_tolerance_under_frequency_error(flexible):
     tol, r = 2e-3, 0.1
     kw = {"torque_limit": TAU_MAX, "intervals": 20, "end": tol, "settle": 1.0}
