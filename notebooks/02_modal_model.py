@@ -262,8 +262,9 @@ fig.tight_layout()
 # Before (default model): the time history is off by 8 % of the peak on Table 9 move 2
 # and by 25 % on the faster move with 1.2 rad of elbow travel; after (``shape_rates``):
 # about 2 % and 4 %. What remains grows with the deflection (the beams' shortening as
-# they bend, which the model's δ-linear kinematics leave out); the option costs about 6 %
-# more CasADi instructions in the modal rows and is off by default.
+# they bend, which the model's δ-linear kinematics leave out); the option costs about 34 %
+# more CasADi instructions in the modal rows (1.5–2× the simulation time) and is off by
+# default.
 
 # %% [markdown]
 # **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model
