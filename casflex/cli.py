@@ -101,11 +101,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     >>> import contextlib, io, json
     >>> out = io.StringIO()
     >>> with contextlib.redirect_stdout(out):
-    ...     status = main(["modes", "problems/arm2link.toml", "--count", "2", "--json"])
+    ...     status = main(["modes", "problems/arm2link.toml", "--modes", "2", "--json"])
     >>> result = json.loads(out.getvalue())
     >>> status, sorted(result), [round(w, 3) for w in result["omega"]]
     (0, ['frequency_hz', 'omega', 'q'], [8.307, 11.97])
-    >>> main(["modes", "problems/arm2link.toml", "--count", "0"])   # error on stderr
+    >>> main(["modes", "problems/arm2link.toml", "--modes", "0"])   # error on stderr
     2
     """
     parser = build_parser()

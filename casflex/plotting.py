@@ -149,7 +149,7 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
     omega : array_like
         (k, m) frequencies [rad/s].
     joint : int
-        1-based joint number, for the label.
+        0-based index of the swept joint (``2`` is q3), for the label.
     tracked : bool
         Whether the columns follow modes (lines) or sorted order (markers).
     unit : {"rad/s", "Hz"}
@@ -163,7 +163,7 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
 
     Examples
     --------
-    >>> fig = plot_sweep([0.0, 0.1], [[1.0, 2.0], [1.1, 2.1]], joint=3)
+    >>> fig = plot_sweep([0.0, 0.1], [[1.0, 2.0], [1.1, 2.1]], joint=2)
     >>> fig.axes[0].get_xlabel()
     'q3 [deg]'
     """
@@ -178,7 +178,7 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
     for j in range(omega.shape[1]):
         style = dict(lw=1.5) if tracked else dict(ls="none", marker=".", ms=3)
         ax.plot(np.degrees(q), omega[:, j], label=f"mode {j + 1}", **style)
-    ax.set_xlabel(f"q{joint} [deg]")
+    ax.set_xlabel(f"q{joint + 1} [deg]")
     ax.set_ylabel(f"natural frequency [{unit}]")
     ax.set_title(title or ("tracked modes" if tracked else "sorted natural frequencies"))
     ax.grid(True, alpha=0.3)
@@ -496,7 +496,7 @@ def plot_move_shaper(result: MoveShaperResult, move_name: str,
 # ------------------------------------------------------------------- control (§6.2)
 
 def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
-                       joints: tuple[int, int] = (2, 3), fig: Figure | None = None) -> Figure:
+                       joints: tuple[int, int] = (1, 2), fig: Figure | None = None) -> Figure:
     """Maps of the accessibility indexes, one panel per mode (Fig. 108–110).
 
     Parameters
@@ -507,7 +507,9 @@ def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
         ``(m, len(axes[0]), len(axes[1]))`` from
         :func:`casflex.control.accessibility_map`.
     joints : (int, int)
-        Joint numbers for the labels (1-based).
+        0-based indexes of the two joints, as given to
+        :func:`casflex.control.accessibility_map` (``(1, 2)``, the default, labels the
+        axes q2 and q3).
     fig : matplotlib.figure.Figure, optional
         Figure to draw in (default a new pyplot figure).
 
@@ -520,9 +522,9 @@ def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
     >>> import matplotlib
     >>> matplotlib.use("Agg")
     >>> ax = [np.linspace(-3, 3, 4)] * 2
-    >>> fig = plot_accessibility(ax, np.ones((2, 4, 4)))
-    >>> len(fig.axes)
-    4
+    >>> fig = plot_accessibility(ax, np.ones((2, 4, 4)), joints=(1, 2))
+    >>> len(fig.axes), fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()
+    (4, 'q3 [deg]', 'q2 [deg]')
     """
     import matplotlib.pyplot as plt
 
@@ -537,8 +539,8 @@ def plot_accessibility(axes: tuple[ArrayLike, ArrayLike], index: ArrayLike,
                              shading="auto", cmap="viridis")
         fig.colorbar(mesh, ax=ax)
         ax.set_title(f"a{k + 1} [√kg·m]")
-        ax.set_xlabel(f"q{joints[1]} [deg]")
-        ax.set_ylabel(f"q{joints[0]} [deg]")
+        ax.set_xlabel(f"q{joints[1] + 1} [deg]")
+        ax.set_ylabel(f"q{joints[0] + 1} [deg]")
     fig.tight_layout()
     return fig
 

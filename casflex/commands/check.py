@@ -1,4 +1,16 @@
-"""``casflex check``: stability of a controller along a planned move (§6.2.2.1, §6.2.3.1)."""
+"""``casflex check``: stability of a controller along a planned move (§6.2.2.1, §6.2.3.1).
+
+``casflex check ROBOT.toml --move FILE:NAME --controller inversion|composite [--modes N]
+[--step S] [--dt S] [--kp KP] [--kd KD] [--alpha A] [--q-weight W] [--r-weight W]
+[--schedule] [--cache-dir DIR | --no-cache] [--json]``
+
+Every condition the stability argument needs gets its own verdict, printed one per line
+and in the JSON's ``conditions`` (name -> ``{"holds", "value", "unit", "rule"}``); the
+headline ``stable`` is true only when all of them hold. Inversion: ``zero_dynamics_margin``
+(eq. 226) and ``modal_damping`` (eq. 225, ``D - alpha I`` positive definite); composite:
+``slow_loop`` (the rigid loop under ``Kp``, ``Kd``) and ``fast_loop_hurwitz``
+(§6.2.3.1).
+"""
 
 from __future__ import annotations
 
@@ -7,12 +19,18 @@ from collections.abc import Callable
 
 import numpy as np
 
-from casflex.commands.common import parse_angle
+from casflex.commands.common import (
+    add_cache_arguments,
+    add_model_arguments,
+    add_robot_argument,
+    cache_dir_of,
+    parse_angle,
+)
 from casflex.errors import ModelError
 from casflex.robot import load
 
-HELP = ("stability of the inversion (eq. 226) or composite (fast loop Hurwitz) controller "
-        "along a move")
+HELP = ("check the stability of the inversion (eq. 225-226) or composite (slow and fast "
+        "loops) controller along a move")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,27 +52,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> a.controller, a.modes, a.step, a.dt, a.schedule
     ('composite', 3, '6deg', 0.01, True)
     """
-    parser.add_argument("robot", help="robot description (TOML)")
+    add_robot_argument(parser)
     parser.add_argument("--move", required=True, metavar="FILE:NAME",
                         help="planned move, e.g. problems/moves.toml:move1")
-    parser.add_argument("--controller", required=True, choices=("inversion", "composite"))
-    parser.add_argument("--modes", type=int, default=3, help="number of modes (default 3)")
-    parser.add_argument("--step", default="6deg",
-                        help="grid step of the modal tables (default 6deg)")
-    parser.add_argument("--dt", type=float, default=1e-2,
-                        help="time step of the check along the move [s] (default 0.01)")
-    parser.add_argument("--kp", type=float, default=1.0, help="K_p (default 1)")
-    parser.add_argument("--alpha", type=float, default=None,
-                        help="alpha of eq. 216 [1/s] (inversion; default zeta*omega_min, "
+    parser.add_argument("--controller", required=True, choices=("inversion", "composite"),
+                        help="the tracking law checked")
+    add_model_arguments(parser, modes=3, step="6deg")
+    parser.add_argument("--dt", type=float, default=1e-2, metavar="S",
+                        help="time step of the check along the move, s (default 0.01)")
+    parser.add_argument("--kp", type=float, default=1.0, metavar="KP",
+                        help="slow gain K_p, 1/s^2 (default 1)")
+    parser.add_argument("--kd", type=float, default=2.0, metavar="KD",
+                        help="slow gain K_d, 1/s (composite; default 2)")
+    parser.add_argument("--alpha", type=float, default=None, metavar="A",
+                        help="alpha of eq. 216, 1/s (inversion; default zeta*omega_min, "
                              "or sqrt(Kp) without damping)")
-    parser.add_argument("--q-weight", type=float, default=1.0, help="LQR Q = w I (default 1)")
-    parser.add_argument("--r-weight", type=float, default=10.0,
-                        help="LQR R = w I (default 10)")
+    parser.add_argument("--q-weight", type=float, default=1.0, metavar="W",
+                        help="LQR Q = w I (composite; default 1)")
+    parser.add_argument("--r-weight", type=float, default=10.0, metavar="W",
+                        help="LQR R = w I (composite; default 10)")
     parser.add_argument("--schedule", action="store_true",
                         help="composite: gains scheduled over the configuration grid "
-                             "(default: fixed gains at the end of the move)")
-    parser.add_argument("--no-cache", action="store_true", help="do not cache the tables")
-
+                             "(default fixed gains at the end of the move)")
+    add_cache_arguments(parser)
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Run the check; return ``{"stable", "worst_margin", "worst_time", ...}`` (SI).
@@ -72,12 +92,12 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     Returns
     -------
     dict
-        As :func:`casflex.control.check_stability`: inversion (eq. 226) ``stable``,
-        ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q`` [rad], ``alpha``,
-        ``gamma`` [1/s], ``damping_condition``, ``time_scale_max``; composite (fast loop)
-        ``stable``, ``worst_margin``, ``worst_real`` [1/s], ``worst_time`` [s],
-        ``worst_q`` [rad], ``epsilon`` [s], ``gains`` (``"scheduled"`` or ``"end of
-        move"``).
+        As :func:`casflex.control.check_stability`: ``stable`` (every condition holds),
+        ``conditions`` (one verdict per condition); inversion ``worst_margin``
+        [1/s³], ``worst_time`` [s], ``worst_q`` [rad], ``alpha``, ``gamma`` [1/s],
+        ``damping_condition``, ``time_scale_max``; composite ``worst_margin``,
+        ``worst_real`` [1/s], ``worst_time`` [s], ``worst_q`` [rad], ``epsilon`` [s],
+        ``gains`` (``"scheduled"`` or ``"end of move"``).
 
     Raises
     ------
@@ -110,27 +130,38 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--modes: must be >= 1; got {args.modes}")
     if not args.dt > 0:
         raise ModelError(f"--dt: must be > 0 [s]; got {args.dt}")
+    for flag, value in (("--kp", args.kp), ("--kd", getattr(args, "kd", 2.0))):
+        if not (value > 0 and np.isfinite(value)):
+            raise ModelError(f"{flag}: must be a finite gain > 0; got {value}")
     step = parse_angle(args.step, "--step")
     if not step > 0:
         raise ModelError(f"--step: must be > 0; got {args.step}")
     log(f"building the model of {robot.name} ({args.modes} modes, table step "
         f"{np.degrees(step):g} deg)")
     r = check_stability(robot, move, args.controller, n_modes=args.modes, step=step,
-                        dt=args.dt, Kp=args.kp, alpha=args.alpha, Q=args.q_weight,
-                        R=args.r_weight, schedule=args.schedule,
-                        cache_dir=False if args.no_cache else None)
+                        dt=args.dt, Kp=args.kp, Kd=getattr(args, "kd", 2.0),
+                        alpha=args.alpha, Q=args.q_weight, R=args.r_weight,
+                        schedule=args.schedule, cache_dir=cache_dir_of(args))
     if args.controller == "inversion":
         log(f"eq. 226 along {move.name}: worst margin {r['worst_margin']:.6g} 1/s^3 at "
             f"t = {r['worst_time']:.3f} s; alpha = {r['alpha']:.4g} 1/s; "
             f"gamma = {r['gamma']:.4g} 1/s; move may run {r['time_scale_max']:.4g}x faster")
-        if not r["damping_condition"]:
-            log("note: D - alpha I is not positive definite (no modal damping): eq. 225 "
-                "does not hold, the zero dynamics are not exponentially stable")
-        return r
-    log(f"fast closed loop along {move.name}: largest real part {r['worst_real']:.6g} 1/s "
-        f"at t = {r['worst_time']:.3f} s, q = {np.round(r['worst_q'], 4).tolist()} rad "
-        f"(epsilon = {r['epsilon']:.4g} s)")
-    if not r["stable"] and not args.schedule:
+    else:
+        log(f"fast closed loop along {move.name}: largest real part {r['worst_real']:.6g} "
+            f"1/s at t = {r['worst_time']:.3f} s, q = "
+            f"{np.round(r['worst_q'], 4).tolist()} rad (epsilon = {r['epsilon']:.4g} s)")
+    for name, c in r["conditions"].items():
+        log(f"  {'holds' if c['holds'] else 'FAILS'}: {name}: {c['value']:.6g} {c['unit']} "
+            f"({c['rule']})")
+    failed = [name for name, c in r["conditions"].items() if not c["holds"]]
+    log(f"stable: {'yes' if not failed else 'no'} ({len(r['conditions']) - len(failed)} of "
+        f"{len(r['conditions'])} conditions hold)")
+    if args.controller == "inversion" and not r["conditions"]["modal_damping"]["holds"]:
+        log("note: without modal damping D - alpha I is not positive definite: eq. 225 "
+            "fails and the zero dynamics are not exponentially stable, whatever eq. 226 "
+            "says")
+    if (args.controller == "composite" and not r["conditions"]["fast_loop_hurwitz"]["holds"]
+            and not args.schedule):
         log("note: with gains fixed at the end of the move the fast loop of this model is "
             "not Hurwitz along the move (a property of the model: small residual joint "
             "inertia, see casflex.control.composite_stability); try --schedule")

@@ -7,11 +7,18 @@ from collections.abc import Callable
 
 import numpy as np
 
-from casflex.commands.common import parse_angle, plot_path
+from casflex.commands.common import (
+    add_deprecated_alias,
+    add_modes_argument,
+    add_plot_argument,
+    add_robot_argument,
+    parse_angle,
+    plot_path,
+)
 from casflex.errors import ModelError
 from casflex.robot import load
 
-HELP = "natural frequencies and mode shapes of a robot at one configuration (TMM)"
+HELP = "compute the natural frequencies and mode shapes of a robot at one configuration (TMM)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,14 +35,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> p = argparse.ArgumentParser()
     >>> add_arguments(p)
     >>> a = p.parse_args(["problems/arm2link.toml", "--q", "0", "0", "90deg"])
-    >>> a.q, a.count, a.plot
+    >>> a.q, a.modes, a.plot
     (['0', '0', '90deg'], 5, None)
     """
-    parser.add_argument("robot", help="robot description (TOML)")
+    add_robot_argument(parser)
     parser.add_argument("--q", nargs="+", default=None, metavar="Q",
-                        help="joint values, rad (or with a 'deg' suffix); zeros if omitted")
-    parser.add_argument("--count", type=int, default=5, help="number of modes (default 5)")
-    parser.add_argument("--plot", metavar="FILE.png", help="draw the arm and its first modes")
+                        help="joint values, rad or with a 'deg' suffix (default zeros)")
+    add_modes_argument(parser, 5)
+    add_deprecated_alias(parser, "--count", "--modes", "modes", type=int)
+    add_plot_argument(parser, "draw the arm and its first modes")
 
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
@@ -51,14 +59,14 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     Returns
     -------
     dict
-        ``{"q": (n_joints,) rad, "omega": (count,) rad/s, "frequency_hz": (count,) Hz}``.
+        ``{"q": (n_joints,) rad, "omega": (modes,) rad/s, "frequency_hz": (modes,) Hz}``.
 
     Examples
     --------
     >>> import argparse
     >>> p = argparse.ArgumentParser()
     >>> add_arguments(p)
-    >>> args = p.parse_args(["problems/arm2link.toml", "--count", "2"])
+    >>> args = p.parse_args(["problems/arm2link.toml", "--modes", "2"])
     >>> out = run(args, lambda message: None)
     >>> out["q"].tolist(), out["omega"].round(3).tolist(), out["frequency_hz"].round(3).tolist()
     ([0.0, 0.0, 0.0], [8.307, 11.97], [1.322, 1.905])
@@ -74,9 +82,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if q.size != robot.n_joints:
         raise ModelError(f"--q: robot '{robot.name}' has {robot.n_joints} joints; "
                          f"got {q.size} values")
-    if args.count < 1:
-        raise ModelError(f"--count: must be >= 1; got {args.count}")
-    shapes = modes(robot, q, count=args.count)
+    if args.modes < 1:
+        raise ModelError(f"--modes: must be >= 1; got {args.modes}")
+    shapes = modes(robot, q, count=args.modes)
     hz = shapes.omega / (2.0 * np.pi)
     log(f"{robot.name} at q = {np.round(q, 6).tolist()} rad")
     for j, (w, f) in enumerate(zip(shapes.omega, hz, strict=True), start=1):

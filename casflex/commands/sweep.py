@@ -1,7 +1,7 @@
 """``casflex sweep``: natural frequencies while one joint moves (dissertation Fig. 25/26).
 
-``casflex sweep ROBOT.toml --joint K --from A --to B --step S [--track] [--count N]
-[--q Q1 Q2 ...] [--plot FILE.png] [--json]``
+``casflex sweep ROBOT.toml --joint K --from A --to B --step S [--track] [--modes N]
+[--q Q1 Q2 ...] [--plot FILE.png] [--unit rad/s|Hz] [--json]``
 
 Joint ``K`` (1-based) takes the values ``A, A + S, ...`` up to ``B`` (included when it
 falls on the step, within 1e-9 of a step); the other joints stay at 0 or at ``--q``
@@ -10,11 +10,12 @@ falls on the step, within 1e-9 of a step); the other joints stay at 0 or at ``--
 
 By default the frequencies are the sorted roots at every configuration (Fig. 25); with
 ``--track`` the modes are followed by the modified MAC with continuous sign
-(:func:`casflex.modal.tracking.track`, Fig. 26), computing two more modes than ``--count``
+(:func:`casflex.modal.tracking.track`, Fig. 26), computing two more modes than ``--modes``
 so that modes crossing in from above are followed, and ``omega[i][j]`` is then mode ``j``
 (numbered by frequency at the first point) at ``q[i]``.
 
-JSON: ``{"joint": K, "q": [...], "omega": [[...], ...]}`` (rad, rad/s).
+JSON: ``{"joint": K, "q": [...], "omega": [[...], ...]}`` (rad, rad/s). The figure is
+drawn in rad/s, or in Hz with ``--unit Hz``.
 """
 
 from __future__ import annotations
@@ -26,11 +27,20 @@ from collections.abc import Callable
 
 import numpy as np
 
-from casflex.commands.common import parse_angle, plot_path
+from casflex.commands.common import (
+    add_deprecated_alias,
+    add_modes_argument,
+    add_plot_argument,
+    add_processes_argument,
+    add_robot_argument,
+    add_unit_argument,
+    parse_angle,
+    plot_path,
+)
 from casflex.errors import ModelError
 from casflex.robot import load
 
-HELP = "natural frequencies while one joint sweeps a range (raw or tracked by MAC)"
+HELP = "compute the natural frequencies while one joint sweeps a range (sorted or tracked by MAC)"
 
 #: refuse sweeps longer than this (a typo in --step)
 MAX_POINTS = 100_000
@@ -54,26 +64,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> a.joint, a.start.strip(), a.stop, a.step
     (3, '-180deg', 'pi', '1.5deg')
     """
-    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
+    add_robot_argument(parser)
     parser.add_argument("--joint", type=int, required=True, metavar="K",
                         help="joint to sweep, 1-based")
     parser.add_argument("--from", dest="start", required=True, metavar="A",
-                        help="first value, rad (or with a 'deg' suffix, or '-pi'/'pi')")
+                        help="first value, rad or with a 'deg' suffix, or '-pi'/'pi'")
     parser.add_argument("--to", dest="stop", required=True, metavar="B",
-                        help="last value, rad (or 'deg' suffix, or '-pi'/'pi')")
+                        help="last value, rad or with a 'deg' suffix, or '-pi'/'pi'")
     parser.add_argument("--step", required=True, metavar="S",
-                        help="increment > 0, rad (or with a 'deg' suffix)")
+                        help="increment > 0, rad or with a 'deg' suffix")
     parser.add_argument("--track", action="store_true",
                         help="follow the modes by MAC with continuous sign (Fig. 26) "
                              "instead of sorting the frequencies (Fig. 25)")
-    parser.add_argument("--count", type=int, default=5, metavar="N",
-                        help="number of modes (default 5)")
+    add_modes_argument(parser, 5)
+    add_deprecated_alias(parser, "--count", "--modes", "modes", type=int)
     parser.add_argument("--q", nargs="+", default=None, metavar="Q",
-                        help="values of the other joints, rad or 'deg' suffix (default 0)")
-    parser.add_argument("--processes", type=int, default=None, metavar="P",
-                        help="worker processes (default: all CPUs; 1 = no pool)")
-    parser.add_argument("--plot", metavar="FILE.png", default=None,
-                        help="write frequency vs joint angle")
+                        help="values of the other joints, rad or with a 'deg' suffix "
+                             "(default 0)")
+    add_processes_argument(parser)
+    add_plot_argument(parser, "write frequency vs joint angle")
+    add_unit_argument(parser)
 
 
 def sweep_values(start: float, stop: float, step: float) -> np.ndarray:
@@ -132,8 +142,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     --------
     >>> import argparse
     >>> a = argparse.Namespace(robot="problems/arm2link.toml", joint=3, start="0",
-    ...                        stop="2deg", step="1deg", track=False, count=2, q=None,
-    ...                        processes=1, plot=None)
+    ...                        stop="2deg", step="1deg", track=False, modes=2, q=None,
+    ...                        processes=1, plot=None, unit="rad/s")
     >>> out = run(a, lambda m: None)
     >>> len(out["q"]), len(out["omega"][0])
     (3, 2)
@@ -146,8 +156,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if not 1 <= k <= robot.n_joints:
         raise ModelError(f"--joint: robot '{robot.name}' has joints 1..{robot.n_joints}; "
                          f"got {k}")
-    if args.count < 1:
-        raise ModelError(f"--count: must be >= 1; got {args.count}")
+    if args.modes < 1:
+        raise ModelError(f"--modes: must be >= 1; got {args.modes}")
     if args.processes is not None and args.processes < 1:
         raise ModelError(f"--processes: must be >= 1; got {args.processes}")
     values = sweep_values(parse_angle(args.start, "--from"), parse_angle(args.stop, "--to"),
@@ -163,8 +173,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     qs[:, k - 1] = values
     kind = "tracked" if args.track else "sorted"
     log(f"{robot.name}: sweeping q{k} from {values[0]:.6g} to {values[-1]:.6g} rad "
-        f"({values.size} points), {args.count} modes, {kind}")
-    result = frequency_sweep(robot, qs, args.count, track=args.track, joint=k - 1,
+        f"({values.size} points), {args.modes} modes, {kind}")
+    result = frequency_sweep(robot, qs, args.modes, track=args.track, joint=k - 1,
                              processes=args.processes,
                              progress=values.size >= 20 and sys.stderr.isatty())
     omega = result.omega
@@ -173,13 +183,14 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         if result.min_mac < 0.9:
             log("  warning: a tracked mode changes fast between neighbours; use a smaller "
                 "--step")
-    for j in range(args.count):
+    for j in range(args.modes):
         col = result.omega_hz[:, j]
         log(f"  mode {j + 1}: {col.min():10.5f} .. {col.max():10.5f} Hz")
     if args.plot:
         from casflex.plotting import plot_sweep
 
-        fig = plot_sweep(values, omega, k, tracked=args.track, unit="Hz",
+        fig = plot_sweep(values, omega, k - 1, tracked=args.track,
+                         unit=getattr(args, "unit", "rad/s"),
                          title=f"{robot.name}: natural frequencies vs q{k} ({kind})")
         fig.savefig(args.plot, dpi=120)
         log(f"wrote {args.plot}")

@@ -82,10 +82,18 @@ def inversion_stability(model: FlexibleModel, move: Move, alpha: float | None = 
     -------
     dict
         ``t``, ``margin`` (λ_min(2α K̄ − K̇) per time [1/s³]), ``worst_margin``,
-        ``worst_time``, ``stable`` (margin > 0 throughout), ``alpha``,
-        ``damping_condition`` (``D − αI ≻ 0``), ``gamma`` (eq. 230, [1/s]; > 0 means
-        exponential stability), ``time_scale_max`` (largest factor by which the move
-        may be run faster, duration/s, keeping eq. 226; ``inf`` if unbounded).
+        ``worst_time``, ``alpha``, ``conditions`` (one verdict per condition, see
+        below), ``stable`` (true only when every condition holds), ``damping_condition``
+        (``D − αI ≻ 0``, as in ``conditions``), ``gamma`` (eq. 230, [1/s]; > 0 means
+        exponential stability, which needs both conditions), ``time_scale_max``
+        (largest factor by which the move may be run faster, duration/s, keeping
+        eq. 226; ``inf`` if unbounded).
+
+        ``conditions`` maps a name to ``{"holds", "value", "unit", "rule"}``:
+        ``"zero_dynamics_margin"`` (eq. 226: the worst margin > 0 along the move,
+        [1/s³]) and ``"modal_damping"`` (eq. 225: ``λ_min(D) − α > 0`` throughout, [1/s];
+        without modal damping it fails, and the zero dynamics are then not
+        exponentially stable whatever eq. 226 says).
 
     Examples
     --------
@@ -95,8 +103,10 @@ def inversion_stability(model: FlexibleModel, move: Move, alpha: float | None = 
     >>> robot = load("problems/arm2link.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 2), gravity=None)
     >>> r = inversion_stability(model, Move([0, 0, 0], [-1, 0, 0], 2.0), alpha=1.0)
-    >>> r["stable"], r["time_scale_max"]   # frozen shapes: K̇ = 0
+    >>> r["conditions"]["zero_dynamics_margin"]["holds"], r["time_scale_max"]  # K̇ = 0
     (True, inf)
+    >>> r["conditions"]["modal_damping"]["holds"], r["stable"]  # Table 8: no damping
+    (False, False)
     """
     m = model.m
     t, qd, dqd, _ = _trajectory(move, t, dt)
@@ -137,10 +147,26 @@ def inversion_stability(model: FlexibleModel, move: Move, alpha: float | None = 
     iw = int(np.argmin(margin))
     beta = float(margin[iw])
     gamma = min(2.0 * dmin, beta / kbar_max if kbar_max > 0 else math.inf)
+    conditions = {
+        "zero_dynamics_margin": _verdict(
+            beta > 0, beta, "1/s^3", "eq. 226: lambda_min(2 alpha Kbar - dK/dt) > 0 along "
+            "the move"),
+        "modal_damping": _verdict(
+            dmin > 0, dmin, "1/s", "eq. 225: D - alpha I positive definite along the move "
+            "(alpha < 2 zeta omega_min)"),
+    }
     return {"t": t, "margin": margin, "worst_margin": beta, "worst_time": float(t[iw]),
-            "worst_q": qd[iw], "stable": bool(beta > 0), "alpha": alpha,
-            "damping_condition": bool(dmin > 0), "gamma": float(gamma),
+            "worst_q": qd[iw], "stable": _all_hold(conditions), "conditions": conditions,
+            "alpha": alpha, "damping_condition": bool(dmin > 0), "gamma": float(gamma),
             "time_scale_max": smax}
+
+
+def _verdict(holds, value, unit, rule):
+    return {"holds": bool(holds), "value": float(value), "unit": unit, "rule": rule}
+
+
+def _all_hold(conditions):
+    return all(c["holds"] for c in conditions.values())
 
 
 def composite_stability(model: FlexibleModel, move: Move,
@@ -170,7 +196,9 @@ def composite_stability(model: FlexibleModel, move: Move,
     dict
         ``t``, ``real`` (largest real part of the fast closed-loop eigenvalues per time,
         real time [1/s]), ``worst_real``, ``worst_time``, ``worst_q``,
-        ``worst_margin`` (``−worst_real``), ``stable``, ``epsilon``.
+        ``worst_margin`` (``−worst_real``), ``conditions`` (``"fast_loop_hurwitz"``:
+        ``{"holds", "value", "unit", "rule"}``, the value the worst real part [1/s]),
+        ``stable`` (every condition holds), ``epsilon``.
 
     Notes
     -----
@@ -239,15 +267,27 @@ def composite_stability(model: FlexibleModel, move: Move,
         ev = np.linalg.eigvals(A[:, k, :] - B[:, k, :] @ Kk)
         real[k] = float(np.max(ev.real)) / float(epsilon)
     iw = int(np.argmax(real))
+    conditions = {"fast_loop_hurwitz": _verdict(
+        real[iw] < -tol, real[iw], "1/s", "§6.2.3.1: every eigenvalue of A_f - B_f K_f has "
+        "a negative real part along the move")}
     return {"t": t, "real": real, "worst_real": float(real[iw]),
             "worst_margin": float(-real[iw]), "worst_time": float(t[iw]),
-            "worst_q": qd[iw], "stable": bool(real[iw] < -tol), "epsilon": float(epsilon)}
+            "worst_q": qd[iw], "stable": _all_hold(conditions), "conditions": conditions,
+            "epsilon": float(epsilon)}
+
+
+def _slow_loop(Kp, Kd):
+    """Verdict on the reduced (rigid) loop ë + K_d ė + K_p e = 0: its slowest real part."""
+    roots = np.roots([1.0, Kd, Kp])
+    worst = float(np.max(roots.real))
+    return _verdict(worst < 0, worst, "1/s", "Tikhonov: the slow (rigid) loop "
+                    "e'' + Kd e' + Kp e = 0 is exponentially stable (Kp, Kd > 0)")
 
 
 def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
                     step: float = math.radians(6.0), dt: float = 1e-2, Kp: float = 1.0,
                     alpha: float | None = None, Q: float = 1.0, R: float = 10.0,
-                    schedule: bool = False,
+                    schedule: bool = False, Kd: float = 2.0,
                     cache_dir: str | os.PathLike | bool | None = None) -> dict:
     """Stability of a tracking law of a robot along a planned move (``casflex check``).
 
@@ -268,7 +308,8 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     dt : float
         Time step of the check along the move [s].
     Kp : float
-        Slow gain (only for the default ``alpha``).
+        Slow proportional gain [1/s²] (inversion: for the default ``alpha``; composite:
+        the slow loop's condition).
     alpha : float, optional
         Constant of eq. 216 [1/s] (inversion; see :func:`inversion_stability`).
     Q, R : float
@@ -276,15 +317,21 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     schedule : bool
         Composite: gains scheduled over the grid (:func:`~casflex.control.gain_schedule`)
         instead of fixed at the end of the move.
+    Kd : float
+        Slow derivative gain [1/s] (composite: the slow loop's condition).
     cache_dir : path, None or False
         Modal-table cache (a path, ``None`` for the default, ``False`` for none).
 
     Returns
     -------
     dict
-        Inversion: ``stable``, ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q``
-        [rad], ``alpha`` [1/s], ``gamma`` [1/s], ``damping_condition``,
-        ``time_scale_max``. Composite: ``stable``, ``worst_margin``, ``worst_time`` [s],
+        ``conditions``: one verdict per condition, ``{"holds", "value", "unit",
+        "rule"}`` by name; ``stable``: true only when every condition holds.
+        Inversion: conditions ``zero_dynamics_margin`` (eq. 226) and ``modal_damping``
+        (eq. 225), with ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q`` [rad],
+        ``alpha`` [1/s], ``gamma`` [1/s], ``damping_condition``, ``time_scale_max``.
+        Composite: conditions ``slow_loop`` (the rigid loop under ``Kp``, ``Kd``) and
+        ``fast_loop_hurwitz`` (§6.2.3.1), with ``worst_margin``, ``worst_time`` [s],
         ``worst_real`` [1/s], ``worst_q`` [rad], ``epsilon`` [s], ``gains``
         (``"scheduled"`` or ``"end of move"``).
 
@@ -315,11 +362,14 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     number(n_modes, "n_modes", low=1, integer=True)
     number(dt, "dt", low=0.0, low_open=True)  # [s]
     number(step, "step", low=0.0, low_open=True)  # [rad]
+    number(Kp, "Kp", low=0.0, low_open=True)  # [1/s²]
+    number(Kd, "Kd", low=0.0, low_open=True)  # [1/s]
     model, table = build_model(robot, n_modes, step=step, gravity=None, delta_order=0,
                                cache_dir=cache_dir, progress=False)
     if controller == "inversion":
         r = inversion_stability(model, move, alpha=alpha, Kp=Kp, dt=dt)
-        return {"stable": r["stable"], "worst_margin": r["worst_margin"],
+        return {"stable": r["stable"], "conditions": r["conditions"],
+                "worst_margin": r["worst_margin"],
                 "worst_time": r["worst_time"], "worst_q": r["worst_q"],
                 "alpha": r["alpha"], "gamma": r["gamma"],
                 "damping_condition": r["damping_condition"],
@@ -330,7 +380,9 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     else:
         gain, _, _ = fast_gain(model, move.qf, Q=Q, R=R, epsilon=eps)
     r = composite_stability(model, move, gain=gain, epsilon=eps, dt=dt)
-    return {"stable": r["stable"], "worst_margin": r["worst_margin"],
+    conditions = {"slow_loop": _slow_loop(Kp, Kd), **r["conditions"]}
+    return {"stable": _all_hold(conditions), "conditions": conditions,
+            "worst_margin": r["worst_margin"],
             "worst_time": r["worst_time"], "worst_real": r["worst_real"],
             "worst_q": r["worst_q"], "epsilon": eps,
             "gains": "scheduled" if schedule else "end of move"}
