@@ -195,7 +195,8 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
                      r_weight: ArrayLike = 10.0, guard: Guard | None = None,
                      torque_limits: ArrayLike | None = None,
                      log: Callable[[str], object] | None = None,
-                     progress: bool = False) -> list[Bundle]:
+                     progress: bool = False,
+                     cache_dir: str | os.PathLike | bool | None = None) -> list[Bundle]:
     """Build the model of a robot for its sensors and write its real-time bundles.
 
     Building the model tabulates modes over a grid (seconds to minutes), so the example
@@ -228,6 +229,9 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         ``log(message)`` receives one line per stage.
     progress : bool
         Progress bars on stderr: one over the stages, and the modal tables' own.
+    cache_dir : path, None or False
+        Cache of the modal tables, the tabulated plant and the gain schedule (a path,
+        ``None`` for the default, ``False`` for none).
 
     Returns
     -------
@@ -271,16 +275,16 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         options = {"delta_order": 0} if controller else {}
         flexible, _ = build_model(robot, n_modes=n_modes, step=step, points=sensors.points,
                                   gravity="robot" if gravity else None, progress=progress,
-                                  **options)
+                                  cache_dir=cache_dir, **options)
         stages.update()
         log("tabulating the flexible plant for the EKF ...")
-        plant = tabulate_plant(flexible)  # cached on disk
+        plant = tabulate_plant(flexible, cache_dir=cache_dir)  # cached on disk
         stages.update()
         ctrl = None
         if controller:
             log(f"building the {controller} controller ...")
             ctrl = make_controller(flexible, controller, Kp=kp, Kd=kd, Q=q_weight,
-                                   R=r_weight)  # its gain schedule is cached on disk
+                                   R=r_weight, cache_dir=cache_dir)  # schedule cached
             stages.update()
         log("building the estimator's functions ...")
         funcs, units = rt_functions(flexible, sensors, Q=Q, R=R, dt=dt, sqrt=sqrt,

@@ -40,7 +40,7 @@ import numpy as np
 
 from casflex._problemfile import read_toml
 from casflex._validate import output_file
-from casflex.commands.common import plot_path
+from casflex.commands.common import add_robot_argument, plot_path
 from casflex.errors import ModelError
 from casflex.identification.logs import SEGMENT_MIN_DURATION, SEGMENT_TOLERANCE
 from casflex.identification.matching import MAC_MIN
@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> a.data, a.logs, a.fit
     ('m.csv', None, 'f.toml')
     """
-    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
+    add_robot_argument(parser)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--data", metavar="MEAS.csv", default=None,
                         help="measured frequencies: q1..qn [rad], f1..fm [Hz], f1_std..")
@@ -92,7 +92,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", default=None, metavar="FILE.png",
                         help="measured vs modelled frequencies before and after")
     parser.add_argument("--processes", type=int, default=None, metavar="P",
-                        help="worker processes of the TMM evaluations (default: a pool "
+                        help="worker processes of the TMM evaluations (default a pool "
                              "when the Jacobian is large enough; 1 = no pool)")
 
 

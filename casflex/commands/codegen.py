@@ -16,6 +16,10 @@ sample to the joint torques and the updated estimator state in one call. The mod
 built as in the control studies (``delta_order=0``, the dissertation's ``M(q)``); the
 composite law uses fast gains scheduled on a 30-point axis per shape joint, cached on disk.
 
+Gravity follows the convention of every verb, ``--gravity/--no-gravity``. For one
+release, a command that gives neither keeps the old default of this verb (the robot's
+gravity) and says so on stderr; give the flag to choose.
+
 JSON: ``{"files": [source, header, README, Makefile, manifest of each bundle],
 "functions": [C function names]}``.
 """
@@ -24,14 +28,27 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Callable
 
 import numpy as np
 
 from casflex._validate import output_directory
+from casflex.commands.common import (
+    add_cache_arguments,
+    add_gravity_argument,
+    add_modes_argument,
+    add_robot_argument,
+    cache_dir_of,
+    deprecation_note,
+    parse_angle,
+)
 from casflex.errors import ModelError
 
 HELP = "generate C code of the EKF (and the forward dynamics) for a robot and its sensors"
+
+#: a --step without a unit, read in degrees for one release (the old convention)
+_BARE_NUMBER = re.compile(r"^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*$")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,19 +67,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> p.parse_args(["r.toml", "--sensors", "s.toml", "--out", "d"]).modes
     3
     """
-    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
+    add_robot_argument(parser)
     parser.add_argument("--sensors", required=True, metavar="SENSORS.toml",
                         help="sensor file with [[sensor]] tables (or a robot file with them)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    parser.add_argument("--modes", type=int, default=3, help="number of modes (default 3)")
-    parser.add_argument("--name", default="casflex", help="bundle name prefix")
-    parser.add_argument("--dt", type=float, default=1e-3, help="sample time, s (default 1e-3)")
+    add_modes_argument(parser, 3)
+    parser.add_argument("--name", default="casflex", help="bundle name prefix (default "
+                        "casflex)")
+    parser.add_argument("--dt", type=float, default=1e-3, metavar="S",
+                        help="sample time, s (default 0.001)")
     parser.add_argument("--Q", type=float, default=5e-6,
                         help="process-noise intensity on [delta; ddelta] (default 5e-6)")
     parser.add_argument("--R", type=float, default=None,
-                        help="signal variance (default: the sensors' noise^2)")
-    parser.add_argument("--step", type=float, default=None, metavar="DEG",
-                        help="grid step of the modal tables, deg (default: casflex default)")
+                        help="signal variance (default the sensors' noise^2)")
+    parser.add_argument("--step", default=None, metavar="S",
+                        help="grid step of the modal tables, rad or with a 'deg' suffix "
+                        "(default: 1.5deg for one shape joint, 6deg for more; a number "
+                        "without unit is read in deg for one release, deprecated)")
     parser.add_argument("--prefilter", action="store_true",
                         help="high-pass prefilter one decade below the lowest frequency")
     parser.add_argument("--sqrt", action="store_true", help="square-root covariance form")
@@ -75,15 +96,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "deflection, leanest)")
     parser.add_argument("--no-model", action="store_true",
                         help="skip the forward-dynamics bundle")
-    parser.add_argument("--no-gravity", action="store_true", help="model without gravity")
+    add_gravity_argument(parser, default=None,
+                         help="include the robot's gravity (the convention's default is "
+                         "--no-gravity; without either flag this verb keeps the robot's "
+                         "gravity for one release, with a note)")
     parser.add_argument("--controller", choices=("composite", "inversion"), default=None,
                         help="add rt_step: EKF and this controller in one call")
-    parser.add_argument("--kp", type=float, default=1.0, help="K_p [1/s^2] (default 1)")
-    parser.add_argument("--kd", type=float, default=2.0, help="K_d [1/s] (default 2)")
-    parser.add_argument("--q-weight", type=float, default=1.0,
-                        help="composite: LQR Q = w I (default 1)")
-    parser.add_argument("--r-weight", type=float, default=10.0,
-                        help="composite: LQR R = w I (default 10)")
+    parser.add_argument("--kp", type=float, default=1.0, metavar="KP",
+                        help="slow gain K_p, 1/s^2 (default 1)")
+    parser.add_argument("--kd", type=float, default=2.0, metavar="KD",
+                        help="slow gain K_d, 1/s (default 2)")
+    parser.add_argument("--q-weight", type=float, default=1.0, metavar="W",
+                        help="LQR Q = w I (composite; default 1)")
+    parser.add_argument("--r-weight", type=float, default=10.0, metavar="W",
+                        help="LQR R = w I (composite; default 10)")
     parser.add_argument("--guard", action="store_true",
                         help="guarded ekf_step/rt_step: NaN/inf inputs skipped or held, "
                              "innovation gate, covariance bounds, status word")
@@ -93,8 +119,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--guard: threshold of nu^2/S per channel (default: the "
                              "chi-square(1) quantile of 1 - 1e-9, 37.3)")
     parser.add_argument("--torque-limit", type=float, nargs="+", default=None,
-                        metavar="NM", help="--guard with --controller: torque limit of "
+                        metavar="N_M", help="--guard with --controller: torque limit of "
                         "each joint (one value for all, or one per joint 1..n), N m")
+    add_cache_arguments(parser)
 
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
@@ -162,14 +189,21 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--torque-limit: must be > 0 N m; got {limits}")
     if limits is not None and len(limits) == 1:
         limits = limits[0]
+    cache_dir = cache_dir_of(args)
+    step = _step(args.step)
+    gravity = args.gravity
+    if gravity is None:  # the old default of this verb, for one release
+        deprecation_note("codegen without --gravity/--no-gravity (the robot's gravity, as "
+                         "before)", "--gravity to keep it, --no-gravity for the "
+                         "convention's default")
+        gravity = True
     bundles = realtime_bundles(
         args.robot, args.sensors, args.out, n_modes=args.modes, name=args.name,
-        step=None if args.step is None else np.radians(args.step),
-        gravity=not args.no_gravity, model=not args.no_model, Q=args.Q, R=args.R,
+        step=step, gravity=gravity, model=not args.no_model, Q=args.Q, R=args.R,
         dt=args.dt, sqrt=args.sqrt, prefilter=args.prefilter, jacobians=args.jacobians,
         controller=args.controller, kp=args.kp, kd=args.kd, q_weight=args.q_weight,
         r_weight=args.r_weight, guard=guard, torque_limits=limits, log=log,
-        progress=True)
+        progress=True, cache_dir=cache_dir)
     files, functions = [], []
     for b in bundles:
         files += [str(p) for p in (b.source, b.header, b.readme, b.makefile, b.manifest)
@@ -177,3 +211,17 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         functions += [f.name for f in b.functions]
         log(f"wrote {b.source} and {b.header}")
     return {"files": files, "functions": functions}
+
+
+def _step(text):
+    """``--step`` in rad; a bare number is the old convention (deg), with a note."""
+    if text is None:
+        return None
+    if _BARE_NUMBER.match(str(text)):
+        deprecation_note(f"codegen --step {str(text).strip()} (a number read in deg)",
+                         f"--step {str(text).strip()}deg")
+        text = f"{str(text).strip()}deg"
+    step = parse_angle(text, "--step")
+    if not step > 0:
+        raise ModelError(f"--step: must be > 0; got {text}")
+    return step

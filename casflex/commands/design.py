@@ -1,6 +1,7 @@
 """``casflex design``: the end-to-end design job of a study file (:mod:`casflex.design`).
 
-``casflex design STUDY.toml --out DIR [--cache-dir DIR] [--processes N] [--json]``
+``casflex design STUDY.toml --out DIR [--cache-dir DIR | --no-cache] [--processes N]
+[--json]``
 
 Tabulates (or reuses) the modal model with a progress bar, designs the SI shaper of the
 study's move from the frequency ranges and modal contributions along it, simulates the move
@@ -20,6 +21,8 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+
+from casflex.commands.common import add_cache_arguments, add_processes_argument, cache_dir_of
 
 HELP = "run the design job of a study: shaper, simulations, stability, C bundle, report"
 
@@ -42,10 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("study", metavar="STUDY.toml",
                         help="study file (e.g. problems/studies/arm2link_move1.toml)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    parser.add_argument("--cache-dir", default=None,
-                        help="modal table cache (default $CASFLEX_CACHE or ~/.cache/casflex)")
-    parser.add_argument("--processes", type=int, default=None,
-                        help="worker processes of the tabulation (default: all CPUs)")
+    add_cache_arguments(parser)
+    add_processes_argument(parser, "worker processes of the tabulation (default all CPUs)")
 
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
@@ -93,7 +94,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
 
     # the study is validated before any heavy work starts
     result = run_design(args.study, args.out, progress=True, log=step,
-                        cache_dir=args.cache_dir, processes=args.processes)
+                        cache_dir=cache_dir_of(args), processes=args.processes)
     s = result.summary
     log(f"shaper: {len(s['shaper']['times'])} impulses, {s['shaper_duration']:.4f} s; "
         f"shaping removes {100 * s['residual_reduction']:.1f} % of the residual tip "

@@ -26,7 +26,7 @@ import numpy as np
 from casflex.commands.common import parse_angle, plot_path
 from casflex.errors import ModelError
 
-HELP = "natural frequencies and damping from an impulse-test log (Welch, ERA, least squares)"
+HELP = "identify natural frequencies and damping from an impulse-test log (Welch, ERA, least squares)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,14 +47,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """
     parser.add_argument("log", metavar="LOG.csv", help="test log (CSV or NPZ)")
     parser.add_argument("--config", default=None, metavar="Q1,Q2,...",
-                        help="configuration of the test, comma-separated, rad or 'deg' "
-                             "suffix (default: median of the log's q columns)")
+                        help="configuration of the test, comma-separated, rad or with a "
+                             "'deg' suffix (default the median of the log's q columns)")
     parser.add_argument("--modes", type=int, default=None, metavar="N",
                         help="report at most N modes (the most significant)")
     parser.add_argument("--fmax", type=float, default=None, metavar="HZ",
-                        help="top of the band searched (default: twice the highest peak)")
+                        help="top of the band searched, Hz (default twice the highest peak)")
     parser.add_argument("--start", type=float, default=None, metavar="S",
-                        help="start of the free decay after the first sample [s]")
+                        help="start of the free decay after the first sample, s (default "
+                             "where the record first reaches 30 %% of its largest excursion)")
     parser.add_argument("--plot", metavar="FILE.png", default=None,
                         help="write the spectrum and the stabilisation diagram")
 

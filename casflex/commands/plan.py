@@ -30,10 +30,16 @@ import argparse
 from collections.abc import Callable
 
 from casflex._validate import number, output_directory
-from casflex.commands.common import parse_angle, plot_path
+from casflex.commands.common import (
+    add_cache_arguments,
+    add_robot_argument,
+    cache_dir_of,
+    parse_angle,
+    plot_path,
+)
 
-HELP = ("Plan the optimal (minimum-time or minimum-energy) motion of a move on the flexible "
-        "model, at the limits of its SI-shaped version, and verify it by simulation.")
+HELP = ("plan the optimal (minimum-time or minimum-energy) motion of a move on the flexible "
+        "model, at the limits of its SI-shaped version, and verify it by simulation")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> a.robust, a.objective, a.intervals
     (0.1, 'time', 40)
     """
-    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description")
+    add_robot_argument(parser)
     parser.add_argument("--move", metavar="FILE:NAME", required=True,
                         help="planned move, e.g. problems/moves.toml:move1")
     parser.add_argument("--objective", choices=("time", "energy"), default="time",
@@ -81,7 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="grid step of the modal tables, rad or with a 'deg' suffix")
     parser.add_argument("--delta-order", type=int, choices=(0, 1), default=1,
                         help="order in δ of the mass matrix (default 1)")
-    parser.add_argument("--dt", type=float, default=1e-3,
+    parser.add_argument("--dt", type=float, default=1e-3, metavar="S",
                         help="simulation step of the verification, s (default 1e-3)")
     parser.add_argument("--max-iter", type=int, default=500, metavar="K",
                         help="Ipopt iteration limit (default 500)")
@@ -91,9 +97,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="figure: shaped vs planned joint motion, torques and tip "
                         "deflection")
     parser.add_argument("--processes", type=int, default=None, metavar="P",
-                        help="worker processes for the tables (default: all CPUs)")
-    parser.add_argument("--cache-dir", default=None, metavar="DIR",
-                        help="cache directory of the modal tables")
+                        help="worker processes for the tables (default all CPUs)")
+    add_cache_arguments(parser)
 
 
 def _end(text):
@@ -173,7 +178,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         robot, move, modes, objective=objective, duration=duration, robust=robust,
         intervals=intervals, end=end, step=step,
         delta_order=getattr(args, "delta_order", 1), dt=dt,
-        cache_dir=getattr(args, "cache_dir", None),
+        cache_dir=cache_dir_of(args),
         processes=getattr(args, "processes", None), progress=True, log=log,
         max_iter=max_iter, **options)
     summary = comparison.summary()

@@ -47,12 +47,12 @@ from pathlib import Path
 
 from casflex._problemfile import read_toml
 from casflex._validate import number
-from casflex.commands.common import parse_angle
+from casflex.commands.common import add_cache_arguments, cache_dir_of, parse_angle
 from casflex.errors import ProblemFileError
 from casflex.shaping import DEFAULT_TIME_LIMIT, ranges_from_mapping, si_shaper
 
-HELP = ("Design a specified-insensitivity input shaper from a shaper problem file, or for a "
-        "planned move of a robot (ROBOT.toml --move FILE:NAME).")
+HELP = ("design a specified-insensitivity input shaper from a shaper problem file, or for a "
+        "planned move of a robot (ROBOT.toml --move FILE:NAME)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -95,7 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     robot = parser.add_argument_group("robot form (ROBOT.toml --move FILE:NAME)")
     robot.add_argument("--move", metavar="FILE:NAME", default=None,
                        help="planned move, e.g. problems/moves.toml:move1")
-    robot.add_argument("--modes", type=int, default=3, metavar="M",
+    robot.add_argument("--modes", type=int, default=3, metavar="N",
                        help="number of modes of the model (default 3)")
     robot.add_argument("--margin", type=float, default=0.2,
                        help="relative widening of every frequency span (default 0.2 = ±20 %%)")
@@ -105,12 +105,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="grid step of the modal tables, rad or with a 'deg' suffix "
                        "(default: 1.5deg for one shape joint, 6deg for more)")
     robot.add_argument("--processes", type=int, default=None, metavar="P",
-                       help="worker processes for the tables (default: all CPUs; 1 = no pool)")
-    robot.add_argument("--cache-dir", default=None, metavar="DIR",
-                       help="cache directory of the modal tables (default: casflex's cache)")
+                       help="worker processes for the tables (default all CPUs; 1 = no pool)")
+    add_cache_arguments(robot)
     parser.add_argument("--dt", type=float, default=None, metavar="S",
                         help="shaper problem: sample time of the loop that runs the shaper, "
-                        "s; the impulses are put on its grid (a digital shaper, default: "
+                        "s; the impulses are put on its grid (a digital shaper; default "
                         "none); robot form: simulation and reference sample step, s "
                         "(default 1e-3)")
     robot.add_argument("--no-simulate", action="store_true",
@@ -273,7 +272,7 @@ def _run_robot(args, path, log):
     step = None if step is None else parse_angle(step, "--step")
     model, result = shaper_for_robot_move(
         robot, move, modes, vtol=vtol, margin=margin, step=step,
-        cache_dir=getattr(args, "cache_dir", None), processes=getattr(args, "processes", None),
+        cache_dir=cache_dir_of(args), processes=getattr(args, "processes", None),
         progress=True, log=log, time_limit=_time_limit(args))
     for j, (r, v, lo, hi) in enumerate(zip(result.contributions, result.tolerances,
                                            result.omega_min, result.omega_max, strict=True)):

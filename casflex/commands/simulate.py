@@ -1,12 +1,15 @@
 """``casflex simulate``: prescribed joint motion of a flexible arm (dissertation §3.3.7.1).
 
 ``casflex simulate ROBOT.toml --move FILE:NAME [--modes 5] [--dt 0.001] [--step 1.5deg]
-[--gravity] [--method rk4|poly|cvodes|idas] [--jit] [--cache-dir DIR] [--plot FILE.png]
-[--json]``
+[--gravity | --no-gravity] [--method poly|rk4|cvodes|idas] [--jit]
+[--cache-dir DIR | --no-cache] [--plot FILE.png] [--json]``
 
-``--method poly`` takes the same RK4 steps on the exact polynomial form of the modal rows
-(faster for large models); ``--jit`` also compiles it to C once per model (kept in the
-cache directory), after which a move runs outside CasADi's virtual machine.
+``--method poly`` (the default) takes the same RK4 steps as ``--method rk4`` on the exact
+polynomial form of the modal rows: the same result (to rounding) several times faster
+(``benchmarks/README.md``); ``--method rk4`` steps the CasADi model directly, ``cvodes``
+and ``idas`` are variable-step integrators. ``--jit`` also compiles the polynomial form to
+C once per model (kept in the cache directory), after which a move runs outside CasADi's
+virtual machine.
 
 The modal tables are built (or read from the cache) with a progress bar on stderr, the
 CasADi model is built on them and the joints follow the move exactly; the modal row of
@@ -23,11 +26,23 @@ import argparse
 import math
 from collections.abc import Callable
 
-from casflex.commands.common import parse_angle, plot_path
+from casflex.commands.common import (
+    add_cache_arguments,
+    add_gravity_argument,
+    add_model_arguments,
+    add_plot_argument,
+    add_robot_argument,
+    cache_dir_of,
+    parse_angle,
+    plot_path,
+)
 from casflex.errors import ModelError
 from casflex.robot import load
 
 HELP = "simulate a planned move with perfect joint tracking (tip deflection, torques)"
+
+#: the fastest exact method: the same RK4 steps as "rk4" on the polynomial form
+DEFAULT_METHOD = "poly"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,31 +59,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> p = argparse.ArgumentParser()
     >>> add_arguments(p)
     >>> a = p.parse_args(["r.toml", "--move", "m.toml:move1"])
-    >>> a.modes, a.dt, a.method
-    (5, 0.001, 'rk4')
+    >>> a.modes, a.dt, a.method, a.gravity
+    (5, 0.001, 'poly', False)
     """
-    parser.add_argument("robot", metavar="ROBOT.toml", help="robot description (TOML)")
+    add_robot_argument(parser)
     parser.add_argument("--move", required=True, metavar="FILE:NAME",
                         help="planned move, e.g. problems/moves.toml:move1")
-    parser.add_argument("--modes", type=int, default=5, help="number of modes (default 5)")
-    parser.add_argument("--dt", type=float, default=1e-3, help="step, s (default 0.001)")
-    parser.add_argument("--step", default=None, metavar="S",
-                        help="grid step of the modal tables, rad or with 'deg' (default: "
-                             "1.5deg for one shape joint, 6deg for more)")
-    parser.add_argument("--gravity", action="store_true",
-                        help="include the robot's gravity (neglected by default, §3.3.7.1)")
-    parser.add_argument("--method", default="rk4", choices=["rk4", "poly", "cvodes", "idas"],
-                        help="integration method (default rk4; poly: the same RK4 steps on "
-                             "the exact polynomial form of the modal rows, faster)")
+    add_model_arguments(parser, modes=5)
+    parser.add_argument("--dt", type=float, default=1e-3, metavar="S",
+                        help="time step, s (default 0.001)")
+    add_gravity_argument(parser)
+    parser.add_argument("--method", default=DEFAULT_METHOD,
+                        choices=["poly", "rk4", "cvodes", "idas"],
+                        help="integration method (default poly: the RK4 steps of rk4 on "
+                             "the exact polynomial form of the modal rows, same result, "
+                             "faster)")
     parser.add_argument("--jit", action="store_true",
                         help="with --method poly: compile the model's arrays and the RK4 "
                              "steps to C (system compiler; cached on disk, the first run "
                              "compiles for ~30 s)")
-    parser.add_argument("--cache-dir", default=None,
-                        help="modal table cache (default $CASFLEX_CACHE or ~/.cache/casflex)")
-    parser.add_argument("--plot", metavar="FILE.png",
-                        help="joint angles, torques, modal amplitudes and tip deflection")
-
+    add_cache_arguments(parser)
+    add_plot_argument(parser, "joint angles, torques, modal amplitudes and tip deflection")
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Build the model, simulate the move, return the JSON summary (SI units).
@@ -108,7 +119,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         ...
     casflex.errors.ModelError: --dt: must be a positive step in s; got -0.01
     >>> run(p.parse_args(["problems/arm2link.toml", "--move", "problems/moves.toml:move1",
-    ...                   "--jit"]), print)
+    ...                   "--jit", "--method", "rk4"]), print)
     Traceback (most recent call last):
         ...
     casflex.errors.ModelError: --jit: needs --method poly; got --method rk4
@@ -134,7 +145,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
     result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
                                          gravity=args.gravity, method=args.method, jit=jit,
-                                         cache_dir=args.cache_dir)
+                                         cache_dir=cache_dir_of(args))
     sizes = table.omega.shape[:-1]  # one axis per shape joint
     points = " × ".join(str(s) for s in sizes) + (f" = {math.prod(sizes)}" if len(sizes) > 1
                                                    else "")

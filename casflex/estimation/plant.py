@@ -158,7 +158,7 @@ class FlexiblePlant:
     model : casflex.model.FlexibleModel
     monomials : list of tuple
     shape_joints, fourier_joints : tuple of int
-        Joints tabulated with B-splines, joints expanded in Fourier series.
+        Joints tabulated with B-splines, joints expanded in Fourier series (0-based).
     degree : int
         Fourier degree K.
     table : casflex.modal.tables.ModalTable or None

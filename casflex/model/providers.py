@@ -76,7 +76,7 @@ class ConstantProvider:
     quantities : dict of str to array_like
         As returned by :func:`casflex.modal.integrals.configuration_quantities`.
     shape_joints : sequence of int
-        Joint indices the (constant) functions take as input.
+        0-based joint indexes the (constant) functions take as input.
 
     Examples
     --------
@@ -141,7 +141,7 @@ class PointwiseProvider(ConstantProvider):
     points : sequence of (int, float), optional
         Sensor points (see :func:`~casflex.modal.integrals.configuration_quantities`).
     shape_joints : sequence of int
-        Joint indices reported as inputs (the values do not depend on them).
+        0-based joint indexes reported as inputs (the values do not depend on them).
 
     Examples
     --------
