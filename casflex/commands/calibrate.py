@@ -68,7 +68,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_robot_argument(parser)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--data", metavar="MEAS.csv", default=None,
-                        help="measured frequencies: q1..qn [rad], f1..fm [Hz], f1_std..")
+                        help="measured frequencies (columns q1..qn in rad, f1..fm in Hz, "
+                        "optional f1_std..fm_std)")
     source.add_argument("--logs", nargs="+", metavar="LOG", default=None,
                         help="test logs (CSV or NPZ), one configuration each: identified "
                              "first")

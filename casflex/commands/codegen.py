@@ -82,14 +82,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="signal variance (default the sensors' noise^2)")
     parser.add_argument("--step", default=None, metavar="S",
                         help="grid step of the modal tables, rad or with a 'deg' suffix "
-                        "(default: 1.5deg for one shape joint, 6deg for more; a number "
+                        "(default 1.5deg for one shape joint, 6deg for more; a number "
                         "without unit is read in deg for one release, deprecated)")
     parser.add_argument("--prefilter", action="store_true",
                         help="high-pass prefilter one decade below the lowest frequency")
     parser.add_argument("--sqrt", action="store_true", help="square-root covariance form")
     parser.add_argument("--jacobians", choices=("first_order", "exact", "linearized"),
                         default="first_order",
-                        help="Jacobians of the EKF step (default first_order: those of the "
+                        help="the EKF step's Jacobians (default first_order: those of the "
                              "plant's first-order part, the benchmarked real-time step, "
                              "same accuracy as exact on the studies; exact: through the "
                              "full plant; linearized: also the measurement's at zero "
@@ -116,7 +116,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--P0", type=float, default=1e-4,
                         help="--guard: reset covariance P0 I (default 1e-4)")
     parser.add_argument("--gate", type=float, default=None,
-                        help="--guard: threshold of nu^2/S per channel (default: the "
+                        help="--guard: threshold of nu^2/S per channel (default the "
                              "chi-square(1) quantile of 1 - 1e-9, 37.3)")
     parser.add_argument("--torque-limit", type=float, nargs="+", default=None,
                         metavar="N_M", help="--guard with --controller: torque limit of "
@@ -190,12 +190,13 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if limits is not None and len(limits) == 1:
         limits = limits[0]
     cache_dir = cache_dir_of(args)
-    step = _step(args.step)
+    notes = []  # deprecation notes, written after the work so that an error stays one line
+    step = _step(args.step, notes)
     gravity = args.gravity
     if gravity is None:  # the old default of this verb, for one release
-        deprecation_note("codegen without --gravity/--no-gravity (the robot's gravity, as "
-                         "before)", "--gravity to keep it, --no-gravity for the "
-                         "convention's default")
+        notes.append(("codegen without --gravity/--no-gravity (modelled the robot's "
+                      "gravity, as before)", "--gravity to keep it, --no-gravity for the "
+                      "convention's default"))
         gravity = True
     bundles = realtime_bundles(
         args.robot, args.sensors, args.out, n_modes=args.modes, name=args.name,
@@ -210,16 +211,18 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
                   if p is not None]
         functions += [f.name for f in b.functions]
         log(f"wrote {b.source} and {b.header}")
+    for old, new in notes:
+        deprecation_note(old, new)
     return {"files": files, "functions": functions}
 
 
-def _step(text):
+def _step(text, notes):
     """``--step`` in rad; a bare number is the old convention (deg), with a note."""
     if text is None:
         return None
     if _BARE_NUMBER.match(str(text)):
-        deprecation_note(f"codegen --step {str(text).strip()} (a number read in deg)",
-                         f"--step {str(text).strip()}deg")
+        notes.append((f"codegen --step {str(text).strip()} (a number read in deg)",
+                      f"--step {str(text).strip()}deg"))
         text = f"{str(text).strip()}deg"
     step = parse_angle(text, "--step")
     if not step > 0:

@@ -318,7 +318,7 @@ def add_model_arguments(parser: argparse.ArgumentParser, *,
     (3, 0.02618)
     """
     add_modes_argument(parser, modes)
-    default = ("default: 1.5deg for one shape joint, 6deg for more" if step is None
+    default = ("default 1.5deg for one shape joint, 6deg for more" if step is None
                else f"default {step}")
     parser.add_argument("--step", default=step, metavar="S",
                         help=step_help or "grid step of the modal tables, rad or with a "

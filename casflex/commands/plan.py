@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="minimum time (default) or minimum energy ∫τᵀτ dt for "
                         "--duration")
     parser.add_argument("--duration", type=float, default=None, metavar="T",
-                        help="duration of an energy plan, s (default: the shaped move's)")
+                        help="duration of an energy plan, s (default the shaped move's)")
     parser.add_argument("--robust", type=float, default=0.0, metavar="R",
                         help="relative frequency error the end condition must withstand "
                         "(e.g. 0.1 = ±10 %%; default 0)")
@@ -76,13 +76,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="shooting intervals of the OCP (default 40)")
     parser.add_argument("--end", default=None, metavar="rest|free|TOL",
                         help="end condition of the modes: at rest, free, or a residual tip "
-                        "deflection bound in m (default: the shaped move's residual)")
+                        "deflection bound in m (default the shaped move's residual)")
     parser.add_argument("--torque-limit", type=float, nargs="+", default=None, metavar="N_M",
-                        help="torque limit per joint (or one for all), N m (default: the "
+                        help="torque limit per joint (or one for all), N m (default the "
                         "shaped move's peaks)")
     parser.add_argument("--velocity-limit", type=float, nargs="+", default=None,
                         metavar="RAD_S", help="velocity limit per joint (or one for all), "
-                        "rad/s (default: the shaped move's peaks)")
+                        "rad/s (default the shaped move's peaks)")
     parser.add_argument("--step", default=None, metavar="S",
                         help="grid step of the modal tables, rad or with a 'deg' suffix")
     parser.add_argument("--delta-order", type=int, choices=(0, 1), default=1,
@@ -90,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=float, default=1e-3, metavar="S",
                         help="simulation step of the verification, s (default 1e-3)")
     parser.add_argument("--max-iter", type=int, default=500, metavar="K",
-                        help="Ipopt iteration limit (default 500)")
+                        help="iteration limit of Ipopt (default 500)")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write trajectory.csv and plan.png to DIR")
     parser.add_argument("--plot", default=None, metavar="FILE.png",

@@ -103,7 +103,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="tolerable residual vibration of the dominant mode (default 0.05)")
     robot.add_argument("--step", default=None, metavar="S",
                        help="grid step of the modal tables, rad or with a 'deg' suffix "
-                       "(default: 1.5deg for one shape joint, 6deg for more)")
+                       "(default 1.5deg for one shape joint, 6deg for more)")
     robot.add_argument("--processes", type=int, default=None, metavar="P",
                        help="worker processes for the tables (default all CPUs; 1 = no pool)")
     add_cache_arguments(robot)

@@ -10,7 +10,7 @@ from casflex.cli import main
 
 def test_modes_json_is_one_object(capsys, tmp_path):
     png = tmp_path / "modes.png"
-    rc = main(["modes", "problems/arm2link.toml", "--q", "0", "0", "0", "--count", "3",
+    rc = main(["modes", "problems/arm2link.toml", "--q", "0", "0", "0", "--modes", "3",
                "--plot", str(png), "--json"])
     out = capsys.readouterr()
     assert rc == 0

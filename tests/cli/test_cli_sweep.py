@@ -21,7 +21,7 @@ def _run(capsys, *argv):
 
 def test_sweep_json_is_one_object(capsys):
     data, err = _run(capsys, "--joint", "3", "--from", "0", "--to", "0.2", "--step", "0.1",
-                     "--count", "3", "--processes", "1")
+                     "--modes", "3", "--processes", "1")
     assert set(data) == {"joint", "q", "omega"}
     assert data["joint"] == 3
     np.testing.assert_allclose(data["q"], [0.0, 0.1, 0.2])
@@ -34,17 +34,17 @@ def test_sweep_json_is_one_object(capsys):
 
 def test_sweep_accepts_degrees_and_pi(capsys):
     data, _ = _run(capsys, "--joint", "3", "--from", "-180deg", "--to", "-177deg",
-                   "--step", "1.5deg", "--count", "2", "--processes", "1")
+                   "--step", "1.5deg", "--modes", "2", "--processes", "1")
     np.testing.assert_allclose(np.degrees(data["q"]), [-180.0, -178.5, -177.0])
     data, _ = _run(capsys, "--joint", "3", "--from", "-pi", "--to", "pi", "--step", "pi",
-                   "--count", "1", "--processes", "1", "--q", "0.1", "10deg", "0")
+                   "--modes", "1", "--processes", "1", "--q", "0.1", "10deg", "0")
     np.testing.assert_allclose(data["q"], [-np.pi, 0.0, np.pi])
 
 
 def test_tracked_sweep_follows_the_crossing_and_plots(capsys, tmp_path):
     png = tmp_path / "sweep.png"
     argv = ["--joint", "3", "--from", "40deg", "--to", "60deg", "--step", "2.5deg",
-            "--count", "3"]
+            "--modes", "3"]
     raw, _ = _run(capsys, *argv)
     tracked, err = _run(capsys, *argv, "--track", "--plot", str(png))
     raw, tracked = np.array(raw["omega"]), np.array(tracked["omega"])
@@ -68,8 +68,8 @@ def test_tracked_sweep_follows_the_crossing_and_plots(capsys, tmp_path):
     (["--joint", "3", "--from", "0", "--to", "1", "--step", "1e-9"], "at most"),
     (["--joint", "3", "--from", "0", "--to", "1", "--step", "0.5", "--q", "0"],
      "has 3 joints"),
-    (["--joint", "3", "--from", "0", "--to", "1", "--step", "0.5", "--count", "0"],
-     "--count"),
+    (["--joint", "3", "--from", "0", "--to", "1", "--step", "0.5", "--modes", "0"],
+     "--modes"),
 ])
 def test_sweep_errors_are_one_line(capsys, argv, message):
     assert main(["sweep", ARM, *argv, "--json"]) == 2

@@ -152,7 +152,7 @@ def test_million_steps_covariance_stays_spd(ekf_lib, recorded):
 def test_cli_codegen_json(tmp_path, capsys):
     status = main(["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
                    str(ROOT / "problems/sensors/arm2link_strain.toml"), "--out",
-                   str(tmp_path), "--step", "30", "--no-model", "--json"])
+                   str(tmp_path), "--step", "30deg", "--no-model", "--json"])
     assert status == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"files", "functions"}
@@ -169,7 +169,7 @@ def test_cli_codegen_jacobians(tmp_path, capsys):
     for jac in ("exact", None, "linearized"):
         argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
                 str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out",
-                str(tmp_path / str(jac)), "--step", "30", "--no-model", "--json"]
+                str(tmp_path / str(jac)), "--step", "30deg", "--no-model", "--json"]
         assert main(argv + (["--jacobians", jac] if jac else [])) == 0
         out = json.loads(capsys.readouterr().out)
         # the bundle's other functions are the same: its source grows with the step

@@ -117,7 +117,7 @@ def test_cli_codegen_controller(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
     argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
             str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
-            "--step", "30", "--no-model", "--controller", "inversion", "--json"]
+            "--step", "30deg", "--no-model", "--controller", "inversion", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert "rt_step" in out["functions"] and "ekf_step" in out["functions"]

@@ -190,7 +190,7 @@ def test_cli_codegen_guarded(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
     argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
             str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
-            "--step", "30", "--no-model", "--controller", "inversion", "--guard",
+            "--step", "30deg", "--no-model", "--controller", "inversion", "--guard",
             "--torque-limit", "30", "20", "10", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
