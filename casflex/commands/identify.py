@@ -26,7 +26,8 @@ import numpy as np
 from casflex.commands.common import parse_angle, plot_path
 from casflex.errors import ModelError
 
-HELP = "identify natural frequencies and damping from an impulse-test log (Welch, ERA, least squares)"
+HELP = ("identify natural frequencies and damping from an impulse-test log (Welch, ERA, "
+        "least squares)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
