@@ -25,11 +25,13 @@ The conventions (enforced by ``tests/cli/test_cli_conventions.py``):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import re
 import sys
-from collections.abc import Sequence
+import tempfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from casflex._validate import fail, output_file
@@ -44,6 +46,7 @@ __all__ = [
     "add_model_arguments",
     "add_cache_arguments",
     "cache_dir_of",
+    "disk_cache",
     "add_gravity_argument",
     "add_unit_argument",
     "add_plot_argument",
@@ -376,6 +379,34 @@ def cache_dir_of(args: argparse.Namespace) -> str | bool | None:
             raise ModelError(f"--no-cache: not with --cache-dir {path!r}")
         return False
     return path
+
+
+@contextlib.contextmanager
+def disk_cache(cache_dir: str | bool | None) -> Iterator[str | None]:
+    """The ``cache_dir`` for work that must keep files on disk (compiled libraries):
+    with ``False`` (``--no-cache``) a temporary directory, removed afterwards, so that
+    nothing is read from or left in a cache; otherwise ``cache_dir`` itself.
+
+    Parameters
+    ----------
+    cache_dir : str, bool or None
+        From :func:`cache_dir_of`.
+
+    Examples
+    --------
+    >>> with disk_cache(False) as d:
+    ...     exists = os.path.isdir(d)
+    >>> exists, os.path.exists(d)
+    (True, False)
+    >>> with disk_cache("c") as d:
+    ...     d
+    'c'
+    """
+    if cache_dir is False:
+        with tempfile.TemporaryDirectory(prefix="casflex-no-cache-") as tmp:
+            yield tmp
+    else:
+        yield cache_dir
 
 
 def add_gravity_argument(parser: argparse.ArgumentParser, default: bool | None = False,

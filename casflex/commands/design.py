@@ -22,7 +22,12 @@ import argparse
 import time
 from collections.abc import Callable
 
-from casflex.commands.common import add_cache_arguments, add_processes_argument, cache_dir_of
+from casflex.commands.common import (
+    add_cache_arguments,
+    add_processes_argument,
+    cache_dir_of,
+    disk_cache,
+)
 
 HELP = "run the design job of a study: shaper, simulations, stability, C bundle, report"
 
@@ -92,9 +97,11 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     def step(message):
         log(f"[{time.perf_counter() - start:6.1f} s] {message}")
 
-    # the study is validated before any heavy work starts
-    result = run_design(args.study, args.out, progress=True, log=step,
-                        cache_dir=cache_dir_of(args), processes=args.processes)
+    # the study is validated before any heavy work starts; --no-cache: a temporary
+    # directory, since the compiled closed loop must live on disk
+    with disk_cache(cache_dir_of(args)) as cache_dir:
+        result = run_design(args.study, args.out, progress=True, log=step,
+                            cache_dir=cache_dir, processes=args.processes)
     s = result.summary
     log(f"shaper: {len(s['shaper']['times'])} impulses, {s['shaper_duration']:.4f} s; "
         f"shaping removes {100 * s['residual_reduction']:.1f} % of the residual tip "

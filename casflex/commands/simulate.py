@@ -33,6 +33,7 @@ from casflex.commands.common import (
     add_plot_argument,
     add_robot_argument,
     cache_dir_of,
+    disk_cache,
     parse_angle,
     plot_path,
 )
@@ -143,9 +144,16 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     jit = getattr(args, "jit", False)
     if jit and args.method != "poly":
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
-    result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
-                                         gravity=args.gravity, method=args.method, jit=jit,
-                                         cache_dir=cache_dir_of(args))
+    cache_dir = cache_dir_of(args)
+    if jit:  # the compiled library must live on disk: --no-cache gives a temporary one
+        with disk_cache(cache_dir) as tmp:
+            result, model, table = simulate_move(robot, move, args.modes, dt=args.dt,
+                                                 step=step, gravity=args.gravity,
+                                                 method=args.method, jit=jit, cache_dir=tmp)
+    else:
+        result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
+                                             gravity=args.gravity, method=args.method,
+                                             cache_dir=cache_dir)
     sizes = table.omega.shape[:-1]  # one axis per shape joint
     points = " × ".join(str(s) for s in sizes) + (f" = {math.prod(sizes)}" if len(sizes) > 1
                                                    else "")
