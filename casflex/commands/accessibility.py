@@ -8,7 +8,7 @@ The two joints (1-based, default 2 3) take a full turn ``[-pi, pi)`` at ``--step
 
 JSON: ``{"joints": [J1, J2], "grid": [axis1, axis2] (rad), "index": (modes, N, N)
 (sqrt(kg) m)}``. Its size grows with the square of the number of points: about 80 KB
-with 3 modes at the default 10deg, 19 KB at 20deg, 325 KB at 5deg (the resolution of the
+with 3 modes at the default 10deg, 21 KB at 20deg, 325 KB at 5deg (the resolution of the
 dissertation's Fig. 108-110).
 """
 

@@ -238,3 +238,20 @@ def test_simulate_defaults(monkeypatch, capsys):
     with pytest.raises(Stop):
         main([*argv, "--gravity", "--no-cache", "--method", "rk4"])
     assert (seen["method"], seen["gravity"], seen["cache_dir"]) == ("rk4", True, False)
+
+
+@pytest.mark.slow
+def test_simulate_default_method_gives_the_rk4_result(tmp_path, capsys):
+    """The default (poly) takes the RK4 steps of ``--method rk4`` on the exact polynomial
+    form: the figures agree to the interpolation's 1e-10 (relative, per output) carried
+    through the steps (the bound the poly tests use is 1e-8)."""
+    argv = ["simulate", "problems/arm2link.toml", "--move", "problems/moves.toml:move3",
+            "--modes", "1", "--dt", "0.01", "--step", "15deg", "--cache-dir", str(tmp_path),
+            "--json"]
+    assert main(argv) == 0
+    default = json.loads(capsys.readouterr().out)
+    assert main([*argv, "--method", "rk4"]) == 0
+    rk4 = json.loads(capsys.readouterr().out)
+    for key in ("max_tip_deflection", "residual_tip_deflection"):
+        assert default[key] == pytest.approx(rk4[key], rel=1e-8)
+    assert default["torque_peak"] == pytest.approx(rk4["torque_peak"], rel=1e-8)

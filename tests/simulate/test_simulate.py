@@ -314,7 +314,7 @@ def test_cli_poly_jit_equals_rk4(tmp_path):
     common = ["simulate", "problems/arm2link.toml", "--move", "problems/moves.toml:move1",
               "--modes", "1", "--dt", "0.005", "--step", "15deg", "--cache-dir",
               str(tmp_path), "--json"]
-    rc, out, err = _cli(common)
+    rc, out, err = _cli([*common, "--method", "rk4"])
     assert rc == 0, err
     rk4 = json.loads(out)
     rc, out, err = _cli([*common, "--method", "poly", "--jit"])
@@ -324,7 +324,7 @@ def test_cli_poly_jit_equals_rk4(tmp_path):
         assert fast[key] == pytest.approx(rk4[key], rel=1e-8)
     assert fast["torque_peak"] == pytest.approx(rk4["torque_peak"], rel=1e-8)
     assert len(list((tmp_path / "jit").glob("casflex_poly_F-*/libcasflex_poly_F.*"))) == 1
-    rc, out, err = _cli([*common, "--jit"])
+    rc, out, err = _cli([*common, "--method", "rk4", "--jit"])
     assert rc == 2 and out == "" and "--jit" in err and "--method poly" in err
 
 
