@@ -44,7 +44,7 @@ print(f"lowest natural frequency over the table: {1 / eps:.3f} rad/s  (dissertat
 
 # %%
 axes, index = control.accessibility_map(model, joints=(1, 2), step=np.radians(5))
-control.plot_accessibility(axes, index, joints=(2, 3))
+control.plot_accessibility(axes, index, joints=(1, 2))  # 0-based: q2, q3
 plt.show()
 q2 = np.linspace(-np.pi, np.pi, 73)
 _, a = control.accessibility_map(model, joints=(1, 2), axes=(q2, [-np.pi / 2]))
