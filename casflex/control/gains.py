@@ -77,7 +77,7 @@ def _gains(Kp, Kd, omega_min, duration, source):
                      move_frequency=2.0 * math.pi / duration, source=source)
 
 
-def slow_gains_for_move(omega_min: float, duration: float, *, fraction: float = 0.5,
+def slow_gains_for_move(omega_min: float, duration: float, *, fraction: float = 0.3,
                         damping: float = 1.0) -> SlowGains:
     """Slow gains whose bandwidth is ``fraction`` of the lowest natural frequency.
 

@@ -38,7 +38,7 @@ _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
-    "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.5,
+    "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
                    "damping": 1.0, "Kp": None, "Kd": None, "Q": 1.0, "R": 10.0,
                    "gains": "scheduled", "schedule_points": 30},
     "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
