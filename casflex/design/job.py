@@ -236,6 +236,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                        figures)
     summary["slow_gains"] = _gains_summary(gains, study)
     summary["tracking"] = _tracking_summary(loop, sources)
+    summary["estimator"] = {"Q": float(e["Q"]), "P0": float(e["P0"]), "ddq": "difference"}
     summary["c_guard"] = {"guarded": bool(study.codegen["guard"]),
                           "torque_limits": None if limits is None else limits.tolist(),
                           "gate": gate}
@@ -414,7 +415,7 @@ def _save_joint_tracking(out, study, unshaped, shaped_run, loop, move_end):
              shaped_run.tau),
             (f"shaped, {study.controller['law']} law + EKF", loop.t, loop.q, loop.qd,
              loop.tau)]
-    fig = plotting.plot_joint_tracking(runs, move_end)
+    fig = plotting.plot_joint_tracking(runs, [study.move.duration, move_end, move_end])
     path = out / "joint_tracking.png"
     fig.savefig(path, dpi=110)
     return path

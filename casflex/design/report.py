@@ -111,6 +111,8 @@ REFERENCES = [
 def _fmt(value, digits=3):
     """A number with ``digits`` significant digits, never in exponent form for the
     magnitudes of this report."""
+    if abs(value) >= 10 ** digits:
+        return f"{value:.0f}"
     return f"{value:.{digits}g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
 
 
@@ -179,6 +181,7 @@ def _markdown(study, s):
         *_closed_loop_lines(s),
         "## Estimation (EKF in the loop)",
         "",
+        *_estimator_lines(s.get("estimator")),
         "RMS of the true state over RMS of the estimation error, per mode, over the whole "
         f"closed-loop run (an estimate below {WEAK_ESTIMATE_RATIO:.0f} is flagged: its error "
         f"is more than {100 / WEAK_ESTIMATE_RATIO:.0f} % of the signal):",
@@ -245,6 +248,18 @@ def _markdown(study, s):
         "",
     ]
     return "\n".join(lines)
+
+
+def _estimator_lines(est):
+    """How the EKF in the loop is fed (``summary["estimator"]``)."""
+    if not est:
+        return []
+    return [f"The EKF (§5.5.1) estimates δ and δ̇ from the accelerometers with the joint "
+            "motion from the encoders: q, q̇ and q̈ as the backward difference of q̇, as the "
+            f"generated `rt_step` computes it; process noise Q = {est['Q']:.3g}, "
+            f"P0 = {est['P0']:.3g} I, R = the sensors' noise². Within a sample of the loop "
+            "q̈ jumps with every new torque, which the differenced q̈ misses; the EKF sees "
+            "that as process noise, so a large Q passes it to the rate estimates.", ""]
 
 
 def _ratio(value):
@@ -329,8 +344,11 @@ def _tracking_comment(s, g, tr):
         "estimation": "the EKF's estimation errors fed back through the fast gains",
         "law": "the tracking law itself (the error with the true state fed back)",
     }[main]
-    parts.append(f"The largest share ({causes[main]:.3g} rad) comes from {explain}; the "
-                 f"EKF's estimates add {causes['estimation']:.3g} rad.")
+    added = causes["estimation"]
+    parts.append(f"The largest share ({causes[main]:.3g} rad) comes from {explain}"
+                 + (f"; the EKF's estimates add {added:.3g} rad." if added >= 0.05 * tr["max"]
+                    else f"; feeding back the EKF's estimates instead of the true state "
+                         f"changes it by {abs(added):.2g} rad, less than 5 % of it."))
     return " ".join(parts)
 
 
