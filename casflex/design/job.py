@@ -236,6 +236,9 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                        figures)
     summary["slow_gains"] = _gains_summary(gains, study)
     summary["tracking"] = _tracking_summary(loop, sources)
+    low = np.unravel_index(np.argmin(acc), np.shape(acc))
+    summary["accessibility_min"] = {"value": float(np.min(acc)), "mode": int(low[1]) + 1,
+                                    "time": float(t_acc[low[0]])}
     summary["estimator"] = {"Q": float(e["Q"]), "P0": float(e["P0"]), "ddq": "difference"}
     summary["c_guard"] = {"guarded": bool(study.codegen["guard"]),
                           "torque_limits": None if limits is None else limits.tolist(),

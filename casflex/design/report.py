@@ -220,7 +220,7 @@ def _markdown(study, s):
         "How strongly the joint torques reach each mode at every instant of the shaped move "
         "(accessibility index, eq. 204): a mode whose index falls towards zero cannot be "
         "damped by the joints there, whatever the controller; the fast feedback relies on "
-        "it.",
+        "it." + _lowest_accessibility(s.get("accessibility_min")),
         "",
         "![accessibility](accessibility.png)",
         "",
@@ -260,6 +260,14 @@ def _estimator_lines(est):
             f"P0 = {est['P0']:.3g} I, R = the sensors' noise². Within a sample of the loop "
             "q̈ jumps with every new torque, which the differenced q̈ misses; the EKF sees "
             "that as process noise, so a large Q passes it to the rate estimates.", ""]
+
+
+def _lowest_accessibility(low):
+    """The sentence on the least accessible mode (``summary["accessibility_min"]``)."""
+    if not low:
+        return ""
+    return (f" The lowest index along this move is mode {low['mode']}'s, "
+            f"{low['value']:.3g} √kg·m at t = {low['time']:.2f} s.")
 
 
 def _ratio(value):

@@ -101,6 +101,11 @@ def check_report(out: Path) -> None:
             number = re.match(r"\**" + NUMBER, cell).group(1)
             assert _agrees(number, value), (cell, value)
             assert ("⚠" in cell) == (value < 10)  # weak estimates are flagged
+    low = s["accessibility_min"]
+    mode, value, time = _one(r"lowest index along this move is mode (\d)'s, " + NUMBER
+                             + r" √kg·m at t = " + NUMBER + " s", text)
+    assert int(mode) == low["mode"] and _agrees(value, low["value"])
+    assert _agrees(time, low["time"])
     timings = _one(r"## Timings\n\n(.+)\n", text)[0]
     assert "_s " not in timings  # labels, not the summary's keys
     printed = re.findall(NUMBER + " s", timings)
@@ -136,6 +141,7 @@ def test_report_of_a_summary(tmp_path):
         "tracking": {"max": 0.0449, "per_joint": [0.0202, 0.0083, 0.0449], "worst_joint": 3,
                      "worst_time": 2.9, "limit": 0.05, "true_state": 0.0409,
                      "slow_law_true_state": 0.012},
+        "accessibility_min": {"value": 0.0226, "mode": 3, "time": 3.21},
         "c_compiled": True, "c_functions": ["rt_step"], "c_files": ["arm.c"],
         "timings_s": {"model_s": 1.234, "shaper_s": 10.0, "closed_loop_s": 30.5},
         "figures": figures,
