@@ -114,11 +114,13 @@ REFERENCES = [
 
 
 def _fmt(value, digits=3):
-    """A number with ``digits`` significant digits, never in exponent form for the
-    magnitudes of this report."""
-    if abs(value) >= 10 ** digits:
+    """A positive number with ``digits`` significant digits, trailing zeros kept (``1.40``
+    next to ``5.19``), integers from ``10**(digits-1)`` on."""
+    if not value == value:
+        return "nan"
+    if abs(value) >= 10 ** (digits - 1):
         return f"{value:.0f}"
-    return f"{value:.{digits}g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
+    return f"{value:#.{digits}g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
 
 
 def _markdown(study, s):
@@ -290,7 +292,7 @@ def _closed_loop_lines(s):
         return lines + [f"Largest joint tracking error {s['tracking_error_max']:.3g} rad.", ""]
     how = {"move": f"chosen from the move: bandwidth ω_c = {g['fraction']:.2f} × ω_min, the "
                    "lowest natural frequency along it",
-           "dissertation": "the dissertation's Kp = 1, Kd = 2 (§6.2.2.2)",
+           "dissertation": "taken from the dissertation's case study (§6.2.2.2)",
            "given": "given by the study"}[g["source"]]
     lines += [
         f"Slow (rigid) tracking gains {how}: **Kp = {g['Kp']:.4g} 1/s², Kd = {g['Kd']:.4g} "
