@@ -180,7 +180,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
 
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
-    gains = _slow_gains(study, design, shaped)
+    gains = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
     say(f"slow gains ({gains.source}): Kp = {gains.Kp:.4g} 1/s^2, Kd = {gains.Kd:.4g} 1/s, "
         f"bandwidth {gains.bandwidth:.3g} rad/s = omega_min / {gains.separation:.3g}")
     eps, controller, slow, stability = _controller(study, model, table, move, shaped, gains,
@@ -249,21 +249,6 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
 
 
 # ------------------------------------------------------------------------------ controller
-
-
-def _slow_gains(study, design, shaped):
-    """The slow tracking gains of the study (:mod:`casflex.control.gains`): from the
-    lowest natural frequency along the move, the dissertation's, or the study's own."""
-    from casflex import control
-
-    c = study.controller
-    omega_min = float(np.min(design.omega_min))
-    if c["slow_gains"] == "move":
-        return control.slow_gains_for_move(omega_min, shaped.duration,
-                                           fraction=c["bandwidth_fraction"],
-                                           damping=c["damping"])
-    return control.dissertation_gains(omega_min, shaped.duration, c["Kp"], c["Kd"],
-                                      source=c["slow_gains"])
 
 
 def _controller(study, model, table, move, shaped, gains, say, cache_dir):

@@ -27,6 +27,7 @@ from casflex._validate import choice, fail, identifier, number, plausible
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
+    from casflex.control import SlowGains
     from casflex.moves import Move
     from casflex.robot import Robot
     from casflex.sensors import SensorSet
@@ -69,7 +70,9 @@ class Study:
     --------
     >>> s = load_study("problems/studies/arm2link_move1.toml")
     >>> s.robot_path.name, round(s.model["grid_step"], 6), s.estimator["Q"]
-    ('arm2link_actuated.toml', 0.05236, 5e-06)
+    ('arm2link_actuated.toml', 0.05236, 5e-09)
+    >>> s.controller["slow_gains"], s.controller["bandwidth_fraction"]
+    ('move', 0.7)
     """
 
     path: Path
@@ -86,6 +89,40 @@ class Study:
     controller: dict = field(default_factory=dict)
     estimator: dict = field(default_factory=dict)
     codegen: dict = field(default_factory=dict)
+
+    def slow_gains(self, omega_min: float, duration: float) -> SlowGains:
+        """The slow tracking gains of this study (``controller.slow_gains``).
+
+        Parameters
+        ----------
+        omega_min : float
+            Lowest natural frequency along the move [rad/s]
+            (``casflex.shaping.shaper_for_move(...).omega_min.min()``).
+        duration : float
+            Duration of the shaped move [s].
+
+        Returns
+        -------
+        casflex.control.SlowGains
+            From the move (bandwidth ``bandwidth_fraction`` × ω_min), the dissertation's
+            ``Kp = 1``, ``Kd = 2`` or the study's own.
+
+        Examples
+        --------
+        >>> s = load_study("problems/studies/arm2link_move1.toml")
+        >>> g = s.slow_gains(6.614, 3.209)
+        >>> round(g.bandwidth, 4), round(g.Kp, 3), round(g.separation, 3)
+        (4.6298, 21.435, 1.429)
+        """
+        from casflex import control
+
+        c = self.controller
+        if c["slow_gains"] == "move":
+            return control.slow_gains_for_move(omega_min, duration,
+                                               fraction=c["bandwidth_fraction"],
+                                               damping=c["damping"])
+        return control.dissertation_gains(omega_min, duration, c["Kp"], c["Kd"],
+                                          source=c["slow_gains"])
 
 
 def _named_file(path, key, name, value=None):
