@@ -37,7 +37,7 @@ from casflex._json import jsonable
 from casflex._validate import output_directory
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
-from casflex.errors import ModelError
+from casflex.errors import SolverError
 
 __all__ = ["DesignResult", "run_design"]
 
@@ -298,7 +298,7 @@ def _tracking_sources(model, controller, slow, shaped, t_end, dt):
             run = simulate_closed_loop(model, law, shaped, t_end=t_end, dt=dt, sampled=True,
                                        method="rk4")
             sources[key] = float(np.abs(run.tracking_error).max())
-        except ModelError:  # diverged: the report says so
+        except SolverError:  # diverged: the report says so
             sources[key] = math.nan
     return sources
 
