@@ -89,7 +89,8 @@ def design_loop():
     eps = control.perturbation_parameter(model, table=table)
     axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
     gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis)
-    ctrl = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
+    slow = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
+    ctrl = control.composite_controller(model, Kp=slow.Kp, Kd=slow.Kd, gain=gain,
                                         epsilon=eps)
     e = study.estimator
     ekf = ekf_step_function(tabulate_plant(model), study.sensors, e["Q"], e["R"], dt)

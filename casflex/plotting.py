@@ -38,6 +38,7 @@ __all__ = [
     # design report
     "plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
     "plot_estimation_error", "plot_accessibility_along",
+    "plot_joint_tracking",
     # identification
     "plot_identification", "plot_calibration",
 ]
@@ -835,4 +836,73 @@ def plot_plan(comparison: object) -> Figure:
         ax.legend(fontsize="small", ncol=2)
     axes[2].set_xlabel("t [s] (joints on the move; dotted: end of each move)")
     fig.suptitle(f"{getattr(comparison.plan, 'name', 'plan')}: shaped vs planned")
+    return fig
+
+
+# ---------------------------------------------------------------------------- design report:
+# joint tracking of every run (issue 18, the closed loop explained)
+
+
+def plot_joint_tracking(runs: Sequence[tuple[str, ArrayLike, ArrayLike, ArrayLike,
+                                             ArrayLike]],
+                        move_end: float | Sequence[float] | None = None) -> Figure:
+    """Joint angles against their plan, tracking errors and torques of several runs.
+
+    One row per run, three panels: the joint angles ``q`` (solid) over the planned
+    ``q_d`` (dashed), the tracking error ``q − q_d`` and the joint torques ``τ``; one
+    colour per joint (q1, q2, … are 1-based, as in the dissertation).
+
+    Parameters
+    ----------
+    runs : sequence of (str, array_like, array_like, array_like, array_like)
+        ``(label, t, q, qd, tau)``: times (k,) [s], joint angles and their plan (k, n)
+        [rad], torques (k, n) [N m].
+    move_end : float or sequence of float, optional
+        End of the move [s], marked by a dotted line: one for every run, or one per run.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 1.0, 5)
+    >>> q = np.column_stack([t, -t])
+    >>> fig = plot_joint_tracking([("run", t, q, q + 0.01, 0.1 * q)], move_end=0.8)
+    >>> len(fig.axes), fig.axes[1].get_ylabel(), fig.axes[0].get_ylabel().split()
+    (3, 'q − q_d [rad]', ['run', 'q', '[rad]'])
+    """
+    if not runs:
+        raise ModelError("plot_joint_tracking: give at least one run")
+    fig = Figure(figsize=(12, 2.6 * len(runs) + 0.6), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(len(runs), 3, sharex=True))
+    ends = [move_end] * len(runs) if move_end is None or np.ndim(move_end) == 0 \
+        else list(move_end)
+    if len(ends) != len(runs):
+        raise ModelError(f"plot_joint_tracking: {len(ends)} move ends for {len(runs)} runs")
+    for row, (label, t, q, qd, tau), end in zip(axes, runs, ends, strict=True):
+        q, qd, tau = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, tau))
+        error = q - qd
+        for j in range(q.shape[1]):
+            row[0].plot(t, q[:, j], color=f"C{j}", lw=1.0, label=f"q{j + 1}")
+            row[0].plot(t, qd[:, j], "--", color=f"C{j}", lw=0.9, alpha=0.8)
+            row[1].plot(t, error[:, j], color=f"C{j}", lw=1.0, label=f"q{j + 1}")
+            row[2].plot(t, tau[:, j], color=f"C{j}", lw=0.8, label=f"τ{j + 1}")
+        peak = float(np.max(np.abs(error))) if error.size else 0.0
+        row[0].set_title("joint angles (dashed: plan)", fontsize=9)
+        row[1].set_title(f"tracking error, max |q − q_d| = {peak:.3g} rad", fontsize=9)
+        if peak == 0.0:
+            row[1].text(0.5, 0.7, "q = q_d: joints on the plan", transform=row[1].transAxes,
+                        ha="center", va="center", fontsize=9, color="0.3")
+        row[2].set_title("joint torques", fontsize=9)
+        for ax, ylabel in zip(row, (f"{label}\nq [rad]", "q − q_d [rad]", "τ [N m]"),
+                              strict=True):
+            ax.set_ylabel(ylabel)
+            ax.grid(True, alpha=0.3)
+            if end is not None:
+                ax.axvline(end, color="0.4", lw=0.8, ls=":")
+        row[0].legend(fontsize="small", loc="best")
+        row[2].legend(fontsize="small", loc="best")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]" + ("" if move_end is None else " (dotted: end of the move)"))
     return fig

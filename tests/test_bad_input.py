@@ -92,7 +92,7 @@ LOADER_CASES = {
     "sensors-noise": ("sensors", ("noise = 3.0e-7", f"noise = {BIG}"), "sensor[0].noise"),
     "study-vtol": ("study", ("vtol = 0.05", f"vtol = {BIG}"), "shaper.vtol"),
     "study-modes": ("study", ("modes = 3 ", f"modes = {BIG} "), "model.modes"),
-    "study-R": ("study", ("Q = 5e-6", f"Q = 5e-6\nR = {BIG}"), "estimator.R"),
+    "study-R": ("study", ("Q = 5e-9", f"Q = 5e-9\nR = {BIG}"), "estimator.R"),
     # an integer of more than 4300 digits: tomllib raises a plain ValueError
     "robot-huge-literal": ("robot", ("E = 69.0e9 ", f"E = {HUGE_LITERAL} "), "<toml>"),
     # OverflowError inside Section.rectangle / Section.tube

@@ -40,6 +40,12 @@ dependent_joints          joints a numeric function of ``q`` depends on
 gain_schedule             fast gains over the configuration grid
 cached_gain_schedule      :func:`gain_schedule` on a coarse axis, cached on disk
 
+Slow tracking gains (:mod:`casflex.control.gains`, §6.2.2.2, §6.2.3)
+--------------------------------------------------------------------
+SlowGains                 ``K_p``, ``K_d``, their bandwidth and its separation from ω_min
+slow_gains_for_move       bandwidth a stated fraction of the lowest frequency along a move
+dissertation_gains        fixed gains (the dissertation's ``K_p = 1``, ``K_d = 2``)
+
 Stability checks (:mod:`casflex.control.stability`, eq. 225–230, §6.2.3.1)
 -------------------------------------------------------------------------
 inversion_stability       zero-dynamics condition (eq. 226) and rate (eq. 230)
@@ -74,6 +80,7 @@ from casflex.control.accessibility import (
     modal_system,
     robot_accessibility_map,
 )
+from casflex.control.gains import SlowGains, dissertation_gains, slow_gains_for_move
 from casflex.control.laws import (
     closed_loop,
     composite_controller,
@@ -121,6 +128,9 @@ __all__ = [
     "dependent_joints",
     "gain_schedule",
     "cached_gain_schedule",
+    "SlowGains",
+    "slow_gains_for_move",
+    "dissertation_gains",
     "inversion_stability",
     "composite_stability",
     "check_stability",

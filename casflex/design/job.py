@@ -7,11 +7,14 @@
 2. computes the natural frequencies along the move and the modal contributions to the tip
    deflection, and from them the tolerances and frequency ranges (§6.1.4);
 3. designs the minimum-duration specified-insensitivity shaper for those ranges (Ipopt);
-4. simulates the move with the joints following the plan exactly, unshaped and shaped,
-   and the shaped move under the closed-loop controller with the EKF in the loop
-   (estimated δ, δ̇ from simulated, noisy sensor signals);
-5. checks the stability of the controller along the shaped move;
-6. generates and compiles the C bundle of the real-time loop;
+4. simulates the move with the joints following the plan exactly, unshaped and shaped;
+5. chooses the slow tracking gains (from the lowest natural frequency along the move,
+   :mod:`casflex.control.gains`), builds the controller and checks its stability along
+   the shaped move;
+6. simulates the shaped move under the controller with the EKF in the loop (estimated δ,
+   δ̇ from simulated, noisy sensor signals), and with the true state fed back to tell
+   where the tracking error comes from;
+7. generates and compiles the C bundle of the real-time loop;
 
 and writes ``report.md``, PNG figures, ``summary.json`` and ``c/`` to an output directory
 (:mod:`casflex.design.report`, :mod:`casflex.plotting`).
@@ -34,8 +37,14 @@ from casflex._json import jsonable
 from casflex._validate import output_directory
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
+from casflex.errors import SolverError
 
 __all__ = ["DesignResult", "run_design"]
+
+#: ω_min / ω_c below which the report says the time-scale separation is weak
+SEPARATION_REQUIRED = 3.0
+#: the largest joint tracking error [rad] the report calls acceptable (issue 18)
+TRACKING_TARGET = 0.05
 
 
 @dataclass
@@ -76,7 +85,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     out_dir : str or pathlib.Path
         Output directory (created). It receives ``report.md``, ``summary.json``, the PNG
         figures ``frequencies.png``, ``prv.png``, ``tip_deflection.png``,
-        ``estimation.png``, ``accessibility.png`` and the C bundle under ``c/``.
+        ``estimation.png``, ``accessibility.png``, ``joint_tracking.png`` and the C
+        bundle under ``c/``.
     progress : bool
         Progress bar of the tabulation on stderr.
     log : callable, optional
@@ -93,7 +103,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         ``summary`` holds at least ``shaper_duration`` [s], ``frequency_ranges`` [rad/s,
         ``[[lo, hi], ...]`` per mode, margin included], ``contributions`` (normalised, max
         1), ``residual_reduction`` (fraction of the unshaped residual tip deflection that
-        shaping removes, 0–1), ``stable`` and ``c_files``.
+        shaping removes, 0–1), ``stable``, ``c_files``, ``slow_gains`` (the slow gains,
+        their bandwidth ω_c [rad/s], ω_min [rad/s] and the separation ω_min/ω_c) and
+        ``tracking`` (largest joint tracking error [rad] of the loop with the EKF, per
+        joint, and of the loop with the true state fed back).
 
     Examples
     --------
@@ -167,8 +180,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
 
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
-    eps, controller, stability = _controller(study, model, table, move, shaped, say,
-                                             cache_dir)
+    gains = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
+    say(f"slow gains ({gains.source}): Kp = {gains.Kp:.4g} 1/s^2, Kd = {gains.Kd:.4g} 1/s, "
+        f"bandwidth {gains.bandwidth:.3g} rad/s = omega_min / {gains.separation:.3g}")
+    eps, controller, slow, stability = _controller(study, model, table, move, shaped, gains,
+                                                   say, cache_dir)
     timings["controller_s"] = time.perf_counter() - t0
 
     # closed loop with the EKF in the loop ----------------------------------------------------
@@ -185,6 +201,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
                                 estimator=estimator, sampled=True,  # compiled when C is wanted
                                 jit=study.codegen["compile"], cache_dir=cache_dir)
+    say("where the tracking error comes from: the loop with the true state fed back ...")
+    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite:
@@ -211,9 +229,17 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     err_delta = _estimation_errors(model, loop)[2]
     figures = _save_figures(out, study, design, t_f, omega_along, unshaped_run, shaped_run,
                             loop, err_delta, t_acc, acc, shaped.duration)
+    figures.append(_save_joint_tracking(out, study, unshaped_run, shaped_run, loop,
+                                        shaped.duration))
     summary = _summary(study, model, table, design, unshaped_run, shaped_run, loop,
                        shaped.duration, loop_finite, stability, eps, c_bundle, timings,
                        figures)
+    summary["slow_gains"] = _gains_summary(gains, study)
+    summary["tracking"] = _tracking_summary(loop, sources)
+    low = np.unravel_index(np.argmin(acc), np.shape(acc))
+    summary["accessibility_min"] = {"value": float(np.min(acc)), "mode": int(low[1]) + 1,
+                                    "time": float(t_acc[low[0]])}
+    summary["estimator"] = {"Q": float(e["Q"]), "P0": float(e["P0"]), "ddq": "difference"}
     summary["c_guard"] = {"guarded": bool(study.codegen["guard"]),
                           "torque_limits": None if limits is None else limits.tolist(),
                           "gate": gate}
@@ -222,11 +248,14 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)
 
 
-def _controller(study, model, table, move, shaped, say, cache_dir):
+# ------------------------------------------------------------------------------ controller
+
+
+def _controller(study, model, table, move, shaped, gains, say, cache_dir):
     """ε, the controller of the study and its stability check along the shaped move."""
     from casflex import control
 
-    c = study.controller
+    c = dict(study.controller, Kp=gains.Kp, Kd=gains.Kd)
     eps = control.perturbation_parameter(model, table=table)
     if c["law"] == "composite":
         if c["gains"] == "scheduled":
@@ -237,6 +266,7 @@ def _controller(study, model, table, move, shaped, say, cache_dir):
             gain, _, _ = control.fast_gain(model, move.qf, Q=c["Q"], R=c["R"], epsilon=eps)
         controller = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
                                                   epsilon=eps)
+        slow = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], fast=False)
         say("stability of the fast loop along the shaped move ...")
         stab = control.composite_stability(model, shaped, gain=gain, epsilon=eps)
         stability = {"check": "fast loop Hurwitz (§6.2.3.1)", "stable": stab["stable"],
@@ -244,12 +274,33 @@ def _controller(study, model, table, move, shaped, say, cache_dir):
                      "unit": "1/s"}
     else:
         controller = control.inversion_controller(model, Kp=c["Kp"], Kd=c["Kd"])
+        slow = None
         say("zero-dynamics condition (eq. 226) along the shaped move ...")
         stab = control.inversion_stability(model, shaped, Kp=c["Kp"])
         stability = {"check": "eq. 226 zero dynamics", "stable": bool(stab["stable"]),
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s^3"}
-    return eps, controller, stability
+    return eps, controller, slow, stability
+
+
+def _tracking_sources(model, controller, slow, shaped, t_end, dt):
+    """Largest joint tracking error [rad] of the sampled loop with the true state fed back:
+    under the whole law and under its slow (rigid) part alone. Against the loop with the
+    EKF they say where the tracking error comes from (the report's comment)."""
+    from casflex.simulate import simulate_closed_loop
+
+    laws = {"true_state": controller}
+    if slow is not None:
+        laws["slow_law_true_state"] = slow
+    sources = {}
+    for key, law in laws.items():
+        try:
+            run = simulate_closed_loop(model, law, shaped, t_end=t_end, dt=dt, sampled=True,
+                                       method="rk4")
+            sources[key] = float(np.abs(run.tracking_error).max())
+        except SolverError:  # diverged: the report says so
+            sources[key] = math.nan
+    return sources
 
 
 def _estimation_errors(model, loop):
@@ -314,6 +365,48 @@ def _summary(study, model, table, design, unshaped_run, shaped_run, loop, move_e
         "timings_s": timings,
         "figures": [p.name for p in figures],
     }
+
+
+# ------------------------------------------------------------------ the closed loop explained
+
+
+def _gains_summary(gains, study):
+    """``summary["slow_gains"]``: the gains, their bandwidth and its separation from ω_min."""
+    c = study.controller
+    return {"source": gains.source, "Kp": gains.Kp, "Kd": gains.Kd,
+            "bandwidth": gains.bandwidth, "damping": gains.damping,
+            "fraction": gains.bandwidth / gains.omega_min,
+            "requested_fraction": c["bandwidth_fraction"] if gains.source == "move" else None,
+            "omega_min": gains.omega_min, "separation": gains.separation,
+            "separation_holds": bool(gains.separation >= SEPARATION_REQUIRED),
+            "separation_required": SEPARATION_REQUIRED,
+            "move_frequency": gains.move_frequency}
+
+
+def _tracking_summary(loop, sources):
+    """``summary["tracking"]``: the loop's largest error per joint [rad] and its sources."""
+    per_joint = np.abs(loop.tracking_error).max(axis=0)
+    return {"max": float(per_joint.max()), "per_joint": per_joint.tolist(),
+            "worst_joint": int(np.argmax(per_joint)) + 1,
+            "worst_time": float(loop.t[np.abs(loop.tracking_error).max(axis=1).argmax()]),
+            "limit": TRACKING_TARGET, **sources}
+
+
+def _save_joint_tracking(out, study, unshaped, shaped_run, loop, move_end):
+    """``joint_tracking.png``: joint angles vs plan, tracking error and torques of every
+    run (the prescribed runs follow their plan exactly; their torques are the model's
+    inverse dynamics)."""
+    from casflex import plotting
+
+    runs = [("unshaped, joints prescribed", unshaped.t, unshaped.q, unshaped.q, unshaped.tau),
+            ("shaped, joints prescribed", shaped_run.t, shaped_run.q, shaped_run.q,
+             shaped_run.tau),
+            (f"shaped, {study.controller['law']} law + EKF", loop.t, loop.q, loop.qd,
+             loop.tau)]
+    fig = plotting.plot_joint_tracking(runs, [study.move.duration, move_end, move_end])
+    path = out / "joint_tracking.png"
+    fig.savefig(path, dpi=110)
+    return path
 
 
 def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, err_delta,

@@ -3,7 +3,12 @@
 The summary is the dict :func:`casflex.design.run_design` computes (SI units); the report
 is a Markdown page that tabulates it and shows the job's figures (drawn by
 :mod:`casflex.plotting`, saved next to it: ``frequencies.png``, ``prv.png``,
-``tip_deflection.png``, ``estimation.png``, ``accessibility.png``).
+``tip_deflection.png``, ``joint_tracking.png``, ``estimation.png``,
+``accessibility.png``). Its sections: frequencies and modal contributions, the shaper, tip
+deflection, the closed loop's joint tracking (the slow gains, their time-scale separation,
+the tracking error and where it comes from), the EKF in the loop (weak estimates
+flagged), stability, modal accessibility, the C code, timings and the dissertation
+references the text uses.
 """
 
 from __future__ import annotations
@@ -73,6 +78,51 @@ def write_report(out_dir: str | os.PathLike, study: Study, summary: dict) -> lis
     return [report, summary_path]
 
 
+#: the estimates whose RMS ratio of state to error is below this are flagged in the report
+WEAK_ESTIMATE_RATIO = 10.0
+
+#: the report's labels of the job's timings (``summary["timings_s"]``)
+TIMING_LABELS = {
+    "model_s": "modal model",
+    "shaper_s": "frequencies and shaper",
+    "simulate_s": "prescribed-joint runs",
+    "controller_s": "controller and stability",
+    "closed_loop_s": "closed loop with the EKF",
+    "codegen_s": "C code",
+}
+
+#: what the dissertation references of the report mean (the References section)
+REFERENCES = [
+    ("eq. 118", "the mass matrix M(q) of the model, expanded to order 0 in δ (§3.3)"),
+    ("eq. 198", "tolerable residual vibration Vtol of each mode from its modal "
+                "contribution to the tip deflection (§6.1.4)"),
+    ("eq. 204", "the modal accessibility index: how strongly the joint torques reach each "
+                "mode (§6.2.1)"),
+    ("eq. 210, 213", "the inversion-based tracking law (§6.2.2)"),
+    ("eq. 226", "the zero-dynamics stability condition of the inversion-based law "
+                "(§6.2.2.1)"),
+    ("eq. 244–256", "the singular-perturbation split: ε = 1/ω_min, the slow (rigid) law "
+                    "eq. 248, the fast (boundary-layer) subsystem eq. 251 and its LQR "
+                    "(§6.2.3)"),
+    ("§5.5.1", "the EKF with accelerometer feedback and its noise values"),
+    ("§6.1.4, §6.1.5", "optimal specified-insensitivity shaping of a flexible arm and its "
+                       "case study (±20 % frequency ranges)"),
+    ("§6.2.2.2", "the case study of the tracking laws (slow gains Kp = 1, Kd = 2)"),
+    ("§6.2.3.1", "the composite (slow + fast) controller and the check that its fast loop "
+                 "is Hurwitz along the move"),
+]
+
+
+def _fmt(value, digits=3):
+    """A positive number with ``digits`` significant digits, trailing zeros kept (``1.40``
+    next to ``5.19``), integers from ``10**(digits-1)`` on."""
+    if not value == value:
+        return "nan"
+    if abs(value) >= 10 ** (digits - 1):
+        return f"{value:.0f}"
+    return f"{value:#.{digits}g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
+
+
 def _markdown(study, s):
     """The text of ``report.md`` for the summary ``s`` of ``study``."""
     lines = [f"# Design report: {s['study']}", ""]
@@ -82,7 +132,9 @@ def _markdown(study, s):
         f"Robot `{study.robot_path.name}` ('{s['robot']}'), move `{s['move']}` "
         f"({study.move.description or 'no description'}), sensors "
         f"`{study.sensors_path.name}` ({', '.join(study.sensors.output_names)}). "
-        f"{s['modes']} modes, controller: {s['controller']}.",
+        f"{s['modes']} modes, controller: {s['controller']}. References such as "
+        "“eq. 198” and “§6.2.3.1” point into the dissertation this toolkit implements "
+        "(see [References](#references)).",
         "",
         "## Frequencies and modal contributions along the move",
         "",
@@ -93,11 +145,12 @@ def _markdown(study, s):
         a, b = s["frequency_span"][j]
         lo, hi = s["frequency_ranges"][j]
         lines.append(f"| {j + 1} | {a:.3f} – {b:.3f} | {lo:.3f} – {hi:.3f} | "
-                     f"{s['contributions'][j]:.3g} | {s['tolerances'][j]:.3g} |")
+                     f"{s['contributions'][j]:.3f} | {s['tolerances'][j]:.3f} |")
     lines += [
         "",
         f"Design ranges: the spans widened by ±{100 * study.shaper['margin']:.0f} %; "
-        "tolerances from the contributions (eq. 198).",
+        "contributions are each mode's share of the tip deflection, normalised to the "
+        "largest; tolerances from the contributions (eq. 198).",
         "",
         "![frequencies](frequencies.png)",
         "",
@@ -132,19 +185,30 @@ def _markdown(study, s):
         "",
         "![tip deflection](tip_deflection.png)",
         "",
+        *_closed_loop_lines(s),
         "## Estimation (EKF in the loop)",
         "",
-        "RMS of the true state over RMS of the estimation error, per mode:",
+        *_estimator_lines(s.get("estimator")),
+        "RMS of the true state over RMS of the estimation error, per mode, over the whole "
+        f"closed-loop run (an estimate below {WEAK_ESTIMATE_RATIO:.0f} is flagged: its error "
+        f"is more than {100 / WEAK_ESTIMATE_RATIO:.0f} % of the signal):",
         "",
         "| mode | δ | δ̇ |",
         "|---|---|---|",
     ]
+    ratios = s["estimation_rms_ratio"]
     for j in range(s["modes"]):
-        lines.append(f"| {j + 1} | {s['estimation_rms_ratio']['delta'][j]:.3g} | "
-                     f"{s['estimation_rms_ratio']['ddelta'][j]:.3g} |")
+        lines.append(f"| {j + 1} | {_ratio(ratios['delta'][j])} | "
+                     f"{_ratio(ratios['ddelta'][j])} |")
+    weak = [f"δ{j + 1}" for j in range(s["modes"])
+            if not ratios["delta"][j] >= WEAK_ESTIMATE_RATIO] + \
+        [f"δ̇{j + 1}" for j in range(s["modes"]) if not ratios["ddelta"][j] >= WEAK_ESTIMATE_RATIO]
+    lines += ["", (f"**Weak estimates: {', '.join(weak)}** (ratio below "
+                   f"{WEAK_ESTIMATE_RATIO:.0f}): the controller acts on estimates whose "
+                   "error is a large part of the signal." if weak else
+                   f"Every estimate has a ratio of at least {WEAK_ESTIMATE_RATIO:.0f}."), ""]
     st = s["stability"]
     lines += [
-        "",
         "![estimation](estimation.png)",
         "",
         "## Stability along the shaped move",
@@ -152,12 +216,18 @@ def _markdown(study, s):
         f"Check: {st['check']}. **{'Passed' if st['stable'] else 'FAILED'}**: worst margin "
         f"{st['worst_margin']:.4g} {st['unit']} at t = {st['worst_time']:.3f} s.",
         "",
-        ("The sampled closed loop with the EKF stays bounded; largest joint tracking error "
-         f"{s['tracking_error_max']:.3g} rad." if s["closed_loop_finite"] else
+        ("The sampled closed loop with the EKF stays bounded." if s["closed_loop_finite"] else
          "**The sampled closed loop with the EKF diverged** (see the tip-deflection and "
          "estimation figures): the design is not realizable at this sample time."),
         "",
         f"Overall: **{'stable' if s['stable'] else 'NOT stable'}**.",
+        "",
+        "## Modal accessibility along the move",
+        "",
+        "How strongly the joint torques reach each mode at every instant of the shaped move "
+        "(accessibility index, eq. 204): a mode whose index falls towards zero cannot be "
+        "damped by the joints there, whatever the controller; the fast feedback relies on "
+        "it." + _lowest_accessibility(s.get("accessibility_min")),
         "",
         "![accessibility](accessibility.png)",
         "",
@@ -169,12 +239,132 @@ def _markdown(study, s):
         "signatures and the build command.",
         "",
         *_guard_lines(s.get("c_guard")),
-        "## Timings [s]",
+        "## Timings",
         "",
-        " | ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()),
+        " · ".join(f"{TIMING_LABELS.get(k, k.removesuffix('_s'))} {v:.2f} s"
+                   for k, v in s["timings_s"].items()),
+        "",
+        "## References",
+        "",
+        "*Modeling, estimation and control of flexible serial manipulators.* PhD "
+        "dissertation (the text casflex implements; the author, institution and year are "
+        "not part of the text the project works from). Equations (eq.) and sections (§) "
+        "of the report:",
+        "",
+        *[f"- **{ref}**: {meaning}." for ref, meaning in REFERENCES],
         "",
     ]
     return "\n".join(lines)
+
+
+def _estimator_lines(est):
+    """How the EKF in the loop is fed (``summary["estimator"]``)."""
+    if not est:
+        return []
+    return [f"The EKF (§5.5.1) estimates δ and δ̇ from the accelerometers with the joint "
+            "motion from the encoders: q, q̇ and q̈ as the backward difference of q̇, as the "
+            f"generated `rt_step` computes it; process noise Q = {est['Q']:.3g}, "
+            f"P0 = {est['P0']:.3g} I, R = the sensors' noise². Within a sample of the loop "
+            "q̈ jumps with every new torque, which the differenced q̈ misses; the EKF sees "
+            "that as process noise, so a large Q passes it to the rate estimates.", ""]
+
+
+def _lowest_accessibility(low):
+    """The sentence on the least accessible mode (``summary["accessibility_min"]``)."""
+    if not low:
+        return ""
+    return (f" The lowest index along this move is mode {low['mode']}'s, "
+            f"{low['value']:.3g} √kg·m at t = {low['time']:.2f} s.")
+
+
+def _ratio(value):
+    """An RMS ratio, flagged (bold, ⚠) below :data:`WEAK_ESTIMATE_RATIO`."""
+    text = _fmt(value)
+    return text if value >= WEAK_ESTIMATE_RATIO else f"**{text} ⚠**"
+
+
+def _closed_loop_lines(s):
+    """The closed-loop section: the slow gains, how they were chosen, the time-scale
+    separation, and the tracking error with where it comes from."""
+    g, tr = s.get("slow_gains"), s.get("tracking")
+    lines = ["## Closed loop: joint tracking", ""]
+    if g is None or tr is None:  # a summary from before the gains were chosen
+        return lines + [f"Largest joint tracking error {s['tracking_error_max']:.3g} rad.", ""]
+    how = {"move": f"chosen from the move: bandwidth ω_c = {g['fraction']:.2f} × ω_min, the "
+                   "lowest natural frequency along it",
+           "dissertation": "taken from the dissertation's case study (§6.2.2.2)",
+           "given": "given by the study"}[g["source"]]
+    lines += [
+        f"Slow (rigid) tracking gains {how}: **Kp = {g['Kp']:.4g} 1/s², Kd = {g['Kd']:.4g} "
+        f"1/s** (joint-error loop ë + Kd ė + Kp e = 0 of bandwidth ω_c = "
+        f"{g['bandwidth']:.3f} rad/s, damping {g['damping']:.2f}; ω_min = "
+        f"{g['omega_min']:.3f} rad/s; the move's own frequency 2π/T = "
+        f"{g['move_frequency']:.3f} rad/s).",
+        "",
+        f"Time-scale separation ω_min / ω_c = **{g['separation']:.2f}** "
+        + (f"(≥ {g['separation_required']:.0f}: the flexible modes are well faster than the "
+           "slow loop, as the singular-perturbation design assumes)." if
+           g["separation_holds"] else
+           f"(below {g['separation_required']:.0f}: the separation the singular-perturbation "
+           "design assumes is weak; the fast-loop check below and the simulation of the "
+           "full model are what show the loop works)."),
+        "",
+        f"Largest joint tracking error with the EKF in the loop: **{tr['max']:.3g} rad** "
+        f"(q{tr['worst_joint']}, at t = {tr['worst_time']:.2f} s; per joint "
+        + ", ".join(f"q{j + 1} {v:.3g}" for j, v in enumerate(tr["per_joint"]))
+        + f" rad), {'within' if tr['max'] <= tr['limit'] else '**above**'} the "
+        f"{tr['limit']:.2g} rad aimed at.",
+        "",
+    ]
+    lines += [_tracking_comment(s, g, tr), ""]
+    lines += [
+        "No torque limit acts in these simulations (the guarded C step clips at twice the "
+        "peak torques, below). The figure shows the joint angles over their plan, the "
+        "tracking error and the torques of every run: the two prescribed-joint runs follow "
+        "their plan exactly (their torques are the model's inverse dynamics); the closed "
+        "loop is the shaped move under the controller with the EKF's estimates fed back.",
+        "",
+        "![joint tracking](joint_tracking.png)",
+        "",
+    ]
+    return lines
+
+
+def _tracking_comment(s, g, tr):
+    """Where the tracking error comes from, from the loops with the true state fed back."""
+    whole = tr.get("true_state")
+    slow = tr.get("slow_law_true_state")
+    if whole is None or whole != whole:
+        return "(The loop with the true state fed back was not simulated or diverged.)"
+    parts = [f"Where it comes from — the same sampled loop with the true state fed back "
+             f"instead of the EKF's estimates: {whole:.3g} rad"]
+    if slow is not None and slow == slow:
+        parts[0] += f"; with the slow (rigid) law alone {slow:.3g} rad"
+    parts[0] += "."
+    causes = {"estimation": tr["max"] - whole}
+    if slow is not None and slow == slow:
+        causes["fast feedback"] = whole - slow
+        causes["rigid model"] = slow
+    else:
+        causes["law"] = whole
+    main = max(causes, key=causes.get)
+    explain = {
+        "fast feedback": "the fast (boundary-layer) feedback: its torques damp the modes "
+                         "through the joints and push them off the plan, and the slow loop "
+                         f"pulls them back only at its bandwidth ω_c = {g['bandwidth']:.3g} "
+                         "rad/s (the error scales roughly as 1/ω_c)",
+        "rigid model": "the slow law's rigid model: it ignores the coupling of the joints "
+                       "with the deflections, which the slow loop rejects only at its "
+                       f"bandwidth ω_c = {g['bandwidth']:.3g} rad/s",
+        "estimation": "the EKF's estimation errors fed back through the fast gains",
+        "law": "the tracking law itself (the error with the true state fed back)",
+    }[main]
+    added = causes["estimation"]
+    parts.append(f"The largest share ({causes[main]:.3g} rad) comes from {explain}"
+                 + (f"; the EKF's estimates add {added:.3g} rad." if added >= 0.05 * tr["max"]
+                    else f"; feeding back the EKF's estimates instead of the true state "
+                         f"changes it by {abs(added):.2g} rad, less than 5 % of it."))
+    return " ".join(parts)
 
 
 def _guard_lines(guard):

@@ -27,6 +27,7 @@ from casflex._validate import choice, fail, identifier, number, plausible
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
+    from casflex.control import SlowGains
     from casflex.moves import Move
     from casflex.robot import Robot
     from casflex.sensors import SensorSet
@@ -38,7 +39,8 @@ _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
-    "controller": {"law": "composite", "Kp": 1.0, "Kd": 2.0, "Q": 1.0, "R": 10.0,
+    "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
+                   "damping": 1.0, "Kp": None, "Kd": None, "Q": 1.0, "R": 10.0,
                    "gains": "scheduled", "schedule_points": 30},
     "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
@@ -68,7 +70,9 @@ class Study:
     --------
     >>> s = load_study("problems/studies/arm2link_move1.toml")
     >>> s.robot_path.name, round(s.model["grid_step"], 6), s.estimator["Q"]
-    ('arm2link_actuated.toml', 0.05236, 5e-06)
+    ('arm2link_actuated.toml', 0.05236, 5e-09)
+    >>> s.controller["slow_gains"], s.controller["bandwidth_fraction"]
+    ('move', 0.7)
     """
 
     path: Path
@@ -85,6 +89,40 @@ class Study:
     controller: dict = field(default_factory=dict)
     estimator: dict = field(default_factory=dict)
     codegen: dict = field(default_factory=dict)
+
+    def slow_gains(self, omega_min: float, duration: float) -> SlowGains:
+        """The slow tracking gains of this study (``controller.slow_gains``).
+
+        Parameters
+        ----------
+        omega_min : float
+            Lowest natural frequency along the move [rad/s]
+            (``casflex.shaping.shaper_for_move(...).omega_min.min()``).
+        duration : float
+            Duration of the shaped move [s].
+
+        Returns
+        -------
+        casflex.control.SlowGains
+            From the move (bandwidth ``bandwidth_fraction`` × ω_min), the dissertation's
+            ``Kp = 1``, ``Kd = 2`` or the study's own.
+
+        Examples
+        --------
+        >>> s = load_study("problems/studies/arm2link_move1.toml")
+        >>> g = s.slow_gains(6.614, 3.209)
+        >>> round(g.bandwidth, 4), round(g.Kp, 3), round(g.separation, 3)
+        (4.6298, 21.435, 1.429)
+        """
+        from casflex import control
+
+        c = self.controller
+        if c["slow_gains"] == "move":
+            return control.slow_gains_for_move(omega_min, duration,
+                                               fraction=c["bandwidth_fraction"],
+                                               damping=c["damping"])
+        return control.dissertation_gains(omega_min, duration, c["Kp"], c["Kd"],
+                                          source=c["slow_gains"])
 
 
 def _named_file(path, key, name, value=None):
@@ -154,7 +192,8 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
         sim["settle"] = num("simulation.settle", sim["settle"], low=0.0, high=60.0)
     c = settings["controller"]
     c["law"] = one_of("controller.law", c["law"], ("composite", "inversion"))
-    for key in ("Kp", "Kd", "Q", "R"):
+    _check_slow_gains(path, c)
+    for key in ("Q", "R"):
         c[key] = num(f"controller.{key}", c[key], low=0.0, low_open=True)
     c["gains"] = one_of("controller.gains", c["gains"], ("scheduled", "end"))
     c["schedule_points"] = num("controller.schedule_points", c["schedule_points"], low=8,
@@ -190,6 +229,31 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
             raise fail("codegen.torque_limits", g["torque_limits"].tolist(),
                        "needs codegen.guard = true (the limits are applied by the guarded "
                        "rt_step)", path=path)
+
+
+def _check_slow_gains(path, c):
+    """The slow gains: chosen from the move (``"move"``: bandwidth ``bandwidth_fraction``
+    of the lowest natural frequency along it), the dissertation's ``Kp = 1``, ``Kd = 2``
+    (``"dissertation"``), or the study's own ``Kp`` and ``Kd`` (``"given"``, then
+    required; refused otherwise, so that no given gain is silently ignored)."""
+    c["slow_gains"] = choice(c["slow_gains"], "controller.slow_gains",
+                             ("move", "dissertation", "given"), path=path)
+    c["bandwidth_fraction"] = number(c["bandwidth_fraction"], "controller.bandwidth_fraction",
+                                     low=0.0, high=1.0, low_open=True, high_open=True,
+                                     path=path)
+    c["damping"] = number(c["damping"], "controller.damping", low=0.0, low_open=True,
+                          path=path)
+    for key in ("Kp", "Kd"):
+        if c["slow_gains"] == "given":
+            if c[key] is None:
+                raise fail(f"controller.{key}", None, "is required with slow_gains = "
+                           "'given'", path=path)
+            c[key] = number(c[key], f"controller.{key}", low=0.0, low_open=True, path=path)
+        elif c[key] is not None:
+            raise fail(f"controller.{key}", c[key], "is used only with slow_gains = 'given' "
+                       f"(slow_gains is '{c['slow_gains']}')", path=path)
+    if c["slow_gains"] == "dissertation":  # §6.2.2.2
+        c["Kp"], c["Kd"] = 1.0, 2.0
 
 
 def load_study(path: str | os.PathLike) -> Study:

@@ -115,11 +115,11 @@ def test_design_job_outputs(first_run):
                 "stable", "c_files"):
         assert key in s
     for name in ("report.md", "frequencies.png", "prv.png", "tip_deflection.png",
-                 "estimation.png", "accessibility.png"):
+                 "estimation.png", "accessibility.png", "joint_tracking.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 1000, name
     report = (out / "report.md").read_text()
     for figure in ("frequencies.png", "prv.png", "tip_deflection.png", "estimation.png",
-                   "accessibility.png"):
+                   "accessibility.png", "joint_tracking.png"):
         assert f"({figure})" in report
     assert {"arm2link.c", "arm2link.h", "README.md"} <= set(s["c_files"])
     assert s["c_compiled"] is True and (out / "c" / "libarm2link.so").is_file()
@@ -137,8 +137,24 @@ def test_closed_loop_with_ekf(first_run):
     assert s["closed_loop_finite"] is True and s["stable"] is True
     assert s["stability"]["stable"] is True and s["stability"]["worst_margin"] > 0
     assert s["residual_closed_loop"] < s["residual_unshaped"]
-    assert min(s["estimation_rms_ratio"]["delta"]) > 50  # measured 104-332
-    assert s["tracking_error_max"] < 0.5  # rad (soft slow gains Kp = 1, Kd = 2)
+    assert min(s["estimation_rms_ratio"]["delta"]) > 50  # measured 104-1019
+    # issue 18's target with the slow gains chosen from the move (bandwidth 0.7 ω_min;
+    # measured 0.044 rad; 0.24 rad with the dissertation's Kp = 1, Kd = 2)
+    assert s["tracking_error_max"] <= 0.05
+    g = s["slow_gains"]
+    assert g["source"] == "move" and g["Kp"] == pytest.approx(g["bandwidth"] ** 2)
+    assert g["bandwidth"] == pytest.approx(0.7 * min(a for a, _ in s["frequency_span"]))
+    assert g["separation"] == pytest.approx(1 / 0.7)
+
+
+@pytest.mark.slow
+@pytest.mark.needs_cc
+def test_report_structure_of_the_bundled_study(first_run):
+    """The bundled study's report: sections, figures on disk, numbers as in summary.json
+    (the rules of tests/design/test_report_structure.py)."""
+    from test_report_structure import check_report
+
+    check_report(first_run[1])
 
 
 @pytest.mark.slow

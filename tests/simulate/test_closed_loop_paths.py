@@ -135,7 +135,8 @@ def test_design_job_closed_loop_compiled_equals_python(model_cache, tmp_path):
     eps = control.perturbation_parameter(model, table=table)
     axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
     gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis, model_cache)
-    ctrl = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
+    slow = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
+    ctrl = control.composite_controller(model, Kp=slow.Kp, Kd=slow.Kd, gain=gain,
                                         epsilon=eps)
     e = study.estimator
     ekf = ekf_step_function(tabulate_plant(model, cache_dir=model_cache), study.sensors,
