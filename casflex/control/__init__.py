@@ -51,6 +51,7 @@ Stability checks (:mod:`casflex.control.stability`, eq. 225–230, §6.2.3.1)
 inversion_stability       zero-dynamics condition (eq. 226) and rate (eq. 230)
 composite_stability       is the fast closed loop Hurwitz along a move?
 check_stability           either check for a robot and a move (``casflex check``)
+slow_loop_condition       is the slow (rigid) loop under Kp, Kd exponentially stable?
 
 Closed-loop simulation is time response, not design: :func:`casflex.simulate.simulate_closed_loop`
 runs the model under these laws (with impulses and the EKF in the loop) and
@@ -102,6 +103,7 @@ from casflex.control.stability import (
     check_stability,
     composite_stability,
     inversion_stability,
+    slow_loop_condition,
 )
 from casflex.moves import reference_function
 
@@ -134,6 +136,7 @@ __all__ = [
     "inversion_stability",
     "composite_stability",
     "check_stability",
+    "slow_loop_condition",
 ]
 
 

@@ -49,6 +49,7 @@ __all__ = [
     "inversion_stability",
     "composite_stability",
     "check_stability",
+    "slow_loop_condition",
 ]
 
 
@@ -276,8 +277,28 @@ def composite_stability(model: FlexibleModel, move: Move,
             "epsilon": float(epsilon)}
 
 
-def _slow_loop(Kp, Kd):
-    """Verdict on the reduced (rigid) loop ë + K_d ė + K_p e = 0: its slowest real part."""
+def slow_loop_condition(Kp: float, Kd: float) -> dict:
+    """Verdict on the reduced (rigid) loop ë + K_d ė + K_p e = 0 (Tikhonov's slow loop).
+
+    Parameters
+    ----------
+    Kp : float
+        Slow proportional gain [1/s²].
+    Kd : float
+        Slow derivative gain [1/s].
+
+    Returns
+    -------
+    dict
+        ``{"holds", "value", "unit", "rule"}``: ``value`` is the slowest real part of the
+        roots of s² + K_d s + K_p [1/s]; the condition holds when it is negative.
+
+    Examples
+    --------
+    >>> v = slow_loop_condition(1.0, 2.0)
+    >>> v["holds"], round(v["value"], 6)
+    (True, -1.0)
+    """
     roots = np.roots([1.0, Kd, Kp])
     worst = float(np.max(roots.real))
     return _verdict(worst < 0, worst, "1/s", "Tikhonov: the slow (rigid) loop "
@@ -380,7 +401,7 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     else:
         gain, _, _ = fast_gain(model, move.qf, Q=Q, R=R, epsilon=eps)
     r = composite_stability(model, move, gain=gain, epsilon=eps, dt=dt)
-    conditions = {"slow_loop": _slow_loop(Kp, Kd), **r["conditions"]}
+    conditions = {"slow_loop": slow_loop_condition(Kp, Kd), **r["conditions"]}
     return {"stable": _all_hold(conditions), "conditions": conditions,
             "worst_margin": r["worst_margin"],
             "worst_time": r["worst_time"], "worst_real": r["worst_real"],

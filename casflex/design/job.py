@@ -269,7 +269,11 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
         slow = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], fast=False)
         say("stability of the fast loop along the shaped move ...")
         stab = control.composite_stability(model, shaped, gain=gain, epsilon=eps)
-        stability = {"check": "fast loop Hurwitz (§6.2.3.1)", "stable": stab["stable"],
+        conditions = {"slow_loop": control.slow_loop_condition(c["Kp"], c["Kd"]),
+                      **stab["conditions"]}
+        stability = {"check": "fast loop Hurwitz (§6.2.3.1)",
+                     "stable": all(v["holds"] for v in conditions.values()),
+                     "conditions": conditions,
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s"}
     else:
@@ -277,7 +281,8 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
         slow = None
         say("zero-dynamics condition (eq. 226) along the shaped move ...")
         stab = control.inversion_stability(model, shaped, Kp=c["Kp"])
-        stability = {"check": "eq. 226 zero dynamics", "stable": bool(stab["stable"]),
+        stability = {"check": "eq. 226 zero dynamics and eq. 225 modal damping",
+                     "stable": bool(stab["stable"]), "conditions": stab["conditions"],
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s^3"}
     return eps, controller, slow, stability

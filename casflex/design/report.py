@@ -99,6 +99,8 @@ REFERENCES = [
     ("eq. 204", "the modal accessibility index: how strongly the joint torques reach each "
                 "mode (§6.2.1)"),
     ("eq. 210, 213", "the inversion-based tracking law (§6.2.2)"),
+    ("eq. 225", "the modal-damping condition of the inversion-based law: the zero "
+                "dynamics are exponentially stable only if the modes are damped (§6.2.2.1)"),
     ("eq. 226", "the zero-dynamics stability condition of the inversion-based law "
                 "(§6.2.2.1)"),
     ("eq. 244–256", "the singular-perturbation split: ε = 1/ω_min, the slow (rigid) law "
@@ -216,6 +218,7 @@ def _markdown(study, s):
         f"Check: {st['check']}. **{'Passed' if st['stable'] else 'FAILED'}**: worst margin "
         f"{st['worst_margin']:.4g} {st['unit']} at t = {st['worst_time']:.3f} s.",
         "",
+        *_condition_lines(st.get("conditions", {})),
         ("The sampled closed loop with the EKF stays bounded." if s["closed_loop_finite"] else
          "**The sampled closed loop with the EKF diverged** (see the tip-deflection and "
          "estimation figures): the design is not realizable at this sample time."),
@@ -267,6 +270,18 @@ def _estimator_lines(est):
             f"P0 = {est['P0']:.3g} I, R = the sensors' noise². Within a sample of the loop "
             "q̈ jumps with every new torque, which the differenced q̈ misses; the EKF sees "
             "that as process noise, so a large Q passes it to the rate estimates.", ""]
+
+
+def _condition_lines(conditions):
+    """One line per stability condition (its verdict, value and rule); the headline above
+    is true only when every one holds."""
+    if not conditions:
+        return []
+    lines = ["| condition | verdict | value | rule |", "|---|---|---|---|"]
+    for name, c in conditions.items():
+        lines.append(f"| {name.replace('_', ' ')} | {'holds' if c['holds'] else '**fails**'} "
+                     f"| {c['value']:.4g} {c['unit']} | {c['rule']} |")
+    return [*lines, ""]
 
 
 def _lowest_accessibility(low):
