@@ -86,10 +86,10 @@ plot_identification(est, title="synthetic impulse test")
 # %% [markdown]
 # The stabilisation diagram shows the ERA poles of every model order: the four physical
 # modes stay put from order to order (red), the noise poles wander and are rejected (grey).
-# The frequency errors are a few 1e-5 relative and the damping errors below 1 %, against the
-# issue's targets of 0.2 % and 10 %; every estimate lies within a few of its standard
-# errors (checked in `tests/identification/test_modal_fit.py`, with a sample rate
-# different from the nominal one and a 3 s record as well).
+# The frequency errors are a few 1e-5 relative and the damping errors below 1 %; every
+# estimate lies within a few of its standard errors (checked in
+# `tests/identification/test_modal_fit.py`, with a sample rate different from the nominal
+# one and a 3 s record as well).
 #
 # ## 8.2 Model updating against the independent FE model
 #
@@ -144,7 +144,7 @@ print(f"rms residual: exact {exact.rms_before_hz:.4f} -> {exact.rms_after_hz:.2e
 plot_calibration(noisy, title="Table 8 arm: E and tip mass of link 2 from FE frequencies")
 
 # %% [markdown]
-# From exact FE data the fit recovers E and the mass far inside the issue's 0.5 % and
+# From exact FE data the fit recovers E and the mass to well under 0.5 % and
 # 2 %: what remains is the FE model's discretisation error. With 0.3 % noise on every
 # frequency the truth lies within the reported standard deviations.
 #
