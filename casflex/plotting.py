@@ -433,6 +433,8 @@ def _draw_prv(ax, shaper, ranges, names, unit):
             ax.plot([], [], "s", color=c, alpha=0.6, label=label)
     ax.set_xlim(0.0, scale * 1.2 * hi)
     ax.set_ylim(0.0, top + (len(ranges) + 0.3) * row)
+    ax.text(0.995, top + 0.5 * len(ranges) * row, "design ranges", color="0.3", va="center",
+            ha="right", fontsize="x-small", transform=ax.get_yaxis_transform())
     ax.set_yticks([t for t in ax.get_yticks() if 0.0 <= t <= top])
     ax.set_xlabel(f"natural frequency [{unit}]")
     ax.set_ylabel("residual vibration [%]")

@@ -16,6 +16,7 @@ when a committed notebook's code differs from its source or it has no outputs.
 import argparse
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -54,16 +55,25 @@ def select(names):
 def execute(source):
     """Run the notebook of ``source`` in a fresh kernel; return the executed notebook."""
     nb = build(source)
+    client = NotebookClient(nb, timeout=CELL_TIMEOUT_S, kernel_name="python3",
+                            record_timing=False,
+                            resources={"metadata": {"path": str(Path(source).parent)}})
     old = os.environ.get("MPLBACKEND")
     os.environ["MPLBACKEND"] = "Agg"  # the kernel inherits it: figures inline, no window
-    try:
-        NotebookClient(nb, timeout=CELL_TIMEOUT_S, kernel_name="python3", record_timing=False,
-                       resources={"metadata": {"path": str(Path(source).parent)}}).execute()
-    finally:
-        if old is None:
-            os.environ.pop("MPLBACKEND", None)
-        else:
-            os.environ["MPLBACKEND"] = old
+    # the kernel process's own stderr (start-up notices, C-level messages) is shown only
+    # when the notebook fails; cell outputs are in the notebook either way
+    with tempfile.TemporaryFile("w+") as kernel_log:
+        try:
+            client.execute(stderr=kernel_log)
+        except BaseException:
+            kernel_log.seek(0)
+            sys.stderr.write(kernel_log.read())
+            raise
+        finally:
+            if old is None:
+                os.environ.pop("MPLBACKEND", None)
+            else:
+                os.environ["MPLBACKEND"] = old
     return nb
 
 
