@@ -35,7 +35,7 @@ from casflex.tmm import modes
 
 ROOT = Path.cwd().parent if Path.cwd().name == "notebooks" else Path.cwd()
 ROBOT = load(ROOT / "problems/arm2link.toml")
-CACHE = Path(tempfile.mkdtemp(prefix="casflex_nb02_"))  # a fresh cache: timings are honest
+CACHE = Path(tempfile.mkdtemp(prefix="casflex_nb02_"))  # fresh: all computed here
 np.set_printoptions(precision=4, suppress=True)
 
 
@@ -233,7 +233,10 @@ with warnings.catch_warnings():
                                    processes=2, gravity=None, shape_rates=rates)[0]
                 for label, rates in (("default", False), ("shape_rates", True))}
 fidelity, runs = [], {}
-for name in ("move2", "elbow2_1s"):
+
+
+def fidelity_of(name):
+    """The reference run of one move and both models' runs against it."""
     mv = MOVES[name]
     ref = reference_run(mv, n_elements=8, dt=1e-3)
     runs[name] = {"reference": ref}
@@ -242,6 +245,13 @@ for name in ("move2", "elbow2_1s"):
         c = compare(runs[name][label], ref, mv.duration)
         fidelity.append([name, label, f"{c['peak_ref_mm']:.1f}", f"{c['peak_pct']:+.2f}",
                          f"{c['residual_pct']:+.2f}", f"{c['gap_pct']:.2f}"])
+
+
+# %%
+fidelity_of("move2")
+
+# %%
+fidelity_of("elbow2_1s")
 table(fidelity, ["move", "model", "peak ref [mm]", "peak %", "residual %", "gap %"])
 
 # %%

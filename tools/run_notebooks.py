@@ -7,8 +7,9 @@ browsing the repository sees them; this is the one command that regenerates them
     python tools/run_notebooks.py 01 04_input_shaping notebooks/06_realtime.py
 
 A name is a source path, a notebook stem or its two-digit number. Each notebook runs in
-a fresh kernel from ``notebooks/`` with the Agg backend; a cell that runs longer than
-3 minutes is an error. One progress line per notebook goes to stderr.
+a fresh kernel from ``notebooks/`` with the inline backend (figures stored as PNG); a
+cell that runs longer than 3 minutes is an error. One progress line per notebook goes to
+stderr.
 ``tests/test_notebooks.py`` executes the sources the same way (:func:`execute`) and fails
 when a committed notebook's code differs from its source or it has no outputs.
 """
@@ -55,11 +56,12 @@ def select(names):
 def execute(source):
     """Run the notebook of ``source`` in a fresh kernel; return the executed notebook."""
     nb = build(source)
+    # figures drawn inline (PNG in the notebook, as a reader's Jupyter does), never in a
+    # window, whatever MPLBACKEND the caller has set
     client = NotebookClient(nb, timeout=CELL_TIMEOUT_S, kernel_name="python3",
-                            record_timing=False,
+                            record_timing=False, extra_arguments=["--matplotlib=inline"],
                             resources={"metadata": {"path": str(Path(source).parent)}})
-    old = os.environ.get("MPLBACKEND")
-    os.environ["MPLBACKEND"] = "Agg"  # the kernel inherits it: figures inline, no window
+    old = os.environ.pop("MPLBACKEND", None)
     # the kernel process's own stderr (start-up notices, C-level messages) is shown only
     # when the notebook fails; cell outputs are in the notebook either way
     with tempfile.TemporaryFile("w+") as kernel_log:
@@ -70,9 +72,7 @@ def execute(source):
             sys.stderr.write(kernel_log.read())
             raise
         finally:
-            if old is None:
-                os.environ.pop("MPLBACKEND", None)
-            else:
+            if old is not None:
                 os.environ["MPLBACKEND"] = old
     return nb
 
