@@ -27,6 +27,8 @@ def build(path):
             cells.append(nbformat.v4.new_markdown_cell("\n".join(lines)))
         else:
             cells.append(nbformat.v4.new_code_cell(body))
+    for i, cell in enumerate(cells):
+        cell.id = f"cell-{i:03d}"   # stable: a regenerated notebook differs where it changed
     nb = nbformat.v4.new_notebook(cells=cells)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
                                  "language": "python"}
