@@ -48,7 +48,9 @@ def progress_bar(total: int, desc: str = "", enabled: bool = True) -> tqdm:
     >>> with progress_bar(3, enabled=False) as bar:
     ...     bar.update(3)
     """
-    from tqdm.auto import tqdm
+    # plain tqdm, text on stderr: tqdm.auto would pick the notebook widget, and warn on
+    # import where ipywidgets is not installed
+    from tqdm import tqdm
 
     return type("_Bar", (tqdm,), {"monitor_interval": 0})(
         total=total, desc=desc, file=sys.stderr, disable=not enabled, leave=False,

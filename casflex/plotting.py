@@ -36,7 +36,7 @@ __all__ = [
     # control
     "plot_accessibility",
     # design report
-    "plot_frequencies_along", "plot_shaper_sensitivity", "plot_tip_deflection",
+    "plot_frequencies_along", "plot_tip_deflection",
     "plot_estimation_error", "plot_accessibility_along",
     "plot_joint_tracking",
     # identification
@@ -170,10 +170,7 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
     """
     q = np.asarray(q, dtype=float)
     omega = np.asarray(omega, dtype=float)
-    if unit == "Hz":
-        omega = omega / (2.0 * np.pi)
-    elif unit != "rad/s":
-        raise ModelError(f"unit = {unit!r}: must be 'rad/s' or 'Hz'")
+    omega = _frequency_scale(unit) * omega
     fig = Figure(figsize=(7, 4.5), layout="constrained")
     ax = fig.add_subplot()
     for j in range(omega.shape[1]):
@@ -183,27 +180,39 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
     ax.set_ylabel(f"natural frequency [{unit}]")
     ax.set_title(title or ("tracked modes" if tracked else "sorted natural frequencies"))
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small")
+    _outside_legend(ax)
     return fig
 
 
 # ------------------------------------------------------------------ design report figures
 # The figures of the report of a design job (:func:`casflex.design.run_design`), drawn from
-# plain arrays. Each is 6.4 × 3.6 in without a layout engine; the job calls
-# ``fig.tight_layout()`` before saving.
+# plain arrays. They have no layout engine; the job calls ``fig.tight_layout()`` before
+# saving (legends outside the axes are included in its bounding box).
 
-def plot_frequencies_along(t: ArrayLike, omega: ArrayLike,
-                           move_name: str) -> Figure:
-    """Natural frequencies of every mode along a move.
+def _outside_legend(ax, **kwargs):
+    """A legend to the right of the axes, where it cannot cover data."""
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
+                     fontsize="small", **kwargs)
+
+
+def plot_frequencies_along(t: ArrayLike, omega: ArrayLike, move_name: str, *,
+                           ranges: Sequence[tuple[float, float]] | None = None,
+                           events: Mapping[str, float] | None = None) -> Figure:
+    """Natural frequencies of every mode along a move, with the shaper's design ranges.
 
     Parameters
     ----------
     t : array_like
-        (k,) times along the move [s].
+        (k,) times [s], e.g. the whole simulated interval of the move.
     omega : array_like
         (k, m) natural frequencies [rad/s].
     move_name : str
         Name of the move, for the title.
+    ranges : sequence of (float, float), optional
+        ``(omega_min, omega_max)`` [rad/s] of every mode's design range, shaded in the
+        mode's colour.
+    events : mapping of str to float, optional
+        Label -> time [s] of instants marked by vertical lines (e.g. the end of the move).
 
     Returns
     -------
@@ -211,67 +220,42 @@ def plot_frequencies_along(t: ArrayLike, omega: ArrayLike,
 
     Examples
     --------
-    >>> fig = plot_frequencies_along([0.0, 1.0], [[8.3, 12.0], [8.9, 12.4]], "move1")
-    >>> len(fig.axes[0].lines), fig.axes[0].get_title()
-    (2, 'natural frequencies along move1')
+    >>> fig = plot_frequencies_along([0.0, 1.0], [[8.3, 12.0], [8.9, 12.4]], "move1",
+    ...                              ranges=[(8.0, 9.2), (11.8, 12.6)],
+    ...                              events={"end of the move": 0.8})
+    >>> fig.axes[0].get_ylabel(), fig.axes[0].get_title()
+    ('natural frequency [rad/s]', 'natural frequencies along move1')
     """
-    omega = np.asarray(omega)
-    fig = Figure(figsize=(6.4, 3.6))
+    from matplotlib.patches import Patch
+
+    omega = np.asarray(omega, dtype=float)
+    fig = Figure(figsize=(7.4, 3.8))
     ax = fig.add_subplot()
     for j in range(omega.shape[1]):
-        ax.plot(t, omega[:, j], label=f"mode {j + 1}")
+        ax.plot(t, omega[:, j], color=f"C{j}", label=f"mode {j + 1}")
+    for j, (lo, hi) in enumerate(ranges or ()):
+        ax.axhspan(lo, hi, color=f"C{j}", alpha=0.15, lw=0)
+    for (label, time), style in zip((events or {}).items(), (":", "--", "-."), strict=False):
+        ax.axvline(time, color="0.35", ls=style, lw=1, label=f"{label} ({time:.3g} s)")
+    handles, _ = ax.get_legend_handles_labels()
+    if ranges:
+        handles.append(Patch(color="0.5", alpha=0.3,
+                             label="design range of the shaper\n(shaded in the mode's colour)"))
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("ω [rad/s]")
+    ax.set_ylabel("natural frequency [rad/s]")
     ax.set_title(f"natural frequencies along {move_name}")
-    ax.legend()
+    ax.grid(True, alpha=0.3)
+    _outside_legend(ax, handles=handles)
     return fig
 
 
-def plot_shaper_sensitivity(omega: ArrayLike, vibration: ArrayLike,
-                            ranges: list[tuple[float, float, float]], n_impulses: int,
-                            duration: float) -> Figure:
-    """Residual vibration of a shaper against frequency, with the design ranges.
+def plot_tip_deflection(runs: Sequence[tuple[str, ArrayLike, ArrayLike]], move_end: float, *,
+                        tip: str = "end effector (origin of the last DH frame)",
+                        move_label: str = "end of the shaped move") -> Figure:
+    """Euclidean norm of the tip deflection of several runs of a move.
 
-    Parameters
-    ----------
-    omega : array_like
-        (k,) frequencies [rad/s].
-    vibration : array_like
-        (k,) residual vibration fraction V(ω) of the shaper.
-    ranges : sequence of (float, float, float)
-        ``(omega_min, omega_max, vtol)`` of every mode's design range [rad/s, rad/s, -].
-    n_impulses : int
-        Number of impulses of the shaper, for the title.
-    duration : float
-        Duration of the shaper [s], for the title.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-
-    Examples
-    --------
-    >>> fig = plot_shaper_sensitivity([5.0, 10.0, 15.0], [0.5, 0.01, 0.4],
-    ...                               [(8.0, 12.0, 0.05)], 3, 0.35)
-    >>> fig.axes[0].get_title()
-    'SI shaper, 3 impulses, 0.350 s'
-    """
-    fig = Figure(figsize=(6.4, 3.6))
-    ax = fig.add_subplot()
-    ax.plot(omega, vibration, "k", lw=1.2)
-    for j, (lo, hi, vtol) in enumerate(ranges):
-        ax.axvspan(lo, hi, alpha=0.15, color=f"C{j}")
-        ax.hlines(vtol, lo, hi, colors=f"C{j}", label=f"mode {j + 1}: Vtol {vtol:.3g}")
-    ax.set_xlabel("ω [rad/s]")
-    ax.set_ylabel("residual vibration V")
-    ax.set_title(f"SI shaper, {n_impulses} impulses, {duration:.3f} s")
-    ax.legend(fontsize=8)
-    return fig
-
-
-def plot_tip_deflection(runs: list[tuple[str, ArrayLike, ArrayLike]],
-                        move_end: float) -> Figure:
-    """Magnitude of the tip deflection of several runs of a move.
+    The tip deflection is the position of the tip of the flexible arm minus that of the
+    rigid arm at the same joint angles.
 
     Parameters
     ----------
@@ -280,6 +264,10 @@ def plot_tip_deflection(runs: list[tuple[str, ArrayLike, ArrayLike]],
         [m] of every run.
     move_end : float
         Time the (shaped) move ends [s], marked by a dotted line.
+    tip : str, optional
+        Which point is the tip, for the title.
+    move_label : str, optional
+        Legend label of the dotted line.
 
     Returns
     -------
@@ -290,27 +278,41 @@ def plot_tip_deflection(runs: list[tuple[str, ArrayLike, ArrayLike]],
     >>> fig = plot_tip_deflection([("unshaped", [0.0, 1.0], [[0, 0, 0], [0.01, 0, 0]])], 0.5)
     >>> fig.axes[0].lines[0].get_ydata().tolist()   # mm
     [0.0, 10.0]
+    >>> fig.axes[0].lines[1].get_label()
+    'end of the shaped move (0.5 s)'
     """
-    fig = Figure(figsize=(6.4, 3.6))
+    fig = Figure(figsize=(7.4, 3.8))
     ax = fig.add_subplot()
     for label, t, deflection in runs:
-        ax.plot(t, 1e3 * np.linalg.norm(deflection, axis=1), label=label)
-    ax.axvline(move_end, color="0.6", ls=":", lw=1)
+        ax.plot(t, 1e3 * np.linalg.norm(np.asarray(deflection, dtype=float), axis=1),
+                lw=1.0, label=label)
+    ax.axvline(move_end, color="0.35", ls=":", lw=1, label=f"{move_label} ({move_end:.3g} s)")
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("‖tip deflection‖ [mm]")
-    ax.legend()
+    ax.set_ylabel("‖tip deflection‖₂ [mm]")
+    ax.set_title(f"tip deflection (flexible − rigid arm at the same joints)\n"
+                 f"tip: {tip}", fontsize="medium")
+    ax.grid(True, alpha=0.3)
+    _outside_legend(ax)
     return fig
 
 
-def plot_estimation_error(t: ArrayLike, error: ArrayLike) -> Figure:
-    """Estimation error of every modal amplitude, ``δ̂ − δ``, over time.
+def plot_estimation_error(t: ArrayLike, delta: ArrayLike, ddelta: ArrayLike,
+                          delta_error: ArrayLike, ddelta_error: ArrayLike) -> Figure:
+    """True modal states, their estimates and the estimation errors, mode by mode.
+
+    One row per mode; the left column shows δ, the right δ̇. Each panel draws the true
+    state, the estimate and the error ``estimate − true`` on the same axis, so the error
+    is seen against the scale of the state; its title gives the ratio of the RMS of the
+    state to the RMS of the error.
 
     Parameters
     ----------
     t : array_like
         (k,) times [s].
-    error : array_like
-        (k, m) estimation errors of the modal amplitudes [√kg m].
+    delta, ddelta : array_like
+        (k, m) true modal amplitudes [√kg·m] and their rates [√kg·m/s].
+    delta_error, ddelta_error : array_like
+        (k, m) estimation errors (estimate − true) of the same [√kg·m, √kg·m/s].
 
     Returns
     -------
@@ -318,19 +320,36 @@ def plot_estimation_error(t: ArrayLike, error: ArrayLike) -> Figure:
 
     Examples
     --------
-    >>> fig = plot_estimation_error([0.0, 0.001], [[1e-4, 0.0], [5e-5, 1e-5]])
-    >>> len(fig.axes[0].lines)
-    2
+    >>> t = np.linspace(0.0, 1.0, 5)
+    >>> x = np.column_stack([np.sin(t), np.cos(t)])
+    >>> fig = plot_estimation_error(t, x, x, 0.01 * x, 0.1 * x)
+    >>> len(fig.axes), fig.axes[1].get_title()
+    (4, 'δ̇1: RMS state / RMS error = 10')
     """
-    error = np.asarray(error)
-    fig = Figure(figsize=(6.4, 3.6))
-    ax = fig.add_subplot()
-    for j in range(error.shape[1]):
-        ax.plot(t, error[:, j], lw=0.8, label=f"δ̂{j + 1} − δ{j + 1}")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("estimation error [√kg·m]")
-    ax.set_title("EKF in the loop")
-    ax.legend(fontsize=8)
+    t = np.asarray(t, dtype=float)
+    m = np.asarray(delta).shape[1]
+    fig = Figure(figsize=(9.0, 1.2 + 2.0 * m))
+    axes = fig.subplots(m, 2, sharex=True, squeeze=False)
+    columns = (("δ", "√kg·m", delta, delta_error), ("δ̇", "√kg·m/s", ddelta, ddelta_error))
+    for c, (name, unit, true, error) in enumerate(columns):
+        true = np.asarray(true, dtype=float)
+        error = np.asarray(error, dtype=float)
+        for j in range(m):
+            ax = axes[j, c]
+            ax.plot(t, true[:, j], color="k", lw=1.4, label="true")
+            ax.plot(t, true[:, j] + error[:, j], color="C1", lw=0.8, ls="--",
+                    label="estimate")
+            ax.plot(t, error[:, j], color="C3", lw=0.8, label="error")
+            rms_error = np.sqrt(np.mean(error[:, j] ** 2))
+            ratio = np.sqrt(np.mean(true[:, j] ** 2)) / rms_error if rms_error > 0 else np.inf
+            ax.set_title(f"{name}{j + 1}: RMS state / RMS error = {ratio:.3g}",
+                         fontsize="small", color="C3" if ratio < 10.0 else "k")
+            ax.set_ylabel(f"{name}{j + 1} [{unit}]")
+            ax.grid(True, alpha=0.3)
+        axes[-1, c].set_xlabel("t [s]")
+    _outside_legend(axes[0, -1])   # one key for every panel
+    fig.suptitle("EKF in the closed loop: true state, estimate and error "
+                 "(ratios below 10 in red)", fontsize="medium")
     return fig
 
 
@@ -362,24 +381,91 @@ def plot_accessibility_along(t: ArrayLike, accessibility: ArrayLike) -> Figure:
     ax.set_xlabel("t [s]")
     ax.set_ylabel("accessibility [√kg·m]")
     ax.set_title("modal accessibility along the shaped move (eq. 204)")
-    ax.legend()
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best")
     return fig
 
 
 # ------------------------------------------------------------------------- input shaping
 
-def plot_prv(shaper: Shaper, ranges: Sequence[FrequencyRange]) -> Figure:
-    """Residual vibration of a shaper over its design ranges, with their tolerances.
+_FREQUENCY_UNITS = {"rad/s": 1.0, "Hz": 1.0 / (2.0 * np.pi)}
 
-    The curve spans the ranges widened by a quarter of their span on each side, one curve
-    per damping ratio of the ranges; a tolerance is a red bar over its range (a marker for
-    a single frequency). Frequencies are drawn in Hz, residual vibration in %.
+
+def _frequency_scale(unit):
+    if unit not in _FREQUENCY_UNITS:
+        raise ModelError(f"unit = {unit!r}: must be 'rad/s' or 'Hz'")
+    return _FREQUENCY_UNITS[unit]
+
+
+def _draw_prv(ax, shaper, ranges, names, unit):
+    """Residual vibration [%] of ``shaper`` from 0 to 1.2 × the highest range, per damping
+    ratio; every range a coloured strip above the curve (one row per range, so overlapping
+    ranges stay apart) and its tolerance a bar in the same colour."""
+    from casflex.shaping import residual_vibration
+
+    scale = _frequency_scale(unit)
+    hi = max(r.omega_max for r in ranges)
+    w = np.linspace(0.0, 1.2 * hi, 3000)
+    zetas = sorted({r.zeta for r in ranges})
+    top = 100.0
+    for k, z in enumerate(zetas):
+        label = "V(ω)" if len(zetas) == 1 else f"V(ω), ζ = {z:g}"
+        v = 100.0 * residual_vibration(shaper, w, z)
+        top = max(top, float(v.max()))
+        ax.plot(scale * w, v, color="k", lw=1.2, ls=("-", "--", ":", "-.")[k % 4], label=label)
+    names = names or [f"range {i + 1}" for i in range(len(ranges))]
+    row = 0.06 * top   # height of one strip's row, in % of the vibration axis
+    for i, (r, name) in enumerate(zip(ranges, names, strict=True)):
+        c = f"C{i % 10}"
+        lo, up = scale * r.omega_min, scale * r.omega_max
+        tol = "no tolerance" if r.vtol >= 1.0 else f"Vtol {100.0 * r.vtol:.3g} %"
+        label = f"{name}: {lo:.3g}–{up:.3g} {unit}, {tol}"
+        y = top + (i + 0.6) * row
+        if lo == up:
+            ax.plot([lo], [y], "v", color=c, ms=7)
+            if r.vtol < 1.0:
+                ax.plot([lo], [100.0 * r.vtol], "_", color=c, ms=14, mew=3)
+            ax.plot([], [], "v", color=c, label=label)
+            continue
+        ax.fill_between([lo, up], y - 0.4 * row, y + 0.4 * row, color=c, alpha=0.6, lw=0)
+        if r.vtol < 1.0:
+            ax.plot([lo, up], [100.0 * r.vtol] * 2, "-", color=c, lw=3, label=label)
+        else:
+            ax.plot([], [], "s", color=c, alpha=0.6, label=label)
+    ax.set_xlim(0.0, scale * 1.2 * hi)
+    ax.set_ylim(0.0, top + (len(ranges) + 0.3) * row)
+    ax.text(0.995, top + 0.5 * len(ranges) * row, "design ranges", color="0.3", va="center",
+            ha="right", fontsize="x-small", transform=ax.get_yaxis_transform())
+    ax.set_yticks([t for t in ax.get_yticks() if 0.0 <= t <= top])
+    ax.set_xlabel(f"natural frequency [{unit}]")
+    ax.set_ylabel("residual vibration [%]")
+    ax.grid(True, alpha=0.3)
+    _outside_legend(ax)
+
+
+def plot_prv(shaper: Shaper, ranges: Sequence[FrequencyRange], *,
+             names: Sequence[str] | None = None, title: str | None = None,
+             unit: str = "rad/s") -> Figure:
+    """Residual vibration of a shaper against natural frequency, with its design ranges.
+
+    The curve runs from 0 (where every shaper lets the motion through, V = 100 %) to 1.2
+    times the highest range, one curve per damping ratio of the ranges. Each range is a
+    coloured strip above the curve (one row per range, so overlapping ranges stay
+    distinguishable; a marker for a single frequency) and its tolerance a bar in the same
+    colour at the height of the tolerance; the legend names every range. Residual
+    vibration is drawn in %.
 
     Parameters
     ----------
     shaper : casflex.shaping.Shaper
     ranges : sequence of casflex.shaping.FrequencyRange
-        Design ranges, rad/s.
+        Design ranges [rad/s].
+    names : sequence of str, optional
+        Legend name of every range (default ``range 1``, ``range 2``, ...).
+    title : str, optional
+        Title (default the number of impulses and the duration of the shaper).
+    unit : {"rad/s", "Hz"}
+        Unit of the frequency axis.
 
     Returns
     -------
@@ -390,42 +476,22 @@ def plot_prv(shaper: Shaper, ranges: Sequence[FrequencyRange]) -> Figure:
     >>> from casflex.shaping import FrequencyRange, zv
     >>> fig = plot_prv(zv(10.0), [FrequencyRange(9.0, 11.0, 0.0, 0.05)])
     >>> fig.axes[0].get_xlabel(), fig.axes[0].get_title()
-    ('natural frequency (Hz)', 'SI shaper: 2 impulses, 0.3142 s')
+    ('natural frequency [rad/s]', 'shaper: 2 impulses, 0.3142 s')
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from casflex.shaping import residual_vibration
-
-    lo = min(r.omega_min for r in ranges)
-    hi = max(r.omega_max for r in ranges)
-    span = hi - lo if hi > lo else hi
-    w = np.linspace(max(lo - 0.25 * span, 1e-3 * hi), hi + 0.25 * span, 3000)
-    fig = Figure(figsize=(7.0, 4.0))
+    fig = Figure(figsize=(8.0, 4.0))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
-    zetas = sorted({r.zeta for r in ranges})
-    for z in zetas:
-        label = "V(ω)" if len(zetas) == 1 else f"V(ω), ζ = {z:g}"
-        ax.plot(w / (2 * np.pi), 100.0 * residual_vibration(shaper, w, z), label=label)
-    for i, r in enumerate(ranges):
-        x = [r.omega_min / (2 * np.pi), r.omega_max / (2 * np.pi)]
-        if x[0] == x[1]:
-            ax.plot(x[:1], [100.0 * r.vtol], "rv", label="Vtol" if i == 0 else None)
-        else:
-            ax.plot(x, [100.0 * r.vtol] * 2, "r-", lw=3, label="Vtol" if i == 0 else None)
-    ax.set_xlabel("natural frequency (Hz)")
-    ax.set_ylabel("residual vibration (%)")
-    ax.set_title(f"SI shaper: {len(shaper)} impulses, {shaper.duration:.4f} s")
-    ax.set_ylim(0.0, 105.0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
+    _draw_prv(ax, shaper, ranges, names, unit)
+    ax.set_title(title or f"shaper: {len(shaper)} impulses, {shaper.duration:.4f} s")
     fig.tight_layout()
     return fig
 
 
 def plot_move_shaper(result: MoveShaperResult, move_name: str,
-                     deflections: Mapping[str, tuple[ArrayLike, ArrayLike]] | None = None
-                     ) -> Figure:
+                     deflections: Mapping[str, tuple[ArrayLike, ArrayLike]] | None = None,
+                     *, unit: str = "rad/s") -> Figure:
     """The shaper of a planned move: its residual vibration over the design ranges and,
     when given, simulated tip deflections.
 
@@ -436,8 +502,10 @@ def plot_move_shaper(result: MoveShaperResult, move_name: str,
     move_name : str
         Name of the move, for the title.
     deflections : mapping of str to (t, deflection), optional
-        Label -> times (s) and deflection of the tip (shape (N,) or (N, 3), m), drawn as
-        ‖deflection‖ in mm in a second panel (e.g. ``{"unshaped": ..., "shaped": ...}``).
+        Label -> times [s] and deflection of the tip (shape (N,) or (N, 3), m), drawn as
+        its Euclidean norm in mm in a second panel (e.g. ``{"unshaped": ..., "shaped": ...}``).
+    unit : {"rad/s", "Hz"}
+        Unit of the frequency axis (as :func:`plot_prv`, which draws the first panel).
 
     Returns
     -------
@@ -457,39 +525,26 @@ def plot_move_shaper(result: MoveShaperResult, move_name: str,
     >>> t = np.linspace(0.0, 1.0, 11)
     >>> fig = plot_move_shaper(res, "move3", {"unshaped": (t, 0.1 * t), "shaped": (t, 0 * t)})
     >>> len(fig.axes), fig.axes[1].get_ylabel()
-    (2, '|tip deflection| (mm)')
+    (2, '‖tip deflection‖₂ [mm]')
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from casflex.shaping import residual_vibration
-
-    fig = Figure(figsize=(8.0, 7.0 if deflections else 4.0))
+    fig = Figure(figsize=(9.0, 7.0 if deflections else 4.0))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(2 if deflections else 1, 1, 1)
-    hi = max(r.omega_max for r in result.ranges)
-    w = np.linspace(1e-3 * hi, 1.25 * hi, 3000)
-    ax.plot(w, 100.0 * residual_vibration(result.shaper, w, result.ranges[0].zeta), label="V(ω)")
-    for i, r in enumerate(result.ranges):
-        x = [r.omega_min, r.omega_max]
-        style = "rv" if x[0] == x[1] else "r-"
-        ax.plot(x if x[0] != x[1] else x[:1], [100.0 * r.vtol] * (2 if x[0] != x[1] else 1),
-                style, lw=3, label="Vtol" if i == 0 else None)
-    ax.set_xlabel("natural frequency (rad/s)")
-    ax.set_ylabel("residual vibration (%)")
-    ax.set_ylim(0.0, 105.0)
-    ax.set_title(f"{move_name}: r = {np.round(result.contributions, 3).tolist()}, "
-                 f"{len(result.shaper)} impulses, {result.duration:.3f} s")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
+    _draw_prv(ax, result.shaper, result.ranges,
+              [f"mode {j + 1}" for j in range(len(result.ranges))], unit)
+    ax.set_title(f"{move_name}: contributions r = {np.round(result.contributions, 3).tolist()},"
+                 f" {len(result.shaper)} impulses, {result.duration:.3f} s", fontsize="medium")
     if deflections:
         ax2 = fig.add_subplot(2, 1, 2)
         for label, (t, deflection) in deflections.items():
             d = np.asarray(deflection, dtype=float).reshape(len(t), -1)
             ax2.plot(t, 1e3 * np.linalg.norm(d, axis=1), label=label)
-        ax2.set_xlabel("time (s)")
-        ax2.set_ylabel("|tip deflection| (mm)")
+        ax2.set_xlabel("t [s]")
+        ax2.set_ylabel("‖tip deflection‖₂ [mm]")
         ax2.grid(True, alpha=0.3)
-        ax2.legend(loc="upper right")
+        _outside_legend(ax2)
     fig.tight_layout()
     return fig
 
@@ -583,16 +638,16 @@ def plot_result(result: SimulationResult, title: str | None = None) -> Figure:
     for k, c in enumerate("xyz"):
         axes[1, 1].plot(t, 1e3 * result.tip_deflection[:, k], label=c)
     axes[1, 1].plot(t, 1e3 * np.linalg.norm(result.tip_deflection, axis=1), "k--", lw=0.8,
-                    label="|·|")
+                    label="‖·‖₂")
     labels = [("joint angle [rad]", axes[0, 0]), ("torque [N m]", axes[0, 1]),
-              ("modal amplitude δ [√kg m]", axes[1, 0]),
+              ("modal amplitude δ [√kg·m]", axes[1, 0]),
               ("tip deflection [mm]", axes[1, 1])]
     for label, ax in labels:
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small", ncol=2)
         if math.isfinite(result.t_move_end):
-            ax.axvline(result.t_move_end, color="0.6", lw=0.8, ls=":")
+            ax.axvline(result.t_move_end, color="0.6", lw=0.8, ls=":", label="end of the move")
+        ax.legend(loc="best", fontsize="small", ncol=2)
     for ax in axes[1]:
         ax.set_xlabel("t [s]")
     if title:
@@ -637,12 +692,16 @@ def plot_identification(estimate: ModalEstimate, title: str | None = None) -> Fi
         ax.axvline(f, color="k", lw=0.6, ls="--")
         ax2.axvline(f, color="k", lw=0.6, ls="--")
     ax.set_ylabel("PSD [(m/s²)²/Hz]")
-    ax.legend(fontsize="small")
+    ax.legend(loc="best", fontsize="small")
     ax.grid(True, alpha=0.3)
-    for order, f, _, stable in estimate.stabilisation:
-        ax2.plot(f[~stable], np.full((~stable).sum(), order), "x", color="0.6", ms=3)
-        ax2.plot(f[stable], np.full(stable.sum(), order), "o", color="C3", ms=3)
-    ax2.set_ylabel("model order (o stable, x not)")
+    for k, (order, f, _, stable) in enumerate(estimate.stabilisation):
+        ax2.plot(f[~stable], np.full((~stable).sum(), order), "x", color="0.6", ms=3,
+                 label="not stable" if k == 0 else None)
+        ax2.plot(f[stable], np.full(stable.sum(), order), "o", color="C3", ms=3,
+                 label="stable" if k == 0 else None)
+    if estimate.stabilisation:
+        ax2.legend(loc="best", fontsize="small")
+    ax2.set_ylabel("model order [–]")
     ax2.set_xlabel("frequency [Hz]")
     ax2.grid(True, alpha=0.3)
     if title:
@@ -680,14 +739,17 @@ def plot_calibration(result: CalibrationResult, title: str | None = None) -> Fig
         ax.plot(rows, result.measured_hz[:, j], "o", color=c, label=f"f{j + 1} measured")
         ax.plot(rows, result.before_hz[:, j], "x", color=c, alpha=0.5)
         ax.plot(rows, result.after_hz[:, j], "+", color=c, ms=10)
-        ax2.plot(rows, result.residual_before_hz[:, j], "x", color=c, alpha=0.5)
-        ax2.plot(rows, result.residual_hz[:, j], "+-", color=c, ms=10)
+        ax2.plot(rows, result.residual_before_hz[:, j], "x", color=c, alpha=0.5,
+                 label=f"f{j + 1} before the fit")
+        ax2.plot(rows, result.residual_hz[:, j], "+-", color=c, ms=10,
+                 label=f"f{j + 1} after the fit")
     ax.set_ylabel("frequency [Hz]")
     ax.set_title("o measured, x model before, + model after the fit", fontsize="small")
-    ax.legend(fontsize="small", ncol=2)
+    ax.legend(loc="best", fontsize="small", ncol=2)
     ax2.axhline(0.0, color="k", lw=0.6)
     ax2.set_ylabel("model − measured [Hz]")
-    ax2.set_xlabel("configuration (row of the measurements)")
+    ax2.legend(loc="best", fontsize="small", ncol=2)
+    ax2.set_xlabel("configuration [row of the measurements]")
     ax2.set_xticks(rows)
     for a in (ax, ax2):
         a.grid(True, alpha=0.3)
@@ -720,7 +782,7 @@ def plot_si_optimality(grid_optimum: ArrayLike, polished: ArrayLike,
     --------
     >>> fig = plot_si_optimality([0.3, 0.5], [0.299, 0.498], [0.31, float("nan")])
     >>> fig.axes[0].get_ylabel()
-    'duration / grid optimum - 1 (%)'
+    'duration / grid optimum − 1 [%]'
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
@@ -735,10 +797,10 @@ def plot_si_optimality(grid_optimum: ArrayLike, polished: ArrayLike,
     if ei_start is not None:
         ax.plot(idx, 100.0 * (np.asarray(ei_start, float) / ref - 1.0), "x",
                 label="convolved-EI start (§6.1.3)")
-    ax.set_xlabel("problem")
-    ax.set_ylabel("duration / grid optimum - 1 (%)")
+    ax.set_xlabel("problem [index]")
+    ax.set_ylabel("duration / grid optimum − 1 [%]")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
+    ax.legend(loc="best")
     fig.tight_layout()
     return fig
 
@@ -762,7 +824,7 @@ def plot_digital_shaper(analogue: Shaper, digital: Shaper, dt: float) -> Figure:
     >>> from casflex.shaping import zv
     >>> fig = plot_digital_shaper(zv(10.0), zv(10.0), 1e-3)
     >>> fig.axes[0].get_xlabel()
-    'time (s)'
+    't [s]'
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
@@ -774,10 +836,10 @@ def plot_digital_shaper(analogue: Shaper, digital: Shaper, dt: float) -> Figure:
     ax.vlines(digital.times, 0.0, digital.amplitudes, colors="C1", lw=1.5,
               label=f"on the {1e3 * dt:g} ms grid: {len(digital)} impulses, "
               f"{digital.duration:.4f} s")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("amplitude")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("impulse amplitude [–]")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
+    ax.legend(loc="best")
     fig.tight_layout()
     return fig
 
@@ -828,13 +890,14 @@ def plot_plan(comparison: object) -> Figure:
         axes[2].plot(run.t, 1e3 * np.linalg.norm(run.tip_deflection, axis=1), style,
                      color="k" if label == "planned" else "0.5", label=f"{label} ({T:.3f} s)")
         for ax in axes:
-            ax.axvline(T, color="0.6" if label == "shaped" else "0.2", lw=0.8, ls=":")
+            ax.axvline(T, color="0.6" if label == "shaped" else "0.2", lw=0.8, ls=":",
+                       label=f"end of the {label} move" if ax is axes[2] else None)
     for ax, ylabel in zip(axes, ("joint angle [rad]", "torque [N m]",
-                                 "|tip deflection| [mm]"), strict=True):
+                                 "‖tip deflection‖₂ [mm]"), strict=True):
         ax.set_ylabel(ylabel)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small", ncol=2)
-    axes[2].set_xlabel("t [s] (joints on the move; dotted: end of each move)")
+        ax.legend(loc="best", fontsize="small", ncol=2)
+    axes[2].set_xlabel("t [s] (joints on the move)")
     fig.suptitle(f"{getattr(comparison.plan, 'name', 'plan')}: shaped vs planned")
     return fig
 

@@ -11,22 +11,21 @@
 # casflex finds *every* root, double roots included, by counting the frequencies below any ω
 # with the Wittrick–Williams algorithm before refining them, and checks the result against
 # references that share none of its code: closed-form solutions and a beam finite-element
-# model written independently in `tests/reference_fem.py`.
+# model written independently in [`frame_fe.py`](frame_fe.py) next to this notebook (the
+# test suite's own, fuller one is `tests/reference_fem.py`).
 
 # %%
-import sys
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
+from frame_fe import frame_fe  # notebooks/frame_fe.py: the short FE reference
 
 from casflex.plotting import plot_modes
 from casflex.robot import load, loads
-from casflex.tmm import build_chain, modes, natural_frequencies, sweep_frequencies
+from casflex.tmm import modes, natural_frequencies, sweep_frequencies
 
 ROOT = Path.cwd().parent if Path.cwd().name == "notebooks" else Path.cwd()
-sys.path.insert(0, str(ROOT / "tests"))
-import reference_fem as fem  # noqa: E402  (the independent FE model of the test suite)
 
 np.set_printoptions(precision=4, suppress=True)
 
@@ -96,9 +95,10 @@ assert every.size == sum(int(np.sum(w < top)) for w in bending) + \
 # ## 1.2 Bent and spatial structures against finite elements
 #
 # For structures without closed forms the reference is a 3-D frame finite-element model
-# with consistent mass and 40 elements per link (`tests/reference_fem.py`). The geometry
-# (start, end and section axes of every beam) is read from casflex's chain; the physics of
-# the reference is its own.
+# with consistent mass and 40 elements per link (`frame_fe.py`, a hundred lines). The
+# geometry (start, end and section axes of every beam, pose of every body) is read from
+# casflex's chain; the physics of the reference is its own. (`tests/tmm/test_reference_fem.py`
+# checks casflex against the test suite's fuller FE model.)
 
 # %%
 SPATIAL = """
@@ -151,32 +151,15 @@ inertia = [5e-5, 5e-5, 2e-5]
 """
 
 
-def fe_model(robot, q, n_modes=6):
-    """The FE reference built from the poses of casflex's chain (geometry only)."""
-    segments, bodies = [], []
-    for e in build_chain(robot, q).elements:
-        if e.kind == "beam":
-            s, m = e.params["section"], e.params["material"]
-            segments.append(fem.Segment(start=e.start, end=e.end, local_x=e.R[:, 0], E=m.E,
-                                        G=m.G, rho=m.rho, A=s.A, Ix=s.Ix, Iy=s.Iy, J=s.J,
-                                        Ip=s.Ip, n_elements=40))
-        elif e.kind == "body":
-            p = e.params
-            bodies.append(fem.PointBody(position=e.start, mass=p["mass"],
-                                        inertia=e.R @ np.diag(p["inertia"]) @ e.R.T,
-                                        com_offset=e.R @ p["com_offset"]))
-    return fem.modes(segments, bodies, clamp=np.zeros(3), n_modes=n_modes)
-
-
 spatial = loads(SPATIAL)
 q = [0.0, 0.0, 0.0]
-w_fem, shapes_fem = fe_model(spatial, q)
+w_fem, u_fem = frame_fe(spatial, q)
 shapes = modes(spatial, q, count=6, n_points=41)
 frac = np.linspace(0, 1, 41)
 mac = []
 for j in range(6):
     a = np.concatenate([shapes.displacement_global[j, b].ravel() for b in range(3)])
-    f = np.concatenate([shapes_fem.sample(b, frac)[j].ravel() for b in range(3)])
+    f = u_fem[j].ravel()   # 41 nodes per beam, at the same fractions
     mac.append((a @ f) ** 2 / ((a @ a) * (f @ f)))
 rows = [[j + 1, f"{wf:.4f}", f"{wt:.4f}", f"{(wt - wf) / wf:+.1e}", f"{m:.6f}"]
         for j, (wf, wt, m) in enumerate(zip(w_fem, shapes.omega, mac, strict=True))]

@@ -121,15 +121,18 @@ d, res = data["move1"], nominal["move1", "acc"]
 fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
 for j in range(3):
     ax[0, 0].plot(d.t, d.x[:, j], label=f"δ{j + 1}")
-    ax[0, 1].plot(d.t, res.x[:, j] - d.x[:, j])
+    ax[0, 1].plot(d.t, res.x[:, j] - d.x[:, j], label=f"mode {j + 1}")
     ax[1, 0].plot(d.t, d.x[:, 3 + j], label=f"δ̇{j + 1}")
-    ax[1, 1].plot(d.t, res.x[:, 3 + j] - d.x[:, 3 + j])
-ax[0, 0].set_title("move 1: modal amplitudes [√kg m]")
-ax[0, 1].set_title("estimation error (accelerometers)")
-ax[1, 0].set_title("modal velocities [√kg m/s]")
-ax[1, 1].set_title("estimation error")
-ax[0, 0].legend()
-ax[1, 0].legend()
+    ax[1, 1].plot(d.t, res.x[:, 3 + j] - d.x[:, 3 + j], label=f"mode {j + 1}")
+ax[0, 0].set_title("move 1: modal amplitudes")
+ax[0, 1].set_title("their estimation errors (accelerometers)")
+ax[1, 0].set_title("modal velocities")
+ax[1, 1].set_title("their estimation errors (accelerometers)")
+for a, unit in ((ax[0, 0], "δ [√kg·m]"), (ax[0, 1], "estimate − true δ [√kg·m]"),
+                (ax[1, 0], "δ̇ [√kg·m/s]"), (ax[1, 1], "estimate − true δ̇ [√kg·m/s]")):
+    a.set_ylabel(unit)
+    a.grid(True, alpha=0.3)
+    a.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
 for a in ax[1]:
     a.set_xlabel("t [s]")
 fig.tight_layout()
@@ -202,12 +205,15 @@ assert got[0] > 0.8 * ref[0] and got[1] > ref[1] / 2.5, (got, ref)
 
 # %%
 fig, ax = plt.subplots(1, 2, figsize=(11, 3.5), sharex=True)
-ax[0].plot(d.t, raw.x[:, 3:] - d.x[:, 3:])
+ax[0].plot(d.t, raw.x[:, 3:] - d.x[:, 3:], label=[f"mode {j + 1}" for j in range(3)])
 ax[0].set_title("δ̇ error with a 0.5 m/s² offset, no prefilter")
-ax[1].plot(d.t, hp.x[:, 3:] - d.x[:, 3:])
+ax[1].plot(d.t, hp.x[:, 3:] - d.x[:, 3:], label=[f"mode {j + 1}" for j in range(3)])
 ax[1].set_title("with the high-pass prefilter")
 for a in ax:
     a.set_xlabel("t [s]")
+    a.set_ylabel("estimate − true δ̇ [√kg·m/s]")
+    a.grid(True, alpha=0.3)
+ax[1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
 fig.tight_layout()
 
 # %% [markdown]

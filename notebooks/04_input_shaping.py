@@ -17,7 +17,6 @@
 
 # %%
 import math
-import time
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -78,9 +77,9 @@ family = {"ZV": zv(w1), "ZVD": zvd(w1), "EI": ei(w1, 0.0, 0.05),
 fig, ax = plt.subplots(figsize=(8, 4.5))
 for name, s in family.items():
     prv_plot(ax, s, 3.5, f"{name} ({s.duration:.2f} s)")
-ax.axhline(5, color="k", lw=0.8, ls=":")
+ax.axhline(5, color="k", lw=0.8, ls=":", label="5 %")
 ax.set_title("Single-frequency shapers designed for 1 Hz (ζ = 0)")
-ax.legend()
+ax.legend(loc="best")
 
 
 def band(shaper, vtol=0.05):
@@ -138,9 +137,7 @@ def ranges(vtols):
                                                                         strict=True)]
 
 
-start = time.perf_counter()
 si5 = si_shaper(ranges([0.05] * 3))
-si_time = time.perf_counter() - start
 ei_mid = convolve(*[ei(0.5 * (a + b) * HZ, 0.0, 0.05) for a, b in hz_ranges])
 si_opt = si_shaper(ranges(tolerances_from_contributions([4.0, 2.0, 0.3])))
 si_skip = si_shaper(ranges([0.99, 0.05, 0.05]))
@@ -151,13 +148,13 @@ for ax, s, title, vt in [
         (axes[2], si_opt, "SI with Vtol from r = [4, 2, 0.3] (Fig. 94)",
          [r.vtol for r in si_opt.ranges])]:
     shaper = getattr(s, "shaper", s)
-    prv_plot(ax, shaper, 30.0)
-    for (a, b), v in zip(hz_ranges, vt, strict=True):
-        ax.plot([a, b], [100 * v] * 2, "r-", lw=3)
+    prv_plot(ax, shaper, 30.0, "PRV")
+    for i, ((a, b), v) in enumerate(zip(hz_ranges, vt, strict=True)):
+        ax.plot([a, b], [100 * v] * 2, "r-", lw=3, label="Vtol on each range" if i == 0 else None)
     ax.set_title(f"{title}: {len(shaper)} impulses, {shaper.duration:.4f} s")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
 fig.tight_layout()
-print(f"SI design (Ipopt, prune and merge, dense verification): {si_time:.2f} s, "
-      f"{si5.iterations} NLP solves")
+print(f"SI design (Ipopt, prune and merge, dense verification): {si5.iterations} NLP solves")
 
 # %% [markdown]
 # Eq. 198 turns contributions into tolerances: the dominant mode gets Vtol, the others
@@ -200,10 +197,8 @@ print("Vtol from r = [4, 2, 0.3]:", tolerances_from_contributions([4.0, 2.0, 0.3
 
 # %%
 robot = load("../problems/arm2link.toml")
-start = time.perf_counter()
 model, tab = build_model(robot, n_modes=3, grid=[np.radians(np.arange(-75.0, 15.1, 7.5))],
                          processes=1, gravity=None, cache_dir=False)
-print(f"modal tables and symbolic model: {time.perf_counter() - start:.1f} s")
 moves = {name: load_move(f"../problems/moves.toml:{name}") for name in
          ("move1", "move2", "move3")}
 for name, mv in moves.items():
@@ -215,8 +210,9 @@ t, w = frequencies_along(model, moves["move1"])
 q3 = moves["move1"].sample(t)[0][:, 2]
 for j, (lo, hi) in enumerate([(6.64, 8.26), (9.36, 11.9), (23.36, 35.21)]):
     line, = ax.plot(np.degrees(q3), w[:, j], label=f"mode {j + 1}")
-    ax.plot([np.degrees(-1.0), 0.0], [lo, hi], "o", color=line.get_color(), mfc="none")
-ax.set(xlabel="q3 [deg]", ylabel="ω [rad/s]",
+    ax.plot([np.degrees(-1.0), 0.0], [lo, hi], "o", color=line.get_color(), mfc="none",
+            label="Table 14 limits" if j == 2 else None)
+ax.set(xlabel="q3 [deg]", ylabel="natural frequency ω [rad/s]",
        title="Tracked frequencies along moves 1 and 2 (circles: Table 14 limits)")
 ax.grid(alpha=0.3)
 ax.legend()
@@ -301,13 +297,14 @@ for ax, name in zip(axes, moves, strict=True):
         w = np.linspace(0.5, 45.0, 3000)
         ax.plot(w, 100 * residual_vibration(res.shaper, w), style,
                 label=f"margin {margin:.0%}: {res.duration:.3f} s")
-        for r in res.ranges:
+        for i, r in enumerate(res.ranges):
             x = [r.omega_min, r.omega_max]
             ax.plot(x if x[0] < x[1] else x[:1], [100 * r.vtol] * (2 if x[0] < x[1] else 1),
-                    "r" + ("-" if margin == 0 else ":") if x[0] < x[1] else "rv", lw=3)
+                    "r" + ("-" if margin == 0 else ":") if x[0] < x[1] else "rv", lw=3,
+                    label=f"Vtol, margin {margin:.0%}" if i == 0 else None)
     ax.set(ylabel="PRV [%]", ylim=(0, 105), title=name)
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
 axes[-1].set_xlabel("ω [rad/s]")
 fig.tight_layout()
 
@@ -366,7 +363,6 @@ def decoupled(reference):
 
 
 DT = 2e-3
-start = time.perf_counter()
 results, rows = {}, []
 for name, mv in moves.items():
     plain = simulate_prescribed(model, mv, dt=DT, t_end=mv.t_end)
@@ -385,8 +381,6 @@ for name, mv in moves.items():
         rows.append([name, f"{margin:.0%}", f"{res.duration:.3f}",
                      f"{1e3 * lin0:.1f} → {1e3 * lin:.1f}", f"{1 - lin / lin0:.0%}",
                      f"{1e3 * full0:.1f} → {1e3 * full:.1f}", f"{1 - full / full0:.0%}"])
-print(f"{3 + 6} full-model simulations and their decoupled twins: "
-      f"{time.perf_counter() - start:.0f} s")
 table(rows, ["move", "margin", "T [s]", "eq. 194 residual [mm]", "cut",
              "full model residual [mm]", "cut"])
 
@@ -398,11 +392,11 @@ for ax, name in zip(axes, moves, strict=True):
         sim = results[name][key]
         ax.plot(sim.t, 1e3 * np.linalg.norm(sim.tip_deflection, axis=1), label=label,
                 lw=1.0)
-    ax.axvline(moves[name].duration, color="k", lw=0.8, ls=":")
-    ax.set(ylabel="|tip deflection| [mm]", title=name)
+    ax.axvline(moves[name].duration, color="k", lw=0.8, ls=":", label="end of the move")
+    ax.set(ylabel="‖tip deflection‖₂ [mm]", title=name)
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-axes[-1].set_xlabel("time [s]")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+axes[-1].set_xlabel("t [s]")
 fig.tight_layout()
 
 # %% [markdown]
@@ -449,7 +443,6 @@ from casflex.plotting import plot_digital_shaper, plot_si_optimality  # noqa: E4
 
 rng = np.random.default_rng(2014)
 lp_opt, polished = [], []
-start = time.perf_counter()
 for _ in range(6):
     problem = []
     for _ in range(int(rng.integers(1, 4))):
@@ -459,7 +452,6 @@ for _ in range(6):
     res = si_shaper(problem)
     lp_opt.append(res.lp_duration)
     polished.append(res.duration)
-print(f"{len(polished)} problems: {time.perf_counter() - start:.0f} s")
 plot_si_optimality(lp_opt, polished)
 
 # %% [markdown]

@@ -85,9 +85,13 @@ for row in rows:
 fig, axs = plt.subplots(1, 2, figsize=(11, 3.5))
 for ax, law in zip(axs, ("inversion", "feedforward"), strict=True):
     r = runs["control_move1", law]
-    ax.plot(r.t, r.tracking_error)
-    ax.set_title(f"move 1, {law}: q − q_d [rad]")
+    ax.plot(r.t, r.tracking_error, label=[f"q{j + 1}" for j in range(r.tracking_error.shape[1])])
+    ax.set_title(f"move 1, {law}: tracking error")
     ax.set_xlabel("t [s]")
+    ax.set_ylabel("q − q_d [rad]")
+    ax.grid(True, alpha=0.3)
+axs[1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+fig.tight_layout()
 plt.show()
 
 # %% [markdown]
@@ -173,9 +177,13 @@ for fast in (True, False):
           f"max |q - qd| {np.abs(r.tracking_error).max():.3f} rad")
 fig, axs = plt.subplots(1, 2, figsize=(11, 3.5), sharey=True)
 for ax, fast in zip(axs, (False, True), strict=True):
-    ax.plot(imp[fast].t, imp[fast].tip_deflection)
-    ax.set_title(f"tip deflection [m], fast part {'on' if fast else 'off'}")
+    ax.plot(imp[fast].t, imp[fast].tip_deflection, label=["x", "y", "z"])
+    ax.set_title(f"fast part {'on' if fast else 'off'}")
     ax.set_xlabel("t [s]")
+    ax.set_ylabel("tip deflection (flexible − rigid) [m]")
+    ax.grid(True, alpha=0.3)
+axs[1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+fig.tight_layout()
 plt.show()
 
 # %% [markdown]
@@ -253,13 +261,17 @@ for lo, hi in ((0.2, 2.0), (2.0, 3.5)):
 fig, axs = plt.subplots(1, 2, figsize=(11, 3.5))
 axs[0].plot(r.t, r.delta[:, 0], label="δ1 true")
 axs[0].plot(r.t, r.x_hat[:, 0], "--", label="δ1 EKF")
-axs[0].legend()
+axs[0].legend(loc="best", fontsize="small")
 axs[0].set_xlabel("t [s]")
+axs[0].set_ylabel("δ1 [√kg·m]")
 for label, run in loops.items():
     axs[1].plot(run.t, np.linalg.norm(run.tip_deflection, axis=1), label=label)
-axs[1].set_ylabel("tip deflection [m]")
+axs[1].set_ylabel("‖tip deflection‖₂ [m]")
 axs[1].set_xlabel("t [s]")
-axs[1].legend()
+axs[1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+for ax in axs:
+    ax.grid(True, alpha=0.3)
+fig.tight_layout()
 plt.show()
 
 # %% [markdown]

@@ -21,7 +21,6 @@
 # %%
 import json
 import tempfile
-import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -53,10 +52,9 @@ print(f"{model.m} modes, signals {sensors.output_names}")
 
 # %%
 out = Path(tempfile.mkdtemp(prefix="casflex_rt_"))
-t0 = time.perf_counter()
 bundle = ekf_bundle(model, sensors, out / "ekf", Q, R, DT, plant=plant, name="arm2link_ekf")
 lib = codegen.build(bundle)
-print(f"generated and compiled in {time.perf_counter() - t0:.1f} s:",
+print("generated and compiled:",
       sorted(p.name for p in bundle.out_dir.iterdir()))
 print("reentrant (no mutable static data):", bundle.reentrant)
 header = bundle.header.read_text().splitlines()
@@ -105,13 +103,19 @@ print(f"C harness vs Python run: max relative deviation {dev:.1e}")
 print("timing inside C:", json.dumps(res.timing))
 fig, axs = plt.subplots(1, 2, figsize=(11, 3.5))
 t = data.t
-axs[0].plot(t, data.x[:, :3], "k", lw=0.8)
-axs[0].plot(t, res.outputs["x_post"][:, :3], "--")
-axs[0].set_title("δ: truth (black) and C estimate")
-axs[1].plot(t, res.outputs["x_post"][:, :3] - data.x[:, :3])
+axs[0].plot(t, data.x[:, :3], "k", lw=0.8, label=["true δ"] + ["_nolegend_"] * 2)
+axs[0].plot(t, res.outputs["x_post"][:, :3], "--", label=[f"δ̂{j + 1} (C)" for j in range(3)])
+axs[0].set_title("δ: truth and C estimate")
+axs[0].set_ylabel("δ [√kg·m]")
+axs[1].plot(t, res.outputs["x_post"][:, :3] - data.x[:, :3],
+            label=[f"δ̂{j + 1} − δ{j + 1}" for j in range(3)])
 axs[1].set_title("estimation error of δ")
+axs[1].set_ylabel("δ̂ − δ [√kg·m]")
 for ax in axs:
     ax.set_xlabel("t [s]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+fig.tight_layout()
 plt.show()
 
 # %% [markdown]
@@ -202,13 +206,19 @@ print(f"C loop vs Python loop over {N} samples: largest deviation "
 print(f"one closed-loop sample in C (plant included): "
       f"{c_run['timing']['median_step_ns'] / 1e3:.1f} µs")
 fig, axs = plt.subplots(1, 2, figsize=(11, 3.5))
-axs[0].plot(c_run["t"], c_run["x"][:, :3])
-axs[0].plot(py_run.t, py_run.qd, "k:", lw=0.8)
-axs[0].set_title("joints in the C loop (dotted: reference) [rad]")
-axs[1].plot(c_run["t"][:N], c_run["x_hat"][:, :3] - c_run["x"][:N, 3:6])
-axs[1].set_title("δ̂ − δ in the C loop")
+axs[0].plot(c_run["t"], c_run["x"][:, :3], label=[f"q{j + 1}" for j in range(3)])
+axs[0].plot(py_run.t, py_run.qd, "k:", lw=0.8, label=["reference"] + ["_nolegend_"] * 2)
+axs[0].set_title("joints in the C loop")
+axs[0].set_ylabel("joint angle [rad]")
+axs[1].plot(c_run["t"][:N], c_run["x_hat"][:, :3] - c_run["x"][:N, 3:6],
+            label=[f"δ̂{j + 1} − δ{j + 1}" for j in range(3)])
+axs[1].set_title("estimation error in the C loop")
+axs[1].set_ylabel("δ̂ − δ [√kg·m]")
 for ax in axs:
     ax.set_xlabel("t [s]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+fig.tight_layout()
 plt.show()
 
 # %% [markdown]

@@ -164,10 +164,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                      margin=study.shaper["margin"],
                                      n_samples=study.shaper["n_samples"],
                                      dt=dt)  # impulses on the loop's sample grid
-    t_f, omega_along = shaping.frequencies_along(model, move,
-                                                 n_samples=study.shaper["n_samples"])
     timings["shaper_s"] = time.perf_counter() - t0
     shaped = ShapedMove(move, design.shaper)
+    t_f = np.linspace(0.0, shaped.t_end, 2 * study.shaper["n_samples"] + 1)  # all simulated
+    t_f, omega_along = shaping.frequencies_along(model, (t_f, *shaped.sample(t_f)))
 
     # 4. simulations --------------------------------------------------------------------------
     t0 = time.perf_counter()
@@ -226,9 +226,9 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     # 7. figures and report ---------------------------------------------------------------------
     t_acc = np.linspace(0.0, shaped.duration, 201)
     acc = control.accessibility_along(model, shaped, t_acc)
-    err_delta = _estimation_errors(model, loop)[2]
+    estimation = _estimation_errors(model, loop)
     figures = _save_figures(out, study, design, t_f, omega_along, unshaped_run, shaped_run,
-                            loop, err_delta, t_acc, acc, shaped.duration)
+                            loop, estimation, t_acc, acc, shaped.duration)
     figures.append(_save_joint_tracking(out, study, unshaped_run, shaped_run, loop,
                                         shaped.duration))
     summary = _summary(study, model, table, design, unshaped_run, shaped_run, loop,
@@ -414,25 +414,23 @@ def _save_joint_tracking(out, study, unshaped, shaped_run, loop, move_end):
     return path
 
 
-def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, err_delta,
+def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, estimation,
                   t_acc, acc, move_end):
     """Draw the report's figures (:mod:`casflex.plotting`) and save them as PNG in ``out``."""
     from casflex import plotting
-    from casflex.shaping import sensitivity_curve
 
-    lo = min(r.omega_min for r in design.ranges)
-    hi = max(r.omega_max for r in design.ranges)
-    w, v = sensitivity_curve(design.shaper, 0.5 * lo, 1.3 * hi, n=800)
+    modes = [f"mode {j + 1}" for j in range(len(design.ranges))]
     runs = [("unshaped", unshaped.t, unshaped.tip_deflection),
             ("shaped", shaped_run.t, shaped_run.tip_deflection),
             (f"shaped + {study.controller['law']} + EKF", loop.t, loop.tip_deflection)]
     figures = {
-        "frequencies.png": plotting.plot_frequencies_along(t_f, omega, study.move.name),
-        "prv.png": plotting.plot_shaper_sensitivity(
-            w, v, [(r.omega_min, r.omega_max, r.vtol) for r in design.ranges],
-            len(design.shaper.times), design.duration),
+        "frequencies.png": plotting.plot_frequencies_along(
+            t_f, omega, f"{study.move.name}, shaped", events={
+                "end of the planned move": study.move.duration, "end of the shaped move": move_end},
+            ranges=[(r.omega_min, r.omega_max) for r in design.ranges]),
+        "prv.png": plotting.plot_prv(design.shaper, design.ranges, names=modes),
         "tip_deflection.png": plotting.plot_tip_deflection(runs, move_end),
-        "estimation.png": plotting.plot_estimation_error(loop.t, err_delta),
+        "estimation.png": plotting.plot_estimation_error(loop.t, *estimation),
         "accessibility.png": plotting.plot_accessibility_along(t_acc, acc),
     }
     paths = []
