@@ -57,7 +57,7 @@ def _figures():
                                  shaped=SimpleNamespace(duration=2.0))
     return {
         "plot_modes": plotting.plot_modes(robot, q, modes(robot, q, count=2)),
-        "plot_sweep": plotting.plot_sweep(T, omega, joint=3, tracked=True),
+        "plot_sweep": plotting.plot_sweep(T, omega, joint=2, tracked=True),
         "plot_result": plotting.plot_result(run, title="r"),
         "plot_prv": plotting.plot_prv(shaper, TWO_RANGES),
         "plot_move_shaper": plotting.plot_move_shaper(
@@ -76,6 +76,9 @@ def _figures():
         "plot_accessibility_along": plotting.plot_accessibility_along(T, np.abs(delta)),
         "plot_identification": plotting.plot_identification(identify_modes(t_id, y)),
         "plot_calibration": plotting.plot_calibration(cal),
+        "plot_joint_tracking": plotting.plot_joint_tracking(
+            [("prescribed", T, run.q, run.q, run.tau),
+             ("closed loop", T, run.q + 0.01 * run.q ** 2, run.q, run.tau)], [2.0, 2.3]),
     }
 
 
