@@ -63,12 +63,12 @@ si_shaper_slsqp             the same with SciPy's SLSQP
 si_nlp_with_hessian         the SI NLP in MX with its exact Hessian as matrix products
 LP_GRID_STEPS               steps of the grid LP's time grid up to its horizon
 LP_MAX_SAMPLES              most samples for which the grid LP start is tried
-LP_TIME_SHARE               share of the time limit the grid LP search may use
 
 Shapers on a time grid (:mod:`casflex.shaping.grid_lp`)
 -------------------------------------------------------
 GridOptimum                 the shortest shaper on a time grid, with its lower bound
-grid_optimum                bisection on the duration, one cutting-plane LP per duration
+grid_optimum                secant search on the duration, one cutting-plane LP per duration
+LP_MAX_SOLVES               budget of LP solves of one grid search (deterministic)
 grid_near                   the grid shaper nearest an analogue one (digital shapers)
 grid_feasible               one feasibility LP on a given grid
 
@@ -112,7 +112,13 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
-from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_near, grid_optimum
+from casflex.shaping.grid_lp import (
+    LP_MAX_SOLVES,
+    GridOptimum,
+    grid_feasible,
+    grid_near,
+    grid_optimum,
+)
 from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
     DEFINITIONS,
@@ -135,7 +141,6 @@ from casflex.shaping.si import (
     HESSIAN_TERMS_PER_SECOND,
     LP_GRID_STEPS,
     LP_MAX_SAMPLES,
-    LP_TIME_SHARE,
     NLPSolution,
     SISample,
     SIShaperResult,
@@ -189,7 +194,7 @@ __all__ = [
     "si_nlp_with_hessian",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
-    "LP_TIME_SHARE",
+    "LP_MAX_SOLVES",
     # shapers on a time grid
     "GridOptimum",
     "grid_optimum",
