@@ -38,6 +38,8 @@ More closed-form shapers (:mod:`casflex.shaping.family`)
 mzv                         modified ZV: three impulses 3/8 of a damped period apart
 um_zv                       unity-magnitude (negative) ZV: impulses +1, -1, +1
 UM_ZV_PEAK_FACTOR           bound of a UM-ZV-shaped command's peak over the unshaped one
+um_zvd                      unity-magnitude (negative) ZVD: impulses +1, -1, +1, -1, +1
+UM_ZVD_PEAK_FACTOR          bound of a UM-ZVD-shaped command's peak over the unshaped one (5)
 sna_zv                      specified-negative-amplitude ZV: impulses A1, -N, A3 (peak 1+2N)
 
 Shaping a reference (:mod:`casflex.shaping.shapers`)
@@ -99,7 +101,14 @@ from casflex.shaping.ei_family import (
     EI_KINDS,
     ei_family_normalised,
 )
-from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, sna_zv, um_zv
+from casflex.shaping.family import (
+    UM_ZV_PEAK_FACTOR,
+    UM_ZVD_PEAK_FACTOR,
+    mzv,
+    sna_zv,
+    um_zv,
+    um_zvd,
+)
 from casflex.shaping.for_moves import (
     MoveShaperResult,
     frequencies_along,
@@ -174,6 +183,8 @@ __all__ = [
     "mzv",
     "um_zv",
     "UM_ZV_PEAK_FACTOR",
+    "um_zvd",
+    "UM_ZVD_PEAK_FACTOR",
     "sna_zv",
     # shaping a reference
     "apply_shaper",
