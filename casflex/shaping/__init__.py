@@ -30,8 +30,7 @@ EI family in normalised time (:mod:`casflex.shaping.ei_family`)
 ---------------------------------------------------------------
 ei_family_normalised        EI-family times (ω t) and amplitudes: closed form, fit or solve
 EI_KINDS                    the kinds: "ei", "ei2", "ei3"
-EI_FIT_ZETA_MAX             largest damping ratio of the Chebyshev fit
-EI_FIT_VTOLS                hump heights for which the fit exists
+EI_FIT_BOXES                the (ζ, vtol) box of each kind's 2-D Chebyshev fit
 
 More closed-form shapers (:mod:`casflex.shaping.family`)
 --------------------------------------------------------
@@ -96,8 +95,7 @@ residual_amplitude          largest deflection after the move
 from __future__ import annotations
 
 from casflex.shaping.ei_family import (
-    EI_FIT_VTOLS,
-    EI_FIT_ZETA_MAX,
+    EI_FIT_BOXES,
     EI_KINDS,
     ei_family_normalised,
 )
@@ -178,8 +176,7 @@ __all__ = [
     "ei_three_hump",
     "ei_family_normalised",
     "EI_KINDS",
-    "EI_FIT_ZETA_MAX",
-    "EI_FIT_VTOLS",
+    "EI_FIT_BOXES",
     "mzv",
     "um_zv",
     "UM_ZV_PEAK_FACTOR",
