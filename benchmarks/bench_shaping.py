@@ -67,6 +67,7 @@ from casflex.shaping import (
     si_shaper,
     sna_zv,
     solve_si_nlp,
+    um_ei,
     um_zv,
     um_zvd,
     zv,
@@ -107,7 +108,7 @@ def family_table():
                       ("EI", lambda w: ei(w, 0.0, 0.05)),
                       ("EI2", lambda w: ei_two_hump(w, 0.0, 0.05)),
                       ("EI3", lambda w: ei_three_hump(w, 0.0, 0.05)), ("UM-ZV", um_zv),
-                      ("UM-ZVD", um_zvd),
+                      ("UM-ZVD", um_zvd), ("UM-EI", lambda w: um_ei(w, 0.0, 0.05)),
                       ("SNA-ZV", lambda w: sna_zv(w, 0.0, 0.5))]:
         s = fun(HZ)
         v = residual_vibration(s, nu * HZ)

@@ -38,7 +38,8 @@ mzv                         modified ZV: three impulses 3/8 of a damped period a
 um_zv                       unity-magnitude (negative) ZV: impulses +1, -1, +1
 UM_ZV_PEAK_FACTOR           bound of a UM-ZV-shaped command's peak over the unshaped one
 um_zvd                      unity-magnitude (negative) ZVD: impulses +1, -1, +1, -1, +1
-UM_ZVD_PEAK_FACTOR          bound of a UM-ZVD-shaped command's peak over the unshaped one (5)
+UM_ZVD_PEAK_FACTOR          bound of a UM-ZVD/UM-EI-shaped command's peak over the unshaped one (5)
+um_ei                       unity-magnitude (negative) EI: five unit impulses, a hump vtol
 sna_zv                      specified-negative-amplitude ZV: impulses A1, -N, A3 (peak 1+2N)
 
 Shaping a reference (:mod:`casflex.shaping.shapers`)
@@ -104,6 +105,7 @@ from casflex.shaping.family import (
     UM_ZVD_PEAK_FACTOR,
     mzv,
     sna_zv,
+    um_ei,
     um_zv,
     um_zvd,
 )
@@ -182,6 +184,7 @@ __all__ = [
     "UM_ZV_PEAK_FACTOR",
     "um_zvd",
     "UM_ZVD_PEAK_FACTOR",
+    "um_ei",
     "sna_zv",
     # shaping a reference
     "apply_shaper",

@@ -18,6 +18,7 @@ from casflex.shaping import (
     ei_two_hump,
     mzv,
     sna_zv,
+    um_ei,
     um_zv,
     um_zvd,
     zv,
@@ -205,3 +206,32 @@ def test_um_zvd_undamped_duration_and_band():
     assert s.duration < zvd(HZ).duration and hi5 - lo5 > zhi - zlo
     with pytest.raises(ProblemFileError, match="zeta"):
         um_zvd(w, 0.35)
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.05, 0.2])
+@pytest.mark.parametrize("vtol", [0.02, 0.05, 0.1])
+def test_um_ei_hump_zeros_unity_magnitude_and_peak_input(zeta, vtol):
+    """V (eq. 187, written here) = vtol with zero slope at ω, one zero on each side."""
+    w = 3.0 * HZ
+    s = um_ei(w, zeta, vtol)
+    assert s.amplitudes.tolist() == [1.0, -1.0, 1.0, -1.0, 1.0]
+    assert np.abs(s.amplitudes).sum() == UM_ZVD_PEAK_FACTOR
+    partial = np.cumsum(s.amplitudes)
+    assert partial.min() >= 0.0 and partial.max() <= 1.0
+    assert residual(s, w, zeta)[0] == pytest.approx(vtol, abs=1e-12)
+    # central difference, h = 1e-5 relative: truncation ~h² V''' and round-off ~1e-16/h,
+    # both below 1e-9 per unit of relative frequency
+    h = 1e-5
+    slope = (residual(s, w * (1 + h), zeta)[0] - residual(s, w * (1 - h), zeta)[0]) / (2 * h)
+    assert abs(slope) < 1e-8
+    nu = np.linspace(0.5, 1.5, 20001)
+    v = residual(s, nu * w, zeta)
+    i = np.arange(1, nu.size - 1)
+    minima = i[(v[i] <= v[i - 1]) & (v[i] <= v[i + 1]) & (v[i] < 1e-2)]
+    for side in (nu[minima] < 1.0, nu[minima] > 1.0):
+        k = minima[side][np.argmin(np.abs(nu[minima][side] - 1.0))]
+        x = nu[k] * w
+        for _ in range(8):  # Gauss-Newton on the complex G: a zero of both parts
+            g, dg = residual_and_slope(s, x, zeta)
+            x -= (np.conj(dg) * g).real / abs(dg) ** 2
+        assert residual(s, x, zeta)[0] < 1e-9
