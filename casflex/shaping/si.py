@@ -638,8 +638,10 @@ def si_shaper(
 
     **Global start and certificate** (``start="lp"``). With the impulse times on a grid the
     problem is a linear program per duration (:func:`~casflex.shaping.grid_lp.grid_optimum`,
-    HiGHS): bisection on the duration gives the shortest grid shaper on about four samples
-    per oscillation of V, of :data:`LP_GRID_STEPS` steps up to the convolved EI duration,
+    one warm-started HiGHS model): a secant search on the duration gives the shortest grid
+    shaper within a budget of LP solves (deterministic, whatever the load), on about four
+    samples per oscillation of V, of :data:`LP_GRID_STEPS` steps up to the convolved EI
+    duration,
     with the samples augmented until that shaper verifies on every range. Its adjacent
     impulses merged start the polish. The result records the grid optimum
     (``lp_duration``), the relaxation's lower bound (``lp_lower_bound``) and the gap.
