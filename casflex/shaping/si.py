@@ -641,9 +641,8 @@ def si_shaper(
     one warm-started HiGHS model): a secant search on the duration gives the shortest grid
     shaper within a budget of LP solves (deterministic, whatever the load), on about four
     samples per oscillation of V, of :data:`LP_GRID_STEPS` steps up to the convolved EI
-    duration,
-    with the samples augmented until that shaper verifies on every range. Its adjacent
-    impulses merged start the polish. The result records the grid optimum
+    duration, with the samples augmented until that shaper verifies on every range. Its
+    adjacent impulses merged start the polish. The result records the grid optimum
     (``lp_duration``), the relaxation's lower bound (``lp_lower_bound``) and the gap.
 
     **Polish** (§6.1.3): minimise the last impulse time subject to ``V <= vtol`` at the
