@@ -55,6 +55,10 @@ Bundles of a robot and its sensors (:mod:`casflex.codegen.robot_bundles`)
 realtime_bundles  build the model and write its EKF (and model) bundles (``casflex codegen``)
 rt_functions      the named functions and units of the estimator bundle
 
+Input shaper table (:mod:`casflex.codegen.shaper_table`)
+---------------------------------------------------------
+shaper_table_bundle  a digital shaper as a C delay/amplitude table with ``_init``/``_apply``
+
 Errors (:mod:`casflex.codegen.errors`)
 --------------------------------------
 CodegenError    a request that cannot be honoured (unknown function, wrong sizes...)
@@ -135,6 +139,7 @@ from casflex.codegen.rtloop import (
     rt_units,
     run_closed_loop_c,
 )
+from casflex.codegen.shaper_table import shaper_table_bundle
 
 __all__ = [
     # bundles
@@ -171,6 +176,8 @@ __all__ = [
     # bundles of a robot and its sensors
     "realtime_bundles",
     "rt_functions",
+    # input shaper table
+    "shaper_table_bundle",
     # errors
     "CodegenError",
     "BuildError",

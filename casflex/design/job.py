@@ -222,6 +222,12 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         c_ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt,
                                   guard=Guard(np.eye(2 * m) * e["P0"], gate=gate))
     c_bundle = _c_bundle(study, model, plant, c_ekf, controller, out / "c", dt, limits)
+    # the loop's shaper as a delay/amplitude table (its impulses are on the dt grid)
+    from casflex.codegen import shaper_table_bundle
+    shaper_c = shaper_table_bundle(design.shaper, dt, f"{study.codegen['name']}_shaper",
+                                   out / "c")
+    c_bundle = (sorted({*c_bundle[0], *(path.name for path in shaper_c.values())}),
+                *c_bundle[1:])
     timings["codegen_s"] = time.perf_counter() - t0
 
     # 7. figures and report ---------------------------------------------------------------------
@@ -244,6 +250,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     summary["c_guard"] = {"guarded": bool(study.codegen["guard"]),
                           "torque_limits": None if limits is None else limits.tolist(),
                           "gate": gate}
+    summary["c_shaper_table"] = {kind: path.name for kind, path in shaper_c.items()}
     c_files = c_bundle[0]
     files = [*write_report(out, study, summary), *figures] + [out / "c" / f for f in c_files]
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)

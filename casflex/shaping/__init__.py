@@ -30,14 +30,16 @@ EI family in normalised time (:mod:`casflex.shaping.ei_family`)
 ---------------------------------------------------------------
 ei_family_normalised        EI-family times (ω t) and amplitudes: closed form, fit or solve
 EI_KINDS                    the kinds: "ei", "ei2", "ei3"
-EI_FIT_ZETA_MAX             largest damping ratio of the Chebyshev fit
-EI_FIT_VTOLS                hump heights for which the fit exists
+EI_FIT_BOXES                the (ζ, vtol) box of each kind's 2-D Chebyshev fit
 
 More closed-form shapers (:mod:`casflex.shaping.family`)
 --------------------------------------------------------
 mzv                         modified ZV: three impulses 3/8 of a damped period apart
 um_zv                       unity-magnitude (negative) ZV: impulses +1, -1, +1
 UM_ZV_PEAK_FACTOR           bound of a UM-ZV-shaped command's peak over the unshaped one
+um_zvd                      unity-magnitude (negative) ZVD: impulses +1, -1, +1, -1, +1
+UM_ZVD_PEAK_FACTOR          bound of a UM-ZVD/UM-EI-shaped command's peak over the unshaped one (5)
+um_ei                       unity-magnitude (negative) EI: five unit impulses, a hump vtol
 sna_zv                      specified-negative-amplitude ZV: impulses A1, -N, A3 (peak 1+2N)
 
 Shaping a reference (:mod:`casflex.shaping.shapers`)
@@ -63,12 +65,12 @@ si_shaper_slsqp             the same with SciPy's SLSQP
 si_nlp_with_hessian         the SI NLP in MX with its exact Hessian as matrix products
 LP_GRID_STEPS               steps of the grid LP's time grid up to its horizon
 LP_MAX_SAMPLES              most samples for which the grid LP start is tried
-LP_TIME_SHARE               share of the time limit the grid LP search may use
 
 Shapers on a time grid (:mod:`casflex.shaping.grid_lp`)
 -------------------------------------------------------
 GridOptimum                 the shortest shaper on a time grid, with its lower bound
-grid_optimum                bisection on the duration, one cutting-plane LP per duration
+grid_optimum                secant search on the duration, one cutting-plane LP per duration
+LP_MAX_SOLVES               budget of LP solves of one grid search (deterministic)
 grid_near                   the grid shaper nearest an analogue one (digital shapers)
 grid_feasible               one feasibility LP on a given grid
 
@@ -94,12 +96,19 @@ residual_amplitude          largest deflection after the move
 from __future__ import annotations
 
 from casflex.shaping.ei_family import (
-    EI_FIT_VTOLS,
-    EI_FIT_ZETA_MAX,
+    EI_FIT_BOXES,
     EI_KINDS,
     ei_family_normalised,
 )
-from casflex.shaping.family import UM_ZV_PEAK_FACTOR, mzv, sna_zv, um_zv
+from casflex.shaping.family import (
+    UM_ZV_PEAK_FACTOR,
+    UM_ZVD_PEAK_FACTOR,
+    mzv,
+    sna_zv,
+    um_ei,
+    um_zv,
+    um_zvd,
+)
 from casflex.shaping.for_moves import (
     MoveShaperResult,
     frequencies_along,
@@ -112,7 +121,13 @@ from casflex.shaping.for_moves import (
     shaper_for_robot_move,
     tolerances_from_contributions,
 )
-from casflex.shaping.grid_lp import GridOptimum, grid_feasible, grid_near, grid_optimum
+from casflex.shaping.grid_lp import (
+    LP_MAX_SOLVES,
+    GridOptimum,
+    grid_feasible,
+    grid_near,
+    grid_optimum,
+)
 from casflex.shaping.ranges import FrequencyRange, load_shaper_problem, ranges_from_mapping
 from casflex.shaping.shapers import (
     DEFINITIONS,
@@ -135,7 +150,6 @@ from casflex.shaping.si import (
     HESSIAN_TERMS_PER_SECOND,
     LP_GRID_STEPS,
     LP_MAX_SAMPLES,
-    LP_TIME_SHARE,
     NLPSolution,
     SISample,
     SIShaperResult,
@@ -164,11 +178,13 @@ __all__ = [
     "ei_three_hump",
     "ei_family_normalised",
     "EI_KINDS",
-    "EI_FIT_ZETA_MAX",
-    "EI_FIT_VTOLS",
+    "EI_FIT_BOXES",
     "mzv",
     "um_zv",
     "UM_ZV_PEAK_FACTOR",
+    "um_zvd",
+    "UM_ZVD_PEAK_FACTOR",
+    "um_ei",
     "sna_zv",
     # shaping a reference
     "apply_shaper",
@@ -189,7 +205,7 @@ __all__ = [
     "si_nlp_with_hessian",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
-    "LP_TIME_SHARE",
+    "LP_MAX_SOLVES",
     # shapers on a time grid
     "GridOptimum",
     "grid_optimum",

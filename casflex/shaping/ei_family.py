@@ -12,13 +12,17 @@ times by ``1/ω``.
   V = vtol with dV/dν = 0 at each hump; both components of the residual vector zero at
   each zero) are solved with :func:`scipy.optimize.fsolve` by continuation in ζ from the
   undamped form (tens of ms).
-* Damped, fitted (``method="fit"``, the default where it applies): a Chebyshev series in
-  ``ζ`` on ``[0, EI_FIT_ZETA_MAX]`` of every impulse time and amplitude, fitted offline to
-  the exact solve at Chebyshev nodes for each hump height of :data:`EI_FIT_VTOLS`
-  (``tools/gen_ei_fit.py`` writes :mod:`casflex.shaping.ei_fit_table`). Evaluating it
-  takes microseconds; it agrees with the exact solve to 1e-10 and meets the defining
-  conditions to 1e-9 (tests/shaping/test_ei_family_fit.py re-solves at random ζ and checks
-  them with its own V). Elsewhere the exact solve is used.
+* Damped, fitted (``method="fit"``, the default where it applies): a 2-D Chebyshev series
+  in ``ζ`` and ``vtol`` of every impulse time and amplitude over each kind's box
+  (:data:`EI_FIT_BOXES`: EI ζ <= 0.2 and 0.01 <= vtol <= 0.2; two-hump EI ζ <= 0.1 and
+  0.01 <= vtol <= 0.2; three-hump EI ζ <= 0.12 and 0.01 <= vtol <= 0.1), fitted offline to
+  the exact solve on a tensor grid of Chebyshev nodes (``tools/gen_ei_fit.py`` writes
+  ``ei_fit_table.npz``). The boxes end where the exact solve stops being one smooth branch:
+  three-hump EI has no solution beyond ζ ≈ 0.13 at vtol = 0.2 (a fold) and bends sharply
+  towards ζ = 0.2 at vtol = 0.1. Evaluating the fit takes microseconds; it agrees with
+  the exact solve to 1e-10 and meets the defining conditions to 1e-9
+  (tests/shaping/test_ei_family_fit.py draws random (ζ, vtol) in each box and checks them
+  with its own V). Outside the boxes the exact solve is used.
 """
 
 from __future__ import annotations
@@ -29,18 +33,16 @@ import numpy as np
 from scipy import optimize
 
 from casflex.errors import ProblemFileError, SolverError
-from casflex.shaping.ei_fit_table import FIT_TABLE, FIT_ZETA_MAX
+from casflex.shaping.ei_fit_table import FIT_BOXES, FIT_TABLE
 
-__all__ = ["EI_KINDS", "EI_FIT_ZETA_MAX", "EI_FIT_VTOLS", "ei_family_normalised"]
+__all__ = ["EI_KINDS", "EI_FIT_BOXES", "ei_family_normalised"]
 
 #: The kinds of the family: EI, two-hump EI, three-hump EI.
 EI_KINDS = ("ei", "ei2", "ei3")
 
-#: Largest damping ratio covered by the fitted form.
-EI_FIT_ZETA_MAX = FIT_ZETA_MAX
-
-#: Hump heights (fractions) for which the fitted form exists.
-EI_FIT_VTOLS = tuple(sorted({v for _, v in FIT_TABLE}))
+#: kind -> (zeta_max, vtol_min, vtol_max): where the fitted form exists (0 <= ζ <= zeta_max,
+#: vtol_min <= vtol <= vtol_max).
+EI_FIT_BOXES = {kind: box[:3] for kind, box in FIT_BOXES.items()}
 
 # --- undamped closed forms (time in units of 1/omega, i.e. tau = omega * t) -------------
 def _ei_undamped(vtol):
@@ -151,20 +153,33 @@ def _solve(kind, zeta, vtol):
     return tau, amp / amp.sum()
 
 
-#: (kind, vtol) -> (orders k, coefficients transposed to (2 n - 1, degree + 1))
-_FIT_ROWS = {key: (np.arange(c.shape[0], dtype=float), np.ascontiguousarray(c.T))
-             for key, c in FIT_TABLE.items()}
+def _fit_rows(kind):
+    coeffs = FIT_TABLE[kind]
+    nz, nv, m = coeffs.shape
+    zeta_max, vmin, vmax, power = FIT_BOXES[kind]
+    return (zeta_max, vmin, vmax, power, vmin**power, vmax**power - vmin**power,
+            np.arange(nz, dtype=float), np.arange(nv, dtype=float),
+            np.ascontiguousarray(coeffs.reshape(nz, nv * m)), nv, m)
+
+
+#: kind -> the fit's box, Chebyshev orders and coefficients laid out for two products
+_FIT_ROWS = {kind: _fit_rows(kind) for kind in FIT_TABLE}
 
 
 def _fitted(kind, zeta, vtol):
-    """Times and amplitudes from the Chebyshev fit, or None outside its coverage."""
-    rows = _FIT_ROWS.get((kind, vtol))
-    if rows is None or zeta > FIT_ZETA_MAX:
+    """Times and amplitudes from the Chebyshev fit, or None outside its box."""
+    rows = _FIT_ROWS.get(kind)
+    if rows is None:
         return None
-    orders, coeffs = rows
-    # T_k(x) = cos(k arccos x) on [-1, 1]: one vectorised cosine, then one product
-    values = coeffs @ np.cos(orders * math.acos(2.0 * zeta / FIT_ZETA_MAX - 1.0))
-    n = (values.size + 1) // 2
+    zeta_max, vmin, vmax, power, g0, span, kz, kv, coeffs, nv, m = rows
+    if not (0.0 <= zeta <= zeta_max and vmin <= vtol <= vmax):
+        return None
+    # T_k(x) = cos(k arccos x) on [-1, 1]: one vectorised cosine per coordinate
+    x = min(1.0, 2.0 * zeta / zeta_max - 1.0)
+    y = min(1.0, max(-1.0, 2.0 * (vtol**power - g0) / span - 1.0))
+    along_zeta = np.cos(kz * math.acos(x)) @ coeffs
+    values = np.cos(kv * math.acos(y)) @ along_zeta.reshape(nv, m)
+    n = (m + 1) // 2
     amp = values[:n] / values[:n].sum()  # a copy: values[n - 1] is reused below
     values[n - 1] = 0.0  # the first time, τ_1 = 0, in place of the last amplitude
     return values[n - 1:], amp
@@ -184,7 +199,7 @@ def ei_family_normalised(kind: str, zeta: float, vtol: float, method: str = "aut
         Hump height (residual vibration fraction), 0 < vtol < 1.
     method : {"auto", "fit", "solve"}, optional
         ``"auto"``: the closed form if undamped, else the Chebyshev fit where it exists
-        (``vtol`` in :data:`EI_FIT_VTOLS`, ``zeta <= EI_FIT_ZETA_MAX``), else the exact
+        (``(zeta, vtol)`` in the kind's box of :data:`EI_FIT_BOXES`), else the exact
         solve. ``"fit"`` raises outside the fit's coverage; ``"solve"`` always solves the
         defining conditions (the undamped case too, where it returns the closed form).
 
@@ -222,8 +237,8 @@ def ei_family_normalised(kind: str, zeta: float, vtol: float, method: str = "aut
     if fitted is not None:
         return fitted
     if method == "fit":
+        zeta_max, vmin, vmax = EI_FIT_BOXES[kind]
         raise ProblemFileError(
             None, "zeta, vtol", (zeta, vtol),
-            f"the {kind} fit covers 0 <= zeta <= {FIT_ZETA_MAX} and vtol in "
-            f"{list(EI_FIT_VTOLS)}")
+            f"the {kind} fit covers 0 <= zeta <= {zeta_max} and {vmin} <= vtol <= {vmax}")
     return _solve(kind, zeta, vtol)

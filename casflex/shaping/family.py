@@ -1,10 +1,15 @@
-"""More closed-form shapers: modified ZV (MZV) and unity-magnitude (negative) ZV.
+"""More closed-form shapers: modified ZV (MZV), unity-magnitude (negative) ZV and ZVD.
 
 * :func:`mzv`: three positive impulses 3/8 of a damped period apart with zero residual
   vibration at the design frequency; shorter than ZVD (3/4 of a period instead of one)
   and less sensitive than ZV.
 * :func:`sna_zv`: the specified-negative-amplitude ZV shaper, impulses ``A, -N, A'`` with
   the negative one chosen (``N = 1``: UM-ZV undamped; ``N = 0``: ZV);
+* :func:`um_zvd`: the unity-magnitude ZVD shaper, impulses ``+1, -1, +1, -1, +1``: zero
+  vibration and zero slope of the residual vector at the design frequency in 0.7325 of a
+  period (ZVD: 1), peak input up to 5 times the command's;
+* :func:`um_ei`: the unity-magnitude EI shaper, the same five unit impulses with V = vtol
+  at the design frequency (a hump) and zeros on both sides;
 * :func:`um_zv`: the unity-magnitude ZV shaper, impulses ``+1, -1, +1``: a step command
   shaped by it switches between the full command and zero (an on-off actuator can run it),
   and it is the shortest shaper with zero vibration whose partial sums stay in [0, 1]
@@ -12,9 +17,9 @@
 
 **Peak-input limit of negative shapers.** A shaper with negative impulses applied to a
 command ``u(t)`` gives ``Σ A_i u(t - t_i)``, bounded by ``Σ |A_i|`` times the peak of
-``|u|`` (3 for UM-ZV, ``1 + 2N`` for SNA-ZV): only for a step (or a command that is
-constant over the shaper's duration) do the partial sums (``1, 0, 1`` for UM-ZV) bound it
-by the command itself. Shaping a
+``|u|`` (3 for UM-ZV, 5 for UM-ZVD and UM-EI, ``1 + 2N`` for SNA-ZV): only for a step
+(or a command that is constant over the shaper's duration) do the partial sums (``1, 0,
+1`` for UM-ZV) bound it by the command itself. Shaping a
 planned joint move with UM-ZV can therefore demand up to three times the move's peak
 velocity and acceleration; positive shapers never exceed the unshaped peaks.
 
@@ -27,16 +32,25 @@ from __future__ import annotations
 import cmath
 import math
 
+import numpy as np
 from scipy import optimize
 
 from casflex._validate import fail
-from casflex.errors import ProblemFileError
+from casflex.errors import ProblemFileError, SolverError
 from casflex.shaping.shapers import Shaper, check_omega, check_zeta
 
-__all__ = ["mzv", "um_zv", "UM_ZV_PEAK_FACTOR", "sna_zv"]
+__all__ = ["mzv", "um_zv", "UM_ZV_PEAK_FACTOR", "sna_zv", "um_zvd", "UM_ZVD_PEAK_FACTOR",
+           "um_ei"]
 
 #: Bound of the shaped command's peak over the unshaped one for UM-ZV (Σ |A_i|).
 UM_ZV_PEAK_FACTOR = 3.0
+
+#: Bound of the shaped command's peak over the unshaped one for UM-ZVD and UM-EI (Σ |A_i|,
+#: 1 + 2N with N = 2 negative unit impulses).
+UM_ZVD_PEAK_FACTOR = 5.0
+
+#: Largest damping ratio for which :func:`um_zvd` is solved.
+_UM_ZVD_ZETA_MAX = 0.3
 
 
 def mzv(omega: float, zeta: float = 0.0) -> Shaper:
@@ -186,3 +200,168 @@ def sna_zv(omega: float, zeta: float = 0.0, negative: float = 1.0) -> Shaper:
     if n == 0.0:  # ZV: no middle impulse
         return Shaper([0.0, 2.0 * step], [amps[0], amps[2]])
     return Shaper([0.0, step, 2.0 * step], amps)
+
+
+def um_zvd(omega: float, zeta: float = 0.0) -> Shaper:
+    """Unity-magnitude zero-vibration-derivative shaper: impulses ``+1, -1, +1, -1, +1``.
+
+    The residual vector ``G(ω) = Σ A_i exp(s t_i)`` (``s = ζω + iω_d``) and its derivative
+    in ω, ``Σ A_i t_i exp(s t_i)`` times a constant, both vanish at the design frequency:
+    the negative counterpart of ZVD (vibration zero with a double root, so robust like
+    ZVD), one step of the command switching sign four times. Undamped the impulses are
+    symmetric about the middle one, at ``0, b - a, b, b + a, 2b`` with
+    ``1 - 2 cos(ωa) + 2 cos(ωb) = 0`` and ``a sin(ωa) = b sin(ωb)``: ``ωa = 1.738691``,
+    ``ωb = 2.301115``, a duration of 0.732468 of a period (ZVD: 1). With damping the four
+    times solve the four real conditions (:func:`scipy.optimize.fsolve`, continuation in
+    ζ from the undamped form). A step shaped by it stays within ``[0, 1]`` of the command;
+    any other command can be amplified up to ``Σ|A_i| = 5`` (:data:`UM_ZVD_PEAK_FACTOR`,
+    the peak-input limit ``1 + 2N`` with N = 2 negative unit impulses).
+
+    Parameters
+    ----------
+    omega : float
+        Natural frequency, rad/s.
+    zeta : float, optional
+        Damping ratio, 0 <= zeta <= 0.3.
+
+    Returns
+    -------
+    Shaper
+
+    Raises
+    ------
+    ProblemFileError
+        ``zeta > 0.3``.
+    SolverError
+        If the damped conditions cannot be solved.
+
+    Examples
+    --------
+    >>> s = um_zvd(2 * math.pi)
+    >>> s.times.round(6).tolist(), s.amplitudes.tolist()
+    ([0.0, 0.089513, 0.366234, 0.642955, 0.732468], [1.0, -1.0, 1.0, -1.0, 1.0])
+    """
+    omega = check_omega(omega)
+    zeta = check_zeta(zeta)
+    if zeta > _UM_ZVD_ZETA_MAX:
+        raise fail("zeta", zeta, f"must be <= {_UM_ZVD_ZETA_MAX} for the unity-magnitude "
+                   "ZVD shaper", error=ProblemFileError)
+    signs = np.array([1.0, -1.0, 1.0, -1.0, 1.0])
+
+    def undamped(x):
+        a, b = x
+        return [1.0 - 2.0 * math.cos(a) + 2.0 * math.cos(b), a * math.sin(a) - b * math.sin(b)]
+
+    a, b = optimize.fsolve(undamped, [1.7, 2.3], xtol=1e-13)
+    tau = np.array([b - a, b, b + a, 2.0 * b])  # ω t of impulses 2..5, undamped
+
+    def conditions(x, z):
+        t = np.concatenate([[0.0], x])
+        e = signs * np.exp(complex(z, math.sqrt(1.0 - z * z)) * t)
+        g, dg = e.sum(), (e * t).sum()
+        return [g.real, g.imag, dg.real, dg.imag]
+
+    steps = int(math.ceil(zeta / 0.01))
+    for z in np.linspace(0.0, zeta, steps + 1)[1:]:
+        sol, info, ier, msg = optimize.fsolve(conditions, tau, args=(z,), full_output=True,
+                                              xtol=1e-14)
+        if np.max(np.abs(info["fvec"])) > 1e-12 or np.any(np.diff(sol) <= 0.0) or sol[0] <= 0:
+            raise SolverError(f"unity-magnitude ZVD shaper: the conditions could not be "
+                              f"solved at zeta={z:.4g}: {str(msg).strip()}")
+        tau = sol
+    return Shaper(np.concatenate([[0.0], tau]) / omega, signs)
+
+
+def um_ei(omega: float, zeta: float = 0.0, vtol: float = 0.05) -> Shaper:
+    """Unity-magnitude extra-insensitive shaper: impulses ``+1, -1, +1, -1, +1``.
+
+    Defined like EI (:func:`casflex.shaping.ei`) with the amplitudes fixed at ``±1``: the
+    residual vibration of eq. 187, ``V(ν) = |G(ν)|`` with ``G(ν) = Σ A_i exp(ν(ζ(τ_i -
+    τ_n) + i sqrt(1-ζ²) τ_i))`` (``ν = ω/ω0``, ``τ = ω0 t``), equals ``vtol`` with zero
+    slope at the design frequency (``ν = 1``, a hump) and vanishes at one frequency on
+    each side. Undamped the impulses are symmetric about the middle one, at ``0, b - a, b,
+    b + a, 2b`` with ``1 - 2 cos(ωa) + 2 cos(ωb) = -vtol`` and ``a sin(ωa) = b sin(ωb)``
+    (0.7367 of a period at vtol = 0.05). With damping the four times and the two zeros
+    solve the six real conditions (:func:`scipy.optimize.fsolve`, continuation in ζ). A
+    step shaped by it stays within ``[0, 1]`` of the command; any other command can be
+    amplified up to ``Σ|A_i| = 5`` (:data:`UM_ZVD_PEAK_FACTOR`).
+
+    Parameters
+    ----------
+    omega : float
+        Natural frequency, rad/s.
+    zeta : float, optional
+        Damping ratio, 0 <= zeta <= 0.3.
+    vtol : float, optional
+        Hump height at the design frequency (fraction), 0 < vtol <= 0.2.
+
+    Returns
+    -------
+    Shaper
+
+    Raises
+    ------
+    ProblemFileError
+        ``zeta > 0.3`` or ``vtol`` outside (0, 0.2].
+    SolverError
+        If the damped conditions cannot be solved.
+
+    Examples
+    --------
+    >>> s = um_ei(2 * math.pi)
+    >>> s.times.round(5).tolist(), s.amplitudes.tolist()
+    ([0.0, 0.09408, 0.36837, 0.64266, 0.73673], [1.0, -1.0, 1.0, -1.0, 1.0])
+    """
+    omega = check_omega(omega)
+    zeta = check_zeta(zeta)
+    if zeta > _UM_ZVD_ZETA_MAX:
+        raise fail("zeta", zeta, f"must be <= {_UM_ZVD_ZETA_MAX} for the unity-magnitude "
+                   "EI shaper", error=ProblemFileError)
+    if not isinstance(vtol, (int, float)) or not 0.0 < vtol <= 0.2:
+        raise fail("vtol", vtol, "must be in (0, 0.2] for the unity-magnitude EI shaper",
+                   error=ProblemFileError)
+    signs = np.array([1.0, -1.0, 1.0, -1.0, 1.0])
+
+    def undamped(x):
+        a, b = x
+        return [1.0 - 2.0 * math.cos(a) + 2.0 * math.cos(b) + vtol,
+                a * math.sin(a) - b * math.sin(b)]
+
+    a, b = optimize.fsolve(undamped, [1.74, 2.3], xtol=1e-13)
+
+    def real_g(nu):
+        return 1.0 - 2.0 * math.cos(nu * a) + 2.0 * math.cos(nu * b)
+
+    # the zeros of the (real, symmetric) undamped residual on each side of ν = 1
+    grid = np.linspace(0.3, 1.7, 1401)
+    values = np.array([real_g(x) for x in grid])
+    cross = np.nonzero(np.sign(values[1:]) != np.sign(values[:-1]))[0]
+    below = [optimize.brentq(real_g, grid[i], grid[i + 1], xtol=1e-15) for i in cross
+             if grid[i] < 1.0]
+    above = [optimize.brentq(real_g, grid[i], grid[i + 1], xtol=1e-15) for i in cross
+             if grid[i] > 1.0]
+    x = np.array([b - a, b, b + a, 2.0 * b, below[-1], above[0]])
+
+    def residual(tau, nu, z):
+        rate = z * (tau - tau[-1]) + 1j * math.sqrt(1.0 - z * z) * tau
+        e = signs * np.exp(nu * rate)
+        return e.sum(), (e * rate).sum()
+
+    def conditions(v, z):
+        tau = np.concatenate([[0.0], v[:4]])
+        g, dg = residual(tau, 1.0, z)
+        g1, _ = residual(tau, v[4], z)
+        g2, _ = residual(tau, v[5], z)
+        return [abs(g) ** 2 - vtol**2, (np.conj(g) * dg).real, g1.real, g1.imag, g2.real,
+                g2.imag]
+
+    steps = int(math.ceil(zeta / 0.01))
+    for z in np.linspace(0.0, zeta, steps + 1)[1:]:
+        sol, info, ier, msg = optimize.fsolve(conditions, x, args=(z,), full_output=True,
+                                              xtol=1e-14)
+        if np.max(np.abs(info["fvec"])) > 1e-12 or np.any(np.diff(sol[:4]) <= 0.0) or \
+                sol[0] <= 0.0:
+            raise SolverError(f"unity-magnitude EI shaper: the conditions could not be "
+                              f"solved at zeta={z:.4g}, vtol={vtol:.4g}: {str(msg).strip()}")
+        x = sol
+    return Shaper(np.concatenate([[0.0], x[:4]]) / omega, signs)

@@ -53,7 +53,6 @@ __all__ = [
     "si_shaper_slsqp",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
-    "LP_TIME_SHARE",
 ]
 
 
@@ -557,9 +556,6 @@ LP_GRID_STEPS = 128
 #: design starts from the convolved EI shapers.
 LP_MAX_SAMPLES = 800
 
-#: Share of the time limit the grid LP search may use: then the shortest grid shaper found
-#: so far starts the polish (the convolved EI start if it found none).
-LP_TIME_SHARE = 0.25
 
 
 def _lp_samples(ranges, duration):
@@ -642,10 +638,11 @@ def si_shaper(
 
     **Global start and certificate** (``start="lp"``). With the impulse times on a grid the
     problem is a linear program per duration (:func:`~casflex.shaping.grid_lp.grid_optimum`,
-    HiGHS): bisection on the duration gives the shortest grid shaper on about four samples
-    per oscillation of V, of :data:`LP_GRID_STEPS` steps up to the convolved EI duration,
-    with the samples augmented until that shaper verifies on every range. Its adjacent
-    impulses merged start the polish. The result records the grid optimum
+    one warm-started HiGHS model): a secant search on the duration gives the shortest grid
+    shaper within a budget of LP solves (deterministic, whatever the load), on about four
+    samples per oscillation of V, of :data:`LP_GRID_STEPS` steps up to the convolved EI
+    duration, with the samples augmented until that shaper verifies on every range. Its
+    adjacent impulses merged start the polish. The result records the grid optimum
     (``lp_duration``), the relaxation's lower bound (``lp_lower_bound``) and the gap.
 
     **Polish** (§6.1.3): minimise the last impulse time subject to ``V <= vtol`` at the
@@ -697,9 +694,9 @@ def si_shaper(
     start : {"lp", "ei"}, optional
         Start of the polish: the grid LP (default; the convolved EI shapers when the LP
         would have more than :data:`LP_MAX_SAMPLES` samples or finds no grid shaper within
-        :data:`LP_TIME_SHARE` of the time limit; the search stopped by that share starts
-        from the shortest grid shaper it found) or the convolved EI shapers (the
-        dissertation's algorithm).
+        :data:`~casflex.shaping.grid_lp.LP_MAX_SOLVES` LP solves; the search stopped by that
+        budget starts from the shortest grid shaper it found) or the convolved EI shapers
+        (the dissertation's algorithm).
     dt : float, optional
         Sample time of the loop that runs the shaper, s: impulses on ``k dt``.
 
@@ -759,12 +756,6 @@ def si_shaper(
         if deadline is not None and time.perf_counter() > deadline:
             raise _time_limit_error(time_limit, "reached during the grid LP search")
 
-    lp_deadline = (None if time_limit is None
-                   else time.perf_counter() + LP_TIME_SHARE * time_limit)
-
-    def lp_budget():
-        return lp_deadline is None or time.perf_counter() < lp_deadline
-
     check_time()
     ei_start = initial_si_guess(ranges, n_impulses)
     horizon = max(ei_start.duration, 1e-3)
@@ -801,7 +792,7 @@ def si_shaper(
                 lp = grid_optimum(lp_samples.omega, lp_samples.zeta,
                                   lp_samples.vtol * (1.0 - _VTOL_MARGIN),
                                   step=_lp_step(lp_samples, horizon), horizon=horizon,
-                                  check_time=check_time, budget=lp_budget)
+                                  check_time=check_time)
             except _TimeLimitError:
                 raise
             except SolverError:

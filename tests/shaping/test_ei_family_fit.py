@@ -13,18 +13,14 @@ from scipy import optimize
 
 from casflex.errors import ProblemFileError
 from casflex.shaping import ei, ei_three_hump, ei_two_hump
-from casflex.shaping.ei_family import (
-    EI_FIT_VTOLS,
-    EI_FIT_ZETA_MAX,
-    ei_family_normalised,
-)
-from casflex.shaping.ei_fit_table import FIT_TABLE
+from casflex.shaping.ei_family import EI_FIT_BOXES, ei_family_normalised
 
 # (humps between the outermost zeros, zeros) of each kind in 0 < ν < 2, ν = 1 included
 FEATURES = {"ei": (1, 2), "ei2": (2, 3), "ei3": (3, 4)}
 RNG = np.random.default_rng(20261202)
-CASES = [(kind, vtol, float(z)) for kind, vtol in sorted(FIT_TABLE)
-         for z in RNG.uniform(0.0, EI_FIT_ZETA_MAX, 4)]
+# random (ζ, vtol) inside each kind's fitted box, its corners' neighbourhood included
+CASES = [(kind, float(v), float(z)) for kind, (zmax, vmin, vmax) in sorted(EI_FIT_BOXES.items())
+         for z, v in zip(RNG.uniform(0.0, zmax, 6), RNG.uniform(vmin, vmax, 6), strict=True)]
 
 
 def residual(tau, amp, nu, zeta):
@@ -91,17 +87,22 @@ def test_fit_meets_the_defining_conditions_and_equals_the_solve(kind, vtol, zeta
         assert v_and_slope(tau, amp, x, zeta)[0] < 1e-9
 
 
+def test_the_boxes_are_the_documented_ones():
+    # the ranges stated in the docs (where the exact solve stays on one smooth branch)
+    assert EI_FIT_BOXES == {"ei": (0.2, 0.01, 0.2), "ei2": (0.1, 0.01, 0.2),
+                            "ei3": (0.12, 0.01, 0.1)}
+
+
 def test_public_shapers_use_the_fit_and_fall_back_to_the_solve():
     w = 2 * math.pi * 3.0
     for fn, kind in ((ei, "ei"), (ei_two_hump, "ei2"), (ei_three_hump, "ei3")):
         s = fn(w, 0.07, 0.05)
-        tau, amp = ei_family_normalised(kind, 0.07, 0.05, method="fit") if (
-            kind, 0.05) in FIT_TABLE else ei_family_normalised(kind, 0.07, 0.05, "solve")
+        tau, amp = ei_family_normalised(kind, 0.07, 0.05, method="fit")
         np.testing.assert_allclose(s.times * w, tau, rtol=1e-14, atol=1e-14)
         np.testing.assert_allclose(s.amplitudes, amp, rtol=1e-14, atol=1e-15)
-    # outside the fitted ζ range and at an unfitted vtol "auto" is the exact solve
-    for zeta, vtol in ((EI_FIT_ZETA_MAX + 0.02, 0.05), (0.07, 0.03)):
-        assert vtol not in EI_FIT_VTOLS or zeta > EI_FIT_ZETA_MAX
+    # outside the box "auto" is the exact solve and "fit" refuses, naming the box
+    zmax, vmin, vmax = EI_FIT_BOXES["ei"]
+    for zeta, vtol in ((zmax + 0.02, 0.05), (0.07, vmax + 0.05), (0.07, vmin / 2)):
         got = ei_family_normalised("ei", zeta, vtol)
         want = ei_family_normalised("ei", zeta, vtol, method="solve")
         np.testing.assert_array_equal(got[0], want[0])
@@ -109,3 +110,18 @@ def test_public_shapers_use_the_fit_and_fall_back_to_the_solve():
             ei_family_normalised("ei", zeta, vtol, method="fit")
     with pytest.raises(ProblemFileError, match="kind"):
         ei_family_normalised("zv", 0.1, 0.05)
+
+
+def test_three_hump_exact_solve_is_one_smooth_branch_in_its_box_at_vtol_010():
+    """Three-hump EI at vtol 0.10, the top of its box: on 0 <= ζ <= 0.12 neighbouring ζ give
+    neighbouring shapers (beyond, towards ζ = 0.2, the solution bends ever faster: its
+    step per 0.005 of ζ grows from 0.013 to 0.43, why the box stops at 0.12)."""
+    zetas = np.linspace(0.0, 0.12, 25)
+    x = np.array([np.concatenate(ei_family_normalised("ei3", float(z), 0.1, "solve"))
+                  for z in zetas])
+    step = np.abs(np.diff(x, axis=0)).max(axis=1)  # 0.01-0.06 per 0.005 of ζ here
+    bend = np.abs(np.diff(x, 2, axis=0)).max(axis=1)
+    # on one smooth branch consecutive steps differ by a small fraction of a step (h x''
+    # against x': under 0.1 on this interval); a jump of branch (1.5e-2 seen before, as
+    # large as a step) makes them differ by a step's size
+    assert np.all(bend < 0.25 * np.maximum(step[:-1], step[1:]))

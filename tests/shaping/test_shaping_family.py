@@ -11,13 +11,16 @@ import pytest
 from casflex.errors import ProblemFileError
 from casflex.shaping import (
     UM_ZV_PEAK_FACTOR,
+    UM_ZVD_PEAK_FACTOR,
     convolve,
     ei,
     ei_three_hump,
     ei_two_hump,
     mzv,
     sna_zv,
+    um_ei,
     um_zv,
+    um_zvd,
     zv,
     zvd,
 )
@@ -154,3 +157,81 @@ def test_sna_zv_endpoints_and_errors():
                                atol=1e-15)
     with pytest.raises(ProblemFileError, match="negative"):
         sna_zv(w, 0.0, -0.5)
+
+
+def residual_and_slope(shaper, omega, zeta):
+    """G = Σ A_i exp(s t_i) and dG/dω (s = ζω + iω_d, ζ fixed), written independently."""
+    t = shaper.times
+    rate = complex(zeta, math.sqrt(1.0 - zeta**2))
+    e = shaper.amplitudes * np.exp(rate * omega * t)
+    return e.sum(), (e * rate * t).sum()
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.02, 0.1, 0.3])
+def test_um_zvd_conditions_unity_magnitude_and_peak_input(zeta):
+    w = 4.0 * HZ
+    s = um_zvd(w, zeta)
+    g, dg = residual_and_slope(s, w, zeta)
+    # terms of size <= exp(ζ ω t_n) <= 4 and (their times) <= 4 t_n: round-off level
+    assert abs(g) < 1e-12 and abs(dg) < 1e-12 * s.duration
+    assert s.amplitudes.tolist() == [1.0, -1.0, 1.0, -1.0, 1.0]
+    partial = np.cumsum(s.amplitudes)
+    assert partial.min() >= 0.0 and partial.max() <= 1.0  # a step stays within [0, 1]
+    assert np.abs(s.amplitudes).sum() == UM_ZVD_PEAK_FACTOR == 1.0 + 2.0 * 2.0
+    assert np.all(np.diff(s.times) > 0.0)
+    # flat zero like ZVD: V ~ (Δω)² next to ω
+    assert residual(s, w * (1.0 + 1e-4), zeta)[0] < 1e-6
+
+
+def test_um_zvd_undamped_duration_and_band():
+    """Undamped: symmetric about the middle impulse, 2 b with ωa, ωb from the two
+    conditions solved here by bisection on b (a from the second equation)."""
+    w = HZ
+    s = um_zvd(w)
+    b_total = s.duration / 2.0 * w
+    # 1 - 2 cos a + 2 cos b = 0 gives a; then a sin a - b sin b must vanish: bisection on b
+    def mismatch(b):
+        a = math.acos((1.0 + 2.0 * math.cos(b)) / 2.0)
+        return a * math.sin(a) - b * math.sin(b)
+    lo, hi = 2.0, 2.5
+    assert mismatch(lo) * mismatch(hi) < 0.0
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if mismatch(lo) * mismatch(mid) > 0.0 else (lo, mid)
+    assert b_total == pytest.approx(lo, abs=1e-12)
+    np.testing.assert_allclose(s.times + s.times[::-1], s.duration, rtol=0, atol=1e-12)
+    # shorter than ZVD (one period) and no narrower a 5 % band than ZV's
+    lo5, hi5 = band(s)
+    zlo, zhi = band(zv(HZ))
+    assert s.duration < zvd(HZ).duration and hi5 - lo5 > zhi - zlo
+    with pytest.raises(ProblemFileError, match="zeta"):
+        um_zvd(w, 0.35)
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.05, 0.2])
+@pytest.mark.parametrize("vtol", [0.02, 0.05, 0.1])
+def test_um_ei_hump_zeros_unity_magnitude_and_peak_input(zeta, vtol):
+    """V (eq. 187, written here) = vtol with zero slope at ω, one zero on each side."""
+    w = 3.0 * HZ
+    s = um_ei(w, zeta, vtol)
+    assert s.amplitudes.tolist() == [1.0, -1.0, 1.0, -1.0, 1.0]
+    assert np.abs(s.amplitudes).sum() == UM_ZVD_PEAK_FACTOR
+    partial = np.cumsum(s.amplitudes)
+    assert partial.min() >= 0.0 and partial.max() <= 1.0
+    assert residual(s, w, zeta)[0] == pytest.approx(vtol, abs=1e-12)
+    # central difference, h = 1e-5 relative: truncation ~h² V''' and round-off ~1e-16/h,
+    # both below 1e-9 per unit of relative frequency
+    h = 1e-5
+    slope = (residual(s, w * (1 + h), zeta)[0] - residual(s, w * (1 - h), zeta)[0]) / (2 * h)
+    assert abs(slope) < 1e-8
+    nu = np.linspace(0.5, 1.5, 20001)
+    v = residual(s, nu * w, zeta)
+    i = np.arange(1, nu.size - 1)
+    minima = i[(v[i] <= v[i - 1]) & (v[i] <= v[i + 1]) & (v[i] < 1e-2)]
+    for side in (nu[minima] < 1.0, nu[minima] > 1.0):
+        k = minima[side][np.argmin(np.abs(nu[minima][side] - 1.0))]
+        x = nu[k] * w
+        for _ in range(8):  # Gauss-Newton on the complex G: a zero of both parts
+            g, dg = residual_and_slope(s, x, zeta)
+            x -= (np.conj(dg) * g).real / abs(dg) ** 2
+        assert residual(s, x, zeta)[0] < 1e-9
