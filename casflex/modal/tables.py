@@ -81,7 +81,9 @@ from casflex._cache import (
 )
 from casflex._parallel import parallel_map
 from casflex.errors import ModelError
+from casflex.modal import subspace
 from casflex.modal import tracking as trk
+from casflex.modal.subspace import DEFAULT_GAP
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -692,7 +694,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 progress: bool = False, *, joints: Sequence[int] | None = None,
                 q_fixed: ArrayLike | None = None, extra_modes: int = EXTRA_MODES,
                 n_points: int = 51, weighting: str | None = None,
-                max_points: int | None = None) -> ModalTable:
+                max_points: int | None = None, basis: str = "eigen",
+                cluster_gap: float = DEFAULT_GAP) -> ModalTable:
     """Tabulate tracked modes and model quantities over a grid of the shape joints.
 
     Parameters
@@ -731,6 +734,14 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         Largest grid to start on (default ``$CASFLEX_MAX_GRID_POINTS`` or
         :data:`MAX_GRID_POINTS`); a larger grid is a ``ModelError`` before any work,
         naming its size, the estimated time and memory, and what to do.
+    basis : {"eigen", "smooth"}
+        ``"eigen"`` (default): tracked eigenmodes, ``omega`` their natural frequencies.
+        ``"smooth"``: clusters of close modes as subspaces with a basis chosen smoothly
+        over the grid (:mod:`casflex.modal.subspace`); ``omega`` is then the Rayleigh
+        frequency of each basis vector and the quantity ``"stiffness"`` (n × n,
+        block-diagonal) the modal stiffness, which a model must use in full.
+    cluster_gap : float
+        Relative frequency gap below which sorted modes form one cluster (``"smooth"``).
 
     Returns
     -------
@@ -774,6 +785,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     t_start = time.perf_counter()
     if not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
         raise ModelError(f"n_modes must be a positive integer; got {n_modes!r}")
+    if basis not in ("eigen", "smooth"):
+        raise ModelError(f"basis must be 'eigen' or 'smooth'; got {basis!r}")
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
     if not joints:
         raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
@@ -806,6 +819,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         "tracking": source_digest(trk), "quantities": _function_identity(
             quantities if quantities else None),
         "tables": source_digest(build_table, ModalTable, _pad_periodic),
+        **({} if basis == "eigen" else {"basis": basis, "cluster_gap": float(cluster_gap),
+                                        "subspace": source_digest(subspace)}),
     })
     use_cache = cache_dir is not False
     root = Path(default_cache_dir() if cache_dir is None else cache_dir) if use_cache else None
@@ -862,7 +877,15 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     del raw
 
     # ---- stage 2: tracking (sequential)
-    gt = trk.track_grid(shapes, robot=robot, weighting=weighting)
+    if basis == "smooth":
+        gt = subspace.track_grid_smooth(shapes, int(n_modes), robot, weighting, cluster_gap)
+        if gt.omega.shape[-1] != n_modes:
+            raise ModelError(f"robot '{robot.name}': n_modes = {n_modes} splits the cluster "
+                             f"of close modes {[k + 1 for k in gt.clusters[-1]]}; tabulate "
+                             f"{gt.omega.shape[-1]} modes")
+        gt = _SmoothGrid(gt)
+    else:
+        gt = trk.track_grid(shapes, robot=robot, weighting=weighting)
     tracked = gt.apply(shapes)
     for idx in indices:
         t = tracked[idx]
@@ -889,6 +912,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
 
     # ---- stage 3: quantities (parallel, cached per point)
     values = {"omega": omega}
+    if basis == "smooth":
+        values["stiffness"] = gt.basis.stiffness
+        info.update(basis="smooth", clusters=[[k + 1 for k in c] for c in gt.basis.clusters])
     if quantities:
         per_point = [None] * len(indices)
         missing = []
@@ -936,6 +962,19 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         save_verified(tdir / "table.npz", table_key,
                       **_table_to_arrays(table))
     return table
+
+
+class _SmoothGrid:
+    """A SmoothBasis seen through the GridTracking fields that build_table reads."""
+
+    def __init__(self, basis):
+        self.basis = basis
+        self.mac = np.fmin.reduce(basis.neighbour_mac, axis=-2)  # worst edge into each point
+        self.edge_correlation = np.sqrt(self.mac)  # signs are continuous by construction
+        self.degenerate = np.zeros(basis.omega.shape[:-1], dtype=bool)
+
+    def apply(self, shapes):
+        return self.basis.apply(shapes)
 
 
 def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
