@@ -48,7 +48,6 @@ from casflex.errors import ModelError
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
-    from casflex.tmm.solve import ModeShapes
 
 __all__ = ["DEFAULT_GAP", "mode_clusters", "SmoothBasis", "smooth_basis",
            "track_grid_smooth"]
@@ -188,7 +187,12 @@ class SmoothBasis:
         Returns
         -------
         numpy.ndarray of ModeShapes
-            n basis vectors per point, multiplicity 1.
+            n basis vectors per point, multiplicity 1. Every field is exact at the sample
+            points; but a rotated vector mixes modes of different ω, so what rebuilds a
+            shape between the samples from its ω (:func:`casflex.modal.normalize.
+            local_state`, hence ``mass_normalize`` and the model quantities of
+            :mod:`casflex.modal.integrals`) is not valid for it: evaluate those on the
+            eigenmodes and transform them with ``transform``.
 
         Examples
         --------

@@ -739,7 +739,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         ``"smooth"``: clusters of close modes as subspaces with a basis chosen smoothly
         over the grid (:mod:`casflex.modal.subspace`); ``omega`` is then the Rayleigh
         frequency of each basis vector and the quantity ``"stiffness"`` (n × n,
-        block-diagonal) the modal stiffness, which a model must use in full.
+        block-diagonal) the modal stiffness, which a model must use in full. Only with
+        ``quantities=False`` for now (see :meth:`casflex.modal.subspace.SmoothBasis.apply`).
     cluster_gap : float
         Relative frequency gap below which sorted modes form one cluster (``"smooth"``).
 
@@ -787,6 +788,12 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         raise ModelError(f"n_modes must be a positive integer; got {n_modes!r}")
     if basis not in ("eigen", "smooth"):
         raise ModelError(f"basis must be 'eigen' or 'smooth'; got {basis!r}")
+    if basis == "smooth" and quantities is not False:
+        # the quantities integrate each shape between samples with its own ω
+        # (normalize.local_state): a rotated pair needs them transformed from the
+        # eigenmodes, which is not built yet
+        raise ModelError("basis='smooth' tabulates ω, the stiffness block and the shapes "
+                         "only: pass quantities=False")
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
     if not joints:
         raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
