@@ -343,10 +343,6 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
             shapes[idx] = solved[key]
         sb = track_grid_smooth(shapes, n_modes, robot, gap=gap)
-        if sb.omega.shape[-1] != n_modes:
-            raise ModelError(f"n_modes = {n_modes} splits the cluster of close modes "
-                             f"{[k + 1 for k in sb.clusters[-1]]}; fit "
-                             f"{sb.omega.shape[-1]} modes")
         ck = chebyshev_coefficients(sb.stiffness, nd)
         w2 = np.min(np.diagonal(sb.stiffness, axis1=-2, axis2=-1).reshape(-1, n_modes), axis=0)
         scale = 2.0 * np.sqrt(np.outer(w2, w2))  # |δK_jk| / (2 ω_j ω_k): relative δω

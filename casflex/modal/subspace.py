@@ -153,6 +153,39 @@ class SmoothBasis:
     neighbour_mac: np.ndarray
 
     @property
+    def mac(self) -> np.ndarray:
+        """``grid_shape + (n,)`` MAC over the worst grid edge into each point (NaN at the
+        first point), as ``GridTracking.mac``."""
+        return np.fmin.reduce(self.neighbour_mac, axis=-2)
+
+    @property
+    def edge_correlation(self) -> np.ndarray:
+        """``grid_shape + (ndim, n)`` correlation over every edge (``sqrt`` of the MAC: the
+        Procrustes choice keeps each vector's sign continuous), as in ``GridTracking``."""
+        return np.sqrt(self.neighbour_mac)
+
+    @property
+    def degenerate(self) -> np.ndarray:
+        """``grid_shape`` booleans, all False: a cluster's basis is chosen at every point."""
+        return np.zeros(self.omega.shape[:-1], dtype=bool)
+
+    def clusters_1based(self) -> list[list[int]]:
+        """The clusters as 1-based mode numbers (for messages and files).
+
+        Returns
+        -------
+        list of list of int
+
+        Examples
+        --------
+        >>> F = np.empty((1,), dtype=object)
+        >>> F[0] = np.eye(2)
+        >>> smooth_basis(F, np.array([[1.0, 1.0]]), ((0, 1),)).clusters_1based()
+        [[1, 2]]
+        """
+        return [[k + 1 for k in c] for c in self.clusters]
+
+    @property
     def min_mac(self) -> float:
         """Lowest MAC between grid neighbours over all edges (1.0 for a single point)."""
         m = self.neighbour_mac
@@ -351,6 +384,12 @@ def track_grid_smooth(shapes: np.ndarray, count: int, robot: Robot | None = None
     Returns
     -------
     SmoothBasis
+        ``count`` basis vectors per point.
+
+    Raises
+    ------
+    ModelError
+        When ``count`` splits a cluster (the error names the count that does not).
 
     Examples
     --------
@@ -372,6 +411,10 @@ def track_grid_smooth(shapes: np.ndarray, count: int, robot: Robot | None = None
     omega = np.array([np.asarray(shapes[i].omega, dtype=float) for i in np.ndindex(gshape)])
     omega = omega.reshape(gshape + (omega.shape[-1],))
     clusters = mode_clusters(omega, count, gap)
+    if clusters[-1][-1] + 1 != count:
+        raise ModelError(f"{count} modes split the cluster of close modes "
+                         f"{[k + 1 for k in clusters[-1]]} (relative gap < {gap:g} "
+                         f"somewhere): use {clusters[-1][-1] + 1} modes")
     features = np.empty(gshape, dtype=object)
     mass = None
     if exact_mass and robot is not None:

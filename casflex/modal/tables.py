@@ -83,7 +83,6 @@ from casflex._parallel import parallel_map
 from casflex.errors import ModelError
 from casflex.modal import subspace
 from casflex.modal import tracking as trk
-from casflex.modal.subspace import DEFAULT_GAP
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -694,8 +693,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 progress: bool = False, *, joints: Sequence[int] | None = None,
                 q_fixed: ArrayLike | None = None, extra_modes: int = EXTRA_MODES,
                 n_points: int = 51, weighting: str | None = None,
-                max_points: int | None = None, basis: str = "eigen",
-                cluster_gap: float = DEFAULT_GAP) -> ModalTable:
+                max_points: int | None = None, basis: str = "eigen") -> ModalTable:
     """Tabulate tracked modes and model quantities over a grid of the shape joints.
 
     Parameters
@@ -735,14 +733,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         :data:`MAX_GRID_POINTS`); a larger grid is a ``ModelError`` before any work,
         naming its size, the estimated time and memory, and what to do.
     basis : {"eigen", "smooth"}
-        ``"eigen"`` (default): tracked eigenmodes, ``omega`` their natural frequencies.
-        ``"smooth"``: clusters of close modes as subspaces with a basis chosen smoothly
-        over the grid (:mod:`casflex.modal.subspace`); ``omega`` is then the Rayleigh
-        frequency of each basis vector and the quantity ``"stiffness"`` (n × n,
-        block-diagonal) the modal stiffness, which a model must use in full. Only with
-        ``quantities=False`` for now (see :meth:`casflex.modal.subspace.SmoothBasis.apply`).
-    cluster_gap : float
-        Relative frequency gap below which sorted modes form one cluster (``"smooth"``).
+        Tracked eigenmodes (default), or a smooth basis of clusters of close modes
+        (:mod:`casflex.modal.subspace`: ``omega`` = Rayleigh frequencies, and the full
+        modal ``"stiffness"`` a model must use; ``quantities=False`` only, for now).
 
     Returns
     -------
@@ -786,14 +779,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     t_start = time.perf_counter()
     if not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
         raise ModelError(f"n_modes must be a positive integer; got {n_modes!r}")
-    if basis not in ("eigen", "smooth"):
-        raise ModelError(f"basis must be 'eigen' or 'smooth'; got {basis!r}")
-    if basis == "smooth" and quantities is not False:
-        # the quantities integrate each shape between samples with its own ω
-        # (normalize.local_state): a rotated pair needs them transformed from the
-        # eigenmodes, which is not built yet
-        raise ModelError("basis='smooth' tabulates ω, the stiffness block and the shapes "
-                         "only: pass quantities=False")
+    if basis not in ("eigen", "smooth") or (basis == "smooth" and quantities is not False):
+        raise ModelError(f"basis must be 'eigen', or 'smooth' with quantities=False (the "
+                         f"quantities of a rotated basis are not built yet); got {basis!r}")
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
     if not joints:
         raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
@@ -826,8 +814,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         "tracking": source_digest(trk), "quantities": _function_identity(
             quantities if quantities else None),
         "tables": source_digest(build_table, ModalTable, _pad_periodic),
-        **({} if basis == "eigen" else {"basis": basis, "cluster_gap": float(cluster_gap),
-                                        "subspace": source_digest(subspace)}),
+        **({} if basis == "eigen" else {"basis": basis, "subspace": source_digest(subspace)}),
     })
     use_cache = cache_dir is not False
     root = Path(default_cache_dir() if cache_dir is None else cache_dir) if use_cache else None
@@ -884,15 +871,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     del raw
 
     # ---- stage 2: tracking (sequential)
-    if basis == "smooth":
-        gt = subspace.track_grid_smooth(shapes, int(n_modes), robot, weighting, cluster_gap)
-        if gt.omega.shape[-1] != n_modes:
-            raise ModelError(f"robot '{robot.name}': n_modes = {n_modes} splits the cluster "
-                             f"of close modes {[k + 1 for k in gt.clusters[-1]]}; tabulate "
-                             f"{gt.omega.shape[-1]} modes")
-        gt = _SmoothGrid(gt)
-    else:
-        gt = trk.track_grid(shapes, robot=robot, weighting=weighting)
+    gt = (subspace.track_grid_smooth(shapes, int(n_modes), robot, weighting)
+          if basis == "smooth" else trk.track_grid(shapes, robot=robot, weighting=weighting))
     tracked = gt.apply(shapes)
     for idx in indices:
         t = tracked[idx]
@@ -919,9 +899,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
 
     # ---- stage 3: quantities (parallel, cached per point)
     values = {"omega": omega}
-    if basis == "smooth":
-        values["stiffness"] = gt.basis.stiffness
-        info.update(basis="smooth", clusters=[[k + 1 for k in c] for c in gt.basis.clusters])
+    if basis == "smooth":  # clusters: 1-based sorted modes, as in the messages
+        values["stiffness"], info["clusters"] = gt.stiffness, gt.clusters_1based()
     if quantities:
         per_point = [None] * len(indices)
         missing = []
@@ -969,19 +948,6 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         save_verified(tdir / "table.npz", table_key,
                       **_table_to_arrays(table))
     return table
-
-
-class _SmoothGrid:
-    """A SmoothBasis seen through the GridTracking fields that build_table reads."""
-
-    def __init__(self, basis):
-        self.basis = basis
-        self.mac = np.fmin.reduce(basis.neighbour_mac, axis=-2)  # worst edge into each point
-        self.edge_correlation = np.sqrt(self.mac)  # signs are continuous by construction
-        self.degenerate = np.zeros(basis.omega.shape[:-1], dtype=bool)
-
-    def apply(self, shapes):
-        return self.basis.apply(shapes)
 
 
 def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
