@@ -11,6 +11,13 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     :func:`casflex.modal.fit_chebyshev` to the default target (1e-4 relative on ω): the
     smooth-basis stiffness fitted over the box, frequencies = eigenvalues of the fit.
 
+``tracking``
+    the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
+    basis (:mod:`casflex.modal.subspace`), and the held-out error of each (eigen: sorted
+    spline of ω; smooth: eigenvalues of the spline of the stiffness), at grid steps of
+    30°, 15° and 6° (the default) inside the limits; not run by default
+    (``--methods tracking``).
+
 Reported per case and method: ``points`` (TMM solves), ``seconds`` (wall), ``rss_mb``
 (peak resident memory of the process that holds the data; the workers' peak is
 ``rss_workers_mb``), ``cache_mb`` (the grid's on-disk cache; the fit keeps none),
@@ -84,6 +91,8 @@ def run_one(case, method, heldout, processes):
            "n_modes": n_modes}
     with tempfile.TemporaryDirectory() as cache:
         t0 = time.perf_counter()
+        if method == "tracking":
+            return _tracking(out, robot, joints, n_modes, qs, ref, cache, processes)
         if method == "grid":
             grid = default_grid(robot, joints)
             with warnings.catch_warnings():
@@ -115,13 +124,40 @@ def run_one(case, method, heldout, processes):
     return out
 
 
+def _tracking(out, robot, joints, n_modes, qs, ref, cache, processes):
+    from casflex.modal import build_table
+    from casflex.model.build import default_grid
+
+    rows = []
+    for step in (30.0, 15.0, 6.0):
+        grid = default_grid(robot, joints, np.radians(step))
+        row = {"step_deg": step, "points": int(np.prod([a.size for a in grid]))}
+        for basis in ("eigen", "smooth"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                table = build_table(robot, grid, n_modes, quantities=False, cache_dir=cache,
+                                    processes=processes, basis=basis)
+            if basis == "eigen":
+                f = table.function("omega")
+                got = [np.sort(f(q[list(joints)]).full().ravel()) for q in qs]
+            else:
+                f = table.function("stiffness")
+                got = [np.sqrt(np.linalg.eigvalsh(f(q[list(joints)]).full())) for q in qs]
+            row[f"min_mac_{basis}"] = table.info["min_mac"]
+            row[f"heldout_max_rel_{basis}"] = float(np.max(np.abs(np.array(got) / ref - 1)))
+        rows.append(row)
+    out.update(tracking=rows)
+    return out
+
+
 def main(argv=None):
     """Run the cases in subprocesses and print a table or one JSON object."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--cases", nargs="+", default=["arm2link", "arm4_spatial"],
                     choices=list(CASES))
-    ap.add_argument("--methods", nargs="+", default=["grid", "fit"], choices=["grid", "fit"])
+    ap.add_argument("--methods", nargs="+", default=["grid", "fit"],
+                    choices=["grid", "fit", "tracking"])
     ap.add_argument("--heldout", type=int, default=12, help="held-out configurations")
     ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
@@ -142,7 +178,14 @@ def main(argv=None):
                 sys.stderr.write(done.stderr)
                 return 1
             results.append(json.loads(done.stdout.strip().splitlines()[-1]))
-            if not args.json and "skipped" not in results[-1]:
+            if not args.json and "tracking" in results[-1]:
+                for r in results[-1]["tracking"]:
+                    print(f"{case:13s} step {r['step_deg']:4.0f}° points {r['points']:5d}  "
+                          f"min MAC eigen {r['min_mac_eigen']:.3f} smooth "
+                          f"{r['min_mac_smooth']:.3f}  held-out eigen "
+                          f"{r['heldout_max_rel_eigen']:.1e} smooth "
+                          f"{r['heldout_max_rel_smooth']:.1e}", flush=True)
+            elif not args.json and "skipped" not in results[-1]:
                 r = results[-1]
                 print(f"{case:13s} {method:4s} points {r['points']:6d}  "
                       f"{r['seconds']:7.1f} s  rss {r['rss_mb']:6.0f} MB  "
