@@ -8,22 +8,28 @@ whose coefficients decay geometrically; the degree of each axis is chosen by tha
 
 What is fitted
 --------------
-Eigenfrequencies are *not* analytic where two modes meet (a cone over two joints); the
-modal stiffness of the smooth basis (:mod:`casflex.modal.subspace`) is. So the fit takes
-the raw modes at Chebyshev–Lobatto points, chooses the smooth basis over them, and fits
-every entry of ``K̃`` (``"stiffness"``, block-diagonal) and the Rayleigh frequencies
-``sqrt(diag K̃)`` (``"omega"``, the natural frequencies for a mode alone in its cluster).
-The natural frequencies anywhere are the eigenvalues of the fitted ``K̃``.
+Eigenfrequencies are *not* analytic where two modes meet (a cone over two joints), but
+the symmetric functions of the eigenvalues ``λ = ω²`` of an isolated cluster of close
+modes (:func:`casflex.modal.subspace.mode_clusters`) are. ``quantity="frequencies"``
+(default) fits, per cluster, ``λ`` itself (a lone mode) or the pair's mean
+``(λ1 + λ2)/2`` and squared split ``(λ2 − λ1)²`` (clusters of at most two modes), from
+the sorted natural frequencies alone (no mode shapes, no tracking), and gives back
+``ω = sqrt(mean ∓ sqrt(split)/2)``, ascending: a cone is reproduced exactly by the outer
+square root. ``quantity="stiffness"`` fits every entry of the smooth basis' modal
+stiffness ``K̃`` (:mod:`casflex.modal.subspace`) and its Rayleigh frequencies; that basis is
+chosen point by point along the grid, so on a 2-D grid it depends on the grid (the
+subspaces' curvature) and its fit converges only algebraically (4-joint arm, degree 16 /
+32 per axis: held-out 1.3e-4 / 3.4e-5, against 2.2e-4 / 1.5e-7 for the frequencies).
 
 Degree per axis
 ---------------
 Lobatto points of degree d are nested in those of degree 2d, so raising a degree reuses
 every TMM solve. Starting from ``start_degree`` the fit doubles the degree of every axis
-whose error estimate — the largest of the two highest coefficients along that axis, over
-all entries of ``K̃``, as a relative error of ω (``|δK| / (2 ω²)`` with the cluster's
-lowest ω²) — exceeds the target, up to ``max_degree``. The estimate is checked at held-out
-configurations against direct TMM by :func:`held_out_error` (a missed target is reported,
-not hidden: ``ChebyshevFit.info["converged"]``).
+whose error estimate — the largest of the two highest coefficients along that axis, as a
+relative error of ω (``|δλ| / (2 λ_min)``; a split ``δs`` counts as ``sqrt(|δs|)/2``, its
+worst case at the cone) — exceeds the target, up to ``max_degree``. The estimate is
+checked at held-out configurations against direct TMM by :func:`held_out_error` (a
+missed target is reported, not hidden: ``ChebyshevFit.info["converged"]``).
 """
 
 from __future__ import annotations
@@ -186,11 +192,25 @@ class ChebyshevFit:
         >>> f.evaluate("omega", [0.5]).round(12).tolist()   # T_2(0.5) = -0.5
         [-0.5]
         """
-        coef = self._coef(name)
         x = np.atleast_1d(np.asarray(q_shape, dtype=float))
         if x.size != len(self.box):
             raise ModelError(f"q_shape needs {len(self.box)} values; got {x.size}")
-        return _clenshaw_values(coef, self._t(x))
+        if name == "omega" and "invariants" in self.coefficients:
+            v = _clenshaw_values(self.coefficients["invariants"], self._t(x))
+            return np.array([float(w) for w in self._omega_from(v, np.sqrt, max)])
+        return _clenshaw_values(self._coef(name), self._t(x))
+
+    def _omega_from(self, inv, sqrt, fmax):
+        """Ascending ω from the cluster invariants (numeric or casadi)."""
+        out, r = [], 0
+        for c in self.clusters:
+            if len(c) == 1:
+                out.append(sqrt(fmax(inv[r], 0.0)))
+            else:
+                half = 0.5 * sqrt(fmax(inv[r + 1], 0.0))
+                out += [sqrt(fmax(inv[r] - half, 0.0)), sqrt(fmax(inv[r] + half, 0.0))]
+            r += len(c)
+        return out
 
     def _coef(self, name):
         if name not in self.coefficients:
@@ -222,6 +242,12 @@ class ChebyshevFit:
         """
         import casadi as ca
 
+        if name == "omega" and "invariants" in self.coefficients:
+            inner = self.function("invariants")
+            x = ca.MX.sym("q_shape", len(self.box))
+            v = inner(x)
+            w = self._omega_from([v[i] for i in range(v.size1())], ca.sqrt, ca.fmax)
+            return ca.Function(name, [x], [ca.vertcat(*w)], ["q_shape"], [name])
         coef = self._coef(name)
         nd = len(self.box)
         vshape = coef.shape[nd:]
@@ -267,8 +293,8 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
                   box: ArrayLike | None = None, target: float = OMEGA_TARGET,
                   start_degree: int = 8, max_degree: int = 64, extra_modes: int = 2,
                   gap: float = DEFAULT_GAP, processes: int | None = None,
-                  progress: bool = False) -> ChebyshevFit:
-    """Fit ω and the smooth-basis stiffness over the joint box to a relative target.
+                  progress: bool = False, quantity: str = "frequencies") -> ChebyshevFit:
+    """Fit the natural frequencies (or the smooth-basis stiffness) over the joint box.
 
     Parameters
     ----------
@@ -291,6 +317,10 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
         Local worker processes for the TMM (default ``os.cpu_count()``).
     progress : bool
         Progress bars on stderr.
+    quantity : {"frequencies", "stiffness"}
+        What is fitted (module notes): the clusters' invariants of ω² (``"omega"``
+        ascending; clusters of at most two modes), or ``K̃`` and the Rayleigh ω of the
+        smooth basis (needs the mode shapes).
 
     Returns
     -------
@@ -309,7 +339,7 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
     ((8,), True)
     """
     from casflex.modal.subspace import track_grid_smooth
-    from casflex.modal.tables import compute_modes, shape_joints
+    from casflex.modal.tables import shape_joints
 
     t0 = time.perf_counter()
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
@@ -322,6 +352,8 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
                          f"{max_degree}")
     if not target > 0.0:
         raise ModelError(f"target must be a positive relative error; got {target!r}")
+    if quantity not in ("frequencies", "stiffness"):
+        raise ModelError(f"quantity must be 'frequencies' or 'stiffness'; got {quantity!r}")
     nd = len(joints)
     degrees = [int(start_degree)] * nd
     solved: dict[tuple[float, ...], Any] = {}
@@ -335,32 +367,94 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
             qs = np.zeros((len(todo), robot.n_joints))
             for r, key in enumerate(todo):
                 qs[r, list(joints)] = key
-            for key, s in zip(todo, compute_modes(robot, qs, n_modes + extra_modes,
-                                                  processes=processes, progress=progress),
-                              strict=True):
-                solved[key] = s
-        shapes = np.empty(gshape, dtype=object)
+            solved.update(zip(todo, _solve(robot, qs, n_modes + extra_modes, quantity,
+                                           processes, progress), strict=True))
+        points = np.empty(gshape, dtype=object)
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
-            shapes[idx] = solved[key]
-        sb = track_grid_smooth(shapes, n_modes, robot, gap=gap)
-        ck = chebyshev_coefficients(sb.stiffness, nd)
-        w2 = np.min(np.diagonal(sb.stiffness, axis1=-2, axis2=-1).reshape(-1, n_modes), axis=0)
-        scale = 2.0 * np.sqrt(np.outer(w2, w2))  # |δK_jk| / (2 ω_j ω_k): relative δω
-        estimate = []
-        for ax in range(nd):
-            tail = np.take(ck, [-2, -1], axis=ax)
-            estimate.append(float(np.max(np.abs(tail) / scale)))
+            points[idx] = solved[key]
+        if quantity == "stiffness":
+            sb = track_grid_smooth(points, n_modes, robot, gap=gap)
+            clusters, min_mac = sb.clusters, sb.min_mac
+            data = {"stiffness": sb.stiffness, "omega": sb.omega}
+            lam = np.diagonal(sb.stiffness, axis1=-2, axis2=-1)
+            tails = _tails(chebyshev_coefficients(sb.stiffness, nd), nd)
+            scale = 2.0 * np.sqrt(np.outer(*[lam.reshape(-1, n_modes).min(axis=0)] * 2))
+            estimate = [float(np.max(t / scale)) for t in tails]
+        else:
+            omega = np.array([points[i] for i in np.ndindex(gshape)]).reshape(gshape + (-1,))
+            clusters = _clusters(omega, n_modes, gap)
+            min_mac = None
+            lam = omega[..., :n_modes] ** 2
+            inv = _invariants(lam, clusters)
+            data = {"invariants": inv}
+            lam_min = lam.reshape(-1, n_modes).min(axis=0)
+            split = np.array([len(c) == 2 and k == c[1] for c in clusters for k in c])
+            estimate = []
+            for t in _tails(chebyshev_coefficients(inv, nd), nd):
+                err = np.where(split, 0.5 * np.sqrt(t), t)
+                estimate.append(float(np.max(err / (2.0 * lam_min))))
         grow = [ax for ax in range(nd) if estimate[ax] > target and degrees[ax] < max_degree]
         if not grow:
             break
         for ax in grow:
             degrees[ax] = min(2 * degrees[ax], int(max_degree))
-    coefficients = {"stiffness": ck, "omega": chebyshev_coefficients(sb.omega, nd)}
+    coefficients = {k: chebyshev_coefficients(v, nd) for k, v in data.items()}
     info = {"points": len(solved), "grid_shape": list(gshape), "estimate": estimate,
             "target": float(target), "converged": bool(max(estimate) <= target),
-            "min_mac": sb.min_mac, "seconds": time.perf_counter() - t0}
+            "quantity": quantity, "min_mac": min_mac,
+            "seconds": time.perf_counter() - t0}
     return ChebyshevFit(box=box, shape_joints=joints, degrees=tuple(degrees),
-                        coefficients=coefficients, clusters=sb.clusters, info=info)
+                        coefficients=coefficients, clusters=clusters, info=info)
+
+
+def _solve(robot, qs, count, quantity, processes, progress):
+    """Raw modes (stiffness) or sorted natural frequencies at the configurations."""
+    from casflex._parallel import parallel_map
+    from casflex.modal.sweep import point_frequencies
+    from casflex.modal.tables import compute_modes
+
+    if quantity == "stiffness":
+        return compute_modes(robot, qs, count, processes=processes, progress=progress)
+    jobs = [(i, (robot, q, count)) for i, q in enumerate(qs)]
+    got = dict(parallel_map(point_frequencies, jobs, processes=processes, progress=progress,
+                            desc="TMM"))
+    return [got[i] for i in range(len(qs))]
+
+
+def _clusters(omega, n_modes, gap):
+    from casflex.modal.subspace import mode_clusters
+
+    clusters = mode_clusters(omega, n_modes, gap)
+    if clusters[-1][-1] + 1 != n_modes:
+        raise ModelError(f"{n_modes} modes split the cluster of close modes "
+                         f"{[k + 1 for k in clusters[-1]]}: use {clusters[-1][-1] + 1} modes")
+    big = [c for c in clusters if len(c) > 2]
+    if big:
+        raise ModelError(f"the frequencies fit handles clusters of at most two close modes; "
+                         f"modes {[k + 1 for k in big[0]]} come within {gap:g} of each "
+                         "other: use a smaller gap or quantity='stiffness'")
+    return clusters
+
+
+def _invariants(lam, clusters):
+    """Per cluster: λ (one mode) or the mean and squared split of λ (a pair)."""
+    cols = []
+    for c in clusters:
+        if len(c) == 1:
+            cols.append(lam[..., c[0]])
+        else:
+            cols += [0.5 * (lam[..., c[0]] + lam[..., c[1]]),
+                     (lam[..., c[1]] - lam[..., c[0]]) ** 2]
+    return np.stack(cols, axis=-1)
+
+
+def _tails(coef, nd):
+    """Per axis: the largest |coefficient| among the two highest along it, per entry."""
+    out = []
+    for ax in range(nd):
+        t = np.abs(np.take(coef, [-2, -1], axis=ax))
+        out.append(np.max(t.reshape(-1, *coef.shape[nd:]), axis=0))
+    return out
 
 
 def held_out_error(fit: ChebyshevFit, robot: Robot, qs: ArrayLike) -> np.ndarray:
@@ -392,10 +486,14 @@ def held_out_error(fit: ChebyshevFit, robot: Robot, qs: ArrayLike) -> np.ndarray
     from casflex.tmm import natural_frequencies
 
     qs = np.atleast_2d(np.asarray(qs, dtype=float))
-    n = fit.coefficients["omega"].shape[-1]
+    n = sum(len(c) for c in fit.clusters)
     out = np.empty((len(qs), n))
     for r, q in enumerate(qs):
-        K = fit.evaluate("stiffness", q[list(fit.shape_joints)])
-        w = np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (K + K.T)), 0.0, None))
+        x = q[list(fit.shape_joints)]
+        if "stiffness" in fit.coefficients:
+            K = fit.evaluate("stiffness", x)
+            w = np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (K + K.T)), 0.0, None))
+        else:
+            w = fit.evaluate("omega", x)
         out[r] = np.abs(w / natural_frequencies(robot, q, count=n) - 1.0)
     return out
