@@ -8,8 +8,10 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     the joint limits), ``quantities=False`` (ω and the shapes only), eigen basis, empty
     cache; the frequencies anywhere are the cubic B-spline of the tracked ω, sorted.
 ``fit``
-    :func:`casflex.modal.fit_chebyshev` to the default target (1e-4 relative on ω): the
-    smooth-basis stiffness fitted over the box, frequencies = eigenvalues of the fit.
+    :func:`casflex.modal.fit_chebyshev` to the default target (1e-4 relative on ω),
+    ``quantity="frequencies"``: the clusters' invariants of ω² from natural frequencies
+    only; ``fit_stiffness`` (not run by default): the smooth-basis stiffness, frequencies
+    = its eigenvalues.
 
 ``tracking``
     the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
@@ -54,10 +56,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-#: case -> (robot file, modes, largest Chebyshev degree per axis, grid feasible)
-CASES = {"arm2link": ("problems/arm2link.toml", 4, 64, True),
-         "arm4_spatial": ("problems/arm4_spatial.toml", 4, 64, True),
-         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 4, False)}
+#: case -> (robot file, modes, largest Chebyshev degree per axis, grid feasible, cluster
+#: gap of the fit: the Table 8 arm's modes 2 and 3 approach within 1.3 % without meeting)
+CASES = {"arm2link": ("problems/arm2link.toml", 4, 64, True, 0.01),
+         "arm4_spatial": ("problems/arm4_spatial.toml", 4, 64, True, 0.05),
+         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 8, False, 0.05)}
 
 
 def _heldout_configurations(robot, count):
@@ -80,7 +83,7 @@ def run_one(case, method, heldout, processes):
     from casflex.robot import load
     from casflex.tmm import natural_frequencies
 
-    path, n_modes, max_degree, grid_ok = CASES[case]
+    path, n_modes, max_degree, grid_ok, gap = CASES[case]
     if method == "grid" and not grid_ok:
         return {"case": case, "method": method, "skipped": "grid beyond MAX_GRID_POINTS"}
     robot = load(str(ROOT / path))
@@ -105,14 +108,18 @@ def run_one(case, method, heldout, processes):
             out.update(points=int(np.prod(table.shape)), grid_shape=list(table.shape),
                        min_mac=table.info["min_mac"], cache_mb=_dir_mb(cache))
         else:
-            fit = fit_chebyshev(robot, n_modes, processes=processes,
-                                start_degree=min(8, max_degree), max_degree=max_degree)
+            quantity = "stiffness" if method == "fit_stiffness" else "frequencies"
+            fit = fit_chebyshev(robot, n_modes, processes=processes, gap=gap,
+                                start_degree=min(8, max_degree), max_degree=max_degree,
+                                quantity=quantity)
             seconds = time.perf_counter() - t0
-            got = []
-            for q in qs:
-                K = fit.evaluate("stiffness", q[list(joints)])
-                got.append(np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (K + K.T)), 0, None)))
-            got = np.array(got)
+            got = np.array([fit.evaluate("omega", q[list(joints)]) for q in qs])
+            if quantity == "stiffness":  # Rayleigh ω: the frequencies are K̃'s eigenvalues
+                got = []
+                for q in qs:
+                    K = fit.evaluate("stiffness", q[list(joints)])
+                    got.append(np.sqrt(np.clip(np.linalg.eigvalsh(K), 0.0, None)))
+                got = np.array(got)
             out.update(points=fit.info["points"], degrees=list(fit.degrees),
                        estimate=fit.info["estimate"], converged=fit.info["converged"],
                        min_mac=fit.info["min_mac"], cache_mb=0.0)
@@ -157,7 +164,7 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="+", default=["arm2link", "arm4_spatial"],
                     choices=list(CASES))
     ap.add_argument("--methods", nargs="+", default=["grid", "fit"],
-                    choices=["grid", "fit", "tracking"])
+                    choices=["grid", "fit", "fit_stiffness", "tracking"])
     ap.add_argument("--heldout", type=int, default=12, help="held-out configurations")
     ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
