@@ -138,3 +138,23 @@ def test_arm4_pair_is_mass_orthonormal_with_the_strain_energy_stiffness():
         assert np.abs(T @ G @ T.T - np.eye(n)).max() < 1e-9  # the double root: ~1e-10
         w2max = float(np.max(sb.stiffness[idx]))
         assert np.abs(T @ Ks @ T.T - sb.stiffness[idx]).max() < 1e-8 * w2max
+
+
+def test_a_count_that_splits_a_cluster_is_refused():
+    robot = load("problems/arm2link.toml")
+    raw = np.empty((2,), dtype=object)
+    raw[0], raw[1] = (modes(robot, [0, 0, x], count=4) for x in (0.9, 0.95))
+    assert track_grid_smooth(raw, 3, robot).clusters == ((0,), (1, 2))
+    with pytest.raises(ModelError, match="split the cluster of close modes \\[2, 3\\]"):
+        track_grid_smooth(raw, 2, robot)
+
+
+def test_build_table_smooth_basis_needs_quantities_false(tmp_path):
+    from casflex.modal import build_table
+
+    robot = load("problems/arm2link.toml")
+    grid = np.radians([0.0, 10.0, 20.0, 30.0])
+    with pytest.raises(ModelError, match="quantities=False"):
+        build_table(robot, grid, 2, cache_dir=tmp_path, processes=1, basis="smooth")
+    with pytest.raises(ModelError, match="basis must be"):
+        build_table(robot, grid, 2, cache_dir=tmp_path, processes=1, basis="qr")
