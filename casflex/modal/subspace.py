@@ -79,8 +79,8 @@ def mode_clusters(omega: ArrayLike, count: int, gap: float = DEFAULT_GAP
     Raises
     ------
     ModelError
-        When the cluster holding mode ``count`` reaches the highest computed mode (the
-        next, uncomputed mode might belong to it: compute more modes).
+        When a cluster that is needed holds the highest computed mode (the next,
+        uncomputed mode might belong to it: compute more modes).
 
     Examples
     --------
@@ -108,10 +108,10 @@ def mode_clusters(omega: ArrayLike, count: int, gap: float = DEFAULT_GAP
     for c in clusters:
         if c[0] >= count:
             break
-        if c[-1] == m - 1 and m > 1 and len(c) > 1:
-            raise ModelError(f"sorted modes {c[0] + 1}..{m} come within {gap:g} of each "
-                             f"other and include the highest computed mode {m}: the next "
-                             "mode may belong to the cluster; compute more modes")
+        if c[-1] == m - 1:
+            raise ModelError(f"the cluster of sorted modes {c[0] + 1}..{m} holds the "
+                             f"highest computed mode {m}: whether the next mode comes within "
+                             f"{gap:g} of it is unknown; compute more modes")
         out.append(c)
     return tuple(out)
 
