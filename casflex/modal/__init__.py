@@ -42,6 +42,25 @@ Mode tracking
    shape_features  -- feature vectors whose dot products are the MAC inner product
    combine         -- apply a linear recombination of the modes to every per-mode field
 
+Smooth bases of close modes
+===========================
+
+   track_grid_smooth  -- a smooth mode basis over a grid: clusters of close modes as subspaces
+   smooth_basis       -- the same on feature arrays (neighbourhood Procrustes per cluster)
+   SmoothBasis        -- result: transforms, block-diagonal stiffness, Rayleigh ω, neighbour MAC
+   mode_clusters      -- groups of sorted modes that come close somewhere on a grid
+   DEFAULT_GAP        -- relative frequency gap below which sorted modes form one cluster
+
+Smooth fits
+===========
+
+   fit_chebyshev           -- tensor-product Chebyshev fit of ω and the stiffness over the box
+   ChebyshevFit            -- the fit, with casadi functions like ModalTable.function
+   held_out_error          -- relative error of the fitted frequencies against direct TMM
+   lobatto_points          -- Chebyshev–Lobatto points of a degree on an interval
+   chebyshev_coefficients  -- tensor Chebyshev coefficients from samples at Lobatto points
+   OMEGA_TARGET            -- default relative error target on ω
+
 Modal tables
 ============
 
@@ -59,6 +78,14 @@ Frequency sweeps
    FrequencySweep    -- result of frequency_sweep
 """
 
+from casflex.modal.fits import (
+    OMEGA_TARGET,
+    ChebyshevFit,
+    chebyshev_coefficients,
+    fit_chebyshev,
+    held_out_error,
+    lobatto_points,
+)
 from casflex.modal.integrals import (
     POINT_KEYS,
     QUANTITY_KEYS,
@@ -78,6 +105,13 @@ from casflex.modal.normalize import (
     mass_normalize,
     modal_mass_matrix,
     modal_stiffness_matrix,
+)
+from casflex.modal.subspace import (
+    DEFAULT_GAP,
+    SmoothBasis,
+    mode_clusters,
+    smooth_basis,
+    track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
 from casflex.modal.tables import (
@@ -127,6 +161,19 @@ __all__ = [
     "correlation",
     "shape_features",
     "combine",
+    # smooth bases of close modes
+    "track_grid_smooth",
+    "smooth_basis",
+    "SmoothBasis",
+    "mode_clusters",
+    "DEFAULT_GAP",
+    # smooth fits
+    "fit_chebyshev",
+    "ChebyshevFit",
+    "held_out_error",
+    "lobatto_points",
+    "chebyshev_coefficients",
+    "OMEGA_TARGET",
     # modal tables
     "build_table",
     "ModalTable",

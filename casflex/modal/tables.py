@@ -81,6 +81,7 @@ from casflex._cache import (
 )
 from casflex._parallel import parallel_map
 from casflex.errors import ModelError
+from casflex.modal import subspace
 from casflex.modal import tracking as trk
 
 if TYPE_CHECKING:
@@ -692,7 +693,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 progress: bool = False, *, joints: Sequence[int] | None = None,
                 q_fixed: ArrayLike | None = None, extra_modes: int = EXTRA_MODES,
                 n_points: int = 51, weighting: str | None = None,
-                max_points: int | None = None) -> ModalTable:
+                max_points: int | None = None, basis: str = "eigen") -> ModalTable:
     """Tabulate tracked modes and model quantities over a grid of the shape joints.
 
     Parameters
@@ -731,6 +732,10 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         Largest grid to start on (default ``$CASFLEX_MAX_GRID_POINTS`` or
         :data:`MAX_GRID_POINTS`); a larger grid is a ``ModelError`` before any work,
         naming its size, the estimated time and memory, and what to do.
+    basis : {"eigen", "smooth"}
+        Tracked eigenmodes (default), or a smooth basis of clusters of close modes
+        (:mod:`casflex.modal.subspace`: ``omega`` = Rayleigh frequencies, and the full
+        modal ``"stiffness"`` a model must use; ``quantities=False`` only, for now).
 
     Returns
     -------
@@ -774,6 +779,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     t_start = time.perf_counter()
     if not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
         raise ModelError(f"n_modes must be a positive integer; got {n_modes!r}")
+    if basis not in ("eigen", "smooth") or (basis == "smooth" and quantities is not False):
+        raise ModelError(f"basis must be 'eigen', or 'smooth' with quantities=False (the "
+                         f"quantities of a rotated basis are not built yet); got {basis!r}")
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
     if not joints:
         raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
@@ -806,6 +814,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         "tracking": source_digest(trk), "quantities": _function_identity(
             quantities if quantities else None),
         "tables": source_digest(build_table, ModalTable, _pad_periodic),
+        **({} if basis == "eigen" else {"basis": basis, "subspace": source_digest(subspace)}),
     })
     use_cache = cache_dir is not False
     root = Path(default_cache_dir() if cache_dir is None else cache_dir) if use_cache else None
@@ -862,7 +871,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     del raw
 
     # ---- stage 2: tracking (sequential)
-    gt = trk.track_grid(shapes, robot=robot, weighting=weighting)
+    gt = (subspace.track_grid_smooth(shapes, int(n_modes), robot, weighting)
+          if basis == "smooth" else trk.track_grid(shapes, robot=robot, weighting=weighting))
     tracked = gt.apply(shapes)
     for idx in indices:
         t = tracked[idx]
@@ -889,6 +899,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
 
     # ---- stage 3: quantities (parallel, cached per point)
     values = {"omega": omega}
+    if basis == "smooth":  # clusters: 1-based sorted modes, as in the messages
+        values["stiffness"], info["clusters"] = gt.stiffness, gt.clusters_1based()
     if quantities:
         per_point = [None] * len(indices)
         missing = []

@@ -1,0 +1,211 @@
+"""Benchmark of the tabulation's scaling in shape joints: uniform grid vs Chebyshev fit.
+
+For each case, two ways to obtain the natural frequencies over the shape joints' box:
+
+``grid``
+    :func:`casflex.modal.build_table` at the default step of
+    :func:`casflex.model.build.default_grid` (1.5° for one shape joint, 6° for more; inside
+    the joint limits), ``quantities=False`` (ω and the shapes only), eigen basis, empty
+    cache; the frequencies anywhere are the cubic B-spline of the tracked ω, sorted.
+``fit``
+    :func:`casflex.modal.fit_chebyshev` to the default target (1e-4 relative on ω),
+    ``quantity="frequencies"``: the clusters' invariants of ω² from natural frequencies
+    only; ``fit_stiffness`` (not run by default): the smooth-basis stiffness, frequencies
+    = its eigenvalues.
+
+``tracking``
+    the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
+    basis (:mod:`casflex.modal.subspace`), and the held-out error of each (eigen: sorted
+    spline of ω; smooth: eigenvalues of the spline of the stiffness), at grid steps of
+    30°, 15° and 6° (the default) inside the limits; not run by default
+    (``--methods tracking``).
+
+Reported per case and method: ``points`` (TMM solves), ``seconds`` (wall), ``rss_mb``
+(peak resident memory of the process that holds the data; the workers' peak is
+``rss_workers_mb``), ``cache_mb`` (the grid's on-disk cache; the fit keeps none),
+``min_mac`` and ``heldout_max_rel`` (max over modes and configurations of
+``|ω / ω_TMM − 1|`` at ``--heldout`` configurations drawn uniformly inside the limits,
+seed 21), per mode in ``heldout_per_mode``.
+
+Cases: ``arm2link`` (Table 8 arm, 1 shape joint, full turn, 4 modes: the lowest four
+cross in pairs, one cluster), ``arm4_spatial`` (2 shape joints inside their limits,
+4 modes: two clusters of two) and ``arm6_3flex`` (4 shape joints, 2 modes; fit only and
+capped at degree 4 per axis, 625 points: its 6° grid has 4.9 million points and the
+fit to the target is out of reach here, see README_scale.md). Each (case, method) runs
+in a fresh subprocess so that its peak memory is its own.
+
+Usage::
+
+    python benchmarks/bench_scale.py [--json] [--cases arm2link arm4_spatial]
+                                     [--methods grid fit] [--heldout N] [--processes P]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+#: case -> (robot file, modes, largest Chebyshev degree per axis, grid feasible, cluster
+#: gap of the frequency fit: the Table 8 arm's modes 2 and 3 approach within 1.3 % without
+#: meeting, and that fit takes clusters of two at most; the stiffness fit keeps 0.05)
+CASES = {"arm2link": ("problems/arm2link.toml", 4, 64, True, 0.01),
+         "arm4_spatial": ("problems/arm4_spatial.toml", 4, 64, True, 0.05),
+         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 8, False, 0.05)}
+
+
+def _heldout_configurations(robot, count):
+    rng = np.random.default_rng(21)
+    qs = np.empty((count, robot.n_joints))
+    for k, lim in enumerate(robot.joint_limits):
+        lo, hi = lim if lim is not None else (-np.pi, np.pi)
+        qs[:, k] = rng.uniform(lo, hi, count)
+    return qs
+
+
+def _dir_mb(path):
+    return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) / 1e6
+
+
+def run_one(case, method, heldout, processes):
+    """One (case, method) in this process; returns the figures as a dict."""
+    from casflex.modal import build_table, fit_chebyshev, shape_joints
+    from casflex.model.build import default_grid
+    from casflex.robot import load
+    from casflex.tmm import natural_frequencies
+
+    path, n_modes, max_degree, grid_ok, gap = CASES[case]
+    if method == "grid" and not grid_ok:
+        return {"case": case, "method": method, "skipped": "grid beyond MAX_GRID_POINTS"}
+    robot = load(str(ROOT / path))
+    joints = shape_joints(robot)
+    qs = _heldout_configurations(robot, heldout)
+    ref = np.array([natural_frequencies(robot, q, count=n_modes) for q in qs])
+    out = {"case": case, "method": method, "shape_joints": [k + 1 for k in joints],
+           "n_modes": n_modes}
+    with tempfile.TemporaryDirectory() as cache:
+        t0 = time.perf_counter()
+        if method == "tracking":
+            return _tracking(out, robot, joints, n_modes, qs, ref, cache, processes)
+        if method == "grid":
+            grid = default_grid(robot, joints)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # low-MAC warning: reported
+                table = build_table(robot, grid, n_modes, quantities=False, cache_dir=cache,
+                                    processes=processes)
+            seconds = time.perf_counter() - t0
+            f = table.function("omega")
+            got = np.array([np.sort(f(q[list(joints)]).full().ravel()) for q in qs])
+            out.update(points=int(np.prod(table.shape)), grid_shape=list(table.shape),
+                       min_mac=table.info["min_mac"], cache_mb=_dir_mb(cache))
+        else:
+            quantity = "stiffness" if method == "fit_stiffness" else "frequencies"
+            fit = fit_chebyshev(robot, n_modes, processes=processes,
+                                gap=gap if quantity == "frequencies" else 0.05,
+                                start_degree=min(8, max_degree), max_degree=max_degree,
+                                quantity=quantity)
+            seconds = time.perf_counter() - t0
+            got = np.array([fit.evaluate("omega", q[list(joints)]) for q in qs])
+            if quantity == "stiffness":  # Rayleigh ω: the frequencies are K̃'s eigenvalues
+                got = []
+                for q in qs:
+                    K = fit.evaluate("stiffness", q[list(joints)])
+                    got.append(np.sqrt(np.clip(np.linalg.eigvalsh(K), 0.0, None)))
+                got = np.array(got)
+            out.update(points=fit.info["points"], degrees=list(fit.degrees),
+                       estimate=fit.info["estimate"], converged=fit.info["converged"],
+                       min_mac=fit.info["min_mac"], cache_mb=0.0)
+    err = np.abs(got / ref - 1.0)
+    out.update(seconds=seconds, heldout=int(heldout), heldout_max_rel=float(err.max()),
+               heldout_per_mode=err.max(axis=0).tolist(),
+               rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+               rss_workers_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0)
+    return out
+
+
+def _tracking(out, robot, joints, n_modes, qs, ref, cache, processes):
+    from casflex.modal import build_table
+    from casflex.model.build import default_grid
+
+    rows = []
+    for step in (30.0, 15.0, 6.0):
+        grid = default_grid(robot, joints, np.radians(step))
+        row = {"step_deg": step, "points": int(np.prod([a.size for a in grid]))}
+        for basis in ("eigen", "smooth"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                table = build_table(robot, grid, n_modes, quantities=False, cache_dir=cache,
+                                    processes=processes, basis=basis)
+            if basis == "eigen":
+                f = table.function("omega")
+                got = [np.sort(f(q[list(joints)]).full().ravel()) for q in qs]
+            else:
+                f = table.function("stiffness")
+                got = [np.sqrt(np.linalg.eigvalsh(f(q[list(joints)]).full())) for q in qs]
+            row[f"min_mac_{basis}"] = table.info["min_mac"]
+            row[f"heldout_max_rel_{basis}"] = float(np.max(np.abs(np.array(got) / ref - 1)))
+        rows.append(row)
+    out.update(tracking=rows)
+    return out
+
+
+def main(argv=None):
+    """Run the cases in subprocesses and print a table or one JSON object."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--cases", nargs="+", default=["arm2link", "arm4_spatial"],
+                    choices=list(CASES))
+    ap.add_argument("--methods", nargs="+", default=["grid", "fit"],
+                    choices=["grid", "fit", "fit_stiffness", "tracking"])
+    ap.add_argument("--heldout", type=int, default=12, help="held-out configurations")
+    ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
+    ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.one:
+        print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes)))
+        return 0
+    results = []
+    load_before = os.getloadavg()
+    for case in args.cases:
+        for method in args.methods:
+            cmd = [sys.executable, __file__, "--one", case, method,
+                   "--heldout", str(args.heldout)]
+            if args.processes is not None:
+                cmd += ["--processes", str(args.processes)]
+            done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            if done.returncode != 0:
+                sys.stderr.write(done.stderr)
+                return 1
+            results.append(json.loads(done.stdout.strip().splitlines()[-1]))
+            if not args.json and "tracking" in results[-1]:
+                for r in results[-1]["tracking"]:
+                    print(f"{case:13s} step {r['step_deg']:4.0f}° points {r['points']:5d}  "
+                          f"min MAC eigen {r['min_mac_eigen']:.3f} smooth "
+                          f"{r['min_mac_smooth']:.3f}  held-out eigen "
+                          f"{r['heldout_max_rel_eigen']:.1e} smooth "
+                          f"{r['heldout_max_rel_smooth']:.1e}", flush=True)
+            elif not args.json and "skipped" not in results[-1]:
+                r = results[-1]
+                print(f"{case:13s} {method:4s} points {r['points']:6d}  "
+                      f"{r['seconds']:7.1f} s  rss {r['rss_mb']:6.0f} MB  "
+                      f"cache {r['cache_mb']:7.1f} MB  min MAC {r['min_mac']:.3f}  "
+                      f"held-out max {r['heldout_max_rel']:.2e}", flush=True)
+    report = {"results": results, "load_before": list(load_before),
+              "load_after": list(os.getloadavg()), "cpus": os.cpu_count()}
+    if args.json:
+        print(json.dumps(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
