@@ -106,7 +106,9 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         shaping removes, 0–1), ``stable``, ``c_files``, ``slow_gains`` (the slow gains,
         their bandwidth ω_c [rad/s], ω_min [rad/s] and the separation ω_min/ω_c) and
         ``tracking`` (largest joint tracking error [rad] of the loop with the EKF, per
-        joint, and of the loop with the true state fed back).
+        joint, and of the loop with the true state fed back), ``c_shaper_table`` (the
+        shaper's C delay/amplitude table files) and ``stability`` (one verdict per
+        condition; ``stable`` holds only when all do).
 
     Examples
     --------
