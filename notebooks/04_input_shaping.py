@@ -430,7 +430,8 @@ fig.tight_layout()
 # never below eq. 187's value, equal when undamped) and reports eq. 187's number beside it.
 #
 # With the impulse times fixed on a grid the design is a linear program per duration;
-# bisection on the duration gives the shortest grid shaper (`grid_optimum`, HiGHS), which
+# a search on the duration (one HiGHS model kept across durations, a secant search on the
+# smallest reachable V/Vtol) gives the shortest grid shaper (`grid_optimum`), which
 # starts the Ipopt polish and bounds it. Below: random problems (1–3 ranges in 1–30 Hz,
 # widths 5–60 %, Vtol 2–20 %, ζ 0–0.05): the designed duration relative to the grid
 # optimum. The polish, free to move the impulses off the grid, ends shorter. (The tests
