@@ -57,6 +57,8 @@ VARIANTS = {
     "fine_grid": {"step": np.radians(0.5)},       # table every 0.5° instead of 1.5°
     "rates_fine_grid": {"shape_rates": True, "step": np.radians(0.5)},
     "order0": {"delta_order": 0},                 # M(q) only (the dissertation's M)
+    "short": {"foreshortening": True},            # + the beams' shortening, M_qq to δ²
+    "rates_short": {"shape_rates": True, "foreshortening": True},  # both
 }
 
 
