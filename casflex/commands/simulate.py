@@ -1,8 +1,8 @@
 """``casflex simulate``: prescribed joint motion of a flexible arm (dissertation §3.3.7.1).
 
 ``casflex simulate ROBOT.toml --move FILE:NAME [--modes 5] [--dt 0.001] [--step 1.5deg]
-[--gravity] [--method rk4|poly|cvodes|idas] [--jit] [--cache-dir DIR] [--plot FILE.png]
-[--json]``
+[--gravity] [--method rk4|poly|cvodes|idas] [--jit] [--shape-rates] [--foreshortening]
+[--cache-dir DIR] [--plot FILE.png] [--json]``
 
 ``--method poly`` takes the same RK4 steps on the exact polynomial form of the modal rows
 (faster for large models); ``--jit`` also compiles it to C once per model (kept in the
@@ -64,6 +64,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --method poly: compile the model's arrays and the RK4 "
                              "steps to C (system compiler; cached on disk, the first run "
                              "compiles for ~30 s)")
+    parser.add_argument("--shape-rates", action="store_true",
+                        help="model option: velocity terms of mode shapes that change with "
+                             "the configuration (fast moves; costs time)")
+    parser.add_argument("--foreshortening", action="store_true",
+                        help="model option: the beams' shortening (geometric stiffening on "
+                             "fast moves; not with --method poly)")
     parser.add_argument("--cache-dir", default=None,
                         help="modal table cache (default $CASFLEX_CACHE or ~/.cache/casflex)")
     parser.add_argument("--plot", metavar="FILE.png",
@@ -134,7 +140,10 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
     result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
                                          gravity=args.gravity, method=args.method, jit=jit,
-                                         cache_dir=args.cache_dir)
+                                         cache_dir=args.cache_dir,
+                                         shape_rates=getattr(args, "shape_rates", False),
+                                         foreshortening=getattr(args, "foreshortening",
+                                                                False))
     sizes = table.omega.shape[:-1]  # one axis per shape joint
     points = " × ".join(str(s) for s in sizes) + (f" = {math.prod(sizes)}" if len(sizes) > 1
                                                    else "")
