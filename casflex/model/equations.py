@@ -117,16 +117,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError
-from casflex.modal.normalize import gauss_legendre
 from casflex.modal.integrals import (
     QUANTITY_KEYS,
-    RATE_SAMPLES,
     RATE_KEYS,
+    RATE_SAMPLES,
     pseudo_inertia,
     quantity_shapes,
     rate_samples,
     rigid_pseudo_inertias,
 )
+from casflex.modal.normalize import gauss_legendre
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
