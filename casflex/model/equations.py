@@ -102,10 +102,45 @@ with the shape joints, so the velocity of a point also has the part
   derivatives along the shape joints.
 
 With these, ``M`` is the kinetic energy of the moving shapes to first order in δ (tested
-against the energy of the sampled points). Left out: everything of second order in δ (the
-model's truncation), among it the beams' foreshortening (centrifugal stiffening). The
-option costs a larger graph (measured in
-``benchmarks/README_fidelity.md``) and is off by default.
+against the energy of the sampled points).
+
+Foreshortening: geometric stiffening (``foreshortening=True``)
+--------------------------------------------------------------
+The first-order ``M`` has no δ² part in ``½ q̇ᵀ M_qq q̇``, so the δ rows miss every term
+linear in δ and quadratic in q̇: the centrifugal softening (the δ² part of Ψ) and the
+stiffening of a beam pulled by its own inertia (Kane, Ryan & Banerjee 1987). The
+stiffening comes from the beam's shortening as it bends: a section at ``s`` moves back
+along the beam by ``½ Σ δ_j δ_k S_jk(s)``, ``S_jk(s) = ∫₀ˢ ϑ_j⊥·ϑ_k⊥`` (the slope of an
+Euler–Bernoulli beam's local deflection is ``ϑ × e_z``). With the option
+
+* the section frames are ``L(s; δ) = L0 + Σ δ_j L_j + ½ Σ δ_j δ_k L_jk``,
+  ``L_jk = [[0, −S_jk(s) e_z], [0, 0]]``, so Ψ gains ``Σ δ_j δ_k (C2_jk + ½(G_jk +
+  G_jkᵀ))`` and ``D_k`` gains ``Σ_j δ_j G_jkᵀ`` with ``G_jk = ∫ L_jk J L0ᵀ`` (two
+  entries per pair, ``∫ ρA S_jk`` and ``∫ ρA s S_jk``, and the tip body's share);
+* the end transforms are of second order: rotation ``exp[ϑ×]`` to δ², the end pulled in
+  by ``½ δᵀ S(L) δ`` (so the outboard links, the tip and the sensor points shorten too);
+* ``M_qq`` is kept to **second order** in δ, the rest of ``M`` to first, and the
+  gravitational potential to second order (gravity's own geometric stiffness).
+
+The δ rows are then complete to first order in δ for any joint motion (tested against
+the Southwell coefficients of a rotating cantilever: ``ω² + 1.193 Ω²`` bending along the
+rotation axis, ``ω² + 0.193 Ω²`` in the plane of rotation). ``S_jk`` and ``G_jk`` come
+from the shapes sampled inside the links (``sample_theta``, 16 Gauss points) at the
+model's configuration; the sections' rotations stay of first order (their inertia is
+torsional only) and the second-order terms of the moving shapes themselves
+(``½ ∫ ρ |Σ δ ∂w/∂q q̇|²``) are not included. ``M_δδ`` keeps its first-order part from
+these kinematics.
+
+Cost and fidelity
+-----------------
+Both options are off by default: they cost time (``benchmarks/README_fidelity.md``,
+measured side by side: ``shape_rates`` adds about a third to the modal rows'
+instructions, ``foreshortening`` more) and the dissertation's moves do not need them. On
+fast moves with large elbow travel they are what brings the model to an independent
+nonlinear beam model (ANCF, ``tests/reference_beam_dynamics.py``): with both, peak,
+residual and time history within 1.3 % where the default model is off by up to 25 %.
+``simulate_prescribed(method="poly")`` needs ``M`` affine in δ and refuses
+``foreshortening``.
 """
 
 from __future__ import annotations
@@ -225,6 +260,10 @@ class FlexibleModel:
         ``sample_u``/``sample_theta`` quantities (every provider of
         :mod:`casflex.model.providers` built from
         :func:`~casflex.modal.integrals.configuration_quantities`).
+    foreshortening : bool
+        Keep the beams' shortening and ``M_qq`` to second order in δ: the geometric
+        (centrifugal) stiffening of fast moves (module docstring; default off). Needs
+        ``delta_order=1`` and the ``sample_theta`` quantity.
 
     Attributes
     ----------
