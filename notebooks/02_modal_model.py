@@ -210,6 +210,10 @@ print("for comparison, move 1 changes M(q, 0) by up to", np.ptp(M_1, axis=1).max
 # velocity of a point also has a ``Σ δ_j ∂w_j/∂q3 q̇3`` part. The dissertation's kinetic
 # energy (eq. 70) leaves it out, and so does casflex's default model;
 # ``build_model(..., shape_rates=True)`` keeps it (to first order in δ, like the rest of M).
+# A second effect is geometric: a beam that bends also shortens, and a beam pulled by its
+# own inertia (centrifugal and joint accelerations) stiffens — terms linear in δ and
+# quadratic in q̇ that come from the δ² part of ``½ q̇ᵀ M_qq q̇``, beyond the first-order
+# M. ``foreshortening=True`` keeps them (the Southwell stiffening of a rotating beam).
 #
 # The reference is a planar nonlinear beam model written for the tests without casflex
 # (``tests/reference_beam_dynamics.py``: absolute-nodal-coordinate Euler–Bernoulli
@@ -228,28 +232,42 @@ sys.path.insert(0, str(ROOT / "tests"))
 from fidelity_cases import MOVES, casflex_run, compare, reference_run  # noqa: E402
 
 t0 = time.perf_counter()
+OPTIONS = {"default": {}, "shape_rates": {"shape_rates": True},
+           "both": {"shape_rates": True, "foreshortening": True}}
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", RuntimeWarning)
     variants = {label: build_model(ROBOT, n_modes=5, step=np.radians(3.0), cache_dir=CACHE,
-                                   processes=2, gravity=None, shape_rates=rates)[0]
-                for label, rates in (("default", False), ("shape_rates", True))}
+                                   processes=2, gravity=None, **options)[0]
+                for label, options in OPTIONS.items()}
 fidelity, runs = [], {}
-for name in ("move2", "elbow2_1s"):
-    mv = MOVES[name]
-    ref = reference_run(mv, n_elements=8, dt=1e-3)
-    runs[name] = {"reference": ref}
-    for label, m in variants.items():
-        runs[name][label] = casflex_run(m, mv)
-        c = compare(runs[name][label], ref, mv.duration)
-        fidelity.append([name, label, f"{c['peak_ref_mm']:.1f}", f"{c['peak_pct']:+.2f}",
-                         f"{c['residual_pct']:+.2f}", f"{c['gap_pct']:.2f}"])
+
+
+def compare_variants(labels):
+    for name in ("move2", "elbow2_1s"):
+        mv = MOVES[name]
+        ref = runs.setdefault(name, {}).setdefault(
+            "reference", reference_run(mv, n_elements=8, dt=1e-3))
+        for label in labels:
+            runs[name][label] = casflex_run(variants[label], mv)
+            c = compare(runs[name][label], ref, mv.duration)
+            fidelity.append([name, label, f"{c['peak_ref_mm']:.1f}", f"{c['peak_pct']:+.2f}",
+                             f"{c['residual_pct']:+.2f}", f"{c['gap_pct']:.2f}"])
+
+
+compare_variants(["default", "shape_rates"])
+print(f"{time.perf_counter() - t0:.0f} s")
+
+# %%
+t0 = time.perf_counter()
+compare_variants(["both"])  # shape_rates and foreshortening
 print(f"{time.perf_counter() - t0:.0f} s")
 table(fidelity, ["move", "model", "peak ref [mm]", "peak %", "residual %", "gap %"])
 
 # %%
 fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
 for ax, name in zip(axes, runs, strict=True):
-    for label, style in (("reference", "k-"), ("default", "C3--"), ("shape_rates", "C0:")):
+    for label, style in (("reference", "k-"), ("default", "C3--"), ("shape_rates", "C0:"),
+                         ("both", "C2-.")):
         r = runs[name][label]
         ax.plot(r["t"], 1e3 * np.linalg.norm(r["d"], axis=1), style, label=label)
     ax.set_ylabel("|tip deflection| [mm]")
@@ -260,10 +278,11 @@ fig.tight_layout()
 
 # %% [markdown]
 # Before (default model): the time history is off by 8 % of the peak on Table 9 move 2
-# and by 25 % on the faster move with 1.2 rad of elbow travel; after (``shape_rates``):
-# about 2 % and 4 %. What remains grows with the deflection (the beams' shortening as
-# they bend, which the model's δ-linear kinematics leave out); the option costs about 34 %
-# more CasADi instructions in the modal rows (1.5–2× the simulation time) and is off by
+# and by 25 % on the faster move with 1.2 rad of elbow travel; with ``shape_rates``:
+# about 2 % and 4 %, but the residual of the fast move stays 5.6 % too large; with both
+# options (``both``): within 0.7 % of the peak, peak and residual within 1.3 %
+# (``benchmarks/README_fidelity.md``, 16-element reference: the same to 0.1 %). The
+# options cost time — measured side by side on move 1: COST_SENTENCE — and are off by
 # default.
 
 # %% [markdown]

@@ -99,8 +99,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ------
     ModelError
         A move for another number of joints or outside the robot's joint limits,
-        ``--modes < 1``, a bad ``--dt``, or
-        ``--jit`` without ``--method poly``.
+        ``--modes < 1``, a bad ``--dt``,
+        ``--jit`` without ``--method poly``, or ``--foreshortening`` with it.
 
     Examples
     --------
@@ -138,12 +138,15 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     jit = getattr(args, "jit", False)
     if jit and args.method != "poly":
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
+    foreshortening = getattr(args, "foreshortening", False)
+    if foreshortening and args.method == "poly":
+        raise ModelError("--foreshortening: not with --method poly (its M is not affine "
+                         "in the modal amplitudes); use --method rk4")
     result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
                                          gravity=args.gravity, method=args.method, jit=jit,
                                          cache_dir=args.cache_dir,
                                          shape_rates=getattr(args, "shape_rates", False),
-                                         foreshortening=getattr(args, "foreshortening",
-                                                                False))
+                                         foreshortening=foreshortening)
     sizes = table.omega.shape[:-1]  # one axis per shape joint
     points = " × ".join(str(s) for s in sizes) + (f" = {math.prod(sizes)}" if len(sizes) > 1
                                                    else "")
