@@ -18,7 +18,7 @@ Usage::
 
     python benchmarks/bench_fidelity.py [--json] [--variants base,rates] [--modes 5,8]
         [--cache DIR] [--no-convergence]
-    python benchmarks/bench_fidelity.py --cost [--json]
+    python benchmarks/bench_fidelity.py --cost [--jit] [--json]
 
 ``--cost`` instead measures what the options cost (:func:`cost`): ``bench_model.py``'s
 ``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls), the
@@ -77,13 +77,14 @@ def convergence(cache):
     return rows
 
 
-def cost(repeats=3, calls=2000):
+def cost(repeats=3, calls=1000, jit=False):
     """What the options cost, every variant in one process, timed calls alternated so that
     all see the same machine load:
 
-    * ``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes, ``poly`` with
-      ``jit=True``, the library compiled once; median of warm calls) with ``shape_rates``
-      off and on (``poly`` refuses ``foreshortening``: its M is not affine in δ);
+    * with ``jit``: ``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes,
+      ``poly`` with ``jit=True``, the library compiled once — minutes per variant; median
+      of warm calls) with ``shape_rates`` off and on (``poly`` refuses
+      ``foreshortening``: its M is not affine in δ);
     * the modal rows RK4 integrates (``dddelta``, CasADi's virtual machine): median time
       of ``calls`` evaluations, every variant, and the instruction counts;
     * the EKF step of the design study's estimator (3 modes, 3° table, the two tip
@@ -123,7 +124,7 @@ def cost(repeats=3, calls=2000):
             out[label]["plant_build_s"] = time.perf_counter() - t0
             ekf[label] = ekf_step_function(plant, sensors, 5e-6, 1e-4, 1e-3)
             out[label]["ekf_step_instructions"] = int(ekf[label].n_instructions())
-            if label != "rates_short":
+            if jit and label != "rates_short":
                 t0 = time.perf_counter()
                 simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
                                     cache_dir=jit_cache)
@@ -138,7 +139,7 @@ def cost(repeats=3, calls=2000):
                      rng.normal(0, 0.1, ny), np.ones(ny)) for _ in range(calls)]
         for _ in range(repeats):
             for label in variants:
-                if label != "rates_short":
+                if jit and label != "rates_short":
                     t0 = time.perf_counter()
                     simulate_prescribed(models[label], move, dt=1e-3, method="poly",
                                         jit=True, cache_dir=jit_cache)
@@ -158,8 +159,9 @@ def cost(repeats=3, calls=2000):
                          ("ekf_step_us", "ekf_step_us_median")):
             if out[label][key]:
                 out[label][med] = float(np.median(out[label][key]))
-    out["ratio_simulate_move1_rates_off"] = (out["rates"]["simulate_move1_s"]
-                                             / out["off"]["simulate_move1_s"])
+    if jit:
+        out["ratio_simulate_move1_rates_off"] = (out["rates"]["simulate_move1_s"]
+                                                 / out["off"]["simulate_move1_s"])
     for label in ("rates", "rates_short"):
         out[f"ratio_dddelta_{label}_off"] = (out[label]["dddelta_us_median"]
                                              / out["off"]["dddelta_us_median"])
@@ -179,10 +181,13 @@ def main(argv=None):
                                                / "casflex_fidelity_reference"))
     parser.add_argument("--no-convergence", action="store_true")
     parser.add_argument("--cost", action="store_true",
-                        help="only the cost of shape_rates (move 1, off vs on)")
+                        help="only the cost of the options (off, shape_rates, both)")
+    parser.add_argument("--jit", action="store_true",
+                        help="with --cost: also move 1 with poly + jit (compiles twice)")
     args = parser.parse_args(argv)
     if args.cost:
-        print(json.dumps(cost(), default=float, indent=None if args.json else 1))
+        print(json.dumps(cost(jit=args.jit), default=float,
+                         indent=None if args.json else 1))
         return
 
     from casflex.model import build_model
