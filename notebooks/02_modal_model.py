@@ -245,8 +245,9 @@ fidelity, runs = [], {}
 def compare_variants(labels):
     for name in ("move2", "elbow2_1s"):
         mv = MOVES[name]
-        ref = runs.setdefault(name, {}).setdefault(
-            "reference", reference_run(mv, n_elements=8, dt=1e-3))
+        if name not in runs:
+            runs[name] = {"reference": reference_run(mv, n_elements=8, dt=1e-3)}
+        ref = runs[name]["reference"]
         for label in labels:
             runs[name][label] = casflex_run(variants[label], mv)
             c = compare(runs[name][label], ref, mv.duration)

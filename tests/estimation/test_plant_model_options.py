@@ -21,17 +21,19 @@ DT = 1e-3
 # q3 on a grid point of the 15° table, joints moving, a deflected state
 Q_ = np.array([0.2, -0.4, np.radians(45.0)])
 DQ, DDQ = np.array([0.5, -1.5, 2.0]), np.array([1.0, -2.0, 3.0])
-X = np.array([0.01, -0.005, 0.008, 0.1, -0.05, 0.08])  # [δ; δ̇]
+# [δ; δ̇], small enough that the plant's truncation (second order in Δ; the model's rows
+# are rational in δ through M_δδ(δ)) is far below the options' first-order terms: at ten
+# times this state the predictions differ by 3 % of the options' change (1.4e-5)
+X = np.array([0.001, -0.0005, 0.0008, 0.01, -0.005, 0.008])
 
 
 @pytest.fixture(scope="module")
-def pair(arm_model, accel_sensors, tmp_path_factory):
-    cache = tmp_path_factory.mktemp("plants")
+def pair(arm_model, accel_sensors, model_cache):
     out = []
     for options in ({}, {"shape_rates": True, "foreshortening": True}):
         model, _ = arm_model(3, step_deg=15, gravity=None, delta_order=1,
                              points=accel_sensors.points, **options)
-        out.append((model, tabulate_plant(model, cache_dir=cache)))
+        out.append((model, tabulate_plant(model, cache_dir=model_cache)))
     return out
 
 
@@ -60,10 +62,11 @@ def test_ekf_prediction_takes_the_terms(pair, accel_sensors):
         ekf.append(out[0].full().ravel())
         ref.append(_model_prediction(model))
     change_ref, change_ekf = ref[1] - ref[0], ekf[1] - ekf[0]
-    assert np.abs(change_ref).max() > 1e-6  # the options matter at this state
-    np.testing.assert_allclose(ekf[1], ref[1], rtol=0, atol=1e-3 * np.abs(change_ref).max())
-    np.testing.assert_allclose(change_ekf, change_ref, rtol=0,
-                               atol=1e-3 * np.abs(change_ref).max())
+    big = np.abs(change_ref).max()
+    assert big > 1e-6  # the options matter at this state
+    # 1e-2 of the change: the truncation falls as the square of the state relative to it
+    np.testing.assert_allclose(ekf[1], ref[1], rtol=0, atol=1e-2 * big)
+    np.testing.assert_allclose(change_ekf, change_ref, rtol=0, atol=1e-2 * big)
 
 
 @pytest.mark.slow
@@ -89,5 +92,6 @@ def test_rt_step_carries_the_estimator_and_the_controller(pair, accel_sensors):
     out = rt(**args)
     want = step(X, P, np.r_[Q_, DQ, DDQ], np.zeros(ny), np.zeros(ny))[0]
     np.testing.assert_allclose(out["x_next"].full(), want.full(), rtol=1e-9, atol=1e-12)
+    change = np.abs(_model_prediction(on) - _model_prediction(off)).max()
     np.testing.assert_allclose(out["x_next"].full().ravel(), _model_prediction(on),
-                               rtol=0, atol=1e-5)
+                               rtol=0, atol=1e-2 * change)
