@@ -281,10 +281,14 @@ fig.tight_layout()
 # Before (default model): the time history is off by 8 % of the peak on Table 9 move 2
 # and by 25 % on the faster move with 1.2 rad of elbow travel; with ``shape_rates``:
 # about 2 % and 4 %, but the residual of the fast move stays 5.6 % too large; with both
-# options (``both``): within 0.7 % of the peak, peak and residual within 1.3 %
-# (``benchmarks/README_fidelity.md``, 16-element reference: the same to 0.1 %). The
-# options cost time — measured side by side on move 1: COST_SENTENCE — and are off by
-# default.
+# options (``both``) the residual closes too (the table above; with the benchmark's
+# 16-element reference and 1.5° table: peak, residual and gap within 1.3 %,
+# ``benchmarks/README_fidelity.md``). The options cost time, measured side by side on a
+# loaded machine: ``shape_rates`` 1.34× the CasADi instructions of the modal rows and
+# 1.5–2.2× the compiled ``poly`` simulation of move 1 (the EKF step unchanged); both
+# options 1.9× the instructions, about 3× per RK4 step (``poly`` needs an M affine in δ
+# and is not available with ``foreshortening``) and 1.3× the EKF step's instructions.
+# They are off by default.
 
 # %% [markdown]
 # **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model
