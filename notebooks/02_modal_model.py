@@ -285,8 +285,8 @@ fig.tight_layout()
 # 16-element reference and 1.5° table: peak, residual and gap within 1.3 %,
 # ``benchmarks/README_fidelity.md``). The options cost time, measured side by side on a
 # loaded machine: ``shape_rates`` 1.34× the CasADi instructions of the modal rows and
-# 1.5–2.2× the compiled ``poly`` simulation of move 1 (the EKF step unchanged); both
-# options 1.9× the instructions, about 3× per RK4 step (``poly`` needs an M affine in δ
+# 1.6–2.0× the compiled ``poly`` simulation of move 1 (medians of two sessions; the EKF
+# step unchanged); both options 1.9× the instructions, 2–3× per RK4 step (``poly`` needs an M affine in δ
 # and is not available with ``foreshortening``) and 1.3× the EKF step's instructions.
 # They are off by default.
 

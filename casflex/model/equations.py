@@ -135,7 +135,7 @@ Cost and fidelity
 -----------------
 Both options are off by default: they cost time (``benchmarks/README_fidelity.md``,
 measured side by side: ``shape_rates`` 1.34× the instructions of the modal rows,
-1.5–2.2× the ``poly`` simulation of move 1, the EKF step unchanged; with
+1.6–2.0× the ``poly`` simulation of move 1, the EKF step unchanged; with
 ``foreshortening`` as well 1.9× the instructions of the modal rows, no ``poly`` path,
 1.3× the EKF step's instructions) and the dissertation's moves do not need them. On
 fast moves with large elbow travel they are what brings the model to an independent
