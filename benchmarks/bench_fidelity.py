@@ -18,11 +18,12 @@ Usage::
 
     python benchmarks/bench_fidelity.py [--json] [--variants base,rates] [--modes 5,8]
         [--cache DIR] [--no-convergence]
-    python benchmarks/bench_fidelity.py --cost [--json]
+    python benchmarks/bench_fidelity.py --cost [--jit] [--json]
 
-``--cost`` instead measures what ``shape_rates`` costs: ``bench_model.py``'s
-``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls) off and
-on, alternated in one process, and the CasADi instruction counts.
+``--cost`` instead measures what the options cost (:func:`cost`): ``bench_model.py``'s
+``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls), the
+modal rows of RK4 and the EKF step, every variant alternated in one process, and the
+CasADi instruction counts.
 
 Reference runs are cached as ``.npz`` in ``--cache`` (default: a folder in the system's
 temporary directory), keyed by the reference's source, the move, the elements and step.
@@ -57,6 +58,8 @@ VARIANTS = {
     "fine_grid": {"step": np.radians(0.5)},       # table every 0.5° instead of 1.5°
     "rates_fine_grid": {"shape_rates": True, "step": np.radians(0.5)},
     "order0": {"delta_order": 0},                 # M(q) only (the dissertation's M)
+    "short": {"foreshortening": True},            # + the beams' shortening, M_qq to δ²
+    "rates_short": {"shape_rates": True, "foreshortening": True},  # both
 }
 
 
@@ -74,48 +77,99 @@ def convergence(cache):
     return rows
 
 
-def cost(repeats=3):
-    """``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes, ``poly`` with
-    ``jit=True``, the library compiled once; median of warm calls) and the CasADi
-    instruction counts, with ``shape_rates`` off and on in one process, warm calls
-    alternated so that both see the same machine load."""
+def cost(repeats=3, calls=1000, jit=False):
+    """What the options cost, every variant in one process, timed calls alternated so that
+    all see the same machine load:
+
+    * with ``jit``: ``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes,
+      ``poly`` with ``jit=True``, the library compiled once — minutes per variant; median
+      of warm calls) with ``shape_rates`` off and on (``poly`` refuses
+      ``foreshortening``: its M is not affine in δ);
+    * the modal rows RK4 integrates (``dddelta``, CasADi's virtual machine): median time
+      of ``calls`` evaluations, every variant, and the instruction counts;
+    * the EKF step of an estimator like the design study's (3 modes, the two tip
+      accelerometers, plant tabulated from each model on a 15° table — the grid changes
+      the tabulation time, not the cost of a step): median time of ``calls`` evaluations
+      and its instruction count.
+    """
     import os
 
+    from casflex.estimation import ekf_step_function, tabulate_plant
     from casflex.model import build_model
     from casflex.moves import load_move
     from casflex.robot import load
+    from casflex.sensors import load_sensors
     from casflex.simulate import simulate_prescribed
 
     robot = load(ROOT / "problems" / "arm2link.toml")
+    sensors = load_sensors(ROOT / "problems" / "sensors" / "arm2link_accel.toml", robot)
     move = load_move(ROOT / "problems/moves.toml:move1")
+    variants = {"off": {}, "rates": {"shape_rates": True},
+                "rates_short": {"shape_rates": True, "foreshortening": True}}
     out = {"loadavg_start": os.getloadavg()[0]}
-    models = {}
+    models, rows, ekf = {}, {}, {}
+    rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as jit_cache:
-        for label, rates in (("off", False), ("on", True)):
+        for label, options in variants.items():
             t0 = time.perf_counter()
-            model, _ = build_model(robot, 5, gravity=None, shape_rates=rates)
+            model, _ = build_model(robot, 5, gravity=None, **options)
             f = model.functions()
-            models[label] = model
+            models[label], rows[label] = model, f["dddelta"]
             out[label] = {"model_build_s": time.perf_counter() - t0,
                           "instructions": {k: int(f[k].n_instructions())
                                            for k in ("mass", "dddelta", "prescribed", "ode")}}
+            print(f"cost: {label}: model built, tabulating the plant", file=sys.stderr,
+                  flush=True)
+            small, _ = build_model(robot, 3, step=np.radians(15.0), gravity=None,
+                                   points=sensors.points, processes=1, **options)
             t0 = time.perf_counter()
-            r = simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
-                                    cache_dir=jit_cache)
-            out[label]["jit_compile_call_s"] = time.perf_counter() - t0
-            out[label]["max_tip_deflection_m"] = r.max_tip_deflection
-            out[label]["warm_s"] = []
-        for _ in range(repeats):
-            for label in ("off", "on"):
+            plant = tabulate_plant(small)
+            out[label]["plant_build_s"] = time.perf_counter() - t0
+            ekf[label] = ekf_step_function(plant, sensors, 5e-6, 1e-4, 1e-3)
+            out[label]["ekf_step_instructions"] = int(ekf[label].n_instructions())
+            if jit and label != "rates_short":
                 t0 = time.perf_counter()
-                simulate_prescribed(models[label], move, dt=1e-3, method="poly", jit=True,
+                simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
                                     cache_dir=jit_cache)
-                out[label]["warm_s"].append(time.perf_counter() - t0)
-    for label in ("off", "on"):
-        out[label]["simulate_move1_s"] = float(np.median(out[label]["warm_s"]))
-    out["ratio_on_off"] = out["on"]["simulate_move1_s"] / out["off"]["simulate_move1_s"]
-    out["ratio_per_repeat"] = [b / a for a, b in zip(out["off"]["warm_s"],
-                                                     out["on"]["warm_s"], strict=True)]
+                out[label]["jit_compile_call_s"] = time.perf_counter() - t0
+            for key in ("warm_s", "dddelta_us", "ekf_step_us"):
+                out[label][key] = []
+        args = [(rng.uniform(-1, 1, 3), rng.uniform(-2, 2, 3), rng.uniform(-3, 3, 3),
+                 rng.normal(0, 0.01, 5), rng.normal(0, 0.1, 5)) for _ in range(calls)]
+        ny = sensors.n_outputs
+        ekf_args = [(rng.normal(0, 0.01, 6), 1e-4 * np.eye(6),
+                     np.r_[rng.uniform(-1, 1, 3), rng.uniform(-2, 2, 6)],
+                     rng.normal(0, 0.1, ny), np.ones(ny)) for _ in range(calls)]
+        for _ in range(repeats):
+            for label in variants:
+                if jit and label != "rates_short":
+                    t0 = time.perf_counter()
+                    simulate_prescribed(models[label], move, dt=1e-3, method="poly",
+                                        jit=True, cache_dir=jit_cache)
+                    out[label]["warm_s"].append(time.perf_counter() - t0)
+                f = rows[label]
+                t0 = time.perf_counter()
+                for a in args:
+                    f(*a)
+                out[label]["dddelta_us"].append(1e6 * (time.perf_counter() - t0) / calls)
+                g = ekf[label]
+                t0 = time.perf_counter()
+                for a in ekf_args:
+                    g(*a)
+                out[label]["ekf_step_us"].append(1e6 * (time.perf_counter() - t0) / calls)
+    for label in variants:
+        for key, med in (("warm_s", "simulate_move1_s"), ("dddelta_us", "dddelta_us_median"),
+                         ("ekf_step_us", "ekf_step_us_median")):
+            if out[label][key]:
+                out[label][med] = float(np.median(out[label][key]))
+    if jit:
+        out["ratio_simulate_move1_rates_off"] = (out["rates"]["simulate_move1_s"]
+                                                 / out["off"]["simulate_move1_s"])
+    for label in ("rates", "rates_short"):
+        out[f"ratio_dddelta_{label}_off"] = (out[label]["dddelta_us_median"]
+                                             / out["off"]["dddelta_us_median"])
+        out[f"ratio_ekf_step_{label}_off"] = (out[label]["ekf_step_us_median"]
+                                              / out["off"]["ekf_step_us_median"])
     out["loadavg_end"] = os.getloadavg()[0]
     return out
 
@@ -130,10 +184,13 @@ def main(argv=None):
                                                / "casflex_fidelity_reference"))
     parser.add_argument("--no-convergence", action="store_true")
     parser.add_argument("--cost", action="store_true",
-                        help="only the cost of shape_rates (move 1, off vs on)")
+                        help="only the cost of the options (off, shape_rates, both)")
+    parser.add_argument("--jit", action="store_true",
+                        help="with --cost: also move 1 with poly + jit (compiles twice)")
     args = parser.parse_args(argv)
     if args.cost:
-        print(json.dumps(cost(), default=float, indent=None if args.json else 1))
+        print(json.dumps(cost(jit=args.jit), default=float,
+                         indent=None if args.json else 1))
         return
 
     from casflex.model import build_model

@@ -210,6 +210,10 @@ print("for comparison, move 1 changes M(q, 0) by up to", np.ptp(M_1, axis=1).max
 # velocity of a point also has a ``Σ δ_j ∂w_j/∂q3 q̇3`` part. The dissertation's kinetic
 # energy (eq. 70) leaves it out, and so does casflex's default model;
 # ``build_model(..., shape_rates=True)`` keeps it (to first order in δ, like the rest of M).
+# A second effect is geometric: a beam that bends also shortens, and a beam pulled by its
+# own inertia (centrifugal and joint accelerations) stiffens — terms linear in δ and
+# quadratic in q̇ that come from the δ² part of ``½ q̇ᵀ M_qq q̇``, beyond the first-order
+# M. ``foreshortening=True`` keeps them (the Southwell stiffening of a rotating beam).
 #
 # The reference is a planar nonlinear beam model written for the tests without casflex
 # (``tests/reference_beam_dynamics.py``: absolute-nodal-coordinate Euler–Bernoulli
@@ -227,37 +231,47 @@ import sys  # noqa: E402
 sys.path.insert(0, str(ROOT / "tests"))
 from fidelity_cases import MOVES, casflex_run, compare, reference_run  # noqa: E402
 
+OPTIONS = {"default": {}, "shape_rates": {"shape_rates": True},
+           "both": {"shape_rates": True, "foreshortening": True}}
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", RuntimeWarning)
     variants = {label: build_model(ROBOT, n_modes=5, step=np.radians(3.0), cache_dir=CACHE,
-                                   processes=2, gravity=None, shape_rates=rates)[0]
-                for label, rates in (("default", False), ("shape_rates", True))}
+                                   processes=2, gravity=None, **options)[0]
+                for label, options in OPTIONS.items()}
 fidelity, runs = [], {}
 
 
-def fidelity_of(name):
-    """The reference run of one move and both models' runs against it."""
+def fidelity_of(name, labels):
+    """The reference run of one move (computed once) and the models' runs against it."""
     mv = MOVES[name]
-    ref = reference_run(mv, n_elements=8, dt=1e-3)
-    runs[name] = {"reference": ref}
-    for label, m in variants.items():
-        runs[name][label] = casflex_run(m, mv)
+    if name not in runs:
+        runs[name] = {"reference": reference_run(mv, n_elements=8, dt=1e-3)}
+    ref = runs[name]["reference"]
+    for label in labels:
+        runs[name][label] = casflex_run(variants[label], mv)
         c = compare(runs[name][label], ref, mv.duration)
         fidelity.append([name, label, f"{c['peak_ref_mm']:.1f}", f"{c['peak_pct']:+.2f}",
                          f"{c['residual_pct']:+.2f}", f"{c['gap_pct']:.2f}"])
 
 
 # %%
-fidelity_of("move2")
+fidelity_of("move2", ["default", "shape_rates"])
 
 # %%
-fidelity_of("elbow2_1s")
+fidelity_of("elbow2_1s", ["default", "shape_rates"])
+
+# %%
+fidelity_of("move2", ["both"])  # shape_rates and foreshortening
+
+# %%
+fidelity_of("elbow2_1s", ["both"])
 table(fidelity, ["move", "model", "peak ref [mm]", "peak %", "residual %", "gap %"])
 
 # %%
 fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
 for ax, name in zip(axes, runs, strict=True):
-    for label, style in (("reference", "k-"), ("default", "C3--"), ("shape_rates", "C0:")):
+    for label, style in (("reference", "k-"), ("default", "C3--"), ("shape_rates", "C0:"),
+                         ("both", "C2-.")):
         r = runs[name][label]
         ax.plot(r["t"], 1e3 * np.linalg.norm(r["d"], axis=1), style, label=label)
     ax.set_ylabel("‖tip deflection‖₂ [mm]")
@@ -269,11 +283,17 @@ fig.tight_layout()
 
 # %% [markdown]
 # Before (default model): the time history is off by 8 % of the peak on Table 9 move 2
-# and by 25 % on the faster move with 1.2 rad of elbow travel; after (``shape_rates``):
-# about 2 % and 4 %. What remains grows with the deflection (the beams' shortening as
-# they bend, which the model's δ-linear kinematics leave out); the option costs about 34 %
-# more CasADi instructions in the modal rows (1.5–2× the simulation time) and is off by
-# default.
+# and by 25 % on the faster move with 1.2 rad of elbow travel; with ``shape_rates``:
+# about 2 % and 4 %, but the residual of the fast move stays 5.6 % too large; with both
+# options (``both``) the residual closes too (the table above; with the benchmark's
+# 16-element reference and 1.5° table: peak, residual and gap within 1.3 %,
+# ``benchmarks/README_fidelity.md``). The options cost time, measured side by side on a
+# loaded machine: ``shape_rates`` 1.34× the CasADi instructions of the modal rows and
+# 1.6–2.0× the compiled ``poly`` simulation of move 1 (medians of two sessions; the EKF
+# step unchanged); both options 1.9× the instructions, 2–3× per RK4 step (``poly``
+# needs an M affine in δ and is not available with ``foreshortening``) and 1.3× the EKF
+# step's instructions.
+# They are off by default.
 
 # %% [markdown]
 # **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model

@@ -1,8 +1,8 @@
 """``casflex simulate``: prescribed joint motion of a flexible arm (dissertation §3.3.7.1).
 
 ``casflex simulate ROBOT.toml --move FILE:NAME [--modes 5] [--dt 0.001] [--step 1.5deg]
-[--gravity | --no-gravity] [--method poly|rk4|cvodes|idas] [--jit]
-[--cache-dir DIR | --no-cache] [--plot FILE.png] [--json]``
+[--gravity | --no-gravity] [--method poly|rk4|cvodes|idas] [--jit] [--shape-rates]
+[--foreshortening] [--cache-dir DIR | --no-cache] [--plot FILE.png] [--json]``
 
 ``--method poly`` (the default) takes the same RK4 steps as ``--method rk4`` on the exact
 polynomial form of the modal rows: the same result (to rounding) several times faster
@@ -79,6 +79,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --method poly: compile the model's arrays and the RK4 "
                              "steps to C (system compiler; cached on disk, the first run "
                              "compiles for ~30 s)")
+    parser.add_argument("--shape-rates", action="store_true",
+                        help="model option: velocity terms of mode shapes that change with "
+                             "the configuration (fast moves; costs time)")
+    parser.add_argument("--foreshortening", action="store_true",
+                        help="model option: the beams' shortening (geometric stiffening on "
+                             "fast moves; needs --method rk4, cvodes or idas)")
     add_cache_arguments(parser)
     add_plot_argument(parser, "joint angles, torques, modal amplitudes and tip deflection")
 
@@ -105,8 +111,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ------
     ModelError
         A move for another number of joints or outside the robot's joint limits,
-        ``--modes < 1``, a bad ``--dt``, or
-        ``--jit`` without ``--method poly``.
+        ``--modes < 1``, a bad ``--dt``,
+        ``--jit`` without ``--method poly``, or ``--foreshortening`` with it.
 
     Examples
     --------
@@ -144,16 +150,23 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     jit = getattr(args, "jit", False)
     if jit and args.method != "poly":
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
+    foreshortening = getattr(args, "foreshortening", False)
+    if foreshortening and args.method == "poly":
+        raise ModelError("--foreshortening: not with --method poly (its M is not affine "
+                         "in the modal amplitudes); add --method rk4")
+    options = {"shape_rates": getattr(args, "shape_rates", False),
+               "foreshortening": foreshortening}
     cache_dir = cache_dir_of(args)
     if jit:  # the compiled library must live on disk: --no-cache gives a temporary one
         with disk_cache(cache_dir) as tmp:
             result, model, table = simulate_move(robot, move, args.modes, dt=args.dt,
                                                  step=step, gravity=args.gravity,
-                                                 method=args.method, jit=jit, cache_dir=tmp)
+                                                 method=args.method, jit=jit, cache_dir=tmp,
+                                                 **options)
     else:
         result, model, table = simulate_move(robot, move, args.modes, dt=args.dt, step=step,
                                              gravity=args.gravity, method=args.method,
-                                             cache_dir=cache_dir)
+                                             cache_dir=cache_dir, **options)
     sizes = table.omega.shape[:-1]  # one axis per shape joint
     points = " × ".join(str(s) for s in sizes) + (f" = {math.prod(sizes)}" if len(sizes) > 1
                                                    else "")

@@ -545,6 +545,7 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
         "version": __version__, "robot": repr(model.robot), "table": table.info.get("key"),
         "modes": model.m, "delta_order": model.delta_order, "modal_mass": model.modal_mass,
         "shape_rates": model.shape_rates,
+        "foreshortening": getattr(model, "foreshortening", False),
         "Q": Q, "R": R, "epsilon": float(epsilon), "axis": axis.tolist(),
         "joints": list(joints),
         "source": source_digest(gain_schedule, boundary_layer, lqr, GainSchedule),

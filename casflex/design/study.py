@@ -36,7 +36,8 @@ __all__ = ["Study", "load_study"]
 
 # every section of a study file, its keys and their defaults (None: required or "unset")
 _SECTIONS = {
-    "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False},
+    "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False,
+              "shape_rates": False},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
     "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
@@ -181,6 +182,8 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
                                       low_open=True))
     m["delta_order"] = one_of("model.delta_order", m["delta_order"], (0, 1))
     _flag(path, "model.gravity", m["gravity"])
+    if _flag(path, "model.shape_rates", m["shape_rates"]) and m["delta_order"] != 1:
+        raise fail("model.shape_rates", True, "needs model.delta_order = 1", path=path)
     s = settings["shaper"]
     s["vtol"] = plausible(num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True),
                           "vtol", "shaper.vtol", path=path)

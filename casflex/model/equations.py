@@ -102,10 +102,47 @@ with the shape joints, so the velocity of a point also has the part
   derivatives along the shape joints.
 
 With these, ``M`` is the kinetic energy of the moving shapes to first order in δ (tested
-against the energy of the sampled points). Left out: everything of second order in δ (the
-model's truncation), among it the beams' foreshortening (centrifugal stiffening). The
-option costs a larger graph (measured in
-``benchmarks/README_fidelity.md``) and is off by default.
+against the energy of the sampled points).
+
+Foreshortening: geometric stiffening (``foreshortening=True``)
+--------------------------------------------------------------
+The first-order ``M`` has no δ² part in ``½ q̇ᵀ M_qq q̇``, so the δ rows miss every term
+linear in δ and quadratic in q̇: the centrifugal softening (the δ² part of Ψ) and the
+stiffening of a beam pulled by its own inertia (Kane, Ryan & Banerjee 1987). The
+stiffening comes from the beam's shortening as it bends: a section at ``s`` moves back
+along the beam by ``½ Σ δ_j δ_k S_jk(s)``, ``S_jk(s) = ∫₀ˢ ϑ_j⊥·ϑ_k⊥`` (the slope of an
+Euler–Bernoulli beam's local deflection is ``ϑ × e_z``). With the option
+
+* the section frames are ``L(s; δ) = L0 + Σ δ_j L_j + ½ Σ δ_j δ_k L_jk``,
+  ``L_jk = [[0, −S_jk(s) e_z], [0, 0]]``, so Ψ gains ``Σ δ_j δ_k (C2_jk + ½(G_jk +
+  G_jkᵀ))`` and ``D_k`` gains ``Σ_j δ_j G_jkᵀ`` with ``G_jk = ∫ L_jk J L0ᵀ`` (two
+  entries per pair, ``∫ ρA S_jk`` and ``∫ ρA s S_jk``, and the tip body's share);
+* the end transforms are of second order: rotation ``exp[ϑ×]`` to δ², the end pulled in
+  by ``½ δᵀ S(L) δ`` (so the outboard links, the tip and the sensor points shorten too);
+* ``M_qq`` is kept to **second order** in δ, the rest of ``M`` to first, and the
+  gravitational potential to second order (gravity's own geometric stiffness).
+
+The δ rows are then complete to first order in δ for any joint motion (tested against
+the Southwell coefficients of a rotating cantilever: ``ω² + 1.193 Ω²`` bending along the
+rotation axis, ``ω² + 0.193 Ω²`` in the plane of rotation). ``S_jk`` and ``G_jk`` come
+from the shapes sampled inside the links (``sample_theta``, 16 Gauss points) at the
+model's configuration; the sections' rotations stay of first order (their inertia is
+torsional only) and the second-order terms of the moving shapes themselves
+(``½ ∫ ρ |Σ δ ∂w/∂q q̇|²``) are not included. ``M_δδ`` keeps its first-order part from
+these kinematics.
+
+Cost and fidelity
+-----------------
+Both options are off by default: they cost time (``benchmarks/README_fidelity.md``,
+measured side by side: ``shape_rates`` 1.34× the instructions of the modal rows,
+1.6–2.0× the ``poly`` simulation of move 1, the EKF step unchanged; with
+``foreshortening`` as well 1.9× the instructions of the modal rows, no ``poly`` path,
+1.3× the EKF step's instructions) and the dissertation's moves do not need them. On
+fast moves with large elbow travel they are what brings the model to an independent
+nonlinear beam model (ANCF, ``tests/reference_beam_dynamics.py``): with both, peak,
+residual and time history within 1.3 % where the default model is off by up to 25 %.
+``simulate_prescribed(method="poly")`` needs ``M`` affine in δ and refuses
+``foreshortening``.
 """
 
 from __future__ import annotations
@@ -120,10 +157,13 @@ from casflex.errors import ModelError
 from casflex.modal.integrals import (
     QUANTITY_KEYS,
     RATE_KEYS,
+    RATE_SAMPLES,
+    pseudo_inertia,
     quantity_shapes,
     rate_samples,
     rigid_pseudo_inertias,
 )
+from casflex.modal.normalize import gauss_legendre
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -222,6 +262,10 @@ class FlexibleModel:
         ``sample_u``/``sample_theta`` quantities (every provider of
         :mod:`casflex.model.providers` built from
         :func:`~casflex.modal.integrals.configuration_quantities`).
+    foreshortening : bool
+        Keep the beams' shortening and ``M_qq`` to second order in δ: the geometric
+        (centrifugal) stiffening of fast moves (module docstring; default off). Needs
+        ``delta_order=1`` and the ``sample_theta`` quantity.
 
     Attributes
     ----------
@@ -260,7 +304,8 @@ class FlexibleModel:
     def __init__(self, robot: Robot, provider: Any,
                  gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
                  damping_ratio: float | None = None, delta_order: int = 1,
-                 modal_mass: str = "first_order", *, shape_rates: bool = False) -> None:
+                 modal_mass: str = "first_order", *, shape_rates: bool = False,
+                 foreshortening: bool = False) -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
         self.robot = robot
@@ -294,6 +339,11 @@ class FlexibleModel:
         if self.shape_rates and delta_order == 0:
             raise ModelError("shape_rates=True needs delta_order=1: its terms are of first "
                              "order in delta and would all be dropped")
+        self.foreshortening = bool(foreshortening)
+        if self.foreshortening and delta_order == 0:
+            raise ModelError("foreshortening=True needs delta_order=1: it keeps M_qq to "
+                             "second order in delta, the rest of M to first")
+        self._reads_samples = self.shape_rates or self.foreshortening
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
@@ -322,8 +372,8 @@ class FlexibleModel:
         # computes every output it holds)
         self.table_values = None if evaluate is None else evaluate(
             self.q_shape, [k for k in provider.names
-                           if self.shape_rates or k not in RATE_KEYS])
-        for name in QUANTITY_KEYS + (RATE_KEYS if self.shape_rates else ()):
+                           if self._reads_samples or k not in RATE_KEYS])
+        for name in QUANTITY_KEYS + (RATE_KEYS if self._reads_samples else ()):
             f = provider.function(name)
             size = int(np.prod(expected[name]))
             if f.numel_out(0) != size:
@@ -362,8 +412,48 @@ class FlexibleModel:
 
     # -------------------------------------------------------------- kinematics
 
-    def _beam_end(self, b, L):
-        """End transform E_b(δ) of beam b in its local frame."""
+    def _shortening(self, b, link):
+        """Foreshortening of beam ``b``: ``S_jk(L) = ∫₀ᴸ ϑ_j⊥·ϑ_k⊥ ds`` (m × m) and the
+        4 × 4 ``G_jk = ∫ L_jk J L0ᵀ`` with ``L_jk = [[0, −S_jk(s) e_z], [0, 0]]``, from the
+        shapes sampled at the Gauss points (``sample_theta``; the slope of an
+        Euler–Bernoulli beam's local deflection is ``ϑ × e_z``)."""
+        m, Q = self.m, self.Q
+        L, rA = link.length, link.mass_per_length
+        xg, wg = gauss_legendre(RATE_SAMPLES)
+        s, w = 0.5 * L * (xg + 1.0), 0.5 * L * wg
+        S = RATE_SAMPLES + 1
+        th = Q["sample_theta"]
+        SL = ca.SX.zeros(m, m)
+        I0 = ca.SX.zeros(m, m)  # ∫ ρA S ds
+        I1 = ca.SX.zeros(m, m)  # ∫ ρA s S ds
+        for p in range(RATE_SAMPLES):
+            t = [th[((b * S + p) * m + j) * 3:((b * S + p) * m + j) * 3 + 2] for j in range(m)]
+            c = ca.SX.zeros(m, m)
+            for j in range(m):
+                for k in range(j, m):
+                    c[j, k] = c[k, j] = ca.dot(t[j], t[k])
+            SL += w[p] * c
+            I0 += w[p] * rA * (L - s[p]) * c
+            I1 += w[p] * rA * 0.5 * (L**2 - s[p]**2) * c
+        tip = None
+        if not link.tip.is_empty:
+            L0 = np.eye(4)
+            L0[2, 3] = L
+            tip = (pseudo_inertia(link.tip.mass, link.tip.inertia,
+                                  link.tip.com_offset)[3, :] @ L0.T)
+        G = [[None] * m for _ in range(m)]
+        for j in range(m):
+            for k in range(j, m):
+                Gjk = ca.SX.zeros(4, 4)
+                Gjk[2, 2], Gjk[2, 3] = -I1[j, k], -I0[j, k]
+                if tip is not None:
+                    Gjk[2, :] += -SL[j, k] * ca.DM(tip).T
+                G[j][k] = G[k][j] = Gjk
+        return SL, G
+
+    def _beam_end(self, b, L, SL=None):
+        """End transform E_b(δ) of beam b in its local frame; with the shortening ``SL``
+        (``foreshortening=True``) to second order in δ."""
         m, Q, d = self.m, self.Q, self.delta
         u = ca.SX.zeros(3)
         th = ca.SX.zeros(3)
@@ -373,6 +463,10 @@ class FlexibleModel:
             th += d[j] * Q["end_theta"][k:k + 3]
         E = ca.SX.eye(4)
         E[:3, :3] = ca.SX.eye(3) + _skew(th)
+        if SL is not None and m:
+            # the rotation to second order (exp[ϑ×]) and the end pulled in by the bending
+            E[:3, :3] += 0.5 * _skew(th) @ _skew(th)
+            u[2] -= 0.5 * d.T @ SL @ d
         E[0, 3], E[1, 3], E[2, 3] = u[0], u[1], L + u[2]
         return E
 
@@ -411,9 +505,10 @@ class FlexibleModel:
             if link.beam_along == "a":
                 P = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
                 P4 = _rot4(P @ _rz_np(link.section_angle))
+                sh = self._shortening(ib, link) if self.foreshortening and m else None
                 self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
-                                              ib))
-                A = A @ P4 @ self._beam_end(ib, link.length) @ P4.T
+                                              ib, sh))
+                A = A @ P4 @ self._beam_end(ib, link.length, sh and sh[0]) @ P4.T
                 ib += 1
             elif link.a != 0.0:
                 A = A @ _trans([link.a, 0.0, 0.0])
@@ -429,9 +524,10 @@ class FlexibleModel:
             A = A @ _rz(theta)
             if link.beam_along == "d":
                 P4 = _rot4(_rz_np(link.section_angle))
+                sh = self._shortening(ib, link) if self.foreshortening and m else None
                 self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
-                                              ib))
-                A = A @ P4 @ self._beam_end(ib, link.length) @ P4.T
+                                              ib, sh))
+                A = A @ P4 @ self._beam_end(ib, link.length, sh and sh[0]) @ P4.T
                 ib += 1
             elif link.d != 0.0:
                 A = A @ _trans([0.0, 0.0, link.d])
@@ -443,9 +539,10 @@ class FlexibleModel:
             T_prev = T
         self.tip = T[:3, 3]
 
-    def _body(self, kind, row, T, J0, b):
+    def _body(self, kind, row, T, J0, b, shortening=None):
         m, Q = self.m, self.Q
-        body = {"kind": kind, "row": row, "T": T, "C0": ca.DM(J0), "beam": b}
+        body = {"kind": kind, "row": row, "T": T, "C0": ca.DM(J0), "beam": b,
+                "G": None if shortening is None else shortening[1]}
         if b is not None and m:
             body["C1"] = [_mat4(Q["C1"], (b * m + j) * 16) for j in range(m)]
             body["C2"] = [[_mat4(Q["C2"], ((b * m + j) * m + k) * 16) for k in range(m)]
@@ -473,12 +570,17 @@ class FlexibleModel:
             C0, C1, C2 = body["C0"], body["C1"], body["C2"]
             Psi = ca.SX(C0)
             D = []
+            G = body.get("G")
             for k in range(len(C1)):
                 Dk = ca.SX(C1[k])
                 if order:
-                    Psi += d[k] * (C1[k] + C1[k].T)  # the δ² part of Ψ is second order
+                    Psi += d[k] * (C1[k] + C1[k].T)
                     for j in range(len(C1)):
                         Dk += d[j] * C2[j][k]
+                        if G is not None:
+                            # the δ² part of Ψ only for M_qq's second order (foreshortening)
+                            Psi += d[j] * d[k] * (C2[j][k] + 0.5 * (G[j][k] + G[j][k].T))
+                            Dk += d[j] * G[j][k].T
                 D.append(Dk)
             # Tr(A Ψ Bᵀ) = Σ_r A[r, :] Ψ B[r, :]ᵀ over the three rows of a pose derivative
             # (the last row of a homogeneous transform is constant)
@@ -570,7 +672,13 @@ class FlexibleModel:
         self.tip = self._fill(self.tip)
         for body in self.bodies:
             body["T"] = self._fill(body["T"])
-        M = _taylor(M, d, self.delta_order)
+        if self.foreshortening:
+            # the δ rows need T to second order in δ where it multiplies q̇ q̇ only: M_qq
+            Mqq = _taylor(M[:n, :n], d, 2)
+            M = _taylor(M, d, self.delta_order)
+            M[:n, :n] = Mqq
+        else:
+            M = _taylor(M, d, self.delta_order)
         M = 0.5 * (M + M.T)
         if n and 0 not in self.provider.shape_joints:
             # Joint 1 turns the whole moving structure about an axis fixed in the base (it is
@@ -583,7 +691,7 @@ class FlexibleModel:
             M[n:, n:] = ca.SX.eye(m)
         elif self.modal_mass == "first_order":
             M[n:, n:] = M[n:, n:] - ca.substitute(M[n:, n:], d, ca.SX.zeros(m)) + ca.SX.eye(m)
-        Vg = _taylor(Vg, d, self.delta_order)
+        Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
         w2 = self.omega**2
         self.K = ca.diag(w2) if m else ca.SX(0, 0)
         self.D = ca.diag(2.0 * self.damping_ratio * self.omega) if m else ca.SX(0, 0)

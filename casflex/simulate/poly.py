@@ -578,6 +578,9 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
         raise ModelError("method='poly' needs a model with modes (m >= 1); use method='rk4'")
     if model.delta_order not in (0, 1):
         raise ModelError(f"method='poly' needs delta_order 0 or 1; got {model.delta_order}")
+    if getattr(model, "foreshortening", False):
+        raise ModelError("method='poly' needs M affine in delta; a model with "
+                         "foreshortening=True keeps M_qq to second order: use method='rk4'")
     info = {}
     start = time.perf_counter()
     F = configuration_function(model)

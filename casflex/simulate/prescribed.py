@@ -337,7 +337,8 @@ def _integrate_adaptive(model, f, reference, t, z0, method, options):
 def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-3,
                   step: float | None = None, gravity: bool = False, method: str = "rk4",
                   jit: bool = False, cache_dir: str | Path | None = None,
-                  progress: bool = True) -> tuple[SimulationResult, object, object]:
+                  progress: bool = True, shape_rates: bool = False,
+                  foreshortening: bool = False) -> tuple[SimulationResult, object, object]:
     """Build the modal model of a robot and simulate a move with perfect joint tracking.
 
     Parameters
@@ -359,6 +360,9 @@ def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-
         Cache of the modal tables and of the compiled library.
     progress : bool
         Progress bar of the table build on stderr.
+    shape_rates, foreshortening : bool
+        Options of :class:`casflex.model.FlexibleModel` (off by default; fidelity on
+        fast moves against their cost: ``benchmarks/README_fidelity.md``).
 
     Returns
     -------
@@ -381,7 +385,8 @@ def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-
 
     t0 = time.perf_counter()
     model, table = build_model(robot, n_modes, step=step, cache_dir=cache_dir,
-                               progress=progress, gravity="robot" if gravity else None)
+                               progress=progress, gravity="robot" if gravity else None,
+                               shape_rates=shape_rates, foreshortening=foreshortening)
     model_s = time.perf_counter() - t0
     options = {"jit": True, "cache_dir": cache_dir} if jit else {}
     result = simulate_prescribed(model, move, dt=dt, method=method, **options)

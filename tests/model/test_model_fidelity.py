@@ -97,30 +97,34 @@ def test_small_slow_move_agrees(arm_model, ref_cache, shape_rates):
 # move it by < 0.5 % of the peak). Measured with 5 modes, default 1.5° grid, RK4 at 1 ms
 # (benchmarks/README_fidelity.md); a model variant that misses is xfail(strict) with its
 # numbers, so that a fix shows as XPASS.
+_VARIANTS = {
+    "default": {},
+    "rates": {"shape_rates": True},
+    "rates_short": {"shape_rates": True, "foreshortening": True},
+}
 _MISSES = {
-    ("move2", False): "peak +0.90 %, residual +0.53 %, gap 8.4 % of peak",
-    ("elbow2_1s", False): "peak +5.66 %, residual +1.68 %, gap 24.9 % of peak",
-    ("elbow2_2s", False): "peak +1.39 %, residual +5.44 %, gap 20.7 % of peak",
-    ("elbow2_1s", True): "peak +1.35 %, residual +5.64 %, gap 3.6 % of peak",
+    ("move2", "default"): "peak +0.90 %, residual +0.53 %, gap 8.4 % of peak",
+    ("elbow2_1s", "default"): "peak +5.66 %, residual +1.68 %, gap 24.9 % of peak",
+    ("elbow2_2s", "default"): "peak +1.39 %, residual +5.44 %, gap 20.7 % of peak",
+    ("elbow2_1s", "rates"): "peak +1.35 %, residual +5.64 %, gap 3.6 % of peak",
 }
 
 
 def _target_cases():
     for name in MOVES:
-        for rates in (False, True):
-            reason = _MISSES.get((name, rates))
+        for variant in _VARIANTS:
+            reason = _MISSES.get((name, variant))
             marks = [pytest.mark.slow]
             if reason:
                 marks.append(pytest.mark.xfail(strict=True, reason=f"issue 19, measured: "
                                                f"{reason}"))
-            yield pytest.param(name, rates, marks=marks,
-                               id=f"{name}-{'rates' if rates else 'default'}")
+            yield pytest.param(name, variant, marks=marks, id=f"{name}-{variant}")
 
 
-@pytest.mark.parametrize("name, shape_rates", list(_target_cases()))
-def test_fidelity_targets(arm_model, ref_cache, name, shape_rates):
+@pytest.mark.parametrize("name, variant", list(_target_cases()))
+def test_fidelity_targets(arm_model, ref_cache, name, variant):
     move = MOVES[name]
-    model, _ = arm_model(5, step_deg=1.5, gravity=None, shape_rates=shape_rates)
+    model, _ = arm_model(5, step_deg=1.5, gravity=None, **_VARIANTS[variant])
     c = compare(casflex_run(model, move), reference_run(move, 16, 1e-3, ref_cache),
                 move.duration)
     assert abs(c["peak_pct"]) < 2.0, c

@@ -1,0 +1,51 @@
+"""``casflex simulate --shape-rates --foreshortening``: the model options reach the model."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+import pytest
+
+from casflex.cli import main
+from casflex.errors import ModelError
+
+ARGS = ["simulate", "problems/arm2link.toml", "--move", "problems/moves.toml:move2",
+        "--json"]
+
+
+def _cli(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture()
+def captured(monkeypatch):
+    """simulate_move's keywords; the command stopped there with a one-line error."""
+    import casflex.simulate
+
+    seen = {}
+
+    def capture(*args, **kwargs):
+        seen.update(kwargs)
+        raise ModelError("stopped by the test")
+
+    monkeypatch.setattr(casflex.simulate, "simulate_move", capture)
+    return seen
+
+
+@pytest.mark.parametrize("flags, rates, short", [
+    ([], False, False), (["--shape-rates"], True, False),
+    (["--shape-rates", "--foreshortening"], True, True)])
+def test_flags_reach_simulate_move(captured, flags, rates, short):
+    rc, out, err = _cli([*ARGS, *flags])
+    assert rc == 2 and "stopped by the test" in err
+    assert captured["shape_rates"] is rates and captured["foreshortening"] is short
+
+
+def test_foreshortening_refused_with_poly_before_heavy_work(captured):
+    rc, out, err = _cli([*ARGS, "--foreshortening", "--method", "poly"])
+    assert rc == 2 and out == "" and "--foreshortening" in err and "poly" in err
+    assert not captured
