@@ -38,7 +38,7 @@ def captured(monkeypatch):
 
 @pytest.mark.parametrize("flags, rates, short", [
     ([], False, False), (["--shape-rates"], True, False),
-    (["--shape-rates", "--foreshortening"], True, True)])
+    (["--shape-rates", "--foreshortening", "--method", "rk4"], True, True)])
 def test_flags_reach_simulate_move(captured, flags, rates, short):
     rc, out, err = _cli([*ARGS, *flags])
     assert rc == 2 and "stopped by the test" in err
