@@ -30,6 +30,8 @@ KNOWN = {
     "casflex.control.perturbation.GainSchedule.from_gains": "joints",
     "casflex.control.perturbation.gain_schedule": "joints",
     "casflex.estimation.plant.FlexiblePlant": "shape_joints",
+    "casflex.modal.fits.ChebyshevFit": "shape_joints",
+    "casflex.modal.fits.fit_chebyshev": "joints",
     "casflex.modal.sweep.frequency_sweep": "joint",
     "casflex.modal.tables.ModalTable": "shape_joints",
     "casflex.modal.tables.build_table": "joints",
