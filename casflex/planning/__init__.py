@@ -17,6 +17,8 @@ predicted_residual
     The residual tip deflection of the free vibration from an end state.
 OBJECTIVES
     The objectives of :func:`plan_move`.
+TRANSCRIPTIONS
+    The transcriptions of :func:`plan_move` (collocation, multiple shooting).
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -59,7 +61,13 @@ Examples
 
 from __future__ import annotations
 
-from casflex.planning.ocp import OBJECTIVES, plan_limits, plan_move, predicted_residual
+from casflex.planning.ocp import (
+    OBJECTIVES,
+    TRANSCRIPTIONS,
+    plan_limits,
+    plan_move,
+    predicted_residual,
+)
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import (
     ScaledFrequencyProvider,
@@ -75,6 +83,7 @@ __all__ = [
     "plan_limits",
     "predicted_residual",
     "OBJECTIVES",
+    "TRANSCRIPTIONS",
     # the result
     "PlannedMove",
     # verification

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from casflex.cli import main
@@ -43,6 +44,36 @@ def test_plan_cli_json_and_files(tmp_path, capsys, model_cache):
     lines = (out / "trajectory.csv").read_text().splitlines()
     assert lines[0] == "t,q1,q2,q3,dq1,dq2,dq3,ddq1,ddq2,ddq3,tau1,tau2,tau3"
     assert (out / "plan.png").stat().st_size > 0
+
+
+ONELINK_MOVE = """[swing]
+description = "hub 0 -> 1 rad in 2 s"
+duration = 2.0
+q0 = [0.0]
+qf = [1.0]
+settle = 1.0
+"""
+
+
+@pytest.mark.slow
+def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
+    # problems/onelink.toml has no shape joint (its modes do not depend on q1): the CLI
+    # builds the model of the modes at q = 0 instead of tabulating them
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    code = main(["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
+                 "--json"])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["status"] == "Solve_Succeeded"
+    # at the shaped move's limits the plan is shorter, and its verified residual meets the
+    # shaped move's (the OCP's end bound) within the 1 ms simulators' ~3 % error
+    # (test_plan_onelink.py)
+    assert result["duration"] < result["shaped"]["duration"]
+    assert result["residual_tip_deflection"] <= \
+        1.03 * result["shaped"]["residual_tip_deflection"]
+    limits = result["limits"]
+    assert np.all(np.asarray(result["velocity_peak"]) <= 1.001 * np.asarray(limits["velocity"]))
 
 
 def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
