@@ -61,19 +61,22 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
     # builds the model of the modes at q = 0 instead of tabulating them
     moves = tmp_path / "moves.toml"
     moves.write_text(ONELINK_MOVE)
+    tol = 2e-3
     code = main(["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
-                 "--json"])
+                 "--end", str(tol), "--json"])
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     assert result["status"] == "Solve_Succeeded"
-    # at the shaped move's limits the plan is shorter, and its verified residual meets the
-    # shaped move's (the OCP's end bound) within the 1 ms simulators' ~3 % error
-    # (test_plan_onelink.py)
+    # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
+    # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
     assert result["duration"] < result["shaped"]["duration"]
-    assert result["residual_tip_deflection"] <= \
-        1.03 * result["shaped"]["residual_tip_deflection"]
+    assert result["residual_ocp"] <= tol * (1 + 1e-6)
+    assert result["residual_tip_deflection"] <= 1.03 * tol
+    # the velocity limit holds at the nodes and collocation points; in between the
+    # verified joint motion may pass it by the interpolation error (~(omega h)^4 / 4! of
+    # the modal ripple on q'), well below 1 %
     limits = result["limits"]
-    assert np.all(np.asarray(result["velocity_peak"]) <= 1.001 * np.asarray(limits["velocity"]))
+    assert np.all(np.asarray(result["velocity_peak"]) <= 1.01 * np.asarray(limits["velocity"]))
 
 
 def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
