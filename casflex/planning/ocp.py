@@ -210,6 +210,17 @@ def _propagator(model, node_x, node_tau, h, substeps, tc=None, Xc=None):
     return propagate
 
 
+def _row_scales(states, n, m):
+    """Magnitude of every state row of the guess (rows x samples): joint rows at least
+    0.1 (rad, rad/s), modal rows at least 1e-6 of the largest modal row."""
+    scale = np.max(np.abs(states), axis=1)
+    rows = np.arange(states.shape[0])
+    joint = (rows < n) | ((rows >= n + m) & (rows < 2 * n + m))
+    modal_top = np.max(scale[~joint]) if np.any(~joint) else 1.0
+    floor = np.where(joint, 0.1, 1e-6 * max(modal_top, 1e-9))
+    return np.maximum(scale, floor)
+
+
 def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
     """Duration of a bang-bang move within the limits on the diagonal inertia."""
     M = model.functions()["mass"](q0, np.zeros(model.m)).full()
@@ -519,8 +530,17 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     opti = ca.Opti()
     X = opti.variable(nxa, N + 1)
     U = opti.variable(n, N)
+    # the modal states are orders of magnitude smaller than the joints': every state row,
+    # the torques and T are scaled by their magnitude in the guess, and the dynamics
+    # constraints of a row by the row's scale
+    sx = _row_scales(augmented(X_guess), n, m)
+    opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
+    su = np.where(np.isfinite(tau_max), tau_max,
+                  np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
+    opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
     if duration is None:
         T = opti.variable()
+        opti.set_linear_scale(T, T_guess)
         opti.subject_to(opti.bounded(1e-3, T, max_duration))
         opti.set_initial(T, T_guess)
     else:
@@ -529,13 +549,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if transcription == "collocation":
         G, _ = _collocation_function(ode, nxa, n, degree)
         Xc = opti.variable(nxa, N * degree)
+        opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         defects, Xf = G.map(N)(X[:, :N], Xc, U, T / N)
-        opti.subject_to(ca.vec(defects) == 0)
+        opti.subject_to(ca.vec(defects / np.repeat(sx[:, None], N * degree, axis=1)) == 0)
         opti.set_initial(Xc, augmented(Xc_guess))
     else:
         F = _interval_function(ode, nxa, n, substeps)
         Xf, _ = F.map(N)(X[:, :N], U, T / (N * substeps))
-    opti.subject_to(X[:, 1:] == Xf)
+    opti.subject_to((X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0)
     opti.subject_to(X[:, 0] == xa0)
     opti.subject_to(X[:n, N] == qf)
     opti.subject_to(X[n + m:2 * n + m, N] == 0)
