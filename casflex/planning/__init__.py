@@ -1,7 +1,7 @@
 """Optimal point-to-point motion on the flexible model (``casflex plan``).
 
 The planner solves the rest-to-rest motion of the arm as an optimal control problem on
-the torque-driven flexible model (direct multiple shooting, RK4, Ipopt): minimum time or
+the torque-driven flexible model (direct collocation or multiple shooting, Ipopt): minimum time or
 energy within per-joint torque, velocity and position limits, with the vibration at the
 end as a constraint, optionally robust to a frequency error. Its result is a
 :class:`PlannedMove`, usable wherever a move is, and it is verified by simulating it on

@@ -1,8 +1,9 @@
 """The result of the planner: a joint motion with its torques, usable as a move.
 
-A :class:`PlannedMove` holds the optimal trajectory on a dense grid (the RK4 substeps of
-the optimal control problem) and behaves like :class:`casflex.moves.Move` wherever a
-reference is sampled (:func:`casflex.moves.reference_sampler`,
+A :class:`PlannedMove` holds the optimal trajectory on a dense grid (``substeps`` samples
+per interval of the optimal control problem's own discretisation) and behaves like
+:class:`casflex.moves.Move` wherever a reference is sampled
+(:func:`casflex.moves.reference_sampler`,
 :func:`casflex.moves.reference_function`, :func:`casflex.simulate.simulate_prescribed`,
 closed-loop tracking): before 0 it rests at ``q0``, after ``duration`` at ``qf``. Its
 torques are a torque law for :func:`casflex.simulate.simulate_torque`
