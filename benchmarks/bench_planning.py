@@ -16,11 +16,17 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``residual`` / ``shaped_residual``
     residual tip deflections with the joints on the move, simulated at 1 ms, m;
 ``intervals``
-    shooting intervals.
+    intervals of the OCP;
+``solve_cpu_s`` / ``solve_warm_cpu_s``
+    the process's CPU time of the two solves (the machine is shared: the CPU time is the
+    figure that does not depend on the load);
+``iterations`` / ``iterations_warm``, ``status`` / ``status_warm``, ``transcription``,
+``hessian``, ``load``.
 
 Usage::
 
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
+        [--transcription collocation|shooting] [--max-iter K]
 """
 
 from __future__ import annotations
@@ -50,7 +56,11 @@ def main(argv: list[str] | None = None) -> dict:
     """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
-    parser.add_argument("--intervals", type=int, default=20)
+    parser.add_argument("--intervals", type=int, default=None,
+                        help="intervals (default: plan_move's for the transcription)")
+    parser.add_argument("--transcription", choices=("collocation", "shooting"),
+                        default="collocation")
+    parser.add_argument("--max-iter", type=int, default=500)
     parser.add_argument("--lbfgs", action="store_true",
                         help="limited-memory Hessian in Ipopt (default: exact)")
     args = parser.parse_args(argv)
@@ -73,17 +83,21 @@ def main(argv: list[str] | None = None) -> dict:
     tau, vel = plan_limits(model, shaped)
     options = {"hessian_approximation": "limited-memory"} if args.lbfgs else {}
     kw = {"intervals": args.intervals, "torque_limit": tau, "velocity_limit": vel,
-          "ipopt_options": options}
-    t0 = time.perf_counter()
+          "ipopt_options": options, "transcription": args.transcription,
+          "max_iter": args.max_iter}
+    t0, c0 = time.perf_counter(), time.process_time()
     plan = plan_move(model, move, end=shaped_residual, guess=shaped, **kw)
-    solve_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    solve_s, solve_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+    t0, c0 = time.perf_counter(), time.process_time()
     warm = plan_move(model, move, end=0.95 * shaped_residual, guess=plan, **kw)
-    solve_warm_s = time.perf_counter() - t0
+    solve_warm_s, solve_warm_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     check = verify_plan(model, plan, torque=False)
     out = {"solve_s": solve_s, "solve_warm_s": solve_warm_s, "duration": plan.duration,
            "shaped_duration": shaped.duration, "residual": check["prescribed"],
-           "shaped_residual": shaped_residual, "intervals": args.intervals,
+           "shaped_residual": shaped_residual, "intervals": plan.stats["intervals"],
+           "solve_cpu_s": solve_cpu_s, "solve_warm_cpu_s": solve_warm_cpu_s,
+           "duration_warm": warm.duration, "transcription": args.transcription,
+           "hessian": "limited-memory" if args.lbfgs else "exact",
            "substeps": plan.stats["substeps"], "iterations": plan.stats["iterations"],
            "iterations_warm": warm.stats["iterations"], "status": plan.stats["status"],
            "status_warm": warm.stats["status"], "load": os.getloadavg()[0]}

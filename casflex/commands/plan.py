@@ -1,7 +1,8 @@
 """``casflex plan``: optimal point-to-point motion of a robot on its flexible model.
 
 ``casflex plan ROBOT.toml --move FILE:NAME [--objective time|energy] [--duration T]
-[--robust R] [--modes N] [--intervals N] [--end rest|free|TOL] [--out DIR]
+[--robust R] [--modes N] [--intervals N] [--transcription collocation|shooting]
+[--end rest|free|TOL] [--out DIR]
 [--plot FILE.png] [--json]``
 
 runs :func:`casflex.planning.plan_robot_move`: the gravity-free modal model of the robot
@@ -56,8 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     >>> p = argparse.ArgumentParser()
     >>> add_arguments(p)
     >>> a = p.parse_args(["r.toml", "--move", "m.toml:a", "--robust", "0.1"])
-    >>> a.robust, a.objective, a.intervals
-    (0.1, 'time', 40)
+    >>> a.robust, a.objective, a.intervals, a.transcription
+    (0.1, 'time', None, 'collocation')
     """
     add_robot_argument(parser)
     parser.add_argument("--move", metavar="FILE:NAME", required=True,
@@ -72,8 +73,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(e.g. 0.1 = ±10 %%; default 0)")
     parser.add_argument("--modes", type=int, default=3, metavar="N",
                         help="number of modes of the model (default 3)")
-    parser.add_argument("--intervals", type=int, default=40, metavar="N",
-                        help="shooting intervals of the OCP (default 40)")
+    parser.add_argument("--intervals", type=int, default=None, metavar="N",
+                        help="intervals of the OCP (default: 40 for shooting; for "
+                        "collocation enough that ω_max T / N <= 1)")
+    parser.add_argument("--transcription", choices=("collocation", "shooting"),
+                        default="collocation",
+                        help="Gauss-Legendre collocation, 3 points per interval (default), "
+                        "or multiple shooting with RK4 substeps")
     parser.add_argument("--end", default=None, metavar="rest|free|TOL",
                         help="end condition of the modes: at rest, free, or a residual tip "
                         "deflection bound in m (default the shaped move's residual)")
@@ -156,7 +162,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     robust = number(float(getattr(args, "robust", 0.0)), "--robust", low=0.0, high=1.0,
                     high_open=True)
     modes = number(getattr(args, "modes", 3), "--modes", low=1, integer=True)
-    intervals = number(getattr(args, "intervals", 40), "--intervals", low=2, integer=True)
+    intervals = getattr(args, "intervals", None)
+    if intervals is not None:
+        intervals = number(intervals, "--intervals", low=2, integer=True)
     dt = number(float(getattr(args, "dt", 1e-3)), "--dt", low=0.0, low_open=True, high=0.1)
     max_iter = number(getattr(args, "max_iter", 500), "--max-iter", low=1, integer=True)
     duration = getattr(args, "duration", None)
@@ -180,7 +188,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         delta_order=getattr(args, "delta_order", 1), dt=dt,
         cache_dir=cache_dir_of(args),
         processes=getattr(args, "processes", None), progress=True, log=log,
-        max_iter=max_iter, **options)
+        max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
+        **options)
     summary = comparison.summary()
     log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "
         f"({100 * summary['shortening']:.1f} % shorter); residual tip deflection planned "

@@ -1,7 +1,7 @@
 """Optimal point-to-point motion on the flexible model (``casflex plan``).
 
 The planner solves the rest-to-rest motion of the arm as an optimal control problem on
-the torque-driven flexible model (direct multiple shooting, RK4, Ipopt): minimum time or
+the torque-driven flexible model (direct collocation or multiple shooting, Ipopt): minimum time or
 energy within per-joint torque, velocity and position limits, with the vibration at the
 end as a constraint, optionally robust to a frequency error. Its result is a
 :class:`PlannedMove`, usable wherever a move is, and it is verified by simulating it on
@@ -17,6 +17,8 @@ predicted_residual
     The residual tip deflection of the free vibration from an end state.
 OBJECTIVES
     The objectives of :func:`plan_move`.
+TRANSCRIPTIONS
+    The transcriptions of :func:`plan_move` (collocation, multiple shooting).
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -59,7 +61,13 @@ Examples
 
 from __future__ import annotations
 
-from casflex.planning.ocp import OBJECTIVES, plan_limits, plan_move, predicted_residual
+from casflex.planning.ocp import (
+    OBJECTIVES,
+    TRANSCRIPTIONS,
+    plan_limits,
+    plan_move,
+    predicted_residual,
+)
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import (
     ScaledFrequencyProvider,
@@ -75,6 +83,7 @@ __all__ = [
     "plan_limits",
     "predicted_residual",
     "OBJECTIVES",
+    "TRANSCRIPTIONS",
     # the result
     "PlannedMove",
     # verification

@@ -5,14 +5,17 @@
 * dynamics: the torque-driven model ``ẋ = ode(x, τ)``, ``x = [q; δ; q̇; δ̇]``
   (:meth:`casflex.model.FlexibleModel.functions`: configuration-dependent tables through
   the interpolants, gravity and damping as the model has them);
-* transcription: direct multiple shooting on ``N`` intervals of equal length ``T / N``
-  with the torque constant on each, ``substeps`` steps of
+* transcription: ``N`` intervals of equal length ``T / N`` with the torque constant on
+  each, either direct collocation (the default: Gauss–Legendre, ``degree`` points per
+  interval, the states there NLP variables; one SX function of an interval, expanded,
+  mapped over the intervals, so the NLP's Jacobian and Hessian come from one compact
+  function) or direct multiple shooting with ``substeps`` steps of
   :func:`casflex.simulate.integrators.rk4_step` per interval; the free final time ``T``
   is the time-scaling variable;
 * objectives: ``"time"`` (min ``T``), ``"energy"`` (min ``∫ τᵀτ dt`` for a given
   duration) and ``"weighted"`` (min ``T + weight ∫ τᵀτ dt``);
 * constraints: per-joint torque bounds on every interval, velocity and position bounds
-  at every node, joints at rest at both ends, the modes at rest at the start
+  at every node (and collocation point), joints at rest at both ends, the modes at rest at the start
   (``δ`` = its static value — zero without gravity — and ``δ̇ = 0``) and at the end either
   the same (``end="rest"``) or the residual tip deflection below a tolerance
   (``end=<float>``, m) or nothing (``end="free"``); optionally the tip deflection at
@@ -48,13 +51,19 @@ from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.simulate.integrators import rk4_step
 
-__all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES"]
+__all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS"]
 
 #: the objectives of :func:`plan_move`
 OBJECTIVES = ("time", "energy", "weighted")
 
+#: the transcriptions of :func:`plan_move`
+TRANSCRIPTIONS = ("collocation", "shooting")
+
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
+#: largest ω h of one collocation interval by default (3 Gauss points, order 6 at the
+#: nodes: the phase error per interval ~ (ω h)^7 / 100 000 ≈ 1e-5 at 1)
+_OMEGA_H_COLLOCATION = 1.0
 
 
 def _limit(value, n, field, unit):
@@ -113,28 +122,103 @@ def _interval_function(ode, nxa, n, substeps):
                        ["x", "tau", "h"], ["xf", "states"])
 
 
-def _propagator(model, substeps):
-    """``(x, τ, s) -> (x(s), ẋ(s))`` for columns of samples: ``substeps`` RK4 steps of
-    ``s / substeps`` on the nominal model (the OCP's interval at ``s = T / N``)."""
+def _collocation_function(ode, nxa, n, degree):
+    """``G(x, Xc, τ, h) -> (defects, x_end)``: Gauss–Legendre collocation of ``degree``
+    points on one interval of length ``h`` (torque constant), expanded to one SX function
+    so that the NLP's derivatives come from one compact function mapped over the
+    intervals.
+
+    The state is the polynomial of ``degree`` through ``x`` at 0 and ``Xc`` at the
+    collocation points; ``defects`` are ``h ẋ(t_j) − p'(t_j)`` at those points and
+    ``x_end`` the polynomial at the end of the interval (order ``2 degree`` there)."""
+    tau_c = np.r_[0.0, ca.collocation_points(degree, "legendre")]
+    C = np.zeros((degree + 1, degree + 1))  # C[r, j] = l_r'(tau_j)
+    D = np.zeros(degree + 1)  # l_r(1)
+    for r in range(degree + 1):
+        coeff = np.array([1.0])
+        for s in range(degree + 1):
+            if s != r:
+                coeff = np.convolve(coeff, [1.0, -tau_c[s]]) / (tau_c[r] - tau_c[s])
+        D[r] = np.polyval(coeff, 1.0)
+        C[r] = np.polyval(np.polyder(coeff), tau_c)
+    x = ca.SX.sym("x", nxa)
+    Xc = ca.SX.sym("Xc", nxa, degree)
+    u = ca.SX.sym("tau", n)
+    h = ca.SX.sym("h")
+    P = ca.horzcat(x, Xc)
+    defects = [h * ode(Xc[:, j - 1], u) - P @ C[:, j] for j in range(1, degree + 1)]
+    G = ca.Function("collocation", [x, Xc, u, h], [ca.horzcat(*defects), P @ D],
+                    ["x", "Xc", "tau", "h"], ["defects", "xf"])
+    try:
+        G = G.expand()
+    except RuntimeError:
+        pass
+    return G, tau_c[1:]
+
+
+def _propagator(model, node_x, node_tau, h, substeps, tc=None, Xc=None):
+    """``propagate(k, s) -> (x, ẋ)``: the nominal state a time ``s`` after node ``k``
+    (arrays, one column per sample) and its derivative under the interval's torque.
+
+    Shooting (``Xc`` None): ``substeps`` RK4 steps of ``s / substeps`` from the node (the
+    OCP's interval at ``s = h``). Collocation: the interval's collocation polynomial
+    through the node and the states ``Xc`` (``N degree`` rows) at the points ``tc``."""
     ode = model.functions()["ode"]
-    nx = 2 * (model.n + model.m)
-    x = ca.SX.sym("x", nx)
-    u = ca.SX.sym("tau", model.n)
-    s = ca.SX.sym("s")
-    xs = x
-    for _ in range(substeps):
-        xs = rk4_step(lambda y, v: ode(y, v), xs, s / substeps, u)
-    G = ca.Function("propagate", [x, u, s], [xs, ode(xs, u)])
+    nx = node_x.shape[1]
     cache = {}
 
-    def propagate(X, U, S):
-        k = X.shape[1]
-        if k not in cache:
-            cache[k] = G.map(k)
-        xt, xdot = cache[k](X, U, S)
-        return xt.full(), xdot.full()
+    def mapped(key, fn, k):
+        if (key, k) not in cache:
+            cache[key, k] = fn.map(k)
+        return cache[key, k]
 
+    if Xc is None:
+        x = ca.SX.sym("x", nx)
+        u = ca.SX.sym("tau", model.n)
+        s = ca.SX.sym("s")
+        xs = x
+        for _ in range(substeps):
+            xs = rk4_step(lambda y, v: ode(y, v), xs, s / substeps, u)
+        G = ca.Function("propagate", [x, u, s], [xs, ode(xs, u)])
+
+        def propagate(k, s):
+            k = np.asarray(k, dtype=int).ravel()
+            xt, xdot = mapped("rk4", G, k.size)(node_x[k].T, node_tau[k].T,
+                                                 np.asarray(s, dtype=float).reshape(1, -1))
+            return xt.full(), xdot.full()
+        return propagate
+
+    degree = tc.size
+    points = np.r_[0.0, tc]
+    basis = []
+    for r in range(degree + 1):
+        coeff = np.array([1.0])
+        for j in range(degree + 1):
+            if j != r:
+                coeff = np.convolve(coeff, [1.0, -points[j]]) / (points[r] - points[j])
+        basis.append(coeff)
+
+    def propagate(k, s):
+        k = np.asarray(k, dtype=int).ravel()
+        r = np.asarray(s, dtype=float).ravel() / h
+        w = np.array([np.polyval(c, r) for c in basis])  # (degree + 1, K)
+        xt = w[0][:, None] * node_x[k]
+        for j in range(degree):
+            xt = xt + w[j + 1][:, None] * Xc[k * degree + j]
+        xdot = mapped("ode", ode, k.size)(xt.T, node_tau[k].T)
+        return xt.T, xdot.full()
     return propagate
+
+
+def _row_scales(states, n, m):
+    """Magnitude of every state row of the guess (rows x samples): joint rows at least
+    0.1 (rad, rad/s), modal rows at least 1e-6 of the largest modal row."""
+    scale = np.max(np.abs(states), axis=1)
+    rows = np.arange(states.shape[0])
+    joint = (rows < n) | ((rows >= n + m) & (rows < 2 * n + m))
+    modal_top = np.max(scale[~joint]) if np.any(~joint) else 1.0
+    floor = np.where(joint, 0.1, 1e-6 * max(modal_top, 1e-9))
+    return np.maximum(scale, floor)
 
 
 def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
@@ -153,11 +237,12 @@ def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
     return T
 
 
-def _guess_trajectory(model, reference, N, substeps, x0):
-    """States and torques of ``reference`` on the node grid (joints on the reference)."""
+def _guess_trajectory(model, reference, T, N, substeps, x0, tc):
+    """States and torques of ``reference`` on the node grid (joints on the reference), and
+    the states at the collocation points ``tc`` (fractions of an interval) of every
+    interval, interpolated linearly between the simulation steps."""
     from casflex.simulate import simulate_prescribed
 
-    T = float(reference.duration)
     dt = T / (N * substeps)
     m = model.m
     run = simulate_prescribed(model, reference, dt=dt, t_end=T,
@@ -166,7 +251,10 @@ def _guess_trajectory(model, reference, N, substeps, x0):
     idx = np.minimum(idx, run.t.size - 1)
     X = np.hstack([run.q[idx], run.delta[idx], run.dq[idx], run.ddelta[idx]])
     U = np.array([run.tau[k * substeps:(k + 1) * substeps].mean(axis=0) for k in range(N)])
-    return T, X, U
+    full = np.hstack([run.q, run.delta, run.dq, run.ddelta])
+    times = ((np.arange(N)[:, None] + np.asarray(tc)[None, :]) * (T / N)).ravel()
+    Xc = np.stack([np.interp(times, run.t, col) for col in full.T], axis=1)
+    return X, U, Xc
 
 
 def _residual_terms(v_norm, omega, d, dd, d_static, eps):
@@ -222,11 +310,13 @@ def predicted_residual(model: FlexibleModel, q: ArrayLike, delta: ArrayLike,
 
 def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | None = None,
               *, objective: str = "time", duration: float | None = None,
-              weight: float = 0.0, intervals: int = 40, substeps: int | None = None,
+              weight: float = 0.0, intervals: int | None = None,
+              substeps: int | None = None,
               torque_limit: ArrayLike | None = None, velocity_limit: ArrayLike | None = None,
               position_limits: tuple[ArrayLike, ArrayLike] | None = None,
               end: str | float = "rest", deflection_bound: float | None = None,
               robust: float = 0.0, guess: str | Any = "rigid",
+              transcription: str = "collocation", degree: int = 3,
               max_duration: float | None = None, max_iter: int = 500,
               ipopt_options: dict | None = None, settle: float | None = None,
               name: str | None = None) -> PlannedMove:
@@ -248,11 +338,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Duration [s] of an ``"energy"`` plan (required there, not allowed otherwise).
     weight : float
         Weight of the energy in ``"weighted"`` [1 / (N² m²)].
-    intervals : int
-        Shooting intervals N (torque constant on each).
+    intervals : int, optional
+        Intervals N (torque constant on each). Default: 40 for ``"shooting"``; for
+        ``"collocation"`` enough that ``ω_max T / N <= 1`` at the initial duration (the
+        frequencies taken along the straight path and at ``1 + robust``), at least 20.
     substeps : int, optional
-        RK4 steps per interval (default: enough that ``ω_max h <= 0.25`` for the initial
-        duration, the frequencies taken along the straight path and at ``1 + robust``).
+        RK4 steps per interval of the shooting transcription, and of the dense output
+        and :attr:`PlannedMove.propagator` of both (default: enough that
+        ``ω_max h <= 0.25`` for the initial duration).
     torque_limit, velocity_limit : float or array_like, optional
         Per-joint bounds on ``|τ|`` [N m] and ``|q̇|`` [rad/s] (default none).
     position_limits : (array_like, array_like), optional
@@ -265,6 +358,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     robust : float
         Relative frequency error r (0 <= r < 1): the modal rows of the models at ``1 ± r``
         must meet the end condition too.
+    transcription : {"collocation", "shooting"}
+        Gauss–Legendre collocation of ``degree`` points per interval (states at the
+        collocation points are NLP variables; one compact SX function mapped over the
+        intervals), or multiple shooting with ``substeps`` RK4 steps per interval.
+    degree : int
+        Collocation points per interval (1 to 5).
     guess : "rigid" or move-like
         Initial guess: ``"rigid"`` (the bang-bang move whose diagonal inertia meets the
         limits), or any reference with ``duration`` and ``sample`` (a ``Move``, a
@@ -331,7 +430,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         raise fail("duration", duration, f"is fixed only for objective 'energy'; "
                    f"'{objective}' minimises the duration")
     weight = number(weight, "weight", low=0.0)
-    N = number(intervals, "intervals", low=2, integer=True)
+    transcription = choice(transcription, "transcription", TRANSCRIPTIONS)
+    degree = number(degree, "degree", low=1, high=5, integer=True)
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
@@ -379,9 +479,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     z0s = [np.r_[static_deflection(s, q0), np.zeros(m)] for s in shifted]
     xa0 = np.r_[x0, *z0s] if shifted else x0
 
-    # the initial guess and the substeps
-    warm = isinstance(guess, PlannedMove) and guess.node_tau.shape[0] == N and \
-        guess.node_x.shape[1] == nx
+    # the initial guess, the intervals and the substeps
+    if intervals is None and isinstance(guess, PlannedMove):
+        intervals = guess.node_tau.shape[0]
+    warm = isinstance(guess, PlannedMove) and guess.node_tau.shape[0] == intervals and \
+        guess.node_x.shape[1] == nx and guess.propagator is not None
     if isinstance(guess, str):
         choice(guess, "guess", ("rigid",))
         # the rigid bang-bang stretched by 30 %: a start that the flexible end conditions
@@ -398,43 +500,78 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         max_duration = 20.0 * T_guess
     max_duration = number(max_duration, "max_duration", low=0.0, low_open=True)
     omega_max = _omega_max(model, q0, qf) * (1.0 + robust)
+    if intervals is None:
+        intervals = 40 if transcription == "shooting" else \
+            max(20, math.ceil(omega_max * T_guess / _OMEGA_H_COLLOCATION))
+    N = number(intervals, "intervals", low=2, integer=True)
     if substeps is None:
         substeps = max(1, math.ceil(omega_max * 1.5 * T_guess / (N * _OMEGA_H)))
     substeps = number(substeps, "substeps", low=1, integer=True)
+    tc = np.r_[ca.collocation_points(degree, "legendre")] \
+        if transcription == "collocation" else np.zeros(0)
     if warm:
         T_guess = guess.duration
         X_guess, U_guess = guess.node_x, guess.node_tau
+        hg = T_guess / N
+        k = np.repeat(np.arange(N), tc.size)
+        Xc_guess = np.asarray(guess.propagator(k, np.tile(tc * hg, N))[0]).T \
+            if tc.size else np.zeros((0, nx))
     else:
-        if duration is not None and not isinstance(guess, str):
-            reference = _stretched(reference, duration)
-        T_guess, X_guess, U_guess = _guess_trajectory(model, reference, N, substeps, x0)
-    Z_guess = [np.hstack([X_guess[:, n:n + m], X_guess[:, 2 * n + m:]]) for _ in shifted]
+        if not isinstance(guess, str) and T_guess != float(guess.duration):
+            reference = _time_scaled(guess, T_guess)
+        X_guess, U_guess, Xc_guess = _guess_trajectory(model, reference, T_guess, N,
+                                                       substeps, x0, tc)
+
+    def augmented(states):
+        modal = np.hstack([states[:, n:n + m], states[:, 2 * n + m:]])
+        return np.hstack([states, *[modal for _ in shifted]]).T
 
     ode = _augmented_ode(model, shifted)
-    F = _interval_function(ode, nxa, n, substeps)
     opti = ca.Opti()
     X = opti.variable(nxa, N + 1)
     U = opti.variable(n, N)
+    # the modal states are orders of magnitude smaller than the joints': every state row,
+    # the torques and T are scaled by their magnitude in the guess, and the dynamics
+    # constraints of a row by the row's scale
+    sx = _row_scales(augmented(X_guess), n, m)
+    opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
+    su = np.where(np.isfinite(tau_max), tau_max,
+                  np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
+    opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
     if duration is None:
         T = opti.variable()
+        opti.set_linear_scale(T, T_guess)
         opti.subject_to(opti.bounded(1e-3, T, max_duration))
         opti.set_initial(T, T_guess)
     else:
         T = duration
-    h = T / (N * substeps)
-    Xf, _ = F.map(N)(X[:, :N], U, h)
-    opti.subject_to(X[:, 1:] == Xf)
+    Xc = None
+    if transcription == "collocation":
+        G, _ = _collocation_function(ode, nxa, n, degree)
+        Xc = opti.variable(nxa, N * degree)
+        opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
+        defects, Xf = G.map(N)(X[:, :N], Xc, U, T / N)
+        opti.subject_to(ca.vec(defects / np.repeat(sx[:, None], N * degree, axis=1)) == 0)
+        opti.set_initial(Xc, augmented(Xc_guess))
+    else:
+        F = _interval_function(ode, nxa, n, substeps)
+        Xf, _ = F.map(N)(X[:, :N], U, T / (N * substeps))
+    opti.subject_to((X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0)
     opti.subject_to(X[:, 0] == xa0)
     opti.subject_to(X[:n, N] == qf)
     opti.subject_to(X[n + m:2 * n + m, N] == 0)
     finite_tau = np.isfinite(tau_max)
     for j in np.flatnonzero(finite_tau):
         opti.subject_to(opti.bounded(-tau_max[j], U[int(j), :], tau_max[j]))
+    # velocity and position limits at the nodes and the collocation points
+    points = [X[:, 1:N]] + ([Xc] if Xc is not None else [])
     for j in np.flatnonzero(np.isfinite(v_max)):
-        opti.subject_to(opti.bounded(-v_max[j], X[n + m + int(j), 1:N], v_max[j]))
+        for P in points:
+            opti.subject_to(opti.bounded(-v_max[j], P[n + m + int(j), :], v_max[j]))
     if lo is not None:
         for j in range(n):
-            opti.subject_to(opti.bounded(lo[j], X[j, 1:N], hi[j]))
+            for P in points:
+                opti.subject_to(opti.bounded(lo[j], P[j, :], hi[j]))
     # end condition of the modes, in every scenario
     scen = [(model, X[n:n + m, N], X[2 * n + m:nx, N])] + [
         (s, X[nx + 2 * m * k:nx + 2 * m * k + m, N], X[nx + 2 * m * k + m:nx + 2 * m * (k + 1), N])
@@ -465,8 +602,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.minimize(energy)
     else:
         opti.minimize(T + weight * energy)
-    opti.set_initial(X, np.vstack([X_guess.T, *[z.T for z in Z_guess]]) if shifted
-                     else X_guess.T)
+    opti.set_initial(X, augmented(X_guess))
     opti.set_initial(U, np.clip(U_guess.T, -tau_max[:, None], tau_max[:, None]))
     options = {"max_iter": max_iter, "print_level": 0, "sb": "yes", "tol": 1e-8,
                "acceptable_tol": 1e-6, "mu_strategy": "adaptive"}
@@ -490,15 +626,19 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
                                     n, m, N, duration))
     # the dense trajectory: the substeps of every interval
-    hv = Tv / (N * substeps)
-    _, states = F.map(N)(Xv[:, :N], Uv, hv)
-    S = np.asarray(states.full(), dtype=float)  # nxa x N*substeps
-    dense = np.hstack([Xv[:, :1], S])[:nx].T
-    t_dense = np.arange(dense.shape[0]) * hv
-    t_dense[-1] = Tv
-    tau_dense = np.repeat(Uv.T, substeps, axis=0)
-    tau_dense = np.vstack([tau_dense, Uv[:, -1]])
-    xdot = f["ode"].map(dense.shape[0])(dense.T, tau_dense.T).full().T
+    # the dense trajectory: ``substeps`` samples per interval, from the interval's own
+    # discretisation (the RK4 substeps, or the collocation polynomial)
+    hv = Tv / N
+    node_x, node_tau = Xv[:nx].T.copy(), Uv.T.copy()
+    propagate = _propagator(model, node_x, node_tau, hv, substeps, tc if Xc is not None
+                            else None, values(Xc)[:nx].T.reshape(-1, nx) if Xc is not None
+                            else None)
+    k = np.r_[np.repeat(np.arange(N), substeps), N - 1]
+    s_in = np.r_[np.tile(np.arange(substeps) * (hv / substeps), N), hv]
+    dense, xdot = (a.T for a in propagate(k, s_in))
+    dense[0], dense[-1] = node_x[0], node_x[-1]  # the OCP's end points exactly
+    t_dense = np.r_[np.arange(N * substeps) * (hv / substeps), Tv]
+    tau_dense = node_tau[k]
     ddq = xdot[:, n + m:2 * n + m]
     ocp_residual = predicted_residual(model, qf, Xv[n:n + m, N], Xv[2 * n + m:nx, N],
                                       max(settle, 1.0)) if m else 0.0
@@ -508,6 +648,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "objective": objective, "objective_value": float(values(opti.f)),
         "energy": float(values(energy)), "intervals": N, "substeps": substeps,
         "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
+        "transcription": transcription, "degree": degree if tc.size else None,
         "warm_start": warm,
     }
     if residual_cons:
@@ -515,23 +656,40 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     return PlannedMove(
         t=t_dense, q=dense[:, :n], dq=dense[:, n + m:2 * n + m], ddq=ddq, tau=tau_dense,
         delta=dense[:, n:n + m], ddelta=dense[:, 2 * n + m:], node_t=np.linspace(0, Tv, N + 1),
-        node_x=Xv[:nx].T.copy(), node_tau=Uv.T.copy(), hold_torque=holdf, stats=info,
-        settle=settle, name=name, propagator=_propagator(model, substeps),
-        description=f"{objective}-optimal plan, {N} intervals, end {end!r}"
+        node_x=node_x, node_tau=node_tau, hold_torque=holdf, stats=info,
+        settle=settle, name=name, propagator=propagate,
+        description=f"{objective}-optimal plan, {N} intervals ({transcription}), end {end!r}"
                     + (f", robust ±{robust:g}" if errors else ""))
 
 
-def _stretched(reference, duration):
-    """A bang-bang move of ``duration`` with the reference's end points."""
-    return Move(np.asarray(reference.q0), np.asarray(reference.qf), duration, settle=0.0)
+def _time_scaled(reference, duration, samples=4001):
+    """``reference`` run at another speed so that it lasts ``duration``: sampled
+    ``(t, q, q̇, q̈)`` for :func:`casflex.simulate.simulate_prescribed`."""
+    s = float(reference.duration) / duration
+    t = np.linspace(0.0, duration, samples)
+    q, dq, ddq = reference.sample(t * s)
+    return t, q, dq * s, ddq * s**2
 
 
 def _omega_max(model, q0, qf):
+    """Highest frequency of the torque-driven arm linearised at rest along the straight
+    path [rad/s]: with the joints free the modes vibrate faster than with them locked
+    (``Ω``), by up to ``√(J / J_res)`` on a light hub."""
     if not model.m:
         return 0.0
-    K = model.functions()["stiffness"]
-    s = np.linspace(0.0, 1.0, 9)
-    return float(max(np.sqrt(np.max(np.diag(K(q0 + a * (qf - q0)).full()))) for a in s))
+    f = model.functions()
+    n, m = model.n, model.m
+    x = ca.SX.sym("x", 2 * (n + m))
+    u = ca.SX.sym("tau", n)
+    A = ca.Function("A", [x, u], [ca.jacobian(f["ode"](x, u), x)])
+    top = 0.0
+    for a in np.linspace(0.0, 1.0, 9):
+        q = q0 + a * (qf - q0)
+        d = static_deflection(model, q)
+        hold = f["potential_forces"](q, d).full().ravel()[:n]
+        eig = np.linalg.eigvals(A(np.r_[q, d, np.zeros(n + m)], hold).full())
+        top = max(top, float(np.max(np.abs(eig.imag))))
+    return top
 
 
 def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):

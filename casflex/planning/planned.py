@@ -1,8 +1,9 @@
 """The result of the planner: a joint motion with its torques, usable as a move.
 
-A :class:`PlannedMove` holds the optimal trajectory on a dense grid (the RK4 substeps of
-the optimal control problem) and behaves like :class:`casflex.moves.Move` wherever a
-reference is sampled (:func:`casflex.moves.reference_sampler`,
+A :class:`PlannedMove` holds the optimal trajectory on a dense grid (``substeps`` samples
+per interval of the optimal control problem's own discretisation) and behaves like
+:class:`casflex.moves.Move` wherever a reference is sampled
+(:func:`casflex.moves.reference_sampler`,
 :func:`casflex.moves.reference_function`, :func:`casflex.simulate.simulate_prescribed`,
 closed-loop tracking): before 0 it rests at ``q0``, after ``duration`` at ``qf``. Its
 torques are a torque law for :func:`casflex.simulate.simulate_torque`
@@ -58,9 +59,10 @@ class PlannedMove:
         Time simulated after the move [s] (as :attr:`casflex.moves.Move.settle`).
     name, description : str
     propagator : callable, optional
-        ``propagator(x, tau, s) -> (x(s), ẋ(s))``: the model's state a time ``s`` after a
-        node state ``x`` under the constant torque ``tau`` (arrays with one column per
-        sample; the OCP's RK4 substeps scaled to ``s``). With it, :meth:`sample`
+        ``propagator(k, s) -> (x, ẋ)``: the model's state a time ``s`` after node ``k``
+        under the interval's torque, and its derivative (``k``, ``s`` arrays; one column
+        per sample): the OCP's own discretisation of the interval (the RK4 substeps
+        scaled to ``s``, or the collocation polynomial). With it, :meth:`sample`
         integrates from the node before every sample time, so the joint motion is the
         one the torques produce, acceleration jumps at the nodes included; without it
         the dense samples are interpolated.
@@ -194,8 +196,7 @@ class PlannedMove:
         if ti.size:
             k = np.clip(np.searchsorted(self.node_t, ti, side="right") - 1, 0,
                         self.node_tau.shape[0] - 1)
-            x, xdot = self.propagator(self.node_x[k].T, self.node_tau[k].T,
-                                      (ti - self.node_t[k])[None, :])
+            x, xdot = self.propagator(k, ti - self.node_t[k])
             x, xdot = np.asarray(x).T, np.asarray(xdot).T
             q[inside], dq[inside] = x[:, :n], x[:, n + m:2 * n + m]
             ddq[inside] = xdot[:, n + m:2 * n + m]

@@ -230,7 +230,7 @@ class PlanComparison:
 
 def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: str = "time",
                     duration: float | None = None, robust: float = 0.0,
-                    intervals: int = 40, end: str | float | None = None,
+                    intervals: int | None = None, end: str | float | None = None,
                     step: float | None = None, delta_order: int = 1,
                     vtol: float = 0.05, margin: float = 0.20, dt: float = 1e-3,
                     cache_dir: str | os.PathLike | None = None,
@@ -240,7 +240,10 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     """Plan a move of a robot at the limits of its SI-shaped version and verify both.
 
     The model is :func:`casflex.model.build_model` without gravity (as the shaper's,
-    :func:`casflex.shaping.shaper_for_robot_move`: the deflection is vibration only). The
+    :func:`casflex.shaping.shaper_for_robot_move`: the deflection is vibration only); for
+    a robot without a shape joint (:func:`casflex.modal.tables.shape_joints`), whose
+    modes do not depend on the configuration, it is the model of the modes at ``q = 0``
+    (:class:`casflex.model.PointwiseProvider`: no table to build). The
     SI shaper of the move (:func:`casflex.shaping.shaper_for_move`) gives the shaped move;
     its peak torques and velocities with the joints on it (:func:`plan_limits`) are the
     planner's limits, so the comparison is fair. The plan's end condition is, by default,
@@ -294,7 +297,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     >>> bool(s["duration"] < s["shaped"]["duration"])  # doctest: +SKIP
     True
     """
-    from casflex.model import build_model
+    from casflex.modal.tables import shape_joints
+    from casflex.model import PointwiseProvider, build_model
     from casflex.moves import ShapedMove
     from casflex.shaping import shaper_for_move
     from casflex.simulate import simulate_prescribed
@@ -306,10 +310,19 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     say = log or (lambda message: None)
     timings = {}
     t0 = time.perf_counter()
-    say(f"building the {n_modes}-mode model of '{robot.name}' (tables cached)")
-    model, _ = build_model(robot, n_modes=n_modes, step=step, gravity=None,
-                           delta_order=delta_order, cache_dir=cache_dir,
-                           processes=processes, progress=progress)
+    if shape_joints(robot):
+        say(f"building the {n_modes}-mode model of '{robot.name}' (tables cached)")
+        model, _ = build_model(robot, n_modes=n_modes, step=step, gravity=None,
+                               delta_order=delta_order, cache_dir=cache_dir,
+                               processes=processes, progress=progress)
+    else:
+        # no joint changes the structure's shape: the modes of one configuration hold
+        # everywhere, so there is nothing to tabulate
+        say(f"building the {n_modes}-mode model of '{robot.name}' (no shape joint: the "
+            "modes of one configuration)")
+        model = FlexibleModel(robot, PointwiseProvider(robot, np.zeros(robot.n_joints),
+                                                       count=n_modes),
+                              gravity=None, delta_order=delta_order)
     timings["model_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(f"designing the SI shaper of {move.name} (margin ±{100 * margin:g} %)")
@@ -345,7 +358,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         # the worst residual of the shaped move over the scenarios the plan must meet
         end = max([shaped_check["residual"]] +
                   [e["residual"] for e in shaped_check["errors"]])
-    say(f"planning {move.name}: objective {objective}, {intervals} intervals, limits "
+    say(f"planning {move.name}: objective {objective}, {intervals or 'default'} intervals, limits "
         f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
         f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"
         + (f", robust ±{robust:g}" if robust else ""))

@@ -74,14 +74,22 @@ def test_rigid_time_optimal_is_bang_bang():
                                atol=1e-6 * TAU_MAX)
 
 
+# the two transcriptions: multiple shooting on 20 intervals (RK4 substeps at omega h <=
+# 0.25) and collocation on the default intervals (omega h <= 1 for the torque-driven
+# frequency, 50 rad/s here: 3 Gauss points, phase error ~ (omega h)^7 / 1e5 per interval)
+TRANSCRIPTIONS = [{"transcription": "shooting", "intervals": 20},
+                  {"transcription": "collocation"}]
+
+
 @pytest.mark.slow  # verification simulations of 1.3 s moves at 0.1 / 1 ms
-def test_vibration_off_and_rest(flexible):
+@pytest.mark.parametrize("scheme", TRANSCRIPTIONS, ids=lambda s: s["transcription"])
+def test_vibration_off_and_rest(flexible, scheme):
     J = HUB + RHO * A_Y * B_X * L**3 / 3.0
     T_rigid = 2.0 * math.sqrt(THETA / (TAU_MAX / J))
-    free = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
-                     end="free", settle=1.0)
-    rest = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
-                     end="rest", settle=1.0)
+    free = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, end="free",
+                     settle=1.0, **scheme)
+    rest = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, end="rest",
+                     settle=1.0, **scheme)
     # the rigid-body coordinate psi = q + (M_qd / J) delta obeys J psi'' = tau exactly, so
     # a rest-to-rest move of the flexible arm takes at least the rigid minimum time; with
     # the vibration left free the end of psi is free too and the move may be shorter
@@ -95,16 +103,17 @@ def test_vibration_off_and_rest(flexible):
     v_free = verify_plan(flexible, free, torque=False)
     v_rest = verify_plan(flexible, rest)
     # at rest the 1 ms simulations leave < 1 % of the free plan's residual (the OCP's
-    # RK4 substeps and the 1 ms zero-order hold of its torques are the differences)
+    # discretisation and the 1 ms zero-order hold of its torques are the differences)
     assert v_rest["prescribed"] < 0.01 * v_free["prescribed"]
     assert v_rest["torque"] < 0.01 * v_free["prescribed"]
 
 
 @pytest.mark.slow  # verification simulations of 1.3 s moves at 0.1 / 1 ms
-def test_residual_tolerance_is_met(flexible):
+@pytest.mark.parametrize("scheme", TRANSCRIPTIONS, ids=lambda s: s["transcription"])
+def test_residual_tolerance_is_met(flexible, scheme):
     tol = 2e-3
-    plan = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, intervals=20,
-                     end=tol, settle=1.0)
+    plan = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, end=tol, settle=1.0,
+                     **scheme)
     v = verify_plan(flexible, plan, dt=DT)
     assert v["ocp"] <= tol * (1 + 1e-6)
     assert v["prescribed"] <= tol * BUDGET
@@ -115,7 +124,7 @@ def test_residual_tolerance_is_met(flexible):
 @pytest.mark.slow  # verification simulations of 1.3 s moves at 0.1 / 1 ms
 def test_robust_plan_keeps_tolerance_under_frequency_error(flexible):
     tol, r = 2e-3, 0.1
-    kw = {"torque_limit": TAU_MAX, "intervals": 20, "end": tol, "settle": 1.0}
+    kw = {"torque_limit": TAU_MAX, "end": tol, "settle": 1.0}
     nominal = plan_move(flexible, [0.0], [THETA], **kw)
     robust = plan_move(flexible, [0.0], [THETA], robust=r, **kw)
     vn = verify_plan(flexible, nominal, errors=(-r, r), torque=False, dt=DT)
