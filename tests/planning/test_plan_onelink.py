@@ -174,3 +174,13 @@ def test_planned_move_is_a_move(flexible, tmp_path):
     w = flexible.functions()["stiffness"]([0.0])
     w2 = frequency_shifted_model(flexible, 0.1).functions()["stiffness"]([0.0])
     assert float(w2) == pytest.approx(1.21 * float(w), rel=1e-12)
+
+
+def test_scenario_models_keep_the_model_options(robot):
+    """A frequency-shifted scenario is the same model: its shape-rate and foreshortening
+    terms are kept (they were silently dropped once)."""
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None,
+                          shape_rates=True, foreshortening=True)
+    shifted = frequency_shifted_model(model, 0.1)
+    assert (shifted.shape_rates, shifted.foreshortening) == (True, True)
+    assert shifted.delta_order == model.delta_order
