@@ -27,10 +27,10 @@ R_EKF = (250e-6 * 9.8) ** 2  # (250e-6 g)^2, eq. 185
 
 
 @pytest.fixture(scope="module")
-def setup(arm_model, accel_sensors):
+def setup(arm_model, accel_sensors, model_cache):
     sensors = accel_sensors
     model, _ = arm_model(3, points=sensors.points, gravity=None, delta_order=0)
-    plant = tabulate_plant(model, check=False)
+    plant = tabulate_plant(model, check=False, cache_dir=model_cache)  # shared: test_rt_faults
     ekf = ekf_step_function(plant, sensors, Q_EKF, R_EKF, DT)
     composite = rtloop.make_controller(model, "composite")
     return model, sensors, ekf, composite

@@ -41,9 +41,9 @@ LIMITS = np.array([40.0, 20.0, 5.0])  # N m; above the torques of move 1
 
 
 @pytest.fixture(scope="module")
-def rt(arm_model, accel_sensors, move, tmp_path_factory):
+def rt(arm_model, accel_sensors, move, tmp_path_factory, model_cache):
     model, _ = arm_model(3, points=accel_sensors.points, gravity=None, delta_order=0)
-    plant = tabulate_plant(model, check=False, cache_dir=False)
+    plant = tabulate_plant(model, check=False, cache_dir=model_cache)  # shared: test_rt
     ekf = ekf_step_function(plant, accel_sensors, Q_EKF, R_EKF, DT, guard=Guard(P0))
     ctrl = rtloop.make_controller(model, "inversion")
     py = rtloop.rt_step_function(ekf, ctrl, DT, torque_limits=LIMITS)
