@@ -220,23 +220,19 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
 
             from distributed import as_completed
 
-            # Arguments go straight to the workers (scatter) and results come straight
-            # back (gather), not through the scheduler: half the transfers, and the
-            # scheduler's thread in this process stays idle (measured in
-            # benchmarks/README_tables.md).
-            packed = [pickle.dumps([a for _, a in c], protocol=pickle.HIGHEST_PROTOCOL)
-                      for c in chunks]
-            inputs = client.scatter(packed, direct=True, hash=False)
-            futures = [client.submit(_run_chunk_packed, func, x, pure=False) for x in inputs]
+            futures = [client.submit(_run_chunk_packed, func,
+                                     pickle.dumps([a for _, a in c],
+                                                  protocol=pickle.HIGHEST_PROTOCOL),
+                                     pure=False)
+                       for c in chunks]
             tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
             try:
                 for fut in as_completed(futures):
-                    results = pickle.loads(client.gather(fut, direct=True))
+                    results = pickle.loads(fut.result())
                     bar.update(len(results))
                     yield from zip(tags[fut.key], results, strict=True)
             finally:
                 client.cancel([f for f in futures if not f.done()])
-                client.cancel(inputs)
         elif pool is None:
             for tag, args in jobs:
                 result = func(*args)

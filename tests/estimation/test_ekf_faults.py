@@ -158,6 +158,17 @@ def test_bad_state_and_covariance_are_reset(setup):
         np.testing.assert_array_equal(Pn, np.asarray(ref[1]))
 
 
+def test_default_gate_is_the_chi2_quantile():
+    """The gate written out in guard.py is scipy's χ²(1) quantile of 1 − 1e-9, to the bit."""
+    from scipy.special import erfcinv
+    from scipy.stats import chi2
+
+    from casflex.estimation import DEFAULT_GATE
+
+    assert DEFAULT_GATE == float(2.0 * erfcinv(1e-9) ** 2)
+    assert DEFAULT_GATE == pytest.approx(chi2.isf(1e-9, 1), rel=1e-12)  # isf: another path
+
+
 def test_guard_options_are_checked():
     with pytest.raises(ModelError, match="P_reset"):
         Guard(P_reset=np.zeros((2, 2)))
