@@ -39,7 +39,7 @@
 
 Usage::
 
-    python benchmarks/bench_tables.py [--json] [--repeat N] [--tasks N]
+    python benchmarks/bench_tables.py [--json] [--repeat N] [--tasks N] [--dask-only]
 
 Timings are the minimum over ``--repeat`` runs (default 1).
 """
@@ -279,14 +279,16 @@ def main(argv=None):
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--tasks", type=int, default=400, help="no-op tasks timed")
+    parser.add_argument("--dask-only", action="store_true",
+                        help="skip tables_s and sweep_s (the Dask keys only)")
     args = parser.parse_args(argv)
 
     capacity_before = cpu_capacity()
-    tables_s, table = bench_table(args.repeat)
+    tables_s, table = (None, None) if args.dask_only else bench_table(args.repeat)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the coarse 2-D grid: low MAC
         dask_times, same, table2d, cpu, tasks, arm3 = bench_dask(args.repeat, args.tasks)
-    sweep_s = bench_sweep(args.repeat)
+    sweep_s = None if args.dask_only else bench_sweep(args.repeat)
     capacity_after = cpu_capacity()
     result = {
         "tables_s": tables_s,
@@ -304,14 +306,15 @@ def main(argv=None):
                                                + arm3["client_other_s"]) / arm3["points"]},
         "sweep_s": sweep_s,
         "dask_tables_identical": bool(same),
-        "table_points": int(table.omega.shape[0]),
-        "table_quantities": sorted(table.values),
-        "table_min_mac": table.info.get("min_mac"),
+        "table_points": None if table is None else int(table.omega.shape[0]),
+        "table_quantities": None if table is None else sorted(table.values),
+        "table_min_mac": None if table is None else table.info.get("min_mac"),
         "grid_2d_points": int(np.prod(table2d.omega.shape[:2])),
         "cpu_capacity_2_processes": [capacity_before, capacity_after],
         "nproc": os.cpu_count(),
         "cpu": _cpu_model(),
         "python": platform.python_version(),
+        "load": os.getloadavg(),
     }
     n2d = int(np.prod(table2d.omega.shape[:2]))
     best = min(cpu, key=lambda c: c["client_main_s"] + c["client_other_s"])

@@ -8,6 +8,9 @@ their path from there. Markers (registered in ``pyproject.toml``, ``--strict-mar
     executes a notebook). ``python -m pytest -m "not slow"`` is the fast suite.
 ``needs_cc``
     compiles generated C with the system compiler (``cc``).
+``quick``
+    the quick subset, set here on the tests of :data:`QUICK_FILES` that are not slow:
+    ``python -m pytest -m quick``.
 
 Models are built through :func:`arm_model`, a session-wide memo keyed by the build
 options, with their modal tables in one session cache directory: two test modules that
@@ -53,6 +56,34 @@ MOVES_FILE = ROOT / "problems" / "moves.toml"
 
 
 _CACHE_ENV = {}
+
+
+#: The quick subset (``python -m pytest -m quick``, under a minute on two cores): the tests
+#: not marked slow of these files, one or more per layer that need no model tables, no
+#: compiler and no solver runs (the robot files, the TMM against its references, the
+#: mass normalisation, mode tracking, closed-form shapers, moves, the cache, the
+#: architecture rules).
+QUICK_FILES = (
+    "tests/test_robot.py",
+    "tests/test_cache.py",
+    "tests/test_moves.py",
+    "tests/test_architecture.py",
+    "tests/test_plausibility_bounds.py",
+    "tests/tmm/test_tmm_fixtures.py",
+    "tests/tmm/test_tmm.py",
+    "tests/modal/test_normalize.py",
+    "tests/modal/test_tracking.py",
+    "tests/shaping/test_shaping_shapers.py",
+    "tests/shaping/test_shaping_family.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the quick subset (:data:`QUICK_FILES`, not slow) with ``quick``."""
+    quick = {str(ROOT / name) for name in QUICK_FILES}
+    for item in items:
+        if str(item.path) in quick and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.quick)
 
 
 #: set by the controller of a pytest-xdist run for its workers: the run's directory
