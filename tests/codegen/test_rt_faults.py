@@ -186,8 +186,9 @@ def test_torque_limits_go_with_a_guarded_step():
 
 
 @pytest.mark.slow
-def test_cli_codegen_guarded(tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
+def test_cli_codegen_guarded(tmp_path, capsys, monkeypatch, model_cache):
+    # the run's shared cache: test_cli_codegen_controller builds the same 30° table and plant
+    monkeypatch.setenv("CASFLEX_CACHE", str(model_cache))
     argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
             str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
             "--step", "30", "--no-model", "--controller", "inversion", "--guard",
