@@ -44,7 +44,7 @@ RECOVERY = 0.1
 @pytest.fixture(scope="module")
 def setup(arm_model, accel_sensors, model_cache):
     model, _ = arm_model(3, points=accel_sensors.points, gravity=None)
-    # shared with test_numpy_ekf_baseline; the plant's accuracy check (check=True: 13 s,
+    # shared with test_numpy_ekf_baseline; the plant's accuracy check (check=True: ~2 s CPU,
     # an info entry only, the same coefficients) is test_estimation's test_plant_tabulation
     plant = tabulate_plant(model, check=False, cache_dir=model_cache)
     move = load_move("problems/moves.toml:move1")
