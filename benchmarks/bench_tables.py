@@ -215,7 +215,10 @@ def bench_dask(repeat, n_tasks):
                 n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None))
             clients[n] = stack.enter_context(Client(cluster))
             clients[n].wait_for_workers(n)
-            clients[n].run(_warm)
+            # as tasks, not client.run: a first TMM call may compile the numba kernels for
+            # a while, which in the worker's event loop would stop its heartbeats
+            clients[n].gather([clients[n].submit(_warm, workers=[w], pure=False)
+                               for w in clients[n].scheduler_info()["workers"]])
         for _ in range(repeat):
             for n in (1, 2):
                 tables[n], used = measure_build(clients[n], robot, grid, 4)
