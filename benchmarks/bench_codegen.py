@@ -67,6 +67,7 @@ import numpy as np
 from casflex import codegen
 from casflex.simulate.integrators import rk4_step
 
+ROOT = Path(__file__).resolve().parents[1]
 DT = 1e-3
 THETA_GRID = np.linspace(-np.pi, np.pi, 25)
 W2_TABLE = (2 * np.pi * 3.0) ** 2 * (1.0 + 0.3 * np.cos(THETA_GRID))
@@ -172,12 +173,12 @@ def run(steps=1000, repeat=5):
 TOUR = ["codegen", "problems/arm2link.toml", "--sensors", "problems/sensors/arm2link_accel.toml"]
 
 
-def _timed(cmd, env):
-    """Run ``cmd``; return (wall s, CPU s of the child)."""
+def _timed(cmd, env, cwd=None):
+    """Run ``cmd`` (in ``cwd``); return (wall s, CPU s of the child)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL,
-                   stderr=subprocess.DEVNULL)
+                   stderr=subprocess.DEVNULL, cwd=cwd)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -186,8 +187,11 @@ def _timed(cmd, env):
 def run_tour(controller, cold=True, code=None, cache=None):
     """Time the tour command (cold, warm), the size and the -O2 compile of its C."""
     env = dict(os.environ)
+    # the child runs in the checkout whose code it times: ``python -m`` puts the working
+    # directory first on sys.path, ahead of PYTHONPATH
+    cwd = str(Path(code).resolve()) if code is not None else str(ROOT)
     if code is not None:
-        env["PYTHONPATH"] = os.pathsep.join([str(code), env.get("PYTHONPATH", "")])
+        env["PYTHONPATH"] = os.pathsep.join([cwd, env.get("PYTHONPATH", "")])
     out = {}
     with tempfile.TemporaryDirectory() as work:
         env["CASFLEX_CACHE"] = str(cache) if cache is not None else f"{work}/cache"
@@ -196,11 +200,11 @@ def run_tour(controller, cold=True, code=None, cache=None):
             cmd += ["--controller", controller]
         if cold:
             shutil.rmtree(env["CASFLEX_CACHE"], ignore_errors=True)
-            out["cold_s"], out["cold_cpu_s"] = _timed(cmd, env)
+            out["cold_s"], out["cold_cpu_s"] = _timed(cmd, env, cwd)
         elif cache is None:
-            _timed(cmd, env)  # warm the cache, untimed
+            _timed(cmd, env, cwd)  # warm the cache, untimed
         shutil.rmtree(f"{work}/rt", ignore_errors=True)
-        out["warm_s"], out["warm_cpu_s"] = _timed(cmd, env)
+        out["warm_s"], out["warm_cpu_s"] = _timed(cmd, env, cwd)
         out["c_bytes"], out["compile_s"] = {}, {}
         for src in sorted(Path(f"{work}/rt").glob("*/*.c")):
             out["c_bytes"][src.stem] = src.stat().st_size

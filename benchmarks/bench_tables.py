@@ -12,6 +12,24 @@
     started with ``MALLOC_TRIM_THRESHOLD_`` = 128 MiB instead of Dask's 64 KiB, without
     the workers' statistical profiler and with a 2 s system monitor: ``DASK_CONFIG``);
     both clusters up at once and the runs alternated, best of ``--repeat``.
+``dask_overhead_cpu_fraction``
+    CPU of the client process (the Dask client, the scheduler and the nannies of a
+    ``LocalCluster`` all run in it: building the tasks, pickling and unpickling their
+    data, the tracking stage of :func:`casflex.modal.build_table`, the scheduler's
+    bookkeeping) over the CPU of the workers, in the 2-worker runs (one value per run);
+    ``dask_client_cpu_s`` splits the client's CPU into its main thread (build_table's
+    own work) and the others (scheduler, comms, nannies), ``dask_workers_cpu_s`` the
+    workers' CPU.
+``dask_task``
+    the per-task cost of the Dask path, from ``--tasks`` no-op chunks run through
+    :func:`casflex._parallel.parallel_map` on the 2-worker cluster: the client process's
+    CPU per task, the same less the idle cluster's background CPU over that time
+    (``client_cpu_net_ms``, the figure the projection uses) and the wall time per task [ms].
+``projection``
+    the speed-up on 4–64 workers predicted from those measurements (see
+    :func:`projection`) for the testbed grid and for ``problems/arm3_spatial.toml`` (three
+    shape joints, 12 × 12 × 12 points over its joint limits, 4 modes), whose per-point CPU
+    in the workers and in the client is measured on a 4 × 4 × 4 grid on the same cluster.
 ``cpu_capacity_2_processes``
     speed-up of a pure-Python loop on 2 processes over 1, before and after: what the
     machine offers at the time (other jobs on the same cores lower it); read the Dask
@@ -22,7 +40,7 @@
 
 Usage::
 
-    python benchmarks/bench_tables.py [--json] [--repeat N]
+    python benchmarks/bench_tables.py [--json] [--repeat N] [--tasks N] [--dask-only]
 
 Timings are the minimum over ``--repeat`` runs (default 1).
 """
@@ -51,15 +69,103 @@ TRIM_KEY = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 TRIM_VALUE = 1 << 27
 #: Dask settings of the benchmark's clusters: the trim threshold above, and no statistical
 #: profiler in the workers (it samples every worker's stack every 10 ms; the tasks here
-#: are tens of ms of numpy) and a 2 s system monitor instead of 0.5 s (on 2 cores the
-#: scheduler's and nannies' background work competes with the workers). Measured in one
-#: alternated run (14:33 UTC): speed-up 1.54/1.70 with Dask's defaults, 1.75/1.72 with
-#: these; the tables are bit-identical either way.
+#: are tens of ms of numpy). The other keys slow down the cluster's periodic background
+#: work, which on 2 cores competes with the workers and is charged to the client and the
+#: workers in proportion to the wall time: the event loops' 20 ms health tick, the
+#: workers' 100 ms memory monitor, the 0.5 s system monitor (with its GIL and disk
+#: probes), work stealing and the active memory manager (no use on a table's equal
+#: tasks). Measured on an idle 2-worker cluster (02:53 UTC, load 13): 0.040 CPU-s per s in
+#: the client process and 0.023 in each worker with Dask's defaults (+ the profiler and
+#: system-monitor keys), 0.010 and 0.0045 with these. The tables are bit-identical.
 DASK_CONFIG = {
     TRIM_KEY: TRIM_VALUE,
     "distributed.worker.profile.enabled": False,
-    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.admin.system-monitor.interval": "10s",
+    "distributed.admin.system-monitor.gil.enabled": False,
+    "distributed.admin.system-monitor.disk": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.scheduler.work-stealing": False,
+    "distributed.scheduler.active-memory-manager.start": False,
 }
+ARM3 = ROOT / "problems/arm3_spatial.toml"
+#: the 3-link arm's projected grid: 12 points per shape joint over its limits
+ARM3_AXIS_POINTS = 12
+
+
+def _cpu():
+    """CPU seconds (user + system) of this process."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _thread_cpu():
+    """CPU seconds of this process's threads: (main thread, all others)."""
+    import threading
+
+    import psutil
+
+    main = threading.main_thread().native_id
+    times = {t.id: t.user_time + t.system_time for t in psutil.Process().threads()}
+    return times.get(main, 0.0), sum(v for k, v in times.items() if k != main)
+
+
+def _noop(x):
+    return x
+
+
+def measure_build(client, robot, grid, n_modes):
+    """Build a table on ``client``; wall, client CPU (main, other threads), workers' CPU."""
+    from casflex.modal.tables import build_table
+
+    w0, c0 = client.run(_cpu), _thread_cpu()
+    t0 = time.perf_counter()
+    table = build_table(robot, grid, n_modes, cache_dir=False, client=client)
+    wall = time.perf_counter() - t0
+    c1, w1 = _thread_cpu(), client.run(_cpu)
+    workers = sum(w1[k] - w0[k] for k in w1)
+    return table, {"wall_s": wall, "client_main_s": c1[0] - c0[0],
+                   "client_other_s": c1[1] - c0[1], "workers_s": workers}
+
+
+def measure_tasks(client, n_tasks, idle_s=3.0):
+    """Client CPU and wall per task of ``n_tasks`` no-op chunks through parallel_map.
+
+    The cluster's background work (heartbeats, monitors) costs the client CPU in
+    proportion to the wall time, which on a loaded machine is long: its rate, measured
+    over ``idle_s`` of an idle cluster, is subtracted for ``client_cpu_net_ms``."""
+    from casflex._parallel import parallel_map
+
+    list(parallel_map(_noop, [(i, (i,)) for i in range(8)], client=client, chunksize=1))
+    c0, t0 = _cpu(), time.perf_counter()
+    time.sleep(idle_s)
+    idle_rate = (_cpu() - c0) / (time.perf_counter() - t0)
+    c0, t0 = _cpu(), time.perf_counter()
+    list(parallel_map(_noop, [(i, (i,)) for i in range(n_tasks)], client=client,
+                      chunksize=1))
+    cpu, wall = _cpu() - c0, time.perf_counter() - t0
+    return {"client_cpu_ms": 1e3 * cpu / n_tasks, "wall_ms": 1e3 * wall / n_tasks,
+            "idle_client_cpu_per_s": idle_rate,
+            "client_cpu_net_ms": 1e3 * max(cpu - idle_rate * wall, 0.0) / n_tasks}
+
+
+def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s):
+    """Predicted speed-up of a table build on ``workers`` workers over one worker.
+
+    Wall(W) = N c + T(W) o + max(N w / W, one chunk of w) where N points cost ``w``
+    [s] each in the workers and ``c`` each in the client (unpickling, tracking: serial),
+    and the T(W) tasks (two stages of ``parallel_map``'s default chunks) cost ``o``
+    each in the client and the scheduler (serial too). It assumes a free core per worker
+    and one for the client, and no network time (a local cluster)."""
+    def wall(w):
+        chunk = max(1, min(16, -(-n_points // (4 * w))))
+        tasks = 2 * -(-n_points // chunk)
+        return (n_points * client_s_per_point + tasks * task_s
+                + max(n_points * worker_s_per_point / w, chunk * worker_s_per_point))
+
+    return {str(w): wall(1) / wall(w) for w in workers}
 
 
 def _warm():
@@ -85,8 +191,10 @@ def bench_table(repeat):
     return best, table
 
 
-def bench_dask(repeat):
-    """Best time of ``repeat`` builds on a 1-worker and on a 2-worker ``LocalCluster``.
+def bench_dask(repeat, n_tasks):
+    """Best time of ``repeat`` builds on a 1-worker and on a 2-worker ``LocalCluster``,
+    the CPU split of the 2-worker runs, the per-task cost and the 3-link arm's per-point
+    costs.
 
     Both clusters stay up and the runs alternate (1, 2, 1, 2, ...): the machine is
     shared, and a change of load between two blocks of runs would bias the ratio."""
@@ -95,12 +203,11 @@ def bench_dask(repeat):
     import dask
     from distributed import Client, LocalCluster
 
-    from casflex.modal.tables import build_table
     from casflex.robot import load
 
     robot = load(ROOT / "problems/testbed.toml")
     grid = [np.linspace(-np.pi / 2, np.pi / 2, 10), np.linspace(-np.pi, np.pi, 12)]
-    times, tables, clients = {1: np.inf, 2: np.inf}, {}, {}
+    times, tables, clients, cpu = {1: np.inf, 2: np.inf}, {}, {}, []
     with contextlib.ExitStack() as stack:
         stack.enter_context(dask.config.set(DASK_CONFIG))
         for n in (1, 2):
@@ -108,15 +215,25 @@ def bench_dask(repeat):
                 n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None))
             clients[n] = stack.enter_context(Client(cluster))
             clients[n].wait_for_workers(n)
-            clients[n].run(_warm)
+            # as tasks, not client.run: a first TMM call may compile the numba kernels for
+            # a while, which in the worker's event loop would stop its heartbeats
+            clients[n].gather([clients[n].submit(_warm, workers=[w], pure=False)
+                               for w in clients[n].scheduler_info()["workers"]])
         for _ in range(repeat):
             for n in (1, 2):
-                t0 = time.perf_counter()
-                tables[n] = build_table(robot, grid, 4, cache_dir=False, client=clients[n])
-                times[n] = min(times[n], time.perf_counter() - t0)
+                tables[n], used = measure_build(clients[n], robot, grid, 4)
+                times[n] = min(times[n], used["wall_s"])
+                if n == 2:
+                    cpu.append(used)
+        tasks = measure_tasks(clients[2], n_tasks)
+        arm3 = load(ARM3)
+        small = [np.linspace(lo, hi, 4) for lo, hi in
+                 (arm3.joint_limits[k] for k in (1, 2, 3))]
+        _, arm3_cpu = measure_build(clients[2], arm3, small, 4)
+        arm3_cpu["points"] = 4 ** 3
     same = all(np.array_equal(tables[1].values[k], tables[2].values[k])
                for k in tables[1].values)
-    return times, same, tables[2]
+    return times, same, tables[2], cpu, tasks, arm3_cpu
 
 
 def _burn(n):
@@ -174,30 +291,54 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--tasks", type=int, default=400, help="no-op tasks timed")
+    parser.add_argument("--dask-only", action="store_true",
+                        help="skip tables_s and sweep_s (the Dask keys only)")
     args = parser.parse_args(argv)
 
     capacity_before = cpu_capacity()
-    tables_s, table = bench_table(args.repeat)
+    tables_s, table = (None, None) if args.dask_only else bench_table(args.repeat)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the coarse 2-D grid: low MAC
-        dask_times, same, table2d = bench_dask(args.repeat)
-    sweep_s = bench_sweep(args.repeat)
+        dask_times, same, table2d, cpu, tasks, arm3 = bench_dask(args.repeat, args.tasks)
+    sweep_s = None if args.dask_only else bench_sweep(args.repeat)
     capacity_after = cpu_capacity()
     result = {
         "tables_s": tables_s,
         "dask_1_worker_s": dask_times[1],
         "dask_2_workers_s": dask_times[2],
         "dask_speedup_2_workers": dask_times[1] / dask_times[2],
+        "dask_overhead_cpu_fraction": [(c["client_main_s"] + c["client_other_s"])
+                                       / c["workers_s"] for c in cpu],
+        "dask_client_cpu_s": [{"main": c["client_main_s"], "other": c["client_other_s"]}
+                              for c in cpu],
+        "dask_workers_cpu_s": [c["workers_s"] for c in cpu],
+        "dask_task": tasks,
+        "arm3_per_point_ms": {"workers": 1e3 * arm3["workers_s"] / arm3["points"],
+                              "client_main": 1e3 * arm3["client_main_s"] / arm3["points"],
+                              "client_other": 1e3 * arm3["client_other_s"] / arm3["points"]},
         "sweep_s": sweep_s,
         "dask_tables_identical": bool(same),
-        "table_points": int(table.omega.shape[0]),
-        "table_quantities": sorted(table.values),
-        "table_min_mac": table.info.get("min_mac"),
+        "table_points": None if table is None else int(table.omega.shape[0]),
+        "table_quantities": None if table is None else sorted(table.values),
+        "table_min_mac": None if table is None else table.info.get("min_mac"),
         "grid_2d_points": int(np.prod(table2d.omega.shape[:2])),
         "cpu_capacity_2_processes": [capacity_before, capacity_after],
         "nproc": os.cpu_count(),
         "cpu": _cpu_model(),
         "python": platform.python_version(),
+        "load": os.getloadavg(),
+    }
+    n2d = int(np.prod(table2d.omega.shape[:2]))
+    best = min(cpu, key=lambda c: c["client_main_s"] + c["client_other_s"])
+    task_s = 1e-3 * tasks["client_cpu_net_ms"]
+    workers = (1, 2, 4, 8, 16, 32, 64)
+    result["projection"] = {
+        "testbed_2d": projection(workers, n2d, best["workers_s"] / n2d,
+                                 best["client_main_s"] / n2d, task_s),
+        "arm3_spatial_3d": projection(workers, ARM3_AXIS_POINTS ** 3,
+                                      arm3["workers_s"] / arm3["points"],
+                                      arm3["client_main_s"] / arm3["points"], task_s),
     }
     if args.json:
         print(json.dumps(result))

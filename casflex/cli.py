@@ -43,9 +43,11 @@ VERBS = {
 }
 
 
-def _available_verbs():
+def _available_verbs(only=None):
     verbs = {}
     for verb, module in VERBS.items():
+        if only is not None and verb != only:
+            continue
         try:
             verbs[verb] = importlib.import_module(f"casflex.commands.{module}")
         except ModuleNotFoundError as exc:  # verb not shipped yet in this build
@@ -54,14 +56,23 @@ def _available_verbs():
     return verbs
 
 
-def build_parser() -> ArgumentParser:
+def build_parser(verb: str | None = None) -> ArgumentParser:
     """Return the :class:`argparse.ArgumentParser` of the ``casflex`` command.
+
+    Parameters
+    ----------
+    verb : str, optional
+        Register this verb alone: only its module (and what it imports) is loaded, which
+        is what :func:`main` does when the command line names a verb. Default: every verb
+        (``casflex --help`` lists them all).
 
     Examples
     --------
     >>> parser = build_parser()
     >>> parser.prog
     'casflex'
+    >>> sorted(build_parser("modes")._subparsers._group_actions[0].choices)
+    ['modes']
     """
     parser = ArgumentParser(
         prog="casflex",
@@ -72,8 +83,8 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--version", action="version", version=f"casflex {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
-    for verb, module in _available_verbs().items():
-        p = sub.add_parser(verb, help=module.HELP, description=module.HELP)
+    for name, module in _available_verbs(verb).items():
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.add_argument(
             "--json", action="store_true", help="print exactly one JSON object on stdout"
@@ -108,7 +119,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     >>> main(["modes", "problems/arm2link.toml", "--modes", "0"])   # error on stderr
     2
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # import only the named verb's module: the others' imports (scipy.optimize, the
+    # identification and shaping packages...) cost a warm run more than its work
+    verb = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(verb if verb in VERBS else None)
     args = parser.parse_args(argv)
 
     def log(message: str) -> None:

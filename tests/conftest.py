@@ -8,6 +8,9 @@ their path from there. Markers (registered in ``pyproject.toml``, ``--strict-mar
     executes a notebook). ``python -m pytest -m "not slow"`` is the fast suite.
 ``needs_cc``
     compiles generated C with the system compiler (``cc``).
+``quick``
+    the quick subset, set here on the tests of :data:`QUICK_FILES` that are not slow:
+    ``python -m pytest -m quick``.
 
 Models are built through :func:`arm_model`, a session-wide memo keyed by the build
 options, with their modal tables in one session cache directory: two test modules that
@@ -18,6 +21,13 @@ to a fresh directory when pytest starts, before collection, and removed at the e
 test reads or writes the user's cache and tables are built once per session); tests that
 draw random numbers take the ``rng`` fixture, seeded from the test's own id, so that a
 failure seen in the full run reproduces with ``-k``.
+
+Parallel runs (pytest-xdist, ``-n 2 --dist loadfile`` in ``pyproject.toml``): each worker
+is a session of its own over whole test files, with its own ``$CASFLEX_CACHE`` (a
+sub-directory of the run's temporary directory, so a test sees the cache exactly as in a
+one-process run); only the modal tables of :func:`arm_model` live in one directory shared
+by the workers (their builds coordinate through :func:`casflex._cache.build_shared`, and a
+table is the same whichever worker computes it). ``-n 0`` runs in one process.
 """
 
 from __future__ import annotations
@@ -48,22 +58,68 @@ MOVES_FILE = ROOT / "problems" / "moves.toml"
 _CACHE_ENV = {}
 
 
+#: The quick subset (``python -m pytest -m quick``, under a minute on two cores): the tests
+#: not marked slow of these files, one or more per layer that need no model tables, no
+#: compiler and no solver runs (the robot files, the TMM against its references, the
+#: mass normalisation, mode tracking, closed-form shapers, moves, the cache, the
+#: architecture rules).
+QUICK_FILES = (
+    "tests/test_robot.py",
+    "tests/test_cache.py",
+    "tests/test_moves.py",
+    "tests/test_architecture.py",
+    "tests/test_plausibility_bounds.py",
+    "tests/tmm/test_tmm_fixtures.py",
+    "tests/tmm/test_tmm.py",
+    "tests/modal/test_normalize.py",
+    "tests/modal/test_tracking.py",
+    "tests/shaping/test_shaping_shapers.py",
+    "tests/shaping/test_shaping_family.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the quick subset (:data:`QUICK_FILES`, not slow) with ``quick``."""
+    quick = {str(ROOT / name) for name in QUICK_FILES}
+    for item in items:
+        if str(item.path) in quick and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.quick)
+
+
+#: set by the controller of a pytest-xdist run for its workers: the run's directory
+_RUN_DIR_ENV = "CASFLEX_TEST_RUN_DIR"
+
+
 def pytest_configure(config):
-    """Point ``$CASFLEX_CACHE`` at a fresh directory for the session (subprocesses too)."""
+    """Point ``$CASFLEX_CACHE`` at a fresh directory for the session (subprocesses too);
+    in a pytest-xdist worker, at the worker's own directory inside the run's."""
     _CACHE_ENV["previous"] = os.environ.get("CASFLEX_CACHE")
-    _CACHE_ENV["path"] = tempfile.mkdtemp(prefix="casflex-test-cache-")
-    os.environ["CASFLEX_CACHE"] = _CACHE_ENV["path"]
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    run_dir = os.environ.get(_RUN_DIR_ENV)
+    if worker and run_dir:  # the controller made the run's directory and removes it
+        cache = Path(run_dir) / f"cache-{worker}"
+        cache.mkdir(exist_ok=True)
+        _CACHE_ENV["run_dir"] = run_dir
+    else:
+        run_dir = tempfile.mkdtemp(prefix="casflex-test-cache-")
+        _CACHE_ENV["run_dir"] = _CACHE_ENV["owned"] = run_dir
+        os.environ[_RUN_DIR_ENV] = run_dir
+        cache = Path(run_dir) / "cache"
+        cache.mkdir()
+    os.environ["CASFLEX_CACHE"] = str(cache)
 
 
 def pytest_unconfigure(config):
-    path = _CACHE_ENV.pop("path", None)
+    owned = _CACHE_ENV.pop("owned", None)
     previous = _CACHE_ENV.pop("previous", None)
+    _CACHE_ENV.pop("run_dir", None)
     if previous is None:
         os.environ.pop("CASFLEX_CACHE", None)
     else:
         os.environ["CASFLEX_CACHE"] = previous
-    if path is not None:
-        shutil.rmtree(path, ignore_errors=True)
+    if owned is not None:
+        os.environ.pop(_RUN_DIR_ENV, None)
+        shutil.rmtree(owned, ignore_errors=True)
 
 
 @pytest.fixture
@@ -114,9 +170,11 @@ def move():
 
 
 @pytest.fixture(scope="session")
-def model_cache(tmp_path_factory):
-    """One modal-table cache directory for the whole session."""
-    return tmp_path_factory.mktemp("casflex_tables")
+def model_cache():
+    """One modal-table cache directory for the whole run (shared by xdist workers)."""
+    path = Path(_CACHE_ENV["run_dir"]) / "tables"
+    path.mkdir(exist_ok=True)
+    return path
 
 
 @pytest.fixture(scope="session")

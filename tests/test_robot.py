@@ -202,6 +202,19 @@ def test_joint_limits_read_with_units():
     assert load("problems/arm2link.toml").joint_limits == (None, None, None)
 
 
+def test_arm3_spatial_has_three_shape_joints():
+    """problems/arm3_spatial.toml (the 3-D table of benchmarks/bench_tables.py): the
+    compliant base makes the shoulder a shape joint beside the elbow and the wrist."""
+    from casflex.modal import shape_joints
+
+    arm3 = load("problems/arm3_spatial.toml")
+    assert arm3.n_joints == 4 and len(arm3.flexible_links) == 3
+    assert shape_joints(arm3) == (1, 2, 3)
+    assert arm3.joint_limits[0] is None
+    np.testing.assert_allclose([np.degrees(arm3.joint_limits[k][1]) for k in (1, 2, 3)],
+                               [100.0, 150.0, 120.0], rtol=1e-15)
+
+
 def test_joint_limit_rules():
     e = _err(LIMITED.replace("q_max = 1.0", "q_max = -2.0"), "must be > q_min")
     assert e.field == "link[1].q_max" and e.value == -2.0

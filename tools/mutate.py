@@ -295,7 +295,7 @@ def run_tests(copy: Path, tests: list[str], timeout: float) -> dict:
     cache = tempfile.mkdtemp(prefix="casflex-mutant-cache-")
     env.update(PYTHONPATH=str(copy), CASFLEX_CACHE=cache, MPLBACKEND="Agg",
                OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", PYTHONDONTWRITEBYTECODE="1")
-    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-rfE", "-p", "no:cacheprovider",
+    cmd = [sys.executable, "-m", "pytest", "-n", "0", "-x", "-q", "-rfE", "-p", "no:cacheprovider",
            "-p", "no:randomly", *tests]
     start = time.monotonic()
     proc = subprocess.Popen(cmd, cwd=copy, env=env, stdout=subprocess.PIPE,

@@ -52,7 +52,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.integrate import simpson
 
 from casflex.errors import ModelError
 from casflex.tmm import elements as el
@@ -183,6 +182,8 @@ def _quadrature(robot, shapes, beam, method, points):
         if s.size < 3:
             raise ModelError(f"Simpson quadrature needs at least 3 samples; got {s.size}")
         # Simpson weights from integrating the unit vectors
+        from scipy.integrate import simpson  # here: scipy.integrate costs an import ~0.5 s
+
         w = simpson(np.eye(s.size), x=s, axis=1)
         z = np.concatenate([shapes.displacement[:, beam], shapes.rotation[:, beam],
                             shapes.moment[:, beam], shapes.force[:, beam]], axis=-1)

@@ -66,7 +66,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
 
 from casflex.errors import ModelError
 from casflex.tmm.solve import MODE_FIELDS  # the per-mode fields combine() transforms
@@ -317,6 +316,8 @@ def _unit_rows(F):
 def _match(ref, F):
     """Signed assignment of the tracked reference rows to the modes ``F`` (no degeneracy)."""
     C = correlation(ref, F)
+    from scipy.optimize import linear_sum_assignment  # lazy: a warm model needs none
+
     rows, cols = linear_sum_assignment(-(C**2))
     T = np.zeros((ref.shape[0], F.shape[0]))
     sgn = np.where(C[rows, cols] < 0.0, -1.0, 1.0)
@@ -344,6 +345,8 @@ def _fit_subspaces(ref, F, groups):
         coefs.append(C)
         frac = np.sum((R @ B.T) ** 2, axis=1)  # subspace MAC of every reference row
         score[:, g] = frac[:, None]
+    from scipy.optimize import linear_sum_assignment  # lazy: a warm model needs none
+
     rows, cols = linear_sum_assignment(-score)
     T = np.zeros((n, m))
     quality = np.zeros(n)

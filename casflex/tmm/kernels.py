@@ -23,15 +23,13 @@ import math
 
 import numpy as np
 
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is the optional "fast" extra
-    numba = None
+__all__ = ["AVAILABLE", "pack"]  # noqa: F822 (AVAILABLE: module __getattr__)
 
-__all__ = ["AVAILABLE", "pack"]
-
-#: True when the compiled kernels can run (numba importable).
-AVAILABLE = numba is not None
+# ``AVAILABLE`` (True when the compiled kernels can run: numba importable) and the
+# kernels ``count_points``, ``refine_brackets``, ``system_points``, ``field_points`` are
+# made on first use (module ``__getattr__`` below): importing numba costs ~0.5 s, which
+# a command that reads its modal tables from the cache never needs.
+_KERNELS = ("count_points", "refine_brackets", "system_points", "field_points")
 
 #: state permutation [u, θ, M, F] -> [u, θ, F, M] (as in casflex.tmm.solve)
 _CONJUGATE = np.array([0, 1, 2, 3, 4, 5, 9, 10, 11, 6, 7, 8])
@@ -409,16 +407,26 @@ def _count(cfg, omega, kind, beam, flat, gather, ratio, R6, M, G, axis, stiffnes
     return counts, finite
 
 
-if AVAILABLE:
-    _beam_local = numba.njit(cache=True)(_beam_local)
-    _clamped_bending_count = numba.njit(cache=True)(_clamped_bending_count)
-    _solve = numba.njit(cache=True)(_solve)
-    _negative_eigenvalues = numba.njit(cache=True)(_negative_eigenvalues)
-    _point_system = numba.njit(cache=True)(_point_system)
-    _point_slogdet = numba.njit(cache=True)(_point_slogdet)
-    system_points = numba.njit(cache=True)(_system)
-    field_points = numba.njit(cache=True)(_field)
-    refine_brackets = numba.njit(cache=True)(_refine)
-    count_points = numba.njit(cache=True)(_count)
-else:  # pragma: no cover
-    count_points = refine_brackets = system_points = field_points = None
+def _compile():
+    """Import numba and wrap the kernels (their machine code is compiled on first call,
+    or read from numba's cache); without numba, ``AVAILABLE`` is False."""
+    g = globals()
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is the optional "fast" extra
+        g.update(dict.fromkeys(_KERNELS), AVAILABLE=False)
+        return
+    jit = numba.njit(cache=True)
+    # the helpers first: the kernels call them through these module globals
+    for name in ("_beam_local", "_clamped_bending_count", "_solve", "_negative_eigenvalues",
+                 "_point_system", "_point_slogdet"):
+        g[name] = jit(g[name])
+    g.update(system_points=jit(_system), field_points=jit(_field),
+             refine_brackets=jit(_refine), count_points=jit(_count), AVAILABLE=True)
+
+
+def __getattr__(name):
+    if name == "AVAILABLE" or name in _KERNELS:
+        _compile()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

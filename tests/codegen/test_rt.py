@@ -27,10 +27,10 @@ R_EKF = (250e-6 * 9.8) ** 2  # (250e-6 g)^2, eq. 185
 
 
 @pytest.fixture(scope="module")
-def setup(arm_model, accel_sensors):
+def setup(arm_model, accel_sensors, model_cache):
     sensors = accel_sensors
     model, _ = arm_model(3, points=sensors.points, gravity=None, delta_order=0)
-    plant = tabulate_plant(model, check=False)
+    plant = tabulate_plant(model, check=False, cache_dir=model_cache)  # shared: test_rt_faults
     ekf = ekf_step_function(plant, sensors, Q_EKF, R_EKF, DT)
     composite = rtloop.make_controller(model, "composite")
     return model, sensors, ekf, composite
@@ -113,8 +113,9 @@ def test_closed_loop_in_c_matches_python_simulation(setup, tmp_path, move):
 
 
 @pytest.mark.slow
-def test_cli_codegen_controller(tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
+def test_cli_codegen_controller(tmp_path, capsys, monkeypatch, model_cache):
+    # the run's shared cache: test_cli_codegen_guarded builds the same 30° table and plant
+    monkeypatch.setenv("CASFLEX_CACHE", str(model_cache))
     argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
             str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
             "--step", "30deg", "--no-model", "--controller", "inversion", "--json"]

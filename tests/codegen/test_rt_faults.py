@@ -41,9 +41,9 @@ LIMITS = np.array([40.0, 20.0, 5.0])  # N m; above the torques of move 1
 
 
 @pytest.fixture(scope="module")
-def rt(arm_model, accel_sensors, move, tmp_path_factory):
+def rt(arm_model, accel_sensors, move, tmp_path_factory, model_cache):
     model, _ = arm_model(3, points=accel_sensors.points, gravity=None, delta_order=0)
-    plant = tabulate_plant(model, check=False, cache_dir=False)
+    plant = tabulate_plant(model, check=False, cache_dir=model_cache)  # shared: test_rt
     ekf = ekf_step_function(plant, accel_sensors, Q_EKF, R_EKF, DT, guard=Guard(P0))
     ctrl = rtloop.make_controller(model, "inversion")
     py = rtloop.rt_step_function(ekf, ctrl, DT, torque_limits=LIMITS)
@@ -186,8 +186,9 @@ def test_torque_limits_go_with_a_guarded_step():
 
 
 @pytest.mark.slow
-def test_cli_codegen_guarded(tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
+def test_cli_codegen_guarded(tmp_path, capsys, monkeypatch, model_cache):
+    # the run's shared cache: test_cli_codegen_controller builds the same 30° table and plant
+    monkeypatch.setenv("CASFLEX_CACHE", str(model_cache))
     argv = ["codegen", str(ROOT / "problems/arm2link.toml"), "--sensors",
             str(ROOT / "problems/sensors/arm2link_accel.toml"), "--out", str(tmp_path / "c"),
             "--step", "30deg", "--no-model", "--controller", "inversion", "--guard",

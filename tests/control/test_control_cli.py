@@ -7,8 +7,9 @@ import numpy as np
 from casflex.cli import main
 
 
-def test_cli_check_and_accessibility(capsys, tmp_path, monkeypatch):
-    monkeypatch.setenv("CASFLEX_CACHE", str(tmp_path / "cache"))
+def test_cli_check_and_accessibility(capsys, tmp_path, monkeypatch, model_cache):
+    # the run's shared cache (tables and schedules are keyed on everything they depend on)
+    monkeypatch.setenv("CASFLEX_CACHE", str(model_cache))
     argv = ["check", "problems/arm2link.toml", "--move", "problems/moves.toml:control_move1",
             "--controller", "inversion", "--step", "15deg", "--json"]
     assert main(argv) == 0

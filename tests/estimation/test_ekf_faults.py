@@ -42,9 +42,11 @@ RECOVERY = 0.1
 
 
 @pytest.fixture(scope="module")
-def setup(arm_model, accel_sensors):
+def setup(arm_model, accel_sensors, model_cache):
     model, _ = arm_model(3, points=accel_sensors.points, gravity=None)
-    plant = tabulate_plant(model, cache_dir=False)
+    # shared with test_numpy_ekf_baseline; the plant's accuracy check (check=True: ~2 s CPU,
+    # an info entry only, the same coefficients) is test_estimation's test_plant_tabulation
+    plant = tabulate_plant(model, check=False, cache_dir=model_cache)
     move = load_move("problems/moves.toml:move1")
     data = simulate_data(model, accel_sensors, move, dt=DT, t_end=2.5)
     plain = ekf_step_function(plant, accel_sensors, Q, R_ACC, DT)
@@ -156,6 +158,17 @@ def test_bad_state_and_covariance_are_reset(setup):
         # the step restarted from P_reset: the same as a step from (x_reset, P0)
         ref = step(np.zeros(6), P0, *args)
         np.testing.assert_array_equal(Pn, np.asarray(ref[1]))
+
+
+def test_default_gate_is_the_chi2_quantile():
+    """The gate written out in guard.py is scipy's χ²(1) quantile of 1 − 1e-9, to the bit."""
+    from scipy.special import erfcinv
+    from scipy.stats import chi2
+
+    from casflex.estimation import DEFAULT_GATE
+
+    assert DEFAULT_GATE == float(2.0 * erfcinv(1e-9) ** 2)
+    assert DEFAULT_GATE == pytest.approx(chi2.isf(1e-9, 1), rel=1e-12)  # isf: another path
 
 
 def test_guard_options_are_checked():
