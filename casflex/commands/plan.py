@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--modes", type=int, default=3, metavar="N",
                         help="number of modes of the model (default 3)")
     parser.add_argument("--intervals", type=int, default=None, metavar="N",
-                        help="intervals of the OCP (default: 40 for shooting; for "
+                        help="intervals of the OCP (default 40 for shooting; for "
                         "collocation enough that ω_max T / N <= 1)")
     parser.add_argument("--transcription", choices=("collocation", "shooting"),
                         default="collocation",
