@@ -33,6 +33,8 @@ from collections.abc import Callable
 from casflex._validate import number, output_directory
 from casflex.commands.common import (
     add_cache_arguments,
+    add_modes_argument,
+    add_processes_argument,
     add_robot_argument,
     cache_dir_of,
     parse_angle,
@@ -71,8 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robust", type=float, default=0.0, metavar="R",
                         help="relative frequency error the end condition must withstand "
                         "(e.g. 0.1 = ±10 %%; default 0)")
-    parser.add_argument("--modes", type=int, default=3, metavar="N",
-                        help="number of modes of the model (default 3)")
+    add_modes_argument(parser, 3, help="number of modes of the model (default 3)")
     parser.add_argument("--intervals", type=int, default=None, metavar="N",
                         help="intervals of the OCP (default 40 for shooting; for "
                         "collocation enough that ω_max T / N <= 1)")
@@ -102,8 +103,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", default=None, metavar="FILE.png",
                         help="figure: shaped vs planned joint motion, torques and tip "
                         "deflection")
-    parser.add_argument("--processes", type=int, default=None, metavar="P",
-                        help="worker processes for the tables (default all CPUs)")
+    add_processes_argument(parser, help="worker processes for the tables (default all CPUs)")
     add_cache_arguments(parser)
 
 

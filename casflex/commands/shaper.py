@@ -47,7 +47,12 @@ from pathlib import Path
 
 from casflex._problemfile import read_toml
 from casflex._validate import number
-from casflex.commands.common import add_cache_arguments, cache_dir_of, parse_angle
+from casflex.commands.common import (
+    add_cache_arguments,
+    add_processes_argument,
+    cache_dir_of,
+    parse_angle,
+)
 from casflex.errors import ProblemFileError
 from casflex.shaping import DEFAULT_TIME_LIMIT, ranges_from_mapping, si_shaper
 
@@ -104,8 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     robot.add_argument("--step", default=None, metavar="S",
                        help="grid step of the modal tables, rad or with a 'deg' suffix "
                        "(default 1.5deg for one shape joint, 6deg for more)")
-    robot.add_argument("--processes", type=int, default=None, metavar="P",
-                       help="worker processes for the tables (default all CPUs; 1 = no pool)")
+    add_processes_argument(robot)
     add_cache_arguments(robot)
     parser.add_argument("--dt", type=float, default=None, metavar="S",
                         help="shaper problem: sample time of the loop that runs the shaper, "
