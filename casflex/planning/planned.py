@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._validate import output_file
-from casflex.moves import reference_function, reference_sampler
+from casflex.moves import reference_sampler
 
 __all__ = ["PlannedMove"]
 
@@ -203,10 +203,15 @@ class PlannedMove:
         return q, dq, ddq
 
     def casadi_reference(self) -> ca.Function:
-        """``reference (t) -> (qd, dqd, ddqd)``: piecewise-linear in the dense samples.
+        """``reference (t) -> (qd, dqd, ddqd)``: piecewise cubic in the dense samples.
 
-        The samples are extended to rest at ``qf`` until ``t_end``
-        (:func:`casflex.moves.reference_function`).
+        On every step ``[t_j, t_j+1]`` of the dense grid ``q`` is the cubic Hermite
+        interpolant of ``q`` and ``q̇``, ``q̇`` that of ``q̇`` and ``q̈``, and ``q̈`` is
+        linear (as :func:`casflex.moves.reference_sampler` interpolates samples), from
+        the values at the step's start and (with a ``propagator``) their left limits at
+        its end: the torque switches at the nodes stay jumps of ``q̈``, and the reference
+        equals :meth:`sample` at the dense samples. Before 0 it rests at ``q0``,
+        after ``duration`` at ``qf`` (velocity and acceleration zero).
 
         Examples
         --------
@@ -218,14 +223,22 @@ class PlannedMove:
         ...                 hold_torque=np.zeros(1))
         >>> [float(v) for v in p.casadi_reference()(0.5)]
         [0.5, 0.0, 0.0]
+        >>> [float(v) for v in p.casadi_reference()(2.0)]
+        [1.0, 0.0, 0.0]
         """
-        t, q, dq, ddq = self._samples()
-        if self.settle > 0.0:
-            t = np.r_[t, self.t_end]
-            q = np.vstack([q, q[-1]])
-            dq = np.vstack([dq, np.zeros_like(dq[-1])])
-            ddq = np.vstack([ddq, np.zeros_like(ddq[-1])])
-        return reference_function((t, q, dq, ddq))
+        t = np.asarray(self.t, dtype=float)
+        start = self.sample(t[:-1])
+        if self.propagator is None:
+            end = (self.q[1:], self.dq[1:], self.ddq[1:])
+        else:  # left limits: the state of the step's own interval at its end
+            n = self.n_joints
+            m = self.node_x.shape[1] // 2 - n
+            k = np.clip(np.searchsorted(self.node_t, t[:-1], side="right") - 1, 0,
+                        self.node_tau.shape[0] - 1)
+            x, xdot = self.propagator(k, t[1:] - self.node_t[k])
+            x, xdot = np.asarray(x).T, np.asarray(xdot).T
+            end = (x[:, :n], x[:, n + m:2 * n + m], xdot[:, n + m:2 * n + m])
+        return _hermite_reference(t, start, end, self.q0, self.qf)
 
     def time_grid(self, dt: float) -> np.ndarray:
         """Uniform time grid from 0 to ``t_end`` with step ``dt`` [s] (end included).
@@ -324,3 +337,37 @@ class PlannedMove:
             for row in rows:
                 w.writerow([repr(float(v)) for v in row])
         return out
+
+
+def _hermite_reference(t, start, end, q0, qf):
+    """CasADi ``reference(t)`` from per-step start values and end (left-limit) values."""
+    tt = ca.SX.sym("t")
+    steps = t.size - 1
+    # the step that holds t (clipped to the first / last): the index grid read at t
+    position = ca.interpolant("step", "linear", [t], np.arange(t.size, dtype=float))(tt)
+    index = ca.fmin(ca.fmax(ca.floor(position), 0.0), steps - 1.0)
+    grid = [np.arange(max(steps, 2), dtype=float)]
+
+    def lookup(name, values):  # the row of a step: a linear interpolant read at an integer
+        values = np.asarray(values, dtype=float).reshape(steps, -1)
+        if steps == 1:
+            values = np.vstack([values, values])
+        f = ca.interpolant(name, "linear", grid, values.T.ravel(order="F"))
+        return f(index)
+
+    qa, va, aa = (lookup(f"a{i}", v) for i, v in enumerate(start))
+    qb, vb, ab = (lookup(f"b{i}", v) for i, v in enumerate(end))
+    t0, h = lookup("t0", t[:-1]), lookup("h", np.diff(t))
+    s = ca.fmin(ca.fmax((tt - t0) / h, 0.0), 1.0)
+    # cubic Hermite basis: q from (q, q̇), q̇ from (q̇, q̈) at both ends; q̈ linear
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    q = h00 * qa + h10 * h * va + h01 * qb + h11 * h * vb
+    dq = h00 * va + h10 * h * aa + h01 * vb + h11 * h * ab
+    ddq = (1 - s) * aa + s * ab
+    zero = ca.DM.zeros(len(q0))
+    before, after = tt < t[0], tt > t[-1]
+    q = ca.if_else(before, ca.DM(q0), ca.if_else(after, ca.DM(qf), q))
+    dq = ca.if_else(ca.logic_or(before, after), zero, dq)
+    ddq = ca.if_else(ca.logic_or(before, after), zero, ddq)
+    return ca.Function("reference", [tt], [q, dq, ddq], ["t"], ["qd", "dqd", "ddqd"])

@@ -569,11 +569,15 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
     >>> Z.shape, tau.shape, info["poly_pieces"]
     ((51, 2), (51, 3), 3)
     """
+    from casflex.moves import Move, ShapedMove
+
     n, m = model.n, model.m
-    if not hasattr(reference, "breakpoints"):
+    if not isinstance(reference, (Move, ShapedMove)):
+        # the stage coefficients take q̈ constant between the breakpoints: true of a
+        # bang-bang move and its shaped version, not of a planned move or samples
         raise ModelError("method='poly' needs the reference as a casflex.moves.Move or "
-                         "ShapedMove (known switching times); got sampled arrays — use "
-                         "method='rk4'")
+                         "ShapedMove (q̈ constant between known switching times); got "
+                         f"{type(reference).__name__} — use method='rk4'")
     if m == 0:
         raise ModelError("method='poly' needs a model with modes (m >= 1); use method='rk4'")
     if model.delta_order not in (0, 1):

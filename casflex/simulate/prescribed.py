@@ -181,7 +181,7 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
     Raises
     ------
     ModelError
-        Joint-count mismatch, bad step, times or method; ``"poly"`` with a sampled
+        Joint-count mismatch, bad step, times or method; ``"poly"`` with a sampled or planned
         reference or when the interpolation does not reach 1e-10; ``jit`` with another
         method.
     SolverError

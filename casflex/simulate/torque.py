@@ -487,8 +487,11 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
     if estimator is None and method == "cvodes" and not sampled:
         # the law acts continuously: CVODES between the switches of the reference
         dae = {"x": x_s, "t": t_s, "ode": ode(x_s, controller(*ref(t_s), x_s))}
+        # restarted where the reference's acceleration jumps: a move's start, half time
+        # and end, a shaped move's impulses, a planned move's nodes
         T = float(move.duration)
-        X = _run_adaptive(dae, x0, t, (0.0, T / 2.0, T, t[-1]), kd, jump,
+        switches = getattr(move, "breakpoints", (0.0, T / 2.0, T))
+        X = _run_adaptive(dae, x0, t, (0.0, *map(float, switches), T, t[-1]), kd, jump,
                           {"abstol": atol, "reltol": rtol, "max_num_steps": 1000000})
         tau_all = np.asarray(controller.map(N + 1)(*ref.map(N + 1)(t[None, :]), X.T)).T
     elif estimator is None:
