@@ -59,6 +59,10 @@ Input shaper table (:mod:`casflex.codegen.shaper_table`)
 ---------------------------------------------------------
 shaper_table_bundle  a digital shaper as a C delay/amplitude table with ``_init``/``_apply``
 
+Planned move table (:mod:`casflex.codegen.plan_table`)
+------------------------------------------------------
+plan_table_bundle  a planned move sampled on the loop's grid, with ``_row``/``_at`` readers
+
 Errors (:mod:`casflex.codegen.errors`)
 --------------------------------------
 CodegenError    a request that cannot be honoured (unknown function, wrong sizes...)
@@ -128,6 +132,7 @@ from casflex.codegen.estimator import (
     model_bundle,
 )
 from casflex.codegen.jit import compile_cached
+from casflex.codegen.plan_table import plan_table_bundle
 from casflex.codegen.replay import HarnessResult, harness, run_harness
 from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
 from casflex.codegen.rtloop import (
@@ -178,6 +183,8 @@ __all__ = [
     "rt_functions",
     # input shaper table
     "shaper_table_bundle",
+    # planned move table
+    "plan_table_bundle",
     # errors
     "CodegenError",
     "BuildError",
