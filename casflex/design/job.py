@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from casflex._json import jsonable
-from casflex._validate import output_directory
+from casflex._validate import fail, output_directory
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
 from casflex.errors import SolverError
@@ -133,7 +133,6 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     """
     from casflex import control, shaping
     from casflex.estimation import DEFAULT_GATE, Guard, ekf_step_function, tabulate_plant
-    from casflex.model import build_model
     from casflex.moves import Move, ShapedMove
     from casflex.simulate import simulate_closed_loop, simulate_prescribed
 
@@ -153,12 +152,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t0 = time.perf_counter()
     say(f"modal model of '{study.robot.name}': {study.model['modes']} modes, grid "
         f"{math.degrees(study.model['grid_step']):.3g} deg ...")
-    model, table = build_model(study.robot, study.model["modes"],
-                               step=study.model["grid_step"], points=study.sensors.points,
-                               gravity="robot" if study.model["gravity"] else None,
-                               delta_order=study.model["delta_order"], cache_dir=cache_dir,
-                               shape_rates=study.model["shape_rates"],
-                               processes=processes, progress=progress)
+    model, table = _study_model(study, cache_dir, processes, progress)
     timings["model_s"] = time.perf_counter() - t0
 
     # 2.-3. frequencies, contributions, shaper ---------------------------------------------
@@ -259,6 +253,28 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)
 
 
+def _study_model(study, cache_dir, processes, progress):
+    """The study's model and its modal table (``None`` for a robot without a shape joint:
+    its modes are those of one configuration, :class:`casflex.model.PointwiseProvider`)."""
+    from casflex.modal.tables import shape_joints
+    from casflex.model import FlexibleModel, PointwiseProvider, build_model
+
+    gravity = "robot" if study.model["gravity"] else None
+    if not shape_joints(study.robot):
+        provider = PointwiseProvider(study.robot, np.zeros(study.robot.n_joints),
+                                     count=study.model["modes"], points=study.sensors.points)
+        model = FlexibleModel(study.robot, provider,
+                              gravity=gravity,
+                              delta_order=study.model["delta_order"],
+                              shape_rates=study.model["shape_rates"])
+        return model, None
+    return build_model(study.robot, study.model["modes"], step=study.model["grid_step"],
+                       points=study.sensors.points, gravity=gravity,
+                       delta_order=study.model["delta_order"], cache_dir=cache_dir,
+                       shape_rates=study.model["shape_rates"], processes=processes,
+                       progress=progress)
+
+
 # ------------------------------------------------------------------------------ controller
 
 
@@ -267,9 +283,16 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
     from casflex import control
 
     c = dict(study.controller, Kp=gains.Kp, Kd=gains.Kd)
-    eps = control.perturbation_parameter(model, table=table)
+    if table is None:  # no shape joint: the modes of every configuration are those of q = 0
+        eps = control.perturbation_parameter(model, q=np.zeros((1, model.n)))
+    else:
+        eps = control.perturbation_parameter(model, table=table)
     if c["law"] == "composite":
         if c["gains"] == "scheduled":
+            if table is None:
+                raise fail("controller.gains", "scheduled", f"needs a robot with a shape "
+                           f"joint ('{study.robot.name}' has none: use gains = 'end')",
+                           path=study.path)
             say("fast LQR gains over the configuration grid ...")
             axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
             gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis, cache_dir)
@@ -377,7 +400,7 @@ def _summary(study, model, table, design, unshaped_run, shaped_run, loop, move_e
         "c_files": c_files,
         "c_functions": c_functions,
         "c_compiled": compiled,
-        "table_from_cache": bool(table.info.get("from_cache", False)),
+        "table_from_cache": bool(table is not None and table.info.get("from_cache", False)),
         "timings_s": timings,
         "figures": [p.name for p in figures],
     }
