@@ -24,6 +24,13 @@ run_design
 DesignResult
     What a job produced: the summary, the output directory, the files written.
 
+The planned move (:mod:`casflex.design.planner`)
+------------------------------------------------
+plan_next_to_shaped
+    The optimal move at the shaped move's limits, verified by simulation (``[planner]``).
+planner_summary
+    Its ``planner`` object of ``summary.json``.
+
 The report itself (``summary.json``, ``report.md``) is written by
 :mod:`casflex.design.report`; its figures are drawn by :mod:`casflex.plotting`.
 
@@ -37,6 +44,7 @@ Examples
 from __future__ import annotations
 
 from casflex.design.job import DesignResult, run_design
+from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.study import Study, load_study
 
 __all__ = [
@@ -46,4 +54,7 @@ __all__ = [
     # the job
     "run_design",
     "DesignResult",
+    # the planned move
+    "plan_next_to_shaped",
+    "planner_summary",
 ]

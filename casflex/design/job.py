@@ -35,6 +35,7 @@ import numpy as np
 
 from casflex._json import jsonable
 from casflex._validate import fail, output_directory
+from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
 from casflex.errors import SolverError
@@ -176,6 +177,19 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     shaped_run = simulate_prescribed(model, shaped, dt=dt, t_end=t_end, method="poly")
     timings["simulate_s"] = time.perf_counter() - t0
 
+    # the planned move next to the shaped one (optional [planner]) --------------------------
+    comparison = None
+    if study.planner is not None:
+        t0 = time.perf_counter()
+        p_model, p_run = model, shaped_run
+        if study.planner["modes"] not in (None, model.m):
+            p_model, _ = _study_model(study, cache_dir, processes, progress,
+                                      n_modes=study.planner["modes"])
+            p_run = simulate_prescribed(p_model, shaped, dt=dt, t_end=t_end)
+        comparison = plan_next_to_shaped(p_model, move, shaped, p_run, study.planner, dt=dt,
+                                         log=say)
+        timings["planner_s"] = time.perf_counter() - t0
+
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
     gains = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
@@ -223,8 +237,15 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     from casflex.codegen import shaper_table_bundle
     shaper_c = shaper_table_bundle(design.shaper, dt, f"{study.codegen['name']}_shaper",
                                    out / "c")
-    c_bundle = (sorted({*c_bundle[0], *(path.name for path in shaper_c.values())}),
-                *c_bundle[1:])
+    extra = [path.name for path in shaper_c.values()]
+    if comparison is not None and comparison.plan is not None:
+        # the planned move as the loop's reference table, and its trajectory as CSV
+        from casflex.codegen import plan_table_bundle
+        plan_c = plan_table_bundle(comparison.plan, dt, f"{study.codegen['name']}_plan",
+                                   out / "c")
+        extra += [plan_c["header"].name, plan_c["source"].name]
+        comparison.plan.to_csv(out / "planned_trajectory.csv")
+    c_bundle = (sorted({*c_bundle[0], *extra}), *c_bundle[1:])
     timings["codegen_s"] = time.perf_counter() - t0
 
     # 7. figures and report ---------------------------------------------------------------------
@@ -248,27 +269,42 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                           "torque_limits": None if limits is None else limits.tolist(),
                           "gate": gate}
     summary["c_shaper_table"] = {kind: path.name for kind, path in shaper_c.items()}
+    summary["planner"] = None
+    if comparison is not None:
+        summary["planner"] = planner_summary(comparison, study.planner["end"])
+        summary["planner"]["verify_dt"] = study.planner["verify_dt"]
+        if comparison.plan is not None:
+            figures.append(_save_plan_figure(out, comparison))
+            summary["planner"]["figure"] = "planned.png"
+            summary["planner"]["trajectory_csv"] = "planned_trajectory.csv"
+            summary["planner"]["c_table"] = {
+                "header": f"{study.codegen['name']}_plan.h",
+                "source": f"{study.codegen['name']}_plan.c"}
+            figures.append(out / "planned_trajectory.csv")
     c_files = c_bundle[0]
     files = [*write_report(out, study, summary), *figures] + [out / "c" / f for f in c_files]
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)
 
 
-def _study_model(study, cache_dir, processes, progress):
-    """The study's model and its modal table (``None`` for a robot without a shape joint:
-    its modes are those of one configuration, :class:`casflex.model.PointwiseProvider`)."""
+def _study_model(study, cache_dir, processes, progress, n_modes=None):
+    """The study's model (``n_modes`` modes, default the study's) and its modal table
+    (``None`` for a robot without a shape joint: its modes are those of one configuration,
+    :class:`casflex.model.PointwiseProvider`)."""
     from casflex.modal.tables import shape_joints
     from casflex.model import FlexibleModel, PointwiseProvider, build_model
 
     gravity = "robot" if study.model["gravity"] else None
     if not shape_joints(study.robot):
         provider = PointwiseProvider(study.robot, np.zeros(study.robot.n_joints),
-                                     count=study.model["modes"], points=study.sensors.points)
+                                     count=n_modes or study.model["modes"],
+                                     points=study.sensors.points)
         model = FlexibleModel(study.robot, provider,
                               gravity=gravity,
                               delta_order=study.model["delta_order"],
                               shape_rates=study.model["shape_rates"])
         return model, None
-    return build_model(study.robot, study.model["modes"], step=study.model["grid_step"],
+    return build_model(study.robot, n_modes or study.model["modes"],
+                       step=study.model["grid_step"],
                        points=study.sensors.points, gravity=gravity,
                        delta_order=study.model["delta_order"], cache_dir=cache_dir,
                        shape_rates=study.model["shape_rates"], processes=processes,
@@ -429,6 +465,15 @@ def _tracking_summary(loop, sources):
             "worst_joint": int(np.argmax(per_joint)) + 1,
             "worst_time": float(loop.t[np.abs(loop.tracking_error).max(axis=1).argmax()]),
             "limit": TRACKING_TARGET, **sources}
+
+
+def _save_plan_figure(out, comparison):
+    """``planned.png``: shaped vs planned joint motion, torques and tip deflection."""
+    from casflex import plotting
+
+    path = out / "planned.png"
+    plotting.plot_plan(comparison).savefig(path, dpi=110)
+    return path
 
 
 def _save_joint_tracking(out, study, unshaped, shaped_run, loop, move_end):

@@ -5,7 +5,8 @@ is a Markdown page that tabulates it and shows the job's figures (drawn by
 :mod:`casflex.plotting`, saved next to it: ``frequencies.png``, ``prv.png``,
 ``tip_deflection.png``, ``joint_tracking.png``, ``estimation.png``,
 ``accessibility.png``). Its sections: frequencies and modal contributions, the shaper, tip
-deflection, the closed loop's joint tracking (the slow gains, their time-scale separation,
+deflection, the planned move (with a ``[planner]`` section: ``planned.png``), the closed
+loop's joint tracking (the slow gains, their time-scale separation,
 the tracking error and where it comes from), the EKF in the loop (weak estimates
 flagged), stability, modal accessibility, the C code, timings and the dissertation
 references the text uses.
@@ -89,6 +90,7 @@ TIMING_LABELS = {
     "controller_s": "controller and stability",
     "closed_loop_s": "closed loop with the EKF",
     "codegen_s": "C code",
+    "planner_s": "planned move",
 }
 
 #: what the dissertation references of the report mean (the References section)
@@ -187,6 +189,7 @@ def _markdown(study, s):
         "",
         "![tip deflection](tip_deflection.png)",
         "",
+        *_planner_lines(s.get("planner")),
         *_closed_loop_lines(s),
         "## Estimation (EKF in the loop)",
         "",
@@ -296,6 +299,69 @@ def _ratio(value):
     """An RMS ratio, flagged (bold, ⚠) below :data:`WEAK_ESTIMATE_RATIO`."""
     text = _fmt(value)
     return text if value >= WEAK_ESTIMATE_RATIO else f"**{text} ⚠**"
+
+
+def _mm(value):
+    return "–" if value is None else f"{1e3 * value:.4g}"
+
+
+def _peaks(values):
+    return ", ".join(f"{v:.4g}" for v in values)
+
+
+def _planner_lines(p):
+    """The "Planned move" section (``[planner]``), or nothing when the study has none."""
+    if p is None:
+        return []
+    lines = ["## Planned move", ""]
+    shaped = p["shaped"]
+    if not p["success"]:
+        return lines + [
+            f"**The planner found no plan** for `{p['move']}` at the shaped move's limits "
+            f"(end condition {p['end']!r}): {p['error']}", "",
+            f"The shaped move ({shaped['duration']:.4f} s, residual "
+            f"{_mm(shaped['residual_tip_deflection'])} mm) stands.", ""]
+    bound = p["end_bound"]
+    bound_text = (f"residual tip deflection ≤ {_mm(bound)} mm" if isinstance(bound, float)
+                  else {"rest": "modes at rest", "free": "no end condition"}.get(bound, bound))
+    lines += [
+        f"The {p['objective']}-optimal move (`casflex plan`, Ipopt {p['status']} in "
+        f"{p['iterations']} iterations, {p['intervals']} intervals) at the torque and "
+        f"velocity peaks of the shaped move, with the end condition {bound_text}"
+        + (" (the shaped move's residual)" if p["end"] == "shaped" else "") + ". Residuals "
+        f"are verified by simulation at {p['verify_dt']:g} s, not taken from the optimiser: "
+        "with the joints on the plan (prescribed motion) and under the planned torques (open "
+        "loop).",
+        "",
+        "| | duration [s] | residual, joints on the move [mm] | residual, torque-driven "
+        "[mm] | torque peak [N m] | velocity peak [rad/s] |",
+        "|---|---|---|---|---|---|",
+        f"| shaped | {shaped['duration']:.4f} | {_mm(shaped['residual_tip_deflection'])} | – "
+        f"| {_peaks(shaped['torque_peak'])} | {_peaks(shaped['velocity_peak'])} |",
+        f"| planned | {p['duration']:.4f} | {_mm(p['residual_tip_deflection'])} | "
+        f"{_mm(p['residual_torque_driven'])} | {_peaks(p['torque_peak'])} | "
+        f"{_peaks(p['velocity_peak'])} |",
+        "",
+        f"The planned move is **{100 * p['shortening']:.1f} %** shorter than the shaped "
+        f"one; the optimiser's own prediction of its residual is {_mm(p['residual_ocp'])} mm."
+        " (The torque peak of the planned move with the joints on it may exceed the limit "
+        "by the optimiser's discretisation error: the limit holds at its nodes.)",
+        "",
+    ]
+    if isinstance(bound, float) and p["residual_tip_deflection"] > bound:
+        lines += [f"**The verified residual exceeds the end bound by "
+                  f"{100 * (p['residual_tip_deflection'] / bound - 1):.1f} %**: the "
+                  "optimiser's discretisation error at this bound.", ""]
+    if p["robust"]:
+        lines += ["At frequency errors (the model's stiffness scaled):", "",
+                  "| error | planned [mm] | shaped [mm] |", "|---|---|---|"]
+        lines += [f"| {100 * r['error']:+.0f} % | {_mm(r['residual_tip_deflection'])} | "
+                  f"{_mm(r['shaped_residual_tip_deflection'])} |" for r in p["robust"]]
+        lines.append("")
+    lines += [f"Trajectory: `{p['trajectory_csv']}`; C reference table: "
+              f"`c/{p['c_table']['header']}`, `c/{p['c_table']['source']}`.", "",
+              "![planned vs shaped](planned.png)", ""]
+    return lines
 
 
 def _closed_loop_lines(s):

@@ -45,7 +45,13 @@ _SECTIONS = {
                    "gains": "scheduled", "schedule_points": 30},
     "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
+    "planner": {"enabled": True, "objective": "time", "duration": None, "weight": 0.0,
+                "robust": 0.0, "end": "shaped", "intervals": None,
+                "transcription": "collocation", "modes": None, "max_iter": 500,
+                "verify_dt": 1e-4},
 }
+# sections that are off when the study file does not have them
+_OPTIONAL = ("planner",)
 # the top-level keys of a study file besides the sections
 _TOP = ("name", "description", "robot", "move", "sensors")
 
@@ -66,6 +72,10 @@ class Study:
     model, shaper, simulation, controller, estimator, codegen : dict
         The settings of every step, defaults filled in (units as in ``problems/README.md``;
         ``model["grid_step"]`` is converted to rad).
+    planner : dict or None
+        The optimal move planned next to the shaped one (``[planner]``, see
+        :func:`casflex.planning.plan_move`), or ``None`` when the study has no such
+        section or sets ``enabled = false``.
 
     Examples
     --------
@@ -90,6 +100,7 @@ class Study:
     controller: dict = field(default_factory=dict)
     estimator: dict = field(default_factory=dict)
     codegen: dict = field(default_factory=dict)
+    planner: dict | None = None
 
     def slow_gains(self, omega_min: float, duration: float) -> SlowGains:
         """The slow tracking gains of this study (``controller.slow_gains``).
@@ -151,6 +162,9 @@ def _settings(path, raw):
             raise fail(key, None, "is required", path=path)
     settings = {}
     for section, defaults in _SECTIONS.items():
+        if section in _OPTIONAL and section not in raw:
+            settings[section] = None
+            continue
         given = raw.get(section, {})
         if not isinstance(given, dict):
             raise fail(section, given, "must be a table [section]", path=path)
@@ -232,6 +246,46 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
             raise fail("codegen.torque_limits", g["torque_limits"].tolist(),
                        "needs codegen.guard = true (the limits are applied by the guarded "
                        "rt_step)", path=path)
+    if settings["planner"] is not None:
+        settings["planner"] = _check_planner(path, settings["planner"], m["modes"])
+
+
+def _check_planner(path, p, n_modes):
+    """The ``[planner]`` section: checked in place; ``None`` when it is switched off."""
+    from casflex.planning import OBJECTIVES, TRANSCRIPTIONS
+
+    if not _flag(path, "planner.enabled", p["enabled"]):
+        return None
+    p["objective"] = choice(p["objective"], "planner.objective", OBJECTIVES, path=path)
+    if p["duration"] is not None:
+        if p["objective"] == "time":
+            raise fail("planner.duration", p["duration"], "is the duration of an 'energy' "
+                       "or 'weighted' plan; a 'time' plan finds its own", path=path)
+        p["duration"] = number(p["duration"], "planner.duration", low=0.0, low_open=True,
+                               high=600.0, path=path)
+    p["weight"] = number(p["weight"], "planner.weight", low=0.0, path=path)
+    if p["objective"] == "weighted" and p["weight"] == 0.0:
+        raise fail("planner.weight", 0.0, "must be > 0 with objective = 'weighted' "
+                   "[1/(N^2 m^2)]", path=path)
+    p["robust"] = number(p["robust"], "planner.robust", low=0.0, high=0.5, path=path)
+    end = p["end"]
+    if isinstance(end, str):
+        p["end"] = choice(end, "planner.end", ("shaped", "rest", "free"), path=path)
+    else:  # a bound on the residual tip deflection [m]; no arm reaches 100 m (BOUNDS)
+        p["end"] = number(end, "planner.end", low=0.0, low_open=True, high=100.0, path=path)
+    if p["intervals"] is not None:
+        p["intervals"] = number(p["intervals"], "planner.intervals", low=4, high=2000,
+                                integer=True, path=path)
+    p["transcription"] = choice(p["transcription"], "planner.transcription",
+                                TRANSCRIPTIONS, path=path)
+    if p["modes"] is not None:
+        p["modes"] = number(p["modes"], "planner.modes", low=1, high=n_modes, integer=True,
+                            path=path)
+    p["max_iter"] = number(p["max_iter"], "planner.max_iter", low=1, high=100000,
+                           integer=True, path=path)
+    p["verify_dt"] = number(p["verify_dt"], "planner.verify_dt", low=1e-6, high=1e-2,
+                            path=path)
+    return p
 
 
 def _check_slow_gains(path, c):

@@ -1,0 +1,175 @@
+"""The design job's planned move: the optimal move next to the shaped one (``[planner]``).
+
+:func:`plan_next_to_shaped` plans the study's move with :func:`casflex.planning.plan_move`
+at the limits of the job's own shaped move (its peak torques and velocities with the joints
+on it, :func:`casflex.planning.plan_limits`), with the shaped move's residual tip deflection
+as the end bound by default, and verifies the plan by simulation
+(:func:`casflex.planning.verify_plan`). The result is a
+:class:`casflex.planning.PlanComparison`, as ``casflex plan`` gives: its ``summary()`` is
+the ``planner`` object of ``summary.json`` and :func:`casflex.plotting.plot_plan` draws it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from casflex.errors import SolverError
+
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
+    from casflex.moves import Move, ShapedMove
+    from casflex.simulate import SimulationResult
+
+__all__ = ["plan_next_to_shaped", "planner_summary"]
+
+
+def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
+                        shaped_run: SimulationResult, settings: dict, *, dt: float,
+                        log: Callable[[str], None] | None = None) -> Any:
+    """Plan ``move`` at the limits of its shaped version and verify both.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        The model the plan is made and verified on.
+    move : casflex.moves.Move
+    shaped : casflex.moves.ShapedMove
+        The job's shaped move.
+    shaped_run : casflex.simulate.SimulationResult
+        ``shaped`` simulated on ``model`` with the joints on it, to ``shaped.t_end``.
+    settings : dict
+        The study's ``[planner]`` settings (:attr:`casflex.design.Study.planner`):
+        ``objective``, ``duration`` [s], ``weight``, ``robust``, ``end`` (``"shaped"``:
+        the shaped move's residual, ``"rest"``, ``"free"`` or a bound [m]),
+        ``intervals``, ``transcription``, ``max_iter``, ``verify_dt`` (step of the
+        verification by simulation [s]; a step that straddles a torque switch integrates
+        the jump of q̈ with an error of up to half a step, so the residual of a plan is
+        verified finer than the job's step).
+    dt : float
+        Step of the shaped move's runs at ``±robust`` and of the limits [s].
+    log : callable, optional
+        ``log(message)``: one line per step.
+
+    Returns
+    -------
+    casflex.planning.PlanComparison
+        With ``plan`` ``None`` and ``verification["error"]`` the solver's message when no
+        plan was found (:class:`casflex.errors.SolverError`).
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import Move, ShapedMove
+    >>> from casflex.robot import load
+    >>> from casflex.shaping import zv
+    >>> from casflex.simulate import simulate_prescribed
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> move = Move([0.0], [0.5], 1.0, settle=0.5)
+    >>> shaped = ShapedMove(move, zv(25.7))
+    >>> run = simulate_prescribed(model, shaped, dt=1e-3)
+    >>> settings = {"objective": "time", "duration": None, "weight": 0.0, "robust": 0.0,
+    ...             "end": "rest", "intervals": 12, "transcription": "collocation",
+    ...             "max_iter": 200}
+    >>> c = plan_next_to_shaped(model, move, shaped, run, settings, dt=1e-3)
+    >>> bool(c.plan.duration < shaped.duration)
+    True
+    """
+    from casflex.planning import (
+        PlanComparison,
+        frequency_shifted_model,
+        plan_limits,
+        plan_move,
+        verify_plan,
+    )
+    from casflex.simulate import simulate_prescribed
+
+    say = log or (lambda message: None)
+    robust = float(settings["robust"])
+    errors = [-robust, robust] if robust > 0.0 else []
+    shaped_check = {"residual": shaped_run.residual_tip_deflection,
+                    "torque_peak": shaped_run.torque_peak.tolist(),
+                    "velocity_peak": np.max(np.abs(shaped_run.dq), axis=0).tolist(),
+                    "errors": [], "run": shaped_run}
+    for r in errors:
+        run = simulate_prescribed(frequency_shifted_model(model, r), shaped, dt=dt,
+                                  t_end=shaped.t_end)
+        shaped_check["errors"].append({"error": r, "residual": run.residual_tip_deflection})
+    tau_lim, v_lim = plan_limits(model, shaped, dt=dt)
+    # a joint the shaped move does not drive keeps a small limit (Ipopt needs an interior)
+    tau_lim = np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()), 1e-12))
+    v_lim = np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12))
+    end = settings["end"]
+    if end == "shaped":  # the worst residual of the shaped move over the scenarios
+        end = max([shaped_check["residual"]] + [e["residual"] for e in shaped_check["errors"]])
+    duration = settings["duration"]
+    if settings["objective"] != "time" and duration is None:
+        duration = float(shaped.duration)
+    say(f"planning {move.name} ({settings['objective']}, end {end}"
+        + (f", robust ±{robust:g}" if robust else "") + ") at the shaped move's limits ...")
+    limits = {"torque": tau_lim, "velocity": v_lim}
+    try:
+        plan = plan_move(model, move, objective=settings["objective"], duration=duration,
+                         weight=settings["weight"], intervals=settings["intervals"],
+                         torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
+                         guess=shaped, transcription=settings["transcription"],
+                         max_iter=settings["max_iter"])
+    except SolverError as exc:
+        say(f"the planner found no plan: {exc}")
+        return PlanComparison(model=model, move=move, shaped=shaped, plan=None,
+                              limits=limits, verification={"error": str(exc)},
+                              shaped_verification=shaped_check)
+    verify_dt = float(settings.get("verify_dt", dt))
+    say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s); verifying by "
+        f"simulation at dt = {verify_dt:g} s ...")
+    verification = verify_plan(model, plan, dt=verify_dt, errors=errors)
+    return PlanComparison(model=model, move=move, shaped=shaped, plan=plan, limits=limits,
+                          verification=verification, shaped_verification=shaped_check)
+
+
+def planner_summary(comparison: Any, end: str | float) -> dict:
+    """The ``planner`` object of ``summary.json``.
+
+    Parameters
+    ----------
+    comparison : casflex.planning.PlanComparison
+        From :func:`plan_next_to_shaped`.
+    end : str or float
+        The study's ``planner.end``.
+
+    Returns
+    -------
+    dict
+        ``success``; with a plan, :meth:`casflex.planning.PlanComparison.summary`
+        (``duration`` [s], ``residual_tip_deflection`` (verified, m), ``torque_peak``
+        [N m], ``shaped`` ...) and ``end_bound`` (the residual bound the plan was given, m,
+        or ``"rest"``/``"free"``); without one, ``error`` (the solver's message) and the
+        shaped move's ``shaped`` figures.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> c = SimpleNamespace(plan=None, verification={"error": "no plan"},
+    ...                     shaped=SimpleNamespace(duration=2.0),
+    ...                     shaped_verification={"residual": 0.01, "torque_peak": [1.0]},
+    ...                     move=SimpleNamespace(name="m"))
+    >>> planner_summary(c, "shaped")["success"]
+    False
+    """
+    if comparison.plan is None:
+        s = comparison.shaped_verification
+        return {"success": False, "move": comparison.move.name,
+                "error": comparison.verification["error"], "end": end,
+                "shaped": {"duration": float(comparison.shaped.duration),
+                           "residual_tip_deflection": s["residual"],
+                           "torque_peak": s["torque_peak"]}}
+    summary = comparison.summary()
+    summary.pop("timings", None)
+    bound = comparison.plan.stats.get("end")
+    summary["success"] = bool(comparison.plan.stats.get("success", False))
+    summary["end"] = end
+    summary["end_bound"] = bound if bound is not None else end
+    return summary
