@@ -3,11 +3,13 @@
 :func:`run_design` takes a study (:mod:`casflex.design.study`) and
 
 1. tabulates the modal model over the shape joints (or reuses the on-disk cache), with a
-   progress bar;
+   progress bar (a robot without a shape joint: the modes of one configuration);
 2. computes the natural frequencies along the move and the modal contributions to the tip
    deflection, and from them the tolerances and frequency ranges (§6.1.4);
 3. designs the minimum-duration specified-insensitivity shaper for those ranges (Ipopt);
 4. simulates the move with the joints following the plan exactly, unshaped and shaped;
+   with a ``[planner]`` section, plans the optimal move at the shaped move's limits and
+   verifies it by simulation (:mod:`casflex.design.planner`);
 5. chooses the slow tracking gains (from the lowest natural frequency along the move,
    :mod:`casflex.control.gains`), builds the controller and checks its stability along
    the shaped move;
@@ -87,7 +89,9 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         Output directory (created). It receives ``report.md``, ``summary.json``, the PNG
         figures ``frequencies.png``, ``prv.png``, ``tip_deflection.png``,
         ``estimation.png``, ``accessibility.png``, ``joint_tracking.png`` and the C
-        bundle under ``c/``.
+        bundle under ``c/``; with a ``[planner]`` section also ``planned.png``,
+        ``planned_trajectory.csv`` and the plan's C reference table
+        (:func:`casflex.codegen.plan_table_bundle`) under ``c/``.
     progress : bool
         Progress bar of the tabulation on stderr.
     log : callable, optional
@@ -108,8 +112,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         their bandwidth ω_c [rad/s], ω_min [rad/s] and the separation ω_min/ω_c) and
         ``tracking`` (largest joint tracking error [rad] of the loop with the EKF, per
         joint, and of the loop with the true state fed back), ``c_shaper_table`` (the
-        shaper's C delay/amplitude table files) and ``stability`` (one verdict per
-        condition; ``stable`` holds only when all do).
+        shaper's C delay/amplitude table files), ``stability`` (one verdict per
+        condition; ``stable`` holds only when all do) and ``planner``
+        (:func:`casflex.design.planner_summary`: the planned move next to the shaped one;
+        ``None`` without a ``[planner]`` section).
 
     Examples
     --------
@@ -256,6 +262,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                             loop, estimation, t_acc, acc, shaped.duration)
     figures.append(_save_joint_tracking(out, study, unshaped_run, shaped_run, loop,
                                         shaped.duration))
+    if comparison is not None and comparison.plan is not None:
+        figures.append(_save_plan_figure(out, comparison))
     summary = _summary(study, model, table, design, unshaped_run, shaped_run, loop,
                        shaped.duration, loop_finite, stability, eps, c_bundle, timings,
                        figures)
@@ -274,13 +282,12 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         summary["planner"] = planner_summary(comparison, study.planner["end"])
         summary["planner"]["verify_dt"] = study.planner["verify_dt"]
         if comparison.plan is not None:
-            figures.append(_save_plan_figure(out, comparison))
             summary["planner"]["figure"] = "planned.png"
             summary["planner"]["trajectory_csv"] = "planned_trajectory.csv"
             summary["planner"]["c_table"] = {
                 "header": f"{study.codegen['name']}_plan.h",
                 "source": f"{study.codegen['name']}_plan.c"}
-            figures.append(out / "planned_trajectory.csv")
+            figures.append(out / "planned_trajectory.csv")  # a file written, not drawn
     c_files = c_bundle[0]
     files = [*write_report(out, study, summary), *figures] + [out / "c" / f for f in c_files]
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)

@@ -8,6 +8,7 @@ import re
 from decimal import Decimal
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from casflex import design
@@ -55,7 +56,10 @@ def check_report(out: Path) -> None:
     text = (out / "report.md").read_text()
     s = json.loads((out / "summary.json").read_text())
     headings = re.findall(r"^## (.+)$", text, flags=re.M)
-    assert headings == SECTIONS
+    sections = list(SECTIONS)
+    if s.get("planner") is not None:  # a [planner] section: after the tip deflection
+        sections.insert(sections.index("Tip deflection") + 1, "Planned move")
+    assert headings == sections
     # every figure shown exists, and every figure the job saved is shown
     shown = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
     assert shown and len(shown) == len(set(shown))
@@ -106,6 +110,8 @@ def check_report(out: Path) -> None:
                              + r" √kg·m at t = " + NUMBER + " s", text)
     assert int(mode) == low["mode"] and _agrees(value, low["value"])
     assert _agrees(time, low["time"])
+    if s.get("planner") is not None and s["planner"]["success"]:
+        _check_planner(text, s["planner"])
     timings = _one(r"## Timings\n\n(.+)\n", text)[0]
     assert "_s " not in timings  # labels, not the summary's keys
     printed = re.findall(NUMBER + " s", timings)
@@ -162,6 +168,22 @@ def test_report_checker_catches_a_wrong_number(tmp_path):
         check_report(tmp_path)
 
 
+def _check_planner(text, p):
+    """The "Planned move" section's numbers against ``summary["planner"]``."""
+    rows = _table_rows(text, "| | duration [s] | residual, joints on the move")
+    assert [r[0] for r in rows] == ["shaped", "planned"]
+    for row, d in zip(rows, (p["shaped"], p), strict=True):
+        assert _agrees(row[1], d["duration"])
+        assert _agrees(row[2], d["residual_tip_deflection"], 1e3)
+        for cell, value in zip(row[4].split(", "), d["torque_peak"], strict=True):
+            assert _agrees(cell, value)
+    assert _agrees(rows[1][3], p["residual_torque_driven"], 1e3)
+    assert _agrees(_one(r"\*\*" + NUMBER + r" %\*\* shorter", text)[0], p["shortening"], 100)
+    exceeds = p["residual_tip_deflection"] > p["end_bound"] \
+        if isinstance(p["end_bound"], float) else False
+    assert ("exceeds the end bound" in text) == exceeds
+
+
 @pytest.mark.slow
 def test_report_of_a_small_design_job(tmp_path):
     """A real (small) job: one mode, a 30° grid, 5 ms, the inversion-based law, C not
@@ -177,3 +199,31 @@ def test_report_of_a_small_design_job(tmp_path):
     design.run_design(tmp_path / "small.toml", tmp_path / "out", cache_dir=tmp_path / "cache",
                       processes=1)
     check_report(tmp_path / "out")
+
+
+@pytest.mark.slow
+def test_report_of_the_onelink_study_with_its_planned_move(tmp_path):
+    """problems/studies/onelink_swing.toml end to end: a robot without a shape joint and a
+    [planner] section; the report passes every structural rule, its Planned move section
+    included, and the plan's files are there."""
+    text = (ROOT / "problems" / "studies" / "onelink_swing.toml").read_text()
+    (tmp_path / "study.toml").write_text(text.replace('"../', f'"{ROOT}/problems/'))
+    out = tmp_path / "out"
+    result = design.run_design(tmp_path / "study.toml", out, cache_dir=tmp_path / "cache",
+                               processes=1)
+    check_report(out)
+    p = result.summary["planner"]
+    assert p["success"] and p["status"] == "Solve_Succeeded"
+    # the comparison is with the job's own shaped move
+    assert p["shaped"]["duration"] == pytest.approx(2.0 + result.summary["shaper_duration"],
+                                                    rel=1e-12)
+    assert p["duration"] < p["shaped"]["duration"]
+    # the plan keeps the shaped move's torque peak at its nodes (Ipopt's tolerance)
+    csv = np.loadtxt(out / "planned_trajectory.csv", delimiter=",", skiprows=1)
+    assert (out / "planned_trajectory.csv").read_text().startswith("t,q1,dq1,ddq1,tau1\n")
+    assert np.abs(csv[:, 4]).max() <= p["limits"]["torque"][0] * (1 + 1e-6)
+    assert csv[-1, 0] == pytest.approx(p["duration"], rel=1e-12)
+    assert csv[-1, 1] == pytest.approx(1.0, abs=1e-8) and abs(csv[-1, 2]) < 1e-8
+    header = (out / "c" / p["c_table"]["header"]).read_text()
+    samples = int(re.search(r"ONELINK_PLAN_N_SAMPLES (\d+)", header).group(1))
+    assert samples == int(np.ceil(p["duration"] / 1e-3 - 1e-9)) + 1
