@@ -10,7 +10,7 @@ import pytest
 from casflex.control import inversion_controller
 from casflex.errors import ModelError
 from casflex.model import FlexibleModel, PointwiseProvider
-from casflex.planning import plan_move
+from casflex.planning import PlannedMove, plan_move
 from casflex.robot import load
 from casflex.sensors import SensorSet, StrainPair
 from casflex.simulate import simulate_closed_loop, simulate_data, simulate_prescribed
@@ -120,3 +120,28 @@ def test_sensor_data_along_a_plan(setup):
                                atol=5e-3 * np.abs(pres.delta).max())
     q, dq, ddq = plan.sample(data.t)
     np.testing.assert_array_equal(data.u, np.hstack([q, dq, ddq]))
+
+
+def test_casadi_reference_of_samples_is_the_numeric_sampler():
+    # a plan without a propagator, two joints, uneven steps: casadi_reference (CasADi) and
+    # sample (casflex.moves.reference_sampler, numpy) interpolate the same samples the
+    # same way (cubic Hermite q and q̇, linear q̈): equal to round-off everywhere
+    rng = np.random.default_rng(5)
+    t = np.r_[0.0, np.cumsum(rng.uniform(0.05, 0.15, 12))]
+    q, dq, ddq = (rng.normal(size=(t.size, 2)) for _ in range(3))
+    plan = PlannedMove(t=t, q=q, dq=dq, ddq=ddq, tau=ddq, delta=np.zeros((t.size, 0)),
+                       ddelta=np.zeros((t.size, 0)), node_t=t, node_x=np.c_[q, dq],
+                       node_tau=ddq[:-1], hold_torque=np.zeros(2))
+    ts = np.sort(rng.uniform(0.0, t[-1], 400))
+    for r, s in zip(evaluate(plan.casadi_reference(), ts), plan.sample(ts), strict=True):
+        np.testing.assert_allclose(r, s, rtol=0.0, atol=1e-12 * np.abs(s).max())
+
+
+def test_csv_is_the_plan(setup, tmp_path):
+    _, _, plan = setup
+    path = plan.to_csv(tmp_path / "trajectory.csv")
+    assert path.read_text().splitlines()[0] == "t,q1,dq1,ddq1,tau1"  # 1-based, as the CLI
+    table = np.loadtxt(path, delimiter=",", skiprows=1)
+    # repr() of a float reads back exactly
+    np.testing.assert_array_equal(table, np.column_stack([plan.t, plan.q, plan.dq, plan.ddq,
+                                                          plan.tau]))
