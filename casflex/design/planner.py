@@ -2,8 +2,9 @@
 
 :func:`plan_next_to_shaped` plans the study's move with :func:`casflex.planning.plan_move`
 at the limits of the job's own shaped move (its peak torques and velocities with the joints
-on it, :func:`casflex.planning.plan_limits`), with the shaped move's residual tip deflection
-as the end bound by default, and verifies the plan by simulation
+on it, :func:`casflex.planning.shaped_move_limits`, the rule of ``casflex plan``), with the
+shaped move's residual tip deflection as the end bound by default, and verifies the plan
+by simulation
 (:func:`casflex.planning.verify_plan`). The result is a
 :class:`casflex.planning.PlanComparison`, as ``casflex plan`` gives: its ``summary()`` is
 the ``planner`` object of ``summary.json`` and :func:`casflex.plotting.plot_plan` draws it.
@@ -81,8 +82,8 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     from casflex.planning import (
         PlanComparison,
         frequency_shifted_model,
-        plan_limits,
         plan_move,
+        shaped_move_limits,
         verify_plan,
     )
     from casflex.simulate import simulate_prescribed
@@ -98,10 +99,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         run = simulate_prescribed(frequency_shifted_model(model, r), shaped, dt=dt,
                                   t_end=shaped.t_end)
         shaped_check["errors"].append({"error": r, "residual": run.residual_tip_deflection})
-    tau_lim, v_lim = plan_limits(model, shaped, dt=dt)
-    # a joint the shaped move does not drive keeps a small limit (Ipopt needs an interior)
-    tau_lim = np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()), 1e-12))
-    v_lim = np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12))
+    tau_lim, v_lim = shaped_move_limits(model, move, shaped, dt=dt)  # as casflex plan
     end = settings["end"]
     if end == "shaped":  # the worst residual of the shaped move over the scenarios
         end = max([shaped_check["residual"]] + [e["residual"] for e in shaped_check["errors"]])

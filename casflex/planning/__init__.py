@@ -25,6 +25,11 @@ The result (:mod:`casflex.planning.planned`)
 PlannedMove
     Dense trajectory, node values, torques, solver statistics; sampling, torque law, CSV.
 
+Limits (:mod:`casflex.planning.limits`)
+---------------------------------------
+shaped_move_limits
+    The torque and velocity limits of a plan from the shaped version of its move.
+
 Verification (:mod:`casflex.planning.verify`)
 ---------------------------------------------
 verify_plan
@@ -61,6 +66,7 @@ Examples
 
 from __future__ import annotations
 
+from casflex.planning.limits import shaped_move_limits
 from casflex.planning.ocp import (
     OBJECTIVES,
     TRANSCRIPTIONS,
@@ -86,6 +92,8 @@ __all__ = [
     "TRANSCRIPTIONS",
     # the result
     "PlannedMove",
+    # limits
+    "shaped_move_limits",
     # verification
     "verify_plan",
     "plan_robot_move",

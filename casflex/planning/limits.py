@@ -1,0 +1,70 @@
+"""The planner's limits from the shaped version of a move (a fair comparison).
+
+:func:`shaped_move_limits` is the rule ``casflex plan`` and the design job's ``[planner]``
+share: the peak torques and velocities of the shaped move with the joints on it
+(:func:`casflex.planning.plan_limits`), except for the joints the move holds.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from casflex.planning.ocp import plan_limits
+
+if TYPE_CHECKING:
+    from casflex.model import FlexibleModel
+    from casflex.moves import Move, ShapedMove
+
+__all__ = ["shaped_move_limits"]
+
+
+def shaped_move_limits(model: FlexibleModel, move: Move, shaped: ShapedMove, *,
+                       dt: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """Torque and velocity limits of a plan of ``move``: those of its shaped version.
+
+    A joint the move drives gets the peak ``|τ|`` and ``|q̇|`` of the shaped move with the
+    joints on it (at least 1e-6 of the largest, so that Ipopt has an interior). A joint the
+    move holds (start = goal) is held by its servo: its torque is the reaction to the
+    others' motion, which a faster move raises, so it is not limited (``inf``); its
+    velocity is limited to 1e-3 of the moving joints' largest limit.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    move : casflex.moves.Move
+        The move (its ``q0`` and ``qf`` say which joints it holds).
+    shaped : casflex.moves.ShapedMove
+        Its shaped version.
+    dt : float
+        Simulation step of the shaped move [s].
+
+    Returns
+    -------
+    torque_limit : numpy.ndarray, shape (n,)
+        [N m] (``inf`` for a held joint).
+    velocity_limit : numpy.ndarray, shape (n,)
+        [rad/s].
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import Move, ShapedMove
+    >>> from casflex.robot import load
+    >>> from casflex.shaping import zv
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> move = Move([0.0], [0.5], 1.0)
+    >>> tau, v = shaped_move_limits(model, move, ShapedMove(move, zv(25.0)))
+    >>> bool(tau[0] > 0.0 and v[0] > 0.5)
+    True
+    """
+    tau_lim, v_lim = plan_limits(model, shaped, dt=dt)
+    held = np.asarray(move.q0, dtype=float) == np.asarray(move.qf, dtype=float)
+    moving_v = float(v_lim[~held].max()) if np.any(~held) else float(v_lim.max())
+    tau_lim = np.where(held, np.inf,
+                       np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()), 1e-12)))
+    v_lim = np.where(held, 1e-3 * max(moving_v, 1e-9),
+                     np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12)))
+    return tau_lim, v_lim
