@@ -33,7 +33,7 @@ from casflex.robot import load
 
 ROOT = Path.cwd().parent if Path.cwd().name == "notebooks" else Path.cwd()
 robot = load(ROOT / "problems" / "onelink.toml")
-swing = load_move(ROOT / "problems" / "onelink_moves.toml:swing")
+swing = load_move(ROOT / "problems" / "moves.toml:onelink_swing")
 # the first in-plane bending mode, the only one the hub drives (the second mode is
 # out of plane, the third 6.3 times higher)
 model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
