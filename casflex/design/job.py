@@ -158,6 +158,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                gravity="robot" if study.model["gravity"] else None,
                                delta_order=study.model["delta_order"], cache_dir=cache_dir,
                                shape_rates=study.model["shape_rates"],
+                               foreshortening=study.model["foreshortening"],
                                processes=processes, progress=progress)
     timings["model_s"] = time.perf_counter() - t0
 
