@@ -335,18 +335,25 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
     return {"t": u[:, 0], "u": u[:, 1:4], "phi": phi}
 
 
-def cached_run(move: JointMove, n_elements: int = 16, dt: float = 1e-3,
-               rho_inf: float = 1.0, cache: Path | None = None,
-               beams: tuple[Beam, Beam] = (TABLE8, TABLE8)) -> dict[str, np.ndarray]:
-    """Tip deflection ``{"t", "d"}`` [s, m] of :meth:`SpatialArm.simulate`, stored as
-    ``.npz`` under ``cache`` keyed by this module's source, the arguments and Exudyn's
-    version."""
+def run_file(move: JointMove, n_elements: int = 16, dt: float = 1e-3, rho_inf: float = 1.0,
+             beams: tuple[Beam, Beam] = (TABLE8, TABLE8)) -> str:
+    """File name of a run in a cache: a hash of this module's source, the arguments and
+    Exudyn's version."""
     import exudyn as exu
 
     source = Path(__file__).read_bytes()
     key = hashlib.sha256(source + repr((move, n_elements, dt, rho_inf, beams,
                                         exu.__version__)).encode()).hexdigest()
-    path = None if cache is None else Path(cache) / f"ge3d-{key[:20]}.npz"
+    return f"ge3d-{key[:20]}.npz"
+
+
+def cached_run(move: JointMove, n_elements: int = 16, dt: float = 1e-3,
+               rho_inf: float = 1.0, cache: Path | None = None,
+               beams: tuple[Beam, Beam] = (TABLE8, TABLE8)) -> dict[str, np.ndarray]:
+    """Tip deflection ``{"t", "d"}`` [s, m] of :meth:`SpatialArm.simulate`, stored as
+    ``.npz`` under ``cache`` (:func:`run_file`)."""
+    path = None if cache is None else Path(cache) / run_file(move, n_elements, dt,
+                                                              rho_inf, beams)
     if path is not None and path.exists():
         with np.load(path) as z:
             return {"t": z["t"], "d": z["d"]}
@@ -355,6 +362,6 @@ def cached_run(move: JointMove, n_elements: int = 16, dt: float = 1e-3,
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **out)
+        np.savez_compressed(tmp, **out)
         tmp.replace(path)
     return out

@@ -88,15 +88,8 @@ def test_stored_reference_matches_its_source():
     """The converged move-3 run of the spatial comparison is test data keyed by a hash of
     reference_beam_3d.py (cached_run): a change to the reference must come with its data
     (regenerate: ``python benchmarks/bench_fidelity.py --spatial --store``)."""
-    import hashlib
-
-    import exudyn as exu
-
-    source = (DATA.parent.parent / "reference_beam_3d.py").read_bytes()
-    key = hashlib.sha256(source + repr((MOVE3, REFERENCE["n_elements"], REFERENCE["dt"],
-                                        1.0, (BEAM, BEAM), exu.__version__)).encode()
-                         ).hexdigest()
-    assert (DATA / f"ge3d-{key[:20]}.npz").exists(), (
+    name = rb.run_file(MOVE3, REFERENCE["n_elements"], REFERENCE["dt"])
+    assert (DATA / name).exists(), (
         "tests/data/reference_beam_3d has no run for the current reference source")
 
 
