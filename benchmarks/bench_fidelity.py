@@ -92,8 +92,7 @@ def cost(repeats=3, calls=1000, jit=False):
 
     * with ``jit``: ``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes,
       ``poly`` with ``jit=True``, the library compiled once — minutes per variant; median
-      of warm calls) with ``shape_rates`` off and on (``poly`` refuses
-      ``foreshortening``: its M is not affine in δ);
+      of warm calls) with ``shape_rates`` off, on, and with ``foreshortening`` too;
     * the modal rows RK4 integrates (``dddelta``, CasADi's virtual machine): median time
       of ``calls`` evaluations, every variant, and the instruction counts;
     * the EKF step of an estimator like the design study's (3 modes, the two tip
@@ -136,7 +135,7 @@ def cost(repeats=3, calls=1000, jit=False):
             out[label]["plant_build_s"] = time.perf_counter() - t0
             ekf[label] = ekf_step_function(plant, sensors, 5e-6, 1e-4, 1e-3)
             out[label]["ekf_step_instructions"] = int(ekf[label].n_instructions())
-            if jit and label != "rates_short":
+            if jit:
                 t0 = time.perf_counter()
                 simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
                                     cache_dir=jit_cache)
@@ -151,7 +150,7 @@ def cost(repeats=3, calls=1000, jit=False):
                      rng.normal(0, 0.1, ny), np.ones(ny)) for _ in range(calls)]
         for _ in range(repeats):
             for label in variants:
-                if jit and label != "rates_short":
+                if jit:
                     t0 = time.perf_counter()
                     simulate_prescribed(models[label], move, dt=1e-3, method="poly",
                                         jit=True, cache_dir=jit_cache)
@@ -172,8 +171,9 @@ def cost(repeats=3, calls=1000, jit=False):
             if out[label][key]:
                 out[label][med] = float(np.median(out[label][key]))
     if jit:
-        out["ratio_simulate_move1_rates_off"] = (out["rates"]["simulate_move1_s"]
-                                                 / out["off"]["simulate_move1_s"])
+        for label in ("rates", "rates_short"):
+            out[f"ratio_simulate_move1_{label}_off"] = (out[label]["simulate_move1_s"]
+                                                        / out["off"]["simulate_move1_s"])
     for label in ("rates", "rates_short"):
         out[f"ratio_dddelta_{label}_off"] = (out[label]["dddelta_us_median"]
                                              / out["off"]["dddelta_us_median"])

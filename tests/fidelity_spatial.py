@@ -21,10 +21,10 @@ from reference_beam_3d import JointMove, cached_run
 #: Table 9 move 3 (problems/moves.toml): q1 0 → −π rad in 2 s, q2 and q3 held at 0
 MOVE3 = JointMove((0.0, 0.0, 0.0), (-np.pi, 0.0, 0.0), 2.0, settle=3.0)
 
-#: the converged reference of the comparison (elements per link, step [s]); 32 elements
-#: and 0.5 ms move its tip deflection by less than 0.2 % of the peak
-#: (test_spatial_reference.py, benchmarks/README_fidelity.md)
-REFERENCE = {"n_elements": 16, "dt": 1e-3}
+#: the converged reference of the comparison (elements per link, step [s]): 16 → 32
+#: elements moves the tip deflection by 0.64 % of the peak (O(h²): 32 → 64 by ~0.16 %),
+#: 1 → 0.5 ms by < 0.01 % (test_spatial_reference.py, benchmarks/README_fidelity.md)
+REFERENCE = {"n_elements": 32, "dt": 1e-3}
 
 #: the test data: converged reference runs, keyed by the reference's source (cached_run)
 DATA = Path(__file__).parent / "data" / "reference_beam_3d"

@@ -191,7 +191,7 @@ class SpatialArm:
         table_R = _rz(q0[0])
         table = mbs.AddNode(NodeRigidBodyEP(referenceCoordinates=[0.0, 0.0, 0.0]
                                             + _ep(table_R)))
-        mbs.AddObject(ObjectRigidBody(physicsMass=1.0, physicsInertia=[1, 1, 1, 0, 0, 0],
+        mbs.AddObject(ObjectRigidBody(mass=1.0, inertia=[1, 1, 1, 0, 0, 0],
                                       nodeNumber=table))
 
         def offset(index):
@@ -214,7 +214,7 @@ class SpatialArm:
             section = _section(beam)
             for i in range(self.n_elements):
                 mbs.AddObject(ObjectBeamGeometricallyExact(
-                    nodeNumbers=[nodes[i], nodes[i + 1]], physicsLength=h,
+                    nodeNumbers=[nodes[i], nodes[i + 1]], length=h,
                     sectionData=section))
             chains.append(nodes)
             if k == 0:  # shoulder: the turntable's frame twisted by Rx(−90°), then q2
@@ -255,8 +255,8 @@ class SpatialArm:
         s.timeIntegration.generalizedAlpha.spectralRadius = rho_inf
         s.timeIntegration.verboseMode = 0
         s.timeIntegration.newton.absoluteTolerance = newton_tol
-        s.solutionSettings.writeSolutionToFile = False
-        s.solutionSettings.sensorsWritePeriod = dt
+        s.solution.file.write = False
+        s.solution.sensors.writePeriod = dt
         s.linearSolver.solverType = exu.LinearSolverType.EigenSparse
         mbs.SolveDynamic(s)
         data = mbs.GetSensorStoredData(sensor)
@@ -298,7 +298,7 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
     section = _section(beam)
     for i in range(n_elements):
         mbs.AddObject(ObjectBeamGeometricallyExact(nodeNumbers=[nodes[i], nodes[i + 1]],
-                                                   physicsLength=h, sectionData=section))
+                                                   length=h, sectionData=section))
     mbs.AddObject(GenericJoint(markerNumbers=[
         mbs.AddMarker(MarkerNodeRigid(nodeNumber=mbs.AddNode(NodePointGround()))),
         mbs.AddMarker(MarkerNodeRigid(nodeNumber=nodes[0]))]))
@@ -311,7 +311,7 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
                             exu.OutputVariableType.RotationMatrix)]
     mbs.Assemble()
     s = exu.SimulationSettings()
-    s.solutionSettings.writeSolutionToFile = False
+    s.solution.file.write = False
     s.linearSolver.solverType = exu.LinearSolverType.EigenSparse
     if t_end is None:
         s.staticSolver.newton.absoluteTolerance = 1e-10
@@ -327,7 +327,7 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
     s.timeIntegration.generalizedAlpha.spectralRadius = 1.0
     s.timeIntegration.newton.absoluteTolerance = 1e-8
     s.timeIntegration.verboseMode = 0
-    s.solutionSettings.sensorsWritePeriod = dt
+    s.solution.sensors.writePeriod = dt
     mbs.SolveDynamic(s)
     u = mbs.GetSensorStoredData(sensors[0])
     R = mbs.GetSensorStoredData(sensors[1])[:, 1:].reshape(-1, 3, 3)

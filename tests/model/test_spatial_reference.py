@@ -115,13 +115,19 @@ def test_stiff_arm_follows_the_joints_rigidly():
 
 @pytest.mark.slow
 def test_reference_converged_on_move3(tmp_path):
-    """32 elements per link and a 0.5 ms step move the stored run (16 elements, 1 ms) by
-    less than 0.5 % of its peak (the budget that leaves the 2 % and 5 % targets to the
-    model). Two long runs (~3 min of CPU): slow."""
+    """The stored run (32 elements per link, 1 ms) is converged: 16 elements are within
+    1 % of its peak all along move 3 (measured 0.64 %; the elements' error is O(h²), see
+    test_static_tip_load, so the stored run's own is about a third of that, ~0.2 %), and
+    halving the step changes the 16-element run by less than 0.05 % (measured < 0.01 %).
+    Two runs of 16 elements (~3 min of CPU): slow."""
     base = reference_run()
     peak = np.linalg.norm(base["d"], axis=1).max()
-    for n_elements, dt in ((32, 1e-3), (16, 5e-4)):
-        other = rb.cached_run(MOVE3, n_elements, dt, cache=tmp_path)
-        on_base = np.column_stack([np.interp(base["t"], other["t"], other["d"][:, k])
-                                   for k in range(3)])
-        assert np.linalg.norm(on_base - base["d"], axis=1).max() < 5e-3 * peak
+
+    def gap(run, other):
+        on_run = np.column_stack([np.interp(run["t"], other["t"], other["d"][:, k])
+                                  for k in range(3)])
+        return np.linalg.norm(on_run - run["d"], axis=1).max() / peak
+
+    coarse = rb.cached_run(MOVE3, 16, 1e-3, cache=tmp_path)
+    assert gap(base, coarse) < 1e-2
+    assert gap(coarse, rb.cached_run(MOVE3, 16, 5e-4, cache=tmp_path)) < 5e-4
