@@ -108,6 +108,10 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     # instructions with the q-Jacobians than ∂M/∂δ_j at δ = 0)
     g = model.gravity_forces
     at = ca.Function("poly_at_delta", [q, d], [model.M, g])
+    iu = np.triu_indices(N)
+
+    def upper(A, idx=iu):
+        return ca.vertcat(*[A[int(i), int(k)] for i, k in zip(*idx, strict=True)])
 
     def unit(*js):
         e = ca.DM.zeros(m)
@@ -117,20 +121,35 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
 
     M0, g0 = at(q, ca.DM.zeros(m))
     plus = [at(q, unit(j)) for j in range(m)]
-    Mj, gd = [], []
-    if second:  # central differences: the δ² parts of M_qq and g_q cancel
-        minus = [at(q, -unit(j)) for j in range(m)]
-        for (Mp, gp), (Mm, gm) in zip(plus, minus, strict=True):
-            Mj.append(0.5 * (Mp - Mm))
-            gd.append(0.5 * (gp - gm))
-    else:
-        for Mp, gp in plus:
-            Mj.append(Mp - M0)
-            gd.append(gp - g0)
-    iu = np.triu_indices(N)
-
-    def upper(A, idx=iu):
-        return ca.vertcat(*[A[int(i), int(k)] for i, k in zip(*idx, strict=True)])
+    Mj = [Mk - M0 for Mk, _ in plus]
+    gd = [gk - g0 for _, gk in plus]
+    if second:
+        # M_qq and g_q are quadratic in δ (the rest affine, so M_j and g_δ are exact
+        # above): from their values at ±e_j and e_j + e_k (the joint rows alone, a third
+        # of M's expression), the coefficients of δ_j δ_k (j ≤ k) Q_jj = ½ (f(e_j) +
+        # f(−e_j)) − f(0), Q_jk = f(e_j + e_k) − f(e_j) − f(e_k) + f(0), and the joint
+        # rows of M_j = ½ (f(e_j) − f(−e_j))
+        iq = np.triu_indices(n)
+        at_q = ca.Function("poly_at_delta_q", [q, d], [upper(model.M[:n, :n], iq), g[:n]])
+        f0 = (upper(M0[:n, :n], iq), g0[:n])
+        fp = [(upper(Mk[:n, :n], iq), gk[:n]) for Mk, gk in plus]
+        fm = [at_q(q, -unit(j)) for j in range(m)]
+        Q, G2 = [], []
+        for j, k in zip(*np.triu_indices(m), strict=True):
+            j, k = int(j), int(k)
+            if j == k:
+                Q.append(0.5 * (fp[j][0] + fm[j][0]) - f0[0])
+                G2.append(0.5 * (fp[j][1] + fm[j][1]) - f0[1])
+            else:
+                Mjk, gjk = at_q(q, unit(j, k))
+                Q.append(Mjk - fp[j][0] - fp[k][0] + f0[0])
+                G2.append(gjk - fp[j][1] - fp[k][1] + f0[1])
+        for j in range(m):
+            half = 0.5 * (fp[j][0] - fm[j][0])
+            for r, (a, c) in enumerate(zip(*iq, strict=True)):
+                Mj[j][int(a), int(c)] = half[r]
+                Mj[j][int(c), int(a)] = half[r]
+            gd[j][:n] = 0.5 * (fp[j][1] - fm[j][1])
 
     stack = ca.vertcat(upper(M0), *[upper(A) for A in Mj])
     dstack = ca.jacobian(stack, q)
@@ -139,20 +158,6 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
             ca.horzcat(*gd) if m else ca.SX(N, 0)]
     names = ["M", "dM", "omega", "domega2", "g0", "gd"]
     if second:
-        # coefficients of δ_j δ_k (j ≤ k) in M_qq and in g_q:
-        # Q_jj = ½ (f(e_j) + f(−e_j)) − f(0), Q_jk = f(e_j + e_k) − f(e_j) − f(e_k) + f(0)
-        iq = np.triu_indices(n)
-        Q, G2 = [], []
-        for j, k in zip(*np.triu_indices(m), strict=True):
-            if j == k:
-                Mq = 0.5 * (plus[j][0] + minus[j][0]) - M0
-                gq = 0.5 * (plus[j][1] + minus[j][1]) - g0
-            else:
-                Mjk, gjk = at(q, unit(int(j), int(k)))
-                Mq = Mjk - plus[j][0] - plus[k][0] + M0
-                gq = gjk - plus[j][1] - plus[k][1] + g0
-            Q.append(upper(Mq[:n, :n], iq))
-            G2.append(gq[:n])
         Q = ca.vertcat(*Q)
         outs += [Q, ca.jacobian(Q, q), ca.vertcat(*G2)]
         names += ["Mqq2", "dMqq2", "gq2"]
