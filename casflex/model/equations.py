@@ -137,7 +137,7 @@ Both options are off by default: they cost time (``benchmarks/README_fidelity.md
 measured side by side: ``shape_rates`` 1.34× the instructions of the modal rows,
 1.6–2.0× the ``poly`` simulation of move 1, the EKF step unchanged; with
 ``foreshortening`` as well 1.9× the instructions of the modal rows, 1.3× the EKF
-step's instructions, ~2–5× the ``poly`` simulation of move 1, whose configuration arrays
+step's instructions, ~4× the ``poly`` simulation of move 1, whose configuration arrays
 then carry the δ² coefficients of ``M_qq``) and the dissertation's moves do not need them. On
 fast moves with large elbow travel they are what brings the model to an independent
 nonlinear beam model (ANCF, ``tests/reference_beam_dynamics.py``): with both, peak,
