@@ -19,11 +19,20 @@ Usage::
     python benchmarks/bench_fidelity.py [--json] [--variants base,rates] [--modes 5,8]
         [--cache DIR] [--no-convergence]
     python benchmarks/bench_fidelity.py --cost [--jit] [--json]
+    python benchmarks/bench_fidelity.py --spatial [--variants base,rates,rates_short]
+        [--modes 5,8] [--store] [--no-convergence] [--json]
 
 ``--cost`` instead measures what the options cost (:func:`cost`): ``bench_model.py``'s
 ``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls), the
 modal rows of RK4 and the EKF step, every variant alternated in one process, and the
 CasADi instruction counts.
+
+``--spatial`` instead compares Table 9 move 3 (q1 turns by −π in 2 s, q2 and q3 held)
+with the 3-D geometrically exact beam reference of ``tests/reference_beam_3d.py``
+(Exudyn, ``tests/fidelity_spatial.py``): the same three figures on the 3-D tip
+deflection, and the reference's convergence (32 → 64 elements, 1 → 0.5 ms). Its
+converged run is test data (``tests/data/reference_beam_3d``, keyed by the reference's
+source); ``--store`` writes it there.
 
 Reference runs are cached as ``.npz`` in ``--cache`` (default: a folder in the system's
 temporary directory), keyed by the reference's source, the move, the elements and step.
@@ -83,8 +92,7 @@ def cost(repeats=3, calls=1000, jit=False):
 
     * with ``jit``: ``bench_model.py``'s ``simulate_move1_s`` (Table 9 move 1, 5 modes,
       ``poly`` with ``jit=True``, the library compiled once — minutes per variant; median
-      of warm calls) with ``shape_rates`` off and on (``poly`` refuses
-      ``foreshortening``: its M is not affine in δ);
+      of warm calls) with ``shape_rates`` off, on, and with ``foreshortening`` too;
     * the modal rows RK4 integrates (``dddelta``, CasADi's virtual machine): median time
       of ``calls`` evaluations, every variant, and the instruction counts;
     * the EKF step of an estimator like the design study's (3 modes, the two tip
@@ -127,7 +135,7 @@ def cost(repeats=3, calls=1000, jit=False):
             out[label]["plant_build_s"] = time.perf_counter() - t0
             ekf[label] = ekf_step_function(plant, sensors, 5e-6, 1e-4, 1e-3)
             out[label]["ekf_step_instructions"] = int(ekf[label].n_instructions())
-            if jit and label != "rates_short":
+            if jit:
                 t0 = time.perf_counter()
                 simulate_prescribed(model, move, dt=1e-3, method="poly", jit=True,
                                     cache_dir=jit_cache)
@@ -142,7 +150,7 @@ def cost(repeats=3, calls=1000, jit=False):
                      rng.normal(0, 0.1, ny), np.ones(ny)) for _ in range(calls)]
         for _ in range(repeats):
             for label in variants:
-                if jit and label != "rates_short":
+                if jit:
                     t0 = time.perf_counter()
                     simulate_prescribed(models[label], move, dt=1e-3, method="poly",
                                         jit=True, cache_dir=jit_cache)
@@ -163,8 +171,9 @@ def cost(repeats=3, calls=1000, jit=False):
             if out[label][key]:
                 out[label][med] = float(np.median(out[label][key]))
     if jit:
-        out["ratio_simulate_move1_rates_off"] = (out["rates"]["simulate_move1_s"]
-                                                 / out["off"]["simulate_move1_s"])
+        for label in ("rates", "rates_short"):
+            out[f"ratio_simulate_move1_{label}_off"] = (out[label]["simulate_move1_s"]
+                                                        / out["off"]["simulate_move1_s"])
     for label in ("rates", "rates_short"):
         out[f"ratio_dddelta_{label}_off"] = (out[label]["dddelta_us_median"]
                                              / out["off"]["dddelta_us_median"])
@@ -172,6 +181,50 @@ def cost(repeats=3, calls=1000, jit=False):
                                               / out["off"]["ekf_step_us_median"])
     out["loadavg_end"] = os.getloadavg()[0]
     return out
+
+
+def spatial(args):
+    """Table 9 move 3 against the 3-D reference: convergence and one table per variant."""
+    from fidelity_spatial import DATA, MOVE3, REFERENCE
+    from fidelity_spatial import casflex_run as casflex_run_3d
+    from fidelity_spatial import compare as compare_3d
+    from fidelity_spatial import on_grid as on_grid_3d
+    from reference_beam_3d import cached_run, run_file
+
+    from casflex.model import build_model
+    from casflex.robot import load
+
+    ne, dt = REFERENCE["n_elements"], REFERENCE["dt"]
+    stored = (DATA / run_file(MOVE3, ne, dt)).exists()
+    ref = cached_run(MOVE3, ne, dt, cache=DATA if stored or args.store else args.cache)
+    out = {"reference": {"elements": ne, "dt_s": dt}, "variants": {}}
+    if not args.no_convergence:
+        peak = np.linalg.norm(ref["d"], axis=1).max()
+        rows = {}
+        for label, (n, step) in {"elements_x2": (2 * ne, dt),
+                                 "elements_half": (ne // 2, dt),
+                                 "dt_half": (ne, 0.5 * dt)}.items():
+            other = cached_run(MOVE3, n, step, cache=args.cache)
+            gap = np.linalg.norm(on_grid_3d(other, ref["t"]) - ref["d"], axis=1).max()
+            rows[label] = 100 * gap / peak
+        out["reference_convergence_gap_pct"] = rows
+    robot = load(ROOT / "problems" / "arm2link.toml")
+    for variant in args.variants.split(","):
+        for m in (int(k) for k in args.modes.split(",")):
+            t0 = time.perf_counter()
+            model, _ = build_model(robot, n_modes=m, gravity=None, processes=1,
+                                   **VARIANTS[variant])
+            c = compare_3d(casflex_run_3d(model, MOVE3), ref, MOVE3.duration)
+            out["variants"][f"{variant}_{m}modes"] = {**c, "wall_s": time.perf_counter() - t0}
+            if not args.json:
+                print(f"move3 {variant:12s} {m} modes: peak ref {c['peak_ref_mm']:.2f} mm, "
+                      f"peak {c['peak_pct']:+.2f} %, residual {c['residual_pct']:+.2f} %, "
+                      f"gap {c['gap_pct']:.2f} % (at {c['gap_at_s']:.2f} s)", flush=True)
+    if args.json:
+        print(json.dumps(out, default=float))
+    elif "reference_convergence_gap_pct" in out:
+        print("\nreference convergence, gap in % of peak:",
+              out["reference_convergence_gap_pct"])
 
 
 def main(argv=None):
@@ -187,7 +240,15 @@ def main(argv=None):
                         help="only the cost of the options (off, shape_rates, both)")
     parser.add_argument("--jit", action="store_true",
                         help="with --cost: also move 1 with poly + jit (compiles twice)")
+    parser.add_argument("--spatial", action="store_true",
+                        help="Table 9 move 3 against the 3-D beam reference (Exudyn)")
+    parser.add_argument("--store", action="store_true",
+                        help="with --spatial: store the converged reference run as test "
+                             "data (tests/data/reference_beam_3d)")
     args = parser.parse_args(argv)
+    if args.spatial:
+        spatial(args)
+        return
     if args.cost:
         print(json.dumps(cost(jit=args.jit), default=float,
                          indent=None if args.json else 1))

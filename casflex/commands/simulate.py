@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the configuration (fast moves; costs time)")
     parser.add_argument("--foreshortening", action="store_true",
                         help="model option: the beams' shortening (geometric stiffening on "
-                             "fast moves; needs --method rk4, cvodes or idas)")
+                             "fast moves; costs time)")
     add_cache_arguments(parser)
     add_plot_argument(parser, "joint angles, torques, modal amplitudes and tip deflection")
 
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ModelError
         A move for another number of joints or outside the robot's joint limits,
         ``--modes < 1``, a bad ``--dt``,
-        ``--jit`` without ``--method poly``, or ``--foreshortening`` with it.
+        or ``--jit`` without ``--method poly``.
 
     Examples
     --------
@@ -150,12 +150,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     jit = getattr(args, "jit", False)
     if jit and args.method != "poly":
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
-    foreshortening = getattr(args, "foreshortening", False)
-    if foreshortening and args.method == "poly":
-        raise ModelError("--foreshortening: not with --method poly (its M is not affine "
-                         "in the modal amplitudes); add --method rk4")
     options = {"shape_rates": getattr(args, "shape_rates", False),
-               "foreshortening": foreshortening}
+               "foreshortening": getattr(args, "foreshortening", False)}
     cache_dir = cache_dir_of(args)
     if jit:  # the compiled library must live on disk: --no-cache gives a temporary one
         with disk_cache(cache_dir) as tmp:

@@ -308,13 +308,15 @@ def _study_model(study, cache_dir, processes, progress, n_modes=None):
         model = FlexibleModel(study.robot, provider,
                               gravity=gravity,
                               delta_order=study.model["delta_order"],
-                              shape_rates=study.model["shape_rates"])
+                              shape_rates=study.model["shape_rates"],
+                              foreshortening=study.model["foreshortening"])
         return model, None
     return build_model(study.robot, n_modes or study.model["modes"],
                        step=study.model["grid_step"],
                        points=study.sensors.points, gravity=gravity,
                        delta_order=study.model["delta_order"], cache_dir=cache_dir,
-                       shape_rates=study.model["shape_rates"], processes=processes,
+                       shape_rates=study.model["shape_rates"],
+                       foreshortening=study.model["foreshortening"], processes=processes,
                        progress=progress)
 
 

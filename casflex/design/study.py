@@ -37,7 +37,7 @@ __all__ = ["Study", "load_study"]
 # every section of a study file, its keys and their defaults (None: required or "unset")
 _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False,
-              "shape_rates": False},
+              "shape_rates": False, "foreshortening": False},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
     "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
@@ -198,6 +198,8 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
     _flag(path, "model.gravity", m["gravity"])
     if _flag(path, "model.shape_rates", m["shape_rates"]) and m["delta_order"] != 1:
         raise fail("model.shape_rates", True, "needs model.delta_order = 1", path=path)
+    if _flag(path, "model.foreshortening", m["foreshortening"]) and m["delta_order"] != 1:
+        raise fail("model.foreshortening", True, "needs model.delta_order = 1", path=path)
     s = settings["shaper"]
     s["vtol"] = plausible(num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True),
                           "vtol", "shaper.vtol", path=path)

@@ -136,13 +136,18 @@ Cost and fidelity
 Both options are off by default: they cost time (``benchmarks/README_fidelity.md``,
 measured side by side: ``shape_rates`` 1.34× the instructions of the modal rows,
 1.6–2.0× the ``poly`` simulation of move 1, the EKF step unchanged; with
-``foreshortening`` as well 1.9× the instructions of the modal rows, no ``poly`` path,
-1.3× the EKF step's instructions) and the dissertation's moves do not need them. On
+``foreshortening`` as well 1.9× the instructions of the modal rows, 1.3× the EKF
+step's instructions, ~4× the ``poly`` simulation of move 1, whose configuration arrays
+then carry the δ² coefficients of ``M_qq``) and the dissertation's moves do not need them. On
 fast moves with large elbow travel they are what brings the model to an independent
 nonlinear beam model (ANCF, ``tests/reference_beam_dynamics.py``): with both, peak,
 residual and time history within 1.3 % where the default model is off by up to 25 %.
-``simulate_prescribed(method="poly")`` needs ``M`` affine in δ and refuses
-``foreshortening``.
+On Table 9 move 3 (q1 turns by π in 2 s; 239 mm of tip deflection, 17 % of the tip's
+radius) against a 3-D geometrically exact beam model (``tests/reference_beam_3d.py``)
+neither variant is within 5 % of the peak all along (gap 7.5 % default, 5.4 % with both
+and a peak 2.8 % too large); the same move in 4 s is within 3 % with either.
+``simulate_prescribed(method="poly")`` takes the δ² part of ``M_qq`` as exact arrays of
+its own (:func:`casflex.simulate.poly.configuration_function`).
 """
 
 from __future__ import annotations

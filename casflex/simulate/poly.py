@@ -3,9 +3,11 @@
 With ``delta_order`` 0 or 1 the mass matrix is affine in δ, so with the joint motion given
 the modal rows are a polynomial in ``(δ, δ̇)`` whose coefficients depend on the
 configuration only (the derivation is in the Notes of
-:func:`casflex.simulate.simulate_prescribed`, ``method="poly"``). The configuration arrays
-``F(q(t))`` are interpolated in time by Chebyshev pieces, then RK4 runs on the
-polynomial form.
+:func:`casflex.simulate.simulate_prescribed`, ``method="poly"``). With
+``foreshortening=True`` ``M_qq`` is quadratic in δ, which adds a term linear in δ to the
+modal rows and quadratic ones to the torques (:func:`configuration_function`). The
+configuration arrays ``F(q(t))`` are interpolated in time by Chebyshev pieces, then RK4
+runs on the polynomial form.
 
 Configuration arrays
     :func:`configuration_function` (``F(q)``), :func:`unpack` (the flat rows as matrices).
@@ -62,6 +64,15 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     ``∂Ω²/∂q``), ``g0`` (N) and ``gd`` (N × m) with ``g(q, δ) = g0 + gd δ`` the gravity
     forces (affine in δ).
 
+    With ``foreshortening=True`` the model keeps ``M_qq`` and the gravity potential to
+    second order in δ (the rest of M stays affine): ``M_qq`` gains ``Σ_{j≤k} δ_j δ_k
+    Q_jk(q)`` and ``g_q`` gains ``Σ_{j≤k} δ_j δ_k γ_jk(q)`` (``g_δ`` stays affine), and
+    ``F`` has three more outputs: ``Mqq2`` (the upper triangles of ``Q_jk``, pairs
+    ``j ≤ k`` in the order of ``numpy.triu_indices(m)``), ``dMqq2`` (its q-Jacobian) and
+    ``gq2`` (``[γ_jk]``, n per pair). The δ rows then gain ``−½ q̇ᵀ ∂M_qq/∂δ_a q̇``, a
+    term linear in δ (the geometric stiffening), and the torques terms in ``δ_j δ_k`` and
+    ``δ_j δ̇_k``.
+
     Parameters
     ----------
     model : casflex.model.FlexibleModel
@@ -69,8 +80,9 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     Returns
     -------
     casadi.Function
-        ``poly_configuration (q) -> (M, dM, omega, domega2, g0, gd)``; ``M`` stacks the
-        upper triangles of ``M0, M_1, …, M_m``.
+        ``poly_configuration (q) -> (M, dM, omega, domega2, g0, gd)`` (and ``Mqq2,
+        dMqq2, gq2`` with foreshortening); ``M`` stacks the upper triangles of
+        ``M0, M_1, …, M_m``.
 
     Examples
     --------
@@ -89,31 +101,67 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     n, m = model.n, model.m
     N = n + m
     q, d = model.q, model.delta
-    # M and g are affine in δ, so M_j = M(q, e_j) − M(q, 0) exactly; evaluating the
-    # expressions at numeric δ lets CasADi drop the vanishing products (far fewer SX
+    second = bool(getattr(model, "foreshortening", False)) and m > 0
+    # M and g are polynomials in δ (affine, or with foreshortening quadratic in M_qq and
+    # g_q), so their coefficients are exact combinations of values at numeric δ; evaluating
+    # the expressions there lets CasADi drop the vanishing products (far fewer SX
     # instructions with the q-Jacobians than ∂M/∂δ_j at δ = 0)
     g = model.gravity_forces
     at = ca.Function("poly_at_delta", [q, d], [model.M, g])
-    M0, g0 = at(q, ca.DM.zeros(m))
-    Mj, gd = [], []
-    for j in range(m):
-        e = ca.DM.zeros(m)
-        e[j] = 1.0
-        Mk, gk = at(q, e)
-        Mj.append(Mk - M0)
-        gd.append(gk - g0)
     iu = np.triu_indices(N)
 
-    def upper(A):
-        return ca.vertcat(*[A[int(i), int(k)] for i, k in zip(*iu, strict=True)])
+    def upper(A, idx=iu):
+        return ca.vertcat(*[A[int(i), int(k)] for i, k in zip(*idx, strict=True)])
+
+    def unit(*js):
+        e = ca.DM.zeros(m)
+        for j in js:
+            e[j] += 1.0
+        return e
+
+    M0, g0 = at(q, ca.DM.zeros(m))
+    plus = [at(q, unit(j)) for j in range(m)]
+    Mj = [Mk - M0 for Mk, _ in plus]
+    gd = [gk - g0 for _, gk in plus]
+    if second:
+        # M_qq and g_q are quadratic in δ (the rest affine, so M_j and g_δ are exact
+        # above): from their values at ±e_j and e_j + e_k (the joint rows alone, a third
+        # of M's expression), the coefficients of δ_j δ_k (j ≤ k) Q_jj = ½ (f(e_j) +
+        # f(−e_j)) − f(0), Q_jk = f(e_j + e_k) − f(e_j) − f(e_k) + f(0), and the joint
+        # rows of M_j = ½ (f(e_j) − f(−e_j))
+        iq = np.triu_indices(n)
+        at_q = ca.Function("poly_at_delta_q", [q, d], [upper(model.M[:n, :n], iq), g[:n]])
+        f0 = (upper(M0[:n, :n], iq), g0[:n])
+        fp = [(upper(Mk[:n, :n], iq), gk[:n]) for Mk, gk in plus]
+        fm = [at_q(q, -unit(j)) for j in range(m)]
+        Q, G2 = [], []
+        for j, k in zip(*np.triu_indices(m), strict=True):
+            j, k = int(j), int(k)
+            if j == k:
+                Q.append(0.5 * (fp[j][0] + fm[j][0]) - f0[0])
+                G2.append(0.5 * (fp[j][1] + fm[j][1]) - f0[1])
+            else:
+                Mjk, gjk = at_q(q, unit(j, k))
+                Q.append(Mjk - fp[j][0] - fp[k][0] + f0[0])
+                G2.append(gjk - fp[j][1] - fp[k][1] + f0[1])
+        for j in range(m):
+            half = 0.5 * (fp[j][0] - fm[j][0])
+            for r, (a, c) in enumerate(zip(*iq, strict=True)):
+                Mj[j][int(a), int(c)] = half[r]
+                Mj[j][int(c), int(a)] = half[r]
+            gd[j][:n] = 0.5 * (fp[j][1] - fm[j][1])
 
     stack = ca.vertcat(upper(M0), *[upper(A) for A in Mj])
     dstack = ca.jacobian(stack, q)
     omega = model.omega if m else ca.SX(0, 1)
     outs = [stack, dstack, omega, ca.jacobian(omega**2, q), g0,
             ca.horzcat(*gd) if m else ca.SX(N, 0)]
-    F = ca.Function("poly_configuration", [q], outs, ["q"],
-                    ["M", "dM", "omega", "domega2", "g0", "gd"])
+    names = ["M", "dM", "omega", "domega2", "g0", "gd"]
+    if second:
+        Q = ca.vertcat(*Q)
+        outs += [Q, ca.jacobian(Q, q), ca.vertcat(*G2)]
+        names += ["Mqq2", "dMqq2", "gq2"]
+    F = ca.Function("poly_configuration", [q], outs, ["q"], names)
     memo["poly_F"] = F
     return F
 
@@ -123,6 +171,10 @@ def unpack(raw: np.ndarray, n: int, m: int, dq: np.ndarray) -> dict[str, np.ndar
 
     Full matrices from their upper triangles; ``P0``, ``Pj`` are ``Σ_i q̇_i ∂M0/∂q_i``,
     ``Σ_i q̇_i ∂M_j/∂q_i`` for the rates ``dq``, ``K0``, ``Kj`` the derivatives (torques).
+    Rows of a foreshortening model (wider: the outputs ``Mqq2, dMqq2, gq2`` of
+    :func:`configuration_function`) also give the second derivatives in δ
+    ``H`` (``H_jk = ∂²M_qq/∂δ_j∂δ_k``), ``dH`` (their q-derivatives) and ``Gamma``
+    (``∂²g_q/∂δ_j∂δ_k``).
 
     Parameters
     ----------
@@ -139,7 +191,8 @@ def unpack(raw: np.ndarray, n: int, m: int, dq: np.ndarray) -> dict[str, np.ndar
     dict of numpy.ndarray
         ``M0``, ``P0`` (T, N, N); ``Mj``, ``Pj`` (T, m, N, N); ``K0`` (T, n, N, N); ``Kj``
         (T, n, m, N, N); ``omega`` (T, m) [rad/s]; ``domega2`` (T, m, n); ``g0`` (T, N);
-        ``gd`` (T, N, m).
+        ``gd`` (T, N, m); with foreshortening also ``H`` (T, m, m, n, n), ``dH``
+        (T, n, m, m, n, n) and ``Gamma`` (T, m, m, n).
 
     Examples
     --------
@@ -176,9 +229,34 @@ def unpack(raw: np.ndarray, n: int, m: int, dq: np.ndarray) -> dict[str, np.ndar
     allM = S[..., index]
     allP = np.einsum("ti,tijk->tjk", dq, dS)[..., index]
     allK = dS[..., index]
-    return {"M0": allM[:, 0], "Mj": allM[:, 1:], "P0": allP[:, 0], "Pj": allP[:, 1:],
-            "K0": allK[:, :, 0], "Kj": allK[:, :, 1:], "omega": omega, "domega2": dw2,
-            "g0": g0, "gd": gd}
+    out = {"M0": allM[:, 0], "Mj": allM[:, 1:], "P0": allP[:, 0], "Pj": allP[:, 1:],
+           "K0": allK[:, :, 0], "Kj": allK[:, :, 1:], "omega": omega, "domega2": dw2,
+           "g0": g0, "gd": gd}
+    if o == raw.shape[1]:
+        return out
+    # foreshortening: coefficients of δ_j δ_k (j ≤ k) of M_qq and g_q
+    p = m * (m + 1) // 2
+    iq = np.triu_indices(n)
+    nq = iq[0].size
+    if raw.shape[1] - o != nq * p * (n + 1) + n * p:
+        raise ModelError(f"poly rows: {raw.shape[1]} columns fit neither the first-order "
+                         f"nor the foreshortening layout (n = {n}, m = {m})")
+    qindex = np.empty((n, n), dtype=int)
+    qindex[iq] = np.arange(nq)
+    qindex[iq[1], iq[0]] = np.arange(nq)
+    Q = take(nq * p).reshape(T, p, nq)[..., qindex]                  # (T, p, n, n)
+    dQ = take(nq * p * n).reshape(T, n, p, nq)[..., qindex]          # (T, n, p, n, n)
+    G2 = take(n * p).reshape(T, p, n)                                # (T, p, n)
+    # second derivatives: H_jk = Q_jk for j < k and 2 Q_jj (Σ_{j≤k} Q δδ = ½ Σ_jk H δδ)
+    pair = np.empty((m, m), dtype=int)
+    im = np.triu_indices(m)
+    pair[im] = np.arange(p)
+    pair[im[1], im[0]] = np.arange(p)
+    twice = 1.0 + np.eye(m)
+    out["H"] = Q[:, pair] * twice[None, :, :, None, None]
+    out["dH"] = dQ[:, :, pair] * twice[None, None, :, :, None, None]
+    out["Gamma"] = G2[:, pair] * twice[None, :, :, None]
+    return out
 
 
 def _sym_pairs(B):
@@ -219,7 +297,7 @@ def rows(A: dict[str, np.ndarray], dq: np.ndarray, n: int, m: int, zeta: float
     -------
     dict of numpy.ndarray
         The coefficients above, time first; ``c_acc``, ``Jd_acc``, ``t0_acc``, ``td_acc``
-        multiply ``q̈``.
+        (and ``t_d_d_acc`` with foreshortening) multiply ``q̈``.
 
     Examples
     --------
@@ -239,6 +317,21 @@ def rows(A: dict[str, np.ndarray], dq: np.ndarray, n: int, m: int, zeta: float
          + A["g0"][:, d_])
     Jd = np.einsum("tjab,tb->taj", Pj[:, :, d_, q_], dq) + A["gd"][:, d_, :]
     Jd[:, ar, ar] += w**2
+    dd_torque = 0.5 * A["domega2"][:, :, :, None] * np.eye(m)[None, :, None, :]
+    dd_torque = dd_torque.transpose(0, 2, 1, 3)  # [t, i, j, k]: ½ ∂ω_j²/∂q_i on j = k
+    dv_torque = np.zeros((dq.shape[0], n, m, m))
+    dd_acc = None
+    if "H" in A:
+        # foreshortening: M_qq = … + ½ Σ_jk δ_j δ_k H_jk, g_q = … + ½ Σ_jk δ_j δ_k Γ_jk
+        H, dH = A["H"], A["dH"]
+        Hv = np.einsum("tjkab,tb->tjka", H, dq)                          # H_jk q̇
+        Jd -= 0.5 * np.einsum("tjka,ta->tjk", Hv, dq)    # −½ q̇ᵀ ∂M_qq/∂δ_a q̇
+        Hdot_v = np.einsum("tijkab,ti,tb->tjka", dH, dq, dq, optimize=True)  # Ḣ_jk q̇
+        dH_vv = np.einsum("tijkab,ta,tb->tjki", dH, dq, dq, optimize=True)  # q̇ᵀ ∂_i H q̇
+        dd_torque = dd_torque + 0.5 * (Hdot_v - 0.5 * dH_vv + A["Gamma"]).transpose(
+            0, 3, 1, 2)
+        dv_torque = Hv.transpose(0, 3, 1, 2)              # δ̇_j δ_k H_jk q̇, [t, i, j, k]
+        dd_acc = _sym_pairs(0.5 * H.transpose(0, 3, 4, 1, 2)).transpose(0, 1, 3, 2)
     Jv = (P0[:, d_, d_] + np.einsum("tkab,tb->tak", Mj[:, :, d_, q_], dq)
           - np.einsum("ti,taik->tak", dq, Mj[:, :, q_, d_]))
     Jv[:, ar, ar] += 2.0 * zeta * w
@@ -246,7 +339,7 @@ def rows(A: dict[str, np.ndarray], dq: np.ndarray, n: int, m: int, zeta: float
     # torques: Σ_a q̇_a ∂M[a, :]/∂q_i of M0 and of every M_j
     dqK0 = np.einsum("ta,tiab->tib", dq, K0[:, :, q_, :])
     dqKj = np.einsum("ta,tijab->tijb", dq, Kj[:, :, :, q_, :])
-    return {
+    out = {
         "Mdd0": M0[:, d_, d_], "Add": Mdd, "c": -c, "Jd": -Jd, "Jv": -Jv,
         "C": -Pj[:, :, d_, d_].transpose(0, 2, 1, 3),  # [t, a, j, k] = P_j[a, δk]
         "E": -(Mdd.transpose(0, 2, 1, 3) - 0.5 * Mdd),  # M_j[a, δk] − ½ M_a[δj, δk]
@@ -261,13 +354,16 @@ def rows(A: dict[str, np.ndarray], dq: np.ndarray, n: int, m: int, zeta: float
         "tv": (np.einsum("tjib,tb->tij", Mj[:, :, q_, q_], dq) + P0[:, q_, d_]
                - dqK0[:, :, d_]),
         "tdd": M0[:, q_, d_],
-        "tdd2": 0.5 * A["domega2"].transpose(0, 2, 1),
+        "t_d_d": _sym_pairs(dd_torque),
         "t_d_dd": Mj[:, :, q_, d_].transpose(0, 2, 1, 3),  # [t, i, j, k]
-        "t_d_v": Pj[:, :, q_, d_].transpose(0, 2, 1, 3) - dqKj[..., d_],
+        "t_d_v": Pj[:, :, q_, d_].transpose(0, 2, 1, 3) - dqKj[..., d_] + dv_torque,
         "t_v_v": _sym_pairs(Mj[:, :, q_, d_].transpose(0, 2, 1, 3)
                             - 0.5 * K0[:, :, d_, d_]),
         "t_d_v_v": _sym_pairs(-0.5 * Kj[:, :, :, d_, d_]),
     }
+    if dd_acc is not None:
+        out["t_d_d_acc"] = dd_acc  # [t, i, pair, b]
+    return out
 
 
 def modal(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
@@ -308,7 +404,7 @@ def modal(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
     return np.hstack([p.reshape(T, -1) for p in parts])
 
 
-_TORQUE_PARTS = ("t0", "td", "tv", "tdd", "tdd2", "t_d_dd", "t_d_v", "t_v_v", "t_d_v_v")
+_TORQUE_PARTS = ("t0", "td", "tv", "tdd", "t_d_d", "t_d_dd", "t_d_v", "t_v_v", "t_d_v_v")
 
 
 def torque_rows(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
@@ -325,7 +421,7 @@ def torque_rows(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
     Returns
     -------
     numpy.ndarray, shape (T, R)
-        ``R = n (1 + 4 m + 2 m² + p + m p)``, ``p = m (m + 1) / 2``.
+        ``R = n (1 + 3 m + 2 m² + 2 p + m p)``, ``p = m (m + 1) / 2``.
 
     Examples
     --------
@@ -337,6 +433,8 @@ def torque_rows(rows: dict[str, np.ndarray], ddq: np.ndarray) -> np.ndarray:
     folded = dict(rows)
     folded["t0"] = rows["t0"] + np.einsum("tib,tb->ti", rows["t0_acc"], ddq)
     folded["td"] = rows["td"] + np.einsum("tijb,tb->tij", rows["td_acc"], ddq)
+    if "t_d_d_acc" in rows:
+        folded["t_d_d"] = rows["t_d_d"] + np.einsum("tipb,tb->tip", rows["t_d_d_acc"], ddq)
     return np.hstack([folded[k].reshape(T, -1) for k in _TORQUE_PARTS])
 
 
@@ -344,7 +442,8 @@ def torque(R: np.ndarray, n: int, m: int, d: np.ndarray, v: np.ndarray, dd: np.n
            ) -> np.ndarray:
     """Joint torques at T samples from torque-coefficient rows ``R`` of
     :func:`torque_rows`: per joint a polynomial in ``(δ, δ̇, δ̈)`` with the terms 1,
-    δ_j, δ̇_j, δ̈_j, δ_j², δ_j δ̈_k, δ_j δ̇_k, δ̇_j δ̇_k (j ≤ k) and δ_j δ̇_k δ̇_l (k ≤ l).
+    δ_j, δ̇_j, δ̈_j, δ_j δ_k (j ≤ k), δ_j δ̈_k, δ_j δ̇_k, δ̇_j δ̇_k (j ≤ k) and
+    δ_j δ̇_k δ̇_l (k ≤ l).
 
     Parameters
     ----------
@@ -378,7 +477,7 @@ def torque(R: np.ndarray, n: int, m: int, d: np.ndarray, v: np.ndarray, dd: np.n
     """
     T = R.shape[0]
     p = m * (m + 1) // 2
-    shapes = {"t0": (n,), "td": (n, m), "tv": (n, m), "tdd": (n, m), "tdd2": (n, m),
+    shapes = {"t0": (n,), "td": (n, m), "tv": (n, m), "tdd": (n, m), "t_d_d": (n, p),
               "t_d_dd": (n, m, m), "t_d_v": (n, m, m), "t_v_v": (n, p),
               "t_d_v_v": (n, m, p)}
     r, o = {}, 0
@@ -388,11 +487,12 @@ def torque(R: np.ndarray, n: int, m: int, d: np.ndarray, v: np.ndarray, dd: np.n
         o += size
     iu = np.triu_indices(m)
     vv = v[:, iu[0]] * v[:, iu[1]]
+    dd2 = d[:, iu[0]] * d[:, iu[1]]
     return (r["t0"]
             + np.einsum("tij,tj->ti", r["td"], d)
             + np.einsum("tij,tj->ti", r["tv"], v)
             + np.einsum("tij,tj->ti", r["tdd"], dd)
-            + np.einsum("tij,tj->ti", r["tdd2"], d * d)
+            + np.einsum("tip,tp->ti", r["t_d_d"], dd2)
             + np.einsum("tijk,tj,tk->ti", r["t_d_dd"], d, dd, optimize=True)
             + np.einsum("tijk,tj,tk->ti", r["t_d_v"], d, v, optimize=True)
             + np.einsum("tip,tp->ti", r["t_v_v"], vv)
@@ -582,9 +682,6 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
         raise ModelError("method='poly' needs a model with modes (m >= 1); use method='rk4'")
     if model.delta_order not in (0, 1):
         raise ModelError(f"method='poly' needs delta_order 0 or 1; got {model.delta_order}")
-    if getattr(model, "foreshortening", False):
-        raise ModelError("method='poly' needs M affine in delta; a model with "
-                         "foreshortening=True keeps M_qq to second order: use method='rk4'")
     info = {}
     start = time.perf_counter()
     F = configuration_function(model)

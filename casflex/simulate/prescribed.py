@@ -206,7 +206,12 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
     ``C_ajk = −P_j,aδk`` and ``E_ajk = −M_j,aδk + ½ M_a,δjδk`` (joint rows of
     ``M``, ``P`` in the ``q`` columns; ``g0 + gd δ`` the gravity forces, affine in δ).
     One CasADi function ``F(q)`` gives ``M0``, ``M_j``, their q-Jacobians, ``Ω``,
-    ``∂Ω²/∂q`` and the gravity terms. ``F(q(t))`` is analytic between the switches of
+    ``∂Ω²/∂q`` and the gravity terms. With ``foreshortening=True`` the model keeps
+    ``M_qq`` and ``g_q`` to δ² (the rest of M stays affine): ``M_qq`` gains
+    ``½ Σ_jk δ_j δ_k H_jk(q)``, which adds ``−½ q̇ᵀ H_ak q̇`` to ``J_δ,ak`` (the δ rows
+    stay of the form above) and terms in ``δ_j δ_k`` and ``δ_j δ̇_k`` to the torques;
+    ``F`` then also gives ``H`` (as the coefficients of ``δ_j δ_k``), its q-Jacobian and
+    the δ² part of ``g_q``. ``F(q(t))`` is analytic between the switches of
     the move and the times at which a shape joint crosses a knot of the modal tables'
     interpolants; on each such piece ``F`` is evaluated at Chebyshev–Lobatto nodes, the
     node count doubling until the previous interpolant matches ``F`` at the new nodes to

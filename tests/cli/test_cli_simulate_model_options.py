@@ -38,14 +38,10 @@ def captured(monkeypatch):
 
 @pytest.mark.parametrize("flags, rates, short", [
     ([], False, False), (["--shape-rates"], True, False),
-    (["--shape-rates", "--foreshortening", "--method", "rk4"], True, True)])
+    (["--shape-rates", "--foreshortening", "--method", "rk4"], True, True),
+    (["--foreshortening"], False, True),
+    (["--shape-rates", "--foreshortening", "--method", "poly"], True, True)])
 def test_flags_reach_simulate_move(captured, flags, rates, short):
     rc, out, err = _cli([*ARGS, *flags])
     assert rc == 2 and "stopped by the test" in err
     assert captured["shape_rates"] is rates and captured["foreshortening"] is short
-
-
-def test_foreshortening_refused_with_poly_before_heavy_work(captured):
-    rc, out, err = _cli([*ARGS, "--foreshortening", "--method", "poly"])
-    assert rc == 2 and out == "" and "--foreshortening" in err and "poly" in err
-    assert not captured

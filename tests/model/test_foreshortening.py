@@ -176,16 +176,3 @@ def test_free_motion_conserves_energy(arm, arm_model):
     xf = integ(x0=x0)["xf"].full().ravel()
     assert abs(energy(xf) - E0) < 1e-6 * abs(E0)
 
-
-def test_poly_refuses_foreshortening(arm):
-    """method="poly" rests on M affine in δ: a model with M_qq to δ² is refused, not
-    simulated wrongly."""
-    from casflex.errors import ModelError
-    from casflex.moves import Move
-    from casflex.simulate import simulate_prescribed
-
-    model = FlexibleModel(arm, PointwiseProvider(arm, [0.0, 0.0, 0.5], count=2),
-                          gravity=None, foreshortening=True)
-    with pytest.raises(ModelError, match="foreshortening"):
-        simulate_prescribed(model, Move([0, 0, 0], [0, -0.1, 0], 0.5), dt=0.01,
-                            method="poly")

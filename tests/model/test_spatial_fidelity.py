@@ -1,0 +1,51 @@
+"""Fidelity of the modal model on Table 9 move 3 (q1 turns by −π in 2 s) against the 3-D
+geometrically exact beam reference (issue 19).
+
+The reference (tests/reference_beam_3d.py: Exudyn's beams with torsion, prescribed joints,
+checked on its own in test_spatial_reference.py) knows nothing of casflex; its converged
+run is test data keyed by its source (tests/data/reference_beam_3d), so this test costs
+only casflex's runs. Tip deflection in 3-D, figures of merit as for the planar moves
+(tests/fidelity_spatial.py).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("exudyn")
+
+from fidelity_spatial import MOVE3, casflex_run, compare, reference_run  # noqa: E402
+
+# The targets of issue 19: peak within 2 %, residual within 5 %, time history within 5 %
+# of the peak. Measured with 5 modes, the 1.5° grid, RK4 at 1 ms against the stored run
+# (benchmarks/README_fidelity.md); a variant that misses is xfail(strict) with its
+# numbers, so that a fix shows as XPASS.
+_VARIANTS = {
+    "default": {},
+    "rates": {"shape_rates": True},  # q2, q3 held: the shapes do not change, as default
+    "rates_short": {"shape_rates": True, "foreshortening": True},
+}
+_MISSES = {
+    "default": "peak -0.41 %, residual +0.28 %, gap 7.5 % of peak",
+    "rates": "peak -0.41 %, residual +0.28 %, gap 7.5 % of peak",
+    "rates_short": "peak +2.81 %, residual -1.40 %, gap 5.4 % of peak",
+}
+
+
+def _cases():
+    for variant in _VARIANTS:
+        marks = [pytest.mark.slow]
+        reason = _MISSES.get(variant)
+        if reason:
+            marks.append(pytest.mark.xfail(strict=True,
+                                           reason=f"issue 19, measured: {reason}"))
+        yield pytest.param(variant, marks=marks, id=variant)
+
+
+@pytest.mark.parametrize("variant", list(_cases()))
+def test_move3_fidelity_targets(arm_model, variant):
+    model, _ = arm_model(5, step_deg=1.5, gravity=None, **_VARIANTS[variant])
+    c = compare(casflex_run(model, MOVE3), reference_run(), MOVE3.duration)
+    assert abs(c["peak_pct"]) < 2.0, c
+    assert abs(c["residual_pct"]) < 5.0, c
+    assert c["gap_pct"] < 5.0, c
