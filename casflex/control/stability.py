@@ -48,6 +48,7 @@ if TYPE_CHECKING:
 __all__ = [
     "inversion_stability",
     "composite_stability",
+    "mass_matrix_condition",
     "check_stability",
     "slow_loop_condition",
 ]
@@ -275,6 +276,65 @@ def composite_stability(model: FlexibleModel, move: Move,
             "worst_margin": float(-real[iw]), "worst_time": float(t[iw]),
             "worst_q": qd[iw], "stable": _all_hold(conditions), "conditions": conditions,
             "epsilon": float(epsilon)}
+
+
+def mass_matrix_condition(model: FlexibleModel, move: Move, t: ArrayLike | None = None,
+                          dt: float = 1e-2) -> dict:
+    """Verdict on the model's mass matrix along a move: is ``M(q, 0)`` positive definite?
+
+    Every physical mass matrix is. The number checked is the residual joint inertia, the
+    smallest eigenvalue of the Schur complement ``M_qq − M_qδ M_δδ⁻¹ M_qδᵀ`` [kg m²] (the
+    inertia the joints keep when the modes follow freely). For exact mode integrals it is
+    positive by Bessel's inequality; a negative value means the model's tabulated terms
+    are wrong there (e.g. interpolated across a swap of two near-equal modes), and the
+    boundary layer, the controller and every simulation that inverts ``M`` inherit it.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    move : casflex.moves.Move
+    t : array_like, optional
+        Times [s] (default the move's duration at step ``dt``).
+    dt : float
+        Step of the default times [s].
+
+    Returns
+    -------
+    dict
+        ``{"holds", "value", "unit", "rule"}`` (value: the smallest residual joint
+        inertia along the move [kg m²]; when ``M_δδ`` itself is not positive definite,
+        its smallest eigenvalue) plus ``"time"`` [s] and ``"q"`` [rad] where it is
+        smallest.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> q = [0.0, 0.0, -np.pi / 2]
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, q, 2), gravity=None)
+    >>> v = mass_matrix_condition(model, Move(q, q, 1.0))
+    >>> v["holds"], v["unit"]
+    (True, 'kg m^2')
+    """
+    n, m = model.n, model.m
+    t, qd, _, _ = _trajectory(move, t, dt)
+    M0 = ca.Function("M0", [model.q], [ca.substitute(model.M, model.delta, ca.SX.zeros(m))])
+    Ms = np.asarray(M0.map(t.size)(qd.T)).reshape(n + m, t.size, n + m).transpose(1, 0, 2)
+    value = np.empty(t.size)
+    for k, M in enumerate(Ms):
+        M = 0.5 * (M + M.T)
+        low = float(np.min(np.linalg.eigvalsh(M[n:, n:]))) if m else 1.0
+        if low <= 0:
+            value[k] = low
+            continue
+        schur = M[:n, :n] - M[:n, n:] @ np.linalg.solve(M[n:, n:], M[n:, :n])
+        value[k] = float(np.min(np.linalg.eigvalsh(0.5 * (schur + schur.T))))
+    iw = int(np.argmin(value))
+    verdict = _verdict(value[iw] > 0, value[iw], "kg m^2", "M(q, 0) positive definite along "
+                       "the move: residual joint inertia M_qq - M_qd M_dd^-1 M_qd^T > 0")
+    return {**verdict, "time": float(t[iw]), "q": qd[iw].tolist()}
 
 
 def slow_loop_condition(Kp: float, Kd: float) -> dict:

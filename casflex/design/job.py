@@ -158,6 +158,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                gravity="robot" if study.model["gravity"] else None,
                                delta_order=study.model["delta_order"], cache_dir=cache_dir,
                                shape_rates=study.model["shape_rates"],
+                               method=study.model["interpolation"],
                                processes=processes, progress=progress)
     timings["model_s"] = time.perf_counter() - t0
 
@@ -270,9 +271,16 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
     eps = control.perturbation_parameter(model, table=table)
     if c["law"] == "composite":
         if c["gains"] == "scheduled":
-            say("fast LQR gains over the configuration grid ...")
             axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
-            gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis, cache_dir)
+            box = None
+            if c["schedule_region"] == "move":  # the box the move spans (monotone moves)
+                box = (np.minimum(move.q0, move.qf), np.maximum(move.q0, move.qf))
+            gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis,
+                                                cache_dir, limits=True, box=box,
+                                                method=c["schedule_interpolation"])
+            say(f"fast LQR gains over q{[j + 1 for j in gain.joints]}: "
+                f"{' x '.join(str(a.size) for a in gain.grid)} points "
+                f"({c['schedule_region']}) ...")
         else:
             gain, _, _ = control.fast_gain(model, move.qf, Q=c["Q"], R=c["R"], epsilon=eps)
         controller = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
@@ -280,7 +288,9 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
         slow = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], fast=False)
         say("stability of the fast loop along the shaped move ...")
         stab = control.composite_stability(model, shaped, gain=gain, epsilon=eps)
+        mass = control.mass_matrix_condition(model, shaped)
         conditions = {"slow_loop": control.slow_loop_condition(c["Kp"], c["Kd"]),
+                      "mass_matrix": {k: mass[k] for k in ("holds", "value", "unit", "rule")},
                       **stab["conditions"]}
         stability = {"check": "fast loop Hurwitz (§6.2.3.1)",
                      "stable": all(v["holds"] for v in conditions.values()),
@@ -292,8 +302,12 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
         slow = None
         say("zero-dynamics condition (eq. 226) along the shaped move ...")
         stab = control.inversion_stability(model, shaped, Kp=c["Kp"])
+        mass = control.mass_matrix_condition(model, shaped)
+        conditions = {"mass_matrix": {k: mass[k] for k in ("holds", "value", "unit", "rule")},
+                      **stab["conditions"]}
         stability = {"check": "eq. 226 zero dynamics and eq. 225 modal damping",
-                     "stable": bool(stab["stable"]), "conditions": stab["conditions"],
+                     "stable": all(v["holds"] for v in conditions.values()),
+                     "conditions": conditions,
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s^3"}
     return eps, controller, slow, stability

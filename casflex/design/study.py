@@ -37,12 +37,13 @@ __all__ = ["Study", "load_study"]
 # every section of a study file, its keys and their defaults (None: required or "unset")
 _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False,
-              "shape_rates": False},
+              "shape_rates": False, "interpolation": "bspline"},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
     "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
                    "damping": 1.0, "Kp": None, "Kd": None, "Q": 1.0, "R": 10.0,
-                   "gains": "scheduled", "schedule_points": 30},
+                   "gains": "scheduled", "schedule_points": 30, "schedule_region": "limits",
+                   "schedule_interpolation": "bspline"},
     "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
 }
@@ -182,6 +183,7 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
                                       low_open=True))
     m["delta_order"] = one_of("model.delta_order", m["delta_order"], (0, 1))
     _flag(path, "model.gravity", m["gravity"])
+    m["interpolation"] = one_of("model.interpolation", m["interpolation"], ("bspline", "linear"))
     if _flag(path, "model.shape_rates", m["shape_rates"]) and m["delta_order"] != 1:
         raise fail("model.shape_rates", True, "needs model.delta_order = 1", path=path)
     s = settings["shaper"]
@@ -201,6 +203,10 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
     c["gains"] = one_of("controller.gains", c["gains"], ("scheduled", "end"))
     c["schedule_points"] = num("controller.schedule_points", c["schedule_points"], low=8,
                                high=360, integer=True)
+    c["schedule_region"] = one_of("controller.schedule_region", c["schedule_region"],
+                                  ("limits", "move"))
+    c["schedule_interpolation"] = one_of("controller.schedule_interpolation",
+                                         c["schedule_interpolation"], ("bspline", "linear"))
     e = settings["estimator"]
     e["Q"] = num("estimator.Q", e["Q"], low=0.0, low_open=True)
     e["P0"] = num("estimator.P0", e["P0"], low=0.0, low_open=True)
