@@ -299,6 +299,14 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
                      "conditions": conditions,
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s"}
+        if isinstance(gain, control.GainSchedule):
+            # over the whole schedule, between its points (not part of the verdict: a
+            # full-turn schedule also covers configurations where a mode is inaccessible)
+            say("fast loop and mass matrix at the centres of the schedule's cells ...")
+            cells = control.schedule_stability(model, gain, q=move.q0)
+            stability["schedule_cells"] = {"points": cells["points"],
+                                           "conditions": cells["conditions"],
+                                           "worst_q": cells["worst_q"]}
     else:
         controller = control.inversion_controller(model, Kp=c["Kp"], Kd=c["Kd"])
         slow = None

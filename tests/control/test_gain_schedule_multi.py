@@ -143,3 +143,25 @@ def test_mass_matrix_condition_flags_an_indefinite_interpolated_model(model_cach
     # dominate it
     assert good["value"] < 3.7e-3
     assert bad["time"] == 0.0 and np.allclose(bad["q"], q)
+
+
+@pytest.mark.slow
+def test_schedule_stability_over_the_cells(frozen_model):
+    axes = [np.linspace(1.0, 1.2, 5), np.linspace(-0.6, 0.6, 9)]
+    sched = control.gain_schedule(frozen_model, epsilon=EPS, joints=(2, 3), grid=axes,
+                                  q=Q_FROZEN, method="linear")
+    r = control.schedule_stability(frozen_model, sched, q=Q_FROZEN)
+    assert r["points"] == 4 * 8 and r["stable"]
+    # the worst cell centre, checked by hand: the interpolated gain there, numpy's
+    # eigenvalues of the fast loop
+    q = np.asarray(r["worst_q"]["fast_loop_hurwitz_cells"])
+    A, B = (x.full() for x in control.boundary_layer(frozen_model, EPS)(q))
+    K = sched.function(q).full()
+    worst = np.max(np.linalg.eigvals(A - B @ K).real) / EPS
+    assert r["conditions"]["fast_loop_hurwitz_cells"]["value"] == pytest.approx(worst,
+                                                                                rel=1e-9)
+    assert not np.any(np.isclose(q[2], axes[0])) and not np.any(np.isclose(q[3], axes[1]))
+    # without the fast gains the modes are undamped (eigenvalues on the imaginary axis)
+    zero = control.GainSchedule.from_gains((2, 3), axes, np.zeros_like(sched.gains), EPS,
+                                           n_joints=4, method="linear")
+    assert not control.schedule_stability(frozen_model, zero, q=Q_FROZEN)["stable"]
