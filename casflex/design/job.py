@@ -198,7 +198,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t0 = time.perf_counter()
     say("EKF plant tables; closed loop with the EKF in the loop ...")
     e = study.estimator
-    plant = tabulate_plant(model)
+    plant_grid = _plant_grid(table, move) if e["plant_region"] == "move" else None
+    plant = tabulate_plant(model, grid=plant_grid)
     ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
@@ -321,6 +322,26 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s^3"}
     return eps, controller, slow, stability
+
+
+def _plant_grid(table, move, pad=1):
+    """The model table's axes cut to the box the move spans, ``pad`` grid points wider on
+    each side (the EKF plant's points are then the table's own; at least four per axis, as
+    B-splines need); a full-turn axis is kept whole."""
+    low, high = np.minimum(move.q0, move.qf), np.maximum(move.q0, move.qf)
+    axes = []
+    for axis, joint, periodic in zip(table.grid, table.shape_joints, table.periodic,
+                                     strict=True):
+        a = np.asarray(axis, dtype=float)
+        if periodic:
+            axes.append(a)
+            continue
+        i0 = max(int(np.searchsorted(a, low[joint], side="right")) - 1 - pad, 0)
+        i1 = min(int(np.searchsorted(a, high[joint], side="left")) + pad, a.size - 1)
+        while i1 - i0 < 3 and (i0 > 0 or i1 < a.size - 1):
+            i0, i1 = max(i0 - 1, 0), min(i1 + 1, a.size - 1)
+        axes.append(a[i0:i1 + 1])
+    return axes
 
 
 def _tracking_sources(model, controller, slow, shaped, t_end, dt):

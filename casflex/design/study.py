@@ -44,7 +44,8 @@ _SECTIONS = {
                    "damping": 1.0, "Kp": None, "Kd": None, "Q": 1.0, "R": 10.0,
                    "gains": "scheduled", "schedule_points": 30, "schedule_region": "limits",
                    "schedule_interpolation": "bspline"},
-    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
+    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None,
+                  "plant_region": "limits"},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
 }
 # the top-level keys of a study file besides the sections
@@ -211,6 +212,7 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
     e["Q"] = num("estimator.Q", e["Q"], low=0.0, low_open=True)
     e["P0"] = num("estimator.P0", e["P0"], low=0.0, low_open=True)
     e["seed"] = num("estimator.seed", e["seed"], low=0, integer=True)
+    e["plant_region"] = one_of("estimator.plant_region", e["plant_region"], ("limits", "move"))
     if e["R"] is None:
         std = np.asarray(sensors.noise_std, dtype=float)
         if not np.all(np.isfinite(std) & (std > 0)):
