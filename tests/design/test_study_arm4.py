@@ -20,6 +20,7 @@ def test_arm4_study_loads_inside_the_limits():
     assert s.model["interpolation"] == "linear"
     assert s.controller["schedule_region"] == "move"
     assert s.controller["schedule_interpolation"] == "linear"
+    assert s.estimator["plant_region"] == "move"
     assert s.sensors.n_outputs == 9  # three 3-axis accelerometers
     for q in (s.move.q0, s.move.qf):
         s.robot.within_limits(q)
@@ -34,7 +35,8 @@ def test_arm4_study_loads_inside_the_limits():
 
 @pytest.mark.parametrize("key, value", [("model.interpolation", '"cubic"'),
                                         ("controller.schedule_region", '"everywhere"'),
-                                        ("controller.schedule_interpolation", "1")])
+                                        ("controller.schedule_interpolation", "1"),
+                                        ("estimator.plant_region", '"grid"')])
 def test_new_study_keys_are_checked(tmp_path, key, value):
     section, name = key.split(".")
     text = STUDY.read_text().replace('"../', f'"{ROOT}/problems/')
