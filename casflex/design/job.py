@@ -108,7 +108,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         ``tracking`` (largest joint tracking error [rad] of the loop with the EKF, per
         joint, and of the loop with the true state fed back), ``c_shaper_table`` (the
         shaper's C delay/amplitude table files) and ``stability`` (one verdict per
-        condition; ``stable`` holds only when all do).
+        condition, ``mass_matrix`` among them: ``M(q, 0)`` positive definite along the
+        move; ``stable`` holds only when all do; with a gain schedule also
+        ``schedule_cells``, the fast loop and the mass matrix at the centres of the
+        schedule's cells, informative).
 
     Examples
     --------
