@@ -29,6 +29,7 @@ KNOWN = {
     "casflex.control.perturbation.GainSchedule": "joints",
     "casflex.control.perturbation.GainSchedule.from_gains": "joints",
     "casflex.control.perturbation.gain_schedule": "joints",
+    "casflex.control.perturbation.schedule_axes": "joints",
     "casflex.estimation.plant.FlexiblePlant": "shape_joints",
     "casflex.modal.fits.ChebyshevFit": "shape_joints",
     "casflex.modal.fits.fit_chebyshev": "joints",

@@ -50,6 +50,8 @@ Stability checks (:mod:`casflex.control.stability`, eq. 225–230, §6.2.3.1)
 -------------------------------------------------------------------------
 inversion_stability       zero-dynamics condition (eq. 226) and rate (eq. 230)
 composite_stability       is the fast closed loop Hurwitz along a move?
+mass_matrix_condition     is the model's M(q, 0) positive definite along a move?
+schedule_stability        fast loop Hurwitz and M positive definite over a schedule's cells
 check_stability           either check for a robot and a move (``casflex check``)
 slow_loop_condition       is the slow (rigid) loop under Kp, Kd exponentially stable?
 
@@ -98,11 +100,14 @@ from casflex.control.perturbation import (
     gain_schedule,
     lqr,
     perturbation_parameter,
+    schedule_axes,
 )
 from casflex.control.stability import (
     check_stability,
     composite_stability,
     inversion_stability,
+    mass_matrix_condition,
+    schedule_stability,
     slow_loop_condition,
 )
 from casflex.moves import reference_function
@@ -127,6 +132,7 @@ __all__ = [
     "lqr",
     "fast_gain",
     "GainSchedule",
+    "schedule_axes",
     "dependent_joints",
     "gain_schedule",
     "cached_gain_schedule",
@@ -135,6 +141,8 @@ __all__ = [
     "dissertation_gains",
     "inversion_stability",
     "composite_stability",
+    "mass_matrix_condition",
+    "schedule_stability",
     "check_stability",
     "slow_loop_condition",
 ]

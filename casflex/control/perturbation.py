@@ -46,6 +46,7 @@ from casflex.errors import ModelError, SolverError
 if TYPE_CHECKING:
     from casflex.modal.tables import ModalTable
     from casflex.model import FlexibleModel
+    from casflex.robot import Robot
 
 __all__ = [
     "perturbation_parameter",
@@ -53,6 +54,7 @@ __all__ = [
     "lqr",
     "fast_gain",
     "GainSchedule",
+    "schedule_axes",
     "dependent_joints",
     "gain_schedule",
     "cached_gain_schedule",
@@ -231,13 +233,17 @@ class GainSchedule:
     joints : tuple of int
         0-based joints of the grid axes.
     grid : tuple of numpy.ndarray
-        Axes [rad] (full turns, wrapped periodically by ``function``).
+        Axes [rad]: full turns (wrapped periodically by ``function``) or intervals
+        (joint limits, a move's box; clamped at their ends by ``function``).
     gains : numpy.ndarray
         ``grid_shape + (n, 2m)`` gains.
     epsilon : float
         Perturbation parameter used [s].
     function : casadi.Function
-        ``gain (q) -> K`` (n × 2m), cubic B-spline interpolation of ``gains``.
+        ``gain (q) -> K`` (n × 2m), cubic B-spline (or linear) interpolation of
+        ``gains``; a full-turn axis is wrapped periodically, and a joint beyond the ends
+        of a shorter axis (joint limits, the box of a move) gets the gain at the nearest
+        end, never an extrapolation.
     filled : int
         Grid points where the pair was not stabilisable (an inaccessible mode) whose gain
         was replaced by the mean of the neighbouring points.
@@ -277,7 +283,8 @@ class GainSchedule:
         joints : sequence of int
             0-based joints of the grid axes.
         grid : sequence of array_like
-            One full-turn axis [rad] per joint.
+            One axis [rad] per joint: a full turn (wrapped periodically) or an interval
+            (inside joint limits; the joint is clamped to its ends).
         gains : array_like
             ``grid_shape + (n, 2m)`` gains.
         epsilon : float
@@ -314,10 +321,99 @@ class GainSchedule:
                          omega=np.zeros(shape + (1,)), periodic=(True,) * len(joints))
         fg = tab.function("gain", method=method)
         qs = ca.SX.sym("q", int(n_joints))
-        Kq = fg(ca.vertcat(*[qs[j] for j in joints]))
+        args = []
+        for j, a in zip(joints, grid, strict=True):
+            if _is_full_turn(a):
+                args.append(qs[j])
+            else:  # the nearest end's gain outside the interval: no extrapolation
+                args.append(ca.fmin(ca.fmax(qs[j], float(a[0])), float(a[-1])))
+        Kq = fg(ca.vertcat(*args))
         fun = ca.Function("fast_gain", [qs], [ca.reshape(Kq, n, m2)], ["q"], ["K"])
         return cls(joints=joints, grid=grid, gains=G, epsilon=float(epsilon), function=fun,
                    filled=int(filled), info=dict(info or {}))
+
+
+def _is_full_turn(axis):
+    """True when ``axis`` closes a full turn (uniform, next step or last point = first + 2π),
+    as the tables' periodic wrapping understands it."""
+    a = np.asarray(axis, dtype=float)
+    if a.size < 3:
+        return False
+    span = a[-1] - a[0]
+    step = np.diff(a)
+    closed = abs(span - 2 * np.pi) <= 1e-9 * 2 * np.pi
+    open_ = bool(np.allclose(step, step[0], rtol=1e-9, atol=0.0)) and abs(
+        span + step[0] - 2 * np.pi) <= 1e-9 * 2 * np.pi
+    return bool(closed or open_)
+
+
+def schedule_axes(robot: Robot, joints: Sequence[int], points_per_turn: int, *,
+                  limits: bool = True,
+                  box: tuple[ArrayLike, ArrayLike] | None = None) -> tuple[np.ndarray, ...]:
+    """Axes of a gain schedule: a uniform step of ``2π / points_per_turn`` over each joint's
+    range — its joint limits, or the box a move spans, or a full turn.
+
+    The cost of a schedule is one LQR per grid point, the product of the axes' sizes, so
+    over three joints a full-turn grid of 30 points per axis is 27 000 LQRs (and a spline
+    through them); the joint limits and, for a design job, the box of its move shrink that
+    product without coarsening the step.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+        Its ``joint_limits`` bound the axes.
+    joints : sequence of int
+        0-based joints of the schedule.
+    points_per_turn : int
+        Points a full turn would have; the step is ``2π / points_per_turn`` [rad].
+    limits : bool
+        Stay inside the joint limits (a joint without limits spans a full turn).
+    box : (array_like, array_like), optional
+        Lowest and highest value of every joint along a move [rad] (``n_joints`` each):
+        each axis spans this interval widened by one step on either side (so that the
+        loop's small excursions stay inside), clipped to the joint limits; a range of a
+        full turn or more gives the full-turn axis.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        One axis [rad] per joint: the full turn ``−π + k·2π/points_per_turn`` (wrapped
+        periodically by :class:`GainSchedule`), or ``lo .. hi`` with both ends included
+        and a step no larger than ``2π / points_per_turn``.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> limited = dataclasses.replace(robot, joint_limits=(None, None, (-1.0, 1.0)))
+    >>> a1, a2 = schedule_axes(limited, (1, 2), 12)
+    >>> a1.size, a2.size, float(a2[0]), float(a2[-1])
+    (12, 5, -1.0, 1.0)
+    >>> b1, b2 = schedule_axes(limited, (1, 2), 12, box=([0, 0.0, 0.2], [0, 0.5, 0.4]))
+    >>> np.round(b1, 4).tolist(), np.round(b2, 4).tolist()
+    ([-0.5236, -0.0079, 0.5079, 1.0236], [-0.3236, 0.0921, 0.5079, 0.9236])
+    """
+    points = int(number(points_per_turn, "points_per_turn", low=4, integer=True))
+    step = 2 * np.pi / points
+    full = -np.pi + step * np.arange(points)
+    joint_limits = tuple(robot.joint_limits) or (None,) * robot.n_joints
+    axes = []
+    for j in (int(k) for k in joints):
+        lo, hi = -np.inf, np.inf
+        if limits and joint_limits[j] is not None:
+            lo, hi = (float(v) for v in joint_limits[j])
+        if box is not None:
+            low = vector(box[0], robot.n_joints, "box[0]", unit="rad")[j] - step
+            high = vector(box[1], robot.n_joints, "box[1]", unit="rad")[j] + step
+            if high - low < 2 * np.pi:
+                lo, hi = max(lo, low), min(hi, high)
+        if not np.isfinite(lo) or hi - lo >= 2 * np.pi:
+            axes.append(full.copy())
+            continue
+        count = max(int(np.ceil((hi - lo) / step - 1e-9)) + 1, 2)
+        axes.append(np.linspace(lo, hi, count))
+    return tuple(axes)
 
 
 def dependent_joints(fun: Callable[[np.ndarray], Sequence[ArrayLike]], n: int,
@@ -486,9 +582,12 @@ def gain_schedule(model: FlexibleModel, Q: ArrayLike = 1.0, R: ArrayLike = 10.0,
 
 def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsilon: float,
                          table: ModalTable, axis: ArrayLike,
-                         cache_dir: str | os.PathLike | bool | None = None) -> GainSchedule:
+                         cache_dir: str | os.PathLike | bool | None = None, *,
+                         limits: bool = False,
+                         box: tuple[ArrayLike, ArrayLike] | None = None,
+                         method: str = "bspline") -> GainSchedule:
     """:func:`gain_schedule` on the full-turn ``axis`` of every joint the boundary layer
-    depends on, cached on disk.
+    depends on (or on its step over the joint limits or a move's box), cached on disk.
 
     A coarse ``axis`` keeps the schedule cheap (one LQR per grid point) where the model
     table's own grid would be needlessly fine. The file lives in the cache directory,
@@ -506,10 +605,18 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
     table : casflex.modal.tables.ModalTable
         The model's table (its ``info["key"]`` enters the cache key).
     axis : array_like
-        Full-turn axis [rad] used for every scheduled joint.
+        Full-turn axis [rad] used for every scheduled joint (with ``limits`` or ``box``:
+        only its number of points counts, see :func:`schedule_axes`).
     cache_dir : path, None or False
         Cache directory (``None`` the default of :func:`casflex._cache.default_cache_dir`,
         ``False`` no cache).
+    limits : bool
+        Keep every axis inside its joint's limits (:func:`schedule_axes`).
+    box : (array_like, array_like), optional
+        Lowest and highest joint values of a move [rad]: the axes span that box, one step
+        wider on each side (:func:`schedule_axes`).
+    method : {"bspline", "linear"}
+        Interpolation of the gains between the grid points.
 
     Returns
     -------
@@ -537,10 +644,14 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
     axis = np.asarray(axis, dtype=float)
     bl = boundary_layer(model, epsilon)
     joints = _boundary_layer_joints(model, bl)
+    if limits or box is not None:
+        axes = schedule_axes(model.robot, joints, axis.size, limits=limits, box=box)
+    else:
+        axes = (axis,) * len(joints)
     root = cache_root(cache_dir)
     if root is None:
         return gain_schedule(model, Q=Q, R=R, epsilon=epsilon, table=table, joints=joints,
-                             grid=[axis] * len(joints))
+                             grid=axes, method=method)
     ident = {
         "version": __version__, "robot": repr(model.robot), "table": table.info.get("key"),
         "modes": model.m, "delta_order": model.delta_order, "modal_mass": model.modal_mass,
@@ -548,16 +659,19 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
         "foreshortening": getattr(model, "foreshortening", False),
         "Q": Q, "R": R, "epsilon": float(epsilon), "axis": axis.tolist(),
         "joints": list(joints),
-        "source": source_digest(gain_schedule, boundary_layer, lqr, GainSchedule),
+        **({"axes": [a.tolist() for a in axes]} if limits or box is not None else {}),
+        **({} if method == "bspline" else {"method": method}),
+        "source": source_digest(gain_schedule, boundary_layer, lqr, GainSchedule,
+                                schedule_axes),
     }
     key = digest(ident)
     path = root / f"gains-{key[:32]}.npz"
     hit = load_verified(path, key)
     if hit is not None:
-        return GainSchedule.from_gains(joints, [axis] * len(joints), hit["gains"], epsilon,
-                                       model.n, filled=int(hit["filled"]),
+        return GainSchedule.from_gains(joints, axes, hit["gains"], epsilon, model.n,
+                                       method=method, filled=int(hit["filled"]),
                                        info={"from_cache": True})
     sched = gain_schedule(model, Q=Q, R=R, epsilon=epsilon, table=table, joints=joints,
-                          grid=[axis] * len(joints))
+                          grid=axes, method=method)
     save_verified(path, key, gains=sched.gains, filled=np.array(sched.filled))
     return sched

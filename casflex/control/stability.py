@@ -48,6 +48,8 @@ if TYPE_CHECKING:
 __all__ = [
     "inversion_stability",
     "composite_stability",
+    "mass_matrix_condition",
+    "schedule_stability",
     "check_stability",
     "slow_loop_condition",
 ]
@@ -275,6 +277,154 @@ def composite_stability(model: FlexibleModel, move: Move,
             "worst_margin": float(-real[iw]), "worst_time": float(t[iw]),
             "worst_q": qd[iw], "stable": _all_hold(conditions), "conditions": conditions,
             "epsilon": float(epsilon)}
+
+
+def mass_matrix_condition(model: FlexibleModel, move: Move, t: ArrayLike | None = None,
+                          dt: float = 1e-2) -> dict:
+    """Verdict on the model's mass matrix along a move: is ``M(q, 0)`` positive definite?
+
+    Every physical mass matrix is. The number checked is the residual joint inertia, the
+    smallest eigenvalue of the Schur complement ``M_qq − M_qδ M_δδ⁻¹ M_qδᵀ`` [kg m²] (the
+    inertia the joints keep when the modes follow freely). For exact mode integrals it is
+    positive by Bessel's inequality; a negative value means the model's tabulated terms
+    are wrong there (e.g. interpolated across a swap of two near-equal modes), and the
+    boundary layer, the controller and every simulation that inverts ``M`` inherit it.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    move : casflex.moves.Move
+    t : array_like, optional
+        Times [s] (default the move's duration at step ``dt``).
+    dt : float
+        Step of the default times [s].
+
+    Returns
+    -------
+    dict
+        ``{"holds", "value", "unit", "rule"}`` (value: the smallest residual joint
+        inertia along the move [kg m²]; when ``M_δδ`` itself is not positive definite,
+        its smallest eigenvalue) plus ``"time"`` [s] and ``"q"`` [rad] where it is
+        smallest.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> q = [0.0, 0.0, -np.pi / 2]
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, q, 2), gravity=None)
+    >>> v = mass_matrix_condition(model, Move(q, q, 1.0))
+    >>> v["holds"], v["unit"]
+    (True, 'kg m^2')
+    """
+    n, m = model.n, model.m
+    t, qd, _, _ = _trajectory(move, t, dt)
+    M0 = ca.Function("M0", [model.q], [ca.substitute(model.M, model.delta, ca.SX.zeros(m))])
+    Ms = np.asarray(M0.map(t.size)(qd.T)).reshape(n + m, t.size, n + m).transpose(1, 0, 2)
+    value = np.empty(t.size)
+    for k, M in enumerate(Ms):
+        M = 0.5 * (M + M.T)
+        low = float(np.min(np.linalg.eigvalsh(M[n:, n:]))) if m else 1.0
+        if low <= 0:
+            value[k] = low
+            continue
+        schur = M[:n, :n] - M[:n, n:] @ np.linalg.solve(M[n:, n:], M[n:, :n])
+        value[k] = float(np.min(np.linalg.eigvalsh(0.5 * (schur + schur.T))))
+    iw = int(np.argmin(value))
+    verdict = _verdict(value[iw] > 0, value[iw], "kg m^2", "M(q, 0) positive definite along "
+                       "the move: residual joint inertia M_qq - M_qd M_dd^-1 M_qd^T > 0")
+    return {**verdict, "time": float(t[iw]), "q": qd[iw].tolist()}
+
+
+def schedule_stability(model: FlexibleModel, schedule: GainSchedule, q: ArrayLike | None = None,
+                       tol: float = 1e-9) -> dict:
+    """The fast loop and the mass matrix checked over a gain schedule's whole grid, at the
+    centres of its cells: the configurations farthest from the points the gains were
+    computed at, where the interpolated gain is least like the LQR's.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    schedule : GainSchedule
+        Over one or more joints (:func:`~casflex.control.gain_schedule`).
+    q : array_like, optional
+        Values of the joints the schedule does not cover [rad] (default zeros).
+    tol : float
+        Real parts above ``−tol`` [1/s] count as not Hurwitz.
+
+    Returns
+    -------
+    dict
+        ``conditions``: ``"fast_loop_hurwitz_cells"`` (the largest real part of the
+        eigenvalues of ``A_f − B_f K(q)`` over the cell centres, real time [1/s]) and
+        ``"mass_matrix_cells"`` (the smallest residual joint inertia there [kg m²], as
+        :func:`mass_matrix_condition`), each ``{"holds", "value", "unit", "rule"}``;
+        ``stable``; ``points`` (cell centres checked); ``worst_q`` [rad] of each.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.control import gain_schedule
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> ax = np.linspace(-np.pi, np.pi, 8, endpoint=False)
+    >>> s = gain_schedule(model, epsilon=0.15, joints=(1,), grid=[ax])
+    >>> r = schedule_stability(model, s)
+    >>> r["points"], sorted(r["conditions"])
+    (8, ['fast_loop_hurwitz_cells', 'mass_matrix_cells'])
+    """
+    n, m = model.n, model.m
+    base = np.zeros(n) if q is None else np.asarray(q, dtype=float).ravel()
+    centres = []
+    for axis in schedule.grid:
+        a = np.asarray(axis, dtype=float)
+        mid = 0.5 * (a[:-1] + a[1:])
+        if _closes_turn(a):  # the cell that closes the turn
+            mid = np.r_[mid, a[-1] + 0.5 * (a[0] + 2 * np.pi - a[-1])]
+        centres.append(mid)
+    pts = np.array(np.meshgrid(*centres, indexing="ij")).reshape(len(centres), -1).T
+    Q = np.tile(base, (pts.shape[0], 1))
+    Q[:, list(schedule.joints)] = pts
+    N = Q.shape[0]
+    eps = float(schedule.epsilon)
+    A, B = boundary_layer(model, eps).map(N)(Q.T)
+    A = np.asarray(A).reshape(2 * m, N, 2 * m)
+    B = np.asarray(B).reshape(2 * m, N, n)
+    K = np.asarray(schedule.function.map(N)(Q.T)).reshape(n, N, 2 * m)
+    M0 = ca.Function("M0", [model.q], [ca.substitute(model.M, model.delta, ca.SX.zeros(m))])
+    Ms = np.asarray(M0.map(N)(Q.T)).reshape(n + m, N, n + m)
+    real = np.empty(N)
+    inertia = np.empty(N)
+    for k in range(N):
+        real[k] = float(np.max(np.linalg.eigvals(A[:, k, :] - B[:, k, :] @ K[:, k, :]).real))
+        M = 0.5 * (Ms[:, k, :] + Ms[:, k, :].T)
+        schur = M[:n, :n] - M[:n, n:] @ np.linalg.solve(M[n:, n:], M[n:, :n])
+        inertia[k] = float(np.min(np.linalg.eigvalsh(0.5 * (schur + schur.T))))
+    real /= eps  # fast time -> real time
+    iw, im = int(np.argmax(real)), int(np.argmin(inertia))
+    conditions = {
+        "fast_loop_hurwitz_cells": _verdict(
+            real[iw] < -tol, real[iw], "1/s", "A_f - B_f K(q) Hurwitz at the centre of "
+            "every cell of the gain schedule (interpolated gains)"),
+        "mass_matrix_cells": _verdict(
+            inertia[im] > 0, inertia[im], "kg m^2", "M(q, 0) positive definite at the "
+            "centre of every cell of the gain schedule"),
+    }
+    return {"conditions": conditions, "stable": _all_hold(conditions), "points": N,
+            "worst_q": {"fast_loop_hurwitz_cells": Q[iw].tolist(),
+                        "mass_matrix_cells": Q[im].tolist()}}
+
+
+def _closes_turn(axis):
+    """True when ``axis`` is uniform and its next step would close a full turn."""
+    if axis.size < 3:
+        return False
+    step = np.diff(axis)
+    return bool(np.allclose(step, step[0], rtol=1e-9, atol=0.0)
+                and abs(axis[-1] + step[0] - axis[0] - 2 * np.pi) <= 1e-9 * 2 * np.pi)
 
 
 def slow_loop_condition(Kp: float, Kd: float) -> dict:

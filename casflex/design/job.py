@@ -113,7 +113,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         ``tracking`` (largest joint tracking error [rad] of the loop with the EKF, per
         joint, and of the loop with the true state fed back), ``c_shaper_table`` (the
         shaper's C delay/amplitude table files), ``stability`` (one verdict per
-        condition; ``stable`` holds only when all do) and ``planner``
+        condition, ``mass_matrix`` among them: ``M(q, 0)`` positive definite along the
+        move; ``stable`` holds only when all do; with a gain schedule also
+        ``schedule_cells``, the fast loop and the mass matrix at the centres of the
+        schedule's cells, informative) and ``planner``
         (:func:`casflex.design.planner_summary`: the planned move next to the shaped one;
         ``None`` without a ``[planner]`` section).
 
@@ -178,9 +181,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t0 = time.perf_counter()
     say("simulating the move unshaped and shaped (joints on the plan) ...")
     t_end = shaped.t_end
-    # the exact fast path (casflex.simulate, method="poly"): equal to RK4 on the model
-    unshaped_run = simulate_prescribed(model, move, dt=dt, t_end=t_end, method="poly")
-    shaped_run = simulate_prescribed(model, shaped, dt=dt, t_end=t_end, method="poly")
+    # the exact fast path (casflex.simulate, method="poly"): equal to RK4 on the model;
+    # its Chebyshev pieces do not converge on linearly interpolated tables: RK4 there
+    sim_method = "poly" if study.model["interpolation"] == "bspline" else "rk4"
+    unshaped_run = simulate_prescribed(model, move, dt=dt, t_end=t_end, method=sim_method)
+    shaped_run = simulate_prescribed(model, shaped, dt=dt, t_end=t_end, method=sim_method)
     timings["simulate_s"] = time.perf_counter() - t0
 
     # the planned move next to the shaped one (optional [planner]) --------------------------
@@ -191,7 +196,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         if study.planner["modes"] not in (None, model.m):
             p_model, _ = _study_model(study, cache_dir, processes, progress,
                                       n_modes=study.planner["modes"])
-            p_run = simulate_prescribed(p_model, shaped, dt=dt, t_end=t_end)
+            p_run = simulate_prescribed(p_model, shaped, dt=dt, t_end=t_end, method=sim_method)
         comparison = plan_next_to_shaped(p_model, move, shaped, p_run, study.planner, dt=dt,
                                          log=say)
         timings["planner_s"] = time.perf_counter() - t0
@@ -209,7 +214,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t0 = time.perf_counter()
     say("EKF plant tables; closed loop with the EKF in the loop ...")
     e = study.estimator
-    plant = tabulate_plant(model)
+    plant_grid = _plant_grid(table, move) if e["plant_region"] == "move" else None
+    plant = tabulate_plant(model, grid=plant_grid)
     ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
@@ -316,7 +322,8 @@ def _study_model(study, cache_dir, processes, progress, n_modes=None):
                        points=study.sensors.points, gravity=gravity,
                        delta_order=study.model["delta_order"], cache_dir=cache_dir,
                        shape_rates=study.model["shape_rates"],
-                       foreshortening=study.model["foreshortening"], processes=processes,
+                       foreshortening=study.model["foreshortening"],
+                       method=study.model["interpolation"], processes=processes,
                        progress=progress)
 
 
@@ -338,9 +345,16 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
                 raise fail("controller.gains", "scheduled", f"needs a robot with a shape "
                            f"joint ('{study.robot.name}' has none: use gains = 'end')",
                            path=study.path)
-            say("fast LQR gains over the configuration grid ...")
             axis = -np.pi + 2.0 * np.pi * np.arange(c["schedule_points"]) / c["schedule_points"]
-            gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis, cache_dir)
+            box = None
+            if c["schedule_region"] == "move":  # the box the move spans (monotone moves)
+                box = (np.minimum(move.q0, move.qf), np.maximum(move.q0, move.qf))
+            gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis,
+                                                cache_dir, limits=True, box=box,
+                                                method=c["schedule_interpolation"])
+            say(f"fast LQR gains over q{[j + 1 for j in gain.joints]}: "
+                f"{' x '.join(str(a.size) for a in gain.grid)} points "
+                f"({c['schedule_region']}) ...")
         else:
             gain, _, _ = control.fast_gain(model, move.qf, Q=c["Q"], R=c["R"], epsilon=eps)
         controller = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], gain=gain,
@@ -348,23 +362,57 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
         slow = control.composite_controller(model, Kp=c["Kp"], Kd=c["Kd"], fast=False)
         say("stability of the fast loop along the shaped move ...")
         stab = control.composite_stability(model, shaped, gain=gain, epsilon=eps)
+        mass = control.mass_matrix_condition(model, shaped)
         conditions = {"slow_loop": control.slow_loop_condition(c["Kp"], c["Kd"]),
+                      "mass_matrix": {k: mass[k] for k in ("holds", "value", "unit", "rule")},
                       **stab["conditions"]}
         stability = {"check": "fast loop Hurwitz (§6.2.3.1)",
                      "stable": all(v["holds"] for v in conditions.values()),
                      "conditions": conditions,
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s"}
+        if isinstance(gain, control.GainSchedule):
+            # over the whole schedule, between its points (not part of the verdict: a
+            # full-turn schedule also covers configurations where a mode is inaccessible)
+            say("fast loop and mass matrix at the centres of the schedule's cells ...")
+            cells = control.schedule_stability(model, gain, q=move.q0)
+            stability["schedule_cells"] = {"points": cells["points"],
+                                           "conditions": cells["conditions"],
+                                           "worst_q": cells["worst_q"]}
     else:
         controller = control.inversion_controller(model, Kp=c["Kp"], Kd=c["Kd"])
         slow = None
         say("zero-dynamics condition (eq. 226) along the shaped move ...")
         stab = control.inversion_stability(model, shaped, Kp=c["Kp"])
+        mass = control.mass_matrix_condition(model, shaped)
+        conditions = {"mass_matrix": {k: mass[k] for k in ("holds", "value", "unit", "rule")},
+                      **stab["conditions"]}
         stability = {"check": "eq. 226 zero dynamics and eq. 225 modal damping",
-                     "stable": bool(stab["stable"]), "conditions": stab["conditions"],
+                     "stable": all(v["holds"] for v in conditions.values()),
+                     "conditions": conditions,
                      "worst_margin": stab["worst_margin"], "worst_time": stab["worst_time"],
                      "unit": "1/s^3"}
     return eps, controller, slow, stability
+
+
+def _plant_grid(table, move, pad=1):
+    """The model table's axes cut to the box the move spans, ``pad`` grid points wider on
+    each side (the EKF plant's points are then the table's own; at least four per axis, as
+    B-splines need); a full-turn axis is kept whole."""
+    low, high = np.minimum(move.q0, move.qf), np.maximum(move.q0, move.qf)
+    axes = []
+    for axis, joint, periodic in zip(table.grid, table.shape_joints, table.periodic,
+                                     strict=True):
+        a = np.asarray(axis, dtype=float)
+        if periodic:
+            axes.append(a)
+            continue
+        i0 = max(int(np.searchsorted(a, low[joint], side="right")) - 1 - pad, 0)
+        i1 = min(int(np.searchsorted(a, high[joint], side="left")) + pad, a.size - 1)
+        while i1 - i0 < 3 and (i0 > 0 or i1 < a.size - 1):
+            i0, i1 = max(i0 - 1, 0), min(i1 + 1, a.size - 1)
+        axes.append(a[i0:i1 + 1])
+    return axes
 
 
 def _tracking_sources(model, controller, slow, shaped, t_end, dt):

@@ -222,6 +222,7 @@ def _markdown(study, s):
         f"{st['worst_margin']:.4g} {st['unit']} at t = {st['worst_time']:.3f} s.",
         "",
         *_condition_lines(st.get("conditions", {})),
+        *_schedule_cell_lines(st.get("schedule_cells")),
         ("The sampled closed loop with the EKF stays bounded." if s["closed_loop_finite"] else
          "**The sampled closed loop with the EKF diverged** (see the tip-deflection and "
          "estimation figures): the design is not realizable at this sample time."),
@@ -285,6 +286,15 @@ def _condition_lines(conditions):
         lines.append(f"| {name.replace('_', ' ')} | {'holds' if c['holds'] else '**fails**'} "
                      f"| {c['value']:.4g} {c['unit']} | {c['rule']} |")
     return [*lines, ""]
+
+
+def _schedule_cell_lines(cells):
+    """The gain schedule checked between its points (informative, not in the verdict)."""
+    if not cells:
+        return []
+    return [f"Over the whole gain schedule, at the centres of its {cells['points']} cells "
+            "(between the points the gains were computed at; not part of the verdict):", "",
+            *_condition_lines(cells["conditions"])]
 
 
 def _lowest_accessibility(low):

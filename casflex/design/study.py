@@ -37,13 +37,16 @@ __all__ = ["Study", "load_study"]
 # every section of a study file, its keys and their defaults (None: required or "unset")
 _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False,
-              "shape_rates": False, "foreshortening": False},
+              "shape_rates": False, "foreshortening": False,
+              "interpolation": "bspline"},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
     "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
                    "damping": 1.0, "Kp": None, "Kd": None, "Q": 1.0, "R": 10.0,
-                   "gains": "scheduled", "schedule_points": 30},
-    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None},
+                   "gains": "scheduled", "schedule_points": 30, "schedule_region": "limits",
+                   "schedule_interpolation": "bspline"},
+    "estimator": {"Q": 5e-6, "R": None, "P0": 1e-4, "seed": 0, "gate": None,
+                  "plant_region": "limits"},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
     "planner": {"enabled": True, "objective": "time", "duration": None, "weight": 0.0,
                 "robust": 0.0, "end": "shaped", "intervals": None,
@@ -196,6 +199,7 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
                                       low_open=True))
     m["delta_order"] = one_of("model.delta_order", m["delta_order"], (0, 1))
     _flag(path, "model.gravity", m["gravity"])
+    m["interpolation"] = one_of("model.interpolation", m["interpolation"], ("bspline", "linear"))
     if _flag(path, "model.shape_rates", m["shape_rates"]) and m["delta_order"] != 1:
         raise fail("model.shape_rates", True, "needs model.delta_order = 1", path=path)
     if _flag(path, "model.foreshortening", m["foreshortening"]) and m["delta_order"] != 1:
@@ -217,10 +221,15 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
     c["gains"] = one_of("controller.gains", c["gains"], ("scheduled", "end"))
     c["schedule_points"] = num("controller.schedule_points", c["schedule_points"], low=8,
                                high=360, integer=True)
+    c["schedule_region"] = one_of("controller.schedule_region", c["schedule_region"],
+                                  ("limits", "move"))
+    c["schedule_interpolation"] = one_of("controller.schedule_interpolation",
+                                         c["schedule_interpolation"], ("bspline", "linear"))
     e = settings["estimator"]
     e["Q"] = num("estimator.Q", e["Q"], low=0.0, low_open=True)
     e["P0"] = num("estimator.P0", e["P0"], low=0.0, low_open=True)
     e["seed"] = num("estimator.seed", e["seed"], low=0, integer=True)
+    e["plant_region"] = one_of("estimator.plant_region", e["plant_region"], ("limits", "move"))
     if e["R"] is None:
         std = np.asarray(sensors.noise_std, dtype=float)
         if not np.all(np.isfinite(std) & (std > 0)):

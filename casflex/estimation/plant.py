@@ -273,6 +273,8 @@ class FlexiblePlant:
         """
         m = self.m
         ncol = 2 * m + 1 + len(self.pairs)
+        # interpolate the grid as the model's own tables are (B-splines or multilinear)
+        method = getattr(self.model.provider, "method", "bspline")
         q = ca.SX(ca.vertcat(*[q[i] for i in range(self.n)]))
         L = (2 * self.degree + 1) ** len(self.fourier_joints)
         nnz = int(self.pattern.sum())
@@ -282,7 +284,7 @@ class FlexiblePlant:
         if self.keep is None:
             if self.table is not None:
                 qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef")(qs))
+                vals = ca.SX(self.table.function("coef", method=method)(qs))
                 A = ca.reshape(vals, nnz, L)  # stored column-major: nnz fastest
             else:
                 A = ca.SX(ca.DM(self.constant.T))
@@ -292,7 +294,7 @@ class FlexiblePlant:
             flat = np.flatnonzero(keep.ravel())  # index l * nnz + e of the stored layout
             if self.table is not None:
                 qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef", entries=flat)(qs))
+                vals = ca.SX(self.table.function("coef", method=method, entries=flat)(qs))
             else:
                 vals = ca.SX(ca.DM(np.asarray(self.constant, dtype=float).ravel()[flat]))
             terms = [[] for _ in range(nnz)]
