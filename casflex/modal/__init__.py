@@ -50,6 +50,10 @@ Smooth bases of close modes
    SmoothBasis        -- result: transforms, block-diagonal stiffness, Rayleigh ω, neighbour MAC
    mode_clusters      -- groups of sorted modes that come close somewhere on a grid
    DEFAULT_GAP        -- relative frequency gap below which sorted modes form one cluster
+   rotated_quantities -- model quantities of a rotated basis: on the eigenmodes, then rotated
+   rotate_quantities  -- transform eigenmode quantities (linear: R, bilinear: R · Rᵀ)
+   stiffness_values   -- K̃ and its square root Ω̃ over a smooth basis' grid
+   MODE_AXES          -- the mode axes of every model quantity
 
 Smooth fits
 ===========
@@ -105,6 +109,12 @@ from casflex.modal.normalize import (
     mass_normalize,
     modal_mass_matrix,
     modal_stiffness_matrix,
+)
+from casflex.modal.rotated import (
+    MODE_AXES,
+    rotate_quantities,
+    rotated_quantities,
+    stiffness_values,
 )
 from casflex.modal.subspace import (
     DEFAULT_GAP,
@@ -167,6 +177,10 @@ __all__ = [
     "SmoothBasis",
     "mode_clusters",
     "DEFAULT_GAP",
+    "rotated_quantities",
+    "rotate_quantities",
+    "stiffness_values",
+    "MODE_AXES",
     # smooth fits
     "fit_chebyshev",
     "ChebyshevFit",

@@ -90,6 +90,11 @@ class ConstantProvider:
         self.quantities = {k: np.asarray(v, dtype=float) for k, v in quantities.items()}
         self.shape_joints = tuple(int(j) for j in shape_joints)
 
+    @property
+    def names(self) -> list[str]:
+        """Every quantity the provider holds (a model uses ``stiffness`` when present)."""
+        return sorted(self.quantities)
+
     def zero_entries(self, name: str) -> np.ndarray:
         """Mask (C order) of the entries of ``name`` that vanish (see :func:`zero_entries`).
 
