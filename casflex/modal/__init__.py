@@ -52,6 +52,7 @@ Smooth bases of close modes
    DEFAULT_GAP        -- relative frequency gap below which sorted modes form one cluster
    rotated_quantities -- model quantities of a rotated basis: on the eigenmodes, then rotated
    rotate_quantities  -- transform eigenmode quantities (linear: R, bilinear: R · Rᵀ)
+   normalized_quantities -- quantities of the mass-normalised raw modes, and the map back
    stiffness_values   -- K̃ and its square root Ω̃ over a smooth basis' grid
    MODE_AXES          -- the mode axes of every model quantity
 
@@ -64,6 +65,9 @@ Smooth fits
    lobatto_points          -- Chebyshev–Lobatto points of a degree on an interval
    chebyshev_coefficients  -- tensor Chebyshev coefficients from samples at Lobatto points
    OMEGA_TARGET            -- default relative error target on ω
+   joint_box               -- the interval fitted per shape joint (box, limits or a full turn)
+   fit_model_terms         -- Chebyshev fits of every model term, checked against direct TMM
+   TERM_TARGET             -- default relative error target of the model terms
 
 Modal tables
 ============
@@ -88,6 +92,7 @@ from casflex.modal.fits import (
     chebyshev_coefficients,
     fit_chebyshev,
     held_out_error,
+    joint_box,
     lobatto_points,
 )
 from casflex.modal.integrals import (
@@ -112,6 +117,7 @@ from casflex.modal.normalize import (
 )
 from casflex.modal.rotated import (
     MODE_AXES,
+    normalized_quantities,
     rotate_quantities,
     rotated_quantities,
     stiffness_values,
@@ -132,6 +138,7 @@ from casflex.modal.tables import (
     robot_fingerprint,
     shape_joints,
 )
+from casflex.modal.term_fits import TERM_TARGET, fit_model_terms
 from casflex.modal.tracking import (
     GridTracking,
     Tracking,
@@ -178,6 +185,7 @@ __all__ = [
     "mode_clusters",
     "DEFAULT_GAP",
     "rotated_quantities",
+    "normalized_quantities",
     "rotate_quantities",
     "stiffness_values",
     "MODE_AXES",
@@ -188,6 +196,9 @@ __all__ = [
     "lobatto_points",
     "chebyshev_coefficients",
     "OMEGA_TARGET",
+    "joint_box",
+    "fit_model_terms",
+    "TERM_TARGET",
     # modal tables
     "build_table",
     "ModalTable",

@@ -33,7 +33,8 @@ if TYPE_CHECKING:
     from casflex.robot import Robot
     from casflex.tmm.solve import ModeShapes
 
-__all__ = ["MODE_AXES", "rotate_quantities", "stiffness_values", "rotated_quantities"]
+__all__ = ["MODE_AXES", "rotate_quantities", "stiffness_values", "rotated_quantities",
+           "normalized_quantities"]
 
 #: mode axes of every quantity of :func:`casflex.modal.integrals.configuration_quantities`
 #: (one axis: linear in the shapes; two: bilinear)
@@ -125,14 +126,74 @@ def stiffness_values(basis: SmoothBasis) -> dict[str, np.ndarray]:
     return {"stiffness": K, "stiffness_root": 0.5 * (root + np.swapaxes(root, -1, -2))}
 
 
+def normalized_quantities(func: Callable[..., Mapping[str, ArrayLike]], robot: Robot,
+                          q: ArrayLike, shapes: ModeShapes, count: int | None = None
+                          ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Quantities of the mass-normalised raw modes, and the map back to the raw modes.
+
+    Parameters
+    ----------
+    func : callable
+        ``func(robot, q, shapes) -> dict`` that mass-normalises the shapes it is given by
+        a positive scaling (as :func:`casflex.modal.tables.default_quantities` does).
+    robot : casflex.robot.Robot
+    q : array_like
+        Joint variables [rad] the shapes belong to.
+    shapes : casflex.tmm.ModeShapes
+        Raw modes sorted by frequency.
+    count : int, optional
+        Use the lowest ``count`` modes only (default all).
+
+    Returns
+    -------
+    values : dict of str to numpy.ndarray
+        ``func``'s quantities of the normalised modes ``φ`` (``omega`` included).
+    raw_from_normalized : numpy.ndarray
+        (count, count) ``S⁻¹`` with raw mode ``i`` = ``Σ_k S⁻¹[i, k] φ_k`` (diagonal at
+        simple roots, block-triangular at multiple ones): a basis ``T · raw`` is
+        ``(T S⁻¹) · φ``, whose quantities are ``rotate_quantities(values, T @ S⁻¹)``.
+
+    Examples
+    --------
+    >>> from casflex.modal.normalize import modal_mass_matrix
+    >>> from casflex.modal.tables import default_quantities
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> raw = modes(robot, [0.0, 0.0, 0.5], count=2)
+    >>> values, S_inv = normalized_quantities(default_quantities, robot, [0, 0, 0.5], raw)
+    >>> bool(np.allclose(np.diag(S_inv) ** 2, np.diag(modal_mass_matrix(robot, raw))))
+    True
+    """
+    import dataclasses
+
+    from casflex.modal.normalize import SHAPE_FIELDS, mass_normalize
+
+    used = np.asarray(shapes.omega).size if count is None else int(count)
+    shapes = dataclasses.replace(shapes, **{
+        f: np.asarray(getattr(shapes, f))[:used]
+        for f in ("omega", "multiplicity") + tuple(SHAPE_FIELDS)})
+    normalized = mass_normalize(robot, shapes)
+    # normalized = S · raw (S from the modal mass, block-triangular at multiple roots),
+    # read off the displacement samples
+    raw_f = np.asarray(shapes.displacement, dtype=float).reshape(used, -1)
+    norm_f = np.asarray(normalized.displacement, dtype=float).reshape(used, -1)
+    S_inv = np.linalg.lstsq(norm_f.T, raw_f.T, rcond=None)[0].T
+    values = func(robot, np.asarray(q, dtype=float), normalized)
+    if not isinstance(values, Mapping):
+        raise ModelError(f"the quantity function must return a dict; got {type(values)}")
+    return {str(k): np.asarray(v, dtype=float) for k, v in values.items()}, S_inv
+
+
 def rotated_quantities(func: Callable[..., Mapping[str, ArrayLike]], robot: Robot,
                        q: ArrayLike, shapes: ModeShapes, transform: ArrayLike
                        ) -> dict[str, np.ndarray]:
     """Model quantities of a rotated basis of raw modes (run in worker processes).
 
     ``func`` (e.g. :func:`casflex.modal.tables.default_quantities`) is evaluated on the
-    mass-normalised eigenmodes, each rebuilt with its own ω; the result is transformed
-    with :func:`rotate_quantities` (module notes).
+    mass-normalised eigenmodes, each rebuilt with its own ω
+    (:func:`normalized_quantities`); the result is transformed with
+    :func:`rotate_quantities` (module notes).
 
     Parameters
     ----------
@@ -172,23 +233,7 @@ def rotated_quantities(func: Callable[..., Mapping[str, ArrayLike]], robot: Robo
     ...                  atol=1e-15))
     True
     """
-    import dataclasses
-
-    from casflex.modal.normalize import SHAPE_FIELDS, mass_normalize
-
     T = np.asarray(transform, dtype=float)
     used = int(np.max(np.flatnonzero(np.any(T != 0.0, axis=0)), initial=-1)) + 1
-    T = T[:, :used]
-    shapes = dataclasses.replace(shapes, **{
-        f: np.asarray(getattr(shapes, f))[:used]
-        for f in ("omega", "multiplicity") + tuple(SHAPE_FIELDS)})
-    normalized = mass_normalize(robot, shapes)
-    # normalized = S · raw (S from the modal mass, block-triangular at multiple roots):
-    # the basis T · raw = (T S⁻¹) · normalized, S read off the displacement samples
-    raw_f = np.asarray(shapes.displacement, dtype=float).reshape(used, -1)
-    norm_f = np.asarray(normalized.displacement, dtype=float).reshape(used, -1)
-    S_inv = np.linalg.lstsq(norm_f.T, raw_f.T, rcond=None)[0].T
-    values = func(robot, np.asarray(q, dtype=float), normalized)
-    if not isinstance(values, Mapping):
-        raise ModelError(f"the quantity function must return a dict; got {type(values)}")
-    return rotate_quantities(values, T @ S_inv)
+    values, S_inv = normalized_quantities(func, robot, q, shapes, used)
+    return rotate_quantities(values, T[:, :used] @ S_inv)
