@@ -137,7 +137,8 @@ def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
                 damping_ratio: float | None = None, method: str = "bspline",
                 cache_dir: str | os.PathLike | bool | None = None, client: Any = None,
                 processes: int | None = None, progress: bool = False,
-                fit: str | None = None, fit_options: dict[str, Any] | None = None,
+                basis: str = "eigen", fit: str | None = None,
+                fit_options: dict[str, Any] | None = None,
                 **model_options: Any) -> tuple[FlexibleModel, ModalTable | ChebyshevFit]:
     """Tabulate the modes of ``robot`` and build its symbolic model.
 
@@ -159,6 +160,10 @@ def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
         Interpolation of the tables.
     cache_dir, client, processes, progress
         Passed to :func:`casflex.modal.tables.build_table`.
+    basis : {"eigen", "smooth"}
+        Tracked eigenmodes (default), or the smooth basis of clusters of close modes
+        (:mod:`casflex.modal.subspace`; the model then uses the full modal stiffness
+        block, :class:`~casflex.model.equations.FlexibleModel`).
     fit : {None, "chebyshev"}
         ``None`` (default): the grid and its B-splines. ``"chebyshev"``: tensor Chebyshev
         series of every model term over the joint box instead
@@ -199,15 +204,16 @@ def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
         from casflex.modal.term_fits import fit_model_terms
         from casflex.model.providers import ChebyshevProvider
 
+        options = {"basis": basis, **(fit_options or {})}
         fitted = fit_model_terms(robot, n_modes, quantities=quantities, joints=joints,
-                                 processes=processes, progress=progress,
-                                 **(fit_options or {}))
+                                 processes=processes, progress=progress, **options)
         model = FlexibleModel(robot, ChebyshevProvider(fitted), gravity=gravity,
                               damping_ratio=damping_ratio, **model_options)
         return model, fitted
     table = build_table(robot, grid if len(joints) != 1 else grid[0], n_modes,
                         quantities=quantities, cache_dir=cache_dir, client=client,
-                        processes=processes, progress=progress, joints=joints)
+                        processes=processes, progress=progress, joints=joints,
+                        basis=basis)
     model = FlexibleModel(robot, TableProvider(table, method), gravity=gravity,
                           damping_ratio=damping_ratio, **model_options)
     return model, table

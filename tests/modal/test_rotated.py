@@ -8,6 +8,8 @@ M at δ = 0 built from the rotated C2, end transforms and springs is the identit
 basis is mass-orthonormal by the exact modal-mass quadrature).
 """
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -122,3 +124,32 @@ def test_build_table_smooth_basis_with_quantities(arm4_pair):
                   if k not in ("omega", "stiffness", "stiffness_root")}
         M = _kinematic_modal_mass(robot, q, values, v["omega"][idx])
         assert np.abs(M - np.eye(4)).max() < tol, idx
+
+
+@pytest.mark.slow
+def test_smooth_and_eigen_models_agree_on_basis_invariants(arm4_pair):
+    """At the grid points both tables hold the same raw modes in two bases related by an
+    orthogonal R: what the joints feel of the modes is basis-free. With B = M_qδ at δ = 0,
+    B Bᵀ, B K⁻¹ Bᵀ and B D Bᵀ are the same for the two models (K = diag(ω²) and K̃)."""
+    from casflex.model import FlexibleModel, TableProvider
+
+    robot = arm4_pair[0]
+    axis = np.radians([-4.0, 0.0, 4.0, 8.0])  # the B-splines need 4 points per axis
+    models = {}
+    for basis in ("eigen", "smooth"):
+        with warnings.catch_warnings():  # the eigen basis' low MAC at the double root
+            warnings.simplefilter("ignore", RuntimeWarning)
+            table = build_table(robot, [axis, axis], 4, cache_dir=False, processes=1,
+                                basis=basis)
+        models[basis] = FlexibleModel(robot, TableProvider(table), gravity=None,
+                                      damping_ratio=0.02).functions()
+    for a, b in ((0, 2), (2, 1), (3, 3)):
+        q = np.array([0.3, -0.2, axis[a], axis[b]])
+        inv = []
+        for basis in ("eigen", "smooth"):
+            f = models[basis]
+            B = f["mass"](q, np.zeros(4)).full()[:4, 4:]
+            K, D = f["stiffness"](q).full(), f["damping"](q).full()
+            inv.append([B @ B.T, B @ np.linalg.solve(K, B.T), B @ D @ B.T])
+        for u, v in zip(*inv, strict=True):
+            assert np.abs(u - v).max() <= 1e-9 * np.abs(u).max()
