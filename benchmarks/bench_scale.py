@@ -50,6 +50,7 @@ Usage::
 
     python benchmarks/bench_scale.py [--json] [--cases arm2link arm4_spatial]
                                      [--methods grid fit] [--heldout N] [--processes P]
+                                     [--max-degree D]
 """
 
 from __future__ import annotations
@@ -89,7 +90,7 @@ def _dir_mb(path):
     return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) / 1e6
 
 
-def run_one(case, method, heldout, processes):
+def run_one(case, method, heldout, processes, max_degree_cap=None):
     """One (case, method) in this process; returns the figures as a dict."""
     from casflex.modal import build_table, fit_chebyshev, shape_joints
     from casflex.model.build import default_grid
@@ -97,6 +98,8 @@ def run_one(case, method, heldout, processes):
     from casflex.tmm import natural_frequencies
 
     path, n_modes, max_degree, grid_ok, gap = CASES[case]
+    if max_degree_cap is not None:
+        max_degree = min(max_degree, int(max_degree_cap))
     if method == "grid" and not grid_ok:
         return {"case": case, "method": method, "skipped": "grid beyond MAX_GRID_POINTS"}
     robot = load(str(ROOT / path))
@@ -226,10 +229,13 @@ def main(argv=None):
                              "tracking"])
     ap.add_argument("--heldout", type=int, default=12, help="held-out configurations")
     ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
+    ap.add_argument("--max-degree", type=int, default=None,
+                    help="cap the fits' degree per axis (reduced runs)")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
-        print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes)))
+        print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes,
+                                 args.max_degree)))
         return 0
     results = []
     load_before = os.getloadavg()
@@ -239,6 +245,8 @@ def main(argv=None):
                    "--heldout", str(args.heldout)]
             if args.processes is not None:
                 cmd += ["--processes", str(args.processes)]
+            if args.max_degree is not None:
+                cmd += ["--max-degree", str(args.max_degree)]
             done = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if done.returncode != 0:
                 sys.stderr.write(done.stderr)
