@@ -1,5 +1,8 @@
 """Smooth fits of the modal frequencies over the joint box: tensor-product Chebyshev.
 
+(The fits of every model term, for a model without a grid, are in
+:mod:`casflex.modal.term_fits`, on the same machinery.)
+
 The grid path (:func:`casflex.modal.tables.build_table`) tabulates on a uniform grid whose
 size grows as (span / step) to the power of the number of shape joints. A function that is
 analytic over the box is approximated far more cheaply by a tensor-product Chebyshev
