@@ -47,6 +47,8 @@ Smooth bases of close modes
 
    track_grid_smooth  -- a smooth mode basis over a grid: clusters of close modes as subspaces
    smooth_basis       -- the same on feature arrays (neighbourhood Procrustes per cluster)
+   point_features     -- feature rows and exact modal mass of one point's raw modes
+   track_features_smooth -- track_grid_smooth from per-point features (no mode shapes kept)
    SmoothBasis        -- result: transforms, block-diagonal stiffness, Rayleigh ω, neighbour MAC
    mode_clusters      -- groups of sorted modes that come close somewhere on a grid
    DEFAULT_GAP        -- relative frequency gap below which sorted modes form one cluster
@@ -126,7 +128,9 @@ from casflex.modal.subspace import (
     DEFAULT_GAP,
     SmoothBasis,
     mode_clusters,
+    point_features,
     smooth_basis,
+    track_features_smooth,
     track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
@@ -181,6 +185,8 @@ __all__ = [
     # smooth bases of close modes
     "track_grid_smooth",
     "smooth_basis",
+    "point_features",
+    "track_features_smooth",
     "SmoothBasis",
     "mode_clusters",
     "DEFAULT_GAP",

@@ -169,7 +169,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
             qs = np.zeros((len(todo), robot.n_joints))
             for r, key in enumerate(todo):
                 qs[r, list(joints)] = key
-            solved.update(zip(todo, _solve(func, robot, qs, count, processes, progress),
+            solved.update(zip(todo, _solve(func, robot, qs, count, basis, processes,
+                                           progress),
                               strict=True))
         raw = np.empty(gshape, dtype=object)
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
@@ -200,30 +201,47 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     return fit
 
 
-def _solve(func, robot, qs, count, processes, progress):
-    """Raw modes, normalised quantities and ``S⁻¹`` at the configurations."""
+def _solve(func, robot, qs, count, basis, processes, progress):
+    """Per configuration: (raw modes or, in the smooth basis, their features and modal mass
+    — what the tracking needs, a fifth of the shapes' size), normalised quantities, S⁻¹."""
     from casflex._parallel import parallel_map
     from casflex.modal.tables import compute_modes
 
     shapes = compute_modes(robot, qs, count, processes=processes, progress=progress)
-    jobs = [(r, (func, robot, q, s)) for r, (q, s) in enumerate(zip(qs, shapes,
-                                                                     strict=True))]
-    got = dict(parallel_map(normalized_quantities, jobs, processes=processes,
-                            progress=progress, desc="quantities"))
-    return [(shapes[r],) + tuple(got[r]) for r in range(len(qs))]
+    jobs = [(r, (func, robot, q, s, basis)) for r, (q, s) in enumerate(zip(qs, shapes,
+                                                                            strict=True))]
+    got = dict(parallel_map(_point_terms, jobs, processes=processes, progress=progress,
+                            desc="quantities"))
+    return [((shapes[r] if basis == "eigen" else None),) + got[r] for r in range(len(qs))]
+
+
+def _point_terms(func, robot, q, shapes, basis):
+    """Normalised quantities, S⁻¹ and (smooth basis) the tracking features of one point."""
+    from casflex.modal.subspace import point_features
+
+    values, S_inv = normalized_quantities(func, robot, q, shapes)
+    if basis == "eigen":
+        return values, S_inv, None, None, None
+    features, mass = point_features(shapes, robot)
+    return values, S_inv, features, mass, np.asarray(shapes.omega, dtype=float)
 
 
 def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap):
     """Every term of the chosen basis over the sample grid (``grid_shape + value``)."""
-    from casflex.modal.subspace import track_grid_smooth
+    from casflex.modal.subspace import track_features_smooth
     from casflex.modal.tracking import track_grid
 
     if basis == "smooth":
-        tracking = track_grid_smooth(raw, n_modes, robot, gap=gap)
+        features = np.empty(gshape, dtype=object)
+        for idx, point in zip(np.ndindex(gshape), per_point, strict=True):
+            features[idx] = point[3]
+        mass = np.array([p[4] for p in per_point]).reshape(gshape + per_point[0][4].shape)
+        omega = np.array([p[5] for p in per_point]).reshape(gshape + per_point[0][5].shape)
+        tracking = track_features_smooth(features, omega, n_modes, mass, gap)
     else:
         tracking = track_grid(raw, count=n_modes, robot=robot)
     stacks: dict[str, list[np.ndarray]] = {}
-    for idx, (_, values, S_inv) in zip(np.ndindex(gshape), per_point, strict=True):
+    for idx, (_, values, S_inv, *_rest) in zip(np.ndindex(gshape), per_point, strict=True):
         T = np.asarray(tracking.transform[idx], dtype=float)[:, :S_inv.shape[0]] @ S_inv
         if basis == "eigen":  # tracked modes are scaled raw modes: unit modal mass rows
             T = T / np.linalg.norm(T, axis=1, keepdims=True)
