@@ -169,8 +169,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
             qs = np.zeros((len(todo), robot.n_joints))
             for r, key in enumerate(todo):
                 qs[r, list(joints)] = key
-            solved.update(zip(todo, _solve(func, robot, qs, count, basis, processes,
-                                           progress),
+            solved.update(zip(todo, _solve(func, robot, qs, count, int(n_modes), basis,
+                                           processes, progress),
                               strict=True))
         raw = np.empty(gshape, dtype=object)
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
@@ -201,29 +201,36 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     return fit
 
 
-def _solve(func, robot, qs, count, basis, processes, progress):
-    """Per configuration: (raw modes or, in the smooth basis, their features and modal mass
-    — what the tracking needs, a fifth of the shapes' size), normalised quantities, S⁻¹."""
+def _solve(func, robot, qs, count, n_modes, basis, processes, progress):
+    """Per configuration: (raw modes or, in the smooth basis, the features and modal mass
+    of the lowest ``n_modes`` — all the tracking needs, a tenth of the shapes' size),
+    normalised quantities, S⁻¹."""
     from casflex._parallel import parallel_map
     from casflex.modal.tables import compute_modes
 
     shapes = compute_modes(robot, qs, count, processes=processes, progress=progress)
-    jobs = [(r, (func, robot, q, s, basis)) for r, (q, s) in enumerate(zip(qs, shapes,
-                                                                            strict=True))]
+    jobs = [(r, (func, robot, q, s, basis, n_modes))
+            for r, (q, s) in enumerate(zip(qs, shapes, strict=True))]
     got = dict(parallel_map(_point_terms, jobs, processes=processes, progress=progress,
                             desc="quantities"))
     return [((shapes[r] if basis == "eigen" else None),) + got[r] for r in range(len(qs))]
 
 
-def _point_terms(func, robot, q, shapes, basis):
-    """Normalised quantities, S⁻¹ and (smooth basis) the tracking features of one point."""
+def _point_terms(func, robot, q, shapes, basis, n_modes):
+    """Normalised quantities, S⁻¹ and (smooth basis) the tracking features of one point.
+
+    The eigen basis may take tracked modes from above ``n_modes`` (crossings): every
+    computed mode is kept. The smooth basis spans exactly the lowest ``n_modes`` (whole
+    clusters, checked by the tracking), so only those are kept; all the frequencies are
+    (the cluster boundary)."""
     from casflex.modal.subspace import point_features
 
-    values, S_inv = normalized_quantities(func, robot, q, shapes)
     if basis == "eigen":
-        return values, S_inv, None, None, None
+        return normalized_quantities(func, robot, q, shapes) + (None, None, None)
+    values, S_inv = normalized_quantities(func, robot, q, shapes, n_modes)
     features, mass = point_features(shapes, robot)
-    return values, S_inv, features, mass, np.asarray(shapes.omega, dtype=float)
+    return (values, S_inv, features[:n_modes], mass[:n_modes, :n_modes],
+            np.asarray(shapes.omega, dtype=float))
 
 
 def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap):
