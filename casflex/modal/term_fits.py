@@ -65,6 +65,9 @@ __all__ = ["TERM_TARGET", "fit_model_terms"]
 
 #: default error target of the model terms, relative to each term's peak (issue 21)
 TERM_TARGET = 1e-3
+#: new sample points solved at once: their raw mode shapes (~0.1 MB each for three
+#: flexible links) are held only while their quantities are computed
+CHUNK_POINTS = 1024
 #: quantities that are not linear in the mode shapes (fitted with the ω target)
 FREQUENCY_TERMS = ("omega", "stiffness", "stiffness_root")
 
@@ -165,13 +168,13 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         keys = [tuple(float(a[i]) for a, i in zip(axes, idx, strict=True))
                 for idx in np.ndindex(gshape)]
         todo = [k for k in keys if k not in solved]
-        if todo:
-            qs = np.zeros((len(todo), robot.n_joints))
-            for r, key in enumerate(todo):
+        for start in range(0, len(todo), CHUNK_POINTS):  # mode shapes of a chunk at a time
+            chunk = todo[start:start + CHUNK_POINTS]
+            qs = np.zeros((len(chunk), robot.n_joints))
+            for r, key in enumerate(chunk):
                 qs[r, list(joints)] = key
-            solved.update(zip(todo, _solve(func, robot, qs, count, int(n_modes), basis,
-                                           processes, progress),
-                              strict=True))
+            solved.update(zip(chunk, _solve(func, robot, qs, count, int(n_modes), basis,
+                                            processes, progress), strict=True))
         raw = np.empty(gshape, dtype=object)
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
             raw[idx] = solved[key][0]
