@@ -13,6 +13,18 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     only; ``fit_stiffness`` (not run by default): the smooth-basis stiffness, frequencies
     = its eigenvalues.
 
+``grid_terms``
+    as ``grid`` with every model term (``quantities`` = the default
+    :func:`casflex.modal.tables.default_quantities`: ``C1``, ``C2``, ``N``, ``eps``, end
+    transforms, springs, sampled shapes), eigen basis for one shape joint, the smooth
+    basis (:mod:`casflex.modal.rotated`) for more; held-out error of ω only (sorted
+    spline of ω, or eigenvalues of the spline of ``K̃``).
+``fit_terms``
+    :func:`casflex.modal.fit_model_terms`: Chebyshev fits of every model term (targets
+    1e-3 of each term's peak, 1e-4 on ω), the same basis rule; its held-out check
+    against direct TMM covers every term in the eigen basis (``heldout_terms``: largest
+    error relative to the term's peak) and ω in the smooth basis.
+
 ``tracking``
     the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
     basis (:mod:`casflex.modal.subspace`), and the held-out error of each (eigen: sorted
@@ -38,6 +50,7 @@ Usage::
 
     python benchmarks/bench_scale.py [--json] [--cases arm2link arm4_spatial]
                                      [--methods grid fit] [--heldout N] [--processes P]
+                                     [--max-degree D]
 """
 
 from __future__ import annotations
@@ -77,7 +90,7 @@ def _dir_mb(path):
     return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) / 1e6
 
 
-def run_one(case, method, heldout, processes):
+def run_one(case, method, heldout, processes, max_degree_cap=None):
     """One (case, method) in this process; returns the figures as a dict."""
     from casflex.modal import build_table, fit_chebyshev, shape_joints
     from casflex.model.build import default_grid
@@ -85,6 +98,8 @@ def run_one(case, method, heldout, processes):
     from casflex.tmm import natural_frequencies
 
     path, n_modes, max_degree, grid_ok, gap = CASES[case]
+    if max_degree_cap is not None:
+        max_degree = min(max_degree, int(max_degree_cap))
     if method == "grid" and not grid_ok:
         return {"case": case, "method": method, "skipped": "grid beyond MAX_GRID_POINTS"}
     robot = load(str(ROOT / path))
@@ -97,7 +112,11 @@ def run_one(case, method, heldout, processes):
         t0 = time.perf_counter()
         if method == "tracking":
             return _tracking(out, robot, joints, n_modes, qs, ref, cache, processes)
-        if method == "grid":
+        if method in ("grid_terms", "fit_terms"):
+            got = _terms(out, method, robot, joints, n_modes, qs, cache, processes,
+                         max_degree)
+            seconds = out.pop("seconds")
+        elif method == "grid":
             grid = default_grid(robot, joints)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # low-MAC warning: reported
@@ -133,6 +152,46 @@ def run_one(case, method, heldout, processes):
     return out
 
 
+def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree):
+    """Grid or fit of every model term; fills ``out`` and returns ω at ``qs`` (sorted)."""
+    from casflex.modal import build_table, fit_model_terms
+    from casflex.model.build import default_grid
+
+    basis = "eigen" if len(joints) == 1 else "smooth"
+    t0 = time.perf_counter()
+    if method == "grid_terms":
+        grid = default_grid(robot, joints)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # low-MAC warning: reported
+            table = build_table(robot, grid if len(joints) > 1 else grid[0], n_modes,
+                                cache_dir=cache, processes=processes, basis=basis)
+        out["seconds"] = time.perf_counter() - t0
+        f = table.function("omega" if basis == "eigen" else "stiffness")
+        out.update(points=int(np.prod(table.shape)), grid_shape=list(table.shape),
+                   min_mac=table.info["min_mac"], cache_mb=_dir_mb(cache), basis=basis,
+                   values_mb=sum(v.nbytes for v in table.values.values()) / 1e6)
+    else:
+        fit = fit_model_terms(robot, n_modes, basis=basis, processes=processes,
+                              start_degree=min(8, max_degree), max_degree=max_degree,
+                              held_out=qs)
+        out["seconds"] = time.perf_counter() - t0
+        out.update(points=fit.info["points"], degrees=list(fit.degrees), basis=basis,
+                   estimate=fit.info["estimate"], converged=fit.info["converged"],
+                   min_mac=fit.info["min_mac"], cache_mb=0.0,
+                   heldout_terms=fit.info["held_out"],
+                   values_mb=sum(c.nbytes for c in fit.coefficients.values()) / 1e6)
+
+        def f(x, name="omega" if basis == "eigen" else "stiffness"):
+            return np.atleast_1d(fit.evaluate(name, x))
+    got = []
+    for q in qs:
+        v = f(q[list(joints)])
+        v = v.full() if hasattr(v, "full") else np.asarray(v)
+        got.append(np.sort(v.ravel()) if basis == "eigen"
+                   else np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (v + v.T)), 0.0, None)))
+    return np.array(got)
+
+
 def _tracking(out, robot, joints, n_modes, qs, ref, cache, processes):
     from casflex.modal import build_table
     from casflex.model.build import default_grid
@@ -166,13 +225,17 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="+", default=["arm2link", "arm4_spatial"],
                     choices=list(CASES))
     ap.add_argument("--methods", nargs="+", default=["grid", "fit"],
-                    choices=["grid", "fit", "fit_stiffness", "tracking"])
+                    choices=["grid", "fit", "fit_stiffness", "grid_terms", "fit_terms",
+                             "tracking"])
     ap.add_argument("--heldout", type=int, default=12, help="held-out configurations")
     ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
+    ap.add_argument("--max-degree", type=int, default=None,
+                    help="cap the fits' degree per axis (reduced runs)")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
-        print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes)))
+        print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes,
+                                 args.max_degree)))
         return 0
     results = []
     load_before = os.getloadavg()
@@ -182,6 +245,8 @@ def main(argv=None):
                    "--heldout", str(args.heldout)]
             if args.processes is not None:
                 cmd += ["--processes", str(args.processes)]
+            if args.max_degree is not None:
+                cmd += ["--max-degree", str(args.max_degree)]
             done = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if done.returncode != 0:
                 sys.stderr.write(done.stderr)
@@ -196,7 +261,7 @@ def main(argv=None):
                           f"{r['heldout_max_rel_smooth']:.1e}", flush=True)
             elif not args.json and "skipped" not in results[-1]:
                 r = results[-1]
-                print(f"{case:13s} {method:4s} points {r['points']:6d}  "
+                print(f"{case:13s} {method:10s} points {r['points']:6d}  "
                       f"{r['seconds']:7.1f} s  rss {r['rss_mb']:6.0f} MB  "
                       f"cache {r['cache_mb']:7.1f} MB  min MAC {r['min_mac']:.3f}  "
                       f"held-out max {r['heldout_max_rel']:.2e}", flush=True)

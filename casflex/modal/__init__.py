@@ -47,9 +47,16 @@ Smooth bases of close modes
 
    track_grid_smooth  -- a smooth mode basis over a grid: clusters of close modes as subspaces
    smooth_basis       -- the same on feature arrays (neighbourhood Procrustes per cluster)
+   point_features     -- feature rows and exact modal mass of one point's raw modes
+   track_features_smooth -- track_grid_smooth from per-point features (no mode shapes kept)
    SmoothBasis        -- result: transforms, block-diagonal stiffness, Rayleigh ω, neighbour MAC
    mode_clusters      -- groups of sorted modes that come close somewhere on a grid
    DEFAULT_GAP        -- relative frequency gap below which sorted modes form one cluster
+   rotated_quantities -- model quantities of a rotated basis: on the eigenmodes, then rotated
+   rotate_quantities  -- transform eigenmode quantities (linear: R, bilinear: R · Rᵀ)
+   normalized_quantities -- quantities of the mass-normalised raw modes, and the map back
+   stiffness_values   -- K̃ and its square root Ω̃ over a smooth basis' grid
+   MODE_AXES          -- the mode axes of every model quantity
 
 Smooth fits
 ===========
@@ -60,6 +67,9 @@ Smooth fits
    lobatto_points          -- Chebyshev–Lobatto points of a degree on an interval
    chebyshev_coefficients  -- tensor Chebyshev coefficients from samples at Lobatto points
    OMEGA_TARGET            -- default relative error target on ω
+   joint_box               -- the interval fitted per shape joint (box, limits or a full turn)
+   fit_model_terms         -- Chebyshev fits of every model term, checked against direct TMM
+   TERM_TARGET             -- default relative error target of the model terms
 
 Modal tables
 ============
@@ -84,6 +94,7 @@ from casflex.modal.fits import (
     chebyshev_coefficients,
     fit_chebyshev,
     held_out_error,
+    joint_box,
     lobatto_points,
 )
 from casflex.modal.integrals import (
@@ -106,11 +117,20 @@ from casflex.modal.normalize import (
     modal_mass_matrix,
     modal_stiffness_matrix,
 )
+from casflex.modal.rotated import (
+    MODE_AXES,
+    normalized_quantities,
+    rotate_quantities,
+    rotated_quantities,
+    stiffness_values,
+)
 from casflex.modal.subspace import (
     DEFAULT_GAP,
     SmoothBasis,
     mode_clusters,
+    point_features,
     smooth_basis,
+    track_features_smooth,
     track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
@@ -122,6 +142,7 @@ from casflex.modal.tables import (
     robot_fingerprint,
     shape_joints,
 )
+from casflex.modal.term_fits import TERM_TARGET, fit_model_terms
 from casflex.modal.tracking import (
     GridTracking,
     Tracking,
@@ -164,9 +185,16 @@ __all__ = [
     # smooth bases of close modes
     "track_grid_smooth",
     "smooth_basis",
+    "point_features",
+    "track_features_smooth",
     "SmoothBasis",
     "mode_clusters",
     "DEFAULT_GAP",
+    "rotated_quantities",
+    "normalized_quantities",
+    "rotate_quantities",
+    "stiffness_values",
+    "MODE_AXES",
     # smooth fits
     "fit_chebyshev",
     "ChebyshevFit",
@@ -174,6 +202,9 @@ __all__ = [
     "lobatto_points",
     "chebyshev_coefficients",
     "OMEGA_TARGET",
+    "joint_box",
+    "fit_model_terms",
+    "TERM_TARGET",
     # modal tables
     "build_table",
     "ModalTable",

@@ -1,5 +1,8 @@
 """Smooth fits of the modal frequencies over the joint box: tensor-product Chebyshev.
 
+(The fits of every model term, for a model without a grid, are in
+:mod:`casflex.modal.term_fits`, on the same machinery.)
+
 The grid path (:func:`casflex.modal.tables.build_table`) tabulates on a uniform grid whose
 size grows as (span / step) to the power of the number of shape joints. A function that is
 analytic over the box is approximated far more cheaply by a tensor-product Chebyshev
@@ -49,7 +52,7 @@ if TYPE_CHECKING:
 
     from casflex.robot import Robot
 
-__all__ = ["OMEGA_TARGET", "lobatto_points", "chebyshev_coefficients", "ChebyshevFit",
+__all__ = ["OMEGA_TARGET", "joint_box", "lobatto_points", "chebyshev_coefficients", "ChebyshevFit",
            "fit_chebyshev", "held_out_error"]
 
 #: default relative error target on ω (issue 21)
@@ -275,7 +278,29 @@ class ChebyshevFit:
         return ca.Function(name, [x], [out], ["q_shape"], [name])
 
 
-def _box(robot, joints, box):
+def joint_box(robot: Robot, joints: tuple[int, ...], box: ArrayLike | None = None
+              ) -> tuple[tuple[float, float], ...]:
+    """The interval fitted per shape joint: ``box``, else the joint limits, else a full turn.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    joints : tuple of int
+        Shape joints (0-based).
+    box : sequence of (float, float), optional
+        Explicit intervals [rad], one per joint.
+
+    Returns
+    -------
+    tuple of (float, float)
+        ``(lo, hi)`` per joint [rad].
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> [tuple(round(v, 4) for v in b) for b in joint_box(load("problems/arm2link.toml"), (2,))]
+    [(-3.1416, 3.1416)]
+    """
     if box is not None:
         out = tuple((float(lo), float(hi)) for lo, hi in box)
         if len(out) != len(joints):
@@ -345,7 +370,7 @@ def fit_chebyshev(robot: Robot, n_modes: int, *, joints: ArrayLike | None = None
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
     if not joints:
         raise ModelError(f"robot '{robot.name}' has no shape joint to fit over")
-    box = _box(robot, joints, box)
+    box = joint_box(robot, joints, box)
     if not (isinstance(start_degree, (int, np.integer)) and start_degree >= 2
             and max_degree >= start_degree):
         raise ModelError(f"need 2 <= start_degree <= max_degree; got {start_degree}, "

@@ -48,9 +48,10 @@ from casflex.errors import ModelError
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
+    from casflex.tmm.solve import ModeShapes
 
 __all__ = ["DEFAULT_GAP", "mode_clusters", "SmoothBasis", "smooth_basis",
-           "track_grid_smooth"]
+           "track_grid_smooth", "point_features", "track_features_smooth"]
 
 #: relative frequency gap below which two sorted modes are one cluster somewhere on a grid
 DEFAULT_GAP = 0.05
@@ -402,30 +403,105 @@ def track_grid_smooth(shapes: np.ndarray, count: int, robot: Robot | None = None
     >>> sb.clusters, sb.min_mac > 0.95
     (((0,), (1, 2)), True)
     """
-    from casflex.modal.normalize import modal_mass_matrix
-    from casflex.modal.tracking import shape_features
-
     shapes = np.asarray(shapes, dtype=object) if not isinstance(shapes, np.ndarray) \
         else shapes
     gshape = shapes.shape
     omega = np.array([np.asarray(shapes[i].omega, dtype=float) for i in np.ndindex(gshape)])
     omega = omega.reshape(gshape + (omega.shape[-1],))
-    clusters = mode_clusters(omega, count, gap)
-    if clusters[-1][-1] + 1 != count:
-        raise ModelError(f"{count} modes split the cluster of close modes "
-                         f"{[k + 1 for k in clusters[-1]]} (relative gap < {gap:g} "
-                         f"somewhere): use {clusters[-1][-1] + 1} modes")
     features = np.empty(gshape, dtype=object)
     mass = None
     if exact_mass and robot is not None:
         mass = np.empty(gshape + (omega.shape[-1],) * 2)
     for idx in np.ndindex(gshape):
-        features[idx] = shape_features(shapes[idx], robot, weighting)
+        features[idx], m = point_features(shapes[idx], robot, weighting, exact_mass)
         if mass is not None:
-            mass[idx] = modal_mass_matrix(robot, shapes[idx])
-    if mass is not None:  # the alignment compares unit-mass rows: scale the features alike
-        for idx in np.ndindex(gshape):
-            f = features[idx]
-            s = np.sqrt(np.diag(mass[idx]) / np.maximum(np.sum(f * f, axis=1), 1e-300))
-            features[idx] = f * s[:, None]
+            mass[idx] = m
+    return track_features_smooth(features, omega, count, mass, gap)
+
+
+def point_features(shapes: ModeShapes, robot: Robot | None = None,
+                   weighting: str | None = None, exact_mass: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray | None]:
+    """What :func:`track_features_smooth` needs of one point's raw modes.
+
+    Parameters
+    ----------
+    shapes : casflex.tmm.ModeShapes
+        Raw modes, sorted by frequency.
+    robot : casflex.robot.Robot, optional
+        For the ``"mass"`` weighting and the exact modal masses.
+    weighting : {"mass", "uniform"}, optional
+        See :func:`casflex.modal.tracking.shape_features`.
+    exact_mass : bool
+        Also the exact modal mass matrix (needs ``robot``).
+
+    Returns
+    -------
+    features : numpy.ndarray
+        (m, f) feature rows, scaled so that their Gram diagonal is the modal mass when it
+        is computed (the alignment compares unit-mass rows).
+    mass : numpy.ndarray or None
+        (m, m) :func:`casflex.modal.normalize.modal_mass_matrix` [kg·m² scale of the
+        raw shapes], or None.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> f, M = point_features(modes(robot, [0, 0, 0.5], count=2), robot)
+    >>> bool(np.allclose(np.sum(f * f, axis=1), np.diag(M)))
+    True
+    """
+    from casflex.modal.normalize import modal_mass_matrix
+    from casflex.modal.tracking import shape_features
+
+    f = shape_features(shapes, robot, weighting)
+    if not (exact_mass and robot is not None):
+        return f, None
+    M = modal_mass_matrix(robot, shapes)
+    scale = np.sqrt(np.diag(M) / np.maximum(np.sum(f * f, axis=1), 1e-300))
+    return f * scale[:, None], M
+
+
+def track_features_smooth(features: np.ndarray, omega: ArrayLike, count: int,
+                          mass: ArrayLike | None = None, gap: float = DEFAULT_GAP
+                          ) -> SmoothBasis:
+    """:func:`track_grid_smooth` from per-point features (:func:`point_features`).
+
+    Parameters
+    ----------
+    features : numpy.ndarray
+        Object array of the grid's shape of (m, f) feature rows.
+    omega : array_like
+        ``grid_shape + (m,)`` natural frequencies [rad/s], ascending.
+    count : int
+        Modes needed (whole clusters).
+    mass : array_like, optional
+        ``grid_shape + (m, m)`` exact modal masses.
+    gap : float
+        Relative frequency gap of the clusters.
+
+    Returns
+    -------
+    SmoothBasis
+
+    Raises
+    ------
+    ModelError
+        When ``count`` splits a cluster.
+
+    Examples
+    --------
+    >>> F = np.empty((2,), dtype=object)
+    >>> F[0], F[1] = np.eye(2), np.eye(2)
+    >>> track_features_smooth(F, np.array([[1.0, 2.0], [1.0, 2.0]]), 1).clusters
+    ((0,),)
+    """
+    omega = np.asarray(omega, dtype=float)
+    clusters = mode_clusters(omega, count, gap)
+    if clusters[-1][-1] + 1 != count:
+        raise ModelError(f"{count} modes split the cluster of close modes "
+                         f"{[k + 1 for k in clusters[-1]]} (relative gap < {gap:g} "
+                         f"somewhere): use {clusters[-1][-1] + 1} modes")
     return smooth_basis(features, omega, clusters, mass)

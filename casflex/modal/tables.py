@@ -81,7 +81,7 @@ from casflex._cache import (
 )
 from casflex._parallel import parallel_map
 from casflex.errors import ModelError
-from casflex.modal import subspace
+from casflex.modal import rotated, subspace
 from casflex.modal import tracking as trk
 
 if TYPE_CHECKING:
@@ -734,8 +734,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         naming its size, the estimated time and memory, and what to do.
     basis : {"eigen", "smooth"}
         Tracked eigenmodes (default), or a smooth basis of clusters of close modes
-        (:mod:`casflex.modal.subspace`: ``omega`` = Rayleigh frequencies, and the full
-        modal ``"stiffness"`` a model must use; ``quantities=False`` only, for now).
+        (:mod:`casflex.modal.subspace`, quantities by :mod:`casflex.modal.rotated`:
+        ``omega`` = Rayleigh ω, and the ``stiffness``/``stiffness_root`` a model must use).
 
     Returns
     -------
@@ -779,9 +779,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     t_start = time.perf_counter()
     if not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
         raise ModelError(f"n_modes must be a positive integer; got {n_modes!r}")
-    if basis not in ("eigen", "smooth") or (basis == "smooth" and quantities is not False):
-        raise ModelError(f"basis must be 'eigen', or 'smooth' with quantities=False (the "
-                         f"quantities of a rotated basis are not built yet); got {basis!r}")
+    if basis not in ("eigen", "smooth"):
+        raise ModelError(f"basis must be 'eigen' or 'smooth'; got {basis!r}")
     joints = shape_joints(robot) if joints is None else tuple(int(k) for k in joints)
     if not joints:
         raise ModelError(f"robot '{robot.name}' has no joint that changes its shape: its "
@@ -814,7 +813,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         "tracking": source_digest(trk), "quantities": _function_identity(
             quantities if quantities else None),
         "tables": source_digest(build_table, ModalTable, _pad_periodic),
-        **({} if basis == "eigen" else {"basis": basis, "subspace": source_digest(subspace)}),
+        **({} if basis == "eigen" else {"basis": basis,
+                                        "subspace": source_digest(subspace, rotated)}),
     })
     use_cache = cache_dir is not False
     root = Path(default_cache_dir() if cache_dir is None else cache_dir) if use_cache else None
@@ -900,7 +900,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     # ---- stage 3: quantities (parallel, cached per point)
     values = {"omega": omega}
     if basis == "smooth":  # clusters: 1-based sorted modes, as in the messages
-        values["stiffness"], info["clusters"] = gt.stiffness, gt.clusters_1based()
+        values.update(rotated.stiffness_values(gt))
+        info["clusters"] = gt.clusters_1based()
     if quantities:
         per_point = [None] * len(indices)
         missing = []
@@ -913,10 +914,13 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 per_point[flat] = got
 
         def compute_quantities_at(flats):
-            jobs = [(flat, (quantities, robot, q_at(indices[flat]),
-                            _shapes_to_arrays(tracked[indices[flat]]))) for flat in flats]
-            return parallel_map(_point_quantities, jobs, client=client, processes=processes,
-                                progress=progress, desc="quantities")
+            smooth = basis == "smooth"  # on the eigenmodes, then rotated (modal.rotated)
+            jobs = [(flat, (quantities, robot, q_at(indices[flat])) + (
+                (shapes[indices[flat]], gt.transform[indices[flat]]) if smooth
+                else (_shapes_to_arrays(tracked[indices[flat]]),))) for flat in flats]
+            return parallel_map(rotated.rotated_quantities if smooth else _point_quantities,
+                                jobs, client=client, processes=processes, progress=progress,
+                                desc="quantities")
 
         results = (build_shared(missing, lambda flat: tdir / f"q{flat:07d}.npz", table_key,
                                 compute_quantities_at) if use_cache
@@ -959,20 +963,16 @@ def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
         if kind is None:
             flags.append(False)
             continue
-        ok = True
+        good = True
         for idx in np.ndindex(gshape[:ax] + gshape[ax + 1:]):
             first = idx[:ax] + (0,) + idx[ax:]
             last = idx[:ax] + (gshape[ax] - 1,) + idx[ax:]
             c = np.diag(trk.correlation(tracked[first], tracked[last], robot, weighting))
-            if kind == "closed":
-                good = np.all(c > threshold) and np.allclose(
-                    tracked[first].omega, tracked[last].omega, rtol=1e-6)
-            else:
-                good = np.all(c > threshold)
+            good = bool(np.all(c > threshold)) and (kind != "closed" or np.allclose(
+                tracked[first].omega, tracked[last].omega, rtol=1e-6))
             if not good:
-                ok = False
                 break
-        flags.append(bool(ok))
+        flags.append(bool(good))
     return flags
 
 

@@ -24,6 +24,8 @@ Providers of the modal quantities (:mod:`casflex.model.providers`)
 ------------------------------------------------------------------
 TableProvider
     Interpolants of a modal table over the shape joints.
+ChebyshevProvider
+    Tensor Chebyshev series of the model terms over the joint box (no grid).
 ConstantProvider
     Quantities that do not change with the configuration.
 PointwiseProvider
@@ -47,6 +49,7 @@ from __future__ import annotations
 from casflex.model.build import build_model, default_grid, sensor_quantities
 from casflex.model.equations import FlexibleModel
 from casflex.model.providers import (
+    ChebyshevProvider,
     ConstantProvider,
     PointwiseProvider,
     TableProvider,
@@ -63,6 +66,7 @@ __all__ = [
     "FlexibleModel",
     # providers
     "TableProvider",
+    "ChebyshevProvider",
     "ConstantProvider",
     "PointwiseProvider",
     "rigid_provider",

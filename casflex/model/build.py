@@ -30,6 +30,7 @@ from casflex.model.equations import FlexibleModel
 from casflex.model.providers import TableProvider
 
 if TYPE_CHECKING:
+    from casflex.modal.fits import ChebyshevFit
     from casflex.modal.tables import ModalTable
     from casflex.robot import Robot
     from casflex.tmm import ModeShapes
@@ -136,7 +137,9 @@ def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
                 damping_ratio: float | None = None, method: str = "bspline",
                 cache_dir: str | os.PathLike | bool | None = None, client: Any = None,
                 processes: int | None = None, progress: bool = False,
-                **model_options: Any) -> tuple[FlexibleModel, ModalTable]:
+                basis: str = "eigen", fit: str | None = None,
+                fit_options: dict[str, Any] | None = None,
+                **model_options: Any) -> tuple[FlexibleModel, ModalTable | ChebyshevFit]:
     """Tabulate the modes of ``robot`` and build its symbolic model.
 
     Parameters
@@ -157,11 +160,25 @@ def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
         Interpolation of the tables.
     cache_dir, client, processes, progress
         Passed to :func:`casflex.modal.tables.build_table`.
+    basis : {"eigen", "smooth"}
+        Tracked eigenmodes (default), or the smooth basis of clusters of close modes
+        (:mod:`casflex.modal.subspace`; the model then uses the full modal stiffness
+        block, :class:`~casflex.model.equations.FlexibleModel`).
+    fit : {None, "chebyshev"}
+        ``None`` (default): the grid and its B-splines. ``"chebyshev"``: tensor Chebyshev
+        series of every model term over the joint box instead
+        (:func:`casflex.modal.term_fits.fit_model_terms`,
+        :class:`~casflex.model.providers.ChebyshevProvider`); ``step``, ``grid``,
+        ``method`` and the cache do not apply (the fit is not cached).
+    fit_options : dict, optional
+        Keywords of :func:`~casflex.modal.term_fits.fit_model_terms` (``box``,
+        ``basis``, ``target``, ``omega_target``, ``max_degree``, ``held_out``...).
 
     Returns
     -------
     model : casflex.model.FlexibleModel
-    table : casflex.modal.tables.ModalTable
+    table : casflex.modal.tables.ModalTable or casflex.modal.fits.ChebyshevFit
+        The grid's table, or the fit with ``fit="chebyshev"``.
 
     Examples
     --------
@@ -181,9 +198,22 @@ def build_model(robot: Robot, n_modes: int = 5, *, step: float | None = None,
         grid = default_grid(robot, joints, step)
     quantities = functools.partial(sensor_quantities, points=tuple(points)) if points \
         else None
+    if fit is not None:
+        if fit != "chebyshev":
+            raise ModelError(f"fit must be None (the grid) or 'chebyshev'; got {fit!r}")
+        from casflex.modal.term_fits import fit_model_terms
+        from casflex.model.providers import ChebyshevProvider
+
+        options = {"basis": basis, **(fit_options or {})}
+        fitted = fit_model_terms(robot, n_modes, quantities=quantities, joints=joints,
+                                 processes=processes, progress=progress, **options)
+        model = FlexibleModel(robot, ChebyshevProvider(fitted), gravity=gravity,
+                              damping_ratio=damping_ratio, **model_options)
+        return model, fitted
     table = build_table(robot, grid if len(joints) != 1 else grid[0], n_modes,
                         quantities=quantities, cache_dir=cache_dir, client=client,
-                        processes=processes, progress=progress, joints=joints)
+                        processes=processes, progress=progress, joints=joints,
+                        basis=basis)
     model = FlexibleModel(robot, TableProvider(table, method), gravity=gravity,
                           damping_ratio=damping_ratio, **model_options)
     return model, table

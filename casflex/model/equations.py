@@ -70,6 +70,20 @@ same order in δ as ``M``. ``G = ∂V/∂X`` gives ``g_q`` (eq. 107), ``g_δ`` (
 ``Ω² δ``; its ``q`` rows also contain ``½ δᵀ ∂Ω²/∂q δ`` (second order, omitted in eq.
 112), kept so that ``T + V`` is conserved when Ω depends on the configuration.
 
+A full modal stiffness block (a rotated, smooth mode basis)
+-----------------------------------------------------------
+When the provider offers ``stiffness`` ``K̃(q)`` and ``stiffness_root`` ``Ω̃(q)``
+(the smooth basis of :mod:`casflex.modal.subspace`, quantities by
+:mod:`casflex.modal.rotated`), the elastic potential is ``½ δᵀK̃δ`` and the damping
+``D = 2ζ Ω̃`` with ``Ω̃ = sqrtm(K̃)`` (``full_stiffness`` is then True). This damping is
+chosen because it is the modal damping ``2ζ diag(ω)`` of the eigenmodes seen in the
+rotated basis (``Ω̃ = R diag(ω) Rᵀ`` when ``K̃ = R diag(ω²) Rᵀ``): the model is the
+eigen-basis model under a change of modal coordinates, and it reduces to it exactly when
+``K̃`` is diagonal. ``Ω̃`` is tabulated (symmetric square root at each grid point) rather
+than formed symbolically, so it is smooth wherever ``K̃`` is. ``omega`` is then the
+basis' Rayleigh frequencies ``sqrt(diag K̃)``, not the natural frequencies (the
+eigenvalues of ``K̃``).
+
 Provider interface
 ------------------
 An object with ``shape_joints`` (indices into ``q`` of the joints the modal quantities
@@ -281,7 +295,11 @@ class FlexibleModel:
         rates, joint torques [N m].
     M, C, G, K, D : casadi.SX
         Mass matrix (n+m, n+m), Coriolis matrix (n+m, n+m), generalised potential
-        forces ∂V/∂X (n+m,), modal stiffness Ω² (m, m), modal damping 2ζΩ (m, m).
+        forces ∂V/∂X (n+m,), modal stiffness Ω² (m, m), modal damping 2ζΩ (m, m)
+        (``K̃`` and ``2ζ sqrtm(K̃)`` with a full stiffness block).
+    full_stiffness : bool
+        The provider offers ``stiffness``/``stiffness_root`` (module docstring) and the
+        model uses them.
     gravity_forces : casadi.SX
         ∂V_g/∂X (eq. 107–108) alone.
     kinetic, potential : casadi.SX
@@ -410,6 +428,25 @@ class FlexibleModel:
                 self.omega = value
         self._placeholders = ca.vertcat(*placeholders)
         self._values = ca.vertcat(*values)
+        offered = set(getattr(provider, "names", ()))
+        self.full_stiffness = "stiffness" in offered
+        if self.full_stiffness:
+            self._full_stiffness = tuple(self._matrix_quantity(provider, name)
+                                         for name in ("stiffness", "stiffness_root"))
+
+    def _matrix_quantity(self, provider, name):
+        """The (m, m) quantity ``name`` at the model's shape joints (C-order entries)."""
+        m = self.m
+        if name not in set(getattr(provider, "names", ())):
+            raise ModelError(f"the provider has a 'stiffness' but no {name!r}: the modal "
+                             "damping 2ζ·sqrtm(K̃) of a rotated basis needs both")
+        f = provider.function(name)
+        if f.numel_out(0) != m * m:
+            raise ModelError(f"provider quantity {name!r} has {f.numel_out(0)} entries; "
+                             f"expected ({m}, {m}) for {m} modes")
+        value = (self.table_values[name] if self.table_values is not None
+                 and name in self.table_values else ca.SX(f(self.q_shape)))
+        return ca.reshape(value, m, m).T
 
     def _fill(self, expr):
         """Replace the table placeholders by the provider's functions of the shape joints."""
@@ -697,10 +734,15 @@ class FlexibleModel:
         elif self.modal_mass == "first_order":
             M[n:, n:] = M[n:, n:] - ca.substitute(M[n:, n:], d, ca.SX.zeros(m)) + ca.SX.eye(m)
         Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
-        w2 = self.omega**2
-        self.K = ca.diag(w2) if m else ca.SX(0, 0)
-        self.D = ca.diag(2.0 * self.damping_ratio * self.omega) if m else ca.SX(0, 0)
-        Ve = 0.5 * ca.dot(w2, d**2) if m else ca.SX(0)
+        if self.full_stiffness and m:  # a rotated basis: ½ δᵀK̃δ, D = 2ζ sqrtm(K̃)
+            self.K, root = self._full_stiffness
+            self.D = 2.0 * self.damping_ratio * root
+            Ve = 0.5 * ca.dot(d, self.K @ d)
+        else:
+            w2 = self.omega**2
+            self.K = ca.diag(w2) if m else ca.SX(0, 0)
+            self.D = ca.diag(2.0 * self.damping_ratio * self.omega) if m else ca.SX(0, 0)
+            Ve = 0.5 * ca.dot(w2, d**2) if m else ca.SX(0)
         self.M = M
         self.gravity_forces = ca.gradient(Vg, X)
         self.potential = Vg + Ve

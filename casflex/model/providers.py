@@ -13,6 +13,8 @@ vanish everywhere (``zero_entries(name)``) and evaluate every quantity at once
 * :func:`rigid_provider`: no modes at all (the rigid-body model);
 * :class:`TableProvider`: B-spline interpolants of a modal table over the shape joints
   (what :func:`casflex.model.build_model` uses);
+* :class:`ChebyshevProvider`: tensor Chebyshev series of the model terms over the joint
+  box (:func:`casflex.modal.term_fits.fit_model_terms`; ``build_model(fit="chebyshev")``);
 * :func:`zero_entries`: the entries of a quantity that are zero wherever it is known.
 """
 
@@ -29,11 +31,12 @@ from casflex.errors import ModelError
 from casflex.modal.integrals import configuration_quantities, quantity_shapes
 
 if TYPE_CHECKING:
+    from casflex.modal.fits import ChebyshevFit
     from casflex.modal.tables import ModalTable
     from casflex.robot import Robot
 
-__all__ = ["ConstantProvider", "PointwiseProvider", "TableProvider", "rigid_provider",
-           "zero_entries"]
+__all__ = ["ConstantProvider", "PointwiseProvider", "TableProvider", "ChebyshevProvider",
+           "rigid_provider", "zero_entries"]
 
 
 ZERO_TOLERANCE = 1e-12
@@ -89,6 +92,11 @@ class ConstantProvider:
                  shape_joints: Sequence[int] = ()) -> None:
         self.quantities = {k: np.asarray(v, dtype=float) for k, v in quantities.items()}
         self.shape_joints = tuple(int(j) for j in shape_joints)
+
+    @property
+    def names(self) -> list[str]:
+        """Every quantity the provider holds (a model uses ``stiffness`` when present)."""
+        return sorted(self.quantities)
 
     def zero_entries(self, name: str) -> np.ndarray:
         """Mask (C order) of the entries of ``name`` that vanish (see :func:`zero_entries`).
@@ -358,4 +366,184 @@ class TableProvider:
             f = self.table.function(name, method=self.method, entries=keep)
             y[keep.tolist()] = f(x)
         self._functions[name] = ca.Function(name, [x], [y], ["q_shape"], [name])
+        return self._functions[name]
+
+
+class ChebyshevProvider:
+    """The provider interface on top of a :class:`~casflex.modal.fits.ChebyshevFit` of the
+    model terms (:func:`~casflex.modal.term_fits.fit_model_terms`).
+
+    ``function(name)`` returns ``q_shape -> value`` flattened in C order as a column vector
+    (the contract of :class:`ConstantProvider`): a polynomial in the shape joints, so the
+    model stays a CasADi expression (derivatives, C code) without any table. Axes whose
+    fit spans a full turn and closes up (``fit.info["periodic"]``) are wrapped into the
+    box (``atan2(sin, cos)``); on the others the polynomial outside the box is an
+    extrapolation, not a fit.
+
+    Parameters
+    ----------
+    fit : casflex.modal.fits.ChebyshevFit
+        With the model terms (``fit_model_terms``), not only ω.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from casflex.modal import fit_model_terms
+    >>> from casflex.robot import load
+    >>> arm = load("problems/arm2link.toml")
+    >>> arm = dataclasses.replace(arm, joint_limits=(None, None, (0.2, 0.6)))
+    >>> provider = ChebyshevProvider(fit_model_terms(arm, 1, processes=1))
+    >>> provider.shape_joints, round(float(provider.function("omega")(0.4)), 3)   # rad/s
+    ((2,), 9.886)
+    """
+
+    def __init__(self, fit: ChebyshevFit) -> None:
+        missing = {"C1", "C2", "omega"} - set(fit.coefficients)
+        if missing:
+            raise ModelError(f"the fit has no model terms {sorted(missing)} (fit it with "
+                             "casflex.modal.fit_model_terms)")
+        self.fit = fit
+        self.shape_joints = tuple(fit.shape_joints)
+        self._functions = {}
+        self._combined = None
+
+    @property
+    def names(self) -> list[str]:
+        """Every quantity the fit provides."""
+        return sorted(self.fit.coefficients)
+
+    def zero_entries(self, name: str) -> np.ndarray:
+        """Mask (C order) of the entries of ``name`` whose coefficients all vanish.
+
+        Parameters
+        ----------
+        name : str
+            A fitted quantity (``"omega"``, ``"C1"``, ...).
+
+        Returns
+        -------
+        numpy.ndarray of bool
+
+        Examples
+        --------
+        >>> from casflex.modal import ChebyshevFit
+        >>> fit = ChebyshevFit(box=((0.0, 1.0),), shape_joints=(2,), degrees=(1,),
+        ...                    clusters=((0,),), coefficients={
+        ...                        "omega": np.ones((2, 1)), "C1": np.zeros((2, 1, 1, 4, 4)),
+        ...                        "C2": np.zeros((2, 1, 1, 1, 4, 4))})
+        >>> int(ChebyshevProvider(fit).zero_entries("C1").sum())
+        16
+        """
+        return zero_entries(self._coefficients(name), leading=len(self.fit.box))
+
+    def _coefficients(self, name):
+        if name not in self.fit.coefficients:
+            raise ModelError(f"the fit has no quantity {name!r}; it has {self.names}")
+        return np.asarray(self.fit.coefficients[name], dtype=float)
+
+    def _wrapped(self, q_shape):
+        """The shape joints mapped into the box on periodic axes."""
+        periodic = self.fit.info.get("periodic") or [False] * len(self.fit.box)
+        parts = []
+        for ax, (lo, hi) in enumerate(self.fit.box):
+            x = q_shape[ax]
+            if periodic[ax]:
+                mid = 0.5 * (lo + hi)
+                x = mid + ca.atan2(ca.sin(x - mid), ca.cos(x - mid))
+            parts.append(x)
+        return ca.vertcat(*parts)
+
+    def _polynomial(self, names):
+        """One Chebyshev series of the nonzero entries of ``names``, and their layout."""
+        from casflex.modal.fits import ChebyshevFit
+
+        nd = len(self.fit.box)
+        parts, layout, start = [], {}, 0
+        for name in names:
+            coef = self._coefficients(name)
+            size = int(np.prod(coef.shape[nd:]))
+            keep = np.flatnonzero(~self.zero_entries(name))
+            layout[name] = (size, keep, start)
+            parts.append(coef.reshape(coef.shape[:nd] + (size,))[..., keep])
+            start += keep.size
+        if not start:
+            return None, layout
+        joined = ChebyshevFit(box=self.fit.box, shape_joints=self.fit.shape_joints,
+                              degrees=self.fit.degrees, clusters=self.fit.clusters,
+                              coefficients={"all": np.concatenate(parts, axis=-1)})
+        return joined.function("all"), layout
+
+    def evaluate(self, q_shape: ca.SX, names: Sequence[str] | None = None
+                 ) -> dict[str, ca.SX]:
+        """Every quantity at the symbolic shape-joint values, from ONE series evaluation.
+
+        Parameters
+        ----------
+        q_shape : casadi.SX
+            Column of the shape-joint values [rad].
+        names : sequence of str, optional
+            The quantities wanted (default all).
+
+        Returns
+        -------
+        dict of str to casadi.SX
+            Each quantity flattened in C order, equal to ``function(name)(q_shape)``.
+
+        Examples
+        --------
+        >>> from casflex.modal import ChebyshevFit
+        >>> fit = ChebyshevFit(box=((0.0, 1.0),), shape_joints=(2,), degrees=(1,),
+        ...                    clusters=((0,),), coefficients={
+        ...                        "omega": np.array([[5.0], [1.0]]),
+        ...                        "C1": np.ones((2, 1, 1, 4, 4)),
+        ...                        "C2": np.ones((2, 1, 1, 1, 4, 4))})
+        >>> x = ca.SX.sym("x")
+        >>> out = ChebyshevProvider(fit).evaluate(x, ["omega"])
+        >>> float(ca.Function("f", [x], [out["omega"]])(1.0))
+        6.0
+        """
+        wanted = tuple(sorted(self.names if names is None else set(names)))
+        if self._combined is None or self._combined[2] != wanted:
+            fun, layout = self._polynomial(wanted)
+            self._combined = (fun, layout, wanted)
+        fun, layout, _ = self._combined
+        y = fun(self._wrapped(q_shape)) if fun is not None else None
+        out = {}
+        for name, (size, keep, start) in layout.items():
+            v = ca.SX.zeros(size)
+            if keep.size:
+                v[keep.tolist()] = y[start:start + keep.size]
+            out[name] = v
+        return out
+
+    def function(self, name: str) -> ca.Function:
+        """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``.
+
+        Parameters
+        ----------
+        name : str
+            A fitted quantity.
+
+        Returns
+        -------
+        casadi.Function
+            ``name(q_shape) -> value`` flattened in C order as a column vector; entries
+            whose coefficients all vanish are exact zeros. Cached per name.
+
+        Examples
+        --------
+        >>> from casflex.modal import ChebyshevFit
+        >>> fit = ChebyshevFit(box=((0.0, 1.0),), shape_joints=(2,), degrees=(1,),
+        ...                    clusters=((0,),), coefficients={
+        ...                        "omega": np.array([[5.0], [1.0]]),
+        ...                        "C1": np.ones((2, 1, 1, 4, 4)),
+        ...                        "C2": np.ones((2, 1, 1, 1, 4, 4))})
+        >>> ChebyshevProvider(fit).function("C1").size_out(0)
+        (16, 1)
+        """
+        if name not in self._functions:
+            x = ca.SX.sym("q_shape", len(self.shape_joints))
+            value = self.evaluate(x, [name])[name]
+            self._combined = None  # the next evaluate() builds its own joint series
+            self._functions[name] = ca.Function(name, [x], [value], ["q_shape"], [name])
         return self._functions[name]

@@ -149,12 +149,10 @@ def test_a_count_that_splits_a_cluster_is_refused():
         track_grid_smooth(raw, 2, robot)
 
 
-def test_build_table_smooth_basis_needs_quantities_false(tmp_path):
+def test_build_table_refuses_an_unknown_basis(tmp_path):
     from casflex.modal import build_table
 
     robot = load("problems/arm2link.toml")
     grid = np.radians([0.0, 10.0, 20.0, 30.0])
-    with pytest.raises(ModelError, match="quantities=False"):
-        build_table(robot, grid, 2, cache_dir=tmp_path, processes=1, basis="smooth")
     with pytest.raises(ModelError, match="basis must be"):
         build_table(robot, grid, 2, cache_dir=tmp_path, processes=1, basis="qr")
