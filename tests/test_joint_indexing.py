@@ -24,6 +24,8 @@ JOINT_PARAMETERS = ("joint", "joints", "shape_joints")
 
 #: qualified name -> parameter, every public callable that takes 0-based joint indexes
 KNOWN = {
+    "casflex.modal.fits.joint_box": "joints",
+    "casflex.modal.term_fits.fit_model_terms": "joints",
     "casflex.control.accessibility.accessibility_map": "joints",
     "casflex.control.accessibility.robot_accessibility_map": "joints",
     "casflex.control.perturbation.GainSchedule": "joints",

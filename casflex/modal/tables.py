@@ -537,8 +537,8 @@ class ModalTable:
             ``f(q_shape) -> value`` with ``q_shape`` the vector of the shape joints'
             values (in the order of ``shape_joints``, rad). Scalars and vectors come out
             as column vectors, matrices with their shape, higher arrays flattened in C
-            order. Periodic axes are wrapped into the grid's period; outside a
-            non-periodic axis the spline is extrapolated (stay inside the grid).
+            order. Periodic axes are wrapped into the grid's period; beyond a
+            non-periodic axis (a joint limit) the value at its end is held.
 
         Examples
         --------
@@ -552,12 +552,10 @@ class ModalTable:
 
         if method not in ("bspline", "linear"):
             raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}")
-        if name == "omega" and "omega" not in self.values:
-            data = np.asarray(self.omega, dtype=float)
-        elif name in self.values:
-            data = np.asarray(self.values[name], dtype=float)
-        else:
+        values = {"omega": self.omega, **self.values}
+        if name not in values:
             raise ModelError(f"no quantity {name!r} in the table; it has {self.names}")
+        data = np.asarray(values[name], dtype=float)
         gshape = self.shape
         nd = len(gshape)
         if entries is not None:
@@ -589,9 +587,8 @@ class ModalTable:
             empty = ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1)))
             return ca.Function(name, [x], [ca.MX(empty)], ["q_shape"], [name])
         coeffs = np.moveaxis(flat, -1, 0).ravel(order="F")
-        # binary search for the knot interval: the same interval as CasADi's default
-        # linear scan (bit-identical results), in log2(n) instead of n/2 comparisons
-        # (240-point tables; the generated C of an EKF step makes several lookups)
+        # binary search for the knot interval: bit-identical to CasADi's default linear
+        # scan, in log2(n) instead of n/2 comparisons (the EKF's C makes several lookups)
         interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes], coeffs,
                                 {"lookup_mode": ["binary"] * nd})
         parts = []
@@ -600,6 +597,9 @@ class ModalTable:
             if wrap[ax] is not None:
                 lo, period = wrap[ax]
                 xi = xi - period * ca.floor((xi - lo) / period)
+            else:  # held at the ends: CasADi's B-splines are 0 beyond their knots
+                lo, hi = axes[ax][0], axes[ax][-1]  # (fmin's derivative is ½ at a tie)
+                xi = ca.if_else(xi < lo, lo, ca.if_else(xi > hi, hi, xi))
             parts.append(xi)
         out = interp(ca.vertcat(*parts))
         if len(vshape) == 2:

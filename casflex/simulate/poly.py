@@ -682,6 +682,10 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
         raise ModelError("method='poly' needs a model with modes (m >= 1); use method='rk4'")
     if model.delta_order not in (0, 1):
         raise ModelError(f"method='poly' needs delta_order 0 or 1; got {model.delta_order}")
+    if getattr(model, "full_stiffness", False):
+        # its stage rows take the stiffness as diag(ω²): a rotated basis has a full K̃
+        raise ModelError("method='poly' needs a diagonal modal stiffness; this model has a "
+                         "full K̃ (a smooth mode basis) — use method='rk4'")
     info = {}
     start = time.perf_counter()
     F = configuration_function(model)

@@ -151,3 +151,17 @@ def test_mdot_minus_two_c_is_skew_symmetric(turning_basis_model):
         C = f["coriolis"](q, d, dq, dd).full()
         N = Mdot - 2.0 * C
         assert np.abs(N + N.T).max() <= 1e-7 * np.abs(Mdot).max()
+
+
+def test_poly_refuses_a_full_stiffness_block(arm, point_quantities):
+    """poly's stage rows take the stiffness as diag(ω²): with a rotated basis that would be
+    the Rayleigh frequencies' diagonal, silently wrong — it must refuse."""
+    from casflex.errors import ModelError
+    from casflex.moves import Move
+    from casflex.simulate import simulate_prescribed
+
+    model = FlexibleModel(arm, ConstantProvider(_rotated(point_quantities, _rotation(0.7)),
+                                                (2,)), gravity=None)
+    with pytest.raises(ModelError, match="full K̃"):
+        simulate_prescribed(model, Move(Q_POINT, [0.1, 0.0, 0.5], 0.5), dt=0.01,
+                            method="poly")
