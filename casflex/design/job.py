@@ -206,7 +206,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                 estimator=estimator, sampled=True,  # compiled when C is wanted
                                 jit=study.codegen["compile"], cache_dir=cache_dir)
     say("where the tracking error comes from: the loop with the true state fed back ...")
-    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt)
+    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt,
+                                jit=study.codegen["compile"], cache_dir=cache_dir)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite:
@@ -299,10 +300,11 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
     return eps, controller, slow, stability
 
 
-def _tracking_sources(model, controller, slow, shaped, t_end, dt):
+def _tracking_sources(model, controller, slow, shaped, t_end, dt, jit=False, cache_dir=None):
     """Largest joint tracking error [rad] of the sampled loop with the true state fed back:
     under the whole law and under its slow (rigid) part alone. Against the loop with the
-    EKF they say where the tracking error comes from (the report's comment)."""
+    EKF they say where the tracking error comes from (the report's comment). ``jit``: the
+    loops' steps compiled (cached), as the loop with the EKF."""
     from casflex.simulate import simulate_closed_loop
 
     laws = {"true_state": controller}
@@ -312,7 +314,7 @@ def _tracking_sources(model, controller, slow, shaped, t_end, dt):
     for key, law in laws.items():
         try:
             run = simulate_closed_loop(model, law, shaped, t_end=t_end, dt=dt, sampled=True,
-                                       method="rk4")
+                                       method="rk4", jit=jit, cache_dir=cache_dir)
             sources[key] = float(np.abs(run.tracking_error).max())
         except SolverError:  # diverged: the report says so
             sources[key] = math.nan
