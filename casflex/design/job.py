@@ -195,7 +195,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t0 = time.perf_counter()
     say("EKF plant tables; closed loop with the EKF in the loop ...")
     e = study.estimator
-    plant = tabulate_plant(model)
+    plant = tabulate_plant(model, cache_dir=cache_dir)  # the job's cache, as the tables
     ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
