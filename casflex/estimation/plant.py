@@ -17,7 +17,8 @@ deflects by several cm (the Table 8 arm on the Table 9 moves).
 Every coefficient is a polynomial of degree ≤ 2 in ``(q̇, q̈)`` — monomials ``1, q̈_a,
 q̇_a, q̇_a q̇_b`` — whose coefficients depend on ``q`` only. :func:`tabulate_plant`
 extracts them from the model (polynomial interpolation over 1 + 2n + n(n+1)/2 designs of
-``(q̇, q̈)``, central differences and even second differences in Δ), and stores them over
+``(q̇, q̈)``; the terms in Δ from the rows' exact Jacobian and Hessian at Δ = 0, or from
+central and even second differences), and stores them over
 the model's shape joints as periodic cubic B-splines (the model's own modal tables are
 B-splines on the same kind of grid) and as Fourier series of degree ``K`` in the other
 joints they depend on (rigid-body kinematics make that dependence a trigonometric
