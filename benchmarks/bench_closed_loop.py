@@ -15,6 +15,13 @@ alternated in one process:
     ``loop="mapaccum", jit=True``: the sample Function compiled to C, its library in the
     on-disk cache (the design job's path on a second run). ``closed_loop_first_s``: the
     first call in this process (compiles when the cache lacks the library).
+``tracking_vm_s``, ``tracking_s``
+    the design job's two loops with the true state fed back (``_tracking_sources``: the
+    whole law and its slow part, ``sampled=True, method="rk4"``), in CasADi's VM and
+    with their steps compiled (``jit=True``, the job's path since issue 17 part 4).
+``*_cpu_s``
+    the process's CPU time of the same runs (medians): the figure to compare on a
+    shared machine.
 ``*_runs``
     every repetition; the figures above are medians. ``max_difference``: largest
     difference of ``x``, ``tau``, ``x_hat`` between the Python loop and the compiled one.
@@ -67,7 +74,8 @@ sys.exit(main(sys.argv[1:]))
 
 
 def design_loop():
-    """``(model, controller, shaped move, keywords)`` of the study's closed loop."""
+    """``(model, controller, slow law, shaped move, keywords)`` of the study's closed
+    loop."""
     from casflex import control, shaping
     from casflex.design import load_study
     from casflex.estimation import ekf_step_function, tabulate_plant
@@ -92,20 +100,29 @@ def design_loop():
     slow = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
     ctrl = control.composite_controller(model, Kp=slow.Kp, Kd=slow.Kd, gain=gain,
                                         epsilon=eps)
+    slow_law = control.composite_controller(model, Kp=slow.Kp, Kd=slow.Kd, fast=False)
     e = study.estimator
     ekf = ekf_step_function(tabulate_plant(model), study.sensors, e["Q"], e["R"], dt)
     m = model.m
     est = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
            "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
            "ddq": "difference"}
-    return model, ctrl, shaped, {"t_end": shaped.t_end, "dt": dt, "estimator": est,
+    return model, ctrl, slow_law, shaped, {"t_end": shaped.t_end, "dt": dt, "estimator": est,
                                  "sampled": True}
+
+
+def _tracking(model, ctrl, slow, shaped, kw, jit):
+    """The design job's two loops with the true state fed back."""
+    from casflex.simulate import simulate_closed_loop
+
+    return [simulate_closed_loop(model, law, shaped, t_end=kw["t_end"], dt=kw["dt"],
+                                 sampled=True, method="rk4", jit=jit) for law in (ctrl, slow)]
 
 
 def bench_loop(repeat):
     from casflex.simulate import simulate_closed_loop
 
-    model, ctrl, shaped, kw = design_loop()
+    model, ctrl, slow, shaped, kw = design_loop()
     out = {"loadavg_before": os.getloadavg()[0]}
     t0 = time.perf_counter()
     compiled = simulate_closed_loop(model, ctrl, shaped, loop="mapaccum", jit=True, **kw)
@@ -113,16 +130,28 @@ def bench_loop(repeat):
     paths = {"closed_loop_python_s": {"loop": "python"},
              "closed_loop_vm_s": {"loop": "mapaccum"},
              "closed_loop_s": {"loop": "mapaccum", "jit": True}}
-    runs = {k: [] for k in paths}
+    _tracking(model, ctrl, slow, shaped, kw, True)  # compiles when the cache lacks it
+    runs = {k: [] for k in [*paths, "tracking_vm_s", "tracking_s"]}
+    cpu = {k: [] for k in runs}
     results = {}
     for _ in range(repeat):
         for key, opts in paths.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             results[key] = simulate_closed_loop(model, ctrl, shaped, **opts, **kw)
             runs[key].append(time.perf_counter() - t0)
+            cpu[key].append(time.process_time() - c0)
+        for key, jit in (("tracking_vm_s", False), ("tracking_s", True)):
+            t0, c0 = time.perf_counter(), time.process_time()
+            results[key] = _tracking(model, ctrl, slow, shaped, kw, jit)
+            runs[key].append(time.perf_counter() - t0)
+            cpu[key].append(time.process_time() - c0)
     for key, values in runs.items():
         out[key] = float(np.median(values))
         out[key.replace("_s", "_runs")] = values
+        out[key.replace("_s", "_cpu_s")] = float(np.median(cpu[key]))
+    out["tracking_max_difference"] = max(
+        float(np.max(np.abs(a.x - b.x))) for a, b in zip(results["tracking_vm_s"],
+                                                         results["tracking_s"], strict=True))
     old = results["closed_loop_python_s"]
     out["samples"] = int(old.t.size)
     out["max_difference"] = max(float(np.max(np.abs(getattr(old, f) - getattr(compiled, f))))

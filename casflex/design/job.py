@@ -215,7 +215,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     say("EKF plant tables; closed loop with the EKF in the loop ...")
     e = study.estimator
     plant_grid = _plant_grid(table, move) if e["plant_region"] == "move" else None
-    plant = tabulate_plant(model, grid=plant_grid)
+    plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)  # the job's cache
     ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
@@ -226,7 +226,8 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                 estimator=estimator, sampled=True,  # compiled when C is wanted
                                 jit=study.codegen["compile"], cache_dir=cache_dir)
     say("where the tracking error comes from: the loop with the true state fed back ...")
-    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt)
+    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt,
+                                jit=study.codegen["compile"], cache_dir=cache_dir)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite:
@@ -415,10 +416,11 @@ def _plant_grid(table, move, pad=1):
     return axes
 
 
-def _tracking_sources(model, controller, slow, shaped, t_end, dt):
+def _tracking_sources(model, controller, slow, shaped, t_end, dt, jit=False, cache_dir=None):
     """Largest joint tracking error [rad] of the sampled loop with the true state fed back:
     under the whole law and under its slow (rigid) part alone. Against the loop with the
-    EKF they say where the tracking error comes from (the report's comment)."""
+    EKF they say where the tracking error comes from (the report's comment). ``jit``: the
+    loops' steps compiled (cached), as the loop with the EKF."""
     from casflex.simulate import simulate_closed_loop
 
     laws = {"true_state": controller}
@@ -428,7 +430,7 @@ def _tracking_sources(model, controller, slow, shaped, t_end, dt):
     for key, law in laws.items():
         try:
             run = simulate_closed_loop(model, law, shaped, t_end=t_end, dt=dt, sampled=True,
-                                       method="rk4")
+                                       method="rk4", jit=jit, cache_dir=cache_dir)
             sources[key] = float(np.abs(run.tracking_error).max())
         except SolverError:  # diverged: the report says so
             sources[key] = math.nan

@@ -17,7 +17,8 @@ deflects by several cm (the Table 8 arm on the Table 9 moves).
 Every coefficient is a polynomial of degree ≤ 2 in ``(q̇, q̈)`` — monomials ``1, q̈_a,
 q̇_a, q̇_a q̇_b`` — whose coefficients depend on ``q`` only. :func:`tabulate_plant`
 extracts them from the model (polynomial interpolation over 1 + 2n + n(n+1)/2 designs of
-``(q̇, q̈)``, central differences and even second differences in Δ), and stores them over
+``(q̇, q̈)``; the terms in Δ from the rows' exact Jacobian and Hessian at Δ = 0, or from
+central and even second differences), and stores them over
 the model's shape joints as periodic cubic B-splines (the model's own modal tables are
 B-splines on the same kind of grid) and as Fourier series of degree ``K`` in the other
 joints they depend on (rigid-body kinematics make that dependence a trigonometric
@@ -450,7 +451,8 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
                    step: float | None = None, degree: int = 2, eps: float = 1e-4,
                    check: bool = True, seed: int = 0, order: int = 2, eps2: float = 1e-3,
                    cache_dir: str | os.PathLike | bool | None = None,
-                   prune: float | None = 1e-6) -> FlexiblePlant:
+                   prune: float | None = 1e-6,
+                   derivatives: str = "exact") -> FlexiblePlant:
     """Tabulate the flexible plant of ``model`` to first or second order in Δ (module
     docstring).
 
@@ -466,14 +468,16 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     degree : int
         Fourier degree in the other joints (2 is exact for rigid-body kinematics).
     eps : float
-        Central-difference step in Δ for the first-order terms [√kg m, √kg m/s].
+        Central-difference step in Δ for the first-order terms [√kg m, √kg m/s]
+        (``derivatives="differences"`` only).
     order : {1, 2}
         Order of the expansion in Δ. 2 (default) adds the products ``x_a x_b`` (the
         centripetal and gyroscopic terms of the flexible rates, the change of the mass
         matrix with δ): small against δ̈, but without them the velocity estimates of an
         arm that deflects by several cm (Table 8 arm, Table 9 moves) fall short.
     eps2 : float
-        Step of the second differences for the second-order terms [√kg m, √kg m/s].
+        Step of the second differences for the second-order terms [√kg m, √kg m/s]
+        (``derivatives="differences"`` only).
     check : bool
         Compare with the exact plant at random points; the largest relative error goes to
         ``info["check_rel_error"]``.
@@ -497,6 +501,16 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
         sits in this gap): the coefficients change only by round-off, and the table
         lookup and the Fourier sum shrink. Applied after the cache (the stored table is
         complete); ``info["pruned"]`` counts the dropped values.
+    derivatives : {"exact", "differences"}
+        How the terms in Δ are obtained at each design of ``(q, q̇, q̈)``. ``"exact"``
+        (default): one evaluation of the rows' value, Jacobian and Hessian in Δ at Δ = 0
+        (CasADi's algorithmic differentiation of the rows, one SX function with shared
+        subexpressions). ``"differences"``: central and second differences of the exact
+        rows with steps ``eps``, ``eps2`` (1 + 4·2m + 2m(2m − 1) evaluations per design:
+        55 for three modes, with truncation errors ~``eps²``, ``eps2²``). Both give the
+        same plant to the differences' truncation error; ``"exact"`` is about 8× cheaper
+        (the Table 8 arm with three modes: 23 000 SX instructions per row evaluation, 150 000
+        for the value, Jacobian and Hessian together, against 55 evaluations).
 
     Returns
     -------
@@ -513,18 +527,25 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     ((1, 2), True)
     >>> full = tabulate_plant(model, prune=None)   # every Fourier coefficient evaluated
     >>> full.keep is None, plant.keep.shape, plant.info["pruned"] > 300
-    (True, (25, 31), True)
+    (True, (25, 15), True)
 
-    How many are kept depends on round-off: an entry that is zero by structure comes out of
-    the TMM as exact zeros or as round-off depending on its code path (compiled kernels or
-    numpy), and round-off entries keep their largest coefficients (435 of 775 kept with the
-    numpy path here, 455 with the kernels).
+    With exact derivatives an entry that is zero by structure comes out as an exact zero
+    (or round-off of the rows, far below the pattern's threshold): 15 entries here. With
+    ``derivatives="differences"`` the differences' round-off makes 31 of them, and the
+    Fourier coefficients kept depend on whether the TMM's compiled kernels or numpy made the
+    table (435 of 775 with numpy, 455 with the kernels; 73 of 375 with exact derivatives).
+
+    >>> differences = tabulate_plant(model, derivatives="differences", cache_dir=False)
+    >>> Jd_differences = differences.function()(np.zeros(9))[1]
+    >>> bool(abs(float(Jd_differences - plant.function()(np.zeros(9))[1])) < 1e-6)  # -69.0
+    True
     """
     from casflex.modal.tables import ModalTable
     from casflex.model import default_grid
 
     t0 = time.perf_counter()
     choice(order, "order", (1, 2))
+    choice(derivatives, "derivatives", ("exact", "differences"))
     n, m = model.n, model.m
     rng = np.random.default_rng(seed)
     fexact = exact_plant_function(model)
@@ -559,7 +580,8 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     root = cache_root(cache_dir)
     if root is not None:
         key = _plant_key(fexact, table_grid, periodic, fourier, degree=degree, eps=eps,
-                         eps2=eps2, order=order, check=check, seed=seed)
+                         eps2=eps2, order=order, check=check, seed=seed,
+                         derivatives=derivatives)
         path = root / f"plant-{key[:32]}.npz"
         hit = load_verified(path, key)
         if hit is not None:
@@ -569,22 +591,14 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
 
     # all (q, u, x) evaluation points
     nx = 2 * m
-    xdes = [np.zeros(nx)]
-    for i in range(nx):
-        e = np.zeros(nx)
-        e[i] = eps
-        xdes += [e, -e]
     pairs = [(a, b) for a in range(nx) for b in range(a, nx)] if order == 2 else []
-    if order == 2:
-        for i in range(nx):  # second differences: x_i^2 terms
-            e = np.zeros(nx)
-            e[i] = eps2
-            xdes += [e, -e]
-        for a, b in pairs:  # and x_a x_b from the even part along e_a + e_b
-            if a != b:
-                e = np.zeros(nx)
-                e[a] = e[b] = eps2
-                xdes += [e, -e]
+    ncol = 1 + nx + len(pairs)
+    if derivatives == "exact":
+        xdes = [np.zeros(nx)]  # value, Jacobian and Hessian at Δ = 0 in one evaluation
+        rows = _taylor_function(model, order)
+    else:
+        xdes = _difference_designs(nx, pairs, eps, eps2, order)
+        rows = fexact
     # The designs are evaluated a chunk of grid points at a time: all of them at once are
     # grid points × Fourier samples × (q̇, q̈) designs × Δ designs columns (75 million on
     # two shape joints at 3°: tens of GB), while the coefficients kept are per grid point.
@@ -601,7 +615,7 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     XD = np.array(xdes)
     N = len(gpoints) * nf * nd * ndes
     chunk = max(1, CHUNK_EVALUATIONS // (nf * nd * ndes))
-    coef = np.empty((len(gpoints), nf, len(mono), m, 2 * m + 1 + len(pairs)))
+    coef = np.empty((len(gpoints), nf, len(mono), m, ncol))
     maps = {}
     for g0 in range(0, len(gpoints), chunk):
         g1 = min(g0 + chunk, len(gpoints))
@@ -610,12 +624,19 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
                             np.broadcast_to(DQ[None, None, :, None, :], block + (n,)),
                             np.broadcast_to(DDQ[None, None, :, None, :], block + (n,))],
                            axis=-1).reshape(-1, 3 * n).T
-        X = np.broadcast_to(XD[None, None, None], block + (nx,)).reshape(-1, nx).T
         if U.shape[1] not in maps:
-            maps[U.shape[1]] = fexact.map(U.shape[1])
-        R = np.asarray(maps[U.shape[1]](U, X)).reshape((m,) + block)
-        coef[g0:g1] = _chunk_coefficients(R, Dinv, Binv, nx, pairs, eps, eps2, order)
-        del U, X, R
+            maps[U.shape[1]] = rows.map(U.shape[1])
+        if derivatives == "exact":
+            # column-major (m, ncol) per evaluation: row c * m + i is column c of mode i
+            R = np.asarray(maps[U.shape[1]](U)).reshape((ncol, m) + block[:3])
+            cols = np.moveaxis(R, 0, -1)  # (m, G, F, D, ncol)
+        else:
+            X = np.broadcast_to(XD[None, None, None], block + (nx,)).reshape(-1, nx).T
+            R = np.asarray(maps[U.shape[1]](U, X)).reshape((m,) + block)
+            cols = _difference_columns(R, nx, pairs, eps, eps2, order)
+            del X
+        coef[g0:g1] = _chunk_coefficients(cols, Dinv, Binv)
+        del U, R, cols
     scale = np.max(np.abs(coef), axis=(0, 1), keepdims=True)
     big = np.max(np.abs(coef))
     pattern = (scale[0, 0] > 1e-11 * big)
@@ -657,10 +678,31 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     return plant
 
 
-def _chunk_coefficients(R, Dinv, Binv, nx, pairs, eps, eps2, order):
-    """Fourier coefficients of the monomial coefficients of the Δ expansion, from the exact
-    rows ``R`` (m, grid points, Fourier samples, (q̇, q̈) designs, Δ designs) of a chunk of
-    grid points: (grid points, L, monomials, m, 2m + 1 + pairs)."""
+def _difference_designs(nx, pairs, eps, eps2, order):
+    """The Δ designs of ``derivatives="differences"``: 0, ±eps e_i, then (order 2) ±eps2
+    e_i and ±eps2 (e_a + e_b) for the pairs a < b."""
+    xdes = [np.zeros(nx)]
+    for i in range(nx):
+        e = np.zeros(nx)
+        e[i] = eps
+        xdes += [e, -e]
+    if order == 2:
+        for i in range(nx):  # second differences: x_i^2 terms
+            e = np.zeros(nx)
+            e[i] = eps2
+            xdes += [e, -e]
+        for a, b in pairs:  # and x_a x_b from the even part along e_a + e_b
+            if a != b:
+                e = np.zeros(nx)
+                e[a] = e[b] = eps2
+                xdes += [e, -e]
+    return xdes
+
+
+def _difference_columns(R, nx, pairs, eps, eps2, order):
+    """Value, first and second-order terms in Δ from the exact rows ``R`` (m, grid points,
+    Fourier samples, (q̇, q̈) designs, Δ designs of :func:`_difference_designs`): (m, grid
+    points, Fourier samples, designs, 1 + nx + pairs)."""
     cols = np.empty(R.shape[:-1] + (nx + 1 + len(pairs),))
     cols[..., 0] = R[..., 0]
     for i in range(nx):
@@ -680,9 +722,37 @@ def _chunk_coefficients(R, Dinv, Binv, nx, pairs, eps, eps2, order):
             else:
                 cols[..., 1 + nx + c] = even(k) - diag[a] - diag[b]
                 k += 1
-    # monomial coefficients, then Fourier coefficients
-    coef = np.einsum("kd,igfdc->gfkic", Dinv, cols)  # (G, F, mono, m, 2m+1)
-    return np.einsum("lf,gfkic->glkic", Binv, coef)  # (G, L, mono, m, 2m+1)
+    return cols
+
+
+def _taylor_function(model, order):
+    """``u -> vec([f, ∂f/∂x, W])`` at ``x = 0``: the exact rows ``f`` (m), their Jacobian in
+    ``x = [δ; δ̇]`` (m × 2m) and, for ``order = 2``, the coefficients ``W`` of the products
+    ``x_a x_b`` of the pairs ``a ≤ b`` (``H_aa / 2`` and ``H_ab``, ``H`` the Hessian of a
+    row), column-major (m × (1 + 2m + pairs)). One SX function with common subexpressions
+    merged: the parts that depend on ``u`` only are computed once for all the terms."""
+    u = ca.vertcat(model.q, model.dq, model.ddq)
+    x = ca.vertcat(model.delta, model.ddelta)
+    f = model.prescribed_dddelta
+    nx = x.numel()
+    cols = [f, ca.jacobian(f, x)]
+    if order == 2:
+        pairs = [(a, b) for a in range(nx) for b in range(a, nx)]
+        rows = []
+        for i in range(model.m):
+            H = ca.hessian(f[i], x)[0]
+            rows.append(ca.horzcat(*[H[a, b] / 2 if a == b else H[a, b] for a, b in pairs]))
+        cols.append(ca.vertcat(*rows))
+    out = ca.substitute(ca.vec(ca.horzcat(*cols)), x, ca.DM.zeros(nx))
+    return ca.Function("flex_taylor", [u], [out], ["u"], ["terms"], {"cse": True})
+
+
+def _chunk_coefficients(cols, Dinv, Binv):
+    """Fourier coefficients of the monomial coefficients of the Δ expansion, from its
+    terms ``cols`` (m, grid points, Fourier samples, (q̇, q̈) designs, 1 + nx + pairs) at
+    a chunk of grid points: (grid points, L, monomials, m, 1 + nx + pairs)."""
+    coef = np.einsum("kd,igfdc->gfkic", Dinv, cols)  # (G, F, mono, m, ncol)
+    return np.einsum("lf,gfkic->glkic", Binv, coef)  # (G, L, mono, m, ncol)
 
 
 def _pruned(plant, prune):
@@ -718,7 +788,9 @@ def _plant_key(fexact, grid, periodic, fourier, **options):
         "grid": [np.asarray(a, dtype=float).tolist() for a in (grid or ())],
         "source": source_digest(tabulate_plant, _depends, _monomials, _designs,
                                 _monomial_values, _fourier_basis, _check_plant,
-                                _plant_from_arrays, FlexiblePlant, _chunk_coefficients),
+                                _plant_from_arrays, FlexiblePlant, _chunk_coefficients,
+                                _difference_designs, _difference_columns,
+                                _taylor_function),
     })
 
 

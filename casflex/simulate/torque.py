@@ -437,9 +437,12 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
         ``"auto"``: ``mapaccum`` when the step is a ``casadi.Function``. Both give the
         same numbers to round-off.
     jit : bool or str or sequence of str
-        With ``loop="mapaccum"``: compile the sample Function to C
+        With ``loop="mapaccum"`` (an estimator) or ``method="rk4"``/``sampled=True``
+        (the state fed back): compile the step Function to C
         (:func:`casflex.codegen.jit.compile_cached`; ``True`` is ``-O1``, or the compiler
-        flags), kept in the on-disk cache so a later run only loads it.
+        flags), kept in the on-disk cache so a later run only loads it. The compiled
+        step gives the numbers of CasADi's VM to round-off (bit for bit on x86-64
+        without FMA contraction). Not used by the adaptive ``method="cvodes"``.
     cache_dir : str or pathlib.Path, optional
         Cache root of the compiled library (default the casflex cache directory).
 
@@ -495,13 +498,11 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
                           {"abstol": atol, "reltol": rtol, "max_num_steps": 1000000})
         tau_all = np.asarray(controller.map(N + 1)(*ref.map(N + 1)(t[None, :]), X.T)).T
     elif estimator is None:
-        tau = controller(*ref(t_s), x_s)
-        if sampled:  # the torque of t_k held until t_k+1
-            xn = rk4_interval(lambda xx, s: ode(xx, tau), x_s, t_s, dt, substeps)
-        else:
-            xn = rk4_interval(lambda xx, s: ode(xx, controller(*ref(s), xx)), x_s, t_s, dt,
-                              substeps, nudge=1e-9)
-        step = ca.Function("cl_step", [x_s, t_s], [xn, tau], {"cse": True})
+        if jit is False:
+            step = _state_feedback_step(ode, controller, ref, nx, dt, substeps, sampled)
+        else:  # MX: calls to the model's functions, each generated once in the C
+            step = _compiled_sample_step(_state_feedback_step(
+                ode, controller, ref, nx, dt, substeps, sampled, ca.MX), jit, cache_dir)
         X, tau_all = _run_mapaccum(step, x0, t, kd, jump)
     else:
         X, tau_all, x_hat = _run_with_estimator(model, controller, ref, x0, t, dt,
@@ -518,6 +519,24 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
                      limits={"tip_deflection": DIVERGED_DEFLECTION * robot_reach(model.robot)})
     return ClosedLoopResult(t=t, x=X, tau=tau_all, qd=qd_all, tip=tip, tip_rigid=tip_rigid,
                             n=n, m=m, x_hat=x_hat)
+
+
+def _state_feedback_step(ode, controller, ref, nx, dt, substeps, sampled, sym=ca.SX):
+    """``(x_k, t_k) -> (x_{k+1}, τ_k)`` of the loop with the state fed back: RK4 under the
+    torque held over the sample (``sampled``) or under the law acting at every stage.
+    ``sym=ca.SX`` inlines everything (fastest in CasADi's VM), ``ca.MX`` keeps calls to
+    the model's and the controller's functions (for compiling)."""
+    t_s = sym.sym("t")
+    x_s = sym.sym("x", nx)
+    tau = controller(*ref(t_s), x_s)
+    if sampled:  # the torque of t_k held until t_k+1
+        xn = rk4_interval(lambda xx, s: ode(xx, tau), x_s, t_s, dt, substeps)
+    else:
+        xn = rk4_interval(lambda xx, s: ode(xx, controller(*ref(s), xx)), x_s, t_s, dt,
+                          substeps, nudge=1e-9)
+    name = "casflex_closed_loop_sampled" if sampled else "casflex_closed_loop_rk4"
+    return ca.Function(name if sym is ca.MX else "cl_step", [x_s, t_s], [xn, tau],
+                       {"cse": sym is ca.SX})
 
 
 def _run_with_estimator(model, controller, ref, x0, t, dt, substeps, kd, jump, est, loop,

@@ -155,3 +155,29 @@ def test_design_job_closed_loop_compiled_equals_python(model_cache, tmp_path):
     assert np.ptp(runs["python"].x_hat[:, 0]) > 0.0
     _assert_same(runs["python"], runs["vm"])
     _assert_same(runs["python"], runs["c"])
+
+
+@pytest.mark.needs_cc
+@pytest.mark.parametrize("sampled", [True, False])
+def test_state_feedback_loop_compiled_equals_vm(small_loop, tmp_path, sampled):
+    """The loop with the true state fed back (RK4 under ``mapaccum``, the design job's
+    "where the tracking error comes from" runs): its step compiled to C against CasADi's
+    VM, with an impulse splitting the run. Same budget as the EKF loops (module
+    docstring): the same operations on the same doubles, up to contraction and libm."""
+    model, ctrl, move, _, dt, _ = small_loop
+    runs = [simulate_closed_loop(model, ctrl, move, t_end=0.6, dt=dt, method="rk4",
+                                 sampled=sampled, impulse=(0.3, [0.01, 0.0, 0.01]),
+                                 jit=jit, cache_dir=tmp_path) for jit in (False, True)]
+    assert np.ptp(runs[0].x[:, 0]) > 1e-3  # the plant moves
+    for name in ("x", "tau"):
+        a, b = getattr(runs[0], name), getattr(runs[1], name)
+        assert a.shape == b.shape and np.all(np.isfinite(b))
+        span = np.maximum(np.ptp(a, axis=0), np.abs(a).max(axis=0))
+        assert np.all(np.abs(a - b) <= ROUNDOFF * span), name
+    np.testing.assert_array_equal(runs[0].t, runs[1].t)
+    # a second run loads the compiled step from the cache (one library) and repeats it
+    again = simulate_closed_loop(model, ctrl, move, t_end=0.6, dt=dt, method="rk4",
+                                 sampled=sampled, impulse=(0.3, [0.01, 0.0, 0.01]),
+                                 jit=True, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.x, runs[1].x)
+    assert len(list((tmp_path / "jit").iterdir())) == 1
