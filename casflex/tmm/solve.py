@@ -178,7 +178,7 @@ class _Stack:
                 return kernels.system_points(
                     np.ascontiguousarray(cfg, dtype=np.int64),
                     np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
-                    k["flat"], k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+                    k["flat"], k["gather"], k["ratio"], k["R3"], k["M"], k["T"])
             except ZeroDivisionError:
                 pass  # the numpy path below
         start = np.eye(12)[:, columns]
@@ -423,7 +423,7 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
         root, ok, _ = kernels.refine_brackets(
             np.ascontiguousarray(cfg, dtype=np.int64), np.ascontiguousarray(a, dtype=float),
             np.ascontiguousarray(b, dtype=float), k["kind"], k["beam"], k["flat"],
-            k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+            k["gather"], k["ratio"], k["R3"], k["M"], k["T"])
         return root, ok
     n = a.size
     rows = np.arange(n)
@@ -496,6 +496,22 @@ def _check_counts(stack, points, counts):
             "ill-conditioned)"))
 
 
+def _compiled_roots(stack, points, count, omega_max, double_tol, rtol):
+    """:func:`_roots` by the compiled search; None when a configuration needs the
+    Python path (a breakdown to diagnose, too few roots below the cap)."""
+    if omega_max is not None and not omega_max > 0.0:
+        return None
+    k = stack.kernel
+    values, multiplicity, filled, status = kernels.search_roots(
+        points, float(stack.cap), -1 if count is None else int(count),
+        -1.0 if omega_max is None else float(omega_max), float(double_tol), float(rtol),
+        k["kind"], k["beam"], k["flat"], k["gather"], k["ratio"], k["R3"], k["R6"], k["M"],
+        k["G"], k["T"], k["axis"], k["stiffness"], 64 if count is None else int(count))
+    if status.any():
+        return None
+    return [(values[c, :n], multiplicity[c, :n]) for c, n in enumerate(filled)]
+
+
 def _roots(stack, count, omega_max, double_tol, rtol):
     """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
     C = stack.size
@@ -509,6 +525,10 @@ def _roots(stack, count, omega_max, double_tol, rtol):
     # stiffness, so a count above 0 there means the condensation lost its precision
     probe = _STATIC_PROBE * stack.lowest_beam_frequency
     points = np.concatenate([[probe], grid])
+    if stack.kernel is not None:  # the whole search compiled; the path below diagnoses
+        found = _compiled_roots(stack, points, count, omega_max, double_tol, rtol)
+        if found is not None:
+            return found
     cfg_all = np.repeat(np.arange(C), points.size)
     counts = stack.count(cfg_all, np.tile(points, C)).reshape(C, points.size)
     _check_counts(stack, np.concatenate([[probe], grid]), counts)
