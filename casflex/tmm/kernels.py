@@ -17,7 +17,7 @@ diagnosis branches).
 
 Data layout (C configurations, E elements): ``kind`` (E,) with 0 beam, 1 body, 2 offset,
 3 spring; per element constants ``beam`` (E, 12) and per configuration matrices ``R3``
-(C, E, 3, 3), ``R6`` and ``G`` (C, E, 6, 6), ``M`` (C, E, 6, 6), ``T`` (C, E, 12, 12),
+(C, E, 3, 3), ``G`` (C, E, 6, 6), ``M`` (C, E, 6, 6), ``T`` (C, E, 12, 12),
 ``axis`` (C, E, 3); the beam layout ``flat``, ``gather``, ``ratio`` (E, 40) comes from
 :func:`casflex.tmm.elements.beam_field`'s table.
 """
@@ -64,7 +64,7 @@ def pack(items, size: int) -> dict:
         "kind": np.zeros(E, dtype=np.int64), "beam": np.zeros((E, 12)),
         "flat": np.zeros((E, 40), dtype=np.int64), "gather": np.zeros((E, 40), dtype=np.int64),
         "ratio": np.zeros((E, 40)),
-        "R6": np.zeros((size, E, 6, 6)), "M": np.zeros((size, E, 6, 6)),
+        "M": np.zeros((size, E, 6, 6)),
         "G": np.zeros((size, E, 6, 6)), "T": np.zeros((size, E, 12, 12)),
         "axis": np.zeros((size, E, 3)), "stiffness": np.zeros(E),
         "R3": np.zeros((size, E, 3, 3)),
@@ -86,7 +86,6 @@ def pack(items, size: int) -> dict:
                 table["wave"][1, 0], table["bend"][0, 0], table["bend"][1, 0],
                 np.sqrt(mat.rho / mat.E), np.sqrt(mat.rho * sec.Ip / (mat.G * sec.J)),
                 (mu / (mat.E * sec.Iy)) ** 0.25, (mu / (mat.E * sec.Ix)) ** 0.25, 0.0]
-            out["R6"][:, j] = data["R6"]
             out["R3"][:, j] = data["R6"][:, :3, :3]
         elif e.kind == "body":
             out["kind"][j] = 1
@@ -346,6 +345,28 @@ def _refine(cfg, lo, hi, kind, beam, flat, gather, ratio, R3, M, T):
     return roots, ok, evaluations
 
 
+#: the partner of each local DOF [u, θ] in the beam's decoupled blocks (-1: alone)
+_PARTNER = (4, 3, -1, 1, 0, -1)
+
+
+def _congruence6(R, A, X, out, transpose):
+    """``out = S A Sᵀ`` with ``S = blockdiag(R, R)`` (or its transpose), by 3 × 3 blocks."""
+    for i in range(6):  # X = A Sᵀ
+        for b in range(3):
+            for J in range(2):
+                s = 0.0
+                for k in range(3):
+                    s += A[i, 3 * J + k] * (R[k, b] if transpose else R[b, k])
+                X[i, 3 * J + b] = s
+    for I in range(2):  # out = S X
+        for a in range(3):
+            for col in range(6):
+                s = 0.0
+                for k in range(3):
+                    s += (R[k, a] if transpose else R[a, k]) * X[3 * I + k, col]
+                out[3 * I + a, col] = s
+
+
 def _matmul6(A, B, out):
     for i in range(6):
         for j in range(6):
@@ -467,7 +488,7 @@ def _clamped_bending_count(beta):
     return i - (1.0 - (-1.0) ** i * sgn) / 2.0
 
 
-def _count_point(c, w, kind, beam, flat, gather, ratio, R6, M, G, axis, stiffness, vals,
+def _count_point(c, w, kind, beam, flat, gather, ratio, R3, M, G, axis, stiffness, vals,
                  Tc, B):
     """Wittrick–Williams count below ω of configuration c, and whether it is finite.
 
@@ -518,44 +539,49 @@ def _count_point(c, w, kind, beam, flat, gather, ratio, R6, M, G, axis, stiffnes
                 column = column + 3 if 6 <= column < 9 else (column - 3 if column >= 9
                                                               else column)
                 Tc[row, column] = vals[gather[j, i]] * ratio[j, i]
+            # the local DOFs decouple (axial u_z, torsion θ_z, bending u_x–θ_y and
+            # u_y–θ_x): every block of Tc couples a DOF only with itself and its partner
+            Tinv[:, :] = 0.0  # Tdf⁻¹, group by group
+            for a in range(6):
+                p = _PARTNER[a]
+                if p < 0:
+                    if not Tc[a, 6 + a] != 0.0:
+                        return cnt, False
+                    Tinv[a, a] = 1.0 / Tc[a, 6 + a]
+                elif p > a:
+                    d = Tc[a, 6 + a] * Tc[p, 6 + p] - Tc[a, 6 + p] * Tc[p, 6 + a]
+                    if not (d != 0.0 and math.isfinite(d)):
+                        return cnt, False
+                    Tinv[a, a], Tinv[p, p] = Tc[p, 6 + p] / d, Tc[a, 6 + a] / d
+                    Tinv[a, p], Tinv[p, a] = -Tc[a, 6 + p] / d, -Tc[p, 6 + a] / d
+            for a in range(6):
+                p = _PARTNER[a]
+                for b in range(6):  # K00 = Tdf⁻¹ Tdd
+                    K00[a, b] = Tinv[a, a] * Tc[a, b] + (Tinv[a, p] * Tc[p, b] if p >= 0
+                                                         else 0.0)
+            for a in range(6):
+                p = _PARTNER[a]
+                for b in range(6):  # K10 = Tfd − Tff K00; K11 = Tff Tdf⁻¹ (into E)
+                    K10[a, b] = Tc[6 + a, b] - Tc[6 + a, 6 + a] * K00[a, b] - (
+                        Tc[6 + a, 6 + p] * K00[p, b] if p >= 0 else 0.0)
+                    E[a, b] = Tc[6 + a, 6 + a] * Tinv[a, b] + (
+                        Tc[6 + a, 6 + p] * Tinv[p, b] if p >= 0 else 0.0)
+            R = R3[c, j]
+            _congruence6(R, Z, X, P, True)  # pivot = K11 + Rᵀ Z R
             for a in range(6):
                 for b in range(6):
-                    E[a, b] = 1.0 if a == b else 0.0
-            if not _solve_into(Tc[:6, 6:], E, P, Tinv):  # Tdf⁻¹
-                return cnt, False
-            _matmul6(Tinv, Tc[:6, :6], K00)  # K00 = Tdf⁻¹ Tdd
-            for a in range(6):  # K10 = Tfd − Tff K00
-                for b in range(6):
-                    s = Tc[6 + a, b]
-                    for k in range(6):
-                        s -= Tc[6 + a, 6 + k] * K00[k, b]
-                    K10[a, b] = s
-            R = R6[c, j]
-            _matmul6(Z, R, X)
-            for a in range(6):  # pivot = K11 + Rᵀ Z R, K11 = Tff Tdf⁻¹
-                for b in range(6):
-                    s = 0.0
-                    for k in range(6):
-                        s += Tc[6 + a, 6 + k] * Tinv[k, b] + R[k, a] * X[k, b]
-                    P[a, b] = s
-            for a in range(6):
-                for b in range(6):
+                    P[a, b] += E[a, b]
                     if not math.isfinite(P[a, b]):
                         return cnt, False
             cnt += _negative_eigenvalues(P, Y)
             if not _solve_into(P, K10, Y, X):  # X = pivot⁻¹ K10
                 return cnt, False
-            _matmul6(Tinv, X, Y)
-            for a in range(6):
+            for a in range(6):  # Y = K00 − K01 pivot⁻¹ K10 with K01 = −Tdf⁻¹
+                p = _PARTNER[a]
                 for b in range(6):
-                    Y[a, b] += K00[a, b]  # K00 − K01 pivot⁻¹ K10 with K01 = −Tdf⁻¹
-            _matmul6(R, Y, X)
-            for a in range(6):  # Z = R Y Rᵀ
-                for b in range(6):
-                    s = 0.0
-                    for k in range(6):
-                        s += X[a, k] * R[b, k]
-                    Z[a, b] = s
+                    Y[a, b] = K00[a, b] + Tinv[a, a] * X[a, b] + (
+                        Tinv[a, p] * X[p, b] if p >= 0 else 0.0)
+            _congruence6(R, Y, X, Z, False)  # Z = R Y Rᵀ
             L = beam[j, 0]
             cnt += math.floor(w * L * beam[j, 7] / math.pi)
             cnt += math.floor(w * L * beam[j, 8] / math.pi)
@@ -568,14 +594,14 @@ def _count_point(c, w, kind, beam, flat, gather, ratio, R6, M, G, axis, stiffnes
     return cnt, True
 
 
-def _count(cfg, omega, kind, beam, flat, gather, ratio, R6, M, G, axis, stiffness):
+def _count(cfg, omega, kind, beam, flat, gather, ratio, R3, M, G, axis, stiffness):
     n = omega.size
     counts = np.zeros(n)
     finite = np.ones(n, dtype=np.bool_)
     _, _, vals, Tc, B = _work()
     for p in range(n):
         counts[p], finite[p] = _count_point(cfg[p], omega[p], kind, beam, flat, gather,
-                                            ratio, R6, M, G, axis, stiffness, vals, Tc, B)
+                                            ratio, R3, M, G, axis, stiffness, vals, Tc, B)
     return counts, finite
 
 
@@ -584,7 +610,7 @@ SEARCH_OK, SEARCH_BREAKDOWN, SEARCH_TOO_FEW, SEARCH_FULL = 0, 1, 2, 3
 
 
 def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, gather,
-            ratio, R3, R6, M, G, T, axis, stiffness, width):
+            ratio, R3, M, G, T, axis, stiffness, width):
     """The whole root search of :func:`casflex.tmm.solve._roots` for every configuration.
 
     ``points`` is the static probe followed by the search grid; ``count`` ≤ 0 means no
@@ -608,7 +634,7 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         counts = np.empty(grid.size, dtype=np.int64)
         n = points.size - 1
         grid[:n] = points[1:]
-        n0, ok = _count_point(c, points[0], kind, beam, flat, gather, ratio, R6, M, G, axis,
+        n0, ok = _count_point(c, points[0], kind, beam, flat, gather, ratio, R3, M, G, axis,
                               stiffness, vals, Tc, B)
         if not ok or n0 > 0.0:
             status[c] = SEARCH_BREAKDOWN
@@ -616,7 +642,7 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         previous = 0
         broken = False
         for i in range(n):
-            v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R6, M, G, axis,
+            v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R3, M, G, axis,
                                  stiffness, vals, Tc, B)
             counts[i] = int(v)
             if not ok or counts[i] < previous:
@@ -634,7 +660,7 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                     grid[n + i] = start * (stop / start) ** (i / 7.0)
                 grid[n + 7] = stop
                 for i in range(n, n + 8):
-                    v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R6, M,
+                    v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R3, M,
                                          G, axis, stiffness, vals, Tc, B)
                     counts[i] = int(v)
                     if not ok or counts[i] < counts[i - 1]:
@@ -678,12 +704,12 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                 r, ok, _ = _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W,
                                   vals, A)
                 if not ok:  # no sign change seen: bisect on the exact counts instead
-                    v, ok = _count_point(c, a, kind, beam, flat, gather, ratio, R6, M, G,
+                    v, ok = _count_point(c, a, kind, beam, flat, gather, ratio, R3, M, G,
                                          axis, stiffness, vals, Tc, B)
                     lo_i, hi_i = a, b
                     while ok and hi_i - lo_i > rtol * hi_i:
                         mid = 0.5 * (lo_i + hi_i)
-                        vm, ok = _count_point(c, mid, kind, beam, flat, gather, ratio, R6, M,
+                        vm, ok = _count_point(c, mid, kind, beam, flat, gather, ratio, R3, M,
                                               G, axis, stiffness, vals, Tc, B)
                         if vm > v:
                             hi_i = mid
@@ -700,7 +726,7 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                 found += 1
             else:
                 mid = 0.5 * (a + b)
-                v, ok = _count_point(c, mid, kind, beam, flat, gather, ratio, R6, M, G, axis,
+                v, ok = _count_point(c, mid, kind, beam, flat, gather, ratio, R3, M, G, axis,
                                      stiffness, vals, Tc, B)
                 if not ok or not (na <= v <= nb):
                     broken = True
@@ -749,7 +775,7 @@ def _compile():
     jit = numba.njit(cache=True)
     # the helpers first: the kernels call them through these module globals
     for name in ("_beam_values", "_point_system", "_slogdet6", "_work", "_point_slogdet",
-                 "_brent", "_matmul6", "_solve_into", "_negative_eigenvalues",
+                 "_brent", "_matmul6", "_congruence6", "_solve_into", "_negative_eigenvalues",
                  "_clamped_bending_count", "_count_point"):
         g[name] = jit(g[name])
     g.update(system_points=jit(_system), field_points=jit(_field),

@@ -219,7 +219,7 @@ class _Stack:
                 counts, finite = kernels.count_points(
                     np.ascontiguousarray(cfg, dtype=np.int64),
                     np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
-                    k["flat"], k["gather"], k["ratio"], k["R6"], k["M"], k["G"], k["axis"],
+                    k["flat"], k["gather"], k["ratio"], k["R3"], k["M"], k["G"], k["axis"],
                     k["stiffness"])
                 if finite.all():
                     return counts.astype(int)
@@ -505,7 +505,7 @@ def _compiled_roots(stack, points, count, omega_max, double_tol, rtol):
     values, multiplicity, filled, status = kernels.search_roots(
         points, float(stack.cap), -1 if count is None else int(count),
         -1.0 if omega_max is None else float(omega_max), float(double_tol), float(rtol),
-        k["kind"], k["beam"], k["flat"], k["gather"], k["ratio"], k["R3"], k["R6"], k["M"],
+        k["kind"], k["beam"], k["flat"], k["gather"], k["ratio"], k["R3"], k["M"],
         k["G"], k["T"], k["axis"], k["stiffness"], 64 if count is None else int(count))
     if status.any():
         return None
