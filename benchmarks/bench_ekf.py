@@ -321,6 +321,24 @@ def op_counts(f):
     return sum(1 for i in ids if i not in skip and i != ca.OP_CALL), calls
 
 
+def callgrind_instructions(exe, inp, tmp, steps):
+    """Machine instructions executed per call of ``ekf_step`` (and its callees), counted by
+    valgrind's callgrind over one pass of the harness: a figure the machine's load does
+    not change (None without valgrind)."""
+    import shutil
+
+    if shutil.which("valgrind") is None:
+        return None
+    out = tmp / "callgrind.out"
+    subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
+                    "--toggle-collect=ekf_step", str(exe), str(inp), str(tmp / "cg.txt"), "1"],
+                   capture_output=True, text=True, check=True)
+    for line in out.read_text().splitlines():
+        if line.startswith(("summary:", "totals:")):
+            return int(line.split()[1]) / steps
+    return None
+
+
 def cpu_ghz():
     """Clock of this machine's CPU [GHz] from /proc/cpuinfo (None where unknown)."""
     try:
@@ -362,6 +380,10 @@ def main(argv=None):
                         help="also time the configurations of VARIANTS in this run")
     parser.add_argument("--guarded", action="store_true",
                         help="also time the guarded step against the plain one")
+    parser.add_argument("--callgrind", action="store_true",
+                        help="also count the machine instructions of one step under "
+                             "valgrind's callgrind (keys instructions_per_step, "
+                             "instruction_limit_us)")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -396,6 +418,7 @@ def main(argv=None):
     mask = np.ones_like(data.y)
 
     run_medians = []
+    instructions = []
 
     def time_c(stp, flags, runs=1):
         with tempfile.TemporaryDirectory() as tmp:
@@ -421,6 +444,8 @@ def main(argv=None):
                                       check=True)
                 medians.append(json.loads(proc.stdout)["median_step_ns"] / 1e3)
             run_medians[:] = medians
+            if args.callgrind:  # machine instructions per step: independent of the load
+                instructions[:] = [callgrind_instructions(exe, inp, Path(tmp), N)]
             return float(np.median(medians)), dev, bundle.functions[0].sz_w
 
     variants = {}
@@ -518,6 +543,13 @@ def main(argv=None):
         "nproc": os.cpu_count(),
         "load_avg_1min": os.getloadavg()[0],
     }
+    if args.callgrind:
+        ins = instructions[0] if instructions else None
+        out["instructions_per_step"] = ins
+        # one instruction per cycle at the clock: a plain upper bound on the time of a
+        # straight-line step whose operations mostly depend on each other
+        out["instruction_limit_us"] = (None if ins is None or out["cpu_ghz"] is None
+                                       else ins / (out["cpu_ghz"] * 1e3))
     if guarded:
         out["guarded"] = guarded
     if variants:

@@ -23,6 +23,7 @@ mode shapes span the null space (orthonormal in base-reaction space, from an SVD
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -512,14 +513,22 @@ def _compiled_roots(stack, points, count, omega_max, double_tol, rtol):
     return [(values[c, :n], multiplicity[c, :n]) for c, n in enumerate(filled)]
 
 
+@functools.lru_cache(maxsize=64)
+def _geomspace(start, stop, num):
+    """``np.geomspace``, kept: every configuration of a robot searches the same grid."""
+    grid = np.geomspace(start, stop, num)
+    grid.flags.writeable = False
+    return grid
+
+
 def _roots(stack, count, omega_max, double_tol, rtol):
     """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
     C = stack.size
     if omega_max is None:
         ref = stack.reference_frequency
-        grid = np.geomspace(1e-3 * ref, 1e2 * ref, 36)
+        grid = _geomspace(float(1e-3 * ref), float(1e2 * ref), 36)
     else:
-        grid = np.geomspace(min(1e-2, omega_max / 10.0), omega_max, 32)
+        grid = _geomspace(float(min(1e-2, omega_max / 10.0)), float(omega_max), 32)
     # with the grid, a probe far below any physical natural frequency (1e-6 of the softest
     # beam's cantilever frequency): a clamped structure has a positive definite static
     # stiffness, so a count above 0 there means the condensation lost its precision
@@ -840,6 +849,13 @@ def mode_shapes(chain: Chain, omega: ArrayLike, multiplicity: ArrayLike | None =
     return _shapes(chain, _Stack([chain]), omega, multiplicity, n_points)
 
 
+@functools.lru_cache(maxsize=16)
+def _fractions(n_points):
+    frac = np.linspace(0.0, 1.0, n_points)
+    frac.flags.writeable = False
+    return frac
+
+
 def _shapes(chain, stack, omega, multiplicity, n_points):
     """:func:`mode_shapes` with the chain's stack already built."""
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
@@ -859,7 +875,7 @@ def _shapes(chain, stack, omega, multiplicity, n_points):
 
     beams = chain.beams
     nb = len(beams)
-    frac = np.linspace(0.0, 1.0, n_points)
+    frac = _fractions(n_points)
     s = np.array([frac * b.params["length"] for b in beams]).reshape(nb, n_points)
     local = np.zeros((m, nb, n_points, 12))
     position = np.zeros((nb, n_points, 3))
@@ -992,5 +1008,5 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     stack = _Stack([chain])  # one stack for the roots and the shapes
     w, _ = _roots(stack, count, omega_max, 1e-9, 1e-12)[0]  # natural_frequencies' defaults
     # a k-fold root cut short by `count` keeps the entries present: that many basis vectors
-    _, inverse, present = np.unique(w, return_inverse=True, return_counts=True)
-    return _shapes(chain, stack, w, present[inverse], n_points)
+    present = np.array([int(np.count_nonzero(w == v)) for v in w], dtype=int)
+    return _shapes(chain, stack, w, present, n_points)
