@@ -25,7 +25,14 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
-[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded]``
+[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded]
+[--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
+
+``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
+``--toggle-collect=ekf_step``, one pass over the data): ``instructions_per_step``, a
+figure the machine's load does not change, and ``instruction_limit_us``, that count at
+one instruction per cycle of the clock. Valgrind does not run AVX-512 code, so the
+counted build uses ``--callgrind-flags`` (AVX2).
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -55,6 +62,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (round-off of ~10⁴ operations per step, amplified by the update; measured ≤ 1e-14)
 NUMPY_RTOL = 1e-10
 NATIVE = "-O3 -march=native -ffp-contract=off"
+#: the build counted by ``--callgrind``: NATIVE for AVX2 machines (valgrind has no AVX-512)
+CALLGRIND_FLAGS = "-O3 -march=x86-64-v3 -ffp-contract=off"
 FIRST = {"jacobians": "first_order"}
 BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False}
 # (label, plant order, pruned plant, ekf_step_function options, compiler flags)
@@ -384,6 +393,8 @@ def main(argv=None):
                         help="also count the machine instructions of one step under "
                              "valgrind's callgrind (keys instructions_per_step, "
                              "instruction_limit_us)")
+    parser.add_argument("--callgrind-flags", default=CALLGRIND_FLAGS,
+                        help="C compiler flags of the build whose instructions are counted")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -445,7 +456,12 @@ def main(argv=None):
                 medians.append(json.loads(proc.stdout)["median_step_ns"] / 1e3)
             run_medians[:] = medians
             if args.callgrind:  # machine instructions per step: independent of the load
-                instructions[:] = [callgrind_instructions(exe, inp, Path(tmp), N)]
+                # valgrind knows no AVX-512: the count is of a build for AVX2 (x86-64-v3)
+                counted = codegen.run_harness(
+                    bundle, "ekf_step", {"u": data.u, "y": data.y, "mask": mask}, initial,
+                    feedback=feedback, repeat=1, flags=tuple(args.callgrind_flags.split()))
+                instructions[:] = [callgrind_instructions(counted.executable, inp, Path(tmp),
+                                                          N)]
             return float(np.median(medians)), dev, bundle.functions[0].sz_w
 
     variants = {}
@@ -546,6 +562,7 @@ def main(argv=None):
     if args.callgrind:
         ins = instructions[0] if instructions else None
         out["instructions_per_step"] = ins
+        out["callgrind_flags"] = args.callgrind_flags
         # one instruction per cycle at the clock: a plain upper bound on the time of a
         # straight-line step whose operations mostly depend on each other
         out["instruction_limit_us"] = (None if ins is None or out["cpu_ghz"] is None
