@@ -6,7 +6,9 @@
 * ``frequencies_only_s``: the same for the 5 frequencies alone
   (``casflex.tmm.natural_frequencies``).
 * ``sweep_s``: the q3 sweep at 1.5° over 360° (240 configurations, 5 frequencies each)
-  with ``casflex.tmm.sweep_frequencies``, median of repeated runs.
+  with ``casflex.tmm.sweep_frequencies``, median of repeated runs; ``sweep_cpu_s`` its
+  process CPU time (one call of ~0.1–1 s is preempted many times on a loaded machine: the
+  CPU time is the steadier figure there).
 * ``fe_equal_accuracy_s``: median wall time of the 3-D Euler–Bernoulli frame FE of
   ``tests/reference_fem.py`` (assembly, eigen-solution, mass-normalised shapes) at the
   smallest number of elements per link whose 5 frequencies are within 1e-4 (relative) of
@@ -147,11 +149,16 @@ def main():
     qs = np.zeros((240, 3))
     qs[:, 2] = np.radians(np.arange(240) * 1.5 - 180.0)
     sweeps = {p: [] for p in paths}
+    sweep_cpu = []
     for _ in range(args.repeat):
         for path in paths:
             if kernels is not None:
                 kernels.AVAILABLE = path
             sweeps[path].append(best(lambda: sweep_frequencies(robot, qs, 5)))
+            if path == compiled:
+                t = time.process_time()
+                sweep_frequencies(robot, qs, 5)
+                sweep_cpu.append(time.process_time() - t)
     if kernels is not None:
         kernels.AVAILABLE = compiled
 
@@ -163,6 +170,7 @@ def main():
         "per_configuration_s": per_configuration,
         "frequencies_only_s": frequencies_only,
         "sweep_s": statistics.median(sweeps[compiled]),
+        "sweep_cpu_s": statistics.median(sweep_cpu),
         "numpy_per_configuration_s": statistics.median(single[False]),
         "numpy_frequencies_only_s": statistics.median(frequencies[False]),
         "numpy_sweep_s": statistics.median(sweeps[False]),
