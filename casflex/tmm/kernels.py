@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "pack"]  # noqa: F822 (AVAILABLE: module __getattr__)
+__all__ = ["AVAILABLE", "pack", "search"]  # noqa: F822 (AVAILABLE: module __getattr__)
 
 # ``AVAILABLE`` (True when the compiled kernels can run: numba importable) and the
 # kernels ``count_points``, ``refine_brackets``, ``system_points``, ``field_points``,
@@ -100,6 +100,54 @@ def pack(items, size: int) -> dict:
             out["axis"][:, j] = data["axis"]
             out["stiffness"][j] = e.params["stiffness"]
     return out
+
+
+def search(kernel: dict, points: np.ndarray, cap: float, count: int | None,
+           omega_max: float | None, double_tol: float, rtol: float) -> list | None:
+    """The root search of every configuration of a packed stack, compiled (``search_roots``).
+
+    Parameters
+    ----------
+    kernel : dict
+        :func:`pack`'s arrays.
+    points : numpy.ndarray
+        The static probe, then the search grid [rad/s].
+    cap : float
+        Highest ω the grid may be extended to [rad/s].
+    count, omega_max : int or None, float or None
+        As for :func:`casflex.tmm.natural_frequencies` (omega_max in rad/s).
+    double_tol, rtol : float
+        Relative width of a multiple root's bracket; relative tolerance of the bisection
+        fallback.
+
+    Returns
+    -------
+    list of (numpy.ndarray, numpy.ndarray) or None
+        ``(values, multiplicities)`` per configuration, or None when a configuration needs
+        the Python path (a breakdown to diagnose, too few roots below ``cap``).
+
+    Examples
+    --------
+    >>> # no element, so no root below the cap: the Python path reports it
+    >>> search(pack([], 1), np.array([1e-3, 1.0]), 10.0, 1, None, 1e-9, 1e-12) is None
+    True
+    """
+    if omega_max is not None and not omega_max > 0.0:
+        return None
+    g = globals()
+    if "search_roots" not in g:
+        _compile()
+    if not g["AVAILABLE"]:  # pragma: no cover - without numba
+        return None
+    k = kernel
+    values, multiplicity, filled, status = g["search_roots"](
+        points, float(cap), -1 if count is None else int(count),
+        -1.0 if omega_max is None else float(omega_max), float(double_tol), float(rtol),
+        k["kind"], k["beam"], k["flat"], k["gather"], k["ratio"], k["R3"], k["M"],
+        k["G"], k["T"], k["axis"], k["stiffness"], 64 if count is None else int(count))
+    if status.any():
+        return None
+    return [(values[c, :n], multiplicity[c, :n]) for c, n in enumerate(filled)]
 
 
 def _beam_values(c, w, vals):

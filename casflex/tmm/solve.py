@@ -497,22 +497,6 @@ def _check_counts(stack, points, counts):
             "ill-conditioned)"))
 
 
-def _compiled_roots(stack, points, count, omega_max, double_tol, rtol):
-    """:func:`_roots` by the compiled search; None when a configuration needs the
-    Python path (a breakdown to diagnose, too few roots below the cap)."""
-    if omega_max is not None and not omega_max > 0.0:
-        return None
-    k = stack.kernel
-    values, multiplicity, filled, status = kernels.search_roots(
-        points, float(stack.cap), -1 if count is None else int(count),
-        -1.0 if omega_max is None else float(omega_max), float(double_tol), float(rtol),
-        k["kind"], k["beam"], k["flat"], k["gather"], k["ratio"], k["R3"], k["M"],
-        k["G"], k["T"], k["axis"], k["stiffness"], 64 if count is None else int(count))
-    if status.any():
-        return None
-    return [(values[c, :n], multiplicity[c, :n]) for c, n in enumerate(filled)]
-
-
 @functools.lru_cache(maxsize=64)
 def _geomspace(start, stop, num):
     """``np.geomspace``, kept: every configuration of a robot searches the same grid."""
@@ -535,7 +519,8 @@ def _roots(stack, count, omega_max, double_tol, rtol):
     probe = _STATIC_PROBE * stack.lowest_beam_frequency
     points = np.concatenate([[probe], grid])
     if stack.kernel is not None:  # the whole search compiled; the path below diagnoses
-        found = _compiled_roots(stack, points, count, omega_max, double_tol, rtol)
+        found = kernels.search(stack.kernel, points, stack.cap, count, omega_max, double_tol,
+                               rtol)
         if found is not None:
             return found
     cfg_all = np.repeat(np.arange(C), points.size)
@@ -849,13 +834,6 @@ def mode_shapes(chain: Chain, omega: ArrayLike, multiplicity: ArrayLike | None =
     return _shapes(chain, _Stack([chain]), omega, multiplicity, n_points)
 
 
-@functools.lru_cache(maxsize=16)
-def _fractions(n_points):
-    frac = np.linspace(0.0, 1.0, n_points)
-    frac.flags.writeable = False
-    return frac
-
-
 def _shapes(chain, stack, omega, multiplicity, n_points):
     """:func:`mode_shapes` with the chain's stack already built."""
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
@@ -875,7 +853,7 @@ def _shapes(chain, stack, omega, multiplicity, n_points):
 
     beams = chain.beams
     nb = len(beams)
-    frac = _fractions(n_points)
+    frac = np.linspace(0.0, 1.0, n_points)
     s = np.array([frac * b.params["length"] for b in beams]).reshape(nb, n_points)
     local = np.zeros((m, nb, n_points, 12))
     position = np.zeros((nb, n_points, 3))
