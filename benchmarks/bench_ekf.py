@@ -25,7 +25,16 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
-[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded]``
+[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded]
+[--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
+
+``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
+``--toggle-collect=ekf_step``, one pass over the data): ``instructions_per_step``, a
+figure the machine's load does not change, ``instruction_limit_us``, that count at
+``ISSUE_WIDTH`` (4) instructions per cycle of the clock, the best any schedule reaches,
+and ``implied_ipc``, the instructions per cycle the timed median implies. Valgrind does
+not run AVX-512 code, so the counted build uses ``--callgrind-flags`` (AVX2);
+``CASFLEX_CALLGRIND_KEEP=PATH`` keeps callgrind's output for ``callgrind_annotate``.
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -55,6 +64,11 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (round-off of ~10⁴ operations per step, amplified by the update; measured ≤ 1e-14)
 NUMPY_RTOL = 1e-10
 NATIVE = "-O3 -march=native -ffp-contract=off"
+#: instructions per cycle a recent x86 core sustains at best (4-wide issue): with the
+#: instruction count, the ``instruction_limit_us`` of the step
+ISSUE_WIDTH = 4
+#: the build counted by ``--callgrind``: NATIVE for AVX2 machines (valgrind has no AVX-512)
+CALLGRIND_FLAGS = "-O3 -march=x86-64-v3 -ffp-contract=off"
 FIRST = {"jacobians": "first_order"}
 BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False}
 # (label, plant order, pruned plant, ekf_step_function options, compiler flags)
@@ -321,6 +335,26 @@ def op_counts(f):
     return sum(1 for i in ids if i not in skip and i != ca.OP_CALL), calls
 
 
+def callgrind_instructions(exe, inp, tmp, steps):
+    """Machine instructions executed per call of ``ekf_step`` (and its callees), counted by
+    valgrind's callgrind over one pass of the harness: a figure the machine's load does
+    not change (None without valgrind)."""
+    import shutil
+
+    if shutil.which("valgrind") is None:
+        return None
+    out = tmp / "callgrind.out"
+    subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
+                    "--toggle-collect=ekf_step", str(exe), str(inp), str(tmp / "cg.txt"), "1"],
+                   capture_output=True, text=True, check=True)
+    if os.environ.get("CASFLEX_CALLGRIND_KEEP"):  # for callgrind_annotate
+        shutil.copy(out, os.environ["CASFLEX_CALLGRIND_KEEP"])
+    for line in out.read_text().splitlines():
+        if line.startswith(("summary:", "totals:")):
+            return int(line.split()[1]) / steps
+    return None
+
+
 def cpu_ghz():
     """Clock of this machine's CPU [GHz] from /proc/cpuinfo (None where unknown)."""
     try:
@@ -362,6 +396,12 @@ def main(argv=None):
                         help="also time the configurations of VARIANTS in this run")
     parser.add_argument("--guarded", action="store_true",
                         help="also time the guarded step against the plain one")
+    parser.add_argument("--callgrind", action="store_true",
+                        help="also count the machine instructions of one step under "
+                             "valgrind's callgrind (keys instructions_per_step, "
+                             "instruction_limit_us)")
+    parser.add_argument("--callgrind-flags", default=CALLGRIND_FLAGS,
+                        help="C compiler flags of the build whose instructions are counted")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -396,6 +436,7 @@ def main(argv=None):
     mask = np.ones_like(data.y)
 
     run_medians = []
+    instructions = []
 
     def time_c(stp, flags, runs=1):
         with tempfile.TemporaryDirectory() as tmp:
@@ -421,6 +462,13 @@ def main(argv=None):
                                       check=True)
                 medians.append(json.loads(proc.stdout)["median_step_ns"] / 1e3)
             run_medians[:] = medians
+            if args.callgrind:  # machine instructions per step: independent of the load
+                # valgrind knows no AVX-512: the count is of a build for AVX2 (x86-64-v3)
+                counted = codegen.run_harness(
+                    bundle, "ekf_step", {"u": data.u, "y": data.y, "mask": mask}, initial,
+                    feedback=feedback, repeat=1, flags=tuple(args.callgrind_flags.split()))
+                instructions[:] = [callgrind_instructions(counted.executable, inp, Path(tmp),
+                                                          N)]
             return float(np.median(medians)), dev, bundle.functions[0].sz_w
 
     variants = {}
@@ -518,6 +566,17 @@ def main(argv=None):
         "nproc": os.cpu_count(),
         "load_avg_1min": os.getloadavg()[0],
     }
+    if args.callgrind:
+        ins = instructions[0] if instructions else None
+        ghz = out["cpu_ghz"]
+        out["instructions_per_step"] = ins
+        out["callgrind_flags"] = args.callgrind_flags
+        # the time of those instructions at ISSUE_WIDTH per cycle: no schedule does better
+        out["instruction_limit_us"] = (None if ins is None or ghz is None
+                                       else ins / (ISSUE_WIDTH * ghz * 1e3))
+        # instructions per cycle that the timed median implies (the load inflates it less
+        # than the time: a busy spell lowers the apparent IPC)
+        out["implied_ipc"] = None if ins is None or ghz is None else ins / (c_us * ghz * 1e3)
     if guarded:
         out["guarded"] = guarded
     if variants:

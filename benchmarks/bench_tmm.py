@@ -6,7 +6,9 @@
 * ``frequencies_only_s``: the same for the 5 frequencies alone
   (``casflex.tmm.natural_frequencies``).
 * ``sweep_s``: the q3 sweep at 1.5° over 360° (240 configurations, 5 frequencies each)
-  with ``casflex.tmm.sweep_frequencies``, median of repeated runs.
+  with ``casflex.tmm.sweep_frequencies``, median of repeated runs; ``sweep_cpu_s`` its
+  process CPU time (one call of ~0.1–1 s is preempted many times on a loaded machine: the
+  CPU time is the steadier figure there).
 * ``fe_equal_accuracy_s``: median wall time of the 3-D Euler–Bernoulli frame FE of
   ``tests/reference_fem.py`` (assembly, eigen-solution, mass-normalised shapes) at the
   smallest number of elements per link whose 5 frequencies are within 1e-4 (relative) of
@@ -21,12 +23,17 @@
   the compiled ones.
 
 TMM and FE are timed alternately, configuration by configuration, so that both see the
-same machine load; ``load_average`` is the 1-minute load when the run ended.
+same machine load; every figure is the fastest of ``--inner`` calls (5) of the same
+configuration (or sweep), then the median over configurations (or sweep repetitions): on a
+shared machine a call longer than a scheduler slice is often preempted, and the fastest of
+a few calls is the estimate of its quiet time. ``load_average`` is the 1-minute load when
+the run ended. ``--code DIR`` runs the same script on the casflex package of another
+checkout (an older commit), to measure old and new side by side.
 
 Targets (issue 17): ≤ 1 ms per configuration with shapes, ≤ 0.3 ms frequencies only,
 sweep ≤ 0.2 s, ``ratio_fe`` ≥ 10.
 
-Usage: ``python benchmarks/bench_tmm.py [--json] [--repeat N]``
+Usage: ``python benchmarks/bench_tmm.py [--json] [--repeat N] [--inner N] [--code DIR]``
 """
 
 from __future__ import annotations
@@ -36,12 +43,14 @@ import json
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+import casflex
 from casflex.robot import load
 from casflex.tmm import build_chain, modes, natural_frequencies, sweep_frequencies
 
@@ -91,7 +100,16 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--repeat", type=int, default=5, help="sweep repetitions")
+    parser.add_argument("--inner", type=int, default=5,
+                        help="calls per configuration (and per sweep); the fastest is kept")
+    parser.add_argument("--code", type=Path,
+                        help="time the casflex package of this checkout instead (an older "
+                             "commit, side by side): the script reruns itself on it")
     args = parser.parse_args()
+    if args.code is not None:
+        env = dict(os.environ, PYTHONPATH=str(args.code.resolve()))
+        argv = [a for a in sys.argv[1:] if a != "--code" and a != str(args.code)]
+        return subprocess.run([sys.executable, __file__, *argv], env=env, check=True).returncode
 
     robot = load(ROOT / "problems" / "arm2link.toml")
     q3 = np.linspace(-np.pi, np.pi, 40, endpoint=False)
@@ -109,31 +127,38 @@ def main():
     single = {p: [] for p in paths}
     frequencies = {p: [] for p in paths}
     fe_times = []
+
+    def best(call):
+        """Fastest of ``--inner`` calls (a loaded machine preempts long calls)."""
+        times = []
+        for _ in range(args.inner):
+            t = time.perf_counter()
+            call()
+            times.append(time.perf_counter() - t)
+        return min(times)
+
     for q in configurations:
         for path in paths:
             if kernels is not None:
                 kernels.AVAILABLE = path
-            t = time.perf_counter()
-            modes(robot, q, count=5)
-            single[path].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            natural_frequencies(robot, q, count=5)
-            frequencies[path].append(time.perf_counter() - t)
+            single[path].append(best(lambda q=q: modes(robot, q, count=5)))
+            frequencies[path].append(best(lambda q=q: natural_frequencies(robot, q, count=5)))
         if not folded(robot, q):
-            t = time.perf_counter()
-            fe_modes(robot, q, n_fe)
-            fe_times.append(time.perf_counter() - t)
+            fe_times.append(best(lambda q=q: fe_modes(robot, q, n_fe)))
 
     qs = np.zeros((240, 3))
     qs[:, 2] = np.radians(np.arange(240) * 1.5 - 180.0)
     sweeps = {p: [] for p in paths}
+    sweep_cpu = []
     for _ in range(args.repeat):
         for path in paths:
             if kernels is not None:
                 kernels.AVAILABLE = path
-            t = time.perf_counter()
-            sweep_frequencies(robot, qs, 5)
-            sweeps[path].append(time.perf_counter() - t)
+            sweeps[path].append(best(lambda: sweep_frequencies(robot, qs, 5)))
+            if path == compiled:
+                t = time.process_time()
+                sweep_frequencies(robot, qs, 5)
+                sweep_cpu.append(time.process_time() - t)
     if kernels is not None:
         kernels.AVAILABLE = compiled
 
@@ -145,6 +170,7 @@ def main():
         "per_configuration_s": per_configuration,
         "frequencies_only_s": frequencies_only,
         "sweep_s": statistics.median(sweeps[compiled]),
+        "sweep_cpu_s": statistics.median(sweep_cpu),
         "numpy_per_configuration_s": statistics.median(single[False]),
         "numpy_frequencies_only_s": statistics.median(frequencies[False]),
         "numpy_sweep_s": statistics.median(sweeps[False]),
@@ -155,6 +181,8 @@ def main():
         "fe_converged_rel_error": float(converged),
         "ratio_fe": fe_time / per_configuration,
         "ratio_fe_frequencies": fe_time / frequencies_only,
+        "inner": args.inner,
+        "code": str(Path(casflex.__file__).resolve().parents[1]),
         "load_average": os.getloadavg()[0],
     }
     if args.json:
@@ -178,4 +206,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -17,6 +17,8 @@ its counts and determinants (:mod:`casflex.tmm.solve`) and uses :func:`describe`
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from casflex.errors import ModelError
@@ -39,7 +41,14 @@ def format_q(q) -> str:
 def lowest_beam_frequency(beam: Element) -> float:
     """Lowest clamped–free frequency of one beam alone in bending, torsion or tension [rad/s]."""
     P = beam.params
-    sec, mat, L = P["section"], P["material"], P["length"]
+    try:  # Section and Material are frozen dataclasses: the same beam again is a lookup
+        return _lowest_frequency(P["section"], P["material"], P["length"])
+    except TypeError:  # unhashable parameters
+        return _lowest_frequency.__wrapped__(P["section"], P["material"], P["length"])
+
+
+@functools.lru_cache(maxsize=256)
+def _lowest_frequency(sec, mat, L):
     with np.errstate(all="ignore"):
         bending = (1.875 / L) ** 2 * np.sqrt(mat.E * min(sec.Ix, sec.Iy) / (mat.rho * sec.A))
         torsion = np.pi / (2.0 * L) * np.sqrt(mat.G * sec.J / (mat.rho * sec.Ip))

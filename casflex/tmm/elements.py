@@ -355,7 +355,10 @@ def rotation_matrix(R: ArrayLike) -> np.ndarray:
     >>> rotation_matrix(np.eye(3)).shape
     (12, 12)
     """
-    return np.kron(np.eye(4), np.asarray(R, dtype=float))
+    out = np.zeros((12, 12))
+    for b in range(0, 12, 3):  # the blocks set directly: np.kron costs ~20 µs here
+        out[b : b + 3, b : b + 3] = R
+    return out
 
 
 def _rot(axis, angle):

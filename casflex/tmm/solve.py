@@ -23,6 +23,7 @@ mode shapes span the null space (orthonormal in base-reaction space, from an SVD
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -178,7 +179,7 @@ class _Stack:
                 return kernels.system_points(
                     np.ascontiguousarray(cfg, dtype=np.int64),
                     np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
-                    k["flat"], k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+                    k["flat"], k["gather"], k["ratio"], k["R3"], k["M"], k["T"])
             except ZeroDivisionError:
                 pass  # the numpy path below
         start = np.eye(12)[:, columns]
@@ -219,7 +220,7 @@ class _Stack:
                 counts, finite = kernels.count_points(
                     np.ascontiguousarray(cfg, dtype=np.int64),
                     np.ascontiguousarray(omega, dtype=float), k["kind"], k["beam"],
-                    k["flat"], k["gather"], k["ratio"], k["R6"], k["M"], k["G"], k["axis"],
+                    k["flat"], k["gather"], k["ratio"], k["R3"], k["M"], k["G"], k["axis"],
                     k["stiffness"])
                 if finite.all():
                     return counts.astype(int)
@@ -423,7 +424,7 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
         root, ok, _ = kernels.refine_brackets(
             np.ascontiguousarray(cfg, dtype=np.int64), np.ascontiguousarray(a, dtype=float),
             np.ascontiguousarray(b, dtype=float), k["kind"], k["beam"], k["flat"],
-            k["gather"], k["ratio"], k["R12"], k["M"], k["T"])
+            k["gather"], k["ratio"], k["R3"], k["M"], k["T"])
         return root, ok
     n = a.size
     rows = np.arange(n)
@@ -496,19 +497,32 @@ def _check_counts(stack, points, counts):
             "ill-conditioned)"))
 
 
+@functools.lru_cache(maxsize=64)
+def _geomspace(start, stop, num):
+    """``np.geomspace``, kept: every configuration of a robot searches the same grid."""
+    grid = np.geomspace(start, stop, num)
+    grid.flags.writeable = False
+    return grid
+
+
 def _roots(stack, count, omega_max, double_tol, rtol):
     """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
     C = stack.size
     if omega_max is None:
         ref = stack.reference_frequency
-        grid = np.geomspace(1e-3 * ref, 1e2 * ref, 36)
+        grid = _geomspace(float(1e-3 * ref), float(1e2 * ref), 36)
     else:
-        grid = np.geomspace(min(1e-2, omega_max / 10.0), omega_max, 32)
+        grid = _geomspace(float(min(1e-2, omega_max / 10.0)), float(omega_max), 32)
     # with the grid, a probe far below any physical natural frequency (1e-6 of the softest
     # beam's cantilever frequency): a clamped structure has a positive definite static
     # stiffness, so a count above 0 there means the condensation lost its precision
     probe = _STATIC_PROBE * stack.lowest_beam_frequency
     points = np.concatenate([[probe], grid])
+    if stack.kernel is not None:  # the whole search compiled; the path below diagnoses
+        found = kernels.search(stack.kernel, points, stack.cap, count, omega_max, double_tol,
+                               rtol)
+        if found is not None:
+            return found
     cfg_all = np.repeat(np.arange(C), points.size)
     counts = stack.count(cfg_all, np.tile(points, C)).reshape(C, points.size)
     _check_counts(stack, np.concatenate([[probe], grid]), counts)
@@ -972,5 +986,5 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     stack = _Stack([chain])  # one stack for the roots and the shapes
     w, _ = _roots(stack, count, omega_max, 1e-9, 1e-12)[0]  # natural_frequencies' defaults
     # a k-fold root cut short by `count` keeps the entries present: that many basis vectors
-    _, inverse, present = np.unique(w, return_inverse=True, return_counts=True)
-    return _shapes(chain, stack, w, present[inverse], n_points)
+    present = np.array([int(np.count_nonzero(w == v)) for v in w], dtype=int)
+    return _shapes(chain, stack, w, present, n_points)

@@ -144,3 +144,24 @@ def test_roots_and_shapes_with_and_without_kernels(name, monkeypatch):
             # field's largest entry
             scale = np.abs(b).max() if b.size else 1.0
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-8 * scale, err_msg=field)
+
+
+@pytest.mark.parametrize("name", ["arm2link", "testbed", "arm2link_actuated"])
+def test_compiled_search_equals_the_numpy_search(name, monkeypatch):
+    # the whole root search in one compiled call (grid counts, bisection, Brent, the grid
+    # extension, count and omega_max limits) against the numpy path's search
+    from casflex.tmm import sweep_frequencies
+    robot = load(f"problems/{name}.toml")
+    qs = np.random.default_rng(3).uniform(-np.pi, np.pi, (6, robot.n_joints))
+    new, old = both(monkeypatch, lambda: sweep_frequencies(robot, qs, 6))
+    # Brent (compiled) vs subdivision + inverse cubic interpolation (numpy), both on
+    # determinants equal to round-off, as in test_roots_and_shapes_with_and_without_kernels
+    np.testing.assert_allclose(new, old, rtol=1e-11)
+    chain = build_chain(robot, qs[0])
+    top = 0.5 * (old[0, 4] + old[0, 5])  # between the 5th and 6th frequency
+    for kwargs in ({"omega_max": top}, {"count": 3, "omega_max": top}):
+        (wn, mn), (wo, mo) = both(monkeypatch, lambda kw=kwargs: natural_frequencies(
+            chain, return_multiplicity=True, **kw))
+        np.testing.assert_array_equal(mn, mo)
+        np.testing.assert_allclose(wn, wo, rtol=1e-11)
+    assert natural_frequencies(chain, omega_max=top).size == 5
