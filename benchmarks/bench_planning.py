@@ -26,7 +26,8 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 Usage::
 
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
-        [--transcription collocation|shooting] [--max-iter K]
+        [--transcription collocation|shooting] [--dynamics implicit|explicit]
+        [--max-iter K] [--move NAME]
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--max-iter", type=int, default=500)
     parser.add_argument("--lbfgs", action="store_true",
                         help="limited-memory Hessian in Ipopt (default: exact)")
+    parser.add_argument("--dynamics", choices=("implicit", "explicit"), default="implicit",
+                        help="form of the collocated dynamics (default implicit)")
+    parser.add_argument("--move", default="move1", help="move of problems/moves.toml")
     args = parser.parse_args(argv)
 
     from casflex.design.study import load_study
@@ -76,7 +80,7 @@ def main(argv: list[str] | None = None) -> dict:
     study = load_study("problems/studies/arm2link_move1.toml")
     model, _ = build_model(study.robot, 3, step=study.model["grid_step"], gravity=None,
                            delta_order=0, processes=1)
-    move = load_move("problems/moves.toml:move1")
+    move = load_move(f"problems/moves.toml:{args.move}")
     shaped = ShapedMove(move, shaper_for_move(model, move, vtol=0.05, margin=0.2).shaper)
     run = simulate_prescribed(model, shaped, dt=1e-3)
     shaped_residual = run.residual_tip_deflection
@@ -84,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
     options = {"hessian_approximation": "limited-memory"} if args.lbfgs else {}
     kw = {"intervals": args.intervals, "torque_limit": tau, "velocity_limit": vel,
           "ipopt_options": options, "transcription": args.transcription,
-          "max_iter": args.max_iter}
+          "max_iter": args.max_iter, "dynamics": args.dynamics}
     t0, c0 = time.perf_counter(), time.process_time()
     plan = plan_move(model, move, end=shaped_residual, guess=shaped, **kw)
     solve_s, solve_cpu_s = time.perf_counter() - t0, time.process_time() - c0
@@ -97,6 +101,7 @@ def main(argv: list[str] | None = None) -> dict:
            "shaped_residual": shaped_residual, "intervals": plan.stats["intervals"],
            "solve_cpu_s": solve_cpu_s, "solve_warm_cpu_s": solve_warm_cpu_s,
            "duration_warm": warm.duration, "transcription": args.transcription,
+           "dynamics": args.dynamics, "move": args.move,
            "hessian": "limited-memory" if args.lbfgs else "exact",
            "substeps": plan.stats["substeps"], "iterations": plan.stats["iterations"],
            "iterations_warm": warm.stats["iterations"], "status": plan.stats["status"],

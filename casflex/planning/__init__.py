@@ -19,6 +19,8 @@ OBJECTIVES
     The objectives of :func:`plan_move`.
 TRANSCRIPTIONS
     The transcriptions of :func:`plan_move` (collocation, multiple shooting).
+DYNAMICS
+    The forms of the collocated dynamics of :func:`plan_move` (implicit, explicit).
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -62,6 +64,7 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.ocp import (
+    DYNAMICS,
     OBJECTIVES,
     TRANSCRIPTIONS,
     plan_limits,
@@ -84,6 +87,7 @@ __all__ = [
     "predicted_residual",
     "OBJECTIVES",
     "TRANSCRIPTIONS",
+    "DYNAMICS",
     # the result
     "PlannedMove",
     # verification

@@ -15,9 +15,9 @@
 * objectives: ``"time"`` (min ``T``), ``"energy"`` (min ``∫ τᵀτ dt`` for a given
   duration) and ``"weighted"`` (min ``T + weight ∫ τᵀτ dt``);
 * constraints: per-joint torque bounds on every interval, velocity and position bounds
-  at every node (and collocation point), joints at rest at both ends, the modes at rest at the start
-  (``δ`` = its static value — zero without gravity — and ``δ̇ = 0``) and at the end either
-  the same (``end="rest"``) or the residual tip deflection below a tolerance
+  at every collocation point (shooting: node), joints at rest at both ends, the modes at
+  rest at the start (``δ`` = its static value — zero without gravity — and ``δ̇ = 0``)
+  and at the end either the same (``end="rest"``) or the residual tip deflection below a tolerance
   (``end=<float>``, m) or nothing (``end="free"``); optionally the tip deflection at
   every node below a bound;
 * robust option: with ``robust=r`` the modal rows of the models whose frequencies are
@@ -73,10 +73,14 @@ _OMEGA_H_COLLOCATION = 1.0
 def _limit(value, n, field, unit):
     if value is None:
         return np.full(n, np.inf)
-    v = np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy() \
-        if np.ndim(value) == 0 else vector(value, n, field, unit=unit)
-    if np.any(v <= 0.0) or np.any(np.isnan(v)):
-        raise fail(field, value, f"must be > 0 [{unit}] for every joint")
+    try:
+        v = np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy() \
+            if np.ndim(value) == 0 else np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        v = None
+    if v is None or v.size != n or np.any(np.isnan(v)) or np.any(v <= 0.0):
+        raise fail(field, value, f"must be one value or {n} values > 0 [{unit}] "
+                   "(inf: no limit)")
     return v
 
 
@@ -402,10 +406,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         and :attr:`PlannedMove.propagator` of both (default: enough that
         ``ω_max h <= 0.25`` for the initial duration).
     torque_limit, velocity_limit : float or array_like, optional
-        Per-joint bounds on ``|τ|`` [N m] and ``|q̇|`` [rad/s] (default none).
+        Per-joint bounds on ``|τ|`` [N m] and ``|q̇|`` [rad/s] (default none; ``inf``:
+        none for that joint).
     position_limits : (array_like, array_like), optional
-        Lower and upper joint bounds [rad] at every node and collocation point (``±inf``
-        for none). Default: the joint limits of ``model.robot`` (none where a joint has
+        Lower and upper joint bounds [rad] at every collocation point (shooting: node;
+        ``±inf`` for none). Default: the joint limits of ``model.robot`` (none where a joint has
         none). The start and the goal must lie within them.
     end : "rest" or "free" or float
         End condition of the modes: at rest (``δ`` static, ``δ̇ = 0``), no condition, or
@@ -634,8 +639,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     finite_tau = np.isfinite(tau_max)
     for j in np.flatnonzero(finite_tau):
         opti.subject_to(opti.bounded(-tau_max[j], U[int(j), :], tau_max[j]))
-    # velocity and position limits at the nodes and the collocation points
-    points = [X[:, 1:N]] + ([Xc] if Xc is not None else [])
+    # velocity and position limits at the collocation points (collocation) or the nodes
+    # (shooting). Not at both: on an arc at the limit, a node's bound would follow from
+    # those of the collocation points before it through the interval polynomial, and the
+    # linearly dependent active bounds (no LICQ) stall Ipopt's dual convergence
+    points = [Xc] if Xc is not None else [X[:, 1:N]]
     for j in np.flatnonzero(np.isfinite(v_max)):
         for P in points:
             opti.subject_to(opti.bounded(-v_max[j], P[n + m + int(j), :], v_max[j]))
