@@ -685,11 +685,16 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.minimize(T + weight * energy)
     opti.set_initial(X, augmented(X_guess))
     opti.set_initial(U, np.clip(U_guess.T, -tau_max[:, None], tau_max[:, None]))
+    # optimality to 1e-8, or to an acceptable 1e-2 over 3 iterates in a row where the
+    # constraints hold to 1e-6: on the flexible arm the last digits of the minimum time
+    # cost more iterations than the whole descent (the reduced Hessian is indefinite and
+    # Ipopt's steps shrink), and the verification by simulation judges the plan
     options = {"max_iter": max_iter, "print_level": 0, "sb": "yes", "tol": 1e-8,
-               "acceptable_tol": 1e-6, "mu_strategy": "adaptive"}
+               "acceptable_tol": 1e-2, "acceptable_iter": 3,
+               "acceptable_constr_viol_tol": 1e-6, "mu_strategy": "adaptive"}
     options.update(ipopt_options or {})
     opti.solver("ipopt", {"print_time": False}, options)
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), time.process_time()
     try:
         sol = opti.solve()
         ok = True
@@ -698,6 +703,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         ok = False
         values = opti.debug.value
     solve_s = time.perf_counter() - t_start
+    solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
     status = str(stats.get("return_status", "unknown"))
     Tv = float(values(T)) if duration is None else float(T)
@@ -726,6 +732,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     info = {
         "status": status, "success": bool(stats.get("success", ok)),
         "iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
+        "solve_cpu_s": solve_cpu_s,
         "objective": objective, "objective_value": float(values(opti.f)),
         "energy": float(values(energy)), "intervals": N, "substeps": substeps,
         "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
