@@ -15,7 +15,7 @@
 * objectives: ``"time"`` (min ``T``), ``"energy"`` (min ``∫ τᵀτ dt`` for a given
   duration) and ``"weighted"`` (min ``T + weight ∫ τᵀτ dt``);
 * constraints: per-joint torque bounds on every interval, velocity and position bounds
-  at every collocation point (shooting: node), joints at rest at both ends, the modes at
+  at every node and collocation point, joints at rest at both ends, the modes at
   rest at the start (``δ`` = its static value — zero without gravity — and ``δ̇ = 0``)
   and at the end either the same (``end="rest"``) or the residual tip deflection below a tolerance
   (``end=<float>``, m) or nothing (``end="free"``); optionally the tip deflection at
@@ -409,8 +409,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Per-joint bounds on ``|τ|`` [N m] and ``|q̇|`` [rad/s] (default none; ``inf``:
         none for that joint).
     position_limits : (array_like, array_like), optional
-        Lower and upper joint bounds [rad] at every collocation point (shooting: node;
-        ``±inf`` for none). Default: the joint limits of ``model.robot`` (none where a joint has
+        Lower and upper joint bounds [rad] at every node and collocation point (``±inf``
+        for none). Default: the joint limits of ``model.robot`` (none where a joint has
         none). The start and the goal must lie within them.
     end : "rest" or "free" or float
         End condition of the modes: at rest (``δ`` static, ``δ̇ = 0``), no condition, or
@@ -639,11 +639,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     finite_tau = np.isfinite(tau_max)
     for j in np.flatnonzero(finite_tau):
         opti.subject_to(opti.bounded(-tau_max[j], U[int(j), :], tau_max[j]))
-    # velocity and position limits at the collocation points (collocation) or the nodes
-    # (shooting). Not at both: on an arc at the limit, a node's bound would follow from
-    # those of the collocation points before it through the interval polynomial, and the
-    # linearly dependent active bounds (no LICQ) stall Ipopt's dual convergence
-    points = [Xc] if Xc is not None else [X[:, 1:N]]
+    # velocity and position limits at the nodes and the collocation points. (On an arc at
+    # the limit the node's bound follows from its interval's through the polynomial, so
+    # the active bounds are linearly dependent; with the bounds at the collocation points
+    # only, move 1 of the design study took Ipopt to T = 2.95 s in 30 iterations where
+    # both reach 2.396 s in 32 (benchmarks/README_planning.md): both are kept.)
+    points = [X[:, 1:N]] + ([Xc] if Xc is not None else [])
     for j in np.flatnonzero(np.isfinite(v_max)):
         for P in points:
             opti.subject_to(opti.bounded(-v_max[j], P[n + m + int(j), :], v_max[j]))
