@@ -223,3 +223,16 @@ def test_joint_limits_of_the_robot_bound_the_plan(robot):
     assert plan.stats["success"]
     with pytest.raises(ModelError, match="position_limits"):
         plan_move(model, [0.0], [0.5], position_limits=([1.0], [0.0]))
+
+
+def test_scenario_model_of_a_tabulated_model(arm_model):
+    """A frequency-shifted scenario of a model built from modal tables (the provider's
+    ``evaluate`` with the quantities it is asked for, as FlexibleModel calls it): the
+    stiffness K = diag(omega^2) is scaled by (1 + r)^2 exactly, the mass matrix is not."""
+    model, _ = arm_model(1, 30.0, gravity=None)
+    shifted = frequency_shifted_model(model, 0.1)
+    q = [0.2, 0.3, 0.4]
+    K, K2 = (mod.functions()["stiffness"](q).full() for mod in (model, shifted))
+    np.testing.assert_allclose(K2, 1.21 * K, rtol=1e-12)
+    M, M2 = (mod.functions()["mass"](q, [1e-3]).full() for mod in (model, shifted))
+    np.testing.assert_allclose(M2, M, rtol=1e-12)
