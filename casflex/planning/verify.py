@@ -309,6 +309,9 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     if move.n_joints != robot.n_joints:
         raise fail("move", move.name, f"has {move.n_joints} joint(s) but robot "
                    f"'{robot.name}' has {robot.n_joints}")
+    # a start or goal outside the robot's joint limits is refused before any heavy work
+    robot.within_limits(move.q0, f"move '{move.name}' start q0")
+    robot.within_limits(move.qf, f"move '{move.name}' goal qf")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
     say = log or (lambda message: None)
     timings = {}

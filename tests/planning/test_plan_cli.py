@@ -95,3 +95,17 @@ def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
                  "--out", str(notes)])
     assert code == 2
     assert "--out" in capsys.readouterr().err
+
+
+def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
+    # problems/arm3_spatial.toml limits q2 to +-100 deg: a goal at 2 rad is refused with
+    # one line naming the move, the joint and the limits, before any table is built
+    moves = tmp_path / "moves.toml"
+    moves.write_text('[far]\nduration = 2.0\nq0 = [0.0, 0.0, 0.0, 0.0]\n'
+                     'qf = [0.0, 2.0, 0.0, 0.0]\n')
+    code = main(["plan", "problems/arm3_spatial.toml", "--move", f"{moves}:far",
+                 "--cache-dir", str(tmp_path / "cache")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "move 'far' goal qf" in err and "joint limits" in err
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").iterdir())
