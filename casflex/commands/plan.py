@@ -8,7 +8,9 @@
 runs :func:`casflex.planning.plan_robot_move`: the gravity-free modal model of the robot
 (tables cached), the SI-shaped version of the move (as ``casflex shaper`` designs it),
 the optimal control problem at the shaped move's peak torques and velocities (so that
-the comparison is fair; ``--torque-limit`` / ``--velocity-limit`` override them) with
+the comparison is fair; a joint the move holds gets no torque limit and a velocity limit
+of 1e-3 of the moving joints'; ``--torque-limit`` / ``--velocity-limit`` override them;
+the position limits are the robot file's joint limits) with
 the shaped move's residual tip deflection as the end tolerance (``--end``), and the
 verification of the plan by simulation at ``--dt``: the planned joint motion with the
 prescribed-motion simulator and the planned torques with the torque-driven simulator.

@@ -19,6 +19,8 @@ OBJECTIVES
     The objectives of :func:`plan_move`.
 TRANSCRIPTIONS
     The transcriptions of :func:`plan_move` (collocation, multiple shooting).
+DYNAMICS
+    The forms of the collocated dynamics of :func:`plan_move` (implicit, explicit).
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -68,6 +70,7 @@ from __future__ import annotations
 
 from casflex.planning.limits import shaped_move_limits
 from casflex.planning.ocp import (
+    DYNAMICS,
     OBJECTIVES,
     TRANSCRIPTIONS,
     plan_limits,
@@ -90,6 +93,7 @@ __all__ = [
     "predicted_residual",
     "OBJECTIVES",
     "TRANSCRIPTIONS",
+    "DYNAMICS",
     # the result
     "PlannedMove",
     # limits

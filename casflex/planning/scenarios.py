@@ -10,6 +10,7 @@ such option, so :class:`ScaledFrequencyProvider` wraps the model's provider here
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import casadi as ca
@@ -80,13 +81,16 @@ class ScaledFrequencyProvider:
         args = [ca.SX.sym(f"x{i}", f.sparsity_in(i)) for i in range(f.n_in())]
         return ca.Function("omega_scaled", args, [self.factor * f(*args)])
 
-    def evaluate(self, q_shape: ca.SX) -> dict[str, ca.SX]:
-        """Every quantity at ``q_shape`` (the wrapped provider's), ``omega`` scaled.
+    def evaluate(self, q_shape: ca.SX, names: Sequence[str] | None = None
+                 ) -> dict[str, ca.SX]:
+        """The quantities at ``q_shape`` (the wrapped provider's), ``omega`` scaled.
 
         Parameters
         ----------
         q_shape : casadi.SX
             The shape joints [rad].
+        names : sequence of str, optional
+            The quantities wanted (default all; as the wrapped provider's ``evaluate``).
 
         Examples
         --------
@@ -99,8 +103,10 @@ class ScaledFrequencyProvider:
         >>> round(float(ca.evalf(v["omega"])), 3)
         12.461
         """
-        values = dict(self.provider.evaluate(q_shape))
-        values["omega"] = self.factor * values["omega"]
+        values = dict(self.provider.evaluate(q_shape) if names is None
+                      else self.provider.evaluate(q_shape, names))
+        if "omega" in values:
+            values["omega"] = self.factor * values["omega"]
         return values
 
 

@@ -246,9 +246,12 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     (:class:`casflex.model.PointwiseProvider`: no table to build). The
     SI shaper of the move (:func:`casflex.shaping.shaper_for_move`) gives the shaped move;
     its peak torques and velocities with the joints on it (:func:`plan_limits`) are the
-    planner's limits, so the comparison is fair. The plan's end condition is, by default,
-    the residual tip deflection of the shaped move (with the joints on it). Both are
-    simulated at ``dt`` (:func:`verify_plan`), and at ``±robust`` when ``robust > 0``.
+    planner's limits, so the comparison is fair. A joint the move holds (start = goal) has
+    no torque limit (its servo holds it against the reaction of the others' motion,
+    which a faster move raises) and a velocity limit of 1e-3 of the moving joints'. The
+    plan's end condition is, by default, the residual tip deflection of the shaped move
+    (with the joints on it). Both are simulated at ``dt`` (:func:`verify_plan`), and at
+    ``±robust`` when ``robust > 0``.
 
     Parameters
     ----------
@@ -306,6 +309,9 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     if move.n_joints != robot.n_joints:
         raise fail("move", move.name, f"has {move.n_joints} joint(s) but robot "
                    f"'{robot.name}' has {robot.n_joints}")
+    # a start or goal outside the robot's joint limits is refused before any heavy work
+    robot.within_limits(move.q0, f"move '{move.name}' start q0")
+    robot.within_limits(move.qf, f"move '{move.name}' goal qf")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
     say = log or (lambda message: None)
     timings = {}
@@ -346,9 +352,16 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
             {"error": r, "residual": _residual_after(rr.t, rr.tip_deflection,
                                                      shaped.duration)})
     tau_lim, v_lim = plan_limits(model, shaped, dt=dt)
-    # a joint the shaped move does not drive keeps a small limit (Ipopt needs an interior)
-    tau_lim = np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()), 1e-12))
-    v_lim = np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12))
+    # a joint the move holds (start = goal) is held by its servo: its torque in the shaped
+    # move is the reaction to the others' motion, which a faster move raises, so it is
+    # not limited; its velocity is kept within 1e-3 of the moving joints' limit (Ipopt
+    # needs an interior)
+    held = np.asarray(move.q0, dtype=float) == np.asarray(move.qf, dtype=float)
+    moving_v = float(v_lim[~held].max()) if np.any(~held) else float(v_lim.max())
+    tau_lim = np.where(held, np.inf, np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()),
+                                                                    1e-12)))
+    v_lim = np.where(held, 1e-3 * max(moving_v, 1e-9),
+                     np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12)))
     limits = {"torque": plan_options.pop("torque_limit", tau_lim),
               "velocity": plan_options.pop("velocity_limit", v_lim)}
     limits = {k: np.broadcast_to(np.asarray(val, dtype=float), (robot.n_joints,))

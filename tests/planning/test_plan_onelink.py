@@ -184,3 +184,55 @@ def test_scenario_models_keep_the_model_options(robot):
     shifted = frequency_shifted_model(model, 0.1)
     assert (shifted.shape_rates, shifted.foreshortening) == (True, True)
     assert shifted.delta_order == model.delta_order
+
+
+def test_implicit_and_explicit_dynamics_agree(flexible):
+    # the two forms of the collocated dynamics: x' = ode(x, tau) (the model's solve of
+    # M X'' = [tau; 0] - h) and the implicit one (q'' variables, the prescribed-motion
+    # torques equal to tau). Same discretisation, same NLP solution: only Ipopt's
+    # tolerance (1e-8) separates them.
+    kw = {"torque_limit": TAU_MAX, "end": 2e-3, "intervals": 40}
+    implicit = plan_move(flexible, [0.0], [THETA], dynamics="implicit", **kw)
+    explicit = plan_move(flexible, [0.0], [THETA], dynamics="explicit", **kw)
+    assert implicit.stats["dynamics"] == "implicit"
+    assert implicit.duration == pytest.approx(explicit.duration, rel=1e-7)
+    np.testing.assert_allclose(implicit.node_tau, explicit.node_tau, atol=1e-5 * TAU_MAX)
+    # the dense joint accelerations of the implicit plan are those of the model's ode
+    np.testing.assert_allclose(implicit.ddq, explicit.ddq, atol=1e-4)
+
+
+def test_joint_limits_of_the_robot_bound_the_plan(robot):
+    import dataclasses
+
+    from casflex.errors import ModelError
+
+    limited = dataclasses.replace(robot, joint_limits=((-0.2, THETA),))
+    model = FlexibleModel(limited, PointwiseProvider(limited, [0.0], count=1), gravity=None)
+    # the goal on the limit is allowed; the plan stays within it at every node and
+    # collocation point, hence on the dense output up to the polynomial's interpolation
+    plan = plan_move(model, [0.0], [THETA], torque_limit=TAU_MAX, intervals=30)
+    assert plan.node_x[:, 0].max() <= THETA + 1e-9
+    with pytest.raises(ModelError, match=r"goal .*joint 1 \(1\.1 rad\) lies outside the "
+                                         r"joint limits of robot 'onelink'"):
+        plan_move(model, [0.0], [1.1], torque_limit=TAU_MAX)
+    with pytest.raises(ModelError, match="start .*joint 1"):
+        plan_move(model, [-0.3], [0.5], torque_limit=TAU_MAX)
+    # explicit limits replace the robot's; +-inf leaves a joint free
+    plan = plan_move(model, [0.0], [1.1], torque_limit=TAU_MAX, intervals=30,
+                     position_limits=([-np.inf], [np.inf]))
+    assert plan.stats["success"]
+    with pytest.raises(ModelError, match="position_limits"):
+        plan_move(model, [0.0], [0.5], position_limits=([1.0], [0.0]))
+
+
+def test_scenario_model_of_a_tabulated_model(arm_model):
+    """A frequency-shifted scenario of a model built from modal tables (the provider's
+    ``evaluate`` with the quantities it is asked for, as FlexibleModel calls it): the
+    stiffness K = diag(omega^2) is scaled by (1 + r)^2 exactly, the mass matrix is not."""
+    model, _ = arm_model(1, 30.0, gravity=None)
+    shifted = frequency_shifted_model(model, 0.1)
+    q = [0.2, 0.3, 0.4]
+    K, K2 = (mod.functions()["stiffness"](q).full() for mod in (model, shifted))
+    np.testing.assert_allclose(K2, 1.21 * K, rtol=1e-12)
+    M, M2 = (mod.functions()["mass"](q, [1e-3]).full() for mod in (model, shifted))
+    np.testing.assert_allclose(M2, M, rtol=1e-12)
