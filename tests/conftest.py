@@ -23,7 +23,8 @@ draw random numbers take the ``rng`` fixture, seeded from the test's own id, so 
 failure seen in the full run reproduces with ``-k``.
 
 Parallel runs (pytest-xdist, ``-n 2 --dist loadfile`` in ``pyproject.toml``): each worker
-is a session of its own over whole test files, with its own ``$CASFLEX_CACHE`` (a
+is a session of its own over whole test files, the longest files (:data:`HEAVY_FILES`)
+first, with its own ``$CASFLEX_CACHE`` (a
 sub-directory of the run's temporary directory, so a test sees the cache exactly as in a
 one-process run); only the modal tables of :func:`arm_model` live in one directory shared
 by the workers (their builds coordinate through :func:`casflex._cache.build_shared`, and a
@@ -33,14 +34,23 @@ table is the same whichever worker computes it). ``-n 0`` runs in one process.
 from __future__ import annotations
 
 import os
-import shutil
-import sys
-import tempfile
-import zlib
-from pathlib import Path
 
-import numpy as np
-import pytest
+# One BLAS thread per process, set before numpy loads (here, and in the workers and
+# subprocesses, which inherit the environment): the two workers already fill the two
+# cores, and OpenBLAS's threads on the suite's small matrices spin against each other
+# (a reference beam run took 57 s of CPU with the default threads against 1.6 s with
+# one, on the 2-core machine). A value the user set is kept.
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import shutil  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import zlib  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = Path(__file__).resolve().parent
@@ -78,12 +88,35 @@ QUICK_FILES = (
 )
 
 
+#: Test files that take a minute or more of one worker's time in the full run (CI logs
+#: their tests' durations), longest first. In a pytest-xdist run they are scheduled first
+#: (the longest-first rule: ``--no-loadscope-reorder`` in ``pyproject.toml`` keeps this
+#: order), so that no long file starts near the end while the other worker idles.
+HEAVY_FILES = (
+    "tests/test_notebooks.py",
+    "tests/model/test_model_fidelity.py",
+    "tests/estimation/test_plant_model_options.py",
+    "tests/test_faults.py",
+    "tests/test_bad_input.py",
+    "tests/simulate/test_closed_loop_paths.py",
+    "tests/design/test_design.py",
+    "tests/model/test_foreshortening.py",
+    "tests/estimation/test_estimation.py",
+    "tests/model/test_shape_rates.py",
+)
+
+
 def pytest_collection_modifyitems(config, items):
-    """Mark the quick subset (:data:`QUICK_FILES`, not slow) with ``quick``."""
+    """Mark the quick subset (:data:`QUICK_FILES`, not slow) with ``quick``; in a
+    pytest-xdist worker, put the files of :data:`HEAVY_FILES` first, in its order (both
+    workers collect, and so order, identically)."""
     quick = {str(ROOT / name) for name in QUICK_FILES}
     for item in items:
         if str(item.path) in quick and item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.quick)
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        rank = {str(ROOT / name): k for k, name in enumerate(HEAVY_FILES)}
+        items.sort(key=lambda item: rank.get(str(item.path), len(HEAVY_FILES)))
 
 
 #: set by the controller of a pytest-xdist run for its workers: the run's directory

@@ -19,6 +19,7 @@ reference's peak.
 from __future__ import annotations
 
 import hashlib
+import inspect
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,26 +65,108 @@ DIAGNOSTIC_MOVES = {
 }
 
 
-def reference_run(move: PlanarMove, n_elements: int = 16, dt: float = 1e-3,
-                  cache: Path | None = None) -> dict[str, np.ndarray]:
-    """Reference tip deflection ``{"t", "d"}`` [s, m], cached as ``.npz`` under ``cache``."""
-    source = (Path(__file__).parent / "reference_beam_dynamics.py").read_bytes()
-    key = hashlib.sha256(source + repr((move, n_elements, dt, BEAM)).encode()).hexdigest()
-    path = None if cache is None else Path(cache) / f"ancf-{key[:20]}.npz"
-    if path is not None and path.exists():
-        with np.load(path) as z:
-            return {"t": z["t"], "d": z["d"]}
+#: the move of the small-and-slow test, where the modal model's theory holds
+SMALL_SLOW = PlanarMove("small_slow", -0.05, 0.06, 2.0, settle=1.0)
+#: the move of the reference's convergence test (elbow2_1s with a shorter settle)
+CONVERGENCE_MOVE = PlanarMove("elbow2_1s_short", -0.8, 1.2, 1.0, settle=1.0)
+
+#: committed reference runs, ``ancf-<key>.npz`` (see :func:`reference_key`)
+STORED_RUNS_DIR = Path(__file__).parent / "reference_runs"
+#: the runs stored there: (move, elements per link, step [s]) — the fidelity and
+#: convergence tests' and notebook 02's (8 elements). ``python tests/fidelity_cases.py``
+#: computes the missing ones and removes the stale ones.
+STORED_RUNS = (
+    *((move, 16, 1e-3) for move in MOVES.values()),
+    (SMALL_SLOW, 16, 1e-3),
+    (CONVERGENCE_MOVE, 16, 1e-3),
+    (CONVERGENCE_MOVE, 32, 1e-3),
+    (CONVERGENCE_MOVE, 16, 5e-4),
+    (MOVES["move2"], 8, 1e-3),
+    (MOVES["elbow2_1s"], 8, 1e-3),
+)
+
+
+def compute_reference_run(move: PlanarMove, n_elements: int, dt: float
+                          ) -> dict[str, np.ndarray]:
+    """Reference tip deflection ``{"t", "d"}`` [s, m], computed from scratch."""
     arm = TwoLinkArm((BEAM, BEAM), n_elements)
     run = arm.simulate(BangBang(0.0, move.q2f, move.duration),
                        BangBang(0.5 * np.pi, 0.5 * np.pi + move.q3f, move.duration),
                        move.t_end, dt)
-    out = {"t": run["t"], "d": run["tip"] - run["tip_rigid"]}
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **out)
-        tmp.replace(path)
+    return {"t": run["t"], "d": run["tip"] - run["tip_rigid"]}
+
+
+def reference_key(move: PlanarMove, n_elements: int, dt: float) -> str:
+    """Key of a reference run: a hash of the reference's source
+    (``reference_beam_dynamics.py``), of :func:`compute_reference_run` and of the run's
+    parameters (move, elements, step, beam). Any change to them gives a new key, so a
+    stored run is never used for a reference that differs from it."""
+    source = (Path(__file__).parent / "reference_beam_dynamics.py").read_bytes()
+    source += inspect.getsource(compute_reference_run).encode()
+    params = repr((move, n_elements, dt, BEAM)).encode()
+    return hashlib.sha256(source + params).hexdigest()[:20]
+
+
+def _stored_name(move: PlanarMove, n_elements: int, dt: float) -> str:
+    return f"ancf-{reference_key(move, n_elements, dt)}.npz"
+
+
+def _read_run(path: Path, dt: float) -> dict[str, np.ndarray]:
+    """A run written by :func:`_write_run`; its times are ``k dt`` as in the simulation."""
+    with np.load(path) as z:
+        d = z["d"]
+    return {"t": np.arange(len(d)) * dt, "d": d}
+
+
+def _write_run(path: Path, run: dict[str, np.ndarray], params: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, d=run["d"], params=np.array(params))
+    tmp.replace(path)
+
+
+def reference_run(move: PlanarMove, n_elements: int = 16, dt: float = 1e-3,
+                  cache: Path | None = None) -> dict[str, np.ndarray]:
+    """Reference tip deflection ``{"t", "d"}`` [s, m]: the committed run of
+    :data:`STORED_RUNS_DIR` when its key is current, else one cached as ``.npz`` under
+    ``cache``, else computed (and then cached under ``cache``)."""
+    name = _stored_name(move, n_elements, dt)
+    for directory in (STORED_RUNS_DIR, cache):
+        if directory is not None and (Path(directory) / name).exists():
+            return _read_run(Path(directory) / name, dt)
+    out = compute_reference_run(move, n_elements, dt)
+    if cache is not None:
+        _write_run(Path(cache) / name, out, repr((move, n_elements, dt)))
     return out
+
+
+def stale_stored_runs() -> tuple[list[str], list[str]]:
+    """``(missing, stale)``: stored runs of :data:`STORED_RUNS` without a file under the
+    current key, and files of :data:`STORED_RUNS_DIR` that no current run uses."""
+    wanted = {_stored_name(*run) for run in STORED_RUNS}
+    present = {p.name for p in STORED_RUNS_DIR.glob("ancf-*.npz")}
+    missing = [repr((m.name, ne, dt)) for m, ne, dt in STORED_RUNS
+               if _stored_name(m, ne, dt) not in present]
+    return missing, sorted(present - wanted)
+
+
+def store_reference_runs(processes: int = 2) -> None:
+    """Compute the missing runs of :data:`STORED_RUNS` into :data:`STORED_RUNS_DIR` (in
+    ``processes`` processes) and remove the stale files."""
+    from casflex._parallel import parallel_map
+
+    wanted = {_stored_name(*run): run for run in STORED_RUNS}
+    for path in STORED_RUNS_DIR.glob("ancf-*.npz"):
+        if path.name not in wanted:
+            path.unlink()
+    todo = [(name, run) for name, run in wanted.items()
+            if not (STORED_RUNS_DIR / name).exists()]
+    # longest first (elements × steps) so that the two processes end together
+    jobs = sorted(todo, key=lambda job: -job[1][1] * job[1][0].t_end / job[1][2])
+    for name, out in parallel_map(compute_reference_run, jobs, processes=processes,
+                                  chunksize=1, progress=True, desc="reference runs"):
+        move, ne, dt = wanted[name]
+        _write_run(STORED_RUNS_DIR / name, out, repr((move, ne, dt)))
 
 
 def casflex_run(model, move: PlanarMove, dt: float = 1e-3, method: str = "rk4"
@@ -137,3 +220,10 @@ def compare(model_run: dict, ref_run: dict, t_move_end: float,
         out["gap_along_pct"] = 100 * np.abs(((dm - dr) * u).sum(1)).max() / peak_r
         out["gap_normal_pct"] = 100 * np.abs(((dm - dr) * normal).sum(1)).max() / peak_r
     return out
+
+
+if __name__ == "__main__":
+    # through the module's own name, so that the process pool pickles its functions by it
+    import fidelity_cases
+
+    fidelity_cases.store_reference_runs()

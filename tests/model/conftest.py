@@ -5,6 +5,6 @@ import pytest
 
 @pytest.fixture(scope="module")
 def ref_cache(pytestconfig):
-    """pytest's cache directory for reference runs, keyed by the reference's source, the
-    move, the element count and the step (tests/fidelity_cases.py)."""
+    """pytest's cache directory for reference runs that are not committed under their
+    current key in tests/reference_runs/ (tests/fidelity_cases.py, ``reference_run``)."""
     return pytestconfig.cache.mkdir("casflex_ancf_reference")

@@ -3,15 +3,17 @@
 The reference (tests/reference_beam_dynamics.py) is a planar ANCF Euler–Bernoulli model of
 the Table 8 arm with prescribed joints, written without casflex; tests/fidelity_cases.py
 maps the arm and the moves into its plane and defines the tip deflection identically on
-both sides (issue 19). Reference runs are cached in pytest's cache directory, keyed by the
-reference's source, the move, the element count and the step.
+both sides (issue 19). The reference runs are committed in tests/reference_runs/, keyed by
+a hash of the reference's source and the run's parameters (checked and reproduced in
+test_reference_convergence.py); a run without a current stored file is computed and kept
+in pytest's cache directory.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from fidelity_cases import BEAM, MOVES, PlanarMove, casflex_run, compare, reference_run
+from fidelity_cases import BEAM, MOVES, SMALL_SLOW, casflex_run, compare, reference_run
 from reference_beam_dynamics import TwoLinkArm
 
 
@@ -53,9 +55,6 @@ def test_reference_rigid_when_stiff():
     d_soft, d_hard = deflection(BEAM), deflection(stiff)
     # quasi-static deflection scales as 1/EI: 1e4 stiffer -> ~1e-4 of the deflection
     assert d_hard < 3e-4 * d_soft
-
-
-SMALL_SLOW = PlanarMove("small_slow", -0.05, 0.06, 2.0, settle=1.0)
 
 
 @pytest.mark.slow
