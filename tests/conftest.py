@@ -95,6 +95,8 @@ QUICK_FILES = (
 HEAVY_FILES = (
     "tests/test_notebooks.py",
     "tests/model/test_model_fidelity.py",
+    "tests/model/test_spatial_fidelity.py",
+    "tests/model/test_spatial_reference.py",
     "tests/estimation/test_plant_model_options.py",
     "tests/test_faults.py",
     "tests/test_bad_input.py",

@@ -138,7 +138,11 @@ def highpass_cutoff(model: FlexibleModel, q: ArrayLike) -> float:
     >>> round(highpass_cutoff(model, [0, 0, 0]), 3)
     0.831
     """
-    w = ca.Function("w", [model.q], [model.omega])(np.asarray(q, dtype=float))
+    q = np.asarray(q, dtype=float)
+    if getattr(model, "full_stiffness", False):  # a rotated basis: ω are Rayleigh quotients
+        K = model.functions()["stiffness"](q).full()
+        return float(np.sqrt(max(np.linalg.eigvalsh(K)[0], 0.0))) / 10.0
+    w = ca.Function("w", [model.q], [model.omega])(q)
     return float(np.min(np.asarray(w))) / 10.0
 
 

@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._validate import choice, fail, number, vector
-from casflex.errors import SolverError
+from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
 from casflex.planning.planned import PlannedMove
@@ -356,6 +356,7 @@ def predicted_residual(model: FlexibleModel, q: ArrayLike, delta: ArrayLike,
     q = np.asarray(q, dtype=float).ravel()
     if not model.m:
         return 0.0
+    _refuse_full_stiffness(model)
     V = tip_jacobian(model, q)
     omega = np.sqrt(np.diag(model.functions()["stiffness"](q).full()))
     d = np.asarray(delta, dtype=float).ravel() - static_deflection(model, q)
@@ -364,6 +365,14 @@ def predicted_residual(model: FlexibleModel, q: ArrayLike, delta: ArrayLike,
     modal = d[None, :] * np.cos(omega * t[:, None]) + \
         (dd / omega)[None, :] * np.sin(omega * t[:, None])
     return float(np.max(np.linalg.norm(modal @ V.T, axis=1)))
+
+
+def _refuse_full_stiffness(model):
+    """The end conditions take each mode's free vibration on its own ω (diagonal K):
+    a rotated (smooth) basis, whose K̃ couples the modes, would be silently wrong."""
+    if getattr(model, "full_stiffness", False):
+        raise ModelError("planning needs a diagonal modal stiffness; this model has a full "
+                         "K̃ (a smooth mode basis): build it with basis='eigen'")
 
 
 def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | None = None,
@@ -475,6 +484,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     (True, 1.29)
     """
     n, m = model.n, model.m
+    _refuse_full_stiffness(model)
     move = start if isinstance(start, Move) or hasattr(start, "casadi_reference") else None
     if move is not None:
         if goal is not None:

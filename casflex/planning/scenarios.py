@@ -53,6 +53,10 @@ class ScaledFrequencyProvider:
             # the model asks getattr(provider, "evaluate", None): no batched evaluation
             self.evaluate = None
 
+    # the frequency-like quantities and their power of the frequency: ω, and in a rotated
+    # (smooth) basis the full modal stiffness K̃ and its root Ω̃ = sqrtm(K̃)
+    _powers = {"omega": 1, "stiffness": 2, "stiffness_root": 1}
+
     def __getattr__(self, name: str) -> Any:
         # zero_entries, names, ...: as the wrapped provider has them (evaluate is below)
         if name in ("provider", "factor", "shape_joints"):
@@ -60,7 +64,8 @@ class ScaledFrequencyProvider:
         return getattr(self.provider, name)
 
     def function(self, name: str) -> ca.Function:
-        """The wrapped provider's function ``name``; ``omega`` scaled by ``factor``.
+        """The wrapped provider's function ``name``; ``omega`` (and ``stiffness_root``) scaled by
+        ``factor``, ``stiffness`` by ``factor²``.
 
         Parameters
         ----------
@@ -76,10 +81,11 @@ class ScaledFrequencyProvider:
         'omega_scaled'
         """
         f = self.provider.function(name)
-        if name != "omega":
+        if name not in self._powers:
             return f
         args = [ca.SX.sym(f"x{i}", f.sparsity_in(i)) for i in range(f.n_in())]
-        return ca.Function("omega_scaled", args, [self.factor * f(*args)])
+        return ca.Function(f"{name}_scaled", args,
+                           [self.factor ** self._powers[name] * f(*args)])
 
     def evaluate(self, q_shape: ca.SX, names: Sequence[str] | None = None
                  ) -> dict[str, ca.SX]:
@@ -105,8 +111,9 @@ class ScaledFrequencyProvider:
         """
         values = dict(self.provider.evaluate(q_shape) if names is None
                       else self.provider.evaluate(q_shape, names))
-        if "omega" in values:
-            values["omega"] = self.factor * values["omega"]
+        for name, power in self._powers.items():
+            if name in values:
+                values[name] = self.factor ** power * values[name]
         return values
 
 

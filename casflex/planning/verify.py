@@ -28,7 +28,8 @@ import numpy as np
 
 from casflex._validate import fail, number
 from casflex.model import FlexibleModel
-from casflex.planning.ocp import plan_limits, plan_move
+from casflex.planning.limits import shaped_move_limits
+from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection
 
@@ -351,17 +352,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         shaped_check["errors"].append(
             {"error": r, "residual": _residual_after(rr.t, rr.tip_deflection,
                                                      shaped.duration)})
-    tau_lim, v_lim = plan_limits(model, shaped, dt=dt)
-    # a joint the move holds (start = goal) is held by its servo: its torque in the shaped
-    # move is the reaction to the others' motion, which a faster move raises, so it is
-    # not limited; its velocity is kept within 1e-3 of the moving joints' limit (Ipopt
-    # needs an interior)
-    held = np.asarray(move.q0, dtype=float) == np.asarray(move.qf, dtype=float)
-    moving_v = float(v_lim[~held].max()) if np.any(~held) else float(v_lim.max())
-    tau_lim = np.where(held, np.inf, np.maximum(tau_lim, 1e-6 * max(float(tau_lim.max()),
-                                                                    1e-12)))
-    v_lim = np.where(held, 1e-3 * max(moving_v, 1e-9),
-                     np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12)))
+    # the shaped move's peaks; a joint the move holds is not torque-limited (limits.py)
+    tau_lim, v_lim = shaped_move_limits(model, move, shaped, dt=dt)
     limits = {"torque": plan_options.pop("torque_limit", tau_lim),
               "velocity": plan_options.pop("velocity_limit", v_lim)}
     limits = {k: np.broadcast_to(np.asarray(val, dtype=float), (robot.n_joints,))

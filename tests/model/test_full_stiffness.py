@@ -165,3 +165,29 @@ def test_poly_refuses_a_full_stiffness_block(arm, point_quantities):
     with pytest.raises(ModelError, match="full K̃"):
         simulate_prescribed(model, Move(Q_POINT, [0.1, 0.0, 0.5], 0.5), dt=0.01,
                             method="poly")
+
+
+def test_consumers_of_the_frequencies_see_a_full_stiffness_block(arm, point_quantities):
+    """Consumers that read frequencies take K̃'s eigenvalues or refuse, never the Rayleigh
+    diagonal: a frequency-shifted scenario scales K̃ by (1 + r)² (its eigenvalues, the
+    natural frequencies, by 1 + r), the EKF's high-pass cutoff is a tenth of the lowest
+    natural frequency, and planning (decoupled free vibration at the end) refuses."""
+    from casflex.errors import ModelError
+    from casflex.estimation.runs import highpass_cutoff
+    from casflex.planning import plan_move
+    from casflex.planning.scenarios import frequency_shifted_model
+
+    w = np.sort(np.asarray(point_quantities["omega"], dtype=float).ravel())
+    R = _rotation(0.7)[[1, 2, 0]][:, [1, 2, 0]]  # modes 1 and 2 mixed: the lowest Rayleigh
+    model = FlexibleModel(arm, ConstantProvider(_rotated(point_quantities, R), (2,)),
+                          gravity=None)  # frequency lies above the lowest natural one
+    assert float(np.min(np.sqrt(np.diag(model.functions()["stiffness"](Q_POINT).full())))) \
+        > 1.01 * w[0]
+    shifted = frequency_shifted_model(model, 0.1)
+    natural = [np.sqrt(np.linalg.eigvalsh(m.functions()["stiffness"](Q_POINT).full()))
+               for m in (model, shifted)]
+    np.testing.assert_allclose(natural[0], w, rtol=1e-12)
+    np.testing.assert_allclose(natural[1], 1.1 * w, rtol=1e-12)
+    assert highpass_cutoff(model, Q_POINT) == pytest.approx(w[0] / 10.0, rel=1e-12)
+    with pytest.raises(ModelError, match="diagonal modal stiffness"):
+        plan_move(model, Q_POINT, [0.1, 0.0, 0.5], torque_limit=1.0, intervals=10)
