@@ -291,8 +291,8 @@ fig.tight_layout()
 # loaded machine: ``shape_rates`` 1.34× the CasADi instructions of the modal rows and
 # 1.6–2.0× the compiled ``poly`` simulation of move 1 (medians of two sessions; the EKF
 # step unchanged); both options 1.9× the instructions, 2–3× per RK4 step (``poly``
-# needs an M affine in δ and is not available with ``foreshortening``) and 1.3× the EKF
-# step's instructions.
+# takes ``foreshortening`` through the δ² coefficients of M_qq, at about 4× its
+# first-order cost) and 1.3× the EKF step's instructions.
 # They are off by default.
 
 # %% [markdown]

@@ -81,17 +81,23 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
       "its goal")
 
 # %% [markdown]
-# ## 7.2 The two-link arm's moves 1–3: not converged yet
+# ## 7.2 The two-link arm's moves 1–3: where they stand
 #
-# On move 1 of the design study (Table 8 arm, three modes) the planner **does not
-# converge yet**. With collocation on 153 intervals (7 816 variables) Ipopt's iterates
-# approach T ≈ 2.1 s, a third shorter than the SI-shaped move's 3.21 s, but stay ~1e-3
-# away from feasibility after hundreds of iterations (2–3 s of CPU each), so there is no
-# verified plan, no `--robust 0.1` comparison and nothing for moves 2 and 3. The design
-# study `problems/studies/arm2link_move1.toml` therefore has no `[planner]` section; the
-# issue (15) stays open, and this section will show the comparison once the planner
-# converges there. The one-link arm above and below is where the planner converges today,
-# in seconds.
+# Implicit-dynamics collocation (153 intervals for move 1) with Ipopt's acceptable
+# tolerance (constraints still met to 1e-6) converges on the design study's moves, but a
+# solve costs 1–3 minutes of CPU, too long for a notebook cell; the figures come from
+# `casflex design` and `casflex plan` runs (benchmarks/README_planning.md):
+#
+# | move | planned | SI-shaped | shorter | residual tip deflection, planned vs shaped |
+# |---|---|---|---|---|
+# | 1 (design job, 3 modes) | 2.307 s | 3.209 s | 28 % | 10.50 mm vs 10.96 mm (joints on the plan, 0.1 ms) |
+# | 2 (`casflex plan`) | 2.013 s | 2.807 s | 28 % | 5.02 mm vs 4.16 mm at 1 ms (over: not yet explained) |
+# | 3 | – | – | – | no result yet |
+#
+# The robust option on these moves has no result yet either (issue 15). The bundled study
+# `problems/studies/arm2link_move1.toml` carries the `[planner]` section switched off
+# (`enabled = false`: it adds about three minutes to the job); the one-link arm above and
+# below is where the planner converges in seconds.
 
 # %% [markdown]
 # ## 7.3 The robust option
