@@ -88,10 +88,10 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 # solve costs 1–3 minutes of CPU, too long for a notebook cell; the figures come from
 # `casflex design` and `casflex plan` runs (benchmarks/README_planning.md):
 #
-# | move | planned | SI-shaped | shorter | residual tip deflection, planned vs shaped |
+# | move | planned | SI-shaped | shorter | residual, planned vs shaped |
 # |---|---|---|---|---|
-# | 1 (design job, 3 modes) | 2.307 s | 3.209 s | 28 % | 10.50 mm vs 10.96 mm (joints on the plan, 0.1 ms) |
-# | 2 (`casflex plan`) | 2.013 s | 2.807 s | 28 % | 5.02 mm vs 4.16 mm at 1 ms (over: not yet explained) |
+# | 1 (design job) | 2.307 s | 3.209 s | 28 % | 10.50 vs 10.96 mm (prescribed, 0.1 ms) |
+# | 2 (`casflex plan`) | 2.013 s | 2.807 s | 28 % | 5.02 vs 4.16 mm (1 ms; over, unexplained) |
 # | 3 | – | – | – | no result yet |
 #
 # The robust option on these moves has no result yet either (issue 15). The bundled study
