@@ -320,14 +320,7 @@ class TableProvider:
             self._combined = (joined.function("all", method=self.method) if start else None,
                               layout, wanted)
         fun, layout, _ = self._combined
-        y = fun(q_shape) if fun is not None else None
-        out = {}
-        for name, (size, keep, start) in layout.items():
-            v = ca.SX.zeros(size)
-            if keep.size:
-                v[keep.tolist()] = y[start:start + keep.size]
-            out[name] = v
-        return out
+        return _scatter(fun(q_shape) if fun is not None else None, layout)
 
     def function(self, name: str) -> ca.Function:
         """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``.
@@ -507,14 +500,7 @@ class ChebyshevProvider:
             fun, layout = self._polynomial(wanted)
             self._combined = (fun, layout, wanted)
         fun, layout, _ = self._combined
-        y = fun(self._wrapped(q_shape)) if fun is not None else None
-        out = {}
-        for name, (size, keep, start) in layout.items():
-            v = ca.SX.zeros(size)
-            if keep.size:
-                v[keep.tolist()] = y[start:start + keep.size]
-            out[name] = v
-        return out
+        return _scatter(fun(self._wrapped(q_shape)) if fun is not None else None, layout)
 
     def function(self, name: str) -> ca.Function:
         """``casadi.Function`` of the shape-joint vector [rad] → quantity ``name``.
@@ -547,3 +533,15 @@ class ChebyshevProvider:
             self._combined = None  # the next evaluate() builds its own joint series
             self._functions[name] = ca.Function(name, [x], [value], ["q_shape"], [name])
         return self._functions[name]
+
+
+def _scatter(y, layout):
+    """The quantities of one combined evaluation ``y``: ``layout[name] = (size, kept
+    entries, start in y)``; entries left out (zero everywhere) are structural zeros."""
+    out = {}
+    for name, (size, keep, start) in layout.items():
+        v = ca.SX.zeros(size)
+        if keep.size:
+            v[keep.tolist()] = y[start:start + keep.size]
+        out[name] = v
+    return out

@@ -1,4 +1,6 @@
-"""The study key ``model.shape_rates`` (issue 19): validated, and handed to build_model."""
+"""The study keys ``model.shape_rates`` and ``model.foreshortening`` (issue 19): validated,
+and handed to build_model (the design job simulates with ``method="poly"``, which takes
+both)."""
 
 from __future__ import annotations
 
@@ -67,4 +69,34 @@ def test_bad_shape_rates_fails_before_heavy_work(tmp_path, captured, lines, rule
     with pytest.raises(ProblemFileError) as info:
         design.run_design(_study(tmp_path, lines), tmp_path / "out")
     assert "model.shape_rates" in str(info.value) and rule in str(info.value)
+    assert not captured
+
+
+@pytest.mark.parametrize("lines, rates", [
+    ("delta_order = 1\nforeshortening = true", False),
+    ("delta_order = 1\nshape_rates = true\nforeshortening = true", True)])
+def test_foreshortening_reaches_build_model(tmp_path, captured, lines, rates):
+    path = _study(tmp_path, lines)
+    assert design.load_study(path).model["foreshortening"] is True
+    with pytest.raises(RuntimeError, match="stop"):
+        design.run_design(path, tmp_path / "out")
+    assert captured["foreshortening"] is True and captured["shape_rates"] is rates
+    assert captured["delta_order"] == 1
+
+
+def test_foreshortening_off_by_default(tmp_path, captured):
+    path = _study(tmp_path, "delta_order = 1")
+    with pytest.raises(RuntimeError, match="stop"):
+        design.run_design(path, tmp_path / "out")
+    assert captured["foreshortening"] is False
+
+
+@pytest.mark.parametrize("lines, rule", [
+    ("delta_order = 0\nforeshortening = true", "needs model.delta_order = 1"),
+    ("delta_order = 1\nforeshortening = 1", "must be true or false"),
+])
+def test_bad_foreshortening_fails_before_heavy_work(tmp_path, captured, lines, rule):
+    with pytest.raises(ProblemFileError) as info:
+        design.run_design(_study(tmp_path, lines), tmp_path / "out")
+    assert "model.foreshortening" in str(info.value) and rule in str(info.value)
     assert not captured
