@@ -18,13 +18,16 @@ settle = 1.0
 """
 
 
-@pytest.mark.slow  # the 1-mode tables at 30 deg, the OCP (~17 Ipopt iterations), 1 ms checks
+@pytest.mark.slow  # the 1-mode tables at 30 deg, the OCP (~23 Ipopt iterations), 1 ms checks
 def test_plan_cli_json_and_files(tmp_path, capsys, model_cache):
     moves = tmp_path / "moves.toml"
     moves.write_text(MOVE)
     out = tmp_path / "out"
+    # 24 intervals (fewer than plan_move's default ω_max h ≤ 1, for time): with 12, of
+    # ~0.23 s each, the collocated mode is too coarse and the plan ends at 2.81 s, longer
+    # than the shaped move's 2.76 s; with 24 it takes 2.11 s
     code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small", "--modes", "1",
-                 "--step", "30deg", "--intervals", "12", "--processes", "1",
+                 "--step", "30deg", "--intervals", "24", "--processes", "1",
                  "--cache-dir", str(model_cache), "--out", str(out), "--json"])
     assert code == 0
     result = json.loads(capsys.readouterr().out)
@@ -68,7 +71,9 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
                  "--end", str(tol), "--json"])
     assert code == 0
     result = json.loads(capsys.readouterr().out)
-    assert result["status"] == "Solve_Succeeded"
+    # Ipopt may stop at its acceptable level (plan_move's documented rule: optimality 1e-2
+    # over 3 iterates, constraints to 1e-6); the verification below judges the plan
+    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
     # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
     assert result["duration"] < result["shaped"]["duration"]
