@@ -246,7 +246,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     modes do not depend on the configuration, it is the model of the modes at ``q = 0``
     (:class:`casflex.model.PointwiseProvider`: no table to build). The
     SI shaper of the move (:func:`casflex.shaping.shaper_for_move`) gives the shaped move;
-    its peak torques and velocities with the joints on it (:func:`plan_limits`) are the
+    its peak torques and velocities with the joints on it (:func:`shaped_move_limits`) are the
     planner's limits, so the comparison is fair. A joint the move holds (start = goal) has
     no torque limit (its servo holds it against the reaction of the others' motion,
     which a faster move raises) and a velocity limit of 1e-3 of the moving joints'. The
