@@ -118,7 +118,12 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         ``schedule_cells``, the fast loop and the mass matrix at the centres of the
         schedule's cells, informative) and ``planner``
         (:func:`casflex.design.planner_summary`: the planned move next to the shaped one;
-        ``None`` without a ``[planner]`` section).
+        ``None`` without a ``[planner]`` section), ``model_terms`` (``model.fit`` and
+        ``model.basis``; a fit's degrees, convergence and error estimate per term),
+        ``closed_loop_divergence`` (``None``, or ``time`` [s], ``quantity`` and
+        ``message`` where the sampled loop with the EKF diverged: reported, not raised,
+        its loop figures and numbers then NaN) and ``status`` (``"stable"``, ``"not
+        stable"`` or ``"closed loop diverged"``).
 
     Examples
     --------
@@ -228,17 +233,25 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
                  "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
                  "ddq": "difference"}
-    loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
-                                estimator=estimator, sampled=True,  # compiled when C is wanted
-                                jit=study.codegen["compile"], cache_dir=cache_dir)
+    divergence = None
+    try:
+        loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
+                                    estimator=estimator, sampled=True,  # compiled for C
+                                    jit=study.codegen["compile"], cache_dir=cache_dir)
+    except SolverError as exc:  # reported, not raised: a diverging loop is a verdict
+        divergence = _divergence(str(exc))
+        say(f"WARNING: the closed loop with the EKF diverged: {exc}")
+        loop = _diverged_loop(model, t_end, dt)
     say("where the tracking error comes from: the loop with the true state fed back ...")
     sources = _tracking_sources(model, controller, slow, shaped, t_end, dt,
                                 jit=study.codegen["compile"], cache_dir=cache_dir)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
-    if not loop_finite:
+    if not loop_finite and divergence is None:  # the state bounded, the estimate not
         bad = int(np.argmax(~np.isfinite(loop.x).all(axis=1) | ~np.isfinite(
             loop.x_hat).all(axis=1)))
+        divergence = {"time": float(loop.t[bad]), "quantity": "x_hat (the EKF's estimate)",
+                      "message": "the EKF's estimate became non-finite"}
         say(f"WARNING: the closed loop with the EKF diverged at t = {loop.t[bad]:.3f} s")
 
     # 6. C bundle -----------------------------------------------------------------------------
@@ -282,6 +295,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                        figures)
     summary["slow_gains"] = _gains_summary(gains, study)
     summary["tracking"] = _tracking_summary(loop, sources)
+    # how the loop with the EKF ended: its state and estimate bounded, or where it diverged
+    summary["closed_loop_divergence"] = divergence
+    summary["status"] = ("closed loop diverged" if divergence is not None else
+                         "stable" if summary["stable"] else "not stable")
     low = np.unravel_index(np.argmin(acc), np.shape(acc))
     summary["accessibility_min"] = {"value": float(np.min(acc)), "mode": int(low[1]) + 1,
                                     "time": float(t_acc[low[0]])}
@@ -449,6 +466,35 @@ def _plant_grid(grid_axes, move, pad=1):
     return axes
 
 
+def _divergence(message):
+    """``{"time", "quantity", "message"}`` of a diverged closed loop, read from the
+    message of :func:`casflex.simulate.results.check_divergence` (``time``/``quantity``
+    None when the message has another form; the message is kept whole)."""
+    import re
+
+    found = re.search(r"diverged at t = ([-+0-9.eE]+) s: (\|?[A-Za-z_]+(?:\[\d+\])?)",
+                      message)
+    if found is None:
+        return {"time": None, "quantity": None, "message": message}
+    return {"time": float(found.group(1)), "quantity": found.group(2).strip("|"),
+            "message": message}
+
+
+def _diverged_loop(model, t_end, dt):
+    """A closed-loop result of not-a-numbers on the loop's time grid: what a diverged
+    loop leaves for the figures and the summary (every loop figure NaN, never a number)."""
+    from casflex.simulate.results import ClosedLoopResult
+
+    n, m = model.n, model.m
+    t = np.arange(int(round(t_end / dt)) + 1) * dt
+
+    def nans(columns):
+        return np.full((t.size, columns), np.nan)
+
+    return ClosedLoopResult(t=t, x=nans(2 * (n + m)), tau=nans(n), qd=nans(n), tip=nans(3),
+                            tip_rigid=nans(3), n=n, m=m, x_hat=nans(2 * m))
+
+
 def _tracking_sources(model, controller, slow, shaped, t_end, dt, jit=False, cache_dir=None):
     """Largest joint tracking error [rad] of the sampled loop with the true state fed back:
     under the whole law and under its slow (rigid) part alone. Against the loop with the
@@ -553,6 +599,9 @@ def _gains_summary(gains, study):
 def _tracking_summary(loop, sources):
     """``summary["tracking"]``: the loop's largest error per joint [rad] and its sources."""
     per_joint = np.abs(loop.tracking_error).max(axis=0)
+    if not np.all(np.isfinite(per_joint)):  # a diverged loop: no worst joint or time
+        return {"max": math.nan, "per_joint": per_joint.tolist(), "worst_joint": None,
+                "worst_time": None, "limit": TRACKING_TARGET, **sources}
     return {"max": float(per_joint.max()), "per_joint": per_joint.tolist(),
             "worst_joint": int(np.argmax(per_joint)) + 1,
             "worst_time": float(loop.t[np.abs(loop.tracking_error).max(axis=1).argmax()]),
