@@ -89,13 +89,17 @@ def test_bad_fit_or_basis_fails_before_heavy_work(tmp_path, captured, lines, rep
 
 @pytest.mark.slow
 def test_design_job_on_a_chebyshev_model(tmp_path):
-    """The job end to end on the arm's Chebyshev fit (one mode, small settings, C not
+    """The job end to end on the arm's Chebyshev fit (two modes, small settings, C not
     compiled): the fit reported, the loop with the EKF finite and estimating, and the
-    frequency span along the move equal to direct TMM at the move's end configurations
-    (move 1 takes q3 monotonically from 0 to −1 rad, over which ω1 rises monotonically:
-    its extremes are the ends') within the fit's ω target."""
+    frequency span of mode 1 along the move equal to direct TMM at the move's end
+    configurations (move 1 takes q3 monotonically from 0 to −1 rad, over which ω1 rises
+    monotonically: its extremes are the ends') within the fit's ω target.
+
+    (Two modes, not one: with one mode the sensors' axial strain is zero to round-off,
+    1e-20, and the fit's relative error estimate of that term reads 0.03, so the fit
+    says it did not converge: a flaw of the estimate, reported.)"""
     path = _study(tmp_path, 'fit = "chebyshev"', replace=(
-        ("modes = 3 ", "modes = 1 "), ("grid_step = 3.0", "grid_step = 15.0"),
+        ("modes = 3 ", "modes = 2 "), ("grid_step = 3.0", "grid_step = 15.0"),
         ("dt = 0.001", "dt = 0.002"), ("settle = 3.0", "settle = 0.5"),
         ("compile = true", "compile = false")))
     result = design.run_design(path, tmp_path / "out", cache_dir=tmp_path / "cache",
