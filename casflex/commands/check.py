@@ -9,7 +9,9 @@ and in the JSON's ``conditions`` (name -> ``{"holds", "value", "unit", "rule"}``
 headline ``stable`` is true only when all of them hold. Inversion: ``zero_dynamics_margin``
 (eq. 226) and ``modal_damping`` (eq. 225, ``D - alpha I`` positive definite); composite:
 ``slow_loop`` (the rigid loop under ``Kp``, ``Kd``) and ``fast_loop_hurwitz``
-(§6.2.3.1).
+(§6.2.3.1). A line and the JSON's ``mass_matrix_box`` say whether the model's mass
+matrix ``M(q, 0)`` is positive definite over the joint box (grid points and cell centres):
+a diagnosis of the model's tabulated terms, outside the headline.
 """
 
 from __future__ import annotations
@@ -97,7 +99,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         [1/s³], ``worst_time`` [s], ``worst_q`` [rad], ``alpha``, ``gamma`` [1/s],
         ``damping_condition``, ``time_scale_max``; composite ``worst_margin``,
         ``worst_real`` [1/s], ``worst_time`` [s], ``worst_q`` [rad], ``epsilon`` [s],
-        ``gains`` (``"scheduled"`` or ``"end of move"``).
+        ``gains`` (``"scheduled"`` or ``"end of move"``); both ``mass_matrix_box``
+        (:func:`casflex.control.mass_matrix_over_box`: ``M(q, 0)`` positive definite
+        over the joint box, reported beside the verdict).
 
     Raises
     ------
@@ -153,6 +157,14 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     for name, c in r["conditions"].items():
         log(f"  {'holds' if c['holds'] else 'FAILS'}: {name}: {c['value']:.6g} {c['unit']} "
             f"({c['rule']})")
+    box = r["mass_matrix_box"]
+    log(f"mass matrix over the joint box ({box['points']} configurations): "
+        f"{'holds' if box['holds'] else 'FAILS'}: smallest residual joint inertia "
+        f"{box['value']:.6g} {box['unit']} at q = {np.round(box['q'], 4).tolist()} rad")
+    if not box["holds"]:
+        log("note: M(q, 0) is not positive definite somewhere in the box: the model's "
+            "interpolated terms are wrong there (e.g. across swapping modes); a finer or "
+            "linear table, or the smooth basis, avoids it")
     failed = [name for name, c in r["conditions"].items() if not c["holds"]]
     log(f"stable: {'yes' if not failed else 'no'} ({len(r['conditions']) - len(failed)} of "
         f"{len(r['conditions'])} conditions hold)")

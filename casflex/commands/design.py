@@ -13,7 +13,9 @@ work.
 
 JSON: the summary (``summary.json``), with at least ``shaper_duration`` [s],
 ``frequency_ranges`` [rad/s], ``contributions``, ``residual_reduction`` (0–1), ``stable``
-and ``c_files``.
+and ``c_files``, ``status`` (``"stable"``, ``"not stable"`` or ``"closed loop diverged"``)
+and ``closed_loop_divergence`` (``None``, or the time [s] and quantity where the sampled
+loop with the EKF diverged: the job writes its report and says so instead of failing).
 """
 
 from __future__ import annotations
@@ -106,6 +108,10 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     log(f"shaper: {len(s['shaper']['times'])} impulses, {s['shaper_duration']:.4f} s; "
         f"shaping removes {100 * s['residual_reduction']:.1f} % of the residual tip "
         f"deflection; {'stable' if s['stable'] else 'NOT stable'} along the move")
+    d = s.get("closed_loop_divergence")
+    if d is not None:
+        where = f" at t = {d['time']:.4g} s ({d['quantity']})" if d["time"] is not None else ""
+        log(f"status: the closed loop with the EKF DIVERGED{where}; the report says so")
     log(f"wrote {result.out_dir / 'report.md'} and {len(result.files) - 1} more files "
         f"in {time.perf_counter() - start:.1f} s")
     return s

@@ -51,6 +51,7 @@ Stability checks (:mod:`casflex.control.stability`, eq. 225–230, §6.2.3.1)
 inversion_stability       zero-dynamics condition (eq. 226) and rate (eq. 230)
 composite_stability       is the fast closed loop Hurwitz along a move?
 mass_matrix_condition     is the model's M(q, 0) positive definite along a move?
+mass_matrix_over_box      is it positive definite over the joint box (grid and cell centres)?
 schedule_stability        fast loop Hurwitz and M positive definite over a schedule's cells
 check_stability           either check for a robot and a move (``casflex check``)
 slow_loop_condition       is the slow (rigid) loop under Kp, Kd exponentially stable?
@@ -107,6 +108,7 @@ from casflex.control.stability import (
     composite_stability,
     inversion_stability,
     mass_matrix_condition,
+    mass_matrix_over_box,
     schedule_stability,
     slow_loop_condition,
 )
@@ -142,6 +144,7 @@ __all__ = [
     "inversion_stability",
     "composite_stability",
     "mass_matrix_condition",
+    "mass_matrix_over_box",
     "schedule_stability",
     "check_stability",
     "slow_loop_condition",

@@ -307,6 +307,7 @@ class GainSchedule:
         >>> s.function([ax[3]]).full().round(9).tolist()
         [[3.0, 3.0]]
         """
+        from casflex.modal.fits import periodic_axis_kind
         from casflex.modal.tables import ModalTable
 
         joints = tuple(int(j) for j in joints)
@@ -323,7 +324,7 @@ class GainSchedule:
         qs = ca.SX.sym("q", int(n_joints))
         args = []
         for j, a in zip(joints, grid, strict=True):
-            if _is_full_turn(a):
+            if periodic_axis_kind(a) is not None:
                 args.append(qs[j])
             else:  # the nearest end's gain outside the interval: no extrapolation
                 args.append(ca.fmin(ca.fmax(qs[j], float(a[0])), float(a[-1])))
@@ -331,20 +332,6 @@ class GainSchedule:
         fun = ca.Function("fast_gain", [qs], [ca.reshape(Kq, n, m2)], ["q"], ["K"])
         return cls(joints=joints, grid=grid, gains=G, epsilon=float(epsilon), function=fun,
                    filled=int(filled), info=dict(info or {}))
-
-
-def _is_full_turn(axis):
-    """True when ``axis`` closes a full turn (uniform, next step or last point = first + 2π),
-    as the tables' periodic wrapping understands it."""
-    a = np.asarray(axis, dtype=float)
-    if a.size < 3:
-        return False
-    span = a[-1] - a[0]
-    step = np.diff(a)
-    closed = abs(span - 2 * np.pi) <= 1e-9 * 2 * np.pi
-    open_ = bool(np.allclose(step, step[0], rtol=1e-9, atol=0.0)) and abs(
-        span + step[0] - 2 * np.pi) <= 1e-9 * 2 * np.pi
-    return bool(closed or open_)
 
 
 def schedule_axes(robot: Robot, joints: Sequence[int], points_per_turn: int, *,

@@ -41,6 +41,7 @@ from casflex.control.perturbation import (
 from casflex.errors import ModelError
 
 if TYPE_CHECKING:
+    from casflex.modal.tables import ModalTable
     from casflex.model import FlexibleModel
     from casflex.moves import Move
     from casflex.robot import Robot
@@ -49,6 +50,7 @@ __all__ = [
     "inversion_stability",
     "composite_stability",
     "mass_matrix_condition",
+    "mass_matrix_over_box",
     "schedule_stability",
     "check_stability",
     "slow_loop_condition",
@@ -338,6 +340,102 @@ def mass_matrix_condition(model: FlexibleModel, move: Move, t: ArrayLike | None 
     return {**verdict, "time": float(t[iw]), "q": qd[iw].tolist()}
 
 
+def mass_matrix_over_box(model: FlexibleModel, table: ModalTable | None = None, *,
+                         q: ArrayLike | None = None, points: int = 60,
+                         max_points: int = 20000) -> dict:
+    """Verdict on the model's mass matrix over the joint box of its shape joints: is
+    ``M(q, 0)`` positive definite at every point and every cell centre of its grid?
+
+    The number checked is the residual joint inertia, as in
+    :func:`mass_matrix_condition`. Interpolated tables are exact at their grid points and
+    worst between them (cubic B-splines overshoot where tracked modes swap), so the cell
+    centres are checked too.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    table : casflex.modal.tables.ModalTable, optional
+        Its grid (default the model provider's table). Without one, ``points`` uniform
+        points per axis over :func:`casflex.modal.joint_box` (the joint limits, else a
+        full turn).
+    q : array_like, optional
+        Values of the other joints [rad] (default zeros).
+    points : int
+        Points per axis without a table.
+    max_points : int
+        At most this many configurations: every axis is thinned evenly beyond it.
+
+    Returns
+    -------
+    dict
+        ``{"holds", "value", "unit", "rule"}`` (value: the smallest residual joint inertia
+        over the configurations [kg m²]; when ``M_δδ`` itself is not positive definite,
+        its smallest eigenvalue), ``"points"`` (configurations checked) and ``"q"`` [rad]
+        where the value is smallest.
+
+    Examples
+    --------
+    A two-mode model tabulated at four elbow angles: seven configurations checked.
+
+    >>> from casflex.robot import load
+    >>> from casflex.model import build_model
+    >>> robot = load("problems/arm2link.toml")
+    >>> model, _ = build_model(robot, 2, grid=[np.radians([0, 10, 20, 30])], gravity=None,
+    ...                        cache_dir=False, processes=1)
+    >>> v = mass_matrix_over_box(model)
+    >>> v["holds"], v["points"], v["unit"]
+    (True, 7, 'kg m^2')
+    """
+    from casflex.modal.fits import joint_box, periodic_axis_kind
+
+    n, m = model.n, model.m
+    number(points, "points", low=2, integer=True)
+    number(max_points, "max_points", low=1, integer=True)
+    joints = tuple(int(j) for j in model.provider.shape_joints)
+    table = table if table is not None else getattr(model.provider, "table", None)
+    if table is not None:
+        axes = [np.asarray(a, dtype=float) for a in table.grid]
+    else:
+        axes = []
+        for lo, hi in joint_box(model.robot, joints):
+            full = abs(hi - lo - 2 * np.pi) <= 1e-9 * 2 * np.pi
+            axes.append(np.linspace(lo, hi, points, endpoint=not full))
+    fine = []
+    for a in axes:
+        mid = 0.5 * (a[:-1] + a[1:])
+        if periodic_axis_kind(a) == "open":  # the cell that closes the turn
+            mid = np.r_[mid, a[-1] + 0.5 * (a[0] + 2 * np.pi - a[-1])]
+        fine.append(np.sort(np.r_[a, mid]))
+    total = int(np.prod([a.size for a in fine])) if fine else 1
+    if total > max_points:
+        stride = math.ceil((total / max_points) ** (1.0 / len(fine)))
+        fine = [a[::stride] for a in fine]
+    base = np.zeros(n) if q is None else np.asarray(q, dtype=float).ravel()
+    Q = base[None, :].copy()  # no shape joint: M is the same everywhere but for the
+    if fine:                  # rigid joints, checked at q
+        pts = np.array(np.meshgrid(*fine, indexing="ij")).reshape(len(fine), -1).T
+        Q = np.tile(base, (pts.shape[0], 1))
+        Q[:, list(joints)] = pts
+    M0 = ca.Function("M0", [model.q], [ca.substitute(model.M, model.delta, ca.SX.zeros(m))])
+    value = np.empty(Q.shape[0])
+    for start in range(0, Q.shape[0], 2048):  # bounded memory on large boxes
+        chunk = Q[start:start + 2048]
+        Ms = np.asarray(M0.map(chunk.shape[0])(chunk.T)).reshape(n + m, -1, n + m)
+        for k in range(chunk.shape[0]):
+            M = 0.5 * (Ms[:, k, :] + Ms[:, k, :].T)
+            low = float(np.min(np.linalg.eigvalsh(M[n:, n:]))) if m else 1.0
+            if low <= 0:
+                value[start + k] = low
+                continue
+            schur = M[:n, :n] - M[:n, n:] @ np.linalg.solve(M[n:, n:], M[n:, :n])
+            value[start + k] = float(np.min(np.linalg.eigvalsh(0.5 * (schur + schur.T))))
+    iw = int(np.argmin(value))
+    verdict = _verdict(value[iw] > 0, value[iw], "kg m^2", "M(q, 0) positive definite over "
+                       "the joint box (grid points and cell centres): residual joint inertia "
+                       "> 0")
+    return {**verdict, "points": int(Q.shape[0]), "q": Q[iw].tolist()}
+
+
 def schedule_stability(model: FlexibleModel, schedule: GainSchedule, q: ArrayLike | None = None,
                        tol: float = 1e-9) -> dict:
     """The fast loop and the mass matrix checked over a gain schedule's whole grid, at the
@@ -376,13 +474,15 @@ def schedule_stability(model: FlexibleModel, schedule: GainSchedule, q: ArrayLik
     >>> r["points"], sorted(r["conditions"])
     (8, ['fast_loop_hurwitz_cells', 'mass_matrix_cells'])
     """
+    from casflex.modal.fits import periodic_axis_kind
+
     n, m = model.n, model.m
     base = np.zeros(n) if q is None else np.asarray(q, dtype=float).ravel()
     centres = []
     for axis in schedule.grid:
         a = np.asarray(axis, dtype=float)
         mid = 0.5 * (a[:-1] + a[1:])
-        if _closes_turn(a):  # the cell that closes the turn
+        if periodic_axis_kind(a) == "open":  # the cell that closes the turn
             mid = np.r_[mid, a[-1] + 0.5 * (a[0] + 2 * np.pi - a[-1])]
         centres.append(mid)
     pts = np.array(np.meshgrid(*centres, indexing="ij")).reshape(len(centres), -1).T
@@ -416,15 +516,6 @@ def schedule_stability(model: FlexibleModel, schedule: GainSchedule, q: ArrayLik
     return {"conditions": conditions, "stable": _all_hold(conditions), "points": N,
             "worst_q": {"fast_loop_hurwitz_cells": Q[iw].tolist(),
                         "mass_matrix_cells": Q[im].tolist()}}
-
-
-def _closes_turn(axis):
-    """True when ``axis`` is uniform and its next step would close a full turn."""
-    if axis.size < 3:
-        return False
-    step = np.diff(axis)
-    return bool(np.allclose(step, step[0], rtol=1e-9, atol=0.0)
-                and abs(axis[-1] + step[0] - axis[0] - 2 * np.pi) <= 1e-9 * 2 * np.pi)
 
 
 def slow_loop_condition(Kp: float, Kd: float) -> dict:
@@ -498,6 +589,9 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     dict
         ``conditions``: one verdict per condition, ``{"holds", "value", "unit",
         "rule"}`` by name; ``stable``: true only when every condition holds.
+        ``mass_matrix_box``: :func:`mass_matrix_over_box` over the model's table (the
+        other joints at the move's start), a diagnosis of the model's terms, not one of
+        the law's conditions.
         Inversion: conditions ``zero_dynamics_margin`` (eq. 226) and ``modal_damping``
         (eq. 225), with ``worst_margin`` [1/s³], ``worst_time`` [s], ``worst_q`` [rad],
         ``alpha`` [1/s], ``gamma`` [1/s], ``damping_condition``, ``time_scale_max``.
@@ -537,6 +631,7 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
     number(Kd, "Kd", low=0.0, low_open=True)  # [1/s]
     model, table = build_model(robot, n_modes, step=step, gravity=None, delta_order=0,
                                cache_dir=cache_dir, progress=False)
+    box = mass_matrix_over_box(model, table, q=move.q0)
     if controller == "inversion":
         r = inversion_stability(model, move, alpha=alpha, Kp=Kp, dt=dt)
         return {"stable": r["stable"], "conditions": r["conditions"],
@@ -544,7 +639,7 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
                 "worst_time": r["worst_time"], "worst_q": r["worst_q"],
                 "alpha": r["alpha"], "gamma": r["gamma"],
                 "damping_condition": r["damping_condition"],
-                "time_scale_max": r["time_scale_max"]}
+                "time_scale_max": r["time_scale_max"], "mass_matrix_box": box}
     eps = perturbation_parameter(model, table=table)
     if schedule:
         gain = gain_schedule(model, Q=Q, R=R, epsilon=eps, table=table)
@@ -556,4 +651,4 @@ def check_stability(robot: Robot, move: Move, controller: str, n_modes: int = 3,
             "worst_margin": r["worst_margin"],
             "worst_time": r["worst_time"], "worst_real": r["worst_real"],
             "worst_q": r["worst_q"], "epsilon": eps,
-            "gains": "scheduled" if schedule else "end of move"}
+            "gains": "scheduled" if schedule else "end of move", "mass_matrix_box": box}

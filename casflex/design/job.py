@@ -118,7 +118,12 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         ``schedule_cells``, the fast loop and the mass matrix at the centres of the
         schedule's cells, informative) and ``planner``
         (:func:`casflex.design.planner_summary`: the planned move next to the shaped one;
-        ``None`` without a ``[planner]`` section).
+        ``None`` without a ``[planner]`` section), ``model_terms`` (``model.fit`` and
+        ``model.basis``; a fit's degrees, convergence and error estimate per term),
+        ``closed_loop_divergence`` (``None``, or ``time`` [s], ``quantity`` and
+        ``message`` where the sampled loop with the EKF diverged: reported, not raised,
+        its loop figures and numbers then NaN) and ``status`` (``"stable"``, ``"not
+        stable"`` or ``"closed loop diverged"``).
 
     Examples
     --------
@@ -183,7 +188,9 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t_end = shaped.t_end
     # the exact fast path (casflex.simulate, method="poly"): equal to RK4 on the model;
     # its Chebyshev pieces do not converge on linearly interpolated tables: RK4 there
-    sim_method = "poly" if study.model["interpolation"] == "bspline" else "rk4"
+    # and its rows take a diagonal stiffness: a smooth basis' full K̃ needs RK4 as well
+    sim_method = "poly" if (study.model["interpolation"] == "bspline"
+                            and study.model["basis"] == "eigen") else "rk4"
     unshaped_run = simulate_prescribed(model, move, dt=dt, t_end=t_end, method=sim_method)
     shaped_run = simulate_prescribed(model, shaped, dt=dt, t_end=t_end, method=sim_method)
     timings["simulate_s"] = time.perf_counter() - t0
@@ -214,7 +221,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     t0 = time.perf_counter()
     say("EKF plant tables; closed loop with the EKF in the loop ...")
     e = study.estimator
-    plant_grid = _plant_grid(table, move) if e["plant_region"] == "move" else None
+    plant_grid = None  # the model table's grid
+    if table is not None and e["plant_region"] == "move":
+        plant_grid = _plant_grid(_grid_axes(study, table), move)
+    elif table is not None and study.model["fit"] != "grid":
+        plant_grid = _grid_axes(study, table)[0]
     plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)  # the job's cache
     ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
     m = model.m
@@ -222,17 +233,25 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
                  "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
                  "ddq": "difference"}
-    loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
-                                estimator=estimator, sampled=True,  # compiled when C is wanted
-                                jit=study.codegen["compile"], cache_dir=cache_dir)
+    divergence = None
+    try:
+        loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
+                                    estimator=estimator, sampled=True,  # compiled for C
+                                    jit=study.codegen["compile"], cache_dir=cache_dir)
+    except SolverError as exc:  # reported, not raised: a diverging loop is a verdict
+        divergence = _divergence(str(exc))
+        say(f"WARNING: the closed loop with the EKF diverged: {exc}")
+        loop = _diverged_loop(model, t_end, dt)
     say("where the tracking error comes from: the loop with the true state fed back ...")
     sources = _tracking_sources(model, controller, slow, shaped, t_end, dt,
                                 jit=study.codegen["compile"], cache_dir=cache_dir)
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
-    if not loop_finite:
+    if not loop_finite and divergence is None:  # the state bounded, the estimate not
         bad = int(np.argmax(~np.isfinite(loop.x).all(axis=1) | ~np.isfinite(
             loop.x_hat).all(axis=1)))
+        divergence = {"time": float(loop.t[bad]), "quantity": "x_hat (the EKF's estimate)",
+                      "message": "the EKF's estimate became non-finite"}
         say(f"WARNING: the closed loop with the EKF diverged at t = {loop.t[bad]:.3f} s")
 
     # 6. C bundle -----------------------------------------------------------------------------
@@ -276,10 +295,19 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                        figures)
     summary["slow_gains"] = _gains_summary(gains, study)
     summary["tracking"] = _tracking_summary(loop, sources)
+    # how the loop with the EKF ended: its state and estimate bounded, or where it diverged
+    summary["closed_loop_divergence"] = divergence
+    summary["status"] = ("closed loop diverged" if divergence is not None else
+                         "stable" if summary["stable"] else "not stable")
     low = np.unravel_index(np.argmin(acc), np.shape(acc))
     summary["accessibility_min"] = {"value": float(np.min(acc)), "mode": int(low[1]) + 1,
                                     "time": float(t_acc[low[0]])}
     summary["estimator"] = {"Q": float(e["Q"]), "P0": float(e["P0"]), "ddq": "difference"}
+    summary["model_terms"] = {"fit": study.model["fit"], "basis": study.model["basis"]}
+    if study.model["fit"] != "grid":  # the fit's degrees and its own error estimate
+        summary["model_terms"].update(degrees=list(table.degrees),
+                                      converged=table.info.get("converged"),
+                                      estimate=table.info.get("estimate"))
     summary["c_guard"] = {"guarded": bool(study.codegen["guard"]),
                           "torque_limits": None if limits is None else limits.tolist(),
                           "gate": gate}
@@ -325,7 +353,22 @@ def _study_model(study, cache_dir, processes, progress, n_modes=None):
                        shape_rates=study.model["shape_rates"],
                        foreshortening=study.model["foreshortening"],
                        method=study.model["interpolation"], processes=processes,
-                       progress=progress)
+                       progress=progress, basis=study.model["basis"],
+                       fit=None if study.model["fit"] == "grid" else study.model["fit"])
+
+
+def _grid_axes(study, table):
+    """``(axes, periodic)`` of the shape joints: the modal table's, or for a model fitted
+    without a grid (``model.fit``) :func:`casflex.model.default_grid` at the study's
+    ``model.grid_step`` (the grid of the EKF plant and of ε)."""
+    from casflex.modal import ModalTable, periodic_axis_kind
+    from casflex.model import default_grid
+
+    if isinstance(table, ModalTable):
+        return tuple(table.grid), tuple(table.shape_joints), tuple(table.periodic)
+    axes = tuple(default_grid(study.robot, table.shape_joints, study.model["grid_step"]))
+    return axes, tuple(table.shape_joints), tuple(
+        periodic_axis_kind(a) is not None for a in axes)
 
 
 # ------------------------------------------------------------------------------ controller
@@ -338,8 +381,14 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
     c = dict(study.controller, Kp=gains.Kp, Kd=gains.Kd)
     if table is None:  # no shape joint: the modes of every configuration are those of q = 0
         eps = control.perturbation_parameter(model, q=np.zeros((1, model.n)))
-    else:
+    elif study.model["fit"] == "grid":
         eps = control.perturbation_parameter(model, table=table)
+    else:  # a fitted model: ω_min over the points of the grid_step grid
+        axes, joints, _ = _grid_axes(study, table)
+        q = np.zeros((int(np.prod([a.size for a in axes])), model.n))
+        q[:, list(joints)] = np.array(np.meshgrid(*axes, indexing="ij")).reshape(
+            len(axes), -1).T
+        eps = control.perturbation_parameter(model, q=q)
     if c["law"] == "composite":
         if c["gains"] == "scheduled":
             if table is None:
@@ -350,9 +399,11 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
             box = None
             if c["schedule_region"] == "move":  # the box the move spans (monotone moves)
                 box = (np.minimum(move.q0, move.qf), np.maximum(move.q0, move.qf))
-            gain = control.cached_gain_schedule(model, c["Q"], c["R"], eps, table, axis,
-                                                cache_dir, limits=True, box=box,
-                                                method=c["schedule_interpolation"])
+            gain = control.cached_gain_schedule(
+                model, c["Q"], c["R"], eps, table, axis,
+                # a fit has no table key for the schedule's cache key: not cached
+                cache_dir if study.model["fit"] == "grid" else False, limits=True, box=box,
+                method=c["schedule_interpolation"])
             say(f"fast LQR gains over q{[j + 1 for j in gain.joints]}: "
                 f"{' x '.join(str(a.size) for a in gain.grid)} points "
                 f"({c['schedule_region']}) ...")
@@ -396,14 +447,13 @@ def _controller(study, model, table, move, shaped, gains, say, cache_dir):
     return eps, controller, slow, stability
 
 
-def _plant_grid(table, move, pad=1):
-    """The model table's axes cut to the box the move spans, ``pad`` grid points wider on
-    each side (the EKF plant's points are then the table's own; at least four per axis, as
-    B-splines need); a full-turn axis is kept whole."""
+def _plant_grid(grid_axes, move, pad=1):
+    """The model's grid axes (:func:`_grid_axes`) cut to the box the move spans, ``pad``
+    grid points wider on each side (the EKF plant's points are then the table's own; at
+    least four per axis, as B-splines need); a full-turn axis is kept whole."""
     low, high = np.minimum(move.q0, move.qf), np.maximum(move.q0, move.qf)
     axes = []
-    for axis, joint, periodic in zip(table.grid, table.shape_joints, table.periodic,
-                                     strict=True):
+    for axis, joint, periodic in zip(*grid_axes, strict=True):
         a = np.asarray(axis, dtype=float)
         if periodic:
             axes.append(a)
@@ -414,6 +464,35 @@ def _plant_grid(table, move, pad=1):
             i0, i1 = max(i0 - 1, 0), min(i1 + 1, a.size - 1)
         axes.append(a[i0:i1 + 1])
     return axes
+
+
+def _divergence(message):
+    """``{"time", "quantity", "message"}`` of a diverged closed loop, read from the
+    message of :func:`casflex.simulate.results.check_divergence` (``time``/``quantity``
+    None when the message has another form; the message is kept whole)."""
+    import re
+
+    found = re.search(r"diverged at t = ([-+0-9.eE]+) s: (\|?[A-Za-z_]+(?:\[\d+\])?)",
+                      message)
+    if found is None:
+        return {"time": None, "quantity": None, "message": message}
+    return {"time": float(found.group(1)), "quantity": found.group(2).strip("|"),
+            "message": message}
+
+
+def _diverged_loop(model, t_end, dt):
+    """A closed-loop result of not-a-numbers on the loop's time grid: what a diverged
+    loop leaves for the figures and the summary (every loop figure NaN, never a number)."""
+    from casflex.simulate.results import ClosedLoopResult
+
+    n, m = model.n, model.m
+    t = np.arange(int(round(t_end / dt)) + 1) * dt
+
+    def nans(columns):
+        return np.full((t.size, columns), np.nan)
+
+    return ClosedLoopResult(t=t, x=nans(2 * (n + m)), tau=nans(n), qd=nans(n), tip=nans(3),
+                            tip_rigid=nans(3), n=n, m=m, x_hat=nans(2 * m))
 
 
 def _tracking_sources(model, controller, slow, shaped, t_end, dt, jit=False, cache_dir=None):
@@ -520,6 +599,9 @@ def _gains_summary(gains, study):
 def _tracking_summary(loop, sources):
     """``summary["tracking"]``: the loop's largest error per joint [rad] and its sources."""
     per_joint = np.abs(loop.tracking_error).max(axis=0)
+    if not np.all(np.isfinite(per_joint)):  # a diverged loop: no worst joint or time
+        return {"max": math.nan, "per_joint": per_joint.tolist(), "worst_joint": None,
+                "worst_time": None, "limit": TRACKING_TARGET, **sources}
     return {"max": float(per_joint.max()), "per_joint": per_joint.tolist(),
             "worst_joint": int(np.argmax(per_joint)) + 1,
             "worst_time": float(loop.t[np.abs(loop.tracking_error).max(axis=1).argmax()]),

@@ -224,8 +224,7 @@ def _markdown(study, s):
         *_condition_lines(st.get("conditions", {})),
         *_schedule_cell_lines(st.get("schedule_cells")),
         ("The sampled closed loop with the EKF stays bounded." if s["closed_loop_finite"] else
-         "**The sampled closed loop with the EKF diverged** (see the tip-deflection and "
-         "estimation figures): the design is not realizable at this sample time."),
+         _divergence_sentence(s)),
         "",
         f"Overall: **{'stable' if s['stable'] else 'NOT stable'}**.",
         "",
@@ -400,6 +399,16 @@ def _closed_loop_lines(s):
            "design assumes is weak; the fast-loop check below and the simulation of the "
            "full model are what show the loop works)."),
         "",
+    ]
+    if tr.get("worst_joint") is None:  # the loop with the EKF diverged: no tracking error
+        whole = tr.get("true_state")
+        cause = ("The same sampled loop with the true state fed back diverges too: the law "
+                 "itself, at this sample time, is unstable." if whole is None or whole != whole
+                 else "The same sampled loop with the true state fed back stays bounded "
+                 f"(largest tracking error {whole:.3g} rad): feeding back the EKF's "
+                 "estimates makes it diverge.")
+        return lines + [_divergence_sentence(s), "", cause, ""]
+    lines += [
         f"Largest joint tracking error with the EKF in the loop: **{tr['max']:.3g} rad** "
         f"(q{tr['worst_joint']}, at t = {tr['worst_time']:.2f} s; per joint "
         + ", ".join(f"q{j + 1} {v:.3g}" for j, v in enumerate(tr["per_joint"]))
@@ -419,6 +428,18 @@ def _closed_loop_lines(s):
         "",
     ]
     return lines
+
+
+def _divergence_sentence(s):
+    """Where and how the sampled loop with the EKF diverged (``closed_loop_divergence``)."""
+    d = s.get("closed_loop_divergence") or {}
+    where = ""
+    if d.get("time") is not None:
+        where = f" at t = {d['time']:.4g} s ({d['quantity']})"
+    return (f"**The sampled closed loop with the EKF diverged{where}**: the design is not "
+            "realizable at this sample time with these gains (its figures are empty "
+            "where the loop has no finite values)."
+            + (f" The simulation reported: {d['message']}" if d.get("message") else ""))
 
 
 def _tracking_comment(s, g, tr):

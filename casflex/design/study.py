@@ -38,7 +38,7 @@ __all__ = ["Study", "load_study"]
 _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False,
               "shape_rates": False, "foreshortening": False,
-              "interpolation": "bspline"},
+              "interpolation": "bspline", "fit": "grid", "basis": "eigen"},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
     "controller": {"law": "composite", "slow_gains": "move", "bandwidth_fraction": 0.3,
@@ -200,6 +200,11 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
     m["delta_order"] = one_of("model.delta_order", m["delta_order"], (0, 1))
     _flag(path, "model.gravity", m["gravity"])
     m["interpolation"] = one_of("model.interpolation", m["interpolation"], ("bspline", "linear"))
+    m["fit"] = one_of("model.fit", m["fit"], ("grid", "chebyshev"))
+    m["basis"] = one_of("model.basis", m["basis"], ("eigen", "smooth"))
+    if m["fit"] == "chebyshev" and m["interpolation"] != "bspline":
+        raise fail("model.interpolation", m["interpolation"], "interpolates the grid's "
+                   "tables; model.fit = 'chebyshev' has none (leave it unset)", path=path)
     if _flag(path, "model.shape_rates", m["shape_rates"]) and m["delta_order"] != 1:
         raise fail("model.shape_rates", True, "needs model.delta_order = 1", path=path)
     if _flag(path, "model.foreshortening", m["foreshortening"]) and m["delta_order"] != 1:
@@ -259,6 +264,11 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
                        "rt_step)", path=path)
     if settings["planner"] is not None:
         settings["planner"] = _check_planner(path, settings["planner"], m["modes"])
+    if settings["planner"] is not None and m["basis"] == "smooth":
+        # planning's end conditions assume decoupled free vibration (a diagonal K)
+        raise fail("model.basis", "smooth", "has a full modal stiffness K, which the "
+                   "[planner] cannot take: use model.basis = 'eigen' or planner.enabled = "
+                   "false", path=path)
 
 
 def _check_planner(path, p, n_modes):

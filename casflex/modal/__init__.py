@@ -68,6 +68,7 @@ Smooth fits
    chebyshev_coefficients  -- tensor Chebyshev coefficients from samples at Lobatto points
    OMEGA_TARGET            -- default relative error target on ω
    joint_box               -- the interval fitted per shape joint (box, limits or a full turn)
+   periodic_axis_kind      -- whether a grid axis spans a full turn ("closed", "open", None)
    fit_model_terms         -- Chebyshev fits of every model term, checked against direct TMM
    TERM_TARGET             -- default relative error target of the model terms
 
@@ -96,6 +97,7 @@ from casflex.modal.fits import (
     held_out_error,
     joint_box,
     lobatto_points,
+    periodic_axis_kind,
 )
 from casflex.modal.integrals import (
     POINT_KEYS,
@@ -203,6 +205,7 @@ __all__ = [
     "chebyshev_coefficients",
     "OMEGA_TARGET",
     "joint_box",
+    "periodic_axis_kind",
     "fit_model_terms",
     "TERM_TARGET",
     # modal tables

@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     from casflex.robot import Robot
 
 __all__ = ["OMEGA_TARGET", "joint_box", "lobatto_points", "chebyshev_coefficients", "ChebyshevFit",
-           "fit_chebyshev", "held_out_error"]
+           "fit_chebyshev", "held_out_error", "periodic_axis_kind"]
 
 #: default relative error target on ω (issue 21)
 OMEGA_TARGET = 1e-4
@@ -276,6 +276,45 @@ class ChebyshevFit:
         if len(vshape) == 2:
             out = ca.reshape(out, vshape[0], vshape[1])
         return ca.Function(name, [x], [out], ["q_shape"], [name])
+
+
+def periodic_axis_kind(axis: ArrayLike) -> str | None:
+    """Whether a grid axis spans a full turn, as the tables' periodic wrapping reads it.
+
+    Parameters
+    ----------
+    axis : array_like
+        Strictly increasing grid axis of one joint [rad].
+
+    Returns
+    -------
+    str or None
+        ``"closed"`` (the ends are 2π apart), ``"open"`` (uniform, and last + step =
+        first + 2π) or None (not a full turn, or fewer than three points). The
+        tolerance is 1e-9 of a turn.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> periodic_axis_kind(np.linspace(-np.pi, np.pi, 13))
+    'closed'
+    >>> periodic_axis_kind(np.linspace(-np.pi, np.pi, 13)[:-1])
+    'open'
+    >>> periodic_axis_kind(np.linspace(-1.0, 1.0, 13)) is None
+    True
+    """
+    a = np.asarray(axis, dtype=float).ravel()
+    if a.size < 3:
+        return None
+    turn = 2.0 * np.pi
+    span = a[-1] - a[0]
+    if abs(span - turn) <= 1e-9 * turn:
+        return "closed"
+    steps = np.diff(a)
+    if np.allclose(steps, steps[0], rtol=1e-9, atol=0.0) and abs(
+            span + steps[0] - turn) <= 1e-9 * turn:
+        return "open"
+    return None
 
 
 def joint_box(robot: Robot, joints: tuple[int, ...], box: ArrayLike | None = None

@@ -83,6 +83,7 @@ from casflex._parallel import parallel_map
 from casflex.errors import ModelError
 from casflex.modal import rotated, subspace
 from casflex.modal import tracking as trk
+from casflex.modal.fits import periodic_axis_kind
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -425,20 +426,6 @@ def _function_identity(func):
 # ------------------------------------------------------------------ the table
 
 
-def _is_periodic_axis(axis):
-    """``"closed"`` (ends 2π apart), ``"open"`` (uniform, last + step = first + 2π) or None."""
-    if axis.size < 3:
-        return None
-    span = axis[-1] - axis[0]
-    if abs(span - TWO_PI) <= 1e-9 * TWO_PI:
-        return "closed"
-    steps = np.diff(axis)
-    if np.allclose(steps, steps[0], rtol=1e-9, atol=0.0) and abs(
-            span + steps[0] - TWO_PI) <= 1e-9 * TWO_PI:
-        return "open"
-    return None
-
-
 @dataclass(frozen=True)
 class ModalTable:
     """Tabulated modal quantities over a grid of shape joints.
@@ -571,7 +558,7 @@ class ModalTable:
         periodic = self.periodic or (False,) * nd
         wrap = []
         for ax in range(nd):
-            kind = _is_periodic_axis(axes[ax]) if periodic[ax] else None
+            kind = periodic_axis_kind(axes[ax]) if periodic[ax] else None
             if kind is None:
                 wrap.append(None)
                 continue
@@ -959,7 +946,7 @@ def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
     flags = []
     gshape = tracked.shape
     for ax, a in enumerate(grid):
-        kind = _is_periodic_axis(a)
+        kind = periodic_axis_kind(a)
         if kind is None:
             flags.append(False)
             continue
