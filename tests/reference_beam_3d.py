@@ -233,6 +233,51 @@ class SpatialArm:
                                        offsetUserFunction=offset(k + 1)))
         return chains
 
+    def static(self, q: tuple[float, float, float], accel, newton_tol: float = 1e-6
+               ) -> dict[str, np.ndarray]:
+        """Static deflection at the joint angles ``q`` [rad] under a uniform body-force
+        field ``accel`` [m/s², base frame] (gravity-like: ``ρA accel`` per length, as
+        consistent nodal forces of the linear elements, half an element's at each end).
+        ``{"tip", "elbow"}``: displacements from the rigid arm [m]; ``"elbow_rotation"``:
+        rotation vector of link 1's end section from its rigid orientation [rad] (base
+        frame). ``newton_tol`` [N]: above the residual's round-off (:func:`cantilever`).
+        """
+        import exudyn as exu
+        from exudyn.itemInterface import LoadForceVector, MarkerNodeRigid
+        from exudyn.rigidBodyUtilities import RotationMatrix2RotationVector
+
+        q = tuple(float(x) for x in q)
+        SC = exu.SystemContainer()
+        mbs = SC.AddSystem()
+        chains = self._build(mbs, JointMove(q, q, 1.0))
+        accel = np.asarray(accel, dtype=float)
+        for chain, beam in zip(chains, self.beams, strict=True):
+            h = beam.length / self.n_elements
+            for i, node in enumerate(chain):
+                share = 0.5 if i in (0, len(chain) - 1) else 1.0
+                mbs.AddLoad(LoadForceVector(
+                    markerNumber=mbs.AddMarker(MarkerNodeRigid(nodeNumber=node)),
+                    loadVector=list(beam.rho * beam.area * h * share * accel)))
+        mbs.Assemble()
+        s = exu.SimulationSettings()
+        s.solution.file.write = False
+        s.linearSolver.solverType = exu.LinearSolverType.EigenSparse
+        s.staticSolver.newton.absoluteTolerance = newton_tol
+        s.staticSolver.numberOfLoadSteps = 10
+        s.staticSolver.verboseMode = 0
+        mbs.SolveStatic(s)
+        shoulder, elbow_p, _, tip = rigid_frames(np.asarray(q), self.beams[0].length,
+                                                 self.beams[1].length)
+
+        def position(node):
+            return np.asarray(mbs.GetNodeOutput(node, exu.OutputVariableType.Position))
+
+        R = np.reshape(mbs.GetNodeOutput(chains[0][-1], exu.OutputVariableType.RotationMatrix),
+                       (3, 3))
+        turn = R @ (shoulder @ BEAM1_IN_DH).T
+        return {"tip": position(chains[1][-1]) - tip, "elbow": position(chains[0][-1]) - elbow_p,
+                "elbow_rotation": np.asarray(RotationMatrix2RotationVector(turn))}
+
     def simulate(self, move: JointMove, dt: float = 1e-3, rho_inf: float = 1.0,
                  newton_tol: float = 1e-7, t_end: float | None = None
                  ) -> dict[str, np.ndarray]:
