@@ -52,8 +52,9 @@ def _model_static_tip(model, accel: float) -> np.ndarray:
 
 
 def _unit_field_model(arm_model):
-    """5 modes, ``foreshortening`` (the potential to δ²), the unit field along y0."""
-    return arm_model(5, gravity=[0.0, 1.0, 0.0], foreshortening=True)[0]
+    """5 modes, ``foreshortening`` (the potential to δ²), the unit field along y0; the
+    1.5° table of test_spatial_fidelity.py (shared in a session; q3 = 0 is a node)."""
+    return arm_model(5, step_deg=1.5, gravity=[0.0, 1.0, 0.0], foreshortening=True)[0]
 
 
 # the field [m/s² along y0] and the measured tangential excess of the model; 12 m/s² puts
