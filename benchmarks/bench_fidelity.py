@@ -20,7 +20,9 @@ Usage::
         [--cache DIR] [--no-convergence]
     python benchmarks/bench_fidelity.py --cost [--jit] [--json]
     python benchmarks/bench_fidelity.py --spatial [--variants base,rates,rates_short]
-        [--modes 5,8] [--store] [--no-convergence] [--json]
+        [--modes 5,8] [--store] [--no-convergence] [--stiffness 4] [--json]
+    python benchmarks/bench_fidelity.py --spatial-static [--variants base,short]
+        [--fields 0.5,4,8,12,16] [--json]
 
 ``--cost`` instead measures what the options cost (:func:`cost`): ``bench_model.py``'s
 ``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls), the
@@ -32,7 +34,15 @@ with the 3-D geometrically exact beam reference of ``tests/reference_beam_3d.py`
 (Exudyn, ``tests/fidelity_spatial.py``): the same three figures on the 3-D tip
 deflection, and the reference's convergence (32 → 64 elements, 1 → 0.5 ms). Its
 converged run is test data (``tests/data/reference_beam_3d``, keyed by the reference's
-source); ``--store`` writes it there.
+source); ``--store`` writes it there. ``--stiffness k`` runs both arms with E and G
+times k (the same move, a k times smaller deflection; the reference is then computed
+and cached in ``--cache``).
+
+``--spatial-static`` instead loads the arm at q = 0 with a uniform static field across
+the joints' plane (along y0: the swing's inertial load in static form, no velocity) and
+compares the model's tip (5 modes; ``∂V/∂δ = 0`` with the field as its gravity) with the
+3-D reference's (32 elements), per field strength: the tangential tip deflection and the
+3-D gap in % of the reference's.
 
 Reference runs are cached as ``.npz`` in ``--cache`` (default: a folder in the system's
 temporary directory), keyed by the reference's source, the move, the elements and step.
@@ -183,6 +193,81 @@ def cost(repeats=3, calls=1000, jit=False):
     return out
 
 
+def _scaled_robot_and_beam(factor):
+    """The Table 8 arm and the reference's beam with E and G times ``factor``."""
+    import dataclasses
+
+    from reference_beam_3d import TABLE8
+
+    from casflex.robot import loads
+
+    text = (ROOT / "problems" / "arm2link.toml").read_text()
+    if factor != 1.0:
+        text = text.replace("E = 69.0e9", f"E = {69.0e9 * factor!r}").replace(
+            "G = 26.9e9", f"G = {26.9e9 * factor!r}")
+    beam = dataclasses.replace(TABLE8, E=TABLE8.E * factor, G=TABLE8.G * factor)
+    return loads(text), beam
+
+
+def _stiff_reference(move, beam, n_elements, dt, cache):
+    """The reference run of an arm with scaled stiffness (its Newton tolerance above the
+    round-off of the larger axial forces), cached like ``cached_run``."""
+    from reference_beam_3d import SpatialArm, run_file
+
+    path = Path(cache) / ("stiff-" + run_file(move, n_elements, dt, beams=(beam, beam)))
+    if path.exists():
+        with np.load(path) as z:
+            return {"t": z["t"], "d": z["d"]}
+    run = SpatialArm((beam, beam), n_elements).simulate(move, dt, newton_tol=1e-6)
+    out = {"t": run["t"], "d": run["tip"] - run["tip_rigid"]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **out)
+    return out
+
+
+def spatial_static(args):
+    """The arm at q = 0 under a uniform field across the joints' plane (along y0), static:
+    the model's tip (5 modes, ``foreshortening``: potential to δ²) against the 3-D
+    reference's (32 elements), per field strength."""
+    import casadi as ca
+    from reference_beam_3d import SpatialArm
+
+    from casflex.model import build_model
+    from casflex.robot import load
+
+    robot = load(ROOT / "problems" / "arm2link.toml")
+    rows = {}
+    for variant in args.variants.split(","):
+        model, _ = build_model(robot, n_modes=5, gravity=[0.0, 1.0, 0.0], processes=1,
+                               **VARIANTS[variant])
+        f = model.functions()
+        q = np.zeros(model.n)
+        delta = ca.SX.sym("delta", model.m)
+        for accel in (float(a) for a in args.fields.split(",")):
+            # ∂V_g/∂X is linear in the field: K δ + a g_δ(δ) = 0 (Newton)
+            r = f["stiffness"](q) @ delta + accel * f["gravity"](q, delta)[model.n:]
+            newton = ca.Function("newton", [delta], [r, ca.jacobian(r, delta)])
+            x = np.zeros(model.m)
+            for _ in range(30):
+                res, jac = (v.full() for v in newton(x))
+                x -= np.linalg.solve(jac, res.ravel())
+            tip = (f["tip"](q, x) - f["tip"](q, np.zeros(model.m))).full().ravel()
+            ref = SpatialArm(n_elements=32).static((0.0, 0.0, 0.0), (0.0, accel, 0.0))
+            rows[f"{variant}_{accel:g}"] = row = {
+                "field_m_s2": accel, "ref_tip_mm": 1e3 * ref["tip"], "tip_mm": 1e3 * tip,
+                "tangential_pct": 100 * (tip[1] / ref["tip"][1] - 1),
+                "gap_pct": 100 * np.linalg.norm(tip - ref["tip"])
+                / np.linalg.norm(ref["tip"])}
+            if not args.json:
+                print(f"{variant:12s} {accel:5.1f} m/s²: reference tip "
+                      f"{np.round(row['ref_tip_mm'], 2)} mm, model "
+                      f"{np.round(row['tip_mm'], 2)} mm, across the plane "
+                      f"{row['tangential_pct']:+.2f} %, 3-D gap {row['gap_pct']:.2f} %",
+                      flush=True)
+    if args.json:
+        print(json.dumps(rows, default=lambda v: np.asarray(v).tolist()))
+
+
 def spatial(args):
     """Table 9 move 3 against the 3-D reference: convergence and one table per variant."""
     from fidelity_spatial import DATA, MOVE3, REFERENCE
@@ -192,13 +277,17 @@ def spatial(args):
     from reference_beam_3d import cached_run, run_file
 
     from casflex.model import build_model
-    from casflex.robot import load
 
     ne, dt = REFERENCE["n_elements"], REFERENCE["dt"]
-    stored = (DATA / run_file(MOVE3, ne, dt)).exists()
-    ref = cached_run(MOVE3, ne, dt, cache=DATA if stored or args.store else args.cache)
-    out = {"reference": {"elements": ne, "dt_s": dt}, "variants": {}}
-    if not args.no_convergence:
+    robot, beam = _scaled_robot_and_beam(args.stiffness)
+    if args.stiffness != 1.0:
+        ref = _stiff_reference(MOVE3, beam, ne, dt, args.cache)
+    else:
+        stored = (DATA / run_file(MOVE3, ne, dt)).exists()
+        ref = cached_run(MOVE3, ne, dt, cache=DATA if stored or args.store else args.cache)
+    out = {"reference": {"elements": ne, "dt_s": dt, "stiffness": args.stiffness},
+           "variants": {}}
+    if not args.no_convergence and args.stiffness == 1.0:
         peak = np.linalg.norm(ref["d"], axis=1).max()
         rows = {}
         for label, (n, step) in {"elements_x2": (2 * ne, dt),
@@ -208,7 +297,6 @@ def spatial(args):
             gap = np.linalg.norm(on_grid_3d(other, ref["t"]) - ref["d"], axis=1).max()
             rows[label] = 100 * gap / peak
         out["reference_convergence_gap_pct"] = rows
-    robot = load(ROOT / "problems" / "arm2link.toml")
     for variant in args.variants.split(","):
         for m in (int(k) for k in args.modes.split(",")):
             t0 = time.perf_counter()
@@ -245,7 +333,17 @@ def main(argv=None):
     parser.add_argument("--store", action="store_true",
                         help="with --spatial: store the converged reference run as test "
                              "data (tests/data/reference_beam_3d)")
+    parser.add_argument("--stiffness", type=float, default=1.0,
+                        help="with --spatial: E and G of both arms times this factor")
+    parser.add_argument("--spatial-static", action="store_true",
+                        help="the arm at q = 0 under a static field across the joints' "
+                             "plane, against the 3-D reference")
+    parser.add_argument("--fields", default="0.5,4,8,12,16",
+                        help="with --spatial-static: field strengths [m/s^2]")
     args = parser.parse_args(argv)
+    if args.spatial_static:
+        spatial_static(args)
+        return
     if args.spatial:
         spatial(args)
         return

@@ -296,5 +296,75 @@ fig.tight_layout()
 # They are off by default.
 
 # %% [markdown]
+# ## 2.7 A spatial move: Table 9 move 3 against a 3-D beam model
+#
+# Move 3 turns the whole arm about the vertical (q1 0 → −π in 2 s, q2 = q3 = 0): link 1
+# swings horizontally and link 2 hangs from its end, so the links bend along the joint
+# axes (their soft 5 mm direction) and link 1 twists. The reference is a 3-D geometrically
+# exact beam model of the same arm (``tests/reference_beam_3d.py``: Exudyn's Simo–Reissner
+# elements with torsion and shear, the joints prescribed), checked on its own in
+# ``tests/model/test_spatial_reference.py``: its bending eigenfrequencies converge to the
+# Timoshenko beam's (O(h²), to 5e-7 after extrapolation), its static deflections to the
+# beam formulas, and on the planar move 2 it matches the planar reference to 0.4 % of the
+# peak. Its converged run (32 elements per link, 1 ms) is stored with the tests; here the
+# default model and the model with both options are compared with it (5 modes, 3° grid).
+
+# %%
+from fidelity_spatial import MOVE3  # noqa: E402
+from fidelity_spatial import casflex_run as casflex_run_3d  # noqa: E402
+from fidelity_spatial import compare as compare_3d  # noqa: E402
+from fidelity_spatial import reference_run as spatial_reference  # noqa: E402
+
+spatial = {"reference": spatial_reference()}  # stored: tests/data/reference_beam_3d
+spatial_rows = []
+
+
+def spatial_fidelity(label):
+    """casflex's run of move 3 for one variant, and its figures against the reference."""
+    spatial[label] = casflex_run_3d(variants[label], MOVE3, method="poly")  # RK4 to 1e-8
+    c = compare_3d(spatial[label], spatial["reference"], MOVE3.duration)
+    spatial_rows.append(["move3", label, f"{c['peak_ref_mm']:.1f}", f"{c['peak_pct']:+.2f}",
+                         f"{c['residual_pct']:+.2f}", f"{c['gap_pct']:.2f}"])
+
+
+# %%
+spatial_fidelity("default")
+
+# %%
+spatial_fidelity("both")
+table(spatial_rows, ["move", "model", "peak ref [mm]", "peak %", "residual %", "gap %"])
+
+# %%
+# the deflection in the arm's frame turning with q1: radial, tangential (the swing), vertical
+fig, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
+for label, style in (("reference", "k-"), ("default", "C3--"), ("both", "C2-.")):
+    r = spatial[label]
+    q1 = np.array([MOVE3(t)[0] for t in r["t"]])
+    c1, s1 = np.cos(q1), np.sin(q1)
+    parts = (c1 * r["d"][:, 0] + s1 * r["d"][:, 1], -s1 * r["d"][:, 0] + c1 * r["d"][:, 1],
+             r["d"][:, 2])
+    for ax, part in zip(axes, parts, strict=True):
+        ax.plot(r["t"], 1e3 * part, style, label=label)
+for ax, name in zip(axes, ("radial", "tangential", "vertical"), strict=True):
+    ax.set_ylabel(f"{name} [mm]")
+    ax.grid(True, alpha=0.3)
+axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+axes[-1].set_xlabel("t [s]")
+fig.tight_layout()
+
+# %% [markdown]
+# Before (default model) the history is off by 7.5 % of the 239 mm peak: the model misses
+# the vertical rise of the tip (link 2 shortening as it bends) and part of the radial
+# deflection. With both options these come in, but the tangential swing comes out about
+# 3 % too large at its peak, and the gap is still 5.4 % (peak +2.8 %): the issue's
+# targets (2 %, 5 %, 5 %) are not met on this move, whose deflection is 17 % of the
+# tip's radius, ten times the planar moves'. What is left is not an inertial term: loaded
+# statically across the plane, the model is 2.5 % too soft at the same 254 mm (0.07 % at
+# 11 mm, the excess growing as the deflection squared), because the real beams stiffen
+# at large rotations, a term of third order in δ that this modal model does not carry
+# (``tests/model/test_spatial_static.py``). The same move in 4 s (69 mm), or on an arm
+# four times stiffer, meets the targets (``benchmarks/README_fidelity.md``).
+
+# %% [markdown]
 # **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model
 # simulates, with accelerometers or strain gauges and an EKF.

@@ -16,8 +16,9 @@ Model
   frame (Exudyn): ``x`` along the beam, ``y`` the 7 mm side, ``z`` the 5 mm side (the
   joint axis). Stiffness ``diag(EA, κGA, κGA, GJ, EI_y, EI_z)``, ``κ = 5/6``, St-Venant
   ``J`` of the rectangle (series below); inertia ``ρA`` and ``ρ diag(I_p, I_y, I_z)``
-  (the rotary inertia of bending, absent from an Euler–Bernoulli beam, changes the
-  first frequencies by ~1e-5 relative here).
+  (the rotary inertia and the shear of bending, absent from an Euler–Bernoulli beam,
+  lower the first bending frequencies by 3.9e-5 in the plane and 2.0e-5 along the
+  joint axis: Timoshenko's frequency equation, test_spatial_reference.py).
 * Prescribed joints: a massive turntable (mass and inertia 1, it does not load the
   beams) turned by ``q1`` about ``z0``; link 1's first node clamped to it with the twist
   ``Rx(−90°)`` and the relative rotation ``q2``; link 2's first node clamped to link 1's
@@ -232,6 +233,51 @@ class SpatialArm:
                                        offsetUserFunction=offset(k + 1)))
         return chains
 
+    def static(self, q: tuple[float, float, float], accel, newton_tol: float = 1e-6
+               ) -> dict[str, np.ndarray]:
+        """Static deflection at the joint angles ``q`` [rad] under a uniform body-force
+        field ``accel`` [m/s², base frame] (gravity-like: ``ρA accel`` per length, as
+        consistent nodal forces of the linear elements, half an element's at each end).
+        ``{"tip", "elbow"}``: displacements from the rigid arm [m]; ``"elbow_rotation"``:
+        rotation vector of link 1's end section from its rigid orientation [rad] (base
+        frame). ``newton_tol`` [N]: above the residual's round-off (:func:`cantilever`).
+        """
+        import exudyn as exu
+        from exudyn.itemInterface import LoadForceVector, MarkerNodeRigid
+        from exudyn.rigidBodyUtilities import RotationMatrix2RotationVector
+
+        q = tuple(float(x) for x in q)
+        SC = exu.SystemContainer()
+        mbs = SC.AddSystem()
+        chains = self._build(mbs, JointMove(q, q, 1.0))
+        accel = np.asarray(accel, dtype=float)
+        for chain, beam in zip(chains, self.beams, strict=True):
+            h = beam.length / self.n_elements
+            for i, node in enumerate(chain):
+                share = 0.5 if i in (0, len(chain) - 1) else 1.0
+                mbs.AddLoad(LoadForceVector(
+                    markerNumber=mbs.AddMarker(MarkerNodeRigid(nodeNumber=node)),
+                    loadVector=list(beam.rho * beam.area * h * share * accel)))
+        mbs.Assemble()
+        s = exu.SimulationSettings()
+        s.solution.file.write = False
+        s.linearSolver.solverType = exu.LinearSolverType.EigenSparse
+        s.staticSolver.newton.absoluteTolerance = newton_tol
+        s.staticSolver.numberOfLoadSteps = 10
+        s.staticSolver.verboseMode = 0
+        mbs.SolveStatic(s)
+        shoulder, elbow_p, _, tip = rigid_frames(np.asarray(q), self.beams[0].length,
+                                                 self.beams[1].length)
+
+        def position(node):
+            return np.asarray(mbs.GetNodeOutput(node, exu.OutputVariableType.Position))
+
+        R = np.reshape(mbs.GetNodeOutput(chains[0][-1], exu.OutputVariableType.RotationMatrix),
+                       (3, 3))
+        turn = R @ (shoulder @ BEAM1_IN_DH).T
+        return {"tip": position(chains[1][-1]) - tip, "elbow": position(chains[0][-1]) - elbow_p,
+                "elbow_rotation": np.asarray(RotationMatrix2RotationVector(turn))}
+
     def simulate(self, move: JointMove, dt: float = 1e-3, rho_inf: float = 1.0,
                  newton_tol: float = 1e-7, t_end: float | None = None
                  ) -> dict[str, np.ndarray]:
@@ -267,28 +313,17 @@ class SpatialArm:
         return {"t": t, "tip": data[:, 1:4], "tip_rigid": rigid, "q": q}
 
 
-def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
-               torque=(0.0, 0.0, 0.0), t_end: float | None = None, dt: float = 1e-3
-               ) -> dict[str, np.ndarray]:
-    """One beam along ``x``, clamped at the origin, a constant tip force [N] and torque
-    [N m] in the beam frame (``y`` the in-plane side, ``z`` the joint-axis side).
-
-    ``t_end`` None: the static solution, ``{"u": tip displacement [m], "phi": tip
-    rotation vector [rad]}``. Otherwise the load is applied as a step at rest and the
-    free vibration about the loaded state is returned: ``{"t", "u", "phi"}`` every ``dt``.
-    """
+def _clamped_beam(beam: Beam, n_elements: int):
+    """A system with one beam along ``x`` of ``n_elements`` elements, its first node
+    clamped to the ground: ``(system container, mbs, nodes)`` (not assembled)."""
     import exudyn as exu
     from exudyn.itemInterface import (
         GenericJoint,
-        LoadForceVector,
-        LoadTorqueVector,
         MarkerNodeRigid,
         NodePointGround,
         NodeRigidBodyEP,
         ObjectBeamGeometricallyExact,
-        SensorNode,
     )
-    from exudyn.rigidBodyUtilities import RotationMatrix2RotationVector
 
     SC = exu.SystemContainer()
     mbs = SC.AddSystem()
@@ -302,6 +337,42 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
     mbs.AddObject(GenericJoint(markerNumbers=[
         mbs.AddMarker(MarkerNodeRigid(nodeNumber=mbs.AddNode(NodePointGround()))),
         mbs.AddMarker(MarkerNodeRigid(nodeNumber=nodes[0]))]))
+    return SC, mbs, nodes
+
+
+def cantilever_frequencies(beam: Beam = TABLE8, n_elements: int = 16) -> np.ndarray:
+    """Natural frequencies [rad/s], ascending, of the unloaded clamped beam of
+    :func:`cantilever`: Exudyn's eigenvalues of its mass and tangent stiffness,
+    projected on the null space of the clamp's and the Euler parameters' constraints
+    (dense SVD; ``6 n_elements`` frequencies)."""
+    SC, mbs, _ = _clamped_beam(beam, n_elements)
+    mbs.Assemble()
+    values, _ = mbs.ComputeODE2Eigenvalues(useSparseSolver=False,
+                                           ignoreAlgebraicEquations=False,
+                                           useAbsoluteValues=True)
+    return np.sqrt(np.sort(np.abs(values)))
+
+
+def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
+               torque=(0.0, 0.0, 0.0), t_end: float | None = None, dt: float = 1e-3,
+               newton_tol: float | None = None) -> dict[str, np.ndarray]:
+    """One beam along ``x``, clamped at the origin, a constant tip force [N] and torque
+    [N m] in the beam frame (``y`` the in-plane side, ``z`` the joint-axis side).
+
+    ``t_end`` None: the static solution, ``{"u": tip displacement [m], "phi": tip
+    rotation vector [rad]}``. Otherwise the load is applied as a step at rest and the
+    free vibration about the loaded state is returned: ``{"t", "u", "phi"}`` every ``dt``.
+    ``newton_tol``: the Newton iterations' absolute tolerance [N]; None: 1e-10 static,
+    1e-8 dynamic. The static residual's round-off grows with the axial stiffness EA/h:
+    from 32 elements in the plane (64 along the joint axis) it stays above 1e-8 N and
+    the static solve fails. 1e-6 N then works: on the 0.02 N tip force at 16 elements
+    it gives the 1e-10 N answer to 1e-15 relative, yet on a tip torque only to 1e-6.
+    """
+    import exudyn as exu
+    from exudyn.itemInterface import LoadForceVector, LoadTorqueVector, MarkerNodeRigid, SensorNode
+    from exudyn.rigidBodyUtilities import RotationMatrix2RotationVector
+
+    SC, mbs, nodes = _clamped_beam(beam, n_elements)
     tip = mbs.AddMarker(MarkerNodeRigid(nodeNumber=nodes[-1]))
     mbs.AddLoad(LoadForceVector(markerNumber=tip, loadVector=list(force)))
     mbs.AddLoad(LoadTorqueVector(markerNumber=tip, loadVector=list(torque)))
@@ -314,7 +385,7 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
     s.solution.file.write = False
     s.linearSolver.solverType = exu.LinearSolverType.EigenSparse
     if t_end is None:
-        s.staticSolver.newton.absoluteTolerance = 1e-10
+        s.staticSolver.newton.absoluteTolerance = 1e-10 if newton_tol is None else newton_tol
         s.staticSolver.verboseMode = 0
         mbs.SolveStatic(s)
         R = mbs.GetNodeOutput(nodes[-1], exu.OutputVariableType.RotationMatrix)
@@ -325,7 +396,7 @@ def cantilever(beam: Beam = TABLE8, n_elements: int = 16, force=(0.0, 0.0, 0.0),
     s.timeIntegration.numberOfSteps = steps
     s.timeIntegration.endTime = steps * dt
     s.timeIntegration.generalizedAlpha.spectralRadius = 1.0
-    s.timeIntegration.newton.absoluteTolerance = 1e-8
+    s.timeIntegration.newton.absoluteTolerance = 1e-8 if newton_tol is None else newton_tol
     s.timeIntegration.verboseMode = 0
     s.solution.sensors.writePeriod = dt
     mbs.SolveDynamic(s)
