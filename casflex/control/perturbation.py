@@ -590,7 +590,9 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
     epsilon : float
         Perturbation parameter [s] (:func:`perturbation_parameter`).
     table : casflex.modal.tables.ModalTable
-        The model's table (its ``info["key"]`` enters the cache key).
+        The model's table (its ``info["key"]`` enters the cache key; a table without one,
+        such as a :class:`casflex.modal.fits.ChebyshevFit`, is never cached, since two
+        different tables would share a key).
     axis : array_like
         Full-turn axis [rad] used for every scheduled joint (with ``limits`` or ``box``:
         only its number of points counts, see :func:`schedule_axes`).
@@ -635,7 +637,8 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
         axes = schedule_axes(model.robot, joints, axis.size, limits=limits, box=box)
     else:
         axes = (axis,) * len(joints)
-    root = cache_root(cache_dir)
+    # Without the table's own key two different tables would share one cache file.
+    root = cache_root(cache_dir) if table.info.get("key") is not None else None
     if root is None:
         return gain_schedule(model, Q=Q, R=R, epsilon=epsilon, table=table, joints=joints,
                              grid=axes, method=method)

@@ -129,3 +129,20 @@ def test_cached_gain_schedule(table_model, tmp_path):
     assert not off.info.get("from_cache", False)
     np.testing.assert_array_equal(off.gains, first.gains)
     assert len(list(tmp_path.glob("gains-*.npz"))) == 2
+
+
+def test_cached_gain_schedule_table_without_key(table_model, tmp_path):
+    """A table without its own key (a Chebyshev fit has none) is computed, never cached:
+    two different tables must not share a file."""
+    import dataclasses
+
+    model, table = table_model
+    keyless = dataclasses.replace(table, info={k: v for k, v in table.info.items()
+                                               if k != "key"})
+    eps = control.perturbation_parameter(model, table=table)
+    axis = -np.pi + 2.0 * np.pi * np.arange(12) / 12
+    for _ in range(2):
+        sched = control.cached_gain_schedule(model, 1.0, 10.0, eps, keyless, axis,
+                                             cache_dir=tmp_path)
+        assert not sched.info.get("from_cache", False)
+    assert not list(tmp_path.glob("gains-*.npz"))
