@@ -239,7 +239,7 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                     estimator=estimator, sampled=True,  # compiled for C
                                     jit=study.codegen["compile"], cache_dir=cache_dir)
     except SolverError as exc:  # reported, not raised: a diverging loop is a verdict
-        divergence = _divergence(str(exc))
+        divergence = _divergence(exc)
         say(f"WARNING: the closed loop with the EKF diverged: {exc}")
         loop = _diverged_loop(model, t_end, dt)
     say("where the tracking error comes from: the loop with the true state fed back ...")
@@ -466,18 +466,12 @@ def _plant_grid(grid_axes, move, pad=1):
     return axes
 
 
-def _divergence(message):
-    """``{"time", "quantity", "message"}`` of a diverged closed loop, read from the
-    message of :func:`casflex.simulate.results.check_divergence` (``time``/``quantity``
-    None when the message has another form; the message is kept whole)."""
-    import re
-
-    found = re.search(r"diverged at t = ([-+0-9.eE]+) s: (\|?[A-Za-z_]+(?:\[\d+\])?)",
-                      message)
-    if found is None:
-        return {"time": None, "quantity": None, "message": message}
-    return {"time": float(found.group(1)), "quantity": found.group(2).strip("|"),
-            "message": message}
+def _divergence(exc):
+    """``{"time", "quantity", "message"}`` of a diverged closed loop, from the
+    ``divergence`` attribute :func:`casflex.simulate.results.check_divergence` gives its
+    error (``time``/``quantity`` None for another solver failure; the message is kept)."""
+    found = getattr(exc, "divergence", None) or {"time": None, "quantity": None}
+    return {**found, "message": str(exc)}
 
 
 def _diverged_loop(model, t_end, dt):

@@ -312,6 +312,12 @@ def check_divergence(where: str, t: np.ndarray, quantities: dict[str, np.ndarray
         Largest plausible absolute value of a quantity (by name); a 2-D history of three
         columns named ``tip_deflection`` is compared by its row norms [m].
 
+    Raises
+    ------
+    casflex.errors.SolverError
+        With the attribute ``divergence``: ``{"time": s, "quantity": "name[column]"}``
+        (1-based column; the bare name for the row norm of ``tip_deflection``).
+
     Examples
     --------
     >>> t = np.array([0.0, 0.1, 0.2])
@@ -354,8 +360,12 @@ def check_divergence(where: str, t: np.ndarray, quantities: dict[str, np.ndarray
     else:
         what = f"|{name}[{col + 1}]| = {abs(value):.4g}, beyond {limits[name]:.4g}"
     time = float(np.asarray(t, dtype=float).ravel()[min(k, np.size(t) - 1)])
-    raise SolverError(f"{where}: the integration diverged at t = {time:.6g} s: {what}; "
-                      f"{hint}")
+    error = SolverError(f"{where}: the integration diverged at t = {time:.6g} s: {what}; "
+                        f"{hint}")
+    # Callers that report rather than raise (the design job) read these, not the message.
+    error.divergence = {"time": time,
+                        "quantity": name if norm is not None else f"{name}[{col + 1}]"}
+    raise error
 
 
 def robot_reach(robot: Robot) -> float:
