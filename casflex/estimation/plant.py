@@ -285,7 +285,7 @@ class FlexiblePlant:
         if self.keep is None:
             if self.table is not None:
                 qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef", method=method)(qs))
+                vals = ca.SX(self.table.function("coef", method=method, lookup="local")(qs))
                 A = ca.reshape(vals, nnz, L)  # stored column-major: nnz fastest
             else:
                 A = ca.SX(ca.DM(self.constant.T))
@@ -295,7 +295,8 @@ class FlexiblePlant:
             flat = np.flatnonzero(keep.ravel())  # index l * nnz + e of the stored layout
             if self.table is not None:
                 qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef", method=method, entries=flat)(qs))
+                coef_fn = self.table.function("coef", method=method, entries=flat, lookup="local")
+                vals = ca.SX(coef_fn(qs))
             else:
                 vals = ca.SX(ca.DM(np.asarray(self.constant, dtype=float).ravel()[flat]))
             terms = [[] for _ in range(nnz)]
