@@ -13,8 +13,8 @@ space"). This module tabulates them:
    :func:`casflex.modal.integrals.configuration_quantities` after
    :func:`casflex.modal.normalize.mass_normalize`).
 3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the
-   shape-joint values (cubic B-spline by default, one axis evaluated by :mod:`casflex.modal.
-   table_functions`, else ``casadi.interpolant``): what the dynamics consumes.
+   shape-joint values with ``casadi.interpolant`` (B-spline by default; one-axis tables
+   also by :mod:`casflex.modal.table_functions`): what the dynamics consumes.
 
 Multiple roots
 --------------
@@ -516,7 +516,7 @@ class ModalTable:
         return q
 
     def function(self, name: str, method: str = "bspline", entries: ArrayLike | None = None,
-                 lookup: str = "local") -> ca.Function:
+                 lookup: str = "interpolant") -> ca.Function:
         """``casadi.Function`` interpolating quantity ``name`` over the grid.
 
         Parameters
@@ -530,7 +530,7 @@ class ModalTable:
             Interpolate only these entries of the value (indices into the value flattened
             in C order); the output is then the column vector of those entries. The
             model uses it to leave out entries that vanish everywhere.
-        lookup : {"local", "interpolant"}
+        lookup : {"interpolant", "local"}
             ``"local"``: one-axis B-splines by :func:`casflex.modal.table_functions.
             local_bspline_function` (the same spline, leaner C); else ``casadi.interpolant``.
 

@@ -80,10 +80,10 @@ def test_beyond_a_limited_axis_the_end_value_is_held(method):
     omega = (2.0 + np.sin(3.0 * axis))[:, None]
     table = ModalTable(grid=(axis,), shape_joints=(2,), values={}, omega=omega,
                        periodic=(False,))
-    # the default lookup (a B-spline evaluated locally: casflex.modal.table_functions,
-    # equal to CasADi's to rounding, tests/modal/test_table_functions.py) holds the ends too
+    # the B-spline evaluated locally (casflex.modal.table_functions, equal to CasADi's to
+    # rounding, tests/modal/test_table_functions.py) holds the ends too
     x = ca.MX.sym("x")
-    local = table.function("omega", method=method)
+    local = table.function("omega", method=method, lookup="local")
     local_slope = ca.Function("d", [x], [ca.jacobian(local(x), x)])
     for q, end in ((0.1, omega[0, 0]), (1.05, omega[-1, 0])):
         assert float(local(q)) == pytest.approx(end, abs=1e-14)
