@@ -25,7 +25,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
-[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded]
+[--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -35,6 +35,11 @@ figure the machine's load does not change, ``instruction_limit_us``, that count 
 and ``implied_ipc``, the instructions per cycle the timed median implies. Valgrind does
 not run AVX-512 code, so the counted build uses ``--callgrind-flags`` (AVX2);
 ``CASFLEX_CALLGRIND_KEEP=PATH`` keeps callgrind's output for ``callgrind_annotate``.
+
+``--lookups`` also times (and with ``--callgrind`` counts) the step with the plant's
+spline table evaluated by ``casadi.interpolant`` (CasADi's de Boor routine, the code
+before) and locally (:mod:`casflex.modal.table_functions`, the default), interleaved over
+``--rounds``: key ``lookups`` (and ``max_rel_dev``, the estimates' largest difference).
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -182,7 +187,10 @@ def sx_to_python(fun: ca.Function, breaks: np.ndarray):
     for k in range(fun.n_instructions()):
         if fun.instruction_id(k) == ca.OP_CALL:
             g = sx[k].which_function()
-            if g.class_name() == "BSplineInterpolant" and g.name() not in splines:
+            # casadi.interpolant's B-splines and the same splines evaluated locally
+            # (casflex.modal.table_functions, named "<table>_local")
+            spline = g.class_name() == "BSplineInterpolant" or g.name().endswith("_local")
+            if spline and g.name() not in splines:
                 splines[g.name()] = PiecewiseCubic(g, breaks)
     lines = [f"o{i} = [0.0] * {fun.nnz_out(i)}" for i in range(fun.n_out())]
     for k in range(fun.n_instructions()):
@@ -335,8 +343,8 @@ def op_counts(f):
     return sum(1 for i in ids if i not in skip and i != ca.OP_CALL), calls
 
 
-def callgrind_instructions(exe, inp, tmp, steps):
-    """Machine instructions executed per call of ``ekf_step`` (and its callees), counted by
+def callgrind_instructions(exe, inp, tmp, steps, function="ekf_step"):
+    """Machine instructions executed per call of ``function`` (and its callees), counted by
     valgrind's callgrind over one pass of the harness: a figure the machine's load does
     not change (None without valgrind)."""
     import shutil
@@ -345,7 +353,7 @@ def callgrind_instructions(exe, inp, tmp, steps):
         return None
     out = tmp / "callgrind.out"
     subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
-                    "--toggle-collect=ekf_step", str(exe), str(inp), str(tmp / "cg.txt"), "1"],
+                    f"--toggle-collect={function}", str(exe), str(inp), str(tmp / "cg.txt"), "1"],
                    capture_output=True, text=True, check=True)
     if os.environ.get("CASFLEX_CALLGRIND_KEEP"):  # for callgrind_annotate
         shutil.copy(out, os.environ["CASFLEX_CALLGRIND_KEEP"])
@@ -402,6 +410,10 @@ def main(argv=None):
                              "instruction_limit_us)")
     parser.add_argument("--callgrind-flags", default=CALLGRIND_FLAGS,
                         help="C compiler flags of the build whose instructions are counted")
+    parser.add_argument("--lookups", action="store_true",
+                        help="also time and count the step with the plant's table through "
+                        "casadi.interpolant (before) and evaluated locally (now), "
+                        "interleaved over --rounds")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -494,6 +506,27 @@ def main(argv=None):
                 v["c_step_us"] = float(np.median(v["rounds_us"]))
                 log(f"[{rnd}] {label:62s} {us:7.2f} us  {stp.n_instructions()} instr  "
                     f"dev {dev:.1e}")
+    lookups = {}
+    if args.lookups:  # the plant's spline table: CasADi's de Boor routine vs local
+        lsteps = {lk: ekf_step_function(dataclasses.replace(plant, lookup=lk), sensors, Q, R,
+                                        dt, jacobians=args.jacobians, update=args.update)
+                  for lk in ("interpolant", "local")}
+        for rnd in range(args.rounds):
+            for label, stp in lsteps.items():
+                us, dev, _ = time_c(stp, args.flags)
+                v = lookups.setdefault(label, {
+                    "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
+                    "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
+                v["rounds_us"].append(us)
+                v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
+                v["load_avg_1min"].append(os.getloadavg()[0])
+                v["c_step_us"] = float(np.median(v["rounds_us"]))
+                if instructions:
+                    v["instructions_per_step"] = instructions[0]
+                log(f"[{rnd}] lookup {label:12s} {us:7.2f} us  {stp.n_instructions()} instr")
+        # the two steps' estimates differ by the two fits' rounding only
+        ra, rb = (run_ekf(st, data.u, data.y, x0, P0).x for st in lsteps.values())
+        lookups["max_rel_dev"] = float(np.max(np.abs(ra - rb)) / np.max(np.abs(ra)))
     guarded = {}
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
@@ -577,6 +610,8 @@ def main(argv=None):
         # instructions per cycle that the timed median implies (the load inflates it less
         # than the time: a busy spell lowers the apparent IPC)
         out["implied_ipc"] = None if ins is None or ghz is None else ins / (c_us * ghz * 1e3)
+    if lookups:
+        out["lookups"] = lookups
     if guarded:
         out["guarded"] = guarded
     if variants:

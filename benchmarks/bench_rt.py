@@ -16,8 +16,13 @@ timed inside C (``clock_gettime``); ``rt_step_us`` is the median over all calls.
 limits) on the same samples, alternating plain and guarded builds (``--rounds`` each) in
 one run: ``rt_step_guarded_us`` and ``guard_cost_ratio`` (median guarded / median plain).
 
+``--callgrind`` also counts the machine instructions of one ``rt_step`` (valgrind's
+callgrind over one pass of the recorded samples, as ``bench_ekf.py --callgrind``: an AVX2
+build, ``-O3 -march=x86-64-v3 -ffp-contract=off`` unless ``--callgrind-flags``):
+``instructions_per_step``, a figure the machine's load does not change.
+
 Usage: ``python benchmarks/bench_rt.py [--json] [--steps 3000] [--repeat 5] [--step-deg 7.5]
-[--controller composite|inversion] [--guarded] [--rounds 2]``
+[--controller composite|inversion] [--guarded] [--rounds 2] [--callgrind]``
 """
 
 from __future__ import annotations
@@ -49,6 +54,10 @@ def main(argv=None):
                         help="also time the guarded rt_step, alternating with the plain one")
     parser.add_argument("--rounds", type=int, default=2,
                         help="alternations of plain and guarded timings (--guarded)")
+    parser.add_argument("--callgrind", action="store_true",
+                        help="count the machine instructions per rt_step (valgrind)")
+    parser.add_argument("--callgrind-flags", default="-O3 -march=x86-64-v3 -ffp-contract=off",
+                        help="compiler flags of the counted build (valgrind has no AVX-512)")
     args = parser.parse_args(argv)
 
     import warnings
@@ -105,6 +114,21 @@ def main(argv=None):
         dev = float(np.max(np.abs(res.outputs["tau"] - run["tau"]))
                     / np.max(np.abs(run["tau"])))
         info = bundle.function("rt_step")
+        counted = {}
+        if args.callgrind:  # machine instructions per call: independent of the load
+            sys.path.insert(0, str(Path(__file__).resolve().parent))
+            from bench_ekf import callgrind_instructions
+
+            init = {"x": np.zeros(2 * m), "P": 1e-4 * np.eye(2 * m),
+                    "dq_prev": x[0, n + m:2 * n + m]}
+            cg = codegen.run_harness(bundle, "rt_step", inputs, init,
+                                     feedback={"x_next": "x", "P_next": "P",
+                                               "dq_next": "dq_prev"},
+                                     repeat=1, flags=tuple(args.callgrind_flags.split()))
+            inp = Path(tmp) / "rt" / "harness_rt_step_input.txt"
+            counted = {"instructions_per_step": callgrind_instructions(
+                cg.executable, inp, Path(tmp), N, function="rt_step"),
+                "callgrind_flags": args.callgrind_flags}
         guarded = {}
         if args.guarded:
             P0 = 1e-4 * np.eye(2 * m)
@@ -152,6 +176,7 @@ def main(argv=None):
         "load_average": os.getloadavg()[0],
         "timer_overhead_ns": res.timing["timer_overhead_ns"],
         **guarded,
+        **counted,
     }
     if args.json:
         print(json.dumps(out))

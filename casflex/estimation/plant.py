@@ -179,6 +179,11 @@ class FlexiblePlant:
         ``(L, nnz)``: the Fourier coefficients (rows: the ``L`` products of the Fourier
         basis, columns: the structurally non-zero entries) that :meth:`coefficients`
         evaluates; ``None``: all of them. Set by ``tabulate_plant(prune=...)``.
+    lookup : {"local", "interpolant"}
+        How :meth:`coefficients` evaluates the spline table
+        (:meth:`casflex.modal.tables.ModalTable.function`): ``"local"`` (default) the lean
+        local evaluation of one-axis tables, ``"interpolant"`` CasADi's de Boor routine
+        (the same spline; the C code before, kept for comparisons).
 
     Examples
     --------
@@ -206,6 +211,7 @@ class FlexiblePlant:
     info: dict = field(default_factory=dict)
     order: int = 1
     keep: np.ndarray | None = None
+    lookup: str = "local"
 
     @property
     def pairs(self) -> list[tuple[int, int]]:
@@ -285,7 +291,8 @@ class FlexiblePlant:
         if self.keep is None:
             if self.table is not None:
                 qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef", method=method)(qs))
+                vals = ca.SX(self.table.function("coef", method=method,
+                                                 lookup=self.lookup)(qs))
                 A = ca.reshape(vals, nnz, L)  # stored column-major: nnz fastest
             else:
                 A = ca.SX(ca.DM(self.constant.T))
@@ -295,7 +302,9 @@ class FlexiblePlant:
             flat = np.flatnonzero(keep.ravel())  # index l * nnz + e of the stored layout
             if self.table is not None:
                 qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef", method=method, entries=flat)(qs))
+                coef_fn = self.table.function("coef", method=method, entries=flat,
+                                              lookup=self.lookup)
+                vals = ca.SX(coef_fn(qs))
             else:
                 vals = ca.SX(ca.DM(np.asarray(self.constant, dtype=float).ravel()[flat]))
             terms = [[] for _ in range(nnz)]

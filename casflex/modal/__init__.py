@@ -81,6 +81,7 @@ Modal tables
    compute_modes       -- raw TMM modes at many configurations, in parallel
    default_quantities  -- mass-normalise tracked shapes and evaluate the model quantities
    robot_fingerprint   -- canonical description of what changes a robot's dynamics
+   local_bspline_function -- a table's cubic B-spline evaluated locally (lean generated C)
 
 Frequency sweeps
 ================
@@ -136,6 +137,7 @@ from casflex.modal.subspace import (
     track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
+from casflex.modal.table_functions import local_bspline_function
 from casflex.modal.tables import (
     ModalTable,
     build_table,
@@ -215,6 +217,7 @@ __all__ = [
     "compute_modes",
     "default_quantities",
     "robot_fingerprint",
+    "local_bspline_function",
     # frequency sweeps
     "frequency_sweep",
     "FrequencySweep",

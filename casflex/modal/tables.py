@@ -13,8 +13,8 @@ space"). This module tabulates them:
    :func:`casflex.modal.integrals.configuration_quantities` after
    :func:`casflex.modal.normalize.mass_normalize`).
 3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the
-   shape-joint values with ``casadi.interpolant`` (B-spline by default), which is what the
-   dynamics consumes (``shape_joints`` + ``function(name)``).
+   shape-joint values with ``casadi.interpolant`` (B-spline by default; one-axis tables
+   also by :mod:`casflex.modal.table_functions`): what the dynamics consumes.
 
 Multiple roots
 --------------
@@ -502,8 +502,8 @@ class ModalTable:
             q[k] = axis[i]
         return q
 
-    def function(self, name: str, method: str = "bspline",
-                 entries: ArrayLike | None = None) -> ca.Function:
+    def function(self, name: str, method: str = "bspline", entries: ArrayLike | None = None,
+                 lookup: str = "interpolant") -> ca.Function:
         """``casadi.Function`` interpolating quantity ``name`` over the grid.
 
         Parameters
@@ -517,6 +517,9 @@ class ModalTable:
             Interpolate only these entries of the value (indices into the value flattened
             in C order); the output is then the column vector of those entries. The
             model uses it to leave out entries that vanish everywhere.
+        lookup : {"interpolant", "local"}
+            ``"local"``: one-axis B-splines by :func:`casflex.modal.table_functions.
+            local_bspline_function` (the same spline, leaner C); else ``casadi.interpolant``.
 
         Returns
         -------
@@ -537,8 +540,9 @@ class ModalTable:
         """
         import casadi as ca
 
-        if method not in ("bspline", "linear"):
-            raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}")
+        from casflex.modal.table_functions import local_bspline_function
+        if method not in ("bspline", "linear") or lookup not in ("interpolant", "local"):
+            raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}, {lookup=}")
         values = {"omega": self.omega, **self.values}
         if name not in values:
             raise ModelError(f"no quantity {name!r} in the table; it has {self.names}")
@@ -559,11 +563,9 @@ class ModalTable:
         wrap = []
         for ax in range(nd):
             kind = periodic_axis_kind(axes[ax]) if periodic[ax] else None
-            if kind is None:
-                wrap.append(None)
-                continue
-            axes[ax], flat = _pad_periodic(axes[ax], flat, ax, kind)
-            wrap.append((float(self.grid[ax][0]), TWO_PI))
+            if kind is not None:
+                axes[ax], flat = _pad_periodic(axes[ax], flat, ax, kind)
+            wrap.append(None if kind is None else (float(self.grid[ax][0]), TWO_PI))
         need = 4 if method == "bspline" else 2
         for ax, a in enumerate(axes):
             if a.size < need:
@@ -571,13 +573,14 @@ class ModalTable:
                                  f"{method!r} interpolant needs at least {need}")
         x = ca.MX.sym("q_shape", nd)
         if flat.shape[-1] == 0:  # e.g. no joint springs: an empty quantity
-            empty = ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1)))
-            return ca.Function(name, [x], [ca.MX(empty)], ["q_shape"], [name])
-        coeffs = np.moveaxis(flat, -1, 0).ravel(order="F")
-        # binary search for the knot interval: bit-identical to CasADi's default linear
-        # scan, in log2(n) instead of n/2 comparisons (the EKF's C makes several lookups)
-        interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes], coeffs,
-                                {"lookup_mode": ["binary"] * nd})
+            empty = ca.MX(ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1))))
+            return ca.Function(name, [x], [empty], ["q_shape"], [name])
+        if lookup == "local" and method == "bspline" and nd == 1:
+            interp = local_bspline_function(f"{name}_local", axes[0], flat)
+        else:  # binary search: bit-identical to CasADi's default scan, in log2(n) steps
+            interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes],
+                                    np.moveaxis(flat, -1, 0).ravel(order="F"),
+                                    {"lookup_mode": ["binary"] * nd})
         parts = []
         for ax in range(nd):
             xi = x[ax]
@@ -596,12 +599,9 @@ class ModalTable:
 
 def _flatten_values(data, nd):
     """grid_shape + value_shape -> grid_shape + (n,), matrices column-major (casadi)."""
-    gshape = data.shape[:nd]
-    vshape = data.shape[nd:]
-    if len(vshape) == 2:
-        moved = np.swapaxes(data, nd, nd + 1)  # column-major flattening of each matrix
-        return moved.reshape(gshape + (-1,))
-    return data.reshape(gshape + (-1,))
+    if data.ndim - nd == 2:  # column-major flattening of each matrix
+        data = np.swapaxes(data, nd, nd + 1)
+    return data.reshape(data.shape[:nd] + (-1,))
 
 
 def _pad_periodic(axis, flat, ax, kind, pad=3):

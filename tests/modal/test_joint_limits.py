@@ -80,11 +80,18 @@ def test_beyond_a_limited_axis_the_end_value_is_held(method):
     omega = (2.0 + np.sin(3.0 * axis))[:, None]
     table = ModalTable(grid=(axis,), shape_joints=(2,), values={}, omega=omega,
                        periodic=(False,))
-    f = table.function("omega", method=method)
+    # the B-spline evaluated locally (casflex.modal.table_functions, equal to CasADi's to
+    # rounding, tests/modal/test_table_functions.py) holds the ends too
+    x = ca.MX.sym("x")
+    local = table.function("omega", method=method, lookup="local")
+    local_slope = ca.Function("d", [x], [ca.jacobian(local(x), x)])
+    for q, end in ((0.1, omega[0, 0]), (1.05, omega[-1, 0])):
+        assert float(local(q)) == pytest.approx(end, abs=1e-14)
+        assert float(local_slope(q)) == 0.0
+    f = table.function("omega", method=method, lookup="interpolant")
     assert float(f(0.3 - 0.2)) == pytest.approx(omega[0, 0], abs=1e-14)
     assert float(f(1.0 + 0.05)) == pytest.approx(omega[-1, 0], abs=1e-14)
     bare = ca.interpolant("bare", method, [list(axis)], omega[:, 0].tolist())
-    x = ca.MX.sym("x")
     slope, bare_slope = (ca.Function("d", [x], [ca.jacobian(g(x), x)]) for g in (f, bare))
     for q in (0.3, 0.47, 0.9, 1.0):
         assert float(f(q)) == float(bare(q))
