@@ -238,14 +238,17 @@ def _run_chunk(func, arg_list):
     return [func(*args) for args in arg_list]
 
 
-def _run_chunk_packed(func, packed_args):
+def _run_chunk_packed(func, packed_args, client_pid=None):
     """:func:`_run_chunk` with the arguments and the results pickled into one buffer
     each: a chunk's many small arrays travel as one frame instead of hundreds (Dask's
     per-object serialisation of task arguments and results costs the client and the
-    scheduler more CPU than the arrays' size suggests)."""
+    scheduler more CPU than the arrays' size suggests). A worker process other than the
+    client's (``client_pid``; threads of the client's own process are left alone) runs
+    its BLAS on one thread."""
     import pickle
 
-    single_threaded_blas()  # a Dask worker: once (it sets the variables)
+    if os.getpid() != client_pid:
+        single_threaded_blas()  # once: it sets the variables
     return pickle.dumps(_run_chunk(func, pickle.loads(packed_args)),
                         protocol=pickle.HIGHEST_PROTOCOL)
 
@@ -320,15 +323,17 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
 
             from distributed import as_completed
 
-            futures = [client.submit(_run_chunk_packed, func,
-                                     pickle.dumps([a for _, a in c],
-                                                  protocol=pickle.HIGHEST_PROTOCOL),
-                                     pure=False)
-                       for c in chunks]
+            # one map (one message to the scheduler) and the results gathered in batches
+            # as they complete: half the client's CPU per task of a submit and a
+            # result() each (benchmarks/README_tables.md)
+            futures = client.map(_run_chunk_packed, [func] * len(chunks),
+                                 [pickle.dumps([a for _, a in c],
+                                               protocol=pickle.HIGHEST_PROTOCOL)
+                                  for c in chunks], [os.getpid()] * len(chunks), pure=False)
             tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
             try:
-                for fut in as_completed(futures):
-                    results = pickle.loads(fut.result())
+                for fut, packed in as_completed(futures, with_results=True):
+                    results = pickle.loads(packed)
                     bar.update(len(results))
                     yield from zip(tags[fut.key], results, strict=True)
             finally:
