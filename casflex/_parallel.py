@@ -323,19 +323,22 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
 
             from distributed import as_completed
 
-            # one map (one message to the scheduler) and the results gathered in batches
-            # as they complete: half the client's CPU per task of a submit and a
-            # result() each (benchmarks/README_tables.md)
+            # one map (one message to the scheduler) and the results fetched in batches of
+            # what has completed, one gather each: half the client's CPU per task of a
+            # submit and a result() each (benchmarks/README_tables.md). Not
+            # as_completed(with_results=True): its concurrent fetches broke a comm
+            # (tornado's write buffer assertion) and left the loop waiting
             futures = client.map(_run_chunk_packed, [func] * len(chunks),
                                  [pickle.dumps([a for _, a in c],
                                                protocol=pickle.HIGHEST_PROTOCOL)
                                   for c in chunks], [os.getpid()] * len(chunks), pure=False)
             tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
             try:
-                for fut, packed in as_completed(futures, with_results=True):
-                    results = pickle.loads(packed)
-                    bar.update(len(results))
-                    yield from zip(tags[fut.key], results, strict=True)
+                for batch in as_completed(futures).batches():
+                    for fut, packed in zip(batch, client.gather(batch), strict=True):
+                        results = pickle.loads(packed)
+                        bar.update(len(results))
+                        yield from zip(tags[fut.key], results, strict=True)
             finally:
                 client.cancel([f for f in futures if not f.done()])
         elif pool is None:

@@ -73,3 +73,30 @@ def test_a_users_thread_setting_is_kept(tmp_path):
     if not r["parent"][0]:
         pytest.skip("numpy's BLAS is not OpenBLAS here")
     assert all(counts == [2] and env == "2" for counts, env in r["workers"])
+
+
+def _fails_on_three(x):
+    if x == 3:
+        raise ValueError("three")
+    return -x
+
+
+def test_dask_path_returns_every_tag_with_its_result_and_raises_a_task_error(monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    from casflex._parallel import THREAD_VARIABLES, parallel_map
+
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        jobs = [(f"t{i}", (i,)) for i in range(11)]
+        got = list(parallel_map(abs, [(t, (-i,)) for t, (i,) in jobs], client=client,
+                                chunksize=2))
+        assert sorted(got) == sorted((t, i) for t, (i,) in jobs)
+        with pytest.raises(ValueError, match="three"):
+            list(parallel_map(_fails_on_three, jobs, client=client, chunksize=1))
+    # the workers were threads of this very process: its BLAS threads (and the variables
+    # that set them) are the user's business, left alone
+    assert not any(name in os.environ for name in THREAD_VARIABLES)
