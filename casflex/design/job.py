@@ -188,8 +188,6 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     shaped = ShapedMove(move, design.shaper)
     t_f = np.linspace(0.0, shaped.t_end, 2 * study.shaper["n_samples"] + 1)  # all simulated
     t_f, omega_along = shaping.frequencies_along(model, (t_f, *shaped.sample(t_f)))
-    figures_started = _start_figures(figure_pool, out, _shaper_figure_specs(
-        study, design, t_f, omega_along, shaped.duration))
 
     # 4. simulations --------------------------------------------------------------------------
     t0 = time.perf_counter()
@@ -214,6 +212,11 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
         comparison = plan_next_to_shaped(p_model, move, shaped, p_run, study.planner, dt=dt,
                                          log=say)
         timings["planner_s"] = time.perf_counter() - t0
+
+    # the shaper's figures: the workers start (and import matplotlib) here, after the last
+    # table a process pool may compute (forked while this process has no other thread)
+    figures_started = _start_figures(figure_pool, out, _shaper_figure_specs(
+        study, design, t_f, omega_along, shaped.duration))
 
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
