@@ -215,8 +215,8 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
 
     # the shaper's figures: the workers start (and import matplotlib) here, after the last
     # table a process pool may compute (forked while this process has no other thread)
-    figures_started = _start_figures(figure_pool, out, _shaper_figure_specs(
-        study, design, t_f, omega_along, shaped.duration))
+    figures_started = _start_figures(figure_pool, out, [_shaper_figure_specs(
+        study, design, t_f, omega_along, shaped.duration)])  # one worker
 
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
@@ -257,8 +257,10 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     t_acc = np.linspace(0.0, shaped.duration, 201)
     acc = control.accessibility_along(model, shaped, t_acc)
     estimation = _estimation_errors(model, loop)
-    figures_started += _start_figures(figure_pool, out, _run_figure_specs(
-        study, unshaped_run, shaped_run, loop, estimation, t_acc, acc, shaped.duration))
+    run_figures = _run_figure_specs(study, unshaped_run, shaped_run, loop, estimation, t_acc,
+                                    acc, shaped.duration)
+    # joint_tracking.png (nine panels) costs about what the other three do together
+    figures_started += _start_figures(figure_pool, out, [run_figures[:-1], run_figures[-1:]])
 
     # 6. C bundle -----------------------------------------------------------------------------
     t0 = time.perf_counter()
@@ -559,7 +561,7 @@ def _save_plan_figure(out, comparison):
 def _shaper_figure_specs(study, design, t_f, omega, move_end):
     """The report's figures of the shaper (``frequencies.png``, ``prv.png``) as ``(file
     name, casflex.plotting function name, args, keywords, tight)``: plain data, so that a
-    worker process can draw them (:func:`_draw_figure`); ``tight``: the figure has no
+    worker process can draw them (:func:`_draw_figures`); ``tight``: the figure has no
     layout engine of its own and gets ``tight_layout``."""
     modes = [f"mode {j + 1}" for j in range(len(design.ranges))]
     ranges = [(r.omega_min, r.omega_max) for r in design.ranges]
@@ -596,38 +598,40 @@ def _run_figure_specs(study, unshaped, shaped_run, loop, estimation, t_acc, acc,
     ]
 
 
-def _draw_figure(path, function, args, kwargs, tight):
-    """Draw one figure of :func:`_shaper_figure_specs` or :func:`_run_figure_specs` and
-    save it as PNG at ``path``; returns ``path``."""
+def _draw_figures(out, specs):
+    """Draw figures of :func:`_shaper_figure_specs` or :func:`_run_figure_specs` and save
+    them as PNG in ``out``; returns their paths."""
     from casflex import plotting
 
-    fig = getattr(plotting, function)(*args, **kwargs)
-    if tight:
-        fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
+    paths = []
+    for name, function, args, kwargs, tight in specs:
+        fig = getattr(plotting, function)(*args, **kwargs)
+        if tight:
+            fig.tight_layout()
+        fig.savefig(out / name, dpi=110)
+        paths.append(out / name)
+    return paths
 
 
-def _start_figures(pool, out, specs):
-    """Submit the figures of ``specs`` to ``pool`` (a :func:`casflex._parallel.worker_pool`)
-    and return their futures, or draw them here and return their paths when there is no
-    pool. Drawing (importing matplotlib, its layout and rasterisation) is the largest part
-    of a second run; in workers it overlaps the job's own work (the simulations, the
-    closed loops, the C bundle)."""
+def _start_figures(pool, out, groups):
+    """Submit each group of figure specs to ``pool`` (a
+    :func:`casflex._parallel.worker_pool`) as one task and return their futures, or draw
+    them here and return their paths when there is no pool.
+
+    Drawing (importing matplotlib, its layout and rasterisation) is the largest part of a
+    second run; in workers it overlaps the job's own work. While the job computes, one
+    group at a time keeps a single worker busy (the job keeps its core on two); after the
+    closed loop, two groups share the two workers while the C bundle is generated."""
     if pool is None:
-        return [_draw_figure(out / name, *rest) for name, *rest in specs]
-    # the costliest figure (joint_tracking.png, nine panels) first: the workers then end
-    # together
-    order = sorted(range(len(specs)), key=lambda i: specs[i][1] != "plot_joint_tracking")
-    futures = {i: pool.executor.submit(_draw_figure, out / specs[i][0], *specs[i][1:])
-               for i in order}
-    return [futures[i] for i in range(len(specs))]
+        return [_draw_figures(out, group) for group in groups]
+    return [pool.executor.submit(_draw_figures, out, group) for group in groups]
 
 
 def _finish_figures(started):
     """The paths of :func:`_start_figures`' figures, in their order (a failed drawing
     raises here)."""
-    return [item if isinstance(item, Path) else item.result() for item in started]
+    return [path for item in started
+            for path in (item if isinstance(item, list) else item.result())]
 
 
 # ------------------------------------------------------------------------------ C bundle
