@@ -25,6 +25,19 @@
     :func:`casflex._parallel.parallel_map` on the 2-worker cluster: the client process's
     CPU per task, the same less the idle cluster's background CPU over that time
     (``client_cpu_net_ms``, the figure the projection uses) and the wall time per task [ms].
+``dask_task_old``
+    the same per-task figures for the path before issue 17 part 6 (a ``client.submit``
+    and a ``result()`` per task, written out here), measured alternately with
+    ``dask_task`` on the same cluster.
+``dask_worker_blas_threads``
+    the BLAS threads of each Dask worker after a task (:func:`casflex._parallel.blas_threads`:
+    1, by Dask's nanny environment and by :func:`casflex._parallel.single_threaded_blas`).
+``pool_blas``
+    the testbed grid through a local 2-process pool (:func:`casflex.modal.build_table`,
+    ``processes=2``) in fresh subprocesses whose environment sets no BLAS thread variable,
+    with the workers' BLAS left at OpenBLAS's default (``old``: one thread per core, the
+    path before issue 17 part 6) and set to one thread (``new``), alternated ``--repeat``
+    times: wall [s] and CPU of the process and its workers [s] of each run.
 ``projection``
     the speed-up on 4–64 workers predicted from those measurements (see
     :func:`projection`) for the testbed grid and for ``problems/arm3_spatial.toml`` (three
@@ -41,6 +54,7 @@
 Usage::
 
     python benchmarks/bench_tables.py [--json] [--repeat N] [--tasks N] [--dask-only]
+                                      [--no-pool-blas]
 
 Timings are the minimum over ``--repeat`` runs (default 1).
 """
@@ -151,6 +165,89 @@ def measure_tasks(client, n_tasks, idle_s=3.0):
             "client_cpu_net_ms": 1e3 * max(cpu - idle_rate * wall, 0.0) / n_tasks}
 
 
+def _task_submit_old(client, n_tasks):
+    """The Dask path of ``parallel_map`` before issue 17 part 6, for no-op chunks: one
+    ``client.submit`` and one ``result()`` per task."""
+    import pickle
+
+    from distributed import as_completed
+
+    futures = [client.submit(_noop_packed, pickle.dumps([(i,)],
+                                                        protocol=pickle.HIGHEST_PROTOCOL),
+                             pure=False) for i in range(n_tasks)]
+    return [pickle.loads(f.result()) for f in as_completed(futures)]
+
+
+def _noop_packed(packed):
+    """A chunk of no-op calls, its arguments and results pickled (as ``parallel_map``'s
+    Dask tasks)."""
+    import pickle
+
+    return pickle.dumps([_noop(*args) for args in pickle.loads(packed)],
+                        protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def measure_tasks_old_new(client, n_tasks, rounds=2):
+    """Client CPU and wall per no-op task, old path (``_task_submit_old``) and new
+    (``parallel_map``), alternated; the lowest of ``rounds`` each."""
+    from casflex._parallel import parallel_map
+
+    def new(c, n):
+        return list(parallel_map(_noop, [(i, (i,)) for i in range(n)], client=c,
+                                 chunksize=1))
+
+    best = {"old": None, "new": None}
+    for _ in range(rounds):
+        for key, run in (("old", _task_submit_old), ("new", new)):
+            c0, t0 = _cpu(), time.perf_counter()
+            run(client, n_tasks)
+            cpu, wall = _cpu() - c0, time.perf_counter() - t0
+            got = {"client_cpu_ms": 1e3 * cpu / n_tasks, "wall_ms": 1e3 * wall / n_tasks}
+            if best[key] is None or got["client_cpu_ms"] < best[key]["client_cpu_ms"]:
+                best[key] = got
+    return best
+
+
+#: a local 2-process build of the testbed grid in a fresh process (``pool_blas``); argv[1]
+#: "old" leaves the workers' BLAS threads at OpenBLAS's default
+POOL_SCRIPT = """
+import json, resource, sys, time
+import numpy as np
+from casflex import _parallel
+from casflex.modal.tables import build_table
+from casflex.robot import load
+if sys.argv[1] == "old":
+    _parallel.single_threaded_blas = lambda: False
+robot = load(sys.argv[2])
+grid = [np.linspace(-np.pi / 2, np.pi / 2, 10), np.linspace(-np.pi, np.pi, 12)]
+t0 = time.perf_counter()
+build_table(robot, grid, 4, cache_dir=False, processes=2)
+wall = time.perf_counter() - t0
+cpu = sum(r.ru_utime + r.ru_stime for r in (resource.getrusage(resource.RUSAGE_SELF),
+                                            resource.getrusage(resource.RUSAGE_CHILDREN)))
+print(json.dumps({"wall_s": wall, "cpu_s": cpu}))
+"""
+
+
+def bench_pool_blas(repeat):
+    """``pool_blas``: old and new workers' BLAS threads, alternated in fresh processes
+    whose environment sets none of the thread variables."""
+    import subprocess
+
+    from casflex._parallel import THREAD_VARIABLES
+
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
+    runs = {"old": [], "new": []}
+    for _ in range(repeat):
+        for key in runs:
+            out = subprocess.run([sys.executable, "-c", POOL_SCRIPT, key,
+                                  str(ROOT / "problems/testbed.toml")], env=env, check=True,
+                                 capture_output=True, text=True)
+            runs[key].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    return runs
+
+
 def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s):
     """Predicted speed-up of a table build on ``workers`` workers over one worker.
 
@@ -226,6 +323,10 @@ def bench_dask(repeat, n_tasks):
                 if n == 2:
                     cpu.append(used)
         tasks = measure_tasks(clients[2], n_tasks)
+        tasks_old_new = measure_tasks_old_new(clients[2], n_tasks)
+        from casflex._parallel import blas_threads
+
+        worker_blas = clients[2].run(blas_threads)
         arm3 = load(ARM3)
         small = [np.linspace(lo, hi, 4) for lo, hi in
                  (arm3.joint_limits[k] for k in (1, 2, 3))]
@@ -233,7 +334,7 @@ def bench_dask(repeat, n_tasks):
         arm3_cpu["points"] = 4 ** 3
     same = all(np.array_equal(tables[1].values[k], tables[2].values[k])
                for k in tables[1].values)
-    return times, same, tables[2], cpu, tasks, arm3_cpu
+    return times, same, tables[2], cpu, tasks, arm3_cpu, tasks_old_new, worker_blas
 
 
 def _burn(n):
@@ -294,13 +395,17 @@ def main(argv=None):
     parser.add_argument("--tasks", type=int, default=400, help="no-op tasks timed")
     parser.add_argument("--dask-only", action="store_true",
                         help="skip tables_s and sweep_s (the Dask keys only)")
+    parser.add_argument("--no-pool-blas", dest="pool_blas", action="store_false",
+                        help="skip pool_blas (the old vs new workers' BLAS threads)")
     args = parser.parse_args(argv)
 
     capacity_before = cpu_capacity()
     tables_s, table = (None, None) if args.dask_only else bench_table(args.repeat)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the coarse 2-D grid: low MAC
-        dask_times, same, table2d, cpu, tasks, arm3 = bench_dask(args.repeat, args.tasks)
+        dask_times, same, table2d, cpu, tasks, arm3, tasks_old_new, worker_blas = \
+            bench_dask(args.repeat, args.tasks)
+    pool_blas = bench_pool_blas(args.repeat) if args.pool_blas else None
     sweep_s = None if args.dask_only else bench_sweep(args.repeat)
     capacity_after = cpu_capacity()
     result = {
@@ -314,6 +419,9 @@ def main(argv=None):
                               for c in cpu],
         "dask_workers_cpu_s": [c["workers_s"] for c in cpu],
         "dask_task": tasks,
+        "dask_task_old_new": tasks_old_new,
+        "dask_worker_blas_threads": list(worker_blas.values()),
+        "pool_blas": pool_blas,
         "arm3_per_point_ms": {"workers": 1e3 * arm3["workers_s"] / arm3["points"],
                               "client_main": 1e3 * arm3["client_main_s"] / arm3["points"],
                               "client_other": 1e3 * arm3["client_other_s"] / arm3["points"]},

@@ -7,6 +7,13 @@ and the CLI's frequency sweep, and for the Jacobians of model updating
 through :func:`worker_pool`. The per-call work there is short (tens of ms of numpy), so
 calls travel in chunks and, on Dask, each chunk's arguments and results are pickled into
 one buffer.
+
+Every worker process (local pool or Dask) runs its BLAS on one thread
+(:func:`single_threaded_blas`): the workers already fill the cores, and OpenBLAS's own
+threads in each of them would fight for the same cores (on 2 cores, measured in the test
+suite: 57 s of CPU instead of 1.6 s for one run). A user's explicit
+``OMP_NUM_THREADS``/``OPENBLAS_NUM_THREADS``/``MKL_NUM_THREADS``/``BLIS_NUM_THREADS`` is
+kept.
 """
 
 from __future__ import annotations
@@ -24,7 +31,20 @@ if TYPE_CHECKING:
     from distributed import Client
     from tqdm import tqdm
 
-__all__ = ["parallel_map", "progress_bar", "worker_pool", "WorkerPool"]
+__all__ = ["parallel_map", "progress_bar", "worker_pool", "WorkerPool", "blas_threads",
+           "single_threaded_blas", "THREAD_VARIABLES"]
+
+#: the environment variables through which a user sets the BLAS and OpenMP threads
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                    "BLIS_NUM_THREADS")
+#: ``(set, get)`` thread-count functions of the BLAS builds a process may have loaded:
+#: OpenBLAS (plain, 64-bit interface, and the scipy-openblas builds numpy and scipy ship)
+#: and MKL's single dynamic library
+_BLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
+                 ("openblas_set_num_threads64_", "openblas_get_num_threads64_"),
+                 ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+                 ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),
+                 ("MKL_Set_Num_Threads", "MKL_Get_Max_Threads"))
 
 
 def progress_bar(total: int, desc: str = "", enabled: bool = True) -> tqdm:
@@ -57,6 +77,82 @@ def progress_bar(total: int, desc: str = "", enabled: bool = True) -> tqdm:
         dynamic_ncols=True)
 
 
+def _blas_libraries():
+    """``{path: (set, get)}`` of the BLAS libraries loaded in this process (Linux:
+    ``/proc/self/maps``; elsewhere none are found)."""
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if line.rstrip().endswith(".so")
+                     or ".so." in line}
+    except OSError:
+        return {}
+    found = {}
+    for path in sorted(paths):
+        name = os.path.basename(path).lower()
+        if "openblas" not in name and "mkl_rt" not in name:
+            continue
+        try:
+            lib = ctypes.CDLL(path)  # already loaded: the same handle
+        except OSError:
+            continue
+        for set_name, get_name in _BLAS_SYMBOLS:
+            if hasattr(lib, set_name) and hasattr(lib, get_name):
+                found[path] = (getattr(lib, set_name), getattr(lib, get_name))
+                break
+    return found
+
+
+def blas_threads() -> dict[str, int]:
+    """The number of threads of every BLAS library loaded in this process.
+
+    Returns
+    -------
+    dict
+        Library file name to its thread count (OpenBLAS and MKL; empty where none is
+        loaded or the platform does not list loaded libraries).
+
+    Examples
+    --------
+    >>> import numpy
+    >>> all(n >= 1 for n in blas_threads().values())
+    True
+    """
+    return {os.path.basename(path): int(get())
+            for path, (_, get) in _blas_libraries().items()}
+
+
+def single_threaded_blas() -> bool:
+    """Run this process's BLAS on one thread, unless the user chose the threads.
+
+    A worker process calls it before its first task (:func:`parallel_map`'s pools and
+    Dask tasks): the workers fill the cores, so BLAS threads would only fight for them.
+    Where one of :data:`THREAD_VARIABLES` is set (by the user, or by Dask's nanny, which
+    sets them to 1), nothing changes; otherwise the loaded OpenBLAS/MKL libraries are
+    set to one thread and the variables to ``1`` (for libraries loaded later and for the
+    process's children).
+
+    Returns
+    -------
+    bool
+        Whether the threads were set here (``False``: the user's setting is kept).
+
+    Examples
+    --------
+    >>> import os
+    >>> os.environ.setdefault("OPENBLAS_NUM_THREADS", "1") and single_threaded_blas()
+    False
+    """
+    if any(name in os.environ for name in THREAD_VARIABLES):
+        return False
+    for name in THREAD_VARIABLES:
+        os.environ[name] = "1"
+    for set_threads, _ in _blas_libraries().values():
+        set_threads(1)
+    return True
+
+
 def _executor(processes):
     """Process pool: ``fork`` while this process has a single thread (works in scripts
     without a ``__main__`` guard and starts fast), ``forkserver`` when other threads run
@@ -75,7 +171,8 @@ def _executor(processes):
     ctx = multiprocessing.get_context(method)
     if method == "forkserver":
         ctx.set_forkserver_preload(["casflex.modal.tables"])
-    return ProcessPoolExecutor(max_workers=processes, mp_context=ctx)
+    return ProcessPoolExecutor(max_workers=processes, mp_context=ctx,
+                               initializer=single_threaded_blas)
 
 
 @dataclass(frozen=True)
@@ -141,13 +238,17 @@ def _run_chunk(func, arg_list):
     return [func(*args) for args in arg_list]
 
 
-def _run_chunk_packed(func, packed_args):
+def _run_chunk_packed(func, packed_args, client_pid=None):
     """:func:`_run_chunk` with the arguments and the results pickled into one buffer
     each: a chunk's many small arrays travel as one frame instead of hundreds (Dask's
     per-object serialisation of task arguments and results costs the client and the
-    scheduler more CPU than the arrays' size suggests)."""
+    scheduler more CPU than the arrays' size suggests). A worker process other than the
+    client's (``client_pid``; threads of the client's own process are left alone) runs
+    its BLAS on one thread."""
     import pickle
 
+    if os.getpid() != client_pid:
+        single_threaded_blas()  # once: it sets the variables
     return pickle.dumps(_run_chunk(func, pickle.loads(packed_args)),
                         protocol=pickle.HIGHEST_PROTOCOL)
 
@@ -222,17 +323,22 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
 
             from distributed import as_completed
 
-            futures = [client.submit(_run_chunk_packed, func,
-                                     pickle.dumps([a for _, a in c],
-                                                  protocol=pickle.HIGHEST_PROTOCOL),
-                                     pure=False)
-                       for c in chunks]
+            # one map (one message to the scheduler) and the results fetched in batches of
+            # what has completed, one gather each: half the client's CPU per task of a
+            # submit and a result() each (benchmarks/README_tables.md). Not
+            # as_completed(with_results=True): its concurrent fetches broke a comm
+            # (tornado's write buffer assertion) and left the loop waiting
+            futures = client.map(_run_chunk_packed, [func] * len(chunks),
+                                 [pickle.dumps([a for _, a in c],
+                                               protocol=pickle.HIGHEST_PROTOCOL)
+                                  for c in chunks], [os.getpid()] * len(chunks), pure=False)
             tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
             try:
-                for fut in as_completed(futures):
-                    results = pickle.loads(fut.result())
-                    bar.update(len(results))
-                    yield from zip(tags[fut.key], results, strict=True)
+                for batch in as_completed(futures).batches():
+                    for fut, packed in zip(batch, client.gather(batch), strict=True):
+                        results = pickle.loads(packed)
+                        bar.update(len(results))
+                        yield from zip(tags[fut.key], results, strict=True)
             finally:
                 client.cancel([f for f in futures if not f.done()])
         elif pool is None:

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from casflex._json import jsonable
+from casflex._parallel import worker_pool
 from casflex._validate import fail, output_directory
 from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.report import write_report
@@ -122,8 +123,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         ``model.basis``; a fit's degrees, convergence and error estimate per term),
         ``closed_loop_divergence`` (``None``, or ``time`` [s], ``quantity`` and
         ``message`` where the sampled loop with the EKF diverged: reported, not raised,
-        its loop figures and numbers then NaN) and ``status`` (``"stable"``, ``"not
-        stable"`` or ``"closed loop diverged"``).
+        its loop figures and numbers then NaN), ``status`` (``"stable"``, ``"not
+        stable"`` or ``"closed loop diverged"``) and ``timings_s`` (wall time of each
+        stage [s]; ``figures_s``, drawn by worker processes, overlaps ``codegen_s``;
+        ``total_s`` the whole call but the report's writing).
 
     Examples
     --------
@@ -146,6 +149,15 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     >>> sorted(p.name for p in r.files if p.suffix == ".png")[:2]
     ['accessibility.png', 'estimation.png']
     """
+    # the figures are drawn by worker processes alongside the job's own work (the largest
+    # part of a second run otherwise); processes=1 draws them here
+    with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool:
+        return _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool)
+
+
+def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool):
+    """:func:`run_design`, its figures drawn by ``figure_pool`` (``None``: here)."""
+    t_start = time.perf_counter()
     from casflex import control, shaping
     from casflex.estimation import DEFAULT_GATE, Guard, ekf_step_function, tabulate_plant
     from casflex.moves import Move, ShapedMove
@@ -208,6 +220,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                                          log=say)
         timings["planner_s"] = time.perf_counter() - t0
 
+    # the shaper's figures: the workers start (and import matplotlib) here, after the last
+    # table a process pool may compute (forked while this process has no other thread)
+    figures_started = _start_figures(figure_pool, out, [_shaper_figure_specs(
+        study, design, t_f, omega_along, shaped.duration)])  # one worker
+
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
     gains = study.slow_gains(float(np.min(design.omega_min)), shaped.duration)
@@ -254,6 +271,16 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
                       "message": "the EKF's estimate became non-finite"}
         say(f"WARNING: the closed loop with the EKF diverged at t = {loop.t[bad]:.3f} s")
 
+    # the figures of the runs, drawn by the workers while the C bundle is generated --------
+    t_figures = time.perf_counter()
+    t_acc = np.linspace(0.0, shaped.duration, 201)
+    acc = control.accessibility_along(model, shaped, t_acc)
+    estimation = _estimation_errors(model, loop)
+    run_figures = _run_figure_specs(study, unshaped_run, shaped_run, loop, estimation, t_acc,
+                                    acc, shaped.duration)
+    # joint_tracking.png (nine panels) costs about what the other three do together
+    figures_started += _start_figures(figure_pool, out, [run_figures[:-1], run_figures[-1:]])
+
     # 6. C bundle -----------------------------------------------------------------------------
     t0 = time.perf_counter()
     say("generating the C bundle ...")
@@ -281,15 +308,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     timings["codegen_s"] = time.perf_counter() - t0
 
     # 7. figures and report ---------------------------------------------------------------------
-    t_acc = np.linspace(0.0, shaped.duration, 201)
-    acc = control.accessibility_along(model, shaped, t_acc)
-    estimation = _estimation_errors(model, loop)
-    figures = _save_figures(out, study, design, t_f, omega_along, unshaped_run, shaped_run,
-                            loop, estimation, t_acc, acc, shaped.duration)
-    figures.append(_save_joint_tracking(out, study, unshaped_run, shaped_run, loop,
-                                        shaped.duration))
+    figures = _finish_figures(figures_started)
     if comparison is not None and comparison.plan is not None:
         figures.append(_save_plan_figure(out, comparison))
+    timings["figures_s"] = time.perf_counter() - t_figures  # overlaps codegen_s
+    timings["total_s"] = time.perf_counter() - t_start  # all but writing the report
     summary = _summary(study, model, table, design, unshaped_run, shaped_run, loop,
                        shaped.duration, loop_finite, stability, eps, c_bundle, timings,
                        figures)
@@ -611,49 +634,80 @@ def _save_plan_figure(out, comparison):
     return path
 
 
-def _save_joint_tracking(out, study, unshaped, shaped_run, loop, move_end):
-    """``joint_tracking.png``: joint angles vs plan, tracking error and torques of every
-    run (the prescribed runs follow their plan exactly; their torques are the model's
-    inverse dynamics)."""
-    from casflex import plotting
-
-    runs = [("unshaped, joints prescribed", unshaped.t, unshaped.q, unshaped.q, unshaped.tau),
-            ("shaped, joints prescribed", shaped_run.t, shaped_run.q, shaped_run.q,
-             shaped_run.tau),
-            (f"shaped, {study.controller['law']} law + EKF", loop.t, loop.q, loop.qd,
-             loop.tau)]
-    fig = plotting.plot_joint_tracking(runs, [study.move.duration, move_end, move_end])
-    path = out / "joint_tracking.png"
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _save_figures(out, study, design, t_f, omega, unshaped, shaped_run, loop, estimation,
-                  t_acc, acc, move_end):
-    """Draw the report's figures (:mod:`casflex.plotting`) and save them as PNG in ``out``."""
-    from casflex import plotting
-
+def _shaper_figure_specs(study, design, t_f, omega, move_end):
+    """The report's figures of the shaper (``frequencies.png``, ``prv.png``) as ``(file
+    name, casflex.plotting function name, args, keywords, tight)``: plain data, so that a
+    worker process can draw them (:func:`_draw_figures`); ``tight``: the figure has no
+    layout engine of its own and gets ``tight_layout``."""
     modes = [f"mode {j + 1}" for j in range(len(design.ranges))]
-    runs = [("unshaped", unshaped.t, unshaped.tip_deflection),
-            ("shaped", shaped_run.t, shaped_run.tip_deflection),
-            (f"shaped + {study.controller['law']} + EKF", loop.t, loop.tip_deflection)]
-    figures = {
-        "frequencies.png": plotting.plot_frequencies_along(
-            t_f, omega, f"{study.move.name}, shaped", events={
-                "end of the planned move": study.move.duration, "end of the shaped move": move_end},
-            ranges=[(r.omega_min, r.omega_max) for r in design.ranges]),
-        "prv.png": plotting.plot_prv(design.shaper, design.ranges, names=modes),
-        "tip_deflection.png": plotting.plot_tip_deflection(runs, move_end),
-        "estimation.png": plotting.plot_estimation_error(loop.t, *estimation),
-        "accessibility.png": plotting.plot_accessibility_along(t_acc, acc),
-    }
+    ranges = [(r.omega_min, r.omega_max) for r in design.ranges]
+    events = {"end of the planned move": study.move.duration,
+              "end of the shaped move": move_end}
+    return [
+        ("frequencies.png", "plot_frequencies_along",
+         (t_f, omega, f"{study.move.name}, shaped"), {"events": events, "ranges": ranges},
+         True),
+        ("prv.png", "plot_prv", (design.shaper, design.ranges), {"names": modes}, True),
+    ]
+
+
+def _run_figure_specs(study, unshaped, shaped_run, loop, estimation, t_acc, acc, move_end):
+    """The report's figures of the runs (``tip_deflection.png``, ``estimation.png``,
+    ``accessibility.png``, ``joint_tracking.png``), as :func:`_shaper_figure_specs`."""
+    law = study.controller["law"]
+    deflections = [("unshaped", unshaped.t, unshaped.tip_deflection),
+                   ("shaped", shaped_run.t, shaped_run.tip_deflection),
+                   (f"shaped + {law} + EKF", loop.t, loop.tip_deflection)]
+    # joint_tracking.png: the prescribed runs follow their plan exactly; their torques are
+    # the model's inverse dynamics
+    tracking = [("unshaped, joints prescribed", unshaped.t, unshaped.q, unshaped.q,
+                 unshaped.tau),
+                ("shaped, joints prescribed", shaped_run.t, shaped_run.q, shaped_run.q,
+                 shaped_run.tau),
+                (f"shaped, {law} law + EKF", loop.t, loop.q, loop.qd, loop.tau)]
+    return [
+        ("tip_deflection.png", "plot_tip_deflection", (deflections, move_end), {}, True),
+        ("estimation.png", "plot_estimation_error", (loop.t, *estimation), {}, True),
+        ("accessibility.png", "plot_accessibility_along", (t_acc, acc), {}, True),
+        ("joint_tracking.png", "plot_joint_tracking",  # constrained layout
+         (tracking, [study.move.duration, move_end, move_end]), {}, False),
+    ]
+
+
+def _draw_figures(out, specs):
+    """Draw figures of :func:`_shaper_figure_specs` or :func:`_run_figure_specs` and save
+    them as PNG in ``out``; returns their paths."""
+    from casflex import plotting
+
     paths = []
-    for name, fig in figures.items():
-        fig.tight_layout()
-        p = out / name
-        fig.savefig(p, dpi=110)
-        paths.append(p)
+    for name, function, args, kwargs, tight in specs:
+        fig = getattr(plotting, function)(*args, **kwargs)
+        if tight:
+            fig.tight_layout()
+        fig.savefig(out / name, dpi=110)
+        paths.append(out / name)
     return paths
+
+
+def _start_figures(pool, out, groups):
+    """Submit each group of figure specs to ``pool`` (a
+    :func:`casflex._parallel.worker_pool`) as one task and return their futures, or draw
+    them here and return their paths when there is no pool.
+
+    Drawing (importing matplotlib, its layout and rasterisation) is the largest part of a
+    second run; in workers it overlaps the job's own work. While the job computes, one
+    group at a time keeps a single worker busy (the job keeps its core on two); after the
+    closed loop, two groups share the two workers while the C bundle is generated."""
+    if pool is None:
+        return [_draw_figures(out, group) for group in groups]
+    return [pool.executor.submit(_draw_figures, out, group) for group in groups]
+
+
+def _finish_figures(started):
+    """The paths of :func:`_start_figures`' figures, in their order (a failed drawing
+    raises here)."""
+    return [path for item in started
+            for path in (item if isinstance(item, list) else item.result())]
 
 
 # ------------------------------------------------------------------------------ C bundle

@@ -91,6 +91,8 @@ TIMING_LABELS = {
     "closed_loop_s": "closed loop with the EKF",
     "codegen_s": "C code",
     "planner_s": "planned move",
+    "figures_s": "figures (drawn alongside the C code)",
+    "total_s": "total",
 }
 
 #: what the dissertation references of the report mean (the References section)

@@ -1,0 +1,106 @@
+"""Benchmark of the design job's second run (issue 17, target 4).
+
+``casflex design problems/studies/arm2link_move1.toml --out DIR`` run once to fill the
+caches and ``DIR`` (its C bundle is then reused), then again ``--repeat`` times, each in a
+fresh process (the user's command). With ``--code DIR`` (another checkout of casflex, for
+instance main before a change), its runs alternate with this checkout's, on their own
+output directories and the same cache, so that both see the same machine load.
+
+Keys of ``--json`` (per checkout, ``new`` and with ``--code`` also ``old``; one value per
+run):
+
+``wall_s``
+    wall time of the process [s] (interpreter start to exit).
+``cpu_s``
+    CPU time [s] of the process, ``main`` (the job itself) and ``workers`` (its child
+    processes: the figures' workers, a compiler).
+``timings_s``
+    the job's ``summary.json`` ``timings_s`` of each run (stage wall times [s]).
+``load``
+    the 1-minute load average before each run.
+
+Usage::
+
+    python benchmarks/bench_design.py [--json] [--repeat 3] [--code DIR] [--study FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
+
+#: the CLI in a fresh process, reporting its own and its children's CPU on stderr's last
+#: line (the job's JSON summary on stdout)
+RUNNER = """
+import json, resource, sys
+from casflex.cli import main
+code = main(sys.argv[1:])
+own, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF,
+                                              resource.RUSAGE_CHILDREN))
+print(json.dumps({"main": own.ru_utime + own.ru_stime,
+                  "workers": kids.ru_utime + kids.ru_stime}), file=sys.stderr)
+sys.exit(code)
+"""
+
+
+def run_once(code_root, study, out):
+    """One ``casflex design`` process on ``code_root``'s casflex: wall, CPU, timings."""
+    env = dict(os.environ, PYTHONPATH=str(code_root), MPLBACKEND="Agg")
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", RUNNER, "design", str(study), "--out",
+                           str(out), "--json"], env=env, capture_output=True, text=True,
+                          cwd=code_root)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"design failed ({code_root}):\n{proc.stderr[-2000:]}")
+    cpu = json.loads(proc.stderr.strip().splitlines()[-1])
+    return {"wall_s": wall, "cpu_s": cpu, "timings_s": json.loads(proc.stdout)["timings_s"],
+            "load": load}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--repeat", type=int, default=3, help="second runs per checkout")
+    parser.add_argument("--code", type=Path, help="another checkout, measured alternately")
+    parser.add_argument("--study", type=Path, default=STUDY)
+    args = parser.parse_args(argv)
+
+    trees = {"new": ROOT}
+    if args.code is not None:
+        trees = {"old": args.code.resolve(), "new": ROOT}
+    result = {key: {"wall_s": [], "cpu_s": [], "timings_s": [], "load": []}
+              for key in trees}
+    with tempfile.TemporaryDirectory() as tmp:
+        for key, root in trees.items():  # the first runs: caches and output filled
+            run_once(root, args.study.resolve(), Path(tmp) / key)
+        for _ in range(args.repeat):
+            for key, root in trees.items():
+                run = run_once(root, args.study.resolve(), Path(tmp) / key)
+                for name, value in run.items():
+                    result[key][name].append(value)
+    result["nproc"] = os.cpu_count()
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for key in trees:
+            r = result[key]
+            print(f"{key}: wall {[round(v, 2) for v in r['wall_s']]} s, CPU main "
+                  f"{[round(c['main'], 2) for c in r['cpu_s']]} s + workers "
+                  f"{[round(c['workers'], 2) for c in r['cpu_s']]} s, load "
+                  f"{[round(v, 1) for v in r['load']]}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,102 @@
+"""casflex._parallel: the workers' BLAS threads (issue 17 part 6)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: a script that reports OpenBLAS's own thread count (asked through its C API here, not
+#: through casflex) in the parent and in the workers of a 2-process parallel_map
+SCRIPT = r'''
+import ctypes, json, os
+import numpy as np
+from casflex._parallel import parallel_map
+
+def openblas_threads(_):
+    np.ones((50, 50)) @ np.ones((50, 50))  # BLAS used
+    counts = []
+    for line in open("/proc/self/maps"):
+        path = line.split()[-1]
+        if "openblas" in os.path.basename(path) and ".so" in path:
+            lib = ctypes.CDLL(path)
+            for name in ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
+                         "openblas_get_num_threads64_", "openblas_get_num_threads"):
+                if hasattr(lib, name):
+                    counts.append(getattr(lib, name)())
+                    break
+    return sorted(set(counts)), os.environ.get("OPENBLAS_NUM_THREADS")
+
+if __name__ == "__main__":
+    parent = openblas_threads(0)
+    workers = [r for _, r in parallel_map(openblas_threads, [(i, (i,)) for i in range(4)],
+                                          processes=2, chunksize=1)]
+    print(json.dumps({"parent": parent, "workers": workers, "after": openblas_threads(0)}))
+'''
+
+
+def _run(tmp_path, **env):
+    script = tmp_path / "blas_threads.py"
+    script.write_text(SCRIPT)
+    environ = {k: v for k, v in os.environ.items()
+               if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                            "BLIS_NUM_THREADS")}
+    environ.update(env, PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, str(script)], env=environ, capture_output=True,
+                         text=True, timeout=120, check=True)
+    return json.loads(out.stdout)
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="lists loaded libraries "
+                    "through /proc (Linux)")
+def test_pool_workers_run_single_threaded_blas(tmp_path):
+    r = _run(tmp_path)
+    if not r["parent"][0]:
+        pytest.skip("numpy's BLAS is not OpenBLAS here")
+    # OpenBLAS starts with one thread per core: the workers must say 1, the parent (the
+    # user's process) is left alone
+    assert r["parent"][0] == [os.cpu_count()] or os.cpu_count() == 1
+    assert all(counts == [1] and env == "1" for counts, env in r["workers"])
+    assert r["after"] == r["parent"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="lists loaded libraries "
+                    "through /proc (Linux)")
+def test_a_users_thread_setting_is_kept(tmp_path):
+    r = _run(tmp_path, OPENBLAS_NUM_THREADS="2")
+    if not r["parent"][0]:
+        pytest.skip("numpy's BLAS is not OpenBLAS here")
+    assert all(counts == [2] and env == "2" for counts, env in r["workers"])
+
+
+def _fails_on_three(x):
+    if x == 3:
+        raise ValueError("three")
+    return -x
+
+
+def test_dask_path_returns_every_tag_with_its_result_and_raises_a_task_error(monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    from casflex._parallel import THREAD_VARIABLES, parallel_map
+
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        jobs = [(f"t{i}", (i,)) for i in range(11)]
+        got = list(parallel_map(abs, [(t, (-i,)) for t, (i,) in jobs], client=client,
+                                chunksize=2))
+        assert sorted(got) == sorted((t, i) for t, (i,) in jobs)
+        with pytest.raises(ValueError, match="three"):
+            list(parallel_map(_fails_on_three, jobs, client=client, chunksize=1))
+    # the workers were threads of this very process: its BLAS threads (and the variables
+    # that set them) are the user's business, left alone
+    assert not any(name in os.environ for name in THREAD_VARIABLES)
