@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "pack", "search"]  # noqa: F822 (AVAILABLE: module __getattr__)
+__all__ = ["AVAILABLE", "constants", "pack", "search"]  # noqa: F822 (AVAILABLE: module __getattr__)
 
 # ``AVAILABLE`` (True when the compiled kernels can run: numba importable) and the
 # kernels ``count_points``, ``refine_brackets``, ``system_points``, ``field_points``,
@@ -36,6 +36,55 @@ __all__ = ["AVAILABLE", "pack", "search"]  # noqa: F822 (AVAILABLE: module __get
 # made on first use (module ``__getattr__`` below): importing numba costs ~0.5 s, which
 # a command that reads its modal tables from the cache never needs.
 _KERNELS = ("count_points", "refine_brackets", "system_points", "field_points", "search_roots")
+
+
+def constants(elements) -> dict:
+    """The configuration-independent arrays of the kernels (see the module docstring).
+
+    Parameters
+    ----------
+    elements : sequence of casflex.tmm.Element
+        The chain's elements (only their kinds and parameters are read).
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        ``kind``, ``beam``, ``flat``, ``gather``, ``ratio``, ``stiffness``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import build_chain
+    >>> constants(build_chain(load("problems/arm2link.toml"), [0, 0, 0]).elements)["kind"]
+    array([0, 0])
+    """
+    from casflex.tmm.elements import layout
+
+    E = len(elements)
+    out = {
+        "kind": np.zeros(E, dtype=np.int64), "beam": np.zeros((E, 12)),
+        "flat": np.zeros((E, 40), dtype=np.int64), "gather": np.zeros((E, 40), dtype=np.int64),
+        "ratio": np.zeros((E, 40)), "stiffness": np.zeros(E),
+    }
+    for j, e in enumerate(elements):
+        out["kind"][j] = ("beam", "body", "offset", "spring").index(e.kind)
+        if e.kind == "beam":
+            P = e.params
+            sec, mat, L = P["section"], P["material"], P["length"]
+            EA, EIx, EIy, GJ = mat.E * sec.A, mat.E * sec.Ix, mat.E * sec.Iy, mat.G * sec.J
+            rho_A, rho_Ip = mat.rho * sec.A, mat.rho * sec.Ip
+            table = layout(EA, EIx, EIy, GJ, rho_A, rho_Ip)
+            out["flat"][j], out["gather"][j] = table["flat"], table["gather"]
+            out["ratio"][j] = table["ratio"][:, 0]
+            mu = mat.rho * sec.A
+            out["beam"][j] = [
+                L, table["stiff"][0, 0], table["stiff"][1, 0], table["wave"][0, 0],
+                table["wave"][1, 0], table["bend"][0, 0], table["bend"][1, 0],
+                np.sqrt(mat.rho / mat.E), np.sqrt(mat.rho * sec.Ip / (mat.G * sec.J)),
+                (mu / (mat.E * sec.Iy)) ** 0.25, (mu / (mat.E * sec.Ix)) ** 0.25, 0.0]
+        elif e.kind == "spring":
+            out["stiffness"][j] = e.params["stiffness"]
+    return out
 
 
 def pack(items, size: int) -> dict:
@@ -54,51 +103,27 @@ def pack(items, size: int) -> dict:
 
     Examples
     --------
-    >>> pack([], 1)["kind"].shape
-    (0,)
+    >>> pack([], 1)["R3"].shape
+    (1, 0, 3, 3)
     """
-    from casflex.tmm.elements import layout
-
     E = len(items)
-    out = {
-        "kind": np.zeros(E, dtype=np.int64), "beam": np.zeros((E, 12)),
-        "flat": np.zeros((E, 40), dtype=np.int64), "gather": np.zeros((E, 40), dtype=np.int64),
-        "ratio": np.zeros((E, 40)),
-        "M": np.zeros((size, E, 6, 6)),
-        "G": np.zeros((size, E, 6, 6)), "T": np.zeros((size, E, 12, 12)),
-        "axis": np.zeros((size, E, 3)), "stiffness": np.zeros(E),
+    out = constants([data["element"] for data in items])
+    out.update({
+        "M": np.zeros((size, E, 6, 6)), "G": np.zeros((size, E, 6, 6)),
+        "T": np.zeros((size, E, 12, 12)), "axis": np.zeros((size, E, 3)),
         "R3": np.zeros((size, E, 3, 3)),
-    }
+    })
     for j, data in enumerate(items):
         e = data["element"]
-        if e.kind == "beam":
-            P = e.params
-            sec, mat, L = P["section"], P["material"], P["length"]
-            EA, EIx, EIy, GJ = mat.E * sec.A, mat.E * sec.Ix, mat.E * sec.Iy, mat.G * sec.J
-            rho_A, rho_Ip = mat.rho * sec.A, mat.rho * sec.Ip
-            table = layout(EA, EIx, EIy, GJ, rho_A, rho_Ip)
-            out["kind"][j] = 0
-            out["flat"][j], out["gather"][j] = table["flat"], table["gather"]
-            out["ratio"][j] = table["ratio"][:, 0]
-            mu = mat.rho * sec.A
-            out["beam"][j] = [
-                L, table["stiff"][0, 0], table["stiff"][1, 0], table["wave"][0, 0],
-                table["wave"][1, 0], table["bend"][0, 0], table["bend"][1, 0],
-                np.sqrt(mat.rho / mat.E), np.sqrt(mat.rho * sec.Ip / (mat.G * sec.J)),
-                (mu / (mat.E * sec.Iy)) ** 0.25, (mu / (mat.E * sec.Ix)) ** 0.25, 0.0]
-            out["R3"][:, j] = data["R6"][:, :3, :3]
-        elif e.kind == "body":
-            out["kind"][j] = 1
+        out["R3"][:, j] = data["R3"]
+        if e.kind == "body":
             out["M"][:, j] = data["M"]
         elif e.kind == "offset":
-            out["kind"][j] = 2
             out["T"][:, j] = data["T"]
             out["G"][:, j] = data["G"]
         else:
-            out["kind"][j] = 3
             out["T"][:, j] = data["T"]
             out["axis"][:, j] = data["axis"]
-            out["stiffness"][j] = e.params["stiffness"]
     return out
 
 
