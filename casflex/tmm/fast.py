@@ -34,7 +34,7 @@ from casflex.tmm.conditioning import check_chain, lowest_beam_frequency
 
 __all__ = [
     "CACHE", "Prepared", "compiled_shapes", "prepare", "search_points", "search_scales",
-    "shape_fields",
+    "shape_fields", "shape_layout",
 ]
 
 #: Prepared set-ups (or None: the robot needs the full path) by ``robot.links``, newest last
@@ -260,13 +260,27 @@ class Prepared:
             template)
         self.elements = template.elements  # kinds, rows and parameters (not the poses)
         self.beam_rows = template.beam_rows
-        beams = template.beams
-        self.lengths = np.array([b.params["length"] for b in beams])
-        self.moduli = np.array([[b.params["material"].E * b.params["section"].Ix,
-                                 b.params["material"].E * b.params["section"].Iy,
-                                 b.params["material"].G * b.params["section"].J,
-                                 b.params["material"].E * b.params["section"].A]
-                                for b in beams]).reshape(-1, 4)
+        self.layouts = {}
+
+    def shape_layout(self, n_points: int) -> dict:
+        """:func:`shape_layout` of the robot's chain, kept per ``n_points``.
+
+        Parameters
+        ----------
+        n_points : int
+            Sample points per beam.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> prepare(load("problems/arm2link.toml")).shape_layout(5)["rows"]
+        (2, 3)
+        """
+        layout = self.layouts.get(n_points)
+        if layout is None:
+            layout = self.layouts[n_points] = shape_layout(self.elements, n_points)
+            layout["s"].flags.writeable = False
+        return layout
 
     def pose(self, qs: np.ndarray) -> dict | None:
         """The packed arrays of :mod:`casflex.tmm.kernels` at configurations ``qs``.
@@ -428,14 +442,57 @@ def shape_fields(arrays: dict, c: int, omega: np.ndarray, s: np.ndarray,
     return dict(zip(names, out[:-1], strict=True))
 
 
-def compiled_shapes(elements, arrays: dict | None, omega: np.ndarray,
-                    multiplicity: np.ndarray, n_points: int) -> dict | None:
-    """Every :class:`casflex.tmm.ModeShapes` field of configuration 0 of ``arrays``.
+def shape_layout(elements, n_points: int) -> dict:
+    """What the mode shapes of a chain need besides its pose: which elements are beams
+    and bodies, the sample points and the beams' moduli (see :func:`compiled_shapes`).
 
     Parameters
     ----------
     elements : sequence of casflex.tmm.Element
         The chain's elements (kinds, rows, parameters; not their poses).
+    n_points : int
+        Sample points per beam, ends included.
+
+    Returns
+    -------
+    dict
+        ``beams``, ``bodies`` (element indices), ``s`` (n_beams, n_points) [m],
+        ``moduli`` (n_beams, 4) ``EIx, EIy, GJ, EA``, ``rows``, ``body_rows``,
+        ``spring_rows``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import build_chain
+    >>> chain = build_chain(load("problems/arm2link.toml"), [0.0, 0.0, 0.0])
+    >>> shape_layout(chain.elements, 3)["s"].tolist()
+    [[0.0, 0.5, 1.0], [0.0, 0.5, 1.0]]
+    """
+    beams = [j for j, e in enumerate(elements) if e.kind == "beam"]
+    frac = np.linspace(0.0, 1.0, n_points)
+    params = [elements[j].params for j in beams]
+    return {
+        "beams": beams,
+        "bodies": [j for j, e in enumerate(elements) if e.kind == "body"],
+        "s": np.array([frac * P["length"] for P in params]).reshape(-1, n_points),
+        "moduli": np.array([[P["material"].E * P["section"].Ix,
+                             P["material"].E * P["section"].Iy,
+                             P["material"].G * P["section"].J,
+                             P["material"].E * P["section"].A] for P in params]).reshape(-1, 4),
+        "rows": tuple(elements[j].row for j in beams),
+        "body_rows": tuple(e.row for e in elements if e.kind == "body"),
+        "spring_rows": tuple(e.row for e in elements if e.kind == "spring"),
+    }
+
+
+def compiled_shapes(layout: dict, arrays: dict | None, omega: np.ndarray,
+                    multiplicity: np.ndarray) -> dict | None:
+    """Every :class:`casflex.tmm.ModeShapes` field of configuration 0 of ``arrays``.
+
+    Parameters
+    ----------
+    layout : dict
+        :func:`shape_layout` of the chain.
     arrays : dict or None
         Packed arrays of :mod:`casflex.tmm.kernels` with ``R3`` for every element and
         ``start`` (C, E, 3) [m].
@@ -443,8 +500,6 @@ def compiled_shapes(elements, arrays: dict | None, omega: np.ndarray,
         (m,) natural frequencies [rad/s].
     multiplicity : numpy.ndarray
         (m,) their multiplicities.
-    n_points : int
-        Sample points per beam.
 
     Returns
     -------
@@ -460,31 +515,24 @@ def compiled_shapes(elements, arrays: dict | None, omega: np.ndarray,
     >>> arm = load("problems/arm2link.toml")
     >>> prepared = prepare(arm)
     >>> w = natural_frequencies(arm, [0.0, 0.0, 0.0], count=2)
-    >>> fields = compiled_shapes(prepared.elements, prepared.pose(np.zeros((1, 3))), w,
-    ...                          np.ones(2, dtype=int), 11)
+    >>> fields = compiled_shapes(prepared.shape_layout(11), prepared.pose(np.zeros((1, 3))),
+    ...                          w, np.ones(2, dtype=int))
     >>> fields["displacement"].shape, float(abs(fields["displacement"]).max())
     ((2, 2, 11, 3), 1.0)
     """
-    if arrays is None or not (multiplicity == 1).all() or n_points < 2 or omega.size == 0:
+    s = layout["s"]
+    if arrays is None or not (multiplicity == 1).all() or s.shape[1] < 2 or omega.size == 0:
         return None
-    beams = [j for j, e in enumerate(elements) if e.kind == "beam"]
-    frac = np.linspace(0.0, 1.0, n_points)
-    s = np.array([frac * elements[j].params["length"] for j in beams]).reshape(-1, n_points)
-    moduli = np.array([[P["material"].E * P["section"].Ix, P["material"].E * P["section"].Iy,
-                        P["material"].G * P["section"].J, P["material"].E * P["section"].A]
-                       for P in (elements[j].params for j in beams)]).reshape(-1, 4)
-    fields = shape_fields(arrays, 0, omega, s, moduli)
+    fields = shape_fields(arrays, 0, omega, s, layout["moduli"])
     if fields is None:
         return None
+    beams = layout["beams"]
     R = arrays["R3"][0, beams]
-    bodies = [j for j, e in enumerate(elements) if e.kind == "body"]
     return dict(
-        fields, omega=omega, multiplicity=multiplicity, s=s,
-        rows=tuple(elements[j].row for j in beams), R=R,
+        fields, omega=omega, multiplicity=multiplicity, s=s, rows=layout["rows"], R=R,
         position=arrays["start"][0, beams][:, None, :] + s[:, :, None] * R[:, None, :, 2],
-        body_position=arrays["start"][0, bodies].reshape(-1, 3),
-        body_rows=tuple(elements[j].row for j in bodies),
-        spring_rows=tuple(e.row for e in elements if e.kind == "spring"))
+        body_position=arrays["start"][0, layout["bodies"]].reshape(-1, 3),
+        body_rows=layout["body_rows"], spring_rows=layout["spring_rows"])
 
 
 def _null_vector(A, x, piv):
@@ -561,6 +609,9 @@ def _shapes(c, omega, sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T,
     vals = np.empty(20)
     trig = np.empty((2, 6))  # per bending/wave row r: cos, sin (wave), cosh, sinh, cos, sin
     step = np.empty((2, 6))
+    factor = np.empty((2, 5))
+    coef = np.empty(40)
+    row_of = np.empty(40, dtype=np.int64)
     ok = True
     for mode in range(m):
         w = omega[mode]
@@ -582,52 +633,59 @@ def _shapes(c, omega, sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T,
                     for i in range(3):
                         zl[3 * b + i] = (R[0, i] * z[3 * b] + R[1, i] * z[3 * b + 1]
                                          + R[2, i] * z[3 * b + 2])
-                h = s[ib, 1] - s[ib, 0] if P > 1 else 0.0
-                for r in range(2):
-                    k_wave = w * beam[j, 3 + r]
+                h = s[ib, 1] - s[ib, 0]
+                for r in range(2):  # per row r: factors of the 20 quantities, recurrences
+                    stiff, k_wave = beam[j, 1 + r], w * beam[j, 3 + r]
                     lam = math.sqrt(w) * beam[j, 5 + r]
-                    trig[r, 0], trig[r, 1] = 1.0, 0.0
-                    trig[r, 2], trig[r, 3] = 1.0, 0.0
-                    trig[r, 4], trig[r, 5] = 1.0, 0.0
+                    factor[r, 0] = 1.0 / (k_wave * stiff) if k_wave != 0.0 else 0.0
+                    factor[r, 1] = -stiff * k_wave
+                    factor[r, 2], factor[r, 3], factor[r, 4] = lam, lam * lam, lam * lam * lam
+                    for q in range(6):
+                        trig[r, q] = 1.0 if q % 2 == 0 else 0.0
                     step[r, 0], step[r, 1] = math.cos(k_wave * h), math.sin(k_wave * h)
                     step[r, 2], step[r, 3] = math.cosh(lam * h), math.sinh(lam * h)
                     step[r, 4], step[r, 5] = math.cos(lam * h), math.sin(lam * h)
+                for i in range(40):  # B(s) z = sum of vals[gather] (ratio z[column]) e_row
+                    f = flat[j, i]
+                    row_of[i] = f // 12
+                    coef[i] = ratio[j, i] * zl[f % 12]
                 for p in range(P):
                     sp = s[ib, p]
                     for r in range(2):
-                        stiff, k_wave = beam[j, 1 + r], w * beam[j, 3 + r]
-                        lam = math.sqrt(w) * beam[j, 5 + r]
                         cs, sn = trig[r, 0], trig[r, 1]
                         vals[r] = cs
-                        vals[2 + r] = (sn / k_wave if k_wave != 0.0 else sp) / stiff
-                        vals[4 + r] = (-stiff * k_wave) * sn
+                        # sin(ks)/(k stiff); s/stiff at ω = 0
+                        vals[2 + r] = sn * factor[r, 0] if factor[r, 0] != 0.0 else (
+                            sp / beam[j, 1 + r])
+                        vals[4 + r] = factor[r, 1] * sn
                         ch, sh, co, si = trig[r, 2], trig[r, 3], trig[r, 4], trig[r, 5]
                         S_, T_ = 0.5 * (ch + co), 0.5 * (sh + si)
                         U_, V_ = 0.5 * (ch - co), 0.5 * (sh - si)
+                        lam, lam2, lam3 = factor[r, 2], factor[r, 3], factor[r, 4]
                         vals[6 + r] = S_
                         if lam > 0.0:
                             vals[8 + r] = T_ / lam
-                            vals[10 + r] = U_ / lam**2
-                            vals[12 + r] = V_ / lam**3
+                            vals[10 + r] = U_ / lam2
+                            vals[12 + r] = V_ / lam3
                         else:
                             vals[8 + r] = sp
-                            vals[10 + r] = sp**2 / 2.0
-                            vals[12 + r] = sp**3 / 6.0
+                            vals[10 + r] = sp * sp / 2.0
+                            vals[12 + r] = sp * sp * sp / 6.0
                         vals[14 + r] = lam * V_
-                        vals[16 + r] = lam**2 * U_
-                        vals[18 + r] = lam**3 * T_
-                        # angle addition to the next point (uniform grid)
-                        for q in (0, 4):
-                            a0, a1 = trig[r, q], trig[r, q + 1]
-                            trig[r, q] = a0 * step[r, q] - a1 * step[r, q + 1]
-                            trig[r, q + 1] = a1 * step[r, q] + a0 * step[r, q + 1]
+                        vals[16 + r] = lam2 * U_
+                        vals[18 + r] = lam3 * T_
+                        # angle addition to the next point of the uniform grid
+                        a0, a1 = trig[r, 0], trig[r, 1]
+                        trig[r, 0] = a0 * step[r, 0] - a1 * step[r, 1]
+                        trig[r, 1] = a1 * step[r, 0] + a0 * step[r, 1]
                         a0, a1 = trig[r, 2], trig[r, 3]
                         trig[r, 2] = a0 * step[r, 2] + a1 * step[r, 3]
                         trig[r, 3] = a1 * step[r, 2] + a0 * step[r, 3]
-                    out = local[mode, ib, p]
+                        a0, a1 = trig[r, 4], trig[r, 5]
+                        trig[r, 4] = a0 * step[r, 4] - a1 * step[r, 5]
+                        trig[r, 5] = a1 * step[r, 4] + a0 * step[r, 5]
                     for i in range(40):
-                        f = flat[j, i]
-                        out[f // 12] += vals[gather[j, i]] * ratio[j, i] * zl[f % 12]
+                        local[mode, ib, p, row_of[i]] += vals[gather[j, i]] * coef[i]
                 last = local[mode, ib, P - 1]
                 for b in range(4):  # back to base components at the beam end
                     for i in range(3):

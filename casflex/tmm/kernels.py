@@ -121,7 +121,7 @@ def pack(items, size: int) -> dict:
         elif e.kind == "offset":
             out["T"][:, j] = data["T"]
             out["G"][:, j] = data["G"]
-        else:
+        elif e.kind == "spring":
             out["T"][:, j] = data["T"]
             out["axis"][:, j] = data["axis"]
     return out
@@ -701,7 +701,6 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
     status = np.zeros(C, dtype=np.int64)
     U, W, vals, Tc, B = _work()
     A = np.empty((6, 6))
-    size = 64
     for c in range(C):
         grid = np.empty(points.size - 1 + 8 * 64)
         counts = np.empty(grid.size, dtype=np.int64)
@@ -712,16 +711,15 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         if not ok or n0 > 0.0:
             status[c] = SEARCH_BREAKDOWN
             continue
-        previous = 0
+        # the counts are evaluated lazily: at the top of the grid, then by bisection over
+        # the grid indices where the count changes (it never falls with ω: equal counts
+        # at two grid points mean no root between them). The brackets are the grid
+        # intervals holding roots, those of counting every grid point.
         broken = False
-        for i in range(n):
-            v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R3, M, G, axis,
-                                 stiffness, vals, Tc, B)
-            counts[i] = int(v)
-            if not ok or counts[i] < previous:
-                broken = True
-                break
-            previous = counts[i]
+        v, ok = _count_point(c, grid[n - 1], kind, beam, flat, gather, ratio, R3, M, G,
+                             axis, stiffness, vals, Tc, B)
+        counts[n - 1] = int(v)
+        broken = not ok
         if omega_max <= 0.0:
             while not broken and counts[n - 1] < count and grid[n - 1] < cap:
                 if n + 8 > grid.size:
@@ -732,13 +730,11 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                 for i in range(8):
                     grid[n + i] = start * (stop / start) ** (i / 7.0)
                 grid[n + 7] = stop
-                for i in range(n, n + 8):
-                    v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R3, M,
-                                         G, axis, stiffness, vals, Tc, B)
-                    counts[i] = int(v)
-                    if not ok or counts[i] < counts[i - 1]:
-                        broken = True
-                        break
+                v, ok = _count_point(c, grid[n + 7], kind, beam, flat, gather, ratio, R3, M,
+                                     G, axis, stiffness, vals, Tc, B)
+                counts[n + 7] = int(v)
+                if not ok or counts[n + 7] < counts[n - 1]:
+                    broken = True
                 n += 8
         if broken:
             status[c] = SEARCH_BREAKDOWN
@@ -751,15 +747,37 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         else:
             want = counts[n - 1] if count <= 0 else min(count, counts[n - 1])
         # brackets on a stack: (lo, hi, count at lo, count at hi)
+        size = n + 64
         lo, hi = np.empty(size), np.empty(size)
         nlo, nhi = np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64)
         top = 0
-        for i in range(n - 1, -1, -1):
-            lo[top] = grid[i - 1] if i > 0 else 0.0
-            hi[top] = grid[i]
-            nlo[top] = counts[i - 1] if i > 0 else 0
-            nhi[top] = counts[i]
-            top += 1
+        first, last = np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64)
+        first[0], last[0] = -1, n - 1  # grid index -1 is ω = 0, count 0
+        ranges = 1
+        while ranges > 0:
+            ranges -= 1
+            i, j = first[ranges], last[ranges]
+            ci = counts[i] if i >= 0 else 0
+            if counts[j] == ci or ci >= want:
+                continue
+            if j == i + 1:
+                lo[top], hi[top] = (grid[i] if i >= 0 else 0.0), grid[j]
+                nlo[top], nhi[top] = ci, counts[j]
+                top += 1
+                continue
+            mid = (i + j) // 2
+            v, ok = _count_point(c, grid[mid], kind, beam, flat, gather, ratio, R3, M, G,
+                                 axis, stiffness, vals, Tc, B)
+            counts[mid] = int(v)
+            if not ok or not (ci <= counts[mid] <= counts[j]) or ranges + 2 > size:
+                broken = True
+                break
+            first[ranges], last[ranges] = mid, j
+            first[ranges + 1], last[ranges + 1] = i, mid
+            ranges += 2
+        if broken:
+            status[c] = SEARCH_BREAKDOWN
+            continue
         roots = np.empty(width)
         mult = np.empty(width, dtype=np.int64)
         found = 0

@@ -810,7 +810,8 @@ def _shapes(chain, stack, omega, multiplicity, n_points):
     mult = np.ones(m, dtype=int) if multiplicity is None else np.asarray(multiplicity, int)
     if stack.kernel is not None:
         arrays = dict(stack.kernel, start=np.array([[e.start for e in chain.elements]]))
-        shapes = _compiled_shapes(chain.elements, arrays, omega, mult, n_points)
+        shapes = _compiled_shapes(fast.shape_layout(chain.elements, n_points), arrays,
+                                  omega, mult)
         if shapes is not None:
             return shapes
     # base reactions f0 of every mode; a k-fold root contributes k basis vectors
@@ -961,7 +962,7 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
         w = found[0][0]
         # a k-fold root cut short by `count` keeps the entries present: that many vectors
         present = np.array([int(np.count_nonzero(w == v)) for v in w], dtype=int)
-        shapes = _compiled_shapes(posed[0].elements, posed[1], w, present, n_points)
+        shapes = _compiled_shapes(posed[0].shape_layout(n_points), posed[1], w, present)
         if shapes is not None:
             return shapes
     chain = build_chain(robot, q)
@@ -993,8 +994,8 @@ def _fast_roots(robot, qs, count, omega_max, double_tol, rtol):
     return found, (prepared, arrays)
 
 
-def _compiled_shapes(elements, arrays, omega, multiplicity, n_points):
+def _compiled_shapes(layout, arrays, omega, multiplicity):
     """:func:`mode_shapes` by the compiled kernel (:func:`casflex.tmm.fast.compiled_shapes`)
     or None (a multiple root, no kernels, no null vector: the numpy path)."""
-    fields = fast.compiled_shapes(elements, arrays, omega, multiplicity, n_points)
+    fields = fast.compiled_shapes(layout, arrays, omega, multiplicity)
     return None if fields is None else ModeShapes(**fields)
