@@ -547,7 +547,9 @@ def _null_vector(A, x, piv):
             scale = max(scale, abs(A[i, j]))
     if scale == 0.0:
         return False
-    tiny = 2.220446049250313e-16 * scale
+    # (a pivot merely small must stay as it is: raising it to eps·scale would bias the
+    # null vector by eps·κ, 1e-11 on ill-conditioned modes)
+    tiny = 1e-200 * scale
     for k in range(n):
         p = k
         for i in range(k + 1, n):
@@ -557,8 +559,8 @@ def _null_vector(A, x, piv):
         if p != k:
             for j in range(n):
                 A[k, j], A[p, j] = A[p, j], A[k, j]
-        if abs(A[k, k]) < tiny:  # the singular pivot: a tiny one keeps the solve finite
-            A[k, k] = tiny if A[k, k] >= 0.0 else -tiny
+        if A[k, k] == 0.0:  # exactly singular: any tiny pivot gives the null vector
+            A[k, k] = tiny
         for i in range(k + 1, n):
             A[i, k] /= A[k, k]
             for j in range(k + 1, n):
