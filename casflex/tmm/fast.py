@@ -33,7 +33,7 @@ from casflex.tmm.chain import build_chain
 from casflex.tmm.conditioning import check_chain, lowest_beam_frequency
 
 __all__ = [
-    "CACHE", "Prepared", "compiled_shapes", "prepare", "search_points", "search_scales",
+    "CACHE", "Prepared", "compiled_shapes", "prepare", "roots", "search_points", "search_scales",
     "shape_fields", "shape_layout",
 ]
 
@@ -137,6 +137,49 @@ def _program(robot):
             np.array(kind, dtype=np.int64))
 
 
+def roots(robot, qs, count: int | None, omega_max: float | None, double_tol: float,
+          rtol: float) -> tuple[list | None, tuple | None]:
+    """The root search of ``robot`` at configurations ``qs`` by the prepared set-up and
+    the compiled search (:func:`casflex.tmm.kernels.search`).
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+    qs : array_like
+        (C, n_joints) or (n_joints,) joint variables [rad].
+    count, omega_max, double_tol, rtol
+        As for :func:`casflex.tmm.natural_frequencies` (omega_max in rad/s).
+
+    Returns
+    -------
+    (list or None, tuple or None)
+        ``(values, multiplicities)`` per configuration and ``(prepared, posed arrays)``;
+        None where the full path must run (no kernels, a q it refuses with its message, a
+        breakdown to diagnose).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> found, _ = roots(load("problems/arm2link.toml"), [0, 0, 0], 2, None, 1e-9, 1e-12)
+    >>> found[0][0].round(2).tolist()
+    [8.31, 11.97]
+    """
+    prepared = prepare(robot)
+    if prepared is None:
+        return None, None
+    try:
+        arrays = prepared.pose(np.atleast_2d(np.asarray(qs, dtype=float)))
+    except (TypeError, ValueError):
+        return None, None
+    if arrays is None:
+        return None, None
+    probe, grid = search_points(prepared.reference_frequency, prepared.lowest_beam_frequency,
+                                omega_max)
+    found = kernels.search(arrays, np.concatenate([[probe], grid]), prepared.cap, count,
+                           omega_max, double_tol, rtol)
+    return found, (prepared, arrays)
+
+
 def search_scales(chain) -> tuple[float, float, float]:
     """Frequency scales of a chain's root search [rad/s] (parameters only, not the pose).
 
@@ -159,7 +202,7 @@ def search_scales(chain) -> tuple[float, float, float]:
     >>> from casflex.robot import load
     >>> from casflex.tmm import build_chain
     >>> chain = build_chain(load("problems/arm2link.toml"), [0.0, 0.0, 0.0])
-    >>> [round(v, 3) for v in search_scales(chain)]
+    >>> [round(float(v), 3) for v in search_scales(chain)]
     [46698.402, 6.413, 6.413]
     """
     beams = chain.beams
@@ -237,7 +280,7 @@ class Prepared:
     >>> from casflex.tmm import build_chain
     >>> arm = load("problems/arm2link.toml")
     >>> prepared = Prepared(arm, build_chain(arm, [0.0, 0.0, 0.0]))
-    >>> prepared.beam_rows, round(prepared.reference_frequency, 3)
+    >>> prepared.beam_rows, round(float(prepared.reference_frequency), 3)
     ((2, 3), 6.413)
     """
 

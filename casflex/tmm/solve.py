@@ -616,7 +616,7 @@ def natural_frequencies(chain_or_robot: Chain | Robot, q: ArrayLike | None = Non
         raise ValueError("give count, omega_max or both")
     found = None
     if not isinstance(chain_or_robot, Chain):
-        found, _ = _fast_roots(chain_or_robot, q, count, omega_max, double_tol, rtol)
+        found, _ = fast.roots(chain_or_robot, q, count, omega_max, double_tol, rtol)
     if found is None:
         chain = _as_chain(chain_or_robot, q)
         found = _roots(_Stack([chain]), count, omega_max, double_tol, rtol)
@@ -655,7 +655,7 @@ def sweep_frequencies(robot: Robot, qs: ArrayLike, count: int, *, double_tol: fl
     array([[ 8.31, 11.97],
            [ 6.61,  9.31]])
     """
-    roots, _ = _fast_roots(robot, qs, count, None, double_tol, rtol)
+    roots, _ = fast.roots(robot, qs, count, None, double_tol, rtol)
     if roots is None:
         chains = [build_chain(robot, q) for q in np.atleast_2d(np.asarray(qs, dtype=float))]
         roots = _roots(_Stack(chains), count, None, double_tol, rtol)
@@ -957,7 +957,7 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     """
     if count is None and omega_max is None:
         raise ValueError("give count, omega_max or both")
-    found, posed = _fast_roots(robot, q, count, omega_max, 1e-9, 1e-12)  # the defaults
+    found, posed = fast.roots(robot, q, count, omega_max, 1e-9, 1e-12)  # the defaults
     if found is not None:
         w = found[0][0]
         # a k-fold root cut short by `count` keeps the entries present: that many vectors
@@ -972,26 +972,6 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     w = found[0][0]
     present = np.array([int(np.count_nonzero(w == v)) for v in w], dtype=int)
     return _shapes(chain, stack, w, present, n_points)
-
-
-def _fast_roots(robot, qs, count, omega_max, double_tol, rtol):
-    """Roots by the robot's prepared set-up and the compiled search, and (prepared, posed
-    arrays); (None, None) when the full path must run (no kernels, a q to refuse, a
-    breakdown to diagnose)."""
-    prepared = fast.prepare(robot)
-    if prepared is None:
-        return None, None
-    try:
-        arrays = prepared.pose(np.atleast_2d(np.asarray(qs, dtype=float)))
-    except (TypeError, ValueError):
-        return None, None
-    if arrays is None:
-        return None, None
-    probe, grid = fast.search_points(prepared.reference_frequency,
-                                     prepared.lowest_beam_frequency, omega_max)
-    found = kernels.search(arrays, np.concatenate([[probe], grid]), prepared.cap, count,
-                           omega_max, double_tol, rtol)
-    return found, (prepared, arrays)
 
 
 def _compiled_shapes(layout, arrays, omega, multiplicity):
