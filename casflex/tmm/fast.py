@@ -173,10 +173,14 @@ def roots(robot, qs, count: int | None, omega_max: float | None, double_tol: flo
         return None, None
     if arrays is None:
         return None, None
-    probe, grid = search_points(prepared.reference_frequency, prepared.lowest_beam_frequency,
-                                omega_max)
-    found = kernels.search(arrays, np.concatenate([[probe], grid]), prepared.cap, count,
-                           omega_max, double_tol, rtol)
+    points = prepared.points.get(omega_max)
+    if points is None:
+        probe, grid = search_points(prepared.reference_frequency,
+                                    prepared.lowest_beam_frequency, omega_max)
+        points = np.concatenate([[probe], grid])
+        if len(prepared.points) < 64:
+            prepared.points[omega_max] = points
+    found = kernels.search(arrays, points, prepared.cap, count, omega_max, double_tol, rtol)
     return found, (prepared, arrays)
 
 
@@ -304,6 +308,7 @@ class Prepared:
         self.elements = template.elements  # kinds, rows and parameters (not the poses)
         self.beam_rows = template.beam_rows
         self.layouts = {}
+        self.points = {}  # the probe and the search grid by omega_max
 
     def shape_layout(self, n_points: int) -> dict:
         """:func:`shape_layout` of the robot's chain, kept per ``n_points``.
@@ -322,7 +327,6 @@ class Prepared:
         layout = self.layouts.get(n_points)
         if layout is None:
             layout = self.layouts[n_points] = shape_layout(self.elements, n_points)
-            layout["s"].flags.writeable = False
         return layout
 
     def pose(self, qs: np.ndarray) -> dict | None:
@@ -514,10 +518,12 @@ def shape_layout(elements, n_points: int) -> dict:
     beams = [j for j, e in enumerate(elements) if e.kind == "beam"]
     frac = np.linspace(0.0, 1.0, n_points)
     params = [elements[j].params for j in beams]
+    s = np.array([frac * P["length"] for P in params]).reshape(-1, n_points)
+    s.flags.writeable = False  # shared by every ModeShapes made from this layout
     return {
         "beams": beams,
         "bodies": [j for j, e in enumerate(elements) if e.kind == "body"],
-        "s": np.array([frac * P["length"] for P in params]).reshape(-1, n_points),
+        "s": s,
         "moduli": np.array([[P["material"].E * P["section"].Ix,
                              P["material"].E * P["section"].Iy,
                              P["material"].G * P["section"].J,

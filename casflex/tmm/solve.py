@@ -959,12 +959,11 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
         raise ValueError("give count, omega_max or both")
     found, posed = fast.roots(robot, q, count, omega_max, 1e-9, 1e-12)  # the defaults
     if found is not None:
-        w = found[0][0]
-        # a k-fold root cut short by `count` keeps the entries present: that many vectors
-        present = np.array([int(np.count_nonzero(w == v)) for v in w], dtype=int)
-        shapes = _compiled_shapes(posed[0].shape_layout(n_points), posed[1], w, present)
-        if shapes is not None:
-            return shapes
+        w, mult = found[0]
+        if (mult == 1).all():  # simple roots: the compiled shapes
+            shapes = _compiled_shapes(posed[0].shape_layout(n_points), posed[1], w, mult)
+            if shapes is not None:
+                return shapes
     chain = build_chain(robot, q)
     stack = _Stack([chain])  # one stack for the roots and the shapes
     if found is None:
