@@ -254,7 +254,10 @@ def prepare(robot) -> Prepared | None:
     except KeyError:
         pass
     else:
-        CACHE.move_to_end(key)
+        try:
+            CACHE.move_to_end(key)
+        except KeyError:  # evicted meanwhile by another thread: still a valid set-up
+            pass
         return found
     template = build_chain(robot, np.zeros(robot.n_joints))
     try:
@@ -264,7 +267,10 @@ def prepare(robot) -> Prepared | None:
         found = None
     CACHE[key] = found
     while len(CACHE) > CACHE_SIZE:
-        CACHE.popitem(last=False)
+        try:
+            CACHE.popitem(last=False)
+        except KeyError:  # emptied meanwhile by another thread
+            break
     return found
 
 
