@@ -16,6 +16,9 @@
   the FE converges to the TMM's values is checked at 4× the elements
   (``fe_converged_rel_error``). Configurations where link 2 folds back onto link 1 are
   left out of the FE side (the FE merges coincident nodes).
+* ``fe_eigensolve_s``: the FE's ``scipy.linalg.eigh`` alone on its assembled matrices
+  (the 5 wanted eigenpairs of the ``M q = μ K q`` pencil, as ``reference_fem.modes``):
+  the floor of any FE of that size, whatever its assembly.
 * ``ratio_fe`` = FE time / TMM time with shapes (> 1: the TMM is faster);
   ``ratio_fe_frequencies`` the same for frequencies only.
 * ``numpy_*``: the same TMM figures with the compiled kernels switched off
@@ -49,6 +52,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg
 
 import casflex
 from casflex.robot import load
@@ -66,8 +70,8 @@ import reference_fem as fem  # noqa: E402  (the tests' independent FE model)
 ACCURACY = 1e-4
 
 
-def fe_modes(robot, q, n_elements, n_modes=5):
-    """Frequencies [rad/s] and shapes of the frame FE at the chain's geometry."""
+def fe_segments(robot, q, n_elements):
+    """The frame FE's segments at the chain's geometry, and the clamped point."""
     chain = build_chain(robot, q)
     segments = []
     for e in chain.beams:
@@ -75,7 +79,20 @@ def fe_modes(robot, q, n_elements, n_modes=5):
         segments.append(fem.Segment(
             e.start, e.end, e.R[:, 0], E=mat.E, G=mat.G, rho=mat.rho, A=sec.A, Ix=sec.Ix,
             Iy=sec.Iy, J=sec.J, Ip=sec.Ip, n_elements=n_elements))
-    return fem.modes(segments, clamp=chain.elements[0].start, n_modes=n_modes)
+    return segments, chain.elements[0].start
+
+
+def fe_modes(robot, q, n_elements, n_modes=5):
+    """Frequencies [rad/s] and shapes of the frame FE at the chain's geometry."""
+    segments, clamp = fe_segments(robot, q, n_elements)
+    return fem.modes(segments, clamp=clamp, n_modes=n_modes)
+
+
+def fe_eigensolve(matrices, n_modes=5):
+    """The FE's eigen-solution alone (as in ``reference_fem.modes``): its floor."""
+    K, M = matrices
+    n = K.shape[0]
+    return scipy.linalg.eigh(M, K, subset_by_index=[n - n_modes, n - 1])
 
 
 def folded(robot, q):
@@ -126,7 +143,7 @@ def main():
     paths = (True, False) if compiled else (False,)
     single = {p: [] for p in paths}
     frequencies = {p: [] for p in paths}
-    fe_times = []
+    fe_times, eigen_times = [], []
 
     def best(call):
         """Fastest of ``--inner`` calls (a loaded machine preempts long calls)."""
@@ -145,6 +162,9 @@ def main():
             frequencies[path].append(best(lambda q=q: natural_frequencies(robot, q, count=5)))
         if not folded(robot, q):
             fe_times.append(best(lambda q=q: fe_modes(robot, q, n_fe)))
+            segments, clamp = fe_segments(robot, q, n_fe)
+            matrices = fem.assemble(segments, (), (), clamp)[:2]
+            eigen_times.append(best(lambda m=matrices: fe_eigensolve(m)))
 
     qs = np.zeros((240, 3))
     qs[:, 2] = np.radians(np.arange(240) * 1.5 - 180.0)
@@ -179,6 +199,7 @@ def main():
         "fe_elements_per_link": n_fe,
         "fe_max_rel_error": fe_error,
         "fe_converged_rel_error": float(converged),
+        "fe_eigensolve_s": statistics.median(eigen_times),
         "ratio_fe": fe_time / per_configuration,
         "ratio_fe_frequencies": fe_time / frequencies_only,
         "inner": args.inner,
@@ -201,6 +222,7 @@ def main():
               f"{result['numpy_sweep_s']:.3f} s (compiled kernels: {compiled})")
         print(f"beam FE, {n_fe} elements per link (max error {fe_error:.1e}; "
               f"{4 * n_fe} elements: {converged:.1e}): {1e3 * fe_time:.2f} ms")
+        print(f"the FE's eigen-solution alone: {1e3 * result['fe_eigensolve_s']:.3f} ms")
         print(f"FE / TMM: {result['ratio_fe']:.2f} with shapes, "
               f"{result['ratio_fe_frequencies']:.2f} frequencies only (target ≥ 10)")
 

@@ -9,11 +9,16 @@ arithmetic point by point in machine code (numba, ``cache=True``: the compiled c
 kept next to this file or in ``NUMBA_CACHE_DIR``), with explicit loops on preallocated
 work arrays: the beam matrix is applied through its 40 non-zero entries and the rotation
 through its 3 × 3 blocks (no BLAS call, no allocation per point). ``search_roots`` runs
-:func:`casflex.tmm.solve._roots`'s algorithm (same grid, bisection and Brent) without a
-return to Python. Without numba, ``AVAILABLE`` is False and the numpy path runs alone; the
-numpy path is also the reference the kernels are tested against and the fallback when a
-kernel meets a singular matrix or a breakdown (the numpy path has the least-squares and
-diagnosis branches).
+:func:`casflex.tmm.solve._roots`'s algorithm (same grid brackets, bisection and Brent)
+without a return to Python; it counts at the grid points lazily (where the count changes,
+by bisection over the grid indices: 12 counts instead of 37 for 5 modes of the Table 8
+arm), which gives the same brackets because the count never falls with ω. The check that
+it never falls is then made on the points counted (the numpy path checks every grid
+point; it runs, and diagnoses, whenever the compiled search reports a breakdown).
+Without numba, ``AVAILABLE`` is False and the numpy path runs alone; the numpy path is
+also the reference the kernels are tested against and the fallback when a kernel meets a
+singular matrix or a breakdown (the numpy path has the least-squares and diagnosis
+branches).
 
 Data layout (C configurations, E elements): ``kind`` (E,) with 0 beam, 1 body, 2 offset,
 3 spring; per element constants ``beam`` (E, 12) and per configuration matrices ``R3``
@@ -28,7 +33,7 @@ import math
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "pack", "search"]  # noqa: F822 (AVAILABLE: module __getattr__)
+__all__ = ["AVAILABLE", "constants", "pack", "search"]  # noqa: F822 (AVAILABLE: module __getattr__)
 
 # ``AVAILABLE`` (True when the compiled kernels can run: numba importable) and the
 # kernels ``count_points``, ``refine_brackets``, ``system_points``, ``field_points``,
@@ -36,6 +41,55 @@ __all__ = ["AVAILABLE", "pack", "search"]  # noqa: F822 (AVAILABLE: module __get
 # made on first use (module ``__getattr__`` below): importing numba costs ~0.5 s, which
 # a command that reads its modal tables from the cache never needs.
 _KERNELS = ("count_points", "refine_brackets", "system_points", "field_points", "search_roots")
+
+
+def constants(elements) -> dict:
+    """The configuration-independent arrays of the kernels (see the module docstring).
+
+    Parameters
+    ----------
+    elements : sequence of casflex.tmm.Element
+        The chain's elements (only their kinds and parameters are read).
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        ``kind``, ``beam``, ``flat``, ``gather``, ``ratio``, ``stiffness``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import build_chain
+    >>> constants(build_chain(load("problems/arm2link.toml"), [0, 0, 0]).elements)["kind"]
+    array([0, 0])
+    """
+    from casflex.tmm.elements import layout
+
+    E = len(elements)
+    out = {
+        "kind": np.zeros(E, dtype=np.int64), "beam": np.zeros((E, 12)),
+        "flat": np.zeros((E, 40), dtype=np.int64), "gather": np.zeros((E, 40), dtype=np.int64),
+        "ratio": np.zeros((E, 40)), "stiffness": np.zeros(E),
+    }
+    for j, e in enumerate(elements):
+        out["kind"][j] = ("beam", "body", "offset", "spring").index(e.kind)
+        if e.kind == "beam":
+            P = e.params
+            sec, mat, L = P["section"], P["material"], P["length"]
+            EA, EIx, EIy, GJ = mat.E * sec.A, mat.E * sec.Ix, mat.E * sec.Iy, mat.G * sec.J
+            rho_A, rho_Ip = mat.rho * sec.A, mat.rho * sec.Ip
+            table = layout(EA, EIx, EIy, GJ, rho_A, rho_Ip)
+            out["flat"][j], out["gather"][j] = table["flat"], table["gather"]
+            out["ratio"][j] = table["ratio"][:, 0]
+            mu = mat.rho * sec.A
+            out["beam"][j] = [
+                L, table["stiff"][0, 0], table["stiff"][1, 0], table["wave"][0, 0],
+                table["wave"][1, 0], table["bend"][0, 0], table["bend"][1, 0],
+                np.sqrt(mat.rho / mat.E), np.sqrt(mat.rho * sec.Ip / (mat.G * sec.J)),
+                (mu / (mat.E * sec.Iy)) ** 0.25, (mu / (mat.E * sec.Ix)) ** 0.25, 0.0]
+        elif e.kind == "spring":
+            out["stiffness"][j] = e.params["stiffness"]
+    return out
 
 
 def pack(items, size: int) -> dict:
@@ -54,51 +108,27 @@ def pack(items, size: int) -> dict:
 
     Examples
     --------
-    >>> pack([], 1)["kind"].shape
-    (0,)
+    >>> pack([], 1)["R3"].shape
+    (1, 0, 3, 3)
     """
-    from casflex.tmm.elements import layout
-
     E = len(items)
-    out = {
-        "kind": np.zeros(E, dtype=np.int64), "beam": np.zeros((E, 12)),
-        "flat": np.zeros((E, 40), dtype=np.int64), "gather": np.zeros((E, 40), dtype=np.int64),
-        "ratio": np.zeros((E, 40)),
-        "M": np.zeros((size, E, 6, 6)),
-        "G": np.zeros((size, E, 6, 6)), "T": np.zeros((size, E, 12, 12)),
-        "axis": np.zeros((size, E, 3)), "stiffness": np.zeros(E),
+    out = constants([data["element"] for data in items])
+    out.update({
+        "M": np.zeros((size, E, 6, 6)), "G": np.zeros((size, E, 6, 6)),
+        "T": np.zeros((size, E, 12, 12)), "axis": np.zeros((size, E, 3)),
         "R3": np.zeros((size, E, 3, 3)),
-    }
+    })
     for j, data in enumerate(items):
         e = data["element"]
-        if e.kind == "beam":
-            P = e.params
-            sec, mat, L = P["section"], P["material"], P["length"]
-            EA, EIx, EIy, GJ = mat.E * sec.A, mat.E * sec.Ix, mat.E * sec.Iy, mat.G * sec.J
-            rho_A, rho_Ip = mat.rho * sec.A, mat.rho * sec.Ip
-            table = layout(EA, EIx, EIy, GJ, rho_A, rho_Ip)
-            out["kind"][j] = 0
-            out["flat"][j], out["gather"][j] = table["flat"], table["gather"]
-            out["ratio"][j] = table["ratio"][:, 0]
-            mu = mat.rho * sec.A
-            out["beam"][j] = [
-                L, table["stiff"][0, 0], table["stiff"][1, 0], table["wave"][0, 0],
-                table["wave"][1, 0], table["bend"][0, 0], table["bend"][1, 0],
-                np.sqrt(mat.rho / mat.E), np.sqrt(mat.rho * sec.Ip / (mat.G * sec.J)),
-                (mu / (mat.E * sec.Iy)) ** 0.25, (mu / (mat.E * sec.Ix)) ** 0.25, 0.0]
-            out["R3"][:, j] = data["R6"][:, :3, :3]
-        elif e.kind == "body":
-            out["kind"][j] = 1
+        out["R3"][:, j] = data["R3"]
+        if e.kind == "body":
             out["M"][:, j] = data["M"]
         elif e.kind == "offset":
-            out["kind"][j] = 2
             out["T"][:, j] = data["T"]
             out["G"][:, j] = data["G"]
-        else:
-            out["kind"][j] = 3
+        elif e.kind == "spring":
             out["T"][:, j] = data["T"]
             out["axis"][:, j] = data["axis"]
-            out["stiffness"][j] = e.params["stiffness"]
     return out
 
 
@@ -661,7 +691,8 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
             ratio, R3, M, G, T, axis, stiffness, width):
     """The whole root search of :func:`casflex.tmm.solve._roots` for every configuration.
 
-    ``points`` is the static probe followed by the search grid; ``count`` ≤ 0 means no
+    The grid is counted lazily (see the module docstring). ``points`` is the static probe
+    followed by the search grid; ``count`` ≤ 0 means no
     count, ``omega_max`` ≤ 0 no upper limit. Returns per configuration the values and
     multiplicities (C, width), how many are filled and a status: ``SEARCH_OK``, or a case
     the Python path handles with its diagnosis (``SEARCH_BREAKDOWN``: a count not finite,
@@ -676,7 +707,6 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
     status = np.zeros(C, dtype=np.int64)
     U, W, vals, Tc, B = _work()
     A = np.empty((6, 6))
-    size = 64
     for c in range(C):
         grid = np.empty(points.size - 1 + 8 * 64)
         counts = np.empty(grid.size, dtype=np.int64)
@@ -687,16 +717,15 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         if not ok or n0 > 0.0:
             status[c] = SEARCH_BREAKDOWN
             continue
-        previous = 0
+        # the counts are evaluated lazily: at the top of the grid, then by bisection over
+        # the grid indices where the count changes (it never falls with ω: equal counts
+        # at two grid points mean no root between them). The brackets are the grid
+        # intervals holding roots, those of counting every grid point.
         broken = False
-        for i in range(n):
-            v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R3, M, G, axis,
-                                 stiffness, vals, Tc, B)
-            counts[i] = int(v)
-            if not ok or counts[i] < previous:
-                broken = True
-                break
-            previous = counts[i]
+        v, ok = _count_point(c, grid[n - 1], kind, beam, flat, gather, ratio, R3, M, G,
+                             axis, stiffness, vals, Tc, B)
+        counts[n - 1] = int(v)
+        broken = not ok
         if omega_max <= 0.0:
             while not broken and counts[n - 1] < count and grid[n - 1] < cap:
                 if n + 8 > grid.size:
@@ -707,13 +736,11 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                 for i in range(8):
                     grid[n + i] = start * (stop / start) ** (i / 7.0)
                 grid[n + 7] = stop
-                for i in range(n, n + 8):
-                    v, ok = _count_point(c, grid[i], kind, beam, flat, gather, ratio, R3, M,
-                                         G, axis, stiffness, vals, Tc, B)
-                    counts[i] = int(v)
-                    if not ok or counts[i] < counts[i - 1]:
-                        broken = True
-                        break
+                v, ok = _count_point(c, grid[n + 7], kind, beam, flat, gather, ratio, R3, M,
+                                     G, axis, stiffness, vals, Tc, B)
+                counts[n + 7] = int(v)
+                if not ok or counts[n + 7] < counts[n - 1]:
+                    broken = True
                 n += 8
         if broken:
             status[c] = SEARCH_BREAKDOWN
@@ -726,15 +753,37 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         else:
             want = counts[n - 1] if count <= 0 else min(count, counts[n - 1])
         # brackets on a stack: (lo, hi, count at lo, count at hi)
+        size = n + 64
         lo, hi = np.empty(size), np.empty(size)
         nlo, nhi = np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64)
         top = 0
-        for i in range(n - 1, -1, -1):
-            lo[top] = grid[i - 1] if i > 0 else 0.0
-            hi[top] = grid[i]
-            nlo[top] = counts[i - 1] if i > 0 else 0
-            nhi[top] = counts[i]
-            top += 1
+        first, last = np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64)
+        first[0], last[0] = -1, n - 1  # grid index -1 is ω = 0, count 0
+        ranges = 1
+        while ranges > 0:
+            ranges -= 1
+            i, j = first[ranges], last[ranges]
+            ci = counts[i] if i >= 0 else 0
+            if counts[j] == ci or ci >= want:
+                continue
+            if j == i + 1:
+                lo[top], hi[top] = (grid[i] if i >= 0 else 0.0), grid[j]
+                nlo[top], nhi[top] = ci, counts[j]
+                top += 1
+                continue
+            mid = (i + j) // 2
+            v, ok = _count_point(c, grid[mid], kind, beam, flat, gather, ratio, R3, M, G,
+                                 axis, stiffness, vals, Tc, B)
+            counts[mid] = int(v)
+            if not ok or not (ci <= counts[mid] <= counts[j]) or ranges + 2 > size:
+                broken = True
+                break
+            first[ranges], last[ranges] = mid, j
+            first[ranges + 1], last[ranges + 1] = i, mid
+            ranges += 2
+        if broken:
+            status[c] = SEARCH_BREAKDOWN
+            continue
         roots = np.empty(width)
         mult = np.empty(width, dtype=np.int64)
         found = 0

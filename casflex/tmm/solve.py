@@ -23,7 +23,6 @@ mode shapes span the null space (orthonormal in base-reaction space, from an SVD
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -32,13 +31,12 @@ from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError, SolverError
 from casflex.tmm import elements as el
-from casflex.tmm import kernels
+from casflex.tmm import fast, kernels
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
 from casflex.tmm.conditioning import (
     check_chain,
     describe,
     format_q,
-    lowest_beam_frequency,
     stiffness_spread,
 )
 
@@ -82,22 +80,12 @@ class _Stack:
         self.size = len(chains)
         self.chains = chains
         check_chain(first)
-        self.cap = _omega_cap(first)
-        # lowest cantilever frequency of the whole length with the softest section: a
-        # scale for the first search grid [rad/s]
-        total = sum(b.params["length"] for b in first.beams) or 1.0
-        soft = [b.params["material"].E * min(b.params["section"].Ix, b.params["section"].Iy)
-                / (b.params["material"].rho * b.params["section"].A) for b in first.beams]
-        self.reference_frequency = (1.875 / total) ** 2 * np.sqrt(min(soft)) if soft else 1.0
-        # the lowest clamped–free frequency of any beam in bending, torsion or tension: the
-        # scale of the static probe (a robot whose torsion is far softer than its bending
-        # has natural frequencies far below reference_frequency)
-        self.lowest_beam_frequency = min(
-            [self.reference_frequency] + [lowest_beam_frequency(b) for b in first.beams])
+        self.cap, self.reference_frequency, self.lowest_beam_frequency = fast.search_scales(
+            first)
         self.items = []
         for j, e in enumerate(first.elements):
             same = [chain.elements[j] for chain in chains]
-            data = {"element": e}
+            data = {"element": e, "R3": np.array([x.R for x in same])}
             if e.kind == "beam":
                 R = np.array([x.R for x in same])
                 data["R12"] = np.array([x.rotation12 for x in same])
@@ -464,20 +452,6 @@ def _refine(stack, cfg, a, b, points=12, rounds=3):
     return root, ok
 
 
-def _omega_cap(chain, lambda_l=80.0):
-    """Highest ω [rad/s] at which every beam keeps λL ≤ ``lambda_l`` (cosh within range)."""
-    cap = np.inf
-    for b in chain.beams:
-        sec, mat, L = b.params["section"], b.params["material"], b.params["length"]
-        ei = mat.E * min(sec.Ix, sec.Iy)
-        cap = min(cap, (lambda_l / L) ** 2 * np.sqrt(ei / (mat.rho * sec.A)))
-    return cap
-
-
-#: the static probe of the root search, relative to the lowest beam frequency
-_STATIC_PROBE = 1e-6
-
-
 def _check_counts(stack, points, counts):
     """Breakdown unless the counts are 0 at the probe and never decrease with ω."""
     spurious = counts[:, 0] > 0
@@ -497,26 +471,14 @@ def _check_counts(stack, points, counts):
             "ill-conditioned)"))
 
 
-@functools.lru_cache(maxsize=64)
-def _geomspace(start, stop, num):
-    """``np.geomspace``, kept: every configuration of a robot searches the same grid."""
-    grid = np.geomspace(start, stop, num)
-    grid.flags.writeable = False
-    return grid
-
-
 def _roots(stack, count, omega_max, double_tol, rtol):
     """Roots of every configuration of ``stack``: list of (values, multiplicities)."""
     C = stack.size
-    if omega_max is None:
-        ref = stack.reference_frequency
-        grid = _geomspace(float(1e-3 * ref), float(1e2 * ref), 36)
-    else:
-        grid = _geomspace(float(min(1e-2, omega_max / 10.0)), float(omega_max), 32)
     # with the grid, a probe far below any physical natural frequency (1e-6 of the softest
     # beam's cantilever frequency): a clamped structure has a positive definite static
     # stiffness, so a count above 0 there means the condensation lost its precision
-    probe = _STATIC_PROBE * stack.lowest_beam_frequency
+    probe, grid = fast.search_points(stack.reference_frequency, stack.lowest_beam_frequency,
+                                     omega_max)
     points = np.concatenate([[probe], grid])
     if stack.kernel is not None:  # the whole search compiled; the path below diagnoses
         found = kernels.search(stack.kernel, points, stack.cap, count, omega_max, double_tol,
@@ -652,8 +614,13 @@ def natural_frequencies(chain_or_robot: Chain | Robot, q: ArrayLike | None = Non
     """
     if count is None and omega_max is None:
         raise ValueError("give count, omega_max or both")
-    chain = _as_chain(chain_or_robot, q)
-    values, multiplicity = _roots(_Stack([chain]), count, omega_max, double_tol, rtol)[0]
+    found = None
+    if not isinstance(chain_or_robot, Chain):
+        found, _ = fast.roots(chain_or_robot, q, count, omega_max, double_tol, rtol)
+    if found is None:
+        chain = _as_chain(chain_or_robot, q)
+        found = _roots(_Stack([chain]), count, omega_max, double_tol, rtol)
+    values, multiplicity = found[0]
     if return_multiplicity:
         return values, multiplicity
     return values
@@ -688,8 +655,10 @@ def sweep_frequencies(robot: Robot, qs: ArrayLike, count: int, *, double_tol: fl
     array([[ 8.31, 11.97],
            [ 6.61,  9.31]])
     """
-    chains = [build_chain(robot, q) for q in np.atleast_2d(np.asarray(qs, dtype=float))]
-    roots = _roots(_Stack(chains), count, None, double_tol, rtol)
+    roots, _ = fast.roots(robot, qs, count, None, double_tol, rtol)
+    if roots is None:
+        chains = [build_chain(robot, q) for q in np.atleast_2d(np.asarray(qs, dtype=float))]
+        roots = _roots(_Stack(chains), count, None, double_tol, rtol)
     return np.array([values for values, _ in roots])
 
 
@@ -839,6 +808,12 @@ def _shapes(chain, stack, omega, multiplicity, n_points):
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
     m = omega.size
     mult = np.ones(m, dtype=int) if multiplicity is None else np.asarray(multiplicity, int)
+    if stack.kernel is not None:
+        arrays = dict(stack.kernel, start=np.array([[e.start for e in chain.elements]]))
+        shapes = _compiled_shapes(fast.shape_layout(chain.elements, n_points), arrays,
+                                  omega, mult)
+        if shapes is not None:
+            return shapes
     # base reactions f0 of every mode; a k-fold root contributes k basis vectors
     f0 = np.empty((m, 6))
     cfg = np.zeros(m, dtype=int)
@@ -982,9 +957,24 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     """
     if count is None and omega_max is None:
         raise ValueError("give count, omega_max or both")
+    found, posed = fast.roots(robot, q, count, omega_max, 1e-9, 1e-12)  # the defaults
+    if found is not None:
+        w, mult = found[0]
+        if (mult == 1).all():  # simple roots: the compiled shapes
+            shapes = _compiled_shapes(posed[0].shape_layout(n_points), posed[1], w, mult)
+            if shapes is not None:
+                return shapes
     chain = build_chain(robot, q)
     stack = _Stack([chain])  # one stack for the roots and the shapes
-    w, _ = _roots(stack, count, omega_max, 1e-9, 1e-12)[0]  # natural_frequencies' defaults
-    # a k-fold root cut short by `count` keeps the entries present: that many basis vectors
+    if found is None:
+        found = _roots(stack, count, omega_max, 1e-9, 1e-12)
+    w = found[0][0]
     present = np.array([int(np.count_nonzero(w == v)) for v in w], dtype=int)
     return _shapes(chain, stack, w, present, n_points)
+
+
+def _compiled_shapes(layout, arrays, omega, multiplicity):
+    """:func:`mode_shapes` by the compiled kernel (:func:`casflex.tmm.fast.compiled_shapes`)
+    or None (a multiple root, no kernels, no null vector: the numpy path)."""
+    fields = fast.compiled_shapes(layout, arrays, omega, multiplicity)
+    return None if fields is None else ModeShapes(**fields)
