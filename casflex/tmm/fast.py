@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -831,15 +832,20 @@ _SHAPE_FIELDS = ("displacement", "rotation", "moment", "force", "slope", "curvat
                  "twist_rate", "axial_strain", "body_state", "body_state_local",
                  "spring_rotation")
 _KERNELS: dict = {}
+_COMPILE_LOCK = threading.Lock()
 
 
 def _compile():
-    """Wrap the kernels with numba once (cached machine code, as in kernels.py)."""
+    """Wrap the kernels with numba once (cached machine code, as in kernels.py), under a
+    lock: Dask worker threads of one process may call this at the same time."""
     if _KERNELS:
         return
-    import numba
+    with _COMPILE_LOCK:
+        if _KERNELS:
+            return
+        import numba
 
-    jit = numba.njit(cache=True)
-    global _null_vector
-    _null_vector = jit(_null_vector)
-    _KERNELS.update(pose=jit(_pose), shapes=jit(_shapes))
+        jit = numba.njit(cache=True)
+        global _null_vector
+        _null_vector = jit(_null_vector)
+        _KERNELS.update(pose=jit(_pose), shapes=jit(_shapes))

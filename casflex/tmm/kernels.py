@@ -30,6 +30,7 @@ Data layout (C configurations, E elements): ``kind`` (E,) with 0 beam, 1 body, 2
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 
@@ -860,9 +861,20 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
     return values, multiplicity, filled, status
 
 
+_COMPILE_LOCK = threading.Lock()
+
+
 def _compile():
     """Import numba and wrap the kernels (their machine code is compiled on first call,
-    or read from numba's cache); without numba, ``AVAILABLE`` is False."""
+    or read from numba's cache); without numba, ``AVAILABLE`` is False. Once, under a
+    lock: two threads (Dask workers of one process) would otherwise both wrap the helpers,
+    and numba refuses to wrap a function twice."""
+    with _COMPILE_LOCK:
+        if "AVAILABLE" not in globals():
+            _wrap_kernels()
+
+
+def _wrap_kernels():
     g = globals()
     try:
         import numba
