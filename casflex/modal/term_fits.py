@@ -79,7 +79,7 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
                     omega_target: float = OMEGA_TARGET, start_degree: int = 8,
                     max_degree: int = 64, extra_modes: int = 2, gap: float = DEFAULT_GAP,
                     held_out: ArrayLike | None = None, processes: int | None = None,
-                    progress: bool = False) -> ChebyshevFit:
+                    progress: bool = False, gauge: str = "neighbour") -> ChebyshevFit:
     """Fit every model term (and ω) over the joint box with tensor Chebyshev series.
 
     Parameters
@@ -117,6 +117,13 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         Local worker processes (default ``os.cpu_count()``).
     progress : bool
         Progress bars on stderr.
+    gauge : {"neighbour", "reference"}
+        How the smooth basis is chosen within each cluster: Procrustes against the grid
+        neighbours (:func:`casflex.modal.subspace.smooth_basis`), or against one fixed
+        reference basis, the eigenmodes at the box's centre
+        (:func:`casflex.modal.gauge.reference_basis`: analytic in the joints, so the fits
+        converge geometrically; ``info["min_overlap"]`` is the smallest singular value of
+        the overlap with the reference).
 
     Returns
     -------
@@ -159,7 +166,12 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     if not (target > 0.0 and omega_target > 0.0):
         raise ModelError(f"targets must be positive relative errors; got {target!r}, "
                          f"{omega_target!r}")
+    if gauge not in ("neighbour", "reference"):
+        raise ModelError(f"gauge must be 'neighbour' or 'reference'; got {gauge!r}")
     nd, count = len(joints), int(n_modes) + int(extra_modes)
+    reference = None
+    if basis == "smooth" and gauge == "reference":
+        reference = _reference(robot, joints, box, count, int(n_modes))
     degrees = [int(start_degree)] * nd
     solved: dict[tuple[float, ...], Any] = {}
     while True:
@@ -174,12 +186,12 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
             for r, key in enumerate(chunk):
                 qs[r, list(joints)] = key
             solved.update(zip(chunk, _solve(func, robot, qs, count, int(n_modes), basis,
-                                            processes, progress), strict=True))
+                                            processes, progress, reference), strict=True))
         raw = np.empty(gshape, dtype=object)
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
             raw[idx] = solved[key][0]
-        data, tracking = _basis_terms(raw, [solved[k] for k in keys], gshape, int(n_modes),
-                                      robot, basis, gap)
+        data, tracking, low = _basis_terms(raw, [solved[k] for k in keys], gshape,
+                                           int(n_modes), robot, basis, gap, reference)
         coefficients = {k: chebyshev_coefficients(v, nd) for k, v in data.items()}
         estimate, per_axis = _estimates(data, coefficients, nd, target, omega_target)
         grow = [ax for ax in range(nd) if per_axis[ax] > 1.0 and degrees[ax] < max_degree]
@@ -194,7 +206,9 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
             "converged": bool(max(per_axis) <= 1.0), "basis": basis,
             "quantity": "model terms", "periodic": _periodic(box, data, estimate),
             "min_mac": float(np.nanmin(tracking.mac)) if np.isfinite(tracking.mac).any()
-            else 1.0}
+            else (None if reference is not None else 1.0), "gauge": gauge}
+    if low is not None:
+        info["min_overlap"] = float(np.min(low))
     fit = ChebyshevFit(box=box, shape_joints=joints, degrees=tuple(degrees),
                        coefficients=coefficients, clusters=clusters, info=info)
     if held_out is not None:
@@ -204,7 +218,20 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     return fit
 
 
-def _solve(func, robot, qs, count, n_modes, basis, processes, progress):
+def _reference(robot, joints, box, count, n_modes):
+    """Mass-orthonormal feature rows of the eigenmodes at the box's centre."""
+    from casflex.modal.gauge import reference_rows
+    from casflex.modal.subspace import point_features
+    from casflex.modal.tables import compute_modes
+
+    q = np.zeros(robot.n_joints)
+    q[list(joints)] = [0.5 * (lo + hi) for lo, hi in box]
+    features, mass = point_features(compute_modes(robot, q[None, :], count, processes=1)[0],
+                                    robot)
+    return reference_rows(features, mass, n_modes)
+
+
+def _solve(func, robot, qs, count, n_modes, basis, processes, progress, reference=None):
     """Per configuration: (raw modes or, in the smooth basis, the features and modal mass
     of the lowest ``n_modes`` — all the tracking needs, a tenth of the shapes' size),
     normalised quantities, S⁻¹."""
@@ -212,14 +239,14 @@ def _solve(func, robot, qs, count, n_modes, basis, processes, progress):
     from casflex.modal.tables import compute_modes
 
     shapes = compute_modes(robot, qs, count, processes=processes, progress=progress)
-    jobs = [(r, (func, robot, q, s, basis, n_modes))
+    jobs = [(r, (func, robot, q, s, basis, n_modes, reference))
             for r, (q, s) in enumerate(zip(qs, shapes, strict=True))]
     got = dict(parallel_map(_point_terms, jobs, processes=processes, progress=progress,
                             desc="quantities"))
     return [((shapes[r] if basis == "eigen" else None),) + got[r] for r in range(len(qs))]
 
 
-def _point_terms(func, robot, q, shapes, basis, n_modes):
+def _point_terms(func, robot, q, shapes, basis, n_modes, reference=None):
     """Normalised quantities, S⁻¹ and (smooth basis) the tracking features of one point.
 
     The eigen basis may take tracked modes from above ``n_modes`` (crossings): every
@@ -232,16 +259,37 @@ def _point_terms(func, robot, q, shapes, basis, n_modes):
         return normalized_quantities(func, robot, q, shapes) + (None, None, None)
     values, S_inv = normalized_quantities(func, robot, q, shapes, n_modes)
     features, mass = point_features(shapes, robot)
-    return (values, S_inv, features[:n_modes], mass[:n_modes, :n_modes],
+    features = features[:n_modes] if reference is None else reference @ features[:n_modes].T
+    return (values, S_inv, features, mass[:n_modes, :n_modes],
             np.asarray(shapes.omega, dtype=float))
 
 
-def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap):
-    """Every term of the chosen basis over the sample grid (``grid_shape + value``)."""
-    from casflex.modal.subspace import track_features_smooth
+def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap, reference=None):
+    """Every term of the chosen basis over the sample grid (``grid_shape + value``), the
+    tracking, and (reference gauge) the smallest overlap with the reference per point."""
+    from casflex.modal.gauge import MIN_OVERLAP, reference_basis
+    from casflex.modal.subspace import mode_clusters, track_features_smooth
     from casflex.modal.tracking import track_grid
 
-    if basis == "smooth":
+    low = None
+    if reference is not None:
+        overlap = np.array([p[3] for p in per_point]).reshape(gshape + (n_modes, n_modes))
+        mass = np.array([p[4] for p in per_point]).reshape(gshape + (n_modes, n_modes))
+        omega = np.array([p[5] for p in per_point]).reshape(gshape + per_point[0][5].shape)
+        clusters = mode_clusters(omega, n_modes, gap)
+        if clusters[-1][-1] + 1 != n_modes:
+            raise ModelError(f"{n_modes} modes split the cluster of close modes "
+                             f"{[k + 1 for k in clusters[-1]]} (relative gap < {gap:g} "
+                             f"somewhere): use {clusters[-1][-1] + 1} modes")
+        tracking, low = reference_basis(overlap, omega, clusters, mass)
+        if float(np.min(low)) < MIN_OVERLAP:
+            where = np.unravel_index(int(np.argmin(low)), low.shape)
+            raise ModelError(f"the reference gauge breaks down: at sample {where[:-1]} the "
+                             f"subspace of modes {[k + 1 for k in clusters[where[-1]]]} is "
+                             f"nearly orthogonal to the box centre's (overlap "
+                             f"{float(np.min(low)):.3g} < {MIN_OVERLAP}); use "
+                             "gauge='neighbour' or a smaller box")
+    elif basis == "smooth":
         features = np.empty(gshape, dtype=object)
         for idx, point in zip(np.ndindex(gshape), per_point, strict=True):
             features[idx] = point[3]
@@ -262,7 +310,7 @@ def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap):
     data = {k: np.array(v).reshape(gshape + v[0].shape) for k, v in stacks.items()}
     if basis == "smooth":
         data.update(stiffness_values(tracking), omega=tracking.omega)
-    return data, tracking
+    return data, tracking, low
 
 
 #: the tail estimate is this multiple of the larger of the two highest coefficients: the
