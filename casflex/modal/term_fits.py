@@ -79,7 +79,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
                     omega_target: float = OMEGA_TARGET, start_degree: int = 8,
                     max_degree: int = 64, extra_modes: int = 2, gap: float = DEFAULT_GAP,
                     held_out: ArrayLike | None = None, processes: int | None = None,
-                    progress: bool = False, gauge: str = "neighbour") -> ChebyshevFit:
+                    progress: bool = False, gauge: str = "neighbour",
+                    reference_degree: int = 4) -> ChebyshevFit:
     """Fit every model term (and ω) over the joint box with tensor Chebyshev series.
 
     Parameters
@@ -119,11 +120,15 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         Progress bars on stderr.
     gauge : {"neighbour", "reference"}
         How the smooth basis is chosen within each cluster: Procrustes against the grid
-        neighbours (:func:`casflex.modal.subspace.smooth_basis`), or against one fixed
-        reference basis, the eigenmodes at the box's centre
-        (:func:`casflex.modal.gauge.reference_basis`: analytic in the joints, so the fits
-        converge geometrically; ``info["min_overlap"]`` is the smallest singular value of
-        the overlap with the reference).
+        neighbours (:func:`casflex.modal.subspace.smooth_basis`), or against a fixed
+        polynomial reference field (:func:`casflex.modal.gauge.reference_basis`: analytic
+        in the joints, so the fits converge geometrically; ``info["min_overlap"]`` is the
+        smallest singular value of the overlap with the reference).
+    reference_degree : int
+        Degree per axis of the reference field (``gauge="reference"``): the neighbour
+        basis at the Lobatto points of that degree, interpolated by its Chebyshev
+        polynomial; ``0`` takes the eigenmodes at the box's centre everywhere. Its points
+        are nested in the fit's when it divides ``start_degree``.
 
     Returns
     -------
@@ -169,11 +174,16 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     if gauge not in ("neighbour", "reference"):
         raise ModelError(f"gauge must be 'neighbour' or 'reference'; got {gauge!r}")
     nd, count = len(joints), int(n_modes) + int(extra_modes)
-    reference = None
-    if basis == "smooth" and gauge == "reference":
-        reference = _reference(robot, joints, box, count, int(n_modes))
+    if not (isinstance(reference_degree, (int, np.integer)) and reference_degree >= 0
+            and reference_degree != 1):
+        raise ModelError(f"reference_degree must be 0 or an integer >= 2; got "
+                         f"{reference_degree!r}")
     degrees = [int(start_degree)] * nd
     solved: dict[tuple[float, ...], Any] = {}
+    reference = None
+    if basis == "smooth" and gauge == "reference":
+        reference = _reference_field(func, robot, joints, box, count, int(n_modes),
+                                     int(reference_degree), gap, solved, processes, progress)
     while True:
         axes = [lobatto_points(lo, hi, d) for (lo, hi), d in zip(box, degrees, strict=True)]
         gshape = tuple(a.size for a in axes)
@@ -185,8 +195,10 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
             qs = np.zeros((len(chunk), robot.n_joints))
             for r, key in enumerate(chunk):
                 qs[r, list(joints)] = key
-            solved.update(zip(chunk, _solve(func, robot, qs, count, int(n_modes), basis,
-                                            processes, progress, reference), strict=True))
+            got = _solve(func, robot, qs, count, int(n_modes), basis, processes, progress)
+            if reference is not None:  # features -> overlap with the reference field
+                got = _overlaps(got, reference, qs[:, list(joints)])
+            solved.update(zip(chunk, got, strict=True))
         raw = np.empty(gshape, dtype=object)
         for idx, key in zip(np.ndindex(gshape), keys, strict=True):
             raw[idx] = solved[key][0]
@@ -213,25 +225,68 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
                        coefficients=coefficients, clusters=clusters, info=info)
     if held_out is not None:
         info["held_out"] = _held_out(fit, func, robot, held_out, raw, tracking, axes,
-                                     data, count)
+                                     data, count, reference)
     info["seconds"] = time.perf_counter() - t0
     return fit
 
 
-def _reference(robot, joints, box, count, n_modes):
-    """Mass-orthonormal feature rows of the eigenmodes at the box's centre."""
+def _reference_field(func, robot, joints, box, count, n_modes, degree, gap, solved,
+                     processes, progress):
+    """The reference of the fixed gauge as a Chebyshev series of mass-orthonormal feature
+    rows (``"rows"``, n × f): the neighbour basis at the Lobatto points of ``degree``, or
+    the eigenmodes at the box's centre (``degree`` 0). The points solved for it go to
+    ``solved`` with their features replaced by their overlap with the field."""
     from casflex.modal.gauge import reference_rows
-    from casflex.modal.subspace import point_features
-    from casflex.modal.tables import compute_modes
+    from casflex.modal.subspace import track_features_smooth
 
-    q = np.zeros(robot.n_joints)
-    q[list(joints)] = [0.5 * (lo + hi) for lo, hi in box]
-    features, mass = point_features(compute_modes(robot, q[None, :], count, processes=1)[0],
-                                    robot)
-    return reference_rows(features, mass, n_modes)
+    nd = len(joints)
+    if degree == 0:
+        q = np.zeros((1, robot.n_joints))
+        q[0, list(joints)] = [0.5 * (lo + hi) for lo, hi in box]
+        _, _, _, features, mass, _ = _solve(func, robot, q, count, n_modes, "smooth", 1,
+                                            False)[0]
+        rows = reference_rows(features, mass, n_modes)
+        return ChebyshevFit(box=box, shape_joints=joints, degrees=(0,) * nd,
+                            coefficients={"rows": rows.reshape((1,) * nd + rows.shape)},
+                            clusters=())
+    axes = [lobatto_points(lo, hi, degree) for lo, hi in box]
+    gshape = tuple(a.size for a in axes)
+    keys = [tuple(float(a[i]) for a, i in zip(axes, idx, strict=True))
+            for idx in np.ndindex(gshape)]
+    qs = np.zeros((len(keys), robot.n_joints))
+    qs[:, list(joints)] = keys
+    got = _solve(func, robot, qs, count, n_modes, "smooth", processes, progress)
+    features = np.empty(gshape, dtype=object)
+    for idx, p in zip(np.ndindex(gshape), got, strict=True):
+        features[idx] = p[3]
+    mass = np.array([p[4] for p in got]).reshape(gshape + (n_modes, n_modes))
+    omega = np.array([p[5] for p in got]).reshape(gshape + got[0][5].shape)
+    sb = track_features_smooth(features, omega, n_modes, mass, gap)
+    rows = np.array([sb.transform[idx] @ features[idx] for idx in np.ndindex(gshape)])
+    field = ChebyshevFit(box=box, shape_joints=joints, degrees=(degree,) * nd,
+                         coefficients={"rows": chebyshev_coefficients(
+                             rows.reshape(gshape + rows.shape[1:]), nd)},
+                         clusters=sb.clusters, info={"min_mac": sb.min_mac})
+    solved.update(zip(keys, _overlaps(got, field, qs[:, list(joints)]), strict=True))
+    return field
 
 
-def _solve(func, robot, qs, count, n_modes, basis, processes, progress, reference=None):
+def _overlaps(got, field, x):
+    """Per point: the features (slot 3) replaced by ``rows(x) @ features.T``, with the
+    reference field's rows evaluated at all the points at once."""
+    coef = field.coefficients["rows"]
+    t = [(2.0 * x[:, ax] - (lo + hi)) / (hi - lo) for ax, (lo, hi) in enumerate(field.box)]
+    out = None
+    for ax, tx in enumerate(t):
+        n = coef.shape[ax]
+        T = np.cos(np.arange(n)[None, :] * np.arccos(np.clip(tx, -1.0, 1.0))[:, None])
+        out = (np.tensordot(T, coef, axes=(1, 0)) if out is None
+               else np.einsum("ki,ki...->k...", T, out))
+    return [p[:3] + (rows @ np.asarray(p[3]).T,) + p[4:]
+            for p, rows in zip(got, out, strict=True)]
+
+
+def _solve(func, robot, qs, count, n_modes, basis, processes, progress):
     """Per configuration: (raw modes or, in the smooth basis, the features and modal mass
     of the lowest ``n_modes`` — all the tracking needs, a tenth of the shapes' size),
     normalised quantities, S⁻¹."""
@@ -239,14 +294,14 @@ def _solve(func, robot, qs, count, n_modes, basis, processes, progress, referenc
     from casflex.modal.tables import compute_modes
 
     shapes = compute_modes(robot, qs, count, processes=processes, progress=progress)
-    jobs = [(r, (func, robot, q, s, basis, n_modes, reference))
+    jobs = [(r, (func, robot, q, s, basis, n_modes))
             for r, (q, s) in enumerate(zip(qs, shapes, strict=True))]
     got = dict(parallel_map(_point_terms, jobs, processes=processes, progress=progress,
                             desc="quantities"))
     return [((shapes[r] if basis == "eigen" else None),) + got[r] for r in range(len(qs))]
 
 
-def _point_terms(func, robot, q, shapes, basis, n_modes, reference=None):
+def _point_terms(func, robot, q, shapes, basis, n_modes):
     """Normalised quantities, S⁻¹ and (smooth basis) the tracking features of one point.
 
     The eigen basis may take tracked modes from above ``n_modes`` (crossings): every
@@ -259,8 +314,7 @@ def _point_terms(func, robot, q, shapes, basis, n_modes, reference=None):
         return normalized_quantities(func, robot, q, shapes) + (None, None, None)
     values, S_inv = normalized_quantities(func, robot, q, shapes, n_modes)
     features, mass = point_features(shapes, robot)
-    features = features[:n_modes] if reference is None else reference @ features[:n_modes].T
-    return (values, S_inv, features, mass[:n_modes, :n_modes],
+    return (values, S_inv, features[:n_modes], mass[:n_modes, :n_modes],
             np.asarray(shapes.omega, dtype=float))
 
 
@@ -380,7 +434,33 @@ def _invariant(name, value):
     return L.T @ L
 
 
-def _held_out(fit, func, robot, qs, raw, tracking, axes, data, count):
+def _entrywise(errors, fit, func, robot, q, shapes, reference, data):
+    """The reference gauge defines the basis at any configuration, not only on the grid:
+    the direct solve is put in that basis and every entry of every term compared (relative
+    to the term's peak; ω of the eigenvalues of ``K̃``, relative)."""
+    from casflex.modal.gauge import reference_basis
+
+    n = sum(len(c) for c in fit.clusters)
+    x = q[list(fit.shape_joints)]
+    point = (None,) + _point_terms(func, robot, q, shapes, "smooth", n)
+    point = _overlaps([point], reference, x[None, :])[0]
+    values, S_inv, overlap, mass, omega = point[1:]
+    sb, _ = reference_basis(overlap[None], omega[None], fit.clusters, mass[None])
+    direct = rotate_quantities(values, sb.transform[0] @ S_inv)
+    direct.update({k: v[0] for k, v in stiffness_values(sb).items()})
+    K = fit.evaluate("stiffness", x)
+    w = np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (K + K.T)), 0.0, None))
+    errors["omega"] = max(errors.get("omega", 0.0),
+                          float(np.max(np.abs(w / omega[:n] - 1.0))))
+    for name, ref in direct.items():
+        if not ref.size or name not in fit.coefficients:
+            continue
+        peak = float(np.max(np.abs(data[name])))
+        err = float(np.max(np.abs(fit.evaluate(name, x) - ref))) / peak if peak else 0.0
+        errors[name] = max(errors.get(name, 0.0), err)
+
+
+def _held_out(fit, func, robot, qs, raw, tracking, axes, data, count, reference=None):
     """Largest error of every term at ``qs`` against direct TMM (module notes)."""
     from casflex.modal.tables import compute_modes
     from casflex.modal.tracking import combine, correlation
@@ -391,6 +471,9 @@ def _held_out(fit, func, robot, qs, raw, tracking, axes, data, count):
     direct_shapes = compute_modes(robot, qs, count, processes=1)
     for q, shapes in zip(qs, direct_shapes, strict=True):
         x = q[joints]
+        if reference is not None:
+            _entrywise(errors, fit, func, robot, q, shapes, reference, data)
+            continue
         values, S_inv = normalized_quantities(func, robot, q, shapes)
         if fit.info["basis"] == "smooth":
             K = fit.evaluate("stiffness", x)
