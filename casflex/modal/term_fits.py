@@ -289,16 +289,24 @@ def _overlaps(got, field, x):
 def _solve(func, robot, qs, count, n_modes, basis, processes, progress):
     """Per configuration: (raw modes or, in the smooth basis, the features and modal mass
     of the lowest ``n_modes`` — all the tracking needs, a tenth of the shapes' size),
-    normalised quantities, S⁻¹."""
+    normalised quantities, S⁻¹. One task per point does the TMM and the quantities, so
+    that the mode shapes (~0.1 MB a point for three flexible links) never travel between
+    processes in the smooth basis."""
     from casflex._parallel import parallel_map
+
+    jobs = [(r, (func, robot, q, count, basis, n_modes)) for r, q in enumerate(qs)]
+    got = dict(parallel_map(_point_solve, jobs, processes=processes, progress=progress,
+                            desc="TMM and terms"))
+    return [got[r] for r in range(len(qs))]
+
+
+def _point_solve(func, robot, q, count, basis, n_modes):
+    """Raw modes at ``q`` (kept in the eigen basis only) and :func:`_point_terms`."""
     from casflex.modal.tables import compute_modes
 
-    shapes = compute_modes(robot, qs, count, processes=processes, progress=progress)
-    jobs = [(r, (func, robot, q, s, basis, n_modes))
-            for r, (q, s) in enumerate(zip(qs, shapes, strict=True))]
-    got = dict(parallel_map(_point_terms, jobs, processes=processes, progress=progress,
-                            desc="quantities"))
-    return [((shapes[r] if basis == "eigen" else None),) + got[r] for r in range(len(qs))]
+    shapes = compute_modes(robot, np.asarray(q)[None, :], count, processes=1)[0]
+    return ((shapes if basis == "eigen" else None),) + _point_terms(func, robot, q, shapes,
+                                                                      basis, n_modes)
 
 
 def _point_terms(func, robot, q, shapes, basis, n_modes):
