@@ -74,7 +74,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: meeting, and that fit takes clusters of two at most; the stiffness fit keeps 0.05)
 CASES = {"arm2link": ("problems/arm2link.toml", 4, 64, True, 0.01),
          "arm4_spatial": ("problems/arm4_spatial.toml", 4, 64, True, 0.05),
-         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 8, False, 0.05)}
+         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 16, False, 0.05)}
 
 
 def _heldout_configurations(robot, count):
@@ -90,7 +90,14 @@ def _dir_mb(path):
     return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) / 1e6
 
 
-def run_one(case, method, heldout, processes, max_degree_cap=None):
+def _cpu_seconds():
+    """CPU time of this process and its finished children [s] (user + system)."""
+    own, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF,
+                                                  resource.RUSAGE_CHILDREN))
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def run_one(case, method, heldout, processes, max_degree_cap=None, fit_options=None):
     """One (case, method) in this process; returns the figures as a dict."""
     from casflex.modal import build_table, fit_chebyshev, shape_joints
     from casflex.model.build import default_grid
@@ -108,13 +115,14 @@ def run_one(case, method, heldout, processes, max_degree_cap=None):
     ref = np.array([natural_frequencies(robot, q, count=n_modes) for q in qs])
     out = {"case": case, "method": method, "shape_joints": [k + 1 for k in joints],
            "n_modes": n_modes}
+    cpu0 = _cpu_seconds()
     with tempfile.TemporaryDirectory() as cache:
         t0 = time.perf_counter()
         if method == "tracking":
             return _tracking(out, robot, joints, n_modes, qs, ref, cache, processes)
         if method in ("grid_terms", "fit_terms"):
             got = _terms(out, method, robot, joints, n_modes, qs, cache, processes,
-                         max_degree)
+                         max_degree, fit_options or {})
             seconds = out.pop("seconds")
         elif method == "grid":
             grid = default_grid(robot, joints)
@@ -145,14 +153,16 @@ def run_one(case, method, heldout, processes, max_degree_cap=None):
                        estimate=fit.info["estimate"], converged=fit.info["converged"],
                        min_mac=fit.info["min_mac"], cache_mb=0.0)
     err = np.abs(got / ref - 1.0)
-    out.update(seconds=seconds, heldout=int(heldout), heldout_max_rel=float(err.max()),
+    out.update(seconds=seconds, cpu_seconds=_cpu_seconds() - cpu0, heldout=int(heldout),
+               heldout_max_rel=float(err.max()),
                heldout_per_mode=err.max(axis=0).tolist(),
                rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                rss_workers_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0)
     return out
 
 
-def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree):
+def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree,
+           fit_options):
     """Grid or fit of every model term; fills ``out`` and returns ω at ``qs`` (sorted)."""
     from casflex.modal import build_table, fit_model_terms
     from casflex.model.build import default_grid
@@ -173,12 +183,14 @@ def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree
     else:
         fit = fit_model_terms(robot, n_modes, basis=basis, processes=processes,
                               start_degree=min(8, max_degree), max_degree=max_degree,
-                              held_out=qs)
+                              held_out=qs, **(fit_options if basis == "smooth" else {}))
         out["seconds"] = time.perf_counter() - t0
         out.update(points=fit.info["points"], degrees=list(fit.degrees), basis=basis,
                    estimate=fit.info["estimate"], converged=fit.info["converged"],
                    min_mac=fit.info["min_mac"], cache_mb=0.0,
-                   heldout_terms=fit.info["held_out"],
+                   heldout_terms=fit.info["held_out"], gauge=fit.info["gauge"],
+                   axis_ratio=fit.info["axis_ratio"],
+                   min_overlap=fit.info.get("min_overlap"),
                    values_mb=sum(c.nbytes for c in fit.coefficients.values()) / 1e6)
 
         def f(x, name="omega" if basis == "eigen" else "stiffness"):
@@ -231,11 +243,21 @@ def main(argv=None):
     ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
     ap.add_argument("--max-degree", type=int, default=None,
                     help="cap the fits' degree per axis (reduced runs)")
+    ap.add_argument("--gauge", choices=["neighbour", "reference"], default="reference",
+                    help="smooth-basis gauge of fit_terms (two or more shape joints)")
+    ap.add_argument("--reference-degree", type=int, default=4,
+                    help="degree of the reference field (gauge 'reference')")
+    ap.add_argument("--refine", choices=["all", "worst"], default="all",
+                    help="fit_terms: double every axis over target, or the worst one")
+    ap.add_argument("--max-points", type=int, default=None,
+                    help="fit_terms: stop refining before a grid of more points")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    fit_options = {"gauge": args.gauge, "reference_degree": args.reference_degree,
+                   "refine": args.refine, "max_points": args.max_points}
     if args.one:
         print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes,
-                                 args.max_degree)))
+                                 args.max_degree, fit_options)))
         return 0
     results = []
     load_before = os.getloadavg()
@@ -247,6 +269,10 @@ def main(argv=None):
                 cmd += ["--processes", str(args.processes)]
             if args.max_degree is not None:
                 cmd += ["--max-degree", str(args.max_degree)]
+            if args.max_points is not None:
+                cmd += ["--max-points", str(args.max_points)]
+            cmd += ["--gauge", args.gauge, "--reference-degree", str(args.reference_degree),
+                    "--refine", args.refine]
             done = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if done.returncode != 0:
                 sys.stderr.write(done.stderr)

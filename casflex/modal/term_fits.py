@@ -80,7 +80,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
                     max_degree: int = 64, extra_modes: int = 2, gap: float = DEFAULT_GAP,
                     held_out: ArrayLike | None = None, processes: int | None = None,
                     progress: bool = False, gauge: str = "neighbour",
-                    reference_degree: int = 4) -> ChebyshevFit:
+                    reference_degree: int = 4, refine: str = "all",
+                    max_points: int | None = None) -> ChebyshevFit:
     """Fit every model term (and ω) over the joint box with tensor Chebyshev series.
 
     Parameters
@@ -107,6 +108,12 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         Relative error target of ω (dimensionless).
     start_degree, max_degree : int
         First and largest degree per axis (the degree doubles).
+    refine : {"all", "worst"}
+        Each round doubles the degree of every axis over its target, or only of the axis
+        furthest over it (dimension-adaptive: axes that vary little keep few points).
+    max_points : int, optional
+        Stop refining before a grid of more points (the fit is then reported
+        ``converged=False`` if a target is still missed).
     extra_modes : int
         Modes computed beyond ``n_modes`` (modes crossing in from above).
     gap : float
@@ -135,7 +142,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     ChebyshevFit
         Coefficients of every term (``value_shape`` as in
         :func:`casflex.modal.integrals.quantity_shapes`); ``info`` holds ``points``,
-        ``seconds``, ``estimate`` (per term, relative), ``converged``, ``basis``,
+        ``seconds``, ``estimate`` (per term, relative), ``converged``,
+        ``axis_ratio`` (per axis: the worst estimate over its target), ``basis``,
         ``periodic`` (per axis: a full-turn box whose terms close up) and ``held_out``.
 
     Raises
@@ -164,6 +172,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     box = joint_box(robot, joints, box)
     if basis not in ("eigen", "smooth"):
         raise ModelError(f"basis must be 'eigen' or 'smooth'; got {basis!r}")
+    if refine not in ("all", "worst"):
+        raise ModelError(f"refine must be 'all' or 'worst'; got {refine!r}")
     if not (isinstance(start_degree, (int, np.integer)) and start_degree >= 2
             and max_degree >= start_degree):
         raise ModelError(f"need 2 <= start_degree <= max_degree; got {start_degree}, "
@@ -207,15 +217,20 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         coefficients = {k: chebyshev_coefficients(v, nd) for k, v in data.items()}
         estimate, per_axis = _estimates(data, coefficients, nd, target, omega_target)
         grow = [ax for ax in range(nd) if per_axis[ax] > 1.0 and degrees[ax] < max_degree]
-        if not grow:
+        if grow and refine == "worst":
+            grow = [max(grow, key=lambda ax: per_axis[ax])]
+        nxt = [min(2 * d, int(max_degree)) if ax in grow else d
+               for ax, d in enumerate(degrees)]
+        if not grow or (max_points is not None
+                        and int(np.prod([d + 1 for d in nxt])) > int(max_points)):
             break
-        for ax in grow:
-            degrees[ax] = min(2 * degrees[ax], int(max_degree))
+        degrees = nxt
     clusters = (tracking.clusters if basis == "smooth"
                 else tuple((k,) for k in range(int(n_modes))))
     info = {"points": len(solved), "grid_shape": list(gshape), "estimate": estimate,
             "target": float(target), "omega_target": float(omega_target),
             "converged": bool(max(per_axis) <= 1.0), "basis": basis,
+            "axis_ratio": [float(r) for r in per_axis],
             "quantity": "model terms", "periodic": _periodic(box, data, estimate),
             "min_mac": float(np.nanmin(tracking.mac)) if np.isfinite(tracking.mac).any()
             else (None if reference is not None else 1.0), "gauge": gauge}
