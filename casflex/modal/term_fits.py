@@ -18,6 +18,12 @@ How
    for two or more shape joints, where eigenvectors are not smooth around conical
    intersections). The quantities of that basis are those of step 1 transformed
    (:func:`casflex.modal.rotated.rotate_quantities`), so no quadrature is repeated.
+   Within each cluster the smooth basis is chosen either against the grid neighbours
+   (``gauge="neighbour"``: continuous, but it depends on the path through the grid, so
+   over two or more shape joints the fits converge only algebraically) or against a
+   fixed polynomial reference field (``gauge="reference"``,
+   :mod:`casflex.modal.gauge`: an analytic function of the joints; the 4-joint arm at
+   32 × 32 gives held-out ω 4.7e-8 and terms 6.0e-7, against 3.4e-5 and 9.9e-4).
 3. Coefficients; each axis's degree doubles while the tail estimate (twice the larger of
    the two highest coefficients along it) of any term exceeds its target: ``target`` relative to the
    term's peak over the box for the model terms, ``omega_target`` relative to ω (or to
@@ -30,7 +36,9 @@ term's peak). In the smooth basis the basis vectors between samples are defined 
 fit itself, so what is compared is what does not depend on the basis within the clusters:
 the natural frequencies (eigenvalues of the fitted ``K̃``), ``Lᵀ L`` of every linear term
 ``L`` (modes × entries) and the trace over the modes of the bilinear ones (``C2``,
-``N``), against those of the lowest eigenmodes of the direct solve.
+``N``), against those of the lowest eigenmodes of the direct solve. The reference gauge
+defines the basis at any configuration, so there the direct solve is put in the same
+gauge and every entry of every term is compared.
 """
 
 from __future__ import annotations
