@@ -392,16 +392,18 @@ def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap, reference=N
         tracking = track_features_smooth(features, omega, n_modes, mass, gap)
     else:
         tracking = track_grid(raw, count=n_modes, robot=robot)
-    stacks: dict[str, list[np.ndarray]] = {}
+    data: dict[str, np.ndarray] = {}  # written in place: no per-point copies are stacked
     for idx, (_, values, S_inv, *_rest) in zip(np.ndindex(gshape), per_point, strict=True):
         T = np.asarray(tracking.transform[idx], dtype=float)[:, :S_inv.shape[0]] @ S_inv
         if basis == "eigen":  # tracked modes are scaled raw modes: unit modal mass rows
             T = T / np.linalg.norm(T, axis=1, keepdims=True)
-        for name, v in rotate_quantities(values, T).items():
-            stacks.setdefault(name, []).append(v)
+        point = rotate_quantities(values, T)
         if basis == "eigen":
-            stacks.setdefault("omega", []).append(values["omega"][tracking.order[idx]])
-    data = {k: np.array(v).reshape(gshape + v[0].shape) for k, v in stacks.items()}
+            point["omega"] = values["omega"][tracking.order[idx]]
+        for name, v in point.items():
+            if name not in data:
+                data[name] = np.empty(gshape + np.shape(v))
+            data[name][idx] = v
     if basis == "smooth":
         data.update(stiffness_values(tracking), omega=tracking.omega)
     return data, tracking, low
