@@ -23,7 +23,12 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     :func:`casflex.modal.fit_model_terms`: Chebyshev fits of every model term (targets
     1e-3 of each term's peak, 1e-4 on ω), the same basis rule; its held-out check
     against direct TMM covers every term in the eigen basis (``heldout_terms``: largest
-    error relative to the term's peak) and ω in the smooth basis.
+    error relative to the term's peak) and, in the smooth basis, every entry of every term
+    with ``--gauge reference`` (default; the basis is defined at any configuration) or the
+    basis invariants with ``--gauge neighbour``. ``--refine worst`` doubles one axis per
+    round (dimension-adaptive), ``--max-points`` caps the grid; ``axis_ratio`` reports
+    each axis's estimate over its target, ``cpu_seconds`` the CPU of the process and its
+    workers (``cpu_main_seconds``: the main process alone).
 
 ``tracking``
     the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
@@ -42,9 +47,9 @@ seed 21), per mode in ``heldout_per_mode``.
 Cases: ``arm2link`` (Table 8 arm, 1 shape joint, full turn, 4 modes: the lowest four
 cross in pairs, one cluster), ``arm4_spatial`` (2 shape joints inside their limits,
 4 modes: two clusters of two) and ``arm6_3flex`` (4 shape joints, 2 modes; fit only and
-capped at degree 4 per axis, 625 points: its 6° grid has 4.9 million points and the
-fit to the target is out of reach here, see README_scale.md). Each (case, method) runs
-in a fresh subprocess so that its peak memory is its own.
+capped at degree 16 per axis; ``--max-degree 8`` for a 6 561-point run: its 6° grid has
+4.9 million points; the fit to the target was not reached here, see README_scale.md).
+Each (case, method) runs in a fresh subprocess so that its peak memory is its own.
 
 Usage::
 
