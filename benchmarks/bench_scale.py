@@ -23,7 +23,12 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     :func:`casflex.modal.fit_model_terms`: Chebyshev fits of every model term (targets
     1e-3 of each term's peak, 1e-4 on ω), the same basis rule; its held-out check
     against direct TMM covers every term in the eigen basis (``heldout_terms``: largest
-    error relative to the term's peak) and ω in the smooth basis.
+    error relative to the term's peak) and, in the smooth basis, every entry of every term
+    with ``--gauge reference`` (default; the basis is defined at any configuration) or the
+    basis invariants with ``--gauge neighbour``. ``--refine worst`` doubles one axis per
+    round (dimension-adaptive), ``--max-points`` caps the grid; ``axis_ratio`` reports
+    each axis's estimate over its target, ``cpu_seconds`` the CPU of the process and its
+    workers (``cpu_main_seconds``: the main process alone).
 
 ``tracking``
     the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
@@ -42,9 +47,9 @@ seed 21), per mode in ``heldout_per_mode``.
 Cases: ``arm2link`` (Table 8 arm, 1 shape joint, full turn, 4 modes: the lowest four
 cross in pairs, one cluster), ``arm4_spatial`` (2 shape joints inside their limits,
 4 modes: two clusters of two) and ``arm6_3flex`` (4 shape joints, 2 modes; fit only and
-capped at degree 4 per axis, 625 points: its 6° grid has 4.9 million points and the
-fit to the target is out of reach here, see README_scale.md). Each (case, method) runs
-in a fresh subprocess so that its peak memory is its own.
+capped at degree 16 per axis; ``--max-degree 8`` for a 6 561-point run: its 6° grid has
+4.9 million points; the fit to the target was not reached here, see README_scale.md).
+Each (case, method) runs in a fresh subprocess so that its peak memory is its own.
 
 Usage::
 
@@ -74,7 +79,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: meeting, and that fit takes clusters of two at most; the stiffness fit keeps 0.05)
 CASES = {"arm2link": ("problems/arm2link.toml", 4, 64, True, 0.01),
          "arm4_spatial": ("problems/arm4_spatial.toml", 4, 64, True, 0.05),
-         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 8, False, 0.05)}
+         "arm6_3flex": ("problems/arm6_3flex.toml", 2, 16, False, 0.05)}
 
 
 def _heldout_configurations(robot, count):
@@ -90,7 +95,14 @@ def _dir_mb(path):
     return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) / 1e6
 
 
-def run_one(case, method, heldout, processes, max_degree_cap=None):
+def _cpu_seconds():
+    """CPU time of this process and its finished children [s] (user + system)."""
+    own, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF,
+                                                  resource.RUSAGE_CHILDREN))
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def run_one(case, method, heldout, processes, max_degree_cap=None, fit_options=None):
     """One (case, method) in this process; returns the figures as a dict."""
     from casflex.modal import build_table, fit_chebyshev, shape_joints
     from casflex.model.build import default_grid
@@ -108,13 +120,14 @@ def run_one(case, method, heldout, processes, max_degree_cap=None):
     ref = np.array([natural_frequencies(robot, q, count=n_modes) for q in qs])
     out = {"case": case, "method": method, "shape_joints": [k + 1 for k in joints],
            "n_modes": n_modes}
+    cpu0 = _cpu_seconds()
     with tempfile.TemporaryDirectory() as cache:
         t0 = time.perf_counter()
         if method == "tracking":
             return _tracking(out, robot, joints, n_modes, qs, ref, cache, processes)
         if method in ("grid_terms", "fit_terms"):
             got = _terms(out, method, robot, joints, n_modes, qs, cache, processes,
-                         max_degree)
+                         max_degree, fit_options or {})
             seconds = out.pop("seconds")
         elif method == "grid":
             grid = default_grid(robot, joints)
@@ -145,14 +158,18 @@ def run_one(case, method, heldout, processes, max_degree_cap=None):
                        estimate=fit.info["estimate"], converged=fit.info["converged"],
                        min_mac=fit.info["min_mac"], cache_mb=0.0)
     err = np.abs(got / ref - 1.0)
-    out.update(seconds=seconds, heldout=int(heldout), heldout_max_rel=float(err.max()),
+    main_cpu = resource.getrusage(resource.RUSAGE_SELF)
+    out.update(seconds=seconds, cpu_seconds=_cpu_seconds() - cpu0,
+               cpu_main_seconds=main_cpu.ru_utime + main_cpu.ru_stime, heldout=int(heldout),
+               heldout_max_rel=float(err.max()),
                heldout_per_mode=err.max(axis=0).tolist(),
                rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                rss_workers_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0)
     return out
 
 
-def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree):
+def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree,
+           fit_options):
     """Grid or fit of every model term; fills ``out`` and returns ω at ``qs`` (sorted)."""
     from casflex.modal import build_table, fit_model_terms
     from casflex.model.build import default_grid
@@ -173,12 +190,14 @@ def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree
     else:
         fit = fit_model_terms(robot, n_modes, basis=basis, processes=processes,
                               start_degree=min(8, max_degree), max_degree=max_degree,
-                              held_out=qs)
+                              held_out=qs, **(fit_options if basis == "smooth" else {}))
         out["seconds"] = time.perf_counter() - t0
         out.update(points=fit.info["points"], degrees=list(fit.degrees), basis=basis,
                    estimate=fit.info["estimate"], converged=fit.info["converged"],
                    min_mac=fit.info["min_mac"], cache_mb=0.0,
-                   heldout_terms=fit.info["held_out"],
+                   heldout_terms=fit.info["held_out"], gauge=fit.info["gauge"],
+                   axis_ratio=fit.info["axis_ratio"],
+                   min_overlap=fit.info.get("min_overlap"),
                    values_mb=sum(c.nbytes for c in fit.coefficients.values()) / 1e6)
 
         def f(x, name="omega" if basis == "eigen" else "stiffness"):
@@ -231,11 +250,21 @@ def main(argv=None):
     ap.add_argument("--processes", type=int, default=None, help="TMM worker processes")
     ap.add_argument("--max-degree", type=int, default=None,
                     help="cap the fits' degree per axis (reduced runs)")
+    ap.add_argument("--gauge", choices=["neighbour", "reference"], default="reference",
+                    help="smooth-basis gauge of fit_terms (two or more shape joints)")
+    ap.add_argument("--reference-degree", type=int, default=4,
+                    help="degree of the reference field (gauge 'reference')")
+    ap.add_argument("--refine", choices=["all", "worst"], default="all",
+                    help="fit_terms: double every axis over target, or the worst one")
+    ap.add_argument("--max-points", type=int, default=None,
+                    help="fit_terms: stop refining before a grid of more points")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    fit_options = {"gauge": args.gauge, "reference_degree": args.reference_degree,
+                   "refine": args.refine, "max_points": args.max_points}
     if args.one:
         print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes,
-                                 args.max_degree)))
+                                 args.max_degree, fit_options)))
         return 0
     results = []
     load_before = os.getloadavg()
@@ -247,6 +276,10 @@ def main(argv=None):
                 cmd += ["--processes", str(args.processes)]
             if args.max_degree is not None:
                 cmd += ["--max-degree", str(args.max_degree)]
+            if args.max_points is not None:
+                cmd += ["--max-points", str(args.max_points)]
+            cmd += ["--gauge", args.gauge, "--reference-degree", str(args.reference_degree),
+                    "--refine", args.refine]
             done = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if done.returncode != 0:
                 sys.stderr.write(done.stderr)

@@ -49,6 +49,9 @@ Smooth bases of close modes
    smooth_basis       -- the same on feature arrays (neighbourhood Procrustes per cluster)
    point_features     -- feature rows and exact modal mass of one point's raw modes
    track_features_smooth -- track_grid_smooth from per-point features (no mode shapes kept)
+   reference_basis    -- each cluster's basis closest to one fixed reference (analytic gauge)
+   reference_rows     -- mass-orthonormal feature rows of the reference point's modes
+   MIN_OVERLAP        -- smallest overlap with the reference the gauge accepts
    SmoothBasis        -- result: transforms, block-diagonal stiffness, Rayleigh ω, neighbour MAC
    mode_clusters      -- groups of sorted modes that come close somewhere on a grid
    DEFAULT_GAP        -- relative frequency gap below which sorted modes form one cluster
@@ -100,6 +103,7 @@ from casflex.modal.fits import (
     lobatto_points,
     periodic_axis_kind,
 )
+from casflex.modal.gauge import MIN_OVERLAP, reference_basis, reference_rows
 from casflex.modal.integrals import (
     POINT_KEYS,
     QUANTITY_KEYS,
@@ -191,6 +195,9 @@ __all__ = [
     "smooth_basis",
     "point_features",
     "track_features_smooth",
+    "reference_basis",
+    "reference_rows",
+    "MIN_OVERLAP",
     "SmoothBasis",
     "mode_clusters",
     "DEFAULT_GAP",
