@@ -155,8 +155,8 @@ def _tip_hessians(tip, d):
 @pytest.mark.slow
 def test_in_plane_second_order_kinematics_agree(ritz, unit_field_model):
     """The model's and the exact Ritz model's modes are the same (signs included: equal
-    tip Jacobians), and the second-order tip terms of the in-plane modes (1 and 3: a
-    planar arm) agree to the Ritz's O(h²): ``foreshortening`` is exact to δ² in the
+    tip Jacobians), and the second-order tip terms of the in-plane modes (indices 1 and
+    3: a planar arm) agree to the Ritz's O(h²): ``foreshortening`` is exact to δ² in the
     plane."""
     f, d = unit_field_model.functions(), ritz.delta
     tip = f["tip"](np.zeros(3), d)
@@ -171,10 +171,10 @@ def test_in_plane_second_order_kinematics_agree(ritz, unit_field_model):
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError,
                    reason="issue 19, measured: the out-of-plane modes' second-order tip "
-                          "terms differ by up to 138 (mode 5 × mode 5 along x0: 195 "
-                          "against 334 m/kg): foreshortening lacks second-order rotations")
+                          "terms differ by up to 138 (the fifth mode squared along x0: "
+                          "195 against 334 m/kg): foreshortening lacks second-order rotations")
 def test_out_of_plane_second_order_kinematics_agree(ritz, unit_field_model):
-    """The same for the out-of-plane modes (0, 2, 4: link 1 bending along its joint axis
+    """The same for the out-of-plane modes (indices 0, 2, 4: link 1 bending along its joint axis
     and twisting, link 2 along its joint axis). They differ: the static test's radial
     and vertical tip parts are 23 % and 6 % short in the model at every load (second
     order), and the exact Ritz model, with these terms, gets them within 0.4 %."""
