@@ -25,6 +25,8 @@ Usage::
         [--fields 0.5,4,8,12,16] [--json]
     python benchmarks/bench_fidelity.py --stiffening [--fields 0.5,4,8,12,16]
         [--modes 5,8] [--json]
+    python benchmarks/bench_fidelity.py --stiffening-move3 [--modes 5] [--steps 25,50]
+        [--json]
 
 ``--cost`` instead measures what the options cost (:func:`cost`): ``bench_model.py``'s
 ``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls), the
@@ -53,6 +55,10 @@ after the other (the inextensible beam's nonlinear curvature, the twist–bendin
 link 2's third-order rotation about the elbow), and against the exact-kinematics Ritz
 model in the same TMM modes (``--modes``), with its field potential exact and truncated to
 δ³ and δ²: tangential, radial and vertical tip parts in % of the reference's.
+
+``--stiffening-move3`` runs the exact-kinematics Ritz model on Table 9 move 3 (only q1
+turns; ``exact_ritz.turning_run``: RK4, 1 ms, ``--steps`` integration steps per link) and
+compares it with the stored 3-D reference run like ``--spatial``.
 
 Reference runs are cached as ``.npz`` in ``--cache`` (default: a folder in the system's
 temporary directory), keyed by the reference's source, the move, the elements and step.
@@ -350,6 +356,29 @@ def stiffening(args):
         print(json.dumps(out, default=lambda v: np.asarray(v).tolist()))
 
 
+def stiffening_move3(args):
+    """Table 9 move 3: the exact-kinematics Ritz model against the stored 3-D reference."""
+    from exact_ritz import turning_run
+    from fidelity_spatial import MOVE3, compare, reference_run
+
+    from casflex.robot import load
+
+    robot = load(ROOT / "problems" / "arm2link.toml")
+    ref, out = reference_run(), {}
+    for m in (int(k) for k in args.modes.split(",")):
+        for n in (int(k) for k in args.steps.split(",")):
+            t0 = time.perf_counter()
+            c = compare(turning_run(robot, MOVE3, n_modes=m, n_steps=n), ref, MOVE3.duration)
+            out[f"ritz_{m}modes_{n}steps"] = c = {**c, "wall_s": time.perf_counter() - t0}
+            if not args.json:
+                print(f"move3 exact Ritz {m} modes, {n} steps per link: peak ref "
+                      f"{c['peak_ref_mm']:.2f} mm, peak {c['peak_pct']:+.3f} %, residual "
+                      f"{c['residual_pct']:+.3f} %, gap {c['gap_pct']:.3f} % (at "
+                      f"{c['gap_at_s']:.2f} s), {c['wall_s']:.0f} s", flush=True)
+    if args.json:
+        print(json.dumps(out, default=float))
+
+
 def spatial(args):
     """Table 9 move 3 against the 3-D reference: convergence and one table per variant."""
     from fidelity_spatial import DATA, MOVE3, REFERENCE
@@ -425,7 +454,14 @@ def main(argv=None):
     parser.add_argument("--stiffening", action="store_true",
                         help="the static excess split into its parts: casflex + quartic "
                              "terms, an exact-kinematics Ritz model (tests/exact_ritz.py)")
+    parser.add_argument("--stiffening-move3", action="store_true",
+                        help="Table 9 move 3 with the exact-kinematics Ritz model")
+    parser.add_argument("--steps", default="25,50",
+                        help="with --stiffening-move3: integration steps per link")
     args = parser.parse_args(argv)
+    if args.stiffening_move3:
+        stiffening_move3(args)
+        return
     if args.stiffening:
         stiffening(args)
         return

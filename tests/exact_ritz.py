@@ -68,7 +68,9 @@ class ExactRitz:
 
     Attributes: ``delta`` (the SX amplitudes), ``K`` (modal stiffness by midpoint
     quadrature), ``load`` (``∫ ρA r ds``, SX (3,) [kg m]), ``tip`` (tip displacement from
-    the undeformed tip, SX (3,) [m]), ``shapes``.
+    the undeformed tip, SX (3,) [m]), ``midpoints`` and ``midpoint_masses`` (the steps'
+    midpoints, SX (3,) each [m], and their ``ρA h`` [kg]: :func:`turning_run`),
+    ``shapes``.
     """
 
     def __init__(self, robot, q=(0.0, 0.0, 0.0), n_modes: int = 5, n_steps: int = 100):
@@ -80,6 +82,7 @@ class ExactRitz:
         self.K = np.zeros((n_modes, n_modes))
         load, r, frame = ca.SX.zeros(3), ca.SX(sh.position[0, 0]), ca.SX(sh.R[0])
         ez = ca.SX([0.0, 0.0, 1.0])
+        self.midpoints, masses = [], []
         for b in range(2):
             length = float(sh.s[b, -1])
             h = length / n_steps
@@ -92,7 +95,10 @@ class ExactRitz:
             points = [r]
             for k in range(n_steps):
                 half = _cayley(0.5 * h * (ca.SX(f["kappa"][:, k, :].T) @ d))
-                r = r + h * (1.0 + ca.dot(ca.SX(f["eps"][:, k]), d)) * (frame @ half @ ez)
+                step = h * (1.0 + ca.dot(ca.SX(f["eps"][:, k]), d)) * (frame @ half @ ez)
+                self.midpoints.append(r + 0.5 * step)
+                masses.append(h * f["rhoA"])
+                r = r + step
                 frame = frame @ half @ half
                 points.append(r)
             w = np.full(n_steps + 1, h * f["rhoA"])
@@ -100,6 +106,7 @@ class ExactRitz:
             load = load + ca.horzcat(*points) @ ca.SX(w)
         self.load = load
         self.tip = r - ca.SX(sh.position[1, -1])
+        self.midpoint_masses = np.array(masses)
 
     def static(self, field, load_order: int | None = None, tol: float = 1e-12) -> dict:
         """Static equilibrium under the uniform field ``field`` [m/s², base frame]:
@@ -183,3 +190,67 @@ def quartic_terms(robot, delta, field_per_unit, q=(0.0, 0.0, 0.0), n_steps: int 
                 for i in range(len(arm))) / 6.0
     out["rigid3"] = -rhoA * third
     return out
+
+
+def turning_run(robot, move, n_modes: int = 5, n_steps: int = 50, dt: float = 1e-3
+                ) -> dict[str, np.ndarray]:
+    """Tip deflection ``{"t", "d"}`` [s, m] (base frame, tip minus rigid tip) of the exact
+    Ritz model when only joint 1 turns: ``move`` a :class:`reference_beam_3d.JointMove`
+    with q2 and q3 held (the modes are those of the frozen q2, q3; q1 turns the whole arm
+    about z0, which does not change them). No gravity, no damping.
+
+    Equations (d'Alembert with the exact positions ``r_i(δ)`` of ``2 n_steps`` point
+    masses ``ρA h`` at the steps' midpoints, in the frame turning with q1, ``ω = q̇1 z0``):
+    ``Σ m_i J_iᵀ (J_i δ̈ + (∂²r_i/∂δ²)[δ̇, δ̇] + 2ω × J_i δ̇ + ω̇ × r_i + ω × (ω × r_i)) +
+    K δ = 0``, ``J_i = ∂r_i/∂δ``; the sections' rotary inertia is left out (~1e-5 on the
+    bending frequencies, the links' own torsional inertia ~1e-5 of link 2's about link
+    1's axis). Classic RK4 with step ``dt``; the joint's acceleration switches on step
+    boundaries (bang-bang moves of a whole number of steps)."""
+    if not np.allclose(move.q0[1:], move.qf[1:]):
+        raise ValueError("q2 and q3 must be held")
+    ritz = ExactRitz(robot, (0.0,) + tuple(move.q0[1:]), n_modes, n_steps)
+    d, dd = ritz.delta, ca.SX.sym("ddelta", n_modes)
+    P = ca.vertcat(*ritz.midpoints)
+    kin = ca.Function("kin", [d, dd], [P, ca.jacobian(P, d),
+                                       ca.jtimes(ca.jtimes(P, d, dd), d, dd)])
+    tip = ca.Function("tip", [d], [ritz.tip])
+    mass = np.repeat(ritz.midpoint_masses, 3)
+    a0, a1, duration = float(move.q0[0]), float(move.qf[0]), float(move.duration)
+    peak = 4.0 * (a1 - a0) / duration**2
+
+    def joint(t):  # q1, q̇1, q̈1 at t (the acceleration of the step starting at t)
+        if t <= 0.0 or t >= duration:
+            return (a0 if t <= 0.0 else a1), 0.0, 0.0
+        if t < 0.5 * duration:
+            return a0 + 0.5 * peak * t**2, peak * t, peak
+        return a1 - 0.5 * peak * (duration - t) ** 2, peak * (duration - t), -peak
+
+    def rhs(t, x):
+        delta, rate = x[:n_modes], x[n_modes:]
+        Pv, Jv, cv = (v.full() for v in kin(delta, rate))
+        Pv, cv = Pv.reshape(-1, 3), cv.reshape(-1, 3)
+        _, w, wd = joint(t)
+        om, omd = np.array([0.0, 0.0, w]), np.array([0.0, 0.0, wd])
+        acc = (cv + 2.0 * np.cross(om, (Jv @ rate).reshape(-1, 3)) + np.cross(omd, Pv)
+               + np.cross(om, np.cross(om, Pv)))
+        M = Jv.T @ (mass[:, None] * Jv)
+        return np.concatenate([rate, np.linalg.solve(M, -Jv.T @ (mass * acc.ravel())
+                                                      - ritz.K @ delta)])
+
+    steps = int(round(move.t_end / dt))
+    x, t_out, d_out = np.zeros(2 * n_modes), [], []
+    eps = 1e-9 * dt  # stage times inside the step, so a switch on its boundary is seen
+    for i in range(steps + 1):
+        t = i * dt
+        c, s = np.cos(joint(t)[0]), np.sin(joint(t)[0])
+        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        t_out.append(t)
+        d_out.append(turn @ tip(x[:n_modes]).full().ravel())
+        if i == steps:
+            break
+        k1 = rhs(t + eps, x)
+        k2 = rhs(t + 0.5 * dt, x + 0.5 * dt * k1)
+        k3 = rhs(t + 0.5 * dt, x + 0.5 * dt * k2)
+        k4 = rhs(t + dt - eps, x + dt * k3)
+        x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return {"t": np.array(t_out), "d": np.array(d_out)}
