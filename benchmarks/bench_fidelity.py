@@ -23,6 +23,10 @@ Usage::
         [--modes 5,8] [--store] [--no-convergence] [--stiffness 4] [--json]
     python benchmarks/bench_fidelity.py --spatial-static [--variants base,short]
         [--fields 0.5,4,8,12,16] [--json]
+    python benchmarks/bench_fidelity.py --stiffening [--fields 0.5,4,8,12,16]
+        [--modes 5,8] [--json]
+    python benchmarks/bench_fidelity.py --stiffening-move3 [--modes 5] [--steps 25,50]
+        [--json]
 
 ``--cost`` instead measures what the options cost (:func:`cost`): ``bench_model.py``'s
 ``simulate_move1_s`` (move 1, 5 modes, ``poly`` + ``jit``, median of warm calls), the
@@ -43,6 +47,18 @@ the joints' plane (along y0: the swing's inertial load in static form, no veloci
 compares the model's tip (5 modes; ``∂V/∂δ = 0`` with the field as its gravity) with the
 3-D reference's (32 elements), per field strength: the tangential tip deflection and the
 3-D gap in % of the reference's.
+
+``--stiffening`` instead splits ``--spatial-static``'s excess into its parts (session 8):
+the same static loads, the 3-D reference against casflex's model (5 modes,
+``foreshortening``) alone and with the quartic terms of ``tests/exact_ritz.py`` added one
+after the other (the inextensible beam's nonlinear curvature, the twist–bending term,
+link 2's third-order rotation about the elbow), and against the exact-kinematics Ritz
+model in the same TMM modes (``--modes``), with its field potential exact and truncated to
+δ³ and δ²: tangential, radial and vertical tip parts in % of the reference's.
+
+``--stiffening-move3`` runs the exact-kinematics Ritz model on Table 9 move 3 (only q1
+turns; ``exact_ritz.turning_run``: RK4, 1 ms, ``--steps`` integration steps per link) and
+compares it with the stored 3-D reference run like ``--spatial``.
 
 Reference runs are cached as ``.npz`` in ``--cache`` (default: a folder in the system's
 temporary directory), keyed by the reference's source, the move, the elements and step.
@@ -268,6 +284,101 @@ def spatial_static(args):
         print(json.dumps(rows, default=lambda v: np.asarray(v).tolist()))
 
 
+def _static_solve(rows, d, tip, n):
+    """Newton on the modal rows ``rows(d) = 0``; the tip [m] at the solution."""
+    import casadi as ca
+
+    newton = ca.Function("newton", [d], [rows, ca.jacobian(rows, d), tip])
+    x = np.zeros(n)
+    for _ in range(50):
+        r, J, _ = newton(x)
+        if np.abs(r.full()).max() < 1e-13:
+            break
+        x -= np.linalg.solve(J.full(), r.full().ravel())
+    else:
+        raise RuntimeError("the static Newton did not converge")
+    return newton(x)[2].full().ravel()
+
+
+def stiffening(args):
+    """The static excess across the plane split into its parts (``--stiffening``)."""
+    import casadi as ca
+    from exact_ritz import ExactRitz, quartic_terms
+    from reference_beam_3d import SpatialArm
+
+    from casflex.model import build_model
+    from casflex.robot import load
+
+    robot = load(ROOT / "problems" / "arm2link.toml")
+    fields = [float(a) for a in args.fields.split(",")]
+    t0 = time.perf_counter()
+    refs = {a: SpatialArm(n_elements=32).static((0.0, 0.0, 0.0), (0.0, a, 0.0))["tip"]
+            for a in fields}
+    out = {"reference_s": time.perf_counter() - t0, "rows": {}}
+    model, _ = build_model(robot, n_modes=5, gravity=[0.0, 1.0, 0.0], processes=1,
+                           foreshortening=True)
+    f, q0 = model.functions(), np.zeros(model.n)
+    d = ca.SX.sym("delta", model.m)
+    terms = quartic_terms(robot, d, [0.0, 1.0, 0.0])
+    tip = f["tip"](q0, d) - f["tip"](q0, np.zeros(model.m))
+    variants = {"casflex_short": lambda a: 0,
+                "+curvature": lambda a: terms["curvature"],
+                "+curvature+twist": lambda a: terms["curvature"] + terms["twist"],
+                "+curvature+twist+rigid3": lambda a: (terms["curvature"] + terms["twist"]
+                                                      + a * terms["rigid3"])}
+    tips = {}
+    for label, V4 in variants.items():
+        for a in fields:
+            extra = V4(a)
+            rows = f["stiffness"](q0) @ d + a * f["gravity"](q0, d)[model.n:]
+            if not isinstance(extra, int):
+                rows = rows + ca.gradient(extra, d)
+            tips[label, a] = _static_solve(rows, d, tip, model.m)
+    for m in (int(k) for k in args.modes.split(",")):
+        ritz = ExactRitz(robot, n_modes=m)
+        for order in (None, 3, 2):
+            for a in fields:
+                tips[f"ritz_{m}modes_" + ("exact" if order is None else f"order{order}"),
+                     a] = ritz.static([0.0, a, 0.0], load_order=order)["tip"]
+    for (label, a), x in tips.items():
+        ref = refs[a]
+        out["rows"][f"{label}_{a:g}"] = row = {
+            "field_m_s2": a, "ref_tip_mm": 1e3 * ref, "tip_mm": 1e3 * x,
+            "tangential_pct": 100 * (x[1] / ref[1] - 1),
+            "radial_pct": 100 * (x[0] / ref[0] - 1), "vertical_pct": 100 * (x[2] / ref[2] - 1),
+            "gap_pct": 100 * np.linalg.norm(x - ref) / np.linalg.norm(ref)}
+        if not args.json:
+            print(f"{label:26s} {a:5.1f} m/s² (ref {1e3 * ref[1]:7.2f} mm across): across "
+                  f"{row['tangential_pct']:+6.3f} %, radial {row['radial_pct']:+7.2f} %, "
+                  f"vertical {row['vertical_pct']:+6.2f} %, 3-D gap {row['gap_pct']:.3f} %",
+                  flush=True)
+    if args.json:
+        print(json.dumps(out, default=lambda v: np.asarray(v).tolist()))
+
+
+def stiffening_move3(args):
+    """Table 9 move 3: the exact-kinematics Ritz model against the stored 3-D reference."""
+    from exact_ritz import turning_run
+    from fidelity_spatial import MOVE3, compare, reference_run
+
+    from casflex.robot import load
+
+    robot = load(ROOT / "problems" / "arm2link.toml")
+    ref, out = reference_run(), {}
+    for m in (int(k) for k in args.modes.split(",")):
+        for n in (int(k) for k in args.steps.split(",")):
+            t0 = time.perf_counter()
+            c = compare(turning_run(robot, MOVE3, n_modes=m, n_steps=n), ref, MOVE3.duration)
+            out[f"ritz_{m}modes_{n}steps"] = c = {**c, "wall_s": time.perf_counter() - t0}
+            if not args.json:
+                print(f"move3 exact Ritz {m} modes, {n} steps per link: peak ref "
+                      f"{c['peak_ref_mm']:.2f} mm, peak {c['peak_pct']:+.3f} %, residual "
+                      f"{c['residual_pct']:+.3f} %, gap {c['gap_pct']:.3f} % (at "
+                      f"{c['gap_at_s']:.2f} s), {c['wall_s']:.0f} s", flush=True)
+    if args.json:
+        print(json.dumps(out, default=float))
+
+
 def spatial(args):
     """Table 9 move 3 against the 3-D reference: convergence and one table per variant."""
     from fidelity_spatial import DATA, MOVE3, REFERENCE
@@ -339,8 +450,21 @@ def main(argv=None):
                         help="the arm at q = 0 under a static field across the joints' "
                              "plane, against the 3-D reference")
     parser.add_argument("--fields", default="0.5,4,8,12,16",
-                        help="with --spatial-static: field strengths [m/s^2]")
+                        help="with --spatial-static, --stiffening: field strengths [m/s^2]")
+    parser.add_argument("--stiffening", action="store_true",
+                        help="the static excess split into its parts: casflex + quartic "
+                             "terms, an exact-kinematics Ritz model (tests/exact_ritz.py)")
+    parser.add_argument("--stiffening-move3", action="store_true",
+                        help="Table 9 move 3 with the exact-kinematics Ritz model")
+    parser.add_argument("--steps", default="25,50",
+                        help="with --stiffening-move3: integration steps per link")
     args = parser.parse_args(argv)
+    if args.stiffening_move3:
+        stiffening_move3(args)
+        return
+    if args.stiffening:
+        stiffening(args)
+        return
     if args.spatial_static:
         spatial_static(args)
         return
