@@ -42,6 +42,9 @@ plan_robot_move
     verify both (what ``casflex plan`` runs).
 PlanComparison
     Result of :func:`plan_robot_move`.
+limit_excess
+    How far a plan's verified torque and velocity peaks exceed its limits (between the
+    collocation points), per joint.
 
 Models with shifted frequencies (:mod:`casflex.planning.scenarios`)
 -------------------------------------------------------------------
@@ -84,7 +87,7 @@ from casflex.planning.scenarios import (
     static_deflection,
     tip_jacobian,
 )
-from casflex.planning.verify import PlanComparison, plan_robot_move, verify_plan
+from casflex.planning.verify import PlanComparison, limit_excess, plan_robot_move, verify_plan
 
 __all__ = [
     # planning
@@ -102,6 +105,7 @@ __all__ = [
     "verify_plan",
     "plan_robot_move",
     "PlanComparison",
+    "limit_excess",
     # models with shifted frequencies
     "frequency_shifted_model",
     "ScaledFrequencyProvider",
