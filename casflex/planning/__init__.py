@@ -21,6 +21,9 @@ TRANSCRIPTIONS
     The transcriptions of :func:`plan_move` (collocation, multiple shooting).
 DYNAMICS
     The forms of the collocated dynamics of :func:`plan_move` (implicit, explicit).
+WARM_START_OPTIONS
+    Ipopt options of a warm start of :func:`plan_move` from a neighbouring plan's
+    iterate and multipliers.
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -76,6 +79,7 @@ from casflex.planning.ocp import (
     DYNAMICS,
     OBJECTIVES,
     TRANSCRIPTIONS,
+    WARM_START_OPTIONS,
     plan_limits,
     plan_move,
     predicted_residual,
@@ -97,6 +101,7 @@ __all__ = [
     "OBJECTIVES",
     "TRANSCRIPTIONS",
     "DYNAMICS",
+    "WARM_START_OPTIONS",
     # the result
     "PlannedMove",
     # limits
