@@ -10,7 +10,7 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
     residual tip deflection), wall time of Ipopt (with building its functions);
 ``solve_warm_s``
     the same plan with the end bound 5 % tighter, warm-started from the first solution
-    (a neighbouring problem);
+    (a neighbouring problem: its iterate and multipliers, ``warm_start_duals``);
 ``duration`` / ``shaped_duration``
     planned and shaped durations, s;
 ``residual`` / ``shaped_residual``
@@ -120,6 +120,7 @@ def main(argv: list[str] | None = None) -> dict:
            "hessian": "limited-memory" if args.lbfgs else "exact",
            "iterations": plan.stats["iterations"],
            "iterations_warm": warm.stats["iterations"], "status": plan.stats["status"],
+           "warm_start_duals": warm.stats.get("warm_start_duals"),
            "status_warm": warm.stats["status"],
            "run_cpu_s": (after.ru_utime + after.ru_stime) - (usage.ru_utime + usage.ru_stime),
            "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0]}
