@@ -793,7 +793,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
 
 def _warm_duals(opti, guess):
     """The guess's NLP iterate and multipliers when its OCP has this one's shape (same
-    variables and constraints: e.g. another end bound or other limits), else ``None``."""
+    variables and constraints: e.g. another end bound or other limits), else ``None``.
+
+    Only the sizes are compared: a problem of the same sizes but other meaning (another
+    robust error, limits moved from one joint to another) gets a poor start, never a
+    wrong plan: the start only changes where Ipopt begins, not what it accepts."""
     solution = getattr(guess, "solution", None)
     if not solution:
         return None
