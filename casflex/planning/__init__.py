@@ -21,6 +21,9 @@ TRANSCRIPTIONS
     The transcriptions of :func:`plan_move` (collocation, multiple shooting).
 DYNAMICS
     The forms of the collocated dynamics of :func:`plan_move` (implicit, explicit).
+WARM_START_OPTIONS
+    Ipopt options of a warm start of :func:`plan_move` from a neighbouring plan's
+    iterate and multipliers.
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -42,6 +45,9 @@ plan_robot_move
     verify both (what ``casflex plan`` runs).
 PlanComparison
     Result of :func:`plan_robot_move`.
+limit_excess
+    How far a plan's verified torque and velocity peaks exceed its limits (between the
+    collocation points), per joint.
 
 Models with shifted frequencies (:mod:`casflex.planning.scenarios`)
 -------------------------------------------------------------------
@@ -73,6 +79,7 @@ from casflex.planning.ocp import (
     DYNAMICS,
     OBJECTIVES,
     TRANSCRIPTIONS,
+    WARM_START_OPTIONS,
     plan_limits,
     plan_move,
     predicted_residual,
@@ -84,7 +91,7 @@ from casflex.planning.scenarios import (
     static_deflection,
     tip_jacobian,
 )
-from casflex.planning.verify import PlanComparison, plan_robot_move, verify_plan
+from casflex.planning.verify import PlanComparison, limit_excess, plan_robot_move, verify_plan
 
 __all__ = [
     # planning
@@ -94,6 +101,7 @@ __all__ = [
     "OBJECTIVES",
     "TRANSCRIPTIONS",
     "DYNAMICS",
+    "WARM_START_OPTIONS",
     # the result
     "PlannedMove",
     # limits
@@ -102,6 +110,7 @@ __all__ = [
     "verify_plan",
     "plan_robot_move",
     "PlanComparison",
+    "limit_excess",
     # models with shifted frequencies
     "frequency_shifted_model",
     "ScaledFrequencyProvider",

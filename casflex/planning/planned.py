@@ -66,6 +66,10 @@ class PlannedMove:
         integrates from the node before every sample time, so the joint motion is the
         one the torques produce, acceleration jumps at the nodes included; without it
         the dense samples are interpolated.
+    solution : dict, optional
+        The OCP's last iterate: ``x`` (all NLP variables) and ``lam_g`` (the constraints'
+        multipliers), for a warm start of a neighbouring problem
+        (:func:`casflex.planning.plan_move` with this plan as ``guess``).
 
     Examples
     --------
@@ -97,6 +101,7 @@ class PlannedMove:
     name: str = "planned"
     description: str = ""
     propagator: Callable | None = field(default=None, repr=False, compare=False)
+    solution: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def duration(self) -> float:

@@ -72,7 +72,7 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     # Ipopt may stop at its acceptable level (plan_move's documented rule: optimality 1e-2
-    # over 3 iterates, constraints to 1e-6); the verification below judges the plan
+    # over 15 iterates, constraints to 1e-6); the verification below judges the plan
     assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
     # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
