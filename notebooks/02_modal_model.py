@@ -360,10 +360,12 @@ fig.tight_layout()
 # targets (2 %, 5 %, 5 %) are not met on this move, whose deflection is 17 % of the
 # tip's radius, ten times the planar moves'. What is left is not an inertial term: loaded
 # statically across the plane, the model is 2.5 % too soft at the same 254 mm (0.07 % at
-# 11 mm, the excess growing as the deflection squared), because the real beams stiffen
-# at large rotations, a term of third order in δ that this modal model does not carry
-# (``tests/model/test_spatial_static.py``). The same move in 4 s (69 mm), or on an arm
-# four times stiffer, meets the targets (``benchmarks/README_fidelity.md``).
+# 11 mm, the excess growing as the deflection squared), because the model's kinematics
+# stop at δ² (``tests/model/test_spatial_static.py``). A model in the same five modes
+# whose rods are rebuilt exactly from the modal strains is within 0.07 % statically and
+# within a 0.14 % gap on this move (``tests/exact_ritz.py``): the modes are right, the
+# truncated positions are not. The same move in 4 s (69 mm), or on an arm four times
+# stiffer, meets the targets (``benchmarks/README_fidelity.md``).
 
 # %% [markdown]
 # **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model
