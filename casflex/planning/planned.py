@@ -190,6 +190,15 @@ class PlannedMove:
             return q[0], dq[0], ddq[0]
         return q, dq, ddq
 
+    def _interval_of(self, t):
+        """Index of the OCP interval that starts at or before each time of ``t`` (the
+        right limit at a node). A time within round-off of a node belongs to the interval
+        the node starts: dense sample times and node times are computed apart and differ
+        in the last digits, and the interval before would be propagated past its end."""
+        eps = 1e-9 * max(float(self.node_t[-1]), 1.0)
+        k = np.searchsorted(self.node_t, np.asarray(t, dtype=float) + eps, side="right") - 1
+        return np.clip(k, 0, self.node_tau.shape[0] - 1)
+
     def _propagated(self, tt):
         n = self.n_joints
         nx = self.node_x.shape[1]
@@ -199,9 +208,8 @@ class PlannedMove:
         inside = (tt >= 0.0) & (tt <= self.duration)
         ti = tt[inside]
         if ti.size:
-            k = np.clip(np.searchsorted(self.node_t, ti, side="right") - 1, 0,
-                        self.node_tau.shape[0] - 1)
-            x, xdot = self.propagator(k, ti - self.node_t[k])
+            k = self._interval_of(ti)
+            x, xdot = self.propagator(k, np.maximum(ti - self.node_t[k], 0.0))
             x, xdot = np.asarray(x).T, np.asarray(xdot).T
             q[inside], dq[inside] = x[:, :n], x[:, n + m:2 * n + m]
             ddq[inside] = xdot[:, n + m:2 * n + m]
@@ -238,8 +246,7 @@ class PlannedMove:
         else:  # left limits: the state of the step's own interval at its end
             n = self.n_joints
             m = self.node_x.shape[1] // 2 - n
-            k = np.clip(np.searchsorted(self.node_t, t[:-1], side="right") - 1, 0,
-                        self.node_tau.shape[0] - 1)
+            k = self._interval_of(t[:-1])
             x, xdot = self.propagator(k, t[1:] - self.node_t[k])
             x, xdot = np.asarray(x).T, np.asarray(xdot).T
             end = (x[:, :n], x[:, n + m:2 * n + m], xdot[:, n + m:2 * n + m])
