@@ -91,8 +91,11 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 # | move | planned | SI-shaped | shorter | residual, planned vs shaped |
 # |---|---|---|---|---|
 # | 1 (design job) | 2.307 s | 3.209 s | 28 % | 10.50 vs 10.96 mm (prescribed, 0.1 ms) |
-# | 2 (`casflex plan`) | 2.013 s | 2.807 s | 28 % | 5.02 vs 4.16 mm (1 ms; over, unexplained) |
+# | 2 (`plan_robot_move`) | 1.900 s | 2.807 s | 32 % | 4.30 vs 4.16 mm (0.1 ms; 3.4 % over) |
 # | 3 | – | – | – | no result yet |
+#
+# Move 2's residual judged at 1 ms is 5.96 mm: a 1 ms step straddles the jumps of the
+# planned joint acceleration at the nodes, so plans are verified at 0.1 ms.
 #
 # The robust option on these moves has no result yet either (issue 15). The bundled study
 # `problems/studies/arm2link_move1.toml` carries the `[planner]` section switched off
