@@ -235,3 +235,44 @@ def arm_model(arm, model_cache):
         return built[key]
 
     return get
+
+
+@pytest.fixture
+def model_study(tmp_path):
+    """``make(model_lines="", replace=())``: the bundled design study copied, with the files
+    it names, under ``tmp_path/problems``; ``model_lines`` added to its [model] section and
+    the ``(old, new)`` pairs of ``replace`` applied (each ``old`` must be there)."""
+    study = ROOT / "problems" / "studies" / "arm2link_move1.toml"
+
+    def make(model_lines="", replace=()):
+        pdir = tmp_path / "problems"
+        (pdir / "sensors").mkdir(parents=True, exist_ok=True)
+        (pdir / "studies").mkdir(exist_ok=True)
+        for name in ("arm2link.toml", "arm2link_actuated.toml", "moves.toml",
+                     "sensors/arm2link_accel.toml"):
+            shutil.copy(ROOT / "problems" / name, pdir / name)
+        text = study.read_text()
+        for old, new in (("delta_order = 0", "delta_order = 0\n" + model_lines), *replace):
+            assert old in text
+            text = text.replace(old, new)
+        path = pdir / "studies" / "study.toml"
+        path.write_text(text)
+        return path
+
+    return make
+
+
+@pytest.fixture
+def build_kwargs(monkeypatch):
+    """The keywords the design job hands to build_model; the job is stopped there with
+    ``RuntimeError("stop")``."""
+    import casflex.model
+
+    seen = {}
+
+    def capture(*args, **kwargs):
+        seen.update(kwargs)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(casflex.model, "build_model", capture)
+    return seen

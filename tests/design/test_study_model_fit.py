@@ -4,9 +4,6 @@ design job run on a model fitted without a grid."""
 
 from __future__ import annotations
 
-import shutil
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -15,60 +12,24 @@ from casflex.errors import ProblemFileError
 from casflex.modal import OMEGA_TARGET
 from casflex.tmm import natural_frequencies
 
-ROOT = Path(__file__).resolve().parents[2]
-STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
 
-
-def _study(tmp_path, model_lines="", replace=()):
-    """The bundled study copied next to copies of the files it names, ``model_lines``
-    added to its [model] section and ``replace`` pairs applied."""
-    pdir = tmp_path / "problems"
-    (pdir / "studies").mkdir(parents=True)
-    (pdir / "sensors").mkdir()
-    for name in ("arm2link.toml", "arm2link_actuated.toml", "moves.toml",
-                 "sensors/arm2link_accel.toml"):
-        shutil.copy(ROOT / "problems" / name, pdir / name)
-    text = STUDY.read_text()
-    for old, new in (("delta_order = 0", "delta_order = 0\n" + model_lines), *replace):
-        assert old in text
-        text = text.replace(old, new)
-    path = pdir / "studies" / "study.toml"
-    path.write_text(text)
-    return path
-
-
-@pytest.fixture()
-def captured(monkeypatch):
-    """build_model's keywords, the job stopped there."""
-    import casflex.model
-
-    seen = {}
-
-    def capture(*args, **kwargs):
-        seen.update(kwargs)
-        raise RuntimeError("stop")
-
-    monkeypatch.setattr(casflex.model, "build_model", capture)
-    return seen
-
-
-def test_defaults_are_the_grid_in_the_eigen_basis(tmp_path, captured):
-    path = _study(tmp_path)
+def test_defaults_are_the_grid_in_the_eigen_basis(model_study, tmp_path, build_kwargs):
+    path = model_study()
     study = design.load_study(path)
     assert (study.model["fit"], study.model["basis"]) == ("grid", "eigen")
     with pytest.raises(RuntimeError, match="stop"):
         design.run_design(path, tmp_path / "out")
-    assert captured["fit"] is None and captured["basis"] == "eigen"
+    assert build_kwargs["fit"] is None and build_kwargs["basis"] == "eigen"
 
 
 @pytest.mark.parametrize("lines, fit, basis", [
     ('fit = "chebyshev"', "chebyshev", "eigen"),
     ('basis = "smooth"', None, "smooth"),
     ('fit = "chebyshev"\nbasis = "smooth"', "chebyshev", "smooth")])
-def test_fit_and_basis_reach_build_model(tmp_path, captured, lines, fit, basis):
+def test_fit_and_basis_reach_build_model(model_study, tmp_path, build_kwargs, lines, fit, basis):
     with pytest.raises(RuntimeError, match="stop"):
-        design.run_design(_study(tmp_path, lines), tmp_path / "out")
-    assert captured["fit"] == fit and captured["basis"] == basis
+        design.run_design(model_study(lines), tmp_path / "out")
+    assert build_kwargs["fit"] == fit and build_kwargs["basis"] == basis
 
 
 @pytest.mark.parametrize("lines, replace, field, rule", [
@@ -79,16 +40,16 @@ def test_fit_and_basis_reach_build_model(tmp_path, captured, lines, fit, basis):
     ('basis = "smooth"', (("enabled = false", "enabled = true"),), "model.basis",
      "[planner] cannot take"),
 ])
-def test_bad_fit_or_basis_fails_before_heavy_work(tmp_path, captured, lines, replace, field,
-                                                  rule):
+def test_bad_fit_or_basis_fails_before_heavy_work(model_study, tmp_path, build_kwargs, lines,
+                                                  replace, field, rule):
     with pytest.raises(ProblemFileError) as info:
-        design.run_design(_study(tmp_path, lines, replace), tmp_path / "out")
+        design.run_design(model_study(lines, replace), tmp_path / "out")
     assert field in str(info.value) and rule in str(info.value)
-    assert not captured
+    assert not build_kwargs
 
 
 @pytest.mark.slow
-def test_design_job_on_a_chebyshev_model(tmp_path):
+def test_design_job_on_a_chebyshev_model(model_study, tmp_path):
     """The job end to end on the arm's Chebyshev fit (two modes, small settings, C not
     compiled): the fit reported, the loop with the EKF finite and estimating, and the
     frequency span of mode 1 along the move equal to direct TMM at the move's end
@@ -98,7 +59,7 @@ def test_design_job_on_a_chebyshev_model(tmp_path):
     (Two modes, not one: with one mode the sensors' axial strain is zero to round-off,
     1e-20, and the fit's relative error estimate of that term reads 0.03, so the fit
     says it did not converge: a flaw of the estimate, reported.)"""
-    path = _study(tmp_path, 'fit = "chebyshev"', replace=(
+    path = model_study('fit = "chebyshev"', replace=(
         ("modes = 3 ", "modes = 2 "), ("grid_step = 3.0", "grid_step = 15.0"),
         ("dt = 0.001", "dt = 0.002"), ("settle = 3.0", "settle = 0.5"),
         ("compile = true", "compile = false")))
