@@ -385,6 +385,25 @@ def flop_limit(step):
             "flop_limit_us": None if ghz is None else flops / (2.0 * ghz * 1e3)}
 
 
+
+def timed_rounds(results, steps, rounds, time_c, log, prefix=""):
+    """Time each compiled step of ``steps`` (label -> Function) with ``time_c(step) ->
+    (us, deviation, _)`` in ``rounds`` interleaved rounds; ``results[label]`` gathers the
+    rounds, the median (``c_step_us``), the largest C-vs-Python deviation and the load of
+    each round."""
+    for rnd in range(rounds):
+        for label, stp in steps.items():
+            us, dev, _ = time_c(stp)
+            v = results.setdefault(label, {
+                "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
+                "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
+            v["rounds_us"].append(us)
+            v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
+            v["load_avg_1min"].append(os.getloadavg()[0])
+            v["c_step_us"] = float(np.median(v["rounds_us"]))
+            log(f"[{rnd}] {prefix}{label:12s} {us:7.2f} us  {stp.n_instructions()} instr")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -511,19 +530,11 @@ def main(argv=None):
         lsteps = {lk: ekf_step_function(dataclasses.replace(plant, lookup=lk), sensors, Q, R,
                                         dt, jacobians=args.jacobians, update=args.update)
                   for lk in ("interpolant", "local")}
-        for rnd in range(args.rounds):
-            for label, stp in lsteps.items():
-                us, dev, _ = time_c(stp, args.flags)
-                v = lookups.setdefault(label, {
-                    "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
-                    "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
-                v["rounds_us"].append(us)
-                v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
-                v["load_avg_1min"].append(os.getloadavg()[0])
-                v["c_step_us"] = float(np.median(v["rounds_us"]))
-                if instructions:
-                    v["instructions_per_step"] = instructions[0]
-                log(f"[{rnd}] lookup {label:12s} {us:7.2f} us  {stp.n_instructions()} instr")
+        timed_rounds(lookups, lsteps, args.rounds, lambda st: time_c(st, args.flags), log,
+                     "lookup ")
+        if instructions:
+            for label in lsteps:
+                lookups[label]["instructions_per_step"] = instructions[0]
         # the two steps' estimates differ by the two fits' rounding only
         ra, rb = (run_ekf(st, data.u, data.y, x0, P0).x for st in lsteps.values())
         lookups["max_rel_dev"] = float(np.max(np.abs(ra - rb)) / np.max(np.abs(ra)))
@@ -531,17 +542,8 @@ def main(argv=None):
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                                   update=args.update, guard=Guard(P0))
-        for rnd in range(args.rounds):
-            for label, stp in (("plain", step), ("guarded", gstep)):
-                us, dev, _ = time_c(stp, args.flags)
-                v = guarded.setdefault(label, {
-                    "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
-                    "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
-                v["rounds_us"].append(us)
-                v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
-                v["load_avg_1min"].append(os.getloadavg()[0])
-                v["c_step_us"] = float(np.median(v["rounds_us"]))
-                log(f"[{rnd}] {label:8s} {us:7.2f} us  {stp.n_instructions()} instr")
+        timed_rounds(guarded, {"plain": step, "guarded": gstep}, args.rounds,
+                     lambda st: time_c(st, args.flags), log)
         guarded["cost_ratio"] = guarded["guarded"]["c_step_us"] / guarded["plain"]["c_step_us"]
         guarded["rounds_ratio"] = [g / p for g, p in zip(guarded["guarded"]["rounds_us"],
                                                          guarded["plain"]["rounds_us"],
