@@ -387,13 +387,13 @@ def flop_limit(step):
 
 
 def timed_rounds(results, steps, rounds, time_c, log, prefix=""):
-    """Time each compiled step of ``steps`` (label -> Function) with ``time_c(step) ->
-    (us, deviation, _)`` in ``rounds`` interleaved rounds; ``results[label]`` gathers the
+    """Time each compiled step of ``steps`` (label -> Function) with ``time_c(label, step)
+    -> (us, deviation, _)`` in ``rounds`` interleaved rounds; ``results[label]`` gathers the
     rounds, the median (``c_step_us``), the largest C-vs-Python deviation and the load of
     each round."""
     for rnd in range(rounds):
         for label, stp in steps.items():
-            us, dev, _ = time_c(stp)
+            us, dev, _ = time_c(label, stp)
             v = results.setdefault(label, {
                 "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
                 "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
@@ -401,7 +401,8 @@ def timed_rounds(results, steps, rounds, time_c, log, prefix=""):
             v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
             v["load_avg_1min"].append(os.getloadavg()[0])
             v["c_step_us"] = float(np.median(v["rounds_us"]))
-            log(f"[{rnd}] {prefix}{label:12s} {us:7.2f} us  {stp.n_instructions()} instr")
+            log(f"[{rnd}] {prefix}{label:12s} {us:7.2f} us  {stp.n_instructions()} instr  "
+                f"dev {dev:.1e}")
 
 
 def main(argv=None):
@@ -512,25 +513,15 @@ def main(argv=None):
             steps[label] = ekf_step_function(pl, sensors, Q, R, dt, **opts)
         # interleaved rounds: on a shared machine one variant's median can catch a busy
         # spell; the median over the rounds is reported (and each round's figure)
-        for rnd in range(args.rounds):
-            for label, _, _, _, flags in VARIANTS:
-                stp = steps[label]
-                us, dev, _ = time_c(stp, flags)
-                v = variants.setdefault(label, {
-                    "sx_instructions": int(stp.n_instructions()), "rounds_us": [],
-                    "c_vs_python_max_rel_dev": 0.0, "load_avg_1min": []})
-                v["rounds_us"].append(us)
-                v["c_vs_python_max_rel_dev"] = max(v["c_vs_python_max_rel_dev"], dev)
-                v["load_avg_1min"].append(os.getloadavg()[0])
-                v["c_step_us"] = float(np.median(v["rounds_us"]))
-                log(f"[{rnd}] {label:62s} {us:7.2f} us  {stp.n_instructions()} instr  "
-                    f"dev {dev:.1e}")
+        flags_of = {label: flags for label, _, _, _, flags in VARIANTS}
+        timed_rounds(variants, steps, args.rounds,
+                     lambda label, st: time_c(st, flags_of[label]), log)
     lookups = {}
     if args.lookups:  # the plant's spline table: CasADi's de Boor routine vs local
         lsteps = {lk: ekf_step_function(dataclasses.replace(plant, lookup=lk), sensors, Q, R,
                                         dt, jacobians=args.jacobians, update=args.update)
                   for lk in ("interpolant", "local")}
-        timed_rounds(lookups, lsteps, args.rounds, lambda st: time_c(st, args.flags), log,
+        timed_rounds(lookups, lsteps, args.rounds, lambda _, st: time_c(st, args.flags), log,
                      "lookup ")
         if instructions:
             for label in lsteps:
@@ -543,7 +534,7 @@ def main(argv=None):
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                                   update=args.update, guard=Guard(P0))
         timed_rounds(guarded, {"plain": step, "guarded": gstep}, args.rounds,
-                     lambda st: time_c(st, args.flags), log)
+                     lambda _, st: time_c(st, args.flags), log)
         guarded["cost_ratio"] = guarded["guarded"]["c_step_us"] / guarded["plain"]["c_step_us"]
         guarded["rounds_ratio"] = [g / p for g, p in zip(guarded["guarded"]["rounds_us"],
                                                          guarded["plain"]["rounds_us"],
