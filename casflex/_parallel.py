@@ -424,11 +424,12 @@ def _drop_kept(token):
         _KEPT.pop(token, None)
 
 
-def _chunked(jobs, client, chunksize):
+def _chunk_size(n_jobs, client, chunksize):
+    """``chunksize``, or by default ``ceil(N / (4 workers))`` calls, at most 16."""
+    if chunksize is not None:
+        return chunksize
     workers = max(1, sum(client.nthreads().values()))
-    if chunksize is None:
-        chunksize = max(1, min(16, -(-len(jobs) // (4 * workers))))
-    return [jobs[i:i + chunksize] for i in range(0, len(jobs), chunksize)]
+    return max(1, min(16, -(-n_jobs // (4 * workers))))
 
 
 def map_keep(func: Callable, jobs: Iterable, client: Client, token: str, *,
@@ -474,7 +475,8 @@ def map_keep(func: Callable, jobs: Iterable, client: Client, token: str, *,
     jobs = list(jobs)
     if not jobs:
         return
-    chunks = _chunked(jobs, client, chunksize)
+    size = _chunk_size(len(jobs), client, chunksize)
+    chunks = [jobs[i:i + size] for i in range(0, len(jobs), size)]
     tags = [[t for t, _ in c] for c in chunks]
     futures = client.map(_keep_chunk, [func] * len(chunks),
                          [pickle.dumps([a for _, a in c], protocol=pickle.HIGHEST_PROTOCOL)
@@ -529,9 +531,10 @@ def map_kept(func: Callable, jobs: Iterable, client: Client, token: str,
     groups: dict = {}
     for job in jobs:  # one map per worker, its chunks bound to it
         groups.setdefault(where.get(job[0]), []).append(job)
+    size = _chunk_size(len(jobs), client, chunksize)  # of all the jobs: as many tasks
     futures, by_key = [], {}
     for worker, group in groups.items():
-        chunks = _chunked(group, client, chunksize)
+        chunks = [group[i:i + size] for i in range(0, len(group), size)]
         tags = [[t for t, _ in c] for c in chunks]
         place = {} if worker is None else {"workers": [worker], "allow_other_workers": True}
         mapped = client.map(_on_kept_chunk, [func] * len(chunks),

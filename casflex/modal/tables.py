@@ -120,6 +120,8 @@ MIN_MAC = 0.8
 MAX_GRID_POINTS = 100_000
 #: basis of the time estimate in the grid-size error [s per point and flexible link]
 SECONDS_PER_POINT_AND_LINK = 0.015
+#: keep a Dask build's raw modes on the workers (no cache; False: the path before)
+KEEP_ON_WORKERS = True
 
 
 # ------------------------------------------------------------------ shape joints
@@ -287,11 +289,9 @@ def _point_quantities(func, robot, q, arrays):
 
 
 def _first_modes(t, n_modes):
-    """The first ``n_modes`` tracked modes of ``t``."""
     keep = slice(0, int(n_modes))
-    return dataclasses.replace(t, **{
-        "omega": t.omega[keep], "multiplicity": t.multiplicity[keep],
-        **{f: getattr(t, f)[keep] for f in trk.MODE_FIELDS}})
+    return dataclasses.replace(t, **{f: getattr(t, f)[keep] for f in (
+        "omega", "multiplicity", *trk.MODE_FIELDS)})
 
 
 def _point_kept(robot, q, count, n_points, directions, weighting):
@@ -791,7 +791,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     # point comes here, and the tracked points are made where their raw modes are.
     eye = np.eye(robot.n_joints)
     directions = [d for k in joints for d in (eye[k].copy(), -eye[k])]
-    kept = client is not None and not use_cache and bool(quantities) and basis == "eigen"
+    kept = (KEEP_ON_WORKERS and client is not None and not use_cache and bool(quantities)
+            and basis == "eigen")
     token, where = uuid.uuid4().hex, {}
     try:
         if kept:
@@ -942,8 +943,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
 
 
 def _boundary_points(grid, gshape):
-    """The grid indices :func:`_periodic_flags` compares: both ends of every axis that
-    may be periodic."""
+    """Both ends of every axis that may be periodic (what _periodic_flags compares)."""
     out = set()
     for ax, a in enumerate(grid):
         if periodic_axis_kind(a) is not None:

@@ -201,6 +201,26 @@ def test_dask_cluster_gives_the_same_table_as_the_process_pool(arm, tmp_path, mo
         np.testing.assert_allclose(dask.values[name], pool.values[name], rtol=0, atol=0)
 
 
+def test_dask_build_keeping_the_modes_on_the_workers_equals_the_in_process_build(arm):
+    distributed = pytest.importorskip("distributed")
+    from casflex.modal import tables
+
+    grid = np.linspace(-np.pi, np.pi, 8, endpoint=False)  # a full turn: periodic check
+    local = build_table(arm, grid, 3, cache_dir=False, processes=1)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        assert tables.KEEP_ON_WORKERS
+        kept = build_table(arm, grid, 3, cache_dir=False, client=client)
+    assert local.periodic == kept.periodic == (True,)
+    assert sorted(local.values) == sorted(kept.values)
+    for name in local.values:  # bit for bit: the same arithmetic in other processes
+        np.testing.assert_array_equal(kept.values[name], local.values[name])
+    skip = ("seconds", "seconds_modes", "seconds_tracking", "seconds_quantities")
+    assert {k: v for k, v in kept.info.items() if k not in skip} == {
+        k: v for k, v in local.info.items() if k not in skip}
+
+
 # ------------------------------------------------------------------ interpolants
 
 
