@@ -214,8 +214,8 @@ def correlation(a: ModeShapes | np.ndarray, b: ModeShapes | np.ndarray,
     """
     fa = _as_features(a, robot, weighting)
     fb = _as_features(b, robot, weighting)
-    na = np.linalg.norm(fa, axis=1)
-    nb = np.linalg.norm(fb, axis=1)
+    na = _row_norms(fa)
+    nb = _row_norms(fb)
     na[na == 0.0] = 1.0
     nb[nb == 0.0] = 1.0
     return (fa @ fb.T) / np.outer(na, nb)
@@ -310,8 +310,14 @@ def _groups(shapes, rel_tol):
     return groups
 
 
+def _row_norms(F, keepdims=False):
+    """``np.linalg.norm(F, axis=1)``, the same arithmetic without its call overhead (a
+    grid's tracking makes hundreds of these on a few rows)."""
+    return np.sqrt(np.add.reduce(F * F, axis=1, keepdims=keepdims))
+
+
 def _unit_rows(F):
-    n = np.linalg.norm(F, axis=1, keepdims=True)
+    n = _row_norms(F, keepdims=True)
     n[n == 0.0] = 1.0
     return F / n
 
@@ -319,9 +325,15 @@ def _unit_rows(F):
 def _match(ref, F):
     """Signed assignment of the tracked reference rows to the modes ``F`` (no degeneracy)."""
     C = correlation(ref, F)
-    from scipy.optimize import linear_sum_assignment  # lazy: a warm model needs none
+    C2 = C**2
+    rows, cols = np.arange(C.shape[0]), np.argmax(C2, axis=1)
+    # each row's strict maximum in a column of its own is the unique best assignment:
+    # the one linear_sum_assignment returns (it is called otherwise)
+    if (np.unique(cols).size < cols.size
+            or (C2 == C2[rows, cols][:, None]).sum(axis=1).max() > 1):
+        from scipy.optimize import linear_sum_assignment  # lazy: a warm model needs none
 
-    rows, cols = linear_sum_assignment(-(C**2))
+        rows, cols = linear_sum_assignment(-C2)
     T = np.zeros((ref.shape[0], F.shape[0]))
     sgn = np.where(C[rows, cols] < 0.0, -1.0, 1.0)
     T[rows, cols] = sgn
@@ -837,14 +849,14 @@ def _track_grid(feats, grps, arr, count):
                 T[idx], qual[idx], deg[idx] = tr.transform[k], tr.mac[k], tr.degenerate[k]
     order = np.empty(gshape + (n,), dtype=int)
     sign = np.empty(gshape + (n,))
-    tracked = np.empty(gshape, dtype=object)
+    unit = np.empty(gshape, dtype=object)  # unit rows of the tracked features
     for idx in np.ndindex(gshape):
         t = T[idx]
         order[idx] = np.argmax(np.abs(t), axis=1)
         s = np.sign(t[np.arange(n), order[idx]])
         s[s == 0] = 1.0
         sign[idx] = s
-        tracked[idx] = t @ feats[idx]
+        unit[idx] = _unit_rows(t @ feats[idx])
     edge = np.full(gshape + (ndim, n), np.nan)
     for idx in np.ndindex(gshape):
         for axis in range(ndim):
@@ -852,8 +864,7 @@ def _track_grid(feats, grps, arr, count):
                 continue
             prev = list(idx)
             prev[axis] -= 1
-            a, b = _unit_rows(tracked[tuple(prev)]), _unit_rows(tracked[idx])
-            edge[idx + (axis,)] = np.sum(a * b, axis=1)
+            edge[idx + (axis,)] = np.sum(unit[tuple(prev)] * unit[idx], axis=1)
     return GridTracking(transform=T, order=order, sign=sign, mac=qual, degenerate=deg,
                         edge_correlation=edge)
 
