@@ -380,9 +380,10 @@ _KEPT_TOKENS = 4
 _KEPT_LOCK = threading.Lock()
 
 
-def _keep_chunk(func, packed_args, token, tags, client_pid):
-    """Worker side of :func:`map_keep`: ``func(*args) -> (summary, kept)`` per call; the
-    kept parts stay here, the summaries and this worker's address go back."""
+def _keep_chunk(func, packed_jobs, token, client_pid):
+    """Worker side of :func:`map_keep`: ``func(*args) -> (summary, kept)`` per pickled
+    ``(tag, args)``; the kept parts stay here, the summaries and this worker's address go
+    back."""
     import pickle
 
     from distributed import get_worker
@@ -390,7 +391,7 @@ def _keep_chunk(func, packed_args, token, tags, client_pid):
     if os.getpid() != client_pid:
         single_threaded_blas()
     summaries = []
-    for tag, args in zip(tags, pickle.loads(packed_args), strict=True):
+    for tag, args in pickle.loads(packed_jobs):
         summary, kept = func(*args)
         with _KEPT_LOCK:
             _KEPT.setdefault(token, {})[tag] = kept
@@ -401,7 +402,7 @@ def _keep_chunk(func, packed_args, token, tags, client_pid):
     return get_worker().address, pickle.dumps(summaries, protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def _on_kept_chunk(func, packed_args, token, tags, client_pid):
+def _on_kept_chunk(func, packed_jobs, token, client_pid):
     """Worker side of :func:`map_kept`: ``func(kept, *args)``, the kept result taken out
     of this worker's store (None when it is not here: the caller's func recomputes)."""
     import pickle
@@ -409,7 +410,7 @@ def _on_kept_chunk(func, packed_args, token, tags, client_pid):
     if os.getpid() != client_pid:
         single_threaded_blas()
     results = []
-    for tag, args in zip(tags, pickle.loads(packed_args), strict=True):
+    for tag, args in pickle.loads(packed_jobs):
         with _KEPT_LOCK:
             store = _KEPT.get(token, {})
             kept = store.pop(tag, None)
@@ -479,9 +480,8 @@ def map_keep(func: Callable, jobs: Iterable, client: Client, token: str, *,
     chunks = [jobs[i:i + size] for i in range(0, len(jobs), size)]
     tags = [[t for t, _ in c] for c in chunks]
     futures = client.map(_keep_chunk, [func] * len(chunks),
-                         [pickle.dumps([a for _, a in c], protocol=pickle.HIGHEST_PROTOCOL)
-                          for c in chunks], [token] * len(chunks), tags,
-                         [os.getpid()] * len(chunks), pure=False)
+                         [pickle.dumps(c, protocol=pickle.HIGHEST_PROTOCOL) for c in chunks],
+                         [token] * len(chunks), [os.getpid()] * len(chunks), pure=False)
     by_key = {f.key: t for f, t in zip(futures, tags, strict=True)}
     with progress_bar(len(jobs), desc, progress) as bar:
         for fut, (worker, packed) in _gather_batches(client, futures):
@@ -538,10 +538,9 @@ def map_kept(func: Callable, jobs: Iterable, client: Client, token: str,
         tags = [[t for t, _ in c] for c in chunks]
         place = {} if worker is None else {"workers": [worker], "allow_other_workers": True}
         mapped = client.map(_on_kept_chunk, [func] * len(chunks),
-                            [pickle.dumps([a for _, a in c],
-                                          protocol=pickle.HIGHEST_PROTOCOL) for c in chunks],
-                            [token] * len(chunks), tags, [os.getpid()] * len(chunks),
-                            pure=False, **place)
+                            [pickle.dumps(c, protocol=pickle.HIGHEST_PROTOCOL)
+                             for c in chunks], [token] * len(chunks),
+                            [os.getpid()] * len(chunks), pure=False, **place)
         futures += mapped
         by_key.update({f.key: t for f, t in zip(mapped, tags, strict=True)})
     with progress_bar(len(jobs), desc, progress) as bar:
