@@ -8,6 +8,10 @@ through :func:`worker_pool`. The per-call work there is short (tens of ms of num
 calls travel in chunks and, on Dask, each chunk's arguments and results are pickled into
 one buffer.
 
+On Dask, :func:`map_keep` leaves a part of each result on the worker that made it, for
+:func:`map_kept` to use there (a table build's raw mode shapes: only the tracking's data
+of each point travels to the client).
+
 Every worker process (local pool or Dask) runs its BLAS on one thread
 (:func:`single_threaded_blas`): the workers already fill the cores, and OpenBLAS's own
 threads in each of them would fight for the same cores (on 2 cores, measured in the test

@@ -7,9 +7,9 @@ space"). This module tabulates them:
 
 1. :func:`shape_joints` finds those joints (the rule is written there).
 2. :func:`build_table` runs the TMM (:func:`casflex.tmm.modes`) at every point of a grid of
-   the shape joints — in parallel, on a local process pool or a Dask cluster — then tracks
-   identity and sign sequentially (:mod:`casflex.modal.tracking`), then evaluates the
-   per-configuration model quantities (by default
+   the shape joints — in parallel, on a local process pool or a Dask cluster (without a
+   cache the raw modes stay on its workers) — then tracks identity and sign sequentially
+   (:mod:`casflex.modal.tracking`), then evaluates the model quantities (by default
    :func:`casflex.modal.integrals.configuration_quantities` after
    :func:`casflex.modal.normalize.mass_normalize`).
 3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the

@@ -184,6 +184,7 @@ def test_killed_build_resumes_where_it_stopped(arm, tmp_path):
 # ------------------------------------------------------------------ parallel back ends
 
 
+@pytest.mark.filterwarnings("ignore:modal table of 'arm2link'")  # the coarse turn's MAC
 def test_dask_cluster_gives_the_same_table_as_the_process_pool(arm, tmp_path, monkeypatch):
     # the Dask builds keep the raw modes on the workers (tables.KEEP_ON_WORKERS): the
     # tracking runs on per-point data and the tracked points are made on the workers;
