@@ -467,13 +467,17 @@ def map_keep(func: Callable, jobs: Iterable, client: Client, token: str, *,
 
     Examples
     --------
-    >>> import distributed
-    >>> with distributed.Client(processes=False, n_workers=1, dashboard_address=None) as c:
-    ...     got = sorted(map_keep(divmod, [(i, (i, 2)) for i in range(3)], c, "doc"))
-    ...     where = {tag: worker for tag, _, worker in got}
-    ...     used = sorted(map_kept(divmod, [(i, (1,)) for i in range(3)], c, "doc", where))
-    >>> [(tag, summary) for tag, summary, _ in got], used   # divmod(i, 2); divmod(i % 2, 1)
-    ([(0, 0), (1, 0), (2, 1)], [(0, (0, 0)), (1, (1, 0)), (2, (0, 0))])
+    On a cluster ``c`` (started once: a doctest would pay its start-up; see
+    ``tests/test_parallel.py``), with ``divmod(i, 2)`` as ``(summary, kept)``::
+
+        got = sorted(map_keep(divmod, [(i, (i, 2)) for i in range(3)], c, "doc"))
+        # [(0, 0, addr), (1, 0, addr), (2, 1, addr)]: the quotients, the workers
+        where = {tag: worker for tag, _, worker in got}
+        sorted(map_kept(divmod, [(i, (1,)) for i in range(3)], c, "doc", where))
+        # [(0, (0, 0)), (1, (1, 0)), (2, (0, 0))]: divmod(i % 2, 1) on those workers
+
+    >>> list(map_keep(divmod, [], None, "nothing"))   # no jobs: no cluster needed
+    []
     """
     import pickle
 
@@ -524,7 +528,7 @@ def map_kept(func: Callable, jobs: Iterable, client: Client, token: str,
 
     Examples
     --------
-    >>> list(map_kept(abs, [], None, "nothing", {}))   # see map_keep for a cluster
+    >>> list(map_kept(abs, [], None, "nothing", {}))   # see map_keep for a cluster's use
     []
     """
     import pickle
