@@ -305,14 +305,13 @@ def _point_kept(robot, q, count, n_points, directions, weighting):
 
 def _tracked_point(arrays, func, robot, q, transform, order, n_modes, boundary, weighting,
                    redo):
-    """Quantities of one point from its kept raw modes (recomputed by ``redo`` when they
-    are gone), tracked here; and the tracked features where the periodicity check needs
-    them (``boundary``)."""
-    if arrays is None:
-        arrays = _point_modes(*redo)
+    """Quantities of a point from its kept raw modes (or ``redo``ne), tracked here; the
+    tracked features where the periodicity check needs them (``boundary``); if redone."""
+    redone = arrays is None
+    arrays = _point_modes(*redo) if redone else arrays
     tracked = _first_modes(trk.combine(_arrays_to_shapes(arrays), transform, order), n_modes)
     return (_point_quantities(func, robot, q, _shapes_to_arrays(tracked)),
-            trk.shape_features(tracked, robot, weighting) if boundary else None)
+            trk.shape_features(tracked, robot, weighting) if boundary else None, redone)
 
 
 def compute_modes(robot: Robot, qs: ArrayLike, count: int, *, n_points: int = 51,
@@ -873,8 +872,8 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
             info["clusters"] = gt.clusters_1based()
         if kept:
             boundary = _boundary_points(grid, gshape)
-            per_point, tracked = [None] * len(indices), np.empty(gshape, dtype=object)
-            for flat, (result, features) in map_kept(
+            per_point, tracked, redone = [None] * len(indices), np.empty(gshape, object), False
+            for flat, (result, features, again) in map_kept(
                     _tracked_point, [(flat, (
                         quantities, robot, q_at(idx), gt.transform[idx], gt.order[idx],
                         int(n_modes), idx in boundary, weighting,
@@ -882,6 +881,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                         for flat, idx in enumerate(indices)],
                     client, token, where, progress=progress, desc="quantities"):
                 per_point[flat], tracked[indices[flat]] = result, features
+                redone = redone or again
+            if redone:  # some ran away from their kept parts: free those
+                drop_kept(client, token)
             info["computed_quantities"] = len(indices)
         elif quantities:
             per_point = [None] * len(indices)
@@ -944,12 +946,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
 
 def _boundary_points(grid, gshape):
     """Both ends of every axis that may be periodic (what _periodic_flags compares)."""
-    out = set()
-    for ax, a in enumerate(grid):
-        if periodic_axis_kind(a) is not None:
-            for idx in np.ndindex(gshape[:ax] + gshape[ax + 1:]):
-                out.update((idx[:ax] + (0,) + idx[ax:], idx[:ax] + (gshape[ax] - 1,) + idx[ax:]))
-    return out
+    return {idx[:ax] + (i,) + idx[ax:] for ax, a in enumerate(grid)
+            if periodic_axis_kind(a) is not None
+            for idx in np.ndindex(gshape[:ax] + gshape[ax + 1:]) for i in (0, gshape[ax] - 1)}
 
 
 def _periodic_flags(grid, tracked, omega, robot, weighting, threshold=0.9):
