@@ -20,6 +20,11 @@
     ``dask_client_cpu_s`` splits the client's CPU into its main thread (build_table's
     own work) and the others (scheduler, comms, nannies), ``dask_workers_cpu_s`` the
     workers' CPU.
+``dask_overhead_cpu_fraction_old``, ``dask_client_cpu_s_old``, ``dask_workers_cpu_s_old``
+    the same for the path before (``casflex.modal.tables.KEEP_ON_WORKERS = False``: every
+    point's raw mode shapes come to the client, which tracks them and sends the tracked
+    shapes back), a build after each 2-worker build on the same cluster; the tables
+    compared (``dask_tables_identical`` covers 1 worker, 2 workers and the old path).
 ``dask_task``
     the per-task cost of the Dask path, from ``--tasks`` no-op chunks run through
     :func:`casflex._parallel.parallel_map` on the 2-worker cluster: the client process's
@@ -130,13 +135,19 @@ def _noop(x):
     return x
 
 
-def measure_build(client, robot, grid, n_modes):
-    """Build a table on ``client``; wall, client CPU (main, other threads), workers' CPU."""
-    from casflex.modal.tables import build_table
+def measure_build(client, robot, grid, n_modes, keep=True):
+    """Build a table on ``client``; wall, client CPU (main, other threads), workers' CPU.
+    ``keep=False``: the raw modes come to the client (the path before issue 17 part 6's
+    second step, ``casflex.modal.tables.KEEP_ON_WORKERS``)."""
+    from casflex.modal import tables
 
     w0, c0 = client.run(_cpu), _thread_cpu()
     t0 = time.perf_counter()
-    table = build_table(robot, grid, n_modes, cache_dir=False, client=client)
+    before, tables.KEEP_ON_WORKERS = getattr(tables, "KEEP_ON_WORKERS", None), keep
+    try:
+        table = tables.build_table(robot, grid, n_modes, cache_dir=False, client=client)
+    finally:
+        tables.KEEP_ON_WORKERS = before
     wall = time.perf_counter() - t0
     c1, w1 = _thread_cpu(), client.run(_cpu)
     workers = sum(w1[k] - w0[k] for k in w1)
@@ -304,7 +315,7 @@ def bench_dask(repeat, n_tasks):
 
     robot = load(ROOT / "problems/testbed.toml")
     grid = [np.linspace(-np.pi / 2, np.pi / 2, 10), np.linspace(-np.pi, np.pi, 12)]
-    times, tables, clients, cpu = {1: np.inf, 2: np.inf}, {}, {}, []
+    times, tables, clients, cpu, cpu_old = {1: np.inf, 2: np.inf}, {}, {}, [], []
     with contextlib.ExitStack() as stack:
         stack.enter_context(dask.config.set(DASK_CONFIG))
         for n in (1, 2):
@@ -322,6 +333,9 @@ def bench_dask(repeat, n_tasks):
                 times[n] = min(times[n], used["wall_s"])
                 if n == 2:
                     cpu.append(used)
+                    tables["old"], used = measure_build(clients[n], robot, grid, 4,
+                                                        keep=False)
+                    cpu_old.append(used)
         tasks = measure_tasks(clients[2], n_tasks)
         tasks_old_new = measure_tasks_old_new(clients[2], n_tasks)
         from casflex._parallel import blas_threads
@@ -332,9 +346,11 @@ def bench_dask(repeat, n_tasks):
                  (arm3.joint_limits[k] for k in (1, 2, 3))]
         _, arm3_cpu = measure_build(clients[2], arm3, small, 4)
         arm3_cpu["points"] = 4 ** 3
-    same = all(np.array_equal(tables[1].values[k], tables[2].values[k])
-               for k in tables[1].values)
-    return times, same, tables[2], cpu, tasks, arm3_cpu, tasks_old_new, worker_blas
+    same = all(np.array_equal(tables[1].values[k], tables[m].values[k])
+               and tables[1].info["periodic"] == tables[m].info["periodic"]
+               for k in tables[1].values for m in (2, "old"))
+    return (times, same, tables[2], cpu, tasks, arm3_cpu, tasks_old_new, worker_blas,
+            cpu_old)
 
 
 def _burn(n):
@@ -403,8 +419,8 @@ def main(argv=None):
     tables_s, table = (None, None) if args.dask_only else bench_table(args.repeat)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the coarse 2-D grid: low MAC
-        dask_times, same, table2d, cpu, tasks, arm3, tasks_old_new, worker_blas = \
-            bench_dask(args.repeat, args.tasks)
+        (dask_times, same, table2d, cpu, tasks, arm3, tasks_old_new, worker_blas,
+         cpu_old) = bench_dask(args.repeat, args.tasks)
     pool_blas = bench_pool_blas(args.repeat) if args.pool_blas else None
     sweep_s = None if args.dask_only else bench_sweep(args.repeat)
     capacity_after = cpu_capacity()
@@ -418,6 +434,11 @@ def main(argv=None):
         "dask_client_cpu_s": [{"main": c["client_main_s"], "other": c["client_other_s"]}
                               for c in cpu],
         "dask_workers_cpu_s": [c["workers_s"] for c in cpu],
+        "dask_overhead_cpu_fraction_old": [(c["client_main_s"] + c["client_other_s"])
+                                           / c["workers_s"] for c in cpu_old],
+        "dask_client_cpu_s_old": [{"main": c["client_main_s"],
+                                   "other": c["client_other_s"]} for c in cpu_old],
+        "dask_workers_cpu_s_old": [c["workers_s"] for c in cpu_old],
         "dask_task": tasks,
         "dask_task_old_new": tasks_old_new,
         "dask_worker_blas_threads": list(worker_blas.values()),

@@ -8,6 +8,10 @@ through :func:`worker_pool`. The per-call work there is short (tens of ms of num
 calls travel in chunks and, on Dask, each chunk's arguments and results are pickled into
 one buffer.
 
+On Dask, :func:`map_keep` leaves a part of each result on the worker that made it, for
+:func:`map_kept` to use there (a table build's raw mode shapes: only the tracking's data
+of each point travels to the client).
+
 Every worker process (local pool or Dask) runs its BLAS on one thread
 (:func:`single_threaded_blas`): the workers already fill the cores, and OpenBLAS's own
 threads in each of them would fight for the same cores (on 2 cores, measured in the test
@@ -21,6 +25,8 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -32,7 +38,7 @@ if TYPE_CHECKING:
     from tqdm import tqdm
 
 __all__ = ["parallel_map", "progress_bar", "worker_pool", "WorkerPool", "blas_threads",
-           "single_threaded_blas", "THREAD_VARIABLES"]
+           "single_threaded_blas", "THREAD_VARIABLES", "map_keep", "map_kept", "drop_kept"]
 
 #: the environment variables through which a user sets the BLAS and OpenMP threads
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
@@ -321,26 +327,17 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
         if client is not None:
             import pickle
 
-            from distributed import as_completed
-
-            # one map (one message to the scheduler) and the results fetched in batches of
-            # what has completed, one gather each: half the client's CPU per task of a
-            # submit and a result() each (benchmarks/README_tables.md). Not
-            # as_completed(with_results=True): its concurrent fetches broke a comm
-            # (tornado's write buffer assertion) and left the loop waiting
+            # one map (one message to the scheduler) per call, results gathered in
+            # batches of completed chunks (_gather_batches)
             futures = client.map(_run_chunk_packed, [func] * len(chunks),
                                  [pickle.dumps([a for _, a in c],
                                                protocol=pickle.HIGHEST_PROTOCOL)
                                   for c in chunks], [os.getpid()] * len(chunks), pure=False)
             tags = {f.key: [t for t, _ in c] for f, c in zip(futures, chunks, strict=True)}
-            try:
-                for batch in as_completed(futures).batches():
-                    for fut, packed in zip(batch, client.gather(batch), strict=True):
-                        results = pickle.loads(packed)
-                        bar.update(len(results))
-                        yield from zip(tags[fut.key], results, strict=True)
-            finally:
-                client.cancel([f for f in futures if not f.done()])
+            for fut, packed in _gather_batches(client, futures):
+                results = pickle.loads(packed)
+                bar.update(len(results))
+                yield from zip(tags[fut.key], results, strict=True)
         elif pool is None:
             for tag, args in jobs:
                 result = func(*args)
@@ -361,3 +358,219 @@ def parallel_map(func: Callable, jobs: Iterable, *, client: Client | None = None
         bar.close()
         if pool is not None and not shared:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _gather_batches(client, futures):
+    """``(future, result)`` of Dask futures as they complete, one gather per batch of
+    completed ones: half the client's CPU per task of a ``result()`` each
+    (benchmarks/README_tables.md). Not ``as_completed(with_results=True)``: its
+    concurrent fetches broke a comm (tornado's write buffer assertion) and left the loop
+    waiting. What is left is cancelled when the caller stops (an error, a break)."""
+    from distributed import as_completed
+
+    try:
+        for batch in as_completed(futures).batches():
+            yield from zip(batch, client.gather(batch), strict=True)
+    finally:
+        client.cancel([f for f in futures if not f.done()])
+
+
+# ------------------------------------------------------------------ results kept on workers
+
+#: results kept in this process by :func:`map_keep` (a Dask worker), per token (newest
+#: last): ``{tag: result}``; a few tokens at most (an abandoned build's entries go)
+_KEPT: OrderedDict = OrderedDict()
+_KEPT_TOKENS = 4
+_KEPT_LOCK = threading.Lock()
+
+
+def _keep_chunk(func, packed_jobs, token, client_pid):
+    """Worker side of :func:`map_keep`: ``func(*args) -> (summary, kept)`` per pickled
+    ``(tag, args)``; the kept parts stay here, the summaries and this worker's address go
+    back."""
+    import pickle
+
+    from distributed import get_worker
+
+    if os.getpid() != client_pid:
+        single_threaded_blas()
+    summaries = []
+    for tag, args in pickle.loads(packed_jobs):
+        summary, kept = func(*args)
+        with _KEPT_LOCK:
+            _KEPT.setdefault(token, {})[tag] = kept
+            _KEPT.move_to_end(token)
+            while len(_KEPT) > _KEPT_TOKENS:
+                _KEPT.popitem(last=False)
+        summaries.append(summary)
+    return get_worker().address, pickle.dumps(summaries, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _on_kept_chunk(func, packed_jobs, token, client_pid):
+    """Worker side of :func:`map_kept`: ``func(kept, *args)``, the kept result taken out
+    of this worker's store (None when it is not here: the caller's func recomputes)."""
+    import pickle
+
+    if os.getpid() != client_pid:
+        single_threaded_blas()
+    results = []
+    for tag, args in pickle.loads(packed_jobs):
+        with _KEPT_LOCK:
+            store = _KEPT.get(token, {})
+            kept = store.pop(tag, None)
+            if not store:
+                _KEPT.pop(token, None)
+        results.append(func(kept, *args))
+    return pickle.dumps(results, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _drop_kept(token):
+    with _KEPT_LOCK:
+        _KEPT.pop(token, None)
+
+
+def _chunk_size(n_jobs, client, chunksize):
+    """``chunksize``, or by default ``ceil(N / (4 workers))`` calls, at most 16."""
+    if chunksize is not None:
+        return chunksize
+    workers = max(1, sum(client.nthreads().values()))
+    return max(1, min(16, -(-n_jobs // (4 * workers))))
+
+
+def map_keep(func: Callable, jobs: Iterable, client: Client, token: str, *,
+             progress: bool = False, desc: str = "", chunksize: int | None = None
+             ) -> Iterator[tuple]:
+    """:func:`parallel_map` on a Dask cluster whose calls return ``(summary, kept)``:
+    only the summary comes back, the kept part stays on the worker that made it, for
+    :func:`map_kept`.
+
+    A table build's raw mode shapes are ~10× its summary (the tracking's features):
+    kept on the workers they cross the network once instead of three times, and the
+    client does not unpickle them.
+
+    Parameters
+    ----------
+    func : callable
+        A picklable (module-level) function returning ``(summary, kept)``.
+    jobs : iterable of (hashable, tuple)
+        A tag (unique; the key of the kept part) and the positional arguments.
+    client : dask.distributed.Client
+    token : str
+        Names this set of kept parts on the workers (unique per use, e.g. a uuid).
+    progress, desc, chunksize
+        As in :func:`parallel_map`.
+
+    Yields
+    ------
+    (tag, summary, worker)
+        In completion order; ``worker`` is the address of the worker keeping the part.
+
+    Examples
+    --------
+    On a cluster ``c`` (started once: a doctest would pay its start-up; see
+    ``tests/test_parallel.py``), with ``divmod(i, 2)`` as ``(summary, kept)``::
+
+        got = sorted(map_keep(divmod, [(i, (i, 2)) for i in range(3)], c, "doc"))
+        # [(0, 0, addr), (1, 0, addr), (2, 1, addr)]: the quotients, the workers
+        where = {tag: worker for tag, _, worker in got}
+        sorted(map_kept(divmod, [(i, (1,)) for i in range(3)], c, "doc", where))
+        # [(0, (0, 0)), (1, (1, 0)), (2, (0, 0))]: divmod(i % 2, 1) on those workers
+
+    >>> list(map_keep(divmod, [], None, "nothing"))   # no jobs: no cluster needed
+    []
+    """
+    import pickle
+
+    jobs = list(jobs)
+    if not jobs:
+        return
+    size = _chunk_size(len(jobs), client, chunksize)
+    chunks = [jobs[i:i + size] for i in range(0, len(jobs), size)]
+    tags = [[t for t, _ in c] for c in chunks]
+    futures = client.map(_keep_chunk, [func] * len(chunks),
+                         [pickle.dumps(c, protocol=pickle.HIGHEST_PROTOCOL) for c in chunks],
+                         [token] * len(chunks), [os.getpid()] * len(chunks), pure=False)
+    by_key = {f.key: t for f, t in zip(futures, tags, strict=True)}
+    with progress_bar(len(jobs), desc, progress) as bar:
+        for fut, (worker, packed) in _gather_batches(client, futures):
+            summaries = pickle.loads(packed)
+            bar.update(len(summaries))
+            for tag, summary in zip(by_key[fut.key], summaries, strict=True):
+                yield tag, summary, worker
+
+
+def map_kept(func: Callable, jobs: Iterable, client: Client, token: str,
+             where: dict, *, progress: bool = False, desc: str = "",
+             chunksize: int | None = None) -> Iterator[tuple]:
+    """``func(kept, *args)`` for every ``(tag, args)``, on the worker keeping the part of
+    ``tag`` from :func:`map_keep` (which gives it up: each kept part is used once).
+
+    Parameters
+    ----------
+    func : callable
+        A picklable (module-level) function. ``kept`` is None where the part is gone (its
+        worker left the cluster, or the call ran elsewhere): ``func`` must then recompute
+        it.
+    jobs : iterable of (hashable, tuple)
+        Tags of :func:`map_keep` and further positional arguments.
+    client : dask.distributed.Client
+    token : str
+        The token given to :func:`map_keep`.
+    where : dict
+        Tag to worker address, from :func:`map_keep`; a tag not in it runs anywhere.
+    progress, desc, chunksize
+        As in :func:`parallel_map`.
+
+    Yields
+    ------
+    (tag, result)
+        In completion order.
+
+    Examples
+    --------
+    >>> list(map_kept(abs, [], None, "nothing", {}))   # see map_keep for a cluster's use
+    []
+    """
+    import pickle
+
+    jobs = list(jobs)
+    if not jobs:
+        return
+    groups: dict = {}
+    for job in jobs:  # one map per worker, its chunks bound to it
+        groups.setdefault(where.get(job[0]), []).append(job)
+    size = _chunk_size(len(jobs), client, chunksize)  # of all the jobs: as many tasks
+    futures, by_key = [], {}
+    for worker, group in groups.items():
+        chunks = [group[i:i + size] for i in range(0, len(group), size)]
+        tags = [[t for t, _ in c] for c in chunks]
+        place = {} if worker is None else {"workers": [worker], "allow_other_workers": True}
+        mapped = client.map(_on_kept_chunk, [func] * len(chunks),
+                            [pickle.dumps(c, protocol=pickle.HIGHEST_PROTOCOL)
+                             for c in chunks], [token] * len(chunks),
+                            [os.getpid()] * len(chunks), pure=False, **place)
+        futures += mapped
+        by_key.update({f.key: t for f, t in zip(mapped, tags, strict=True)})
+    with progress_bar(len(jobs), desc, progress) as bar:
+        for fut, packed in _gather_batches(client, futures):
+            results = pickle.loads(packed)
+            bar.update(len(results))
+            yield from zip(by_key[fut.key], results, strict=True)
+
+
+def drop_kept(client: Client, token: str) -> None:
+    """Free what :func:`map_keep` kept under ``token`` on every worker (after an error;
+    :func:`map_kept` frees each part it uses).
+
+    Parameters
+    ----------
+    client : dask.distributed.Client or None
+        None: nothing to free.
+    token : str
+
+    Examples
+    --------
+    >>> drop_kept(None, "nothing kept")
+    """
+    if client is not None:
+        client.run(_drop_kept, token)

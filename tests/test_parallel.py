@@ -100,3 +100,37 @@ def test_dask_path_returns_every_tag_with_its_result_and_raises_a_task_error(mon
     # the workers were threads of this very process: its BLAS threads (and the variables
     # that set them) are the user's business, left alone
     assert not any(name in os.environ for name in THREAD_VARIABLES)
+
+
+def _split(x):
+    """A call for map_keep: the summary comes back, the list stays on the worker."""
+    return -x, [x] * 3
+
+
+def _use_kept(kept, y):
+    return kept, y
+
+
+def test_kept_parts_stay_until_used_once_and_a_missing_part_is_none():
+    distributed = pytest.importorskip("distributed")
+    from casflex._parallel import drop_kept, map_keep, map_kept
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        got = list(map_keep(_split, [(f"t{i}", (i,)) for i in range(7)], client, "tok",
+                            chunksize=2))
+        assert sorted((tag, s) for tag, s, _ in got) == sorted((f"t{i}", -i) for i in range(7))
+        where = {tag: worker for tag, _, worker in got}
+        assert set(where.values()) <= set(client.scheduler_info()["workers"])
+        used = dict(map_kept(_use_kept, [(f"t{i}", (10 * i,)) for i in range(7)], client,
+                             "tok", where, chunksize=3))
+        assert used == {f"t{i}": ([i] * 3, 10 * i) for i in range(7)}
+        # each part is given up when used: asked again, the function gets None (and
+        # must recompute it, as casflex.modal.build_table's does)
+        assert dict(map_kept(_use_kept, [("t0", (0,))], client, "tok", where)) == {
+            "t0": (None, 0)}
+        list(map_keep(_split, [("x", (1,))], client, "abandoned"))
+        drop_kept(client, "abandoned")
+        assert dict(map_kept(_use_kept, [("x", (1,))], client, "abandoned", {})) == {
+            "x": (None, 1)}

@@ -37,6 +37,8 @@ Mode tracking
    Tracking        -- result of track: order, sign and MAC per step
    track_grid      -- follow the modes over an N-D grid along a spanning tree
    GridTracking    -- result of track_grid, with the correlation across every grid edge
+   track_grid_features -- track_grid from per-point tracking data (no mode shapes kept)
+   point_tracking_data -- what track_grid_features needs of one point (features, groups)
    mac             -- modified modal assurance criterion of every pair of modes
    correlation     -- signed normalised correlation of every pair of modes
    shape_features  -- feature vectors whose dot products are the MAC inner product
@@ -84,6 +86,8 @@ Modal tables
    compute_modes       -- raw TMM modes at many configurations, in parallel
    default_quantities  -- mass-normalise tracked shapes and evaluate the model quantities
    robot_fingerprint   -- canonical description of what changes a robot's dynamics
+   canonical           -- exact JSON-able canonical form of a value (for cache keys)
+   tmm_digest          -- digest of the TMM's source (part of the cached modes' key)
    local_bspline_function -- a table's cubic B-spline evaluated locally (lean generated C)
 
 Frequency sweeps
@@ -142,12 +146,12 @@ from casflex.modal.subspace import (
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
 from casflex.modal.table_functions import local_bspline_function
+from casflex.modal.tablekeys import canonical, robot_fingerprint, tmm_digest
 from casflex.modal.tables import (
     ModalTable,
     build_table,
     compute_modes,
     default_quantities,
-    robot_fingerprint,
     shape_joints,
 )
 from casflex.modal.term_fits import TERM_TARGET, fit_model_terms
@@ -157,9 +161,11 @@ from casflex.modal.tracking import (
     combine,
     correlation,
     mac,
+    point_tracking_data,
     shape_features,
     track,
     track_grid,
+    track_grid_features,
 )
 
 __all__ = [
@@ -185,6 +191,8 @@ __all__ = [
     "track",
     "Tracking",
     "track_grid",
+    "track_grid_features",
+    "point_tracking_data",
     "GridTracking",
     "mac",
     "correlation",
@@ -224,6 +232,8 @@ __all__ = [
     "compute_modes",
     "default_quantities",
     "robot_fingerprint",
+    "canonical",
+    "tmm_digest",
     "local_bspline_function",
     # frequency sweeps
     "frequency_sweep",

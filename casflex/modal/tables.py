@@ -7,9 +7,9 @@ space"). This module tabulates them:
 
 1. :func:`shape_joints` finds those joints (the rule is written there).
 2. :func:`build_table` runs the TMM (:func:`casflex.tmm.modes`) at every point of a grid of
-   the shape joints — in parallel, on a local process pool or a Dask cluster — then tracks
-   identity and sign sequentially (:mod:`casflex.modal.tracking`), then evaluates the
-   per-configuration model quantities (by default
+   the shape joints — in parallel, on a local process pool or a Dask cluster (without a
+   cache the raw modes stay on its workers) — then tracks identity and sign sequentially
+   (:mod:`casflex.modal.tracking`), then evaluates the model quantities (by default
    :func:`casflex.modal.integrals.configuration_quantities` after
    :func:`casflex.modal.normalize.mass_normalize`).
 3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the
@@ -59,6 +59,7 @@ import json
 import math
 import os
 import time
+import uuid
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -79,11 +80,12 @@ from casflex._cache import (
     save_verified,
     source_digest,
 )
-from casflex._parallel import parallel_map
+from casflex._parallel import drop_kept, map_keep, map_kept, parallel_map
 from casflex.errors import ModelError
 from casflex.modal import rotated, subspace
 from casflex.modal import tracking as trk
 from casflex.modal.fits import periodic_axis_kind
+from casflex.modal.tablekeys import canonical, robot_fingerprint, tmm_digest
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -118,6 +120,8 @@ MIN_MAC = 0.8
 MAX_GRID_POINTS = 100_000
 #: basis of the time estimate in the grid-size error [s per point and flexible link]
 SECONDS_PER_POINT_AND_LINK = 0.015
+#: keep a Dask build's raw modes on the workers (no cache; False: the path before)
+KEEP_ON_WORKERS = True
 
 
 # ------------------------------------------------------------------ shape joints
@@ -284,6 +288,32 @@ def _point_quantities(func, robot, q, arrays):
     return {str(k): np.asarray(v, dtype=float) for k, v in values.items()}
 
 
+def _first_modes(t, n_modes):
+    keep = slice(0, int(n_modes))
+    return dataclasses.replace(t, **{f: getattr(t, f)[keep] for f in (
+        "omega", "multiplicity", *trk.MODE_FIELDS)})
+
+
+def _point_kept(robot, q, count, n_points, directions, weighting):
+    """Raw modes at ``q`` to keep on the worker, and the tracking's data of them (what
+    the client needs: :func:`casflex.modal.tracking.point_tracking_data`)."""
+    arrays = _point_modes(robot, q, count, n_points, directions)
+    data = trk.point_tracking_data(_arrays_to_shapes(arrays), robot, weighting)
+    data["shift"] = arrays["shift"]
+    return data, arrays
+
+
+def _tracked_point(arrays, func, robot, q, transform, order, n_modes, boundary, weighting,
+                   redo):
+    """Quantities of a point from its kept raw modes (or ``redo``ne), tracked here; the
+    tracked features where the periodicity check needs them (``boundary``); if redone."""
+    redone = arrays is None
+    arrays = _point_modes(*redo) if redone else arrays
+    tracked = _first_modes(trk.combine(_arrays_to_shapes(arrays), transform, order), n_modes)
+    return (_point_quantities(func, robot, q, _shapes_to_arrays(tracked)),
+            trk.shape_features(tracked, robot, weighting) if boundary else None, redone)
+
+
 def compute_modes(robot: Robot, qs: ArrayLike, count: int, *, n_points: int = 51,
                   client: Client | None = None, processes: int | None = None,
                   progress: bool = False,
@@ -337,71 +367,6 @@ def compute_modes(robot: Robot, qs: ArrayLike, count: int, *, n_points: int = 51
 # ------------------------------------------------------------------ keys and files
 
 
-def _canonical(obj):
-    """JSON-able canonical form (floats exact via ``float.hex``)."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: _canonical(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, dict):
-        return {str(k): _canonical(v) for k, v in sorted(obj.items())}
-    if isinstance(obj, (list, tuple)):
-        return [_canonical(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_canonical(v) for v in obj.tolist()]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj).hex()
-    if obj is None or isinstance(obj, str):
-        return obj
-    raise TypeError(f"cannot fingerprint {type(obj)}")
-
-
-def robot_fingerprint(robot: Robot) -> str:
-    """Canonical description of everything in ``robot`` that changes its dynamics.
-
-    Every field of every link (DH row, joint type, section, material, section angle,
-    tip body, motor inertia, joint stiffness), the gravity vector and the damping ratio;
-    not the name, description or source file.
-
-    Parameters
-    ----------
-    robot : casflex.robot.Robot
-
-    Returns
-    -------
-    str
-        Canonical JSON text (part of the cache key of the modal tables).
-
-    Examples
-    --------
-    >>> from casflex.robot import load
-    >>> robot = load("problems/arm2link.toml")
-    >>> import dataclasses
-    >>> other = dataclasses.replace(robot, name="renamed", source=None)
-    >>> robot_fingerprint(robot) == robot_fingerprint(other)
-    True
-    """
-    return json.dumps({
-        "links": _canonical(robot.links),
-        "gravity": _canonical(np.asarray(robot.gravity, dtype=float)),
-        "damping_ratio": _canonical(robot.damping_ratio),
-    }, sort_keys=True)
-
-
-def _tmm_digest():
-    import casflex.robot
-    import casflex.tmm.chain
-    import casflex.tmm.conditioning
-    import casflex.tmm.elements
-    import casflex.tmm.kernels
-    import casflex.tmm.solve
-
-    return source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
-                          casflex.tmm.kernels, casflex.tmm.conditioning, casflex.robot)
-
-
 def _function_identity(func):
     if func is default_quantities:
         import casflex.modal.integrals
@@ -414,8 +379,8 @@ def _function_identity(func):
         return None
     if isinstance(func, functools.partial):
         return {"partial": _function_identity(func.func),
-                "args": _canonical(list(func.args)),
-                "keywords": _canonical(dict(func.keywords))}
+                "args": canonical(list(func.args)),
+                "keywords": canonical(dict(func.keywords))}
     return {
         "name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
         "version": str(getattr(func, "version", getattr(func, "__version__", ""))),
@@ -789,10 +754,10 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         return q
 
     modes_key = digest({
-        "format": FORMAT_VERSION, "casflex": casflex.__version__, "tmm": _tmm_digest(),
+        "format": FORMAT_VERSION, "casflex": casflex.__version__, "tmm": tmm_digest(),
         "robot": robot_fingerprint(robot), "joints": list(joints),
-        "q_fixed": _canonical(q_fixed), "grid": [_canonical(a) for a in grid],
-        "count": count, "n_points": int(n_points), "shifts": _canonical(DEGENERATE_SHIFTS),
+        "q_fixed": canonical(q_fixed), "grid": [canonical(a) for a in grid],
+        "count": count, "n_points": int(n_points), "shifts": canonical(DEGENERATE_SHIFTS),
         "point": source_digest(_point_modes, _shapes_to_arrays),
     })
     table_key = digest({
@@ -820,102 +785,140 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         for directory in (root, mdir, tdir):  # leftovers of killed builds
             remove_stale_files(directory)
 
-    # ---- stage 1: raw modes at every point (parallel, cached per point)
-    raw = np.empty(gshape, dtype=object)
-    missing = []
-    for flat, idx in enumerate(indices):
-        arrays = load_verified(mdir / f"p{flat:07d}.npz", modes_key) if use_cache else None
-        if arrays is None:
-            missing.append(flat)
+    # ---- stage 1: raw modes at every point (parallel, cached per point). On a Dask
+    # cluster without a cache they stay on the workers: only the tracking's data of each
+    # point comes here, and the tracked points are made where their raw modes are.
+    eye = np.eye(robot.n_joints)
+    directions = [d for k in joints for d in (eye[k].copy(), -eye[k])]
+    kept = (KEEP_ON_WORKERS and client is not None and not use_cache and bool(quantities)
+            and basis == "eigen")
+    token, where = uuid.uuid4().hex, {}
+    try:
+        if kept:
+            points, shifted = np.empty(gshape, dtype=object), np.zeros(gshape, dtype=bool)
+            for flat, data, worker in map_keep(
+                    _point_kept, [(flat, (robot, q_at(idx), count, n_points, directions,
+                                          weighting)) for flat, idx in enumerate(indices)],
+                    client, token, progress=progress, desc="TMM"):
+                points[indices[flat]], where[flat] = data, worker
+                shifted[indices[flat]] = bool(np.any(data["shift"] != 0.0))
+            info.update(computed_modes=len(indices), cached_modes=0)
+            t_modes = time.perf_counter()
+            gt = trk.track_grid_features(points)
+            omega = np.array([points[idx]["omega"][gt.order[idx]][:n_modes]
+                              for idx in indices]).reshape(gshape + (n_modes,))
         else:
-            raw[idx] = arrays
-    directions = []
-    for k in joints:
-        e = np.zeros(robot.n_joints)
-        e[k] = 1.0
-        directions += [e, -e]
+            raw = np.empty(gshape, dtype=object)
+            missing = []
+            for flat, idx in enumerate(indices):
+                arrays = (load_verified(mdir / f"p{flat:07d}.npz", modes_key) if use_cache
+                          else None)
+                if arrays is None:
+                    missing.append(flat)
+                else:
+                    raw[idx] = arrays
 
-    def compute_modes_at(flats):
-        jobs = [(flat, (robot, q_at(indices[flat]), count, n_points, directions))
-                for flat in flats]
-        return parallel_map(_point_modes, jobs, client=client, processes=processes,
-                            progress=progress, desc="TMM")
+            def compute_modes_at(flats):
+                jobs = [(flat, (robot, q_at(indices[flat]), count, n_points, directions))
+                        for flat in flats]
+                return parallel_map(_point_modes, jobs, client=client, processes=processes,
+                                    progress=progress, desc="TMM")
 
-    computed = 0
-    results = (build_shared(missing, lambda flat: mdir / f"p{flat:07d}.npz", modes_key,
-                            compute_modes_at) if use_cache
-               else ((flat, arrays, True) for flat, arrays in compute_modes_at(missing)))
-    for flat, arrays, by_us in results:
-        raw[indices[flat]] = arrays
-        computed += by_us
-    info.update(computed_modes=computed, cached_modes=len(indices) - computed)
-    t_modes = time.perf_counter()
-    shifted = np.zeros(gshape, dtype=bool)
-    shapes = np.empty(gshape, dtype=object)
-    for idx in indices:
-        shifted[idx] = bool(np.any(raw[idx]["shift"] != 0.0))
-        shapes[idx] = _arrays_to_shapes(raw[idx])
-    del raw
+            computed = 0
+            results = (build_shared(missing, lambda flat: mdir / f"p{flat:07d}.npz",
+                                    modes_key, compute_modes_at) if use_cache
+                       else ((f, a, True) for f, a in compute_modes_at(missing)))
+            for flat, arrays, by_us in results:
+                raw[indices[flat]] = arrays
+                computed += by_us
+            info.update(computed_modes=computed, cached_modes=len(indices) - computed)
+            t_modes = time.perf_counter()
+            shifted = np.zeros(gshape, dtype=bool)
+            shapes = np.empty(gshape, dtype=object)
+            for idx in indices:
+                shifted[idx] = bool(np.any(raw[idx]["shift"] != 0.0))
+                shapes[idx] = _arrays_to_shapes(raw[idx])
+            del raw
 
-    # ---- stage 2: tracking (sequential)
-    gt = (subspace.track_grid_smooth(shapes, int(n_modes), robot, weighting)
-          if basis == "smooth" else trk.track_grid(shapes, robot=robot, weighting=weighting))
-    tracked = gt.apply(shapes)
-    for idx in indices:
-        t = tracked[idx]
-        keep = slice(0, int(n_modes))
-        tracked[idx] = dataclasses.replace(t, **{
-            "omega": t.omega[keep], "multiplicity": t.multiplicity[keep],
-            **{f: getattr(t, f)[keep] for f in trk.MODE_FIELDS}})
-    omega = np.array([tracked[idx].omega for idx in indices]).reshape(gshape + (n_modes,))
-    mac = gt.mac[..., :n_modes]
-    edge = gt.edge_correlation[..., :n_modes]
-    periodic = _periodic_flags(grid, tracked, robot, weighting)
-    worst = float(np.nanmin(mac)) if np.isfinite(mac).any() else 1.0
-    if worst < MIN_MAC:
-        warnings.warn(f"modal table of '{robot.name}': a tracked mode changes fast between "
-                      f"grid neighbours (lowest MAC {worst:.3f} < {MIN_MAC}); refine the grid "
-                      "or raise extra_modes", RuntimeWarning, stacklevel=2)
-    info.update(
-        min_mac=worst,
-        min_edge_correlation=(float(np.nanmin(edge)) if np.isfinite(edge).any() else 1.0),
-        degenerate_points=int(gt.degenerate.sum()), shifted_points=int(shifted.sum()),
-        periodic=list(periodic), joints=list(joints))
+            # ---- stage 2: tracking (sequential)
+            gt = (subspace.track_grid_smooth(shapes, int(n_modes), robot, weighting)
+                  if basis == "smooth"
+                  else trk.track_grid(shapes, robot=robot, weighting=weighting))
+            tracked = gt.apply(shapes)
+            for idx in indices:
+                tracked[idx] = _first_modes(tracked[idx], n_modes)
+            omega = np.array([tracked[idx].omega for idx in indices]
+                             ).reshape(gshape + (n_modes,))
+        mac = gt.mac[..., :n_modes]
+        edge = gt.edge_correlation[..., :n_modes]
+        worst = float(np.nanmin(mac)) if np.isfinite(mac).any() else 1.0
+        if worst < MIN_MAC:
+            warnings.warn(f"modal table of '{robot.name}': a tracked mode changes fast "
+                          f"between grid neighbours (lowest MAC {worst:.3f} < {MIN_MAC}); "
+                          "refine the grid or raise extra_modes", RuntimeWarning,
+                          stacklevel=2)
+        info.update(
+            min_mac=worst,
+            min_edge_correlation=(float(np.nanmin(edge)) if np.isfinite(edge).any()
+                                  else 1.0),
+            degenerate_points=int(gt.degenerate.sum()), shifted_points=int(shifted.sum()),
+            periodic=None, joints=list(joints))
+        t_tracking = time.perf_counter()
 
-    t_tracking = time.perf_counter()
+        # ---- stage 3: quantities (parallel, cached per point)
+        values = {"omega": omega}
+        if basis == "smooth":  # clusters: 1-based sorted modes, as in the messages
+            values.update(rotated.stiffness_values(gt))
+            info["clusters"] = gt.clusters_1based()
+        if kept:
+            boundary = _boundary_points(grid, gshape)
+            per_point, tracked, redone = [None] * len(indices), np.empty(gshape, object), False
+            for flat, (result, features, again) in map_kept(
+                    _tracked_point, [(flat, (
+                        quantities, robot, q_at(idx), gt.transform[idx], gt.order[idx],
+                        int(n_modes), idx in boundary, weighting,
+                        (robot, q_at(idx), count, n_points, directions)))
+                        for flat, idx in enumerate(indices)],
+                    client, token, where, progress=progress, desc="quantities"):
+                per_point[flat], tracked[indices[flat]] = result, features
+                redone = redone or again
+            if redone:  # some ran away from their kept parts: free those
+                drop_kept(client, token)
+            info["computed_quantities"] = len(indices)
+        elif quantities:
+            per_point = [None] * len(indices)
+            missing = []
+            for flat in range(len(indices)):
+                got = (load_verified(tdir / f"q{flat:07d}.npz", table_key) if use_cache
+                       else None)
+                if got is None:
+                    missing.append(flat)
+                else:
+                    per_point[flat] = got
 
-    # ---- stage 3: quantities (parallel, cached per point)
-    values = {"omega": omega}
-    if basis == "smooth":  # clusters: 1-based sorted modes, as in the messages
-        values.update(rotated.stiffness_values(gt))
-        info["clusters"] = gt.clusters_1based()
+            def compute_quantities_at(flats):
+                smooth = basis == "smooth"  # on the eigenmodes, then rotated
+                jobs = [(flat, (quantities, robot, q_at(indices[flat])) + (
+                    (shapes[indices[flat]], gt.transform[indices[flat]]) if smooth
+                    else (_shapes_to_arrays(tracked[indices[flat]]),))) for flat in flats]
+                return parallel_map(
+                    rotated.rotated_quantities if smooth else _point_quantities, jobs,
+                    client=client, processes=processes, progress=progress,
+                    desc="quantities")
+
+            results = (build_shared(missing, lambda flat: tdir / f"q{flat:07d}.npz",
+                                    table_key, compute_quantities_at) if use_cache
+                       else ((f, r, True) for f, r in compute_quantities_at(missing)))
+            info["computed_quantities"] = 0
+            for flat, result, by_us in results:
+                per_point[flat] = result
+                info["computed_quantities"] += by_us
+    except BaseException:
+        if kept:
+            drop_kept(client, token)
+        raise
+    info["periodic"] = periodic = _periodic_flags(grid, tracked, omega, robot, weighting)
     if quantities:
-        per_point = [None] * len(indices)
-        missing = []
-        for flat in range(len(indices)):
-            got = (load_verified(tdir / f"q{flat:07d}.npz", table_key) if use_cache
-                   else None)
-            if got is None:
-                missing.append(flat)
-            else:
-                per_point[flat] = got
-
-        def compute_quantities_at(flats):
-            smooth = basis == "smooth"  # on the eigenmodes, then rotated (modal.rotated)
-            jobs = [(flat, (quantities, robot, q_at(indices[flat])) + (
-                (shapes[indices[flat]], gt.transform[indices[flat]]) if smooth
-                else (_shapes_to_arrays(tracked[indices[flat]]),))) for flat in flats]
-            return parallel_map(rotated.rotated_quantities if smooth else _point_quantities,
-                                jobs, client=client, processes=processes, progress=progress,
-                                desc="quantities")
-
-        results = (build_shared(missing, lambda flat: tdir / f"q{flat:07d}.npz", table_key,
-                                compute_quantities_at) if use_cache
-                   else ((f, r, True) for f, r in compute_quantities_at(missing)))
-        info["computed_quantities"] = 0
-        for flat, result, by_us in results:
-            per_point[flat] = result
-            info["computed_quantities"] += by_us
         names = sorted(per_point[0])
         for name in names:
             if name == "omega":
@@ -941,10 +944,18 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     return table
 
 
-def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
-    """Per axis: full turn with tracked modes closing up in identity and sign."""
+def _boundary_points(grid, gshape):
+    """Both ends of every axis that may be periodic (what _periodic_flags compares)."""
+    return {idx[:ax] + (i,) + idx[ax:] for ax, a in enumerate(grid)
+            if periodic_axis_kind(a) is not None
+            for idx in np.ndindex(gshape[:ax] + gshape[ax + 1:]) for i in (0, gshape[ax] - 1)}
+
+
+def _periodic_flags(grid, tracked, omega, robot, weighting, threshold=0.9):
+    """Per axis: full turn with tracked modes closing up in identity and sign (``tracked``:
+    ModeShapes or their features, at least at :func:`_boundary_points`)."""
     flags = []
-    gshape = tracked.shape
+    gshape = omega.shape[:-1]
     for ax, a in enumerate(grid):
         kind = periodic_axis_kind(a)
         if kind is None:
@@ -956,7 +967,7 @@ def _periodic_flags(grid, tracked, robot, weighting, threshold=0.9):
             last = idx[:ax] + (gshape[ax] - 1,) + idx[ax:]
             c = np.diag(trk.correlation(tracked[first], tracked[last], robot, weighting))
             good = bool(np.all(c > threshold)) and (kind != "closed" or np.allclose(
-                tracked[first].omega, tracked[last].omega, rtol=1e-6))
+                omega[first], omega[last], rtol=1e-6))
             if not good:
                 break
         flags.append(bool(good))

@@ -62,6 +62,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -83,6 +84,8 @@ __all__ = [
     "track",
     "GridTracking",
     "track_grid",
+    "track_grid_features",
+    "point_tracking_data",
 ]
 
 
@@ -211,8 +214,8 @@ def correlation(a: ModeShapes | np.ndarray, b: ModeShapes | np.ndarray,
     """
     fa = _as_features(a, robot, weighting)
     fb = _as_features(b, robot, weighting)
-    na = np.linalg.norm(fa, axis=1)
-    nb = np.linalg.norm(fb, axis=1)
+    na = _row_norms(fa)
+    nb = _row_norms(fb)
     na[na == 0.0] = 1.0
     nb[nb == 0.0] = 1.0
     return (fa @ fb.T) / np.outer(na, nb)
@@ -307,8 +310,14 @@ def _groups(shapes, rel_tol):
     return groups
 
 
+def _row_norms(F, keepdims=False):
+    """``np.linalg.norm(F, axis=1)``, the same arithmetic without its call overhead (a
+    grid's tracking makes hundreds of these on a few rows)."""
+    return np.sqrt(np.add.reduce(F * F, axis=1, keepdims=keepdims))
+
+
 def _unit_rows(F):
-    n = np.linalg.norm(F, axis=1, keepdims=True)
+    n = _row_norms(F, keepdims=True)
     n[n == 0.0] = 1.0
     return F / n
 
@@ -316,9 +325,15 @@ def _unit_rows(F):
 def _match(ref, F):
     """Signed assignment of the tracked reference rows to the modes ``F`` (no degeneracy)."""
     C = correlation(ref, F)
-    from scipy.optimize import linear_sum_assignment  # lazy: a warm model needs none
+    C2 = C**2
+    rows, cols = np.arange(C.shape[0]), np.argmax(C2, axis=1)
+    # each row's strict maximum in a column of its own is the unique best assignment:
+    # the one linear_sum_assignment returns (it is called otherwise)
+    if (np.unique(cols).size < cols.size
+            or (C2 == C2[rows, cols][:, None]).sum(axis=1).max() > 1):
+        from scipy.optimize import linear_sum_assignment  # lazy: a warm model needs none
 
-    rows, cols = linear_sum_assignment(-(C**2))
+        rows, cols = linear_sum_assignment(-C2)
     T = np.zeros((ref.shape[0], F.shape[0]))
     sgn = np.where(C[rows, cols] < 0.0, -1.0, 1.0)
     T[rows, cols] = sgn
@@ -709,13 +724,96 @@ def track_grid(shapes: np.ndarray | Sequence[Any], count: int | None = None,
         for i in idx:
             item = item[i]
         arr[idx] = item
-    gshape = arr.shape
-    ndim = len(gshape)
-    feats = np.empty(gshape, dtype=object)
-    grps = np.empty(gshape, dtype=object)
-    for idx in np.ndindex(gshape):
+    feats = np.empty(arr.shape, dtype=object)
+    grps = np.empty(arr.shape, dtype=object)
+    for idx in np.ndindex(arr.shape):
         feats[idx] = shape_features(arr[idx], robot, weighting)
         grps[idx] = _groups(arr[idx], rel_tol)
+    return _track_grid(feats, grps, arr, count)
+
+
+def point_tracking_data(shapes: ModeShapes, robot: Robot | None = None,
+                        weighting: str | None = None, rel_tol: float = 1e-9) -> dict:
+    """What :func:`track_grid_features` needs of one grid point (its per-point work, which
+    can run where the shapes are).
+
+    Parameters
+    ----------
+    shapes : ModeShapes
+        Raw modes of the point.
+    robot, weighting, rel_tol
+        As in :func:`track`.
+
+    Returns
+    -------
+    dict
+        ``features`` (:func:`shape_features`), ``groups`` (index arrays of the
+        equal-frequency groups), ``omega`` [rad/s] and ``displacement``: the raw
+        displacement field where a group holds more than one mode (its tracked
+        combinations are rescaled to unit peak), else None.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> data = point_tracking_data(modes(robot, [0, 0, 0.3], count=3), robot)
+    >>> data["features"].shape[0], len(data["groups"]), data["displacement"] is None
+    (3, 3, True)
+    """
+    groups = _groups(shapes, rel_tol)
+    degenerate = any(g.size > 1 for g in groups)
+    return {"features": shape_features(shapes, robot, weighting), "groups": groups,
+            "omega": np.asarray(shapes.omega),
+            "displacement": np.asarray(shapes.displacement) if degenerate else None}
+
+
+def track_grid_features(points: np.ndarray, count: int | None = None) -> GridTracking:
+    """:func:`track_grid` from each point's :func:`point_tracking_data` (the same result,
+    bit for bit, without the mode shapes at hand).
+
+    Parameters
+    ----------
+    points : numpy.ndarray of dict
+        Object array of the grid's shape.
+    count : int, optional
+        As in :func:`track`.
+
+    Returns
+    -------
+    GridTracking
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> raw = np.empty((2, 2), dtype=object)
+    >>> for i, a in enumerate((0.0, 0.5)):
+    ...     for j, b in enumerate((0.2, 0.3)):
+    ...         raw[i, j] = modes(robot, [0, a, b], count=3)
+    >>> data = np.empty((2, 2), dtype=object)
+    >>> for idx in np.ndindex(2, 2):
+    ...     data[idx] = point_tracking_data(raw[idx], robot)
+    >>> a, b = track_grid_features(data, count=2), track_grid(raw, count=2, robot=robot)
+    >>> bool(np.array_equal(a.edge_correlation, b.edge_correlation, equal_nan=True))
+    True
+    """
+    feats = np.empty(points.shape, dtype=object)
+    grps = np.empty(points.shape, dtype=object)
+    peaks = np.empty(points.shape, dtype=object)  # what _rescale_peak reads
+    for idx in np.ndindex(points.shape):
+        data = points[idx]
+        feats[idx], grps[idx] = data["features"], data["groups"]
+        peaks[idx] = SimpleNamespace(omega=data["omega"], displacement=data["displacement"])
+    return _track_grid(feats, grps, peaks, count)
+
+
+def _track_grid(feats, grps, arr, count):
+    """Core of :func:`track_grid` on per-point features and groups; ``arr`` holds what
+    :func:`_rescale_peak` reads at degenerate points."""
+    gshape = arr.shape
+    ndim = len(gshape)
     T = np.empty(gshape, dtype=object)
     deg = np.zeros(gshape, dtype=bool)
     qual = None
@@ -751,14 +849,14 @@ def track_grid(shapes: np.ndarray | Sequence[Any], count: int | None = None,
                 T[idx], qual[idx], deg[idx] = tr.transform[k], tr.mac[k], tr.degenerate[k]
     order = np.empty(gshape + (n,), dtype=int)
     sign = np.empty(gshape + (n,))
-    tracked = np.empty(gshape, dtype=object)
+    unit = np.empty(gshape, dtype=object)  # unit rows of the tracked features
     for idx in np.ndindex(gshape):
         t = T[idx]
         order[idx] = np.argmax(np.abs(t), axis=1)
         s = np.sign(t[np.arange(n), order[idx]])
         s[s == 0] = 1.0
         sign[idx] = s
-        tracked[idx] = t @ feats[idx]
+        unit[idx] = _unit_rows(t @ feats[idx])
     edge = np.full(gshape + (ndim, n), np.nan)
     for idx in np.ndindex(gshape):
         for axis in range(ndim):
@@ -766,8 +864,7 @@ def track_grid(shapes: np.ndarray | Sequence[Any], count: int | None = None,
                 continue
             prev = list(idx)
             prev[axis] -= 1
-            a, b = _unit_rows(tracked[tuple(prev)]), _unit_rows(tracked[idx])
-            edge[idx + (axis,)] = np.sum(a * b, axis=1)
+            edge[idx + (axis,)] = np.sum(unit[tuple(prev)] * unit[idx], axis=1)
     return GridTracking(transform=T, order=order, sign=sign, mac=qual, degenerate=deg,
                         edge_correlation=edge)
 

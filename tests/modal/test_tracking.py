@@ -9,9 +9,11 @@ from casflex.modal.tracking import (
     combine,
     correlation,
     mac,
+    point_tracking_data,
     shape_features,
     track,
     track_grid,
+    track_grid_features,
 )
 from casflex.robot import load
 from casflex.tmm import modes
@@ -136,3 +138,19 @@ def _obj(nested):
         for j, item in enumerate(row):
             arr[i, j] = item
     return arr
+
+
+def test_grid_tracking_from_per_point_data_equals_tracking_the_shapes(arm):
+    # through the double root at q3 = 90 deg (a degenerate point: its subspace fit and
+    # the unit-peak rescaling read the displacement the per-point data carries)
+    raw = np.empty(9, dtype=object)
+    data = np.empty(9, dtype=object)
+    for i, x in enumerate(np.radians(np.arange(60.0, 121.0, 7.5))):
+        raw[i] = modes(arm, [0.0, 0.0, x], count=6)
+        data[i] = point_tracking_data(raw[i], arm)
+    a, b = track_grid_features(data), track_grid(raw, robot=arm)
+    assert b.degenerate.any() and sum(d["displacement"] is not None for d in data) == 1
+    for name in ("order", "sign", "mac", "degenerate", "edge_correlation"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    for ta, tb in zip(a.transform, b.transform, strict=True):
+        np.testing.assert_array_equal(ta, tb)  # bit for bit: the same arithmetic

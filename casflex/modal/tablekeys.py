@@ -1,0 +1,120 @@
+"""Cache keys of the modal tables: a robot's canonical description and the TMM's code.
+
+The keys of :func:`casflex.modal.build_table` hash what changes a table's values: the
+robot (:func:`robot_fingerprint`), the grid and settings in an exact canonical form
+(:func:`canonical`) and the source of the code that computes them (:func:`tmm_digest`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from casflex._cache import source_digest
+
+if TYPE_CHECKING:
+    from casflex.robot import Robot
+
+__all__ = ["canonical", "robot_fingerprint", "tmm_digest"]
+
+
+def canonical(obj: Any) -> Any:
+    """JSON-able canonical form of a value, for cache keys (floats exact via ``float.hex``).
+
+    Parameters
+    ----------
+    obj : dataclass, dict, list, tuple, numpy.ndarray, bool, int, float, str or None
+        Nested in any way.
+
+    Returns
+    -------
+    object
+        Dicts with sorted string keys, lists, bools, ints, hexadecimal float strings,
+        strings and None.
+
+    Raises
+    ------
+    TypeError
+        For any other type.
+
+    Examples
+    --------
+    >>> canonical({"b": np.array([0.5]), "a": (1, None)})
+    {'a': [1, None], 'b': ['0x1.0000000000000p-1']}
+    """
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: canonical(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, dict):
+        return {str(k): canonical(v) for k, v in sorted(obj.items())}
+    if isinstance(obj, (list, tuple)):
+        return [canonical(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [canonical(v) for v in obj.tolist()]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj).hex()
+    if obj is None or isinstance(obj, str):
+        return obj
+    raise TypeError(f"cannot fingerprint {type(obj)}")
+
+
+def robot_fingerprint(robot: Robot) -> str:
+    """Canonical description of everything in ``robot`` that changes its dynamics.
+
+    Every field of every link (DH row, joint type, section, material, section angle,
+    tip body, motor inertia, joint stiffness), the gravity vector and the damping ratio;
+    not the name, description or source file.
+
+    Parameters
+    ----------
+    robot : casflex.robot.Robot
+
+    Returns
+    -------
+    str
+        Canonical JSON text (part of the cache key of the modal tables).
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> import dataclasses
+    >>> other = dataclasses.replace(robot, name="renamed", source=None)
+    >>> robot_fingerprint(robot) == robot_fingerprint(other)
+    True
+    """
+    return json.dumps({
+        "links": canonical(robot.links),
+        "gravity": canonical(np.asarray(robot.gravity, dtype=float)),
+        "damping_ratio": canonical(robot.damping_ratio),
+    }, sort_keys=True)
+
+
+def tmm_digest() -> str:
+    """SHA-256 (hex) of the source of the TMM and of the robot model: part of the key of
+    cached raw modes, so that a change to the code that computes them invalidates them.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> len(tmm_digest())
+    64
+    """
+    import casflex.robot
+    import casflex.tmm.chain
+    import casflex.tmm.conditioning
+    import casflex.tmm.elements
+    import casflex.tmm.kernels
+    import casflex.tmm.solve
+
+    return source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
+                          casflex.tmm.kernels, casflex.tmm.conditioning, casflex.robot)
