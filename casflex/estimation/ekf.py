@@ -130,7 +130,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       stiffness_scale: float = 1.0, rigid_removed: bool = False,
                       linear_measurement: bool = False, prefilter: float | None = None,
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
-                      update: str = "auto", lean: bool = True,
+                      update: str = "auto", lean: bool = True, joseph: bool = True,
                       guard: gd.Guard | None = None) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
@@ -250,7 +250,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         raise fail("guard", "Guard(...)", "needs the plain form (sqrt=False)")
     if guard is not None and guard.P_reset.shape != (nx, nx):
         raise fail("guard.P_reset", guard.P_reset.shape, f"must be {nx} x {nx}")
-    hkin = kinematic_measurement(model, sensors, lean=lean)
+    hkin = kinematic_measurement(model, sensors, lean=lean, lookup=plant.lookup)
     x = ca.SX.sym("x", nx)
     Pin = ca.SX.sym("S" if sqrt else "P", nx, nx)
     u = ca.SX.sym("u", 3 * n)
@@ -272,9 +272,6 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
 
     def f(xx):
         return ca.vertcat(xx[m:], accel(xx))
-
-    def accel_lin(xx):
-        return r0 + Jd @ xx[:m] + Jv @ xx[m:]
 
     exact_jac = jacobians == "exact" or not plant.pairs
 
@@ -365,7 +362,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         for j in range(ny):
             hj = Hm[j, :]
             ej = e[j] - hj @ (xp - x)  # innovation of the linearised model at the prior
-            xp, P = _scalar_joseph(P, xp, hj, ej, Rm[j, j])
+            xp, P = _scalar_update(P, xp, hj, ej, Rm[j, j], joseph)
         Pp = P
     elif not sqrt:
         P = 0.5 * (Pin + Pin.T)
@@ -388,16 +385,11 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     # prediction: one RK4 step of the (affine) plant, coefficients held at u_k
     xs = ca.SX.sym("xs", nx)
     xn_s = rk4_step(f, xs, dt)
-    if exact_jac:
-        Phi_s = ca.jacobian(xn_s, xs)
-    else:  # the RK4 Jacobian of the first-order part (independent of the state)
-
-        def flin(xx):
-            return ca.vertcat(xx[m:], accel_lin(xx))
-
-        Phi_s = ca.jacobian(rk4_step(flin, xs, dt), xs)
+    if exact_jac and plant.pairs:
+        Phi = ca.substitute(ca.jacobian(xn_s, xs), xs, xp)
+    else:  # RK4 of the (first-order part of the) plant: a polynomial in its matrix
+        Phi = _rk4_transition(Jd, Jv, dt)
     xn = ca.substitute(xn_s, xs, xp)
-    Phi = ca.substitute(Phi_s, xs, xp)
     Qd = Qc * dt
     if not sqrt:
         Pn = _sandwich(Phi, Pp) + ca.DM(Qd)
@@ -462,25 +454,46 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last, filt=None):
     return [*outs, u_in, status]
 
 
-def _scalar_joseph(P, x, h, e, r):
-    """Update of ``(x, P)`` (P symmetric) with one scalar measurement: row ``h``,
-    innovation ``e``, variance ``r``; Joseph form ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` in
-    closed form for the rank-one ``k h`` (valid for any gain ``k``), its lower triangle
-    evaluated and mirrored (exactly symmetric).
+def _rk4_transition(Jd, Jv, dt):
+    """``Φ = I + hA + (hA)²/2 + (hA)³/6 + (hA)⁴/24`` for ``A = [0 I; J_δ J_δ̇]``: the
+    Jacobian of one classical RK4 step of ``ẋ = A x + r₀`` (exactly what
+    :func:`casflex.simulate.integrators.rk4_step` computes for a linear right-hand side),
+    by Horner's rule on the block structure of ``A``: its zero and identity blocks stay
+    structural, so no product with them is formed."""
+    m = Jd.shape[0]
+    A = ca.blockcat([[ca.SX(m, m), ca.SX.eye(m)], [Jd, Jv]])
+    eye = ca.SX.eye(2 * m)
+    Phi = eye + A * (dt / 4.0)
+    for c in (3.0, 2.0, 1.0):
+        Phi = eye + (dt / c) * (A @ Phi)
+    return Phi
 
-    With ``b = P hᵀ``: ``(I − k h) P = P − k bᵀ``, and times ``(I − k h)ᵀ`` it is
-    ``P − k bᵀ − c kᵀ`` with ``c = b − k (h b)``."""
+
+def _scalar_update(P, x, h, e, r, joseph=True):
+    """Update of ``(x, P)`` (P symmetric) with one scalar measurement: row ``h``,
+    innovation ``e``, variance ``r``; its lower triangle evaluated and mirrored (exactly
+    symmetric).
+
+    ``joseph``: Joseph form ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` in closed form for the
+    rank-one ``k h`` (valid for any gain ``k``): with ``b = P hᵀ``, ``(I − k h) P = P − k
+    bᵀ``, and times ``(I − k h)ᵀ`` it is ``P − k bᵀ − c kᵀ`` with ``c = b − k (h b)``.
+    Else the standard form ``P − k bᵀ`` (the same for the optimal gain ``k = b / (h b +
+    r)``, two operations per entry instead of six)."""
     nx = P.shape[0]
     b = P @ h.T
     hb = ca.dot(h.T, b)
     inv = 1.0 / (hb + r)
     k = b * inv
-    c = b - k * hb
-    rk = r * k
+    if joseph:
+        c = b - k * hb
+        rk = r * k
     out = ca.SX(nx, nx)
     for i in range(nx):
         for l in range(i + 1):
-            v = P[i, l] - k[i] * b[l] - c[i] * k[l] + rk[i] * k[l]
+            if joseph:
+                v = P[i, l] - k[i] * b[l] - c[i] * k[l] + rk[i] * k[l]
+            else:
+                v = P[i, l] - k[i] * b[l]
             out[i, l] = v
             if i != l:
                 out[l, i] = v
