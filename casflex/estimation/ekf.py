@@ -14,11 +14,15 @@ inputs ``u_k`` and the signals ``y_k`` and
    from the plant; ``H = ∂h/∂x`` by CasADi differentiation; ``S = H P Hᵀ + R`` is
    factored by an unrolled Cholesky; ``K = P Hᵀ S⁻¹``; ``x̂⁺ = x̂ + K (y − h)``; Joseph
    form ``P⁺ = (I − KH) P (I − KH)ᵀ + K R Kᵀ``, symmetrised. With a diagonal ``R`` the
-   same update is done channel by channel (scalar Joseph updates, ``H`` linearised at
-   the prior; ``update`` of :func:`ekf_step_function`);
+   same update is done channel by channel (scalar updates ``P − k bᵀ``, ``b = P hᵀ``,
+   or in Joseph form, ``H`` linearised at the prior; ``update`` and ``joseph`` of
+   :func:`ekf_step_function`);
 3. **prediction** over ``dt`` by one classical RK4 step of the plant
-   (:func:`casflex.simulate.integrators.rk4_step`); ``Φ = ∂x_{k+1}/∂x̂⁺`` by CasADi
-   differentiation through that RK4 step; ``P_{k+1|k} = Φ P⁺ Φᵀ + Q dt``, symmetrised.
+   (:func:`casflex.simulate.integrators.rk4_step`); ``Φ = ∂x_{k+1}/∂x̂⁺``, by CasADi
+   differentiation through that RK4 step for a second-order plant with ``jacobians =
+   "exact"``, else (the RK4 step of the first-order part is linear) in closed form,
+   ``Φ = Σ_{j≤4} (A dt)ʲ / j!`` with ``A = [0 I; J_δ J_δ̇]``; ``P_{k+1|k} = Φ P⁺ Φᵀ + Q
+   dt``, symmetrised.
 
 ``Q`` is the continuous-time process-noise intensity of eq. 179 (``Ṗ = AP + PAᵀ + Q``),
 applied as ``Q·dt`` per step; ``R`` is the covariance of one sample of the signals (eq.
@@ -130,7 +134,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       stiffness_scale: float = 1.0, rigid_removed: bool = False,
                       linear_measurement: bool = False, prefilter: float | None = None,
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
-                      update: str = "auto", lean: bool = True, joseph: bool = True,
+                      update: str = "auto", lean: bool = True, joseph: bool = False,
                       guard: gd.Guard | None = None) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
@@ -187,12 +191,18 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     update : {"auto", "batch", "sequential"}
         Measurement update. ``"batch"``: all channels at once (``S = H P Hᵀ + R``,
         unrolled Cholesky, ``K = P Hᵀ S⁻¹``, Joseph form). ``"sequential"`` (diagonal
-        ``R``, not with ``sqrt``): one scalar update per channel, each in Joseph form
-        ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` evaluated in closed form for the rank-one
-        ``k h`` on one triangle and mirrored (exactly symmetric), with ``H`` linearised at
+        ``R``, not with ``sqrt``): one scalar update per channel (form: ``joseph``)
+        evaluated on one triangle and mirrored (exactly symmetric), with ``H`` linearised at
         the prior for every channel, so the same update as ``"batch"`` up to rounding
         (no square roots, no triangular solves: fewer operations).
         ``"auto"``: ``"sequential"`` when ``R`` is diagonal and ``sqrt`` is false.
+    joseph : bool
+        With the sequential update: each scalar covariance update in Joseph form
+        ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` (six operations per entry of one triangle);
+        ``False`` (default): the standard form ``P − k bᵀ``, ``b = P hᵀ`` (two), the
+        same for the optimal gain ``k = b / (h b + r)`` to rounding
+        (``tests/estimation/test_ekf_structure.py``). The batch and square-root updates
+        are unchanged.
     lean : bool
         Evaluate in the measurement model only the modal-table entries it uses, from one
         small B-spline (:func:`casflex.sensors.kinematic_measurement`, ``lean``): the
@@ -355,7 +365,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     sequential = update == "sequential" or (update == "auto" and diagonal_r and not sqrt)
     I = ca.SX.eye(nx)
     if sequential:
-        # one scalar Joseph update per channel (diagonal R: the same update as the batch
+        # one scalar update per channel (diagonal R: the same update as the batch
         # one, H linearised at the prior); a masked channel has h_j = 0, r_j = 1: k = 0
         P = 0.5 * (Pin + Pin.T)
         xp = x

@@ -3,6 +3,8 @@ transition matrix in closed form against CasADi's differentiation through
 ``rk4_step``, and the standard form of the scalar covariance update against the Joseph
 form and the batch update."""
 
+import dataclasses
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -37,7 +39,6 @@ def test_transition_equals_rk4_jacobian(small, order, jacobians):
     |Φ| ≤ 1.1 and |P| ~ 1)."""
     plant, ss = small
     if order == 1:
-        import dataclasses
         plant = dataclasses.replace(plant, order=1)
     m = plant.m
     step = ekf_step_function(plant, ss, Q, 1e-4, DT, jacobians=jacobians)
@@ -48,8 +49,7 @@ def test_transition_equals_rk4_jacobian(small, order, jacobians):
     x = rng.normal(size=2 * m) * 1e-3
     _, P_next, x_post = step(x, P, u, np.zeros(6), np.zeros(6))
     assert np.array_equal(np.asarray(x_post).ravel(), x)  # no update: all masked
-    r0, Jd, Jv = (np.asarray(c, dtype=float) for c in plant.coefficients(u[:3], u[3:6],
-                                                                          u[6:]))
+    r0, Jd, Jv = (np.asarray(ca.evalf(c)) for c in plant.coefficients(u[:3], u[3:6], u[6:]))
     xs = ca.SX.sym("x", 2 * m)
     Phi = ca.Function("phi", [xs], [ca.jacobian(rk4_step(
         lambda z: ca.vertcat(z[m:], r0 + Jd @ z[:m] + Jv @ z[m:]), xs, DT), xs)])
