@@ -16,8 +16,10 @@ Three implementations of the same step (casflex.estimation.ekf_step_function):
 
 The step is that of the second-order plant (``tabulate_plant(order=2)``, Fourier
 coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_order"``,
-the sequential scalar Joseph updates (``update="auto"``: R is diagonal) and the
-sensor-entry tables of the measurement (``lean=True``), compiled with ``-O3 -march=native
+the sequential scalar updates (``update="auto"``: R is diagonal; standard form ``P − k
+bᵀ``, ``joseph=False``), the RK4 transition matrix in closed form and the sensor-entry
+tables of the measurement (``lean=True``, evaluated locally as the plant's table),
+compiled with ``-O3 -march=native
 -ffp-contract=off`` (no FMA contraction: within 1e-10 of Python,
 tests/codegen/test_codegen_ekf.py; options below). ``--compare`` also times, in the same run, the
 configurations listed in ``VARIANTS`` (the step before these changes among them): key
@@ -26,6 +28,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
 [--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
+[--forms]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -37,9 +40,13 @@ not run AVX-512 code, so the counted build uses ``--callgrind-flags`` (AVX2);
 ``CASFLEX_CALLGRIND_KEEP=PATH`` keeps callgrind's output for ``callgrind_annotate``.
 
 ``--lookups`` also times (and with ``--callgrind`` counts) the step with the plant's
-spline table evaluated by ``casadi.interpolant`` (CasADi's de Boor routine, the code
-before) and locally (:mod:`casflex.modal.table_functions`, the default), interleaved over
-``--rounds``: key ``lookups`` (and ``max_rel_dev``, the estimates' largest difference).
+spline table and the measurement's sensor-entry tables evaluated by ``casadi.interpolant``
+(CasADi's de Boor routine, the code before) and locally
+(:mod:`casflex.modal.table_functions`, the default), interleaved over ``--rounds``: key
+``lookups`` (and ``max_rel_dev``, the estimates' largest difference).
+
+``--forms`` the same for the scalar covariance updates in Joseph form (``joseph=True``,
+the step of session 8) and in standard form (the default): key ``forms``.
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -434,6 +441,9 @@ def main(argv=None):
                         help="also time and count the step with the plant's table through "
                         "casadi.interpolant (before) and evaluated locally (now), "
                         "interleaved over --rounds")
+    parser.add_argument("--forms", action="store_true",
+                        help="also time and count the step with the scalar updates in Joseph "
+                        "and in standard form (the default), interleaved over --rounds")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -516,19 +526,36 @@ def main(argv=None):
         flags_of = {label: flags for label, _, _, _, flags in VARIANTS}
         timed_rounds(variants, steps, args.rounds,
                      lambda label, st: time_c(st, flags_of[label]), log)
+    def side_by_side(steps, prefix):
+        """Interleaved timings (and counts) of two steps, and their estimates' largest
+        relative difference."""
+        results, counted = {}, {}
+
+        def timed(label, st):
+            out = time_c(st, args.flags)
+            if instructions:  # the count of the build just timed
+                counted[label] = instructions[0]
+            return out
+
+        timed_rounds(results, steps, args.rounds, timed, log, prefix)
+        for label, ins in counted.items():
+            results[label]["instructions_per_step"] = ins
+        ra, rb = (run_ekf(st, data.u, data.y, x0, P0).x for st in steps.values())
+        results["max_rel_dev"] = float(np.max(np.abs(ra - rb)) / np.max(np.abs(ra)))
+        return results
+
     lookups = {}
-    if args.lookups:  # the plant's spline table: CasADi's de Boor routine vs local
-        lsteps = {lk: ekf_step_function(dataclasses.replace(plant, lookup=lk), sensors, Q, R,
-                                        dt, jacobians=args.jacobians, update=args.update)
-                  for lk in ("interpolant", "local")}
-        timed_rounds(lookups, lsteps, args.rounds, lambda _, st: time_c(st, args.flags), log,
-                     "lookup ")
-        if instructions:
-            for label in lsteps:
-                lookups[label]["instructions_per_step"] = instructions[0]
-        # the two steps' estimates differ by the two fits' rounding only
-        ra, rb = (run_ekf(st, data.u, data.y, x0, P0).x for st in lsteps.values())
-        lookups["max_rel_dev"] = float(np.max(np.abs(ra - rb)) / np.max(np.abs(ra)))
+    if args.lookups:  # the spline tables: CasADi's de Boor routine vs local (fits' rounding)
+        lookups = side_by_side(
+            {lk: ekf_step_function(dataclasses.replace(plant, lookup=lk), sensors, Q, R, dt,
+                                   jacobians=args.jacobians, update=args.update)
+             for lk in ("interpolant", "local")}, "lookup ")
+    forms = {}
+    if args.forms:  # the scalar covariance updates: Joseph vs standard form
+        forms = side_by_side(
+            {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                                     update=args.update, joseph=form == "joseph")
+             for form in ("joseph", "standard")}, "form ")
     guarded = {}
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
@@ -605,6 +632,8 @@ def main(argv=None):
         out["implied_ipc"] = None if ins is None or ghz is None else ins / (c_us * ghz * 1e3)
     if lookups:
         out["lookups"] = lookups
+    if forms:
+        out["forms"] = forms
     if guarded:
         out["guarded"] = guarded
     if variants:

@@ -22,7 +22,12 @@ build, ``-O3 -march=x86-64-v3 -ffp-contract=off`` unless ``--callgrind-flags``):
 ``instructions_per_step``, a figure the machine's load does not change.
 
 Usage: ``python benchmarks/bench_rt.py [--json] [--steps 3000] [--repeat 5] [--step-deg 7.5]
-[--controller composite|inversion] [--guarded] [--rounds 2] [--callgrind]``
+[--controller composite|inversion] [--guarded] [--rounds 2] [--callgrind]
+[--jacobians exact|first_order|linearized]``
+
+``--jacobians`` chooses the EKF's Jacobians (:func:`casflex.estimation.ekf_step_function`;
+default ``exact``, the step ``casflex codegen`` builds; ``first_order`` is the EKF
+benchmark's, ``bench_ekf.py``).
 """
 
 from __future__ import annotations
@@ -54,6 +59,9 @@ def main(argv=None):
                         help="also time the guarded rt_step, alternating with the plain one")
     parser.add_argument("--rounds", type=int, default=2,
                         help="alternations of plain and guarded timings (--guarded)")
+    parser.add_argument("--jacobians", default="exact",
+                        choices=("exact", "first_order", "linearized"),
+                        help="ekf_step_function's jacobians (exact: as casflex codegen ships)")
     parser.add_argument("--callgrind", action="store_true",
                         help="count the machine instructions per rt_step (valgrind)")
     parser.add_argument("--callgrind-flags", default="-O3 -march=x86-64-v3 -ffp-contract=off",
@@ -82,7 +90,7 @@ def main(argv=None):
     model, _ = build_model(robot, n_modes=3, step=np.radians(args.step_deg), processes=1,
                            points=sensors.points, gravity=None, delta_order=0)
     plant = tabulate_plant(model, check=False)
-    ekf = ekf_step_function(plant, sensors, Q, R, dt)
+    ekf = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians)
     ctrl = rtloop.make_controller(model, args.controller)
     rt = rtloop.rt_step_function(ekf, ctrl, dt)
     log(f"model, plant, controller in {time.perf_counter() - t0:.1f} s; rt_step: "
@@ -132,7 +140,8 @@ def main(argv=None):
         guarded = {}
         if args.guarded:
             P0 = 1e-4 * np.eye(2 * m)
-            ekf_g = ekf_step_function(plant, sensors, Q, R, dt, guard=Guard(P0))
+            ekf_g = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                                      guard=Guard(P0))
             limits = 10 * np.nanmax(np.abs(run["tau"]), axis=0) + 1.0  # never reached
             bundle_g = rtloop.rt_bundle(ekf_g, ctrl, sensors, dt, Path(tmp) / "rtg",
                                         torque_limits=limits)
@@ -169,6 +178,7 @@ def main(argv=None):
         "steps": N,
         "repeat": args.repeat,
         "flags": args.flags,
+        "jacobians": args.jacobians,
         "instructions": {"rt_step": rt.n_instructions(), "ekf_step": ekf.n_instructions(),
                          "controller": ctrl.n_instructions()},
         "sz_w": info.sz_w,

@@ -708,13 +708,13 @@ def _exact_signals(model, sensors, dddelta):
     return [ca.substitute(o, acc, dddelta) for o in outs]
 
 
-def _kin_signals(model, sensors, acc, lean=False):
+def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant"):
     """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked.
 
     ``lean``: with a table provider, the table entries the signals need (and their
     derivatives along the shape joints) come from one small spline of just those entries
     instead of the model's spline of every quantity (:func:`_lean_tables`); the same
-    expressions to rounding."""
+    expressions to rounding; ``lookup`` as :meth:`casflex.modal.tables.ModalTable.function`."""
     q, dq, ddq, d, dd = model.q, model.dq, model.ddq, model.delta, model.ddelta
     X = ca.vertcat(q, d)
     dX = ca.vertcat(dq, dd)
@@ -750,7 +750,7 @@ def _kin_signals(model, sensors, acc, lean=False):
             y = y - _rigid_substitute(y, model, acc)
         outs.append(ca.vertcat(*[y[_AXES[c]] for c in sen.axes]))
     if lean:
-        outs = _lean_tables(model, outs, V, Vd, Vdd)
+        outs = _lean_tables(model, outs, V, Vd, Vdd, lookup)
     return outs
 
 
@@ -781,7 +781,7 @@ def _placeholder_kinematics(model, sensors):
     return clone, data, ca.vertcat(*syms)
 
 
-def _lean_tables(model, outs, V, Vd, Vdd):
+def _lean_tables(model, outs, V, Vd, Vdd, lookup="interpolant"):
     """Fill the placeholders ``V`` (and rates ``Vd``, ``Vdd``) of ``outs`` with one
     B-spline of the entries the signals use (the model's grid, periodicity and method:
     the same interpolant restricted to those entries) and its derivatives along the
@@ -814,7 +814,8 @@ def _lean_tables(model, outs, V, Vd, Vdd):
     sub = ModalTable(grid=table.grid, shape_joints=table.shape_joints,
                      values={"sensor_entries": np.stack(cols, axis=-1)}, omega=table.omega,
                      periodic=table.periodic).function("sensor_entries",
-                                                       method=model.provider.method)
+                                                       method=model.provider.method,
+                                                       lookup=lookup)
     qs, dqs = model.q_shape, ca.vertcat(*[model.dq[j] for j in model.provider.shape_joints])
     ddqs = ca.vertcat(*[model.ddq[j] for j in model.provider.shape_joints])
     val = ca.SX(sub(qs))
@@ -834,7 +835,8 @@ def _wrap(model, sensors, outs, name):
 
 
 def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = "h_kin",
-                          rigid_part: bool = False, lean: bool = False) -> ca.Function:
+                          rigid_part: bool = False, lean: bool = False,
+                          lookup: str = "interpolant") -> ca.Function:
     """The measurement with ``δ̈`` as an input: ``(x, u, dddelta) -> y``.
 
     The estimator substitutes its own (lean) model of the flexible accelerations; with
@@ -855,6 +857,11 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
         instead of the model's B-spline of every quantity and its derivatives (fewer and
         smaller spline evaluations). The same expressions to rounding. Ignored for
         other providers and with ``rigid_part``.
+    lookup : {"interpolant", "local"}
+        With ``lean``: how that B-spline is evaluated
+        (:meth:`casflex.modal.tables.ModalTable.function`); ``"local"`` is the same spline
+        with leaner generated C (:func:`casflex.modal.local_bspline_function`), the
+        default of the estimator (:func:`casflex.estimation.ekf_step_function`).
 
     Returns
     -------
@@ -885,5 +892,5 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
             else:
                 keep.append(ca.DM.zeros(o.numel()))
         return ca.Function(name, [u], [ca.vertcat(*keep)], ["u"], ["y_rigid"])
-    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean=lean))
+    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean=lean, lookup=lookup))
     return ca.Function(name, [x, u, acc], [y], ["x", "u", "dddelta"], ["y"])

@@ -14,11 +14,15 @@ inputs ``u_k`` and the signals ``y_k`` and
    from the plant; ``H = ∂h/∂x`` by CasADi differentiation; ``S = H P Hᵀ + R`` is
    factored by an unrolled Cholesky; ``K = P Hᵀ S⁻¹``; ``x̂⁺ = x̂ + K (y − h)``; Joseph
    form ``P⁺ = (I − KH) P (I − KH)ᵀ + K R Kᵀ``, symmetrised. With a diagonal ``R`` the
-   same update is done channel by channel (scalar Joseph updates, ``H`` linearised at
-   the prior; ``update`` of :func:`ekf_step_function`);
+   same update is done channel by channel (scalar updates ``P − k bᵀ``, ``b = P hᵀ``,
+   or in Joseph form, ``H`` linearised at the prior; ``update`` and ``joseph`` of
+   :func:`ekf_step_function`);
 3. **prediction** over ``dt`` by one classical RK4 step of the plant
-   (:func:`casflex.simulate.integrators.rk4_step`); ``Φ = ∂x_{k+1}/∂x̂⁺`` by CasADi
-   differentiation through that RK4 step; ``P_{k+1|k} = Φ P⁺ Φᵀ + Q dt``, symmetrised.
+   (:func:`casflex.simulate.integrators.rk4_step`); ``Φ = ∂x_{k+1}/∂x̂⁺``, by CasADi
+   differentiation through that RK4 step for a second-order plant with ``jacobians =
+   "exact"``, else (the RK4 step of the first-order part is linear) in closed form,
+   ``Φ = Σ_{j≤4} (A dt)ʲ / j!`` with ``A = [0 I; J_δ J_δ̇]``; ``P_{k+1|k} = Φ P⁺ Φᵀ + Q
+   dt``, symmetrised.
 
 ``Q`` is the continuous-time process-noise intensity of eq. 179 (``Ṗ = AP + PAᵀ + Q``),
 applied as ``Q·dt`` per step; ``R`` is the covariance of one sample of the signals (eq.
@@ -130,7 +134,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       stiffness_scale: float = 1.0, rigid_removed: bool = False,
                       linear_measurement: bool = False, prefilter: float | None = None,
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
-                      update: str = "auto", lean: bool = True,
+                      update: str = "auto", lean: bool = True, joseph: bool = False,
                       guard: gd.Guard | None = None) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
@@ -187,12 +191,18 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     update : {"auto", "batch", "sequential"}
         Measurement update. ``"batch"``: all channels at once (``S = H P Hᵀ + R``,
         unrolled Cholesky, ``K = P Hᵀ S⁻¹``, Joseph form). ``"sequential"`` (diagonal
-        ``R``, not with ``sqrt``): one scalar update per channel, each in Joseph form
-        ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` evaluated in closed form for the rank-one
-        ``k h`` on one triangle and mirrored (exactly symmetric), with ``H`` linearised at
+        ``R``, not with ``sqrt``): one scalar update per channel (form: ``joseph``)
+        evaluated on one triangle and mirrored (exactly symmetric), with ``H`` linearised at
         the prior for every channel, so the same update as ``"batch"`` up to rounding
         (no square roots, no triangular solves: fewer operations).
         ``"auto"``: ``"sequential"`` when ``R`` is diagonal and ``sqrt`` is false.
+    joseph : bool
+        With the sequential update: each scalar covariance update in Joseph form
+        ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` (six operations per entry of one triangle);
+        ``False`` (default): the standard form ``P − k bᵀ``, ``b = P hᵀ`` (two), the
+        same for the optimal gain ``k = b / (h b + r)`` to rounding
+        (``tests/estimation/test_ekf_structure.py``). The batch and square-root updates
+        are unchanged.
     lean : bool
         Evaluate in the measurement model only the modal-table entries it uses, from one
         small B-spline (:func:`casflex.sensors.kinematic_measurement`, ``lean``): the
@@ -250,7 +260,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         raise fail("guard", "Guard(...)", "needs the plain form (sqrt=False)")
     if guard is not None and guard.P_reset.shape != (nx, nx):
         raise fail("guard.P_reset", guard.P_reset.shape, f"must be {nx} x {nx}")
-    hkin = kinematic_measurement(model, sensors, lean=lean)
+    hkin = kinematic_measurement(model, sensors, lean=lean, lookup=plant.lookup)
     x = ca.SX.sym("x", nx)
     Pin = ca.SX.sym("S" if sqrt else "P", nx, nx)
     u = ca.SX.sym("u", 3 * n)
@@ -272,9 +282,6 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
 
     def f(xx):
         return ca.vertcat(xx[m:], accel(xx))
-
-    def accel_lin(xx):
-        return r0 + Jd @ xx[:m] + Jv @ xx[m:]
 
     exact_jac = jacobians == "exact" or not plant.pairs
 
@@ -358,14 +365,14 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     sequential = update == "sequential" or (update == "auto" and diagonal_r and not sqrt)
     I = ca.SX.eye(nx)
     if sequential:
-        # one scalar Joseph update per channel (diagonal R: the same update as the batch
+        # one scalar update per channel (diagonal R: the same update as the batch
         # one, H linearised at the prior); a masked channel has h_j = 0, r_j = 1: k = 0
         P = 0.5 * (Pin + Pin.T)
         xp = x
         for j in range(ny):
             hj = Hm[j, :]
             ej = e[j] - hj @ (xp - x)  # innovation of the linearised model at the prior
-            xp, P = _scalar_joseph(P, xp, hj, ej, Rm[j, j])
+            xp, P = _scalar_update(P, xp, hj, ej, Rm[j, j], joseph)
         Pp = P
     elif not sqrt:
         P = 0.5 * (Pin + Pin.T)
@@ -388,16 +395,11 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     # prediction: one RK4 step of the (affine) plant, coefficients held at u_k
     xs = ca.SX.sym("xs", nx)
     xn_s = rk4_step(f, xs, dt)
-    if exact_jac:
-        Phi_s = ca.jacobian(xn_s, xs)
-    else:  # the RK4 Jacobian of the first-order part (independent of the state)
-
-        def flin(xx):
-            return ca.vertcat(xx[m:], accel_lin(xx))
-
-        Phi_s = ca.jacobian(rk4_step(flin, xs, dt), xs)
+    if exact_jac and plant.pairs:
+        Phi = ca.substitute(ca.jacobian(xn_s, xs), xs, xp)
+    else:  # RK4 of the (first-order part of the) plant: a polynomial in its matrix
+        Phi = _rk4_transition(Jd, Jv, dt)
     xn = ca.substitute(xn_s, xs, xp)
-    Phi = ca.substitute(Phi_s, xs, xp)
     Qd = Qc * dt
     if not sqrt:
         Pn = _sandwich(Phi, Pp) + ca.DM(Qd)
@@ -462,25 +464,46 @@ def _guarded(outs, flags, guard, x, Pin, u, u_last, filt=None):
     return [*outs, u_in, status]
 
 
-def _scalar_joseph(P, x, h, e, r):
-    """Update of ``(x, P)`` (P symmetric) with one scalar measurement: row ``h``,
-    innovation ``e``, variance ``r``; Joseph form ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` in
-    closed form for the rank-one ``k h`` (valid for any gain ``k``), its lower triangle
-    evaluated and mirrored (exactly symmetric).
+def _rk4_transition(Jd, Jv, dt):
+    """``Φ = I + hA + (hA)²/2 + (hA)³/6 + (hA)⁴/24`` for ``A = [0 I; J_δ J_δ̇]``: the
+    Jacobian of one classical RK4 step of ``ẋ = A x + r₀`` (exactly what
+    :func:`casflex.simulate.integrators.rk4_step` computes for a linear right-hand side),
+    by Horner's rule on the block structure of ``A``: its zero and identity blocks stay
+    structural, so no product with them is formed."""
+    m = Jd.shape[0]
+    A = ca.blockcat([[ca.SX(m, m), ca.SX.eye(m)], [Jd, Jv]])
+    eye = ca.SX.eye(2 * m)
+    Phi = eye + A * (dt / 4.0)
+    for c in (3.0, 2.0, 1.0):
+        Phi = eye + (dt / c) * (A @ Phi)
+    return Phi
 
-    With ``b = P hᵀ``: ``(I − k h) P = P − k bᵀ``, and times ``(I − k h)ᵀ`` it is
-    ``P − k bᵀ − c kᵀ`` with ``c = b − k (h b)``."""
+
+def _scalar_update(P, x, h, e, r, joseph=True):
+    """Update of ``(x, P)`` (P symmetric) with one scalar measurement: row ``h``,
+    innovation ``e``, variance ``r``; its lower triangle evaluated and mirrored (exactly
+    symmetric).
+
+    ``joseph``: Joseph form ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` in closed form for the
+    rank-one ``k h`` (valid for any gain ``k``): with ``b = P hᵀ``, ``(I − k h) P = P − k
+    bᵀ``, and times ``(I − k h)ᵀ`` it is ``P − k bᵀ − c kᵀ`` with ``c = b − k (h b)``.
+    Else the standard form ``P − k bᵀ`` (the same for the optimal gain ``k = b / (h b +
+    r)``, two operations per entry instead of six)."""
     nx = P.shape[0]
     b = P @ h.T
     hb = ca.dot(h.T, b)
     inv = 1.0 / (hb + r)
     k = b * inv
-    c = b - k * hb
-    rk = r * k
+    if joseph:
+        c = b - k * hb
+        rk = r * k
     out = ca.SX(nx, nx)
     for i in range(nx):
         for l in range(i + 1):
-            v = P[i, l] - k[i] * b[l] - c[i] * k[l] + rk[i] * k[l]
+            if joseph:
+                v = P[i, l] - k[i] * b[l] - c[i] * k[l] + rk[i] * k[l]
+            else:
+                v = P[i, l] - k[i] * b[l]
             out[i, l] = v
             if i != l:
                 out[l, i] = v
