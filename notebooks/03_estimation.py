@@ -15,8 +15,9 @@
 #   (polynomials in q̇, q̈; differences in Δ) and tabulated (B-splines over the shape joint,
 #   a Fourier series in the shoulder joint), a few thousand flops instead of ~200 000. The
 #   table is cached on disk.
-# * **Filter**: RK4 discretisation, Jacobians by CasADi, Joseph update, sensor dropouts by a
-#   mask, optional square-root form and a high-pass prefilter against offsets.
+# * **Filter**: RK4 discretisation, Jacobians by CasADi, scalar covariance updates in
+#   standard form (the Joseph form with `joseph=True`), sensor dropouts by a mask, optional
+#   square-root form and a high-pass prefilter against offsets.
 #
 # The truth is the model's exact (nonlinear) flexible rows integrated with RK4 at 1 kHz; as
 # in the dissertation the moves are simulated without gravity.
