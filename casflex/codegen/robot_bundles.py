@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._parallel import progress_bar
-from casflex._validate import number, output_directory
+from casflex._validate import choice, fail, number, output_directory
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.estimator import add_status_defines, ekf_units, model_bundle
 from casflex.codegen.rtloop import make_controller, rt_step_function, rt_units
@@ -194,6 +194,7 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
                      kp: ArrayLike = 1.0, kd: ArrayLike = 2.0, q_weight: ArrayLike = 1.0,
                      r_weight: ArrayLike = 10.0, guard: Guard | None = None,
                      torque_limits: ArrayLike | None = None,
+                     fit: str = "grid", basis: str = "eigen",
                      log: Callable[[str], object] | None = None,
                      progress: bool = False,
                      cache_dir: str | os.PathLike | bool | None = None) -> list[Bundle]:
@@ -225,6 +226,13 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     torque_limits : float or array_like, optional
         As for :func:`rt_functions`; also written to the estimator bundle's header
         (``CASFLEX_TORQUE_LIMIT_<j>``, with the status bits ``CASFLEX_STATUS_*``).
+    fit : {"grid", "chebyshev"}
+        The model's terms interpolated over a grid of the shape joints (default), or
+        Chebyshev series over the joint box (:func:`casflex.model.build_model`'s ``fit``;
+        no grid, so no ``step``).
+    basis : {"eigen", "smooth"}
+        Tracked eigenmodes (default) or the smooth basis of clusters of close modes
+        (:func:`casflex.model.build_model`'s ``basis``).
     log : callable, optional
         ``log(message)`` receives one line per stage.
     progress : bool
@@ -241,7 +249,8 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     Raises
     ------
     casflex.errors.ModelError
-        ``n_modes < 1``, ``dt <= 0`` or ``R`` missing for sensors without noise.
+        ``n_modes < 1``, ``dt <= 0``, ``R`` missing for sensors without noise, an unknown
+        ``fit`` or ``basis``, or a ``step`` with ``fit="chebyshev"``.
     casflex.errors.ProblemFileError
         An invalid robot or sensor file.
 
@@ -252,6 +261,11 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     Traceback (most recent call last):
         ...
     casflex.errors.ModelError: n_modes = 0: must be >= 1
+    >>> realtime_bundles("problems/arm2link.toml", "problems/sensors/arm2link_strain.toml",
+    ...                  "d", fit="chebyshev", step=0.05)
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: step = 0.05: is the grid step of the modal tables; fit = 'chebyshev' has no grid (leave it unset)
     """
     from casflex.estimation import tabulate_plant
     from casflex.model import build_model
@@ -260,6 +274,11 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
 
     n_modes = number(n_modes, "n_modes", low=1, integer=True)
     dt = number(dt, "dt", low=0.0, low_open=True)
+    fit = choice(fit, "fit", ("grid", "chebyshev"))
+    basis = choice(basis, "basis", ("eigen", "smooth"))
+    if fit == "chebyshev" and step is not None:
+        raise fail("step", step, "is the grid step of the modal tables; fit = 'chebyshev' "
+                   "has no grid (leave it unset)")
     out = output_directory(out_dir, "out_dir")  # before any heavy work
     if log is None:
         def log(message):
@@ -273,9 +292,11 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     with stages:
         log(f"building the model of '{robot.name}' with {n_modes} modes ...")
         options = {"delta_order": 0} if controller else {}
-        flexible, _ = build_model(robot, n_modes=n_modes, step=step, points=sensors.points,
-                                  gravity="robot" if gravity else None, progress=progress,
-                                  cache_dir=cache_dir, **options)
+        options["gravity"] = "robot" if gravity else None
+        flexible, table = build_model(robot, n_modes=n_modes, step=step,
+                                      points=sensors.points, progress=progress,
+                                      cache_dir=cache_dir, basis=basis,
+                                      fit=None if fit == "grid" else fit, **options)
         stages.update()
         log("tabulating the flexible plant for the EKF ...")
         plant = tabulate_plant(flexible, cache_dir=cache_dir)  # cached on disk
@@ -306,7 +327,22 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
             add_status_defines(bundles[0], limits)
         stages.update()
         if model:
-            bundles.append(model_bundle(flexible, out / f"{name}_model",
-                                        name=f"{name}_model"))
+            log("generating C of the forward dynamics ...")
+            bundles.append(model_bundle(_static_lookups(flexible, table, options),
+                                        out / f"{name}_model", name=f"{name}_model"))
             stages.update()
     return bundles
+
+
+def _static_lookups(flexible, table, options):
+    """``flexible`` with its table read by local B-splines whose one coefficient table
+    (shared by the derivatives ``forward`` takes) is static data, not work memory
+    (:class:`casflex.model.TableProvider` ``lookup="static"``): the model bundle's C
+    holds each table once instead of three times. The same model to rounding of the
+    spline fits (≈ 1e-14); a fitted model (no table) is returned as it is."""
+    from casflex.model import FlexibleModel, TableProvider
+
+    if not isinstance(flexible.provider, TableProvider):
+        return flexible
+    provider = TableProvider(table, flexible.provider.method, lookup="static")
+    return FlexibleModel(flexible.robot, provider, **options)
