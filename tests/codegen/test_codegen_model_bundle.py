@@ -12,8 +12,8 @@ from casflex import codegen
 from casflex.cli import main
 from casflex.codegen import split_forward
 from casflex.errors import ModelError
-from casflex.model import FlexibleModel, PointwiseProvider, TableProvider
 from casflex.modal import local_bspline_function
+from casflex.model import FlexibleModel, PointwiseProvider, TableProvider
 
 
 def _spline_and_derivatives(f):
