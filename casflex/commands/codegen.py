@@ -12,9 +12,14 @@ diagonal.
 
 With ``--controller composite|inversion`` the EKF bundle also gets ``rt_step``
 (:func:`casflex.codegen.rt_step_function`): encoder readings, reference and accelerometer
-sample to the joint torques and the updated estimator state in one call. The model is then
-built as in the control studies (``delta_order=0``, the dissertation's ``M(q)``); the
-composite law uses fast gains scheduled on a 30-point axis per shape joint, cached on disk.
+sample to the joint torques and the updated estimator state in one call; the composite law
+uses fast gains scheduled on a 30-point axis per shape joint, cached on disk.
+
+The estimator is the same with and without ``--controller``: its plant comes from the
+model built as in the control studies and the design job (``delta_order=0``, the
+dissertation's ``M(q)``). The forward-dynamics bundle keeps ``M`` to first order in ``δ``
+(``delta_order=1``) without a controller and is the controller's ``M(q)`` model with one
+(:mod:`casflex.codegen.robot_bundles`).
 
 ``--fit chebyshev`` fits every model term as a Chebyshev series over the joint box
 instead of interpolating a grid (no ``--step``); ``--basis smooth`` uses the smooth basis

@@ -149,3 +149,39 @@ def test_realtime_bundles_checks_fit_and_basis(tmp_path):
             codegen.realtime_bundles("problems/arm2link.toml",
                                      "problems/sensors/arm2link_accel.toml", tmp_path / "x",
                                      **kwargs)
+
+
+@pytest.mark.slow
+def test_one_estimator_plant_with_and_without_controller(monkeypatch, arm_model,
+                                                          accel_sensors, tmp_path):
+    import casflex.estimation
+    import casflex.model
+    from casflex.codegen import robot_bundles
+
+    model, table = arm_model(1, points=accel_sensors.points, delta_order=0)
+    seen = {"build": [], "plant": [], "ctrl": [], "bundle": []}
+
+    def build(robot, **kwargs):
+        seen["build"].append(kwargs["delta_order"])
+        return model, table
+
+    def functions(flexible, sensors, **kwargs):  # a stand-in estimator: C in no time
+        x = ca.SX.sym("x")
+        return {"ekf_step": ca.Function("ekf_step", [x], [2 * x])}, {}
+
+    monkeypatch.setattr(casflex.model, "build_model", build)
+    monkeypatch.setattr(casflex.estimation, "tabulate_plant",
+                        lambda m, **kw: seen["plant"].append(m.delta_order))
+    monkeypatch.setattr(robot_bundles, "make_controller",
+                        lambda m, *a, **kw: seen["ctrl"].append(m.delta_order))
+    monkeypatch.setattr(robot_bundles, "rt_functions", functions)
+    monkeypatch.setattr(robot_bundles, "model_bundle", lambda m, *a, **kw: seen[
+        "bundle"].append((m.delta_order, m.provider.lookup)))
+    for k, controller in enumerate((None, "composite")):
+        codegen.realtime_bundles("problems/arm2link.toml",
+                                 "problems/sensors/arm2link_accel.toml", tmp_path / str(k),
+                                 controller=controller)
+    # the estimator's plant and the controller from M(q) in both runs; the simulation
+    # model M(q, delta) to first order without a controller, the controller's with one
+    assert seen["build"] == [0, 0] and seen["plant"] == [0, 0] and seen["ctrl"] == [0]
+    assert seen["bundle"] == [(1, "static"), (0, "static")]
