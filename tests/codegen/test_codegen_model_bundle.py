@@ -12,7 +12,7 @@ from casflex import codegen
 from casflex.cli import main
 from casflex.codegen import split_forward
 from casflex.errors import ModelError
-from casflex.modal import local_bspline_function
+from casflex.modal import ModalTable, local_bspline_function
 from casflex.model import FlexibleModel, PointwiseProvider, TableProvider
 
 
@@ -99,8 +99,9 @@ def test_static_lookup_model_is_the_interpolant_model(arm_model, accel_sensors):
         assert np.max(np.abs(a - b)) <= 1e-10 * np.max(np.abs(a))
 
 
-def test_table_provider_rejects_an_unknown_lookup(arm_model):
-    _, table = arm_model(1)
+def test_table_provider_rejects_an_unknown_lookup():
+    table = ModalTable(grid=(np.linspace(0, 3, 7),), shape_joints=(0,),
+                       values={"m": np.ones((7, 2))}, omega=np.ones((7, 1)))
     with pytest.raises(ModelError, match="lookup must be"):
         TableProvider(table, lookup="fast")
 
