@@ -207,9 +207,10 @@ def split_forward(model: FlexibleModel) -> ca.Function:
     ~35 000 instructions on the Table 8 arm, one C function of as many lines, and gcc's
     time grows faster than linearly with a function's length. This is the same
     ``M Ẍ = [τ; 0] − C Ẋ − G − [0; D δ̇]`` written as an MX graph of calls: the model's
-    ``mass``, its forward (``Ṁ Ẋ``, one direction ``Ẋ``) and reverse (``½ ∂(Ẋᵀ M Ẋ)/∂X``)
-    derivatives, ``potential_forces``, ``damping`` and a small linear solve, each
-    generated as its own C function. ``C Ẋ = d/dt(M Ẋ)|_{Ẍ=0} − ∂T/∂X`` as in the model
+    ``mass``, ``Ṁ Ẋ`` (its forward derivative in the one direction ``Ẋ``) and
+    ``∂T/∂X = ½ ∂(Ẋᵀ M Ẋ)/∂X`` (reverse), each an SX function with common
+    subexpressions merged, ``potential_forces``, ``damping`` and a small linear solve,
+    each generated as its own C function. ``C Ẋ = d/dt(M Ẋ)|_{Ẍ=0} − ∂T/∂X`` as in the model
     (:mod:`casflex.model.equations`); the result equals the model's ``forward`` to
     rounding (the operations are the same, grouped differently).
 
@@ -239,10 +240,20 @@ def split_forward(model: FlexibleModel) -> ca.Function:
     n, m = model.n, model.m
     q, dq, tau = ca.MX.sym("q", n), ca.MX.sym("dq", n), ca.MX.sym("tau", n)
     d, dd = ca.MX.sym("delta", m), ca.MX.sym("ddelta", m)
-    X, dX = ca.vertcat(q, d), ca.vertcat(dq, dd)
+    # Ṁ Ẋ (one forward direction) and ∂T/∂X (reverse) as SX functions of their own,
+    # with common subexpressions merged (cse: 15 300 and 11 200 instead of 16 900 and
+    # 15 200 instructions on the Table 8 arm)
+    sym = [ca.SX.sym(k, v) for k, v in (("q", n), ("delta", m), ("dq", n), ("ddelta", m))]
+    Xs, dXs = ca.vertcat(sym[0], sym[1]), ca.vertcat(sym[2], sym[3])
+    Ms = f["mass"](sym[0], sym[1])
+    names = ["q", "delta", "dq", "ddelta"]
+    rate = ca.Function("mass_rate", sym, [ca.jtimes(Ms @ dXs, Xs, dXs)], names,
+                       ["Mdot_dX"], {"cse": True})
+    grad = ca.Function("kinetic_gradient", sym, [ca.gradient(0.5 * ca.dot(dXs, Ms @ dXs),
+                                                             Xs)], names, ["dT_dX"],
+                       {"cse": True})
     M = f["mass"](q, d)
-    Cdx = ca.jtimes(M @ dX, X, dX) - ca.gradient(0.5 * ca.dot(dX, M @ dX), X)
-    h = Cdx + f["potential_forces"](q, d)
+    h = rate(q, d, dq, dd) - grad(q, d, dq, dd) + f["potential_forces"](q, d)
     if m:
         h = h + ca.vertcat(ca.MX.zeros(n), f["damping"](q) @ dd)
     N = n + m
