@@ -36,6 +36,7 @@ Estimator (:mod:`casflex.codegen.estimator`)
 --------------------------------------------
 ekf_bundle      the EKF bundle: ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals``
 model_bundle    functions of the model (default its forward dynamics)
+split_forward   the model's forward dynamics as calls of its smaller functions (for C)
 ekf_units       units of the EKF functions' ports
 covariance_run  ``ekf_step`` for millions of steps in C, checking the covariance
 add_status_defines  the status bits of guarded steps appended to a bundle header
@@ -130,6 +131,7 @@ from casflex.codegen.estimator import (
     ekf_bundle,
     ekf_units,
     model_bundle,
+    split_forward,
 )
 from casflex.codegen.jit import compile_cached
 from casflex.codegen.plan_table import plan_table_bundle
@@ -167,6 +169,7 @@ __all__ = [
     # estimator
     "ekf_bundle",
     "model_bundle",
+    "split_forward",
     "ekf_units",
     "covariance_run",
     # real-time loop

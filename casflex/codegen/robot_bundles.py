@@ -10,10 +10,27 @@ unless ``model=False``, ``<out_dir>/<name>_model`` with the model's ``forward`` 
 The EKF step is the one ``benchmarks/bench_ekf.py`` times: ``jacobians="first_order"``
 (default; ``"exact"`` and ``"linearized"`` are the alternatives of
 :func:`casflex.estimation.ekf_step_function`), sequential scalar updates when ``R`` is
-diagonal. With a controller the model is built as in the control studies
-(``delta_order=0``, the dissertation's ``M(q)``); the composite law uses fast gains
-scheduled on a 30-point full-turn axis per scheduled joint, cached on disk
-(:func:`casflex.codegen.make_controller`).
+diagonal. The composite law uses fast gains scheduled on a 30-point full-turn axis per
+scheduled joint, cached on disk (:func:`casflex.codegen.make_controller`).
+
+Which model each part uses:
+
+* **the estimator, one plant with and without a controller**: the EKF plant is tabulated
+  (:func:`casflex.estimation.tabulate_plant`) from the model built as in the control
+  studies and the design job's default (``delta_order=0``, the dissertation's ``M(q)``),
+  so ``ekf_step`` does not change when ``rt_step`` is added. Until session 9 the plain
+  command tabulated it from the ``delta_order=1`` model instead: a different estimator
+  than the one next to the controller, and ~3/4 of the command's cold time (that plant's
+  tabulation).
+* **the controller**: the same ``M(q)`` model (the composite law's singular perturbation
+  is derived for it).
+* **the forward-dynamics bundle** (the simulation model): ``M`` to first order in ``δ``
+  (``delta_order=1``, :class:`casflex.model.FlexibleModel`'s default) without a
+  controller; with one, the controller's ``M(q)`` model. Its tables are read by local
+  B-splines from one static coefficient table each (:class:`casflex.model.TableProvider`
+  ``lookup="static"``) and ``forward`` is split into the model's smaller functions
+  (:func:`casflex.codegen.split_forward`): C a little over half the size, compiled
+  several times faster.
 
 Extending the bundle: :func:`rt_functions` returns its named CasADi functions and their
 units; add yours to both before generating them with :func:`casflex.codegen.generate`.
@@ -30,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._parallel import progress_bar
-from casflex._validate import number, output_directory
+from casflex._validate import choice, fail, number, output_directory
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.estimator import add_status_defines, ekf_units, model_bundle
 from casflex.codegen.rtloop import make_controller, rt_step_function, rt_units
@@ -194,6 +211,7 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
                      kp: ArrayLike = 1.0, kd: ArrayLike = 2.0, q_weight: ArrayLike = 1.0,
                      r_weight: ArrayLike = 10.0, guard: Guard | None = None,
                      torque_limits: ArrayLike | None = None,
+                     fit: str = "grid", basis: str = "eigen",
                      log: Callable[[str], object] | None = None,
                      progress: bool = False,
                      cache_dir: str | os.PathLike | bool | None = None) -> list[Bundle]:
@@ -225,10 +243,18 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     torque_limits : float or array_like, optional
         As for :func:`rt_functions`; also written to the estimator bundle's header
         (``CASFLEX_TORQUE_LIMIT_<j>``, with the status bits ``CASFLEX_STATUS_*``).
+    fit : {"grid", "chebyshev"}
+        The model's terms interpolated over a grid of the shape joints (default), or
+        Chebyshev series over the joint box (:func:`casflex.model.build_model`'s ``fit``;
+        no grid, so no ``step``).
+    basis : {"eigen", "smooth"}
+        Tracked eigenmodes (default) or the smooth basis of clusters of close modes
+        (:func:`casflex.model.build_model`'s ``basis``).
     log : callable, optional
         ``log(message)`` receives one line per stage.
     progress : bool
-        Progress bars on stderr: one over the stages, and the modal tables' own.
+        Progress bars on stderr: one over the stages (naming the current one), and the
+        modal tables' own.
     cache_dir : path, None or False
         Cache of the modal tables, the tabulated plant and the gain schedule (a path,
         ``None`` for the default, ``False`` for none).
@@ -241,7 +267,8 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     Raises
     ------
     casflex.errors.ModelError
-        ``n_modes < 1``, ``dt <= 0`` or ``R`` missing for sensors without noise.
+        ``n_modes < 1``, ``dt <= 0``, ``R`` missing for sensors without noise, an unknown
+        ``fit`` or ``basis``, or a ``step`` with ``fit="chebyshev"``.
     casflex.errors.ProblemFileError
         An invalid robot or sensor file.
 
@@ -252,6 +279,11 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
     Traceback (most recent call last):
         ...
     casflex.errors.ModelError: n_modes = 0: must be >= 1
+    >>> realtime_bundles("problems/arm2link.toml", "problems/sensors/arm2link_strain.toml",
+    ...                  "d", fit="chebyshev", step=0.05)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: step = 0.05: is the grid step ... has no grid (leave it unset)
     """
     from casflex.estimation import tabulate_plant
     from casflex.model import build_model
@@ -260,6 +292,11 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
 
     n_modes = number(n_modes, "n_modes", low=1, integer=True)
     dt = number(dt, "dt", low=0.0, low_open=True)
+    fit = choice(fit, "fit", ("grid", "chebyshev"))
+    basis = choice(basis, "basis", ("eigen", "smooth"))
+    if fit == "chebyshev" and step is not None:
+        raise fail("step", step, "is the grid step of the modal tables; fit = 'chebyshev' "
+                   "has no grid (leave it unset)")
     out = output_directory(out_dir, "out_dir")  # before any heavy work
     if log is None:
         def log(message):
@@ -270,30 +307,38 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
         sensors = load_sensors(sensors, robot)
     stages = progress_bar(4 + bool(controller) + bool(model), desc="codegen",
                           enabled=progress)
+
+    def stage(message):  # the log line, and its short form on the stage bar
+        log(message)
+        stages.set_postfix_str(message.rstrip(" .").split(" (")[0], refresh=True)
+
     with stages:
-        log(f"building the model of '{robot.name}' with {n_modes} modes ...")
-        options = {"delta_order": 0} if controller else {}
-        flexible, _ = build_model(robot, n_modes=n_modes, step=step, points=sensors.points,
-                                  gravity="robot" if gravity else None, progress=progress,
-                                  cache_dir=cache_dir, **options)
+        stage(f"building the model of '{robot.name}' with {n_modes} modes ...")
+        # the estimator's (and the controller's) model, with or without a controller:
+        # M(q), as in the control studies and the design job (module docstring)
+        options = {"delta_order": 0, "gravity": "robot" if gravity else None}
+        flexible, table = build_model(robot, n_modes=n_modes, step=step,
+                                      points=sensors.points, progress=progress,
+                                      cache_dir=cache_dir, basis=basis,
+                                      fit=None if fit == "grid" else fit, **options)
         stages.update()
-        log("tabulating the flexible plant for the EKF ...")
+        stage("tabulating the flexible plant for the EKF ...")
         plant = tabulate_plant(flexible, cache_dir=cache_dir)  # cached on disk
         stages.update()
         ctrl = None
         if controller:
-            log(f"building the {controller} controller ...")
+            stage(f"building the {controller} controller ...")
             ctrl = make_controller(flexible, controller, Kp=kp, Kd=kd, Q=q_weight,
                                    R=r_weight, cache_dir=cache_dir)  # schedule cached
             stages.update()
-        log("building the estimator's functions ...")
+        stage("building the estimator's functions ...")
         funcs, units = rt_functions(flexible, sensors, Q=Q, R=R, dt=dt, sqrt=sqrt,
                                     prefilter=prefilter, jacobians=jacobians,
                                     controller=controller, kp=kp, kd=kd, q_weight=q_weight,
                                     r_weight=r_weight, plant=plant, guard=guard,
                                     torque_limits=torque_limits, controller_function=ctrl)
         stages.update()
-        log("generating C ...")
+        stage("generating C of the estimator ...")
         names = [k for k in _EKF_ORDER if k in funcs] + [k for k in funcs
                                                          if k not in _EKF_ORDER]
         bundles = [generate([funcs[k] for k in names], out / f"{name}_ekf",
@@ -306,7 +351,25 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
             add_status_defines(bundles[0], limits)
         stages.update()
         if model:
-            bundles.append(model_bundle(flexible, out / f"{name}_model",
-                                        name=f"{name}_model"))
+            stage("generating C of the forward dynamics ...")
+            # the simulation model: M to first order in δ, or the controller's M(q)
+            options["delta_order"] = 0 if controller else 1
+            bundles.append(model_bundle(_bundle_model(flexible, table, options),
+                                        out / f"{name}_model", name=f"{name}_model"))
             stages.update()
     return bundles
+
+
+def _bundle_model(flexible, table, options):
+    """The model of the forward-dynamics bundle: ``flexible``'s tables and ``options``
+    (:class:`~casflex.model.equations.FlexibleModel` keywords), the tables read by local
+    B-splines whose one coefficient table (shared by the derivatives ``forward`` takes) is
+    static data, not work memory (:class:`casflex.model.TableProvider` ``lookup="static"``):
+    the C holds each table once instead of three times. The same model to rounding of
+    the spline fits (≈ 1e-14); a fitted model (no table) keeps its provider."""
+    from casflex.model import FlexibleModel, TableProvider
+
+    provider = flexible.provider
+    if isinstance(provider, TableProvider):
+        provider = TableProvider(table, provider.method, lookup="static")
+    return FlexibleModel(flexible.robot, provider, **options)

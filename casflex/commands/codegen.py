@@ -12,9 +12,19 @@ diagonal.
 
 With ``--controller composite|inversion`` the EKF bundle also gets ``rt_step``
 (:func:`casflex.codegen.rt_step_function`): encoder readings, reference and accelerometer
-sample to the joint torques and the updated estimator state in one call. The model is then
-built as in the control studies (``delta_order=0``, the dissertation's ``M(q)``); the
-composite law uses fast gains scheduled on a 30-point axis per shape joint, cached on disk.
+sample to the joint torques and the updated estimator state in one call; the composite law
+uses fast gains scheduled on a 30-point axis per shape joint, cached on disk.
+
+The estimator is the same with and without ``--controller``: its plant comes from the
+model built as in the control studies and the design job (``delta_order=0``, the
+dissertation's ``M(q)``). The forward-dynamics bundle keeps ``M`` to first order in ``δ``
+(``delta_order=1``) without a controller and is the controller's ``M(q)`` model with one
+(:mod:`casflex.codegen.robot_bundles`).
+
+``--fit chebyshev`` fits every model term as a Chebyshev series over the joint box
+instead of interpolating a grid (no ``--step``); ``--basis smooth`` uses the smooth basis
+of clusters of close modes (:func:`casflex.model.build_model`, the design studies'
+``model.fit`` and ``model.basis``).
 
 Gravity follows the convention of every verb, ``--gravity/--no-gravity``. For one
 release, a command that gives neither keeps the old default of this verb (the robot's
@@ -94,6 +104,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "same accuracy as exact on the studies; exact: through the "
                              "full plant; linearized: also the measurement's at zero "
                              "deflection, leanest)")
+    parser.add_argument("--fit", choices=("grid", "chebyshev"), default="grid",
+                        help="the model's terms interpolated over a grid of the shape "
+                             "joints (default) or Chebyshev series over the joint box "
+                             "(no grid: not with --step)")
+    parser.add_argument("--basis", choices=("eigen", "smooth"), default="eigen",
+                        help="tracked eigenmodes (default) or the smooth basis of clusters "
+                             "of close modes")
     parser.add_argument("--no-model", action="store_true",
                         help="skip the forward-dynamics bundle")
     add_gravity_argument(parser, default=None,
@@ -146,7 +163,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     Raises
     ------
     casflex.errors.ModelError
-        ``--modes < 1``, ``--dt <= 0`` or ``--R`` missing for sensors without noise.
+        ``--modes < 1``, ``--dt <= 0``, ``--R`` missing for sensors without noise, or
+        ``--step`` with ``--fit chebyshev``.
 
     Examples
     --------
@@ -189,6 +207,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--torque-limit: must be > 0 N m; got {limits}")
     if limits is not None and len(limits) == 1:
         limits = limits[0]
+    if args.fit == "chebyshev" and args.step is not None:
+        raise ModelError(f"--step {args.step}: the grid step of the modal tables; --fit "
+                         "chebyshev has no grid (leave --step out)")
     cache_dir = cache_dir_of(args)
     notes = []  # deprecation notes, written after the work so that an error stays one line
     step = _step(args.step, notes)
@@ -203,7 +224,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         step=step, gravity=gravity, model=not args.no_model, Q=args.Q, R=args.R,
         dt=args.dt, sqrt=args.sqrt, prefilter=args.prefilter, jacobians=args.jacobians,
         controller=args.controller, kp=args.kp, kd=args.kd, q_weight=args.q_weight,
-        r_weight=args.r_weight, guard=guard, torque_limits=limits, log=log,
+        r_weight=args.r_weight, guard=guard, torque_limits=limits, fit=args.fit,
+        basis=args.basis, log=log,
         progress=True, cache_dir=cache_dir)
     files, functions = [], []
     for b in bundles:

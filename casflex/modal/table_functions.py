@@ -20,6 +20,19 @@ Derivatives are those of the same graph (algorithmic differentiation of the basi
 weights), so the first and second derivatives use the same coefficient array: no extra
 tables in the generated C.
 
+How the coefficient rows are read (``rows``):
+
+* ``"pointer"`` (default, the EKF plant's): a pointer offset into the table, the fewest
+  instructions. CasADi counts the table as work memory of the function (casadi/casadi#4386:
+  an MX constant gets work slots although the C code only points at it), so the
+  ``<f>_SZ_W`` of a function that calls the lookup grows by the table's size.
+* ``"static"``: through a one-axis linear ``casadi.interpolant`` over the row indices,
+  evaluated at whole numbers (weights exactly 1 and 0, so the rows come out bit-identical).
+  The table is the interpolant's own data, a ``static const`` array in C, and the work
+  size stays a few dozen doubles. A few more instructions per lookup (each row read is a
+  short loop instead of a pointer): the choice for large tables whose users allocate
+  the work themselves (the model bundle).
+
 The graph is a ``casadi.Function`` with ``never_inline``: called with SX arguments (the
 models and the estimator build SX graphs) it stays one call node, whose C code the bundle
 contains once.
@@ -51,7 +64,8 @@ __all__ = ["local_bspline_function", "DEGREE"]
 DEGREE = 3
 
 
-def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike) -> ca.Function:
+def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike, *,
+                           rows: str = "pointer") -> ca.Function:
     """The interpolating cubic B-spline of ``values`` over ``axis``, evaluated locally.
 
     Parameters
@@ -62,6 +76,9 @@ def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike) -> ca.
         (n,) strictly increasing grid [rad, or the unit of the table's axis], n ≥ 4.
     values : array_like
         (n, k) values of ``k`` entries at the grid points.
+    rows : {"pointer", "static"}
+        How the coefficient rows are read (module docstring): ``"static"`` keeps the
+        table out of the declared work memory.
 
     Returns
     -------
@@ -76,7 +93,7 @@ def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike) -> ca.
     ------
     casflex.errors.ModelError
         For fewer than four grid points, a grid that does not increase, or values whose
-        rows do not match the grid.
+        rows do not match the grid, or an unknown ``rows``.
 
     Examples
     --------
@@ -89,6 +106,11 @@ def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike) -> ca.
     >>> d2 = ca.Function("d2", [x], [ca.jacobian(ca.jacobian(f(x)[0], x), x)])
     >>> round(float(d2(0.3)), 9)   # (x³)'' = 6 x
     1.8
+    >>> wide = np.c_[np.sin(grid)] * np.ones((1, 100))   # 9 x 100 coefficients
+    >>> local_bspline_function("a", grid, wide).sz_w()   # the table counted as work
+    1136
+    >>> local_bspline_function("b", grid, wide, rows="static").sz_w()
+    238
     """
     axis = np.asarray(axis, dtype=float).ravel()
     values = np.asarray(values, dtype=float)
@@ -101,6 +123,8 @@ def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike) -> ca.
         raise ModelError(f"{name}: the grid must increase strictly")
     if values.ndim != 2 or values.shape[0] != axis.size:
         raise ModelError(f"{name}: values must be ({axis.size}, k); got {values.shape}")
+    if rows not in ("pointer", "static"):
+        raise ModelError(f"{name}: rows must be 'pointer' or 'static'; got {rows!r}")
     import casadi as ca
     from scipy.interpolate import make_interp_spline
 
@@ -131,8 +155,17 @@ def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike) -> ca.
             basis[r] = saved + right[r + 1] * temp
             saved = left[j - r] * temp
         basis[j] = saved
-    table = ca.MX(ca.DM(coef.ravel()))  # row-major: the k entries of a basis function
+    if rows == "static":
+        # row j of the table is the linear interpolant at the whole number j: weights 1
+        # and 0 exactly, the "exact" lookup of an equidistant axis (no search)
+        read = ca.interpolant(f"{name}_rows", "linear", [np.arange(nb, dtype=float)],
+                              coef.ravel(), {"lookup_mode": ["exact"]})
+    else:
+        table = ca.MX(ca.DM(coef.ravel()))  # row-major: the k entries of a basis function
+
+        def read(row):  # a pointer offset into the table
+            return table.get_nz(False, ca.Slice(0, k), row * k)
     out = 0
-    for r in range(p + 1):  # basis function i - p + r: a pointer offset into the table
-        out = out + basis[r] * table.get_nz(False, ca.Slice(0, k), (i - p + r) * k)
+    for r in range(p + 1):  # basis function i - p + r
+        out = out + basis[r] * read(i - p + r)
     return ca.Function(name, [x], [out], ["x"], ["f"], {"never_inline": True})

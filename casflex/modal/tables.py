@@ -482,9 +482,11 @@ class ModalTable:
             Interpolate only these entries of the value (indices into the value flattened
             in C order); the output is then the column vector of those entries. The
             model uses it to leave out entries that vanish everywhere.
-        lookup : {"interpolant", "local"}
+        lookup : {"interpolant", "local", "static"}
             ``"local"``: one-axis B-splines by :func:`casflex.modal.table_functions.
-            local_bspline_function` (the same spline, leaner C); else ``casadi.interpolant``.
+            local_bspline_function` (the same spline, leaner C); ``"static"``: the same
+            with its table kept out of the declared work memory (``rows="static"``); else
+            ``casadi.interpolant``.
 
         Returns
         -------
@@ -506,7 +508,8 @@ class ModalTable:
         import casadi as ca
 
         from casflex.modal.table_functions import local_bspline_function
-        if method not in ("bspline", "linear") or lookup not in ("interpolant", "local"):
+        if method not in ("bspline", "linear") or lookup not in ("interpolant", "local",
+                                                                   "static"):
             raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}, {lookup=}")
         values = {"omega": self.omega, **self.values}
         if name not in values:
@@ -540,8 +543,9 @@ class ModalTable:
         if flat.shape[-1] == 0:  # e.g. no joint springs: an empty quantity
             empty = ca.MX(ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1))))
             return ca.Function(name, [x], [empty], ["q_shape"], [name])
-        if lookup == "local" and method == "bspline" and nd == 1:
-            interp = local_bspline_function(f"{name}_local", axes[0], flat)
+        if lookup in ("local", "static") and method == "bspline" and nd == 1:
+            interp = local_bspline_function(f"{name}_local", axes[0], flat,
+                                            rows="static" if lookup == "static" else "pointer")
         else:  # binary search: bit-identical to CasADi's default scan, in log2(n) steps
             interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes],
                                     np.moveaxis(flat, -1, 0).ravel(order="F"),

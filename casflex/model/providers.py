@@ -199,6 +199,12 @@ class TableProvider:
     ----------
     table : casflex.modal.tables.ModalTable
     method : {"bspline", "linear"}
+    lookup : {"interpolant", "local", "static"}
+        How a one-axis B-spline table is read (:meth:`casflex.modal.tables.ModalTable.
+        function`): ``casadi.interpolant`` (default), or the same spline evaluated
+        locally with one coefficient table shared by its derivatives
+        (:func:`casflex.modal.local_bspline_function`; ``"static"`` keeps that table out
+        of the declared work memory, what the model's C bundle uses).
 
     Examples
     --------
@@ -213,9 +219,14 @@ class TableProvider:
     8.901
     """
 
-    def __init__(self, table: ModalTable, method: str = "bspline") -> None:
+    def __init__(self, table: ModalTable, method: str = "bspline",
+                 lookup: str = "interpolant") -> None:
+        if lookup not in ("interpolant", "local", "static"):
+            raise ModelError(f"lookup must be 'interpolant', 'local' or 'static'; got "
+                             f"{lookup!r}")
         self.table = table
         self.method = method
+        self.lookup = lookup
         self.shape_joints = tuple(table.shape_joints)
         self._functions = {}
         self._combined = None
@@ -317,7 +328,8 @@ class TableProvider:
             joined = ModalTable(grid=self.table.grid, shape_joints=self.table.shape_joints,
                                 values={"all": flat}, omega=self.table.omega,
                                 periodic=self.table.periodic)
-            self._combined = (joined.function("all", method=self.method) if start else None,
+            self._combined = (joined.function("all", method=self.method,
+                                              lookup=self.lookup) if start else None,
                               layout, wanted)
         fun, layout, _ = self._combined
         return _scatter(fun(q_shape) if fun is not None else None, layout)
@@ -356,7 +368,8 @@ class TableProvider:
         keep = np.flatnonzero(~zero)
         y = ca.SX.zeros(zero.size)
         if keep.size:  # only the entries that do not vanish everywhere are interpolated
-            f = self.table.function(name, method=self.method, entries=keep)
+            f = self.table.function(name, method=self.method, entries=keep,
+                                    lookup=self.lookup)
             y[keep.tolist()] = f(x)
         self._functions[name] = ca.Function(name, [x], [y], ["q_shape"], [name])
         return self._functions[name]
