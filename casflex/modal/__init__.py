@@ -89,6 +89,7 @@ Modal tables
    canonical           -- exact JSON-able canonical form of a value (for cache keys)
    tmm_digest          -- digest of the TMM's source (part of the cached modes' key)
    local_bspline_function -- a table's cubic B-spline evaluated locally (lean generated C)
+   grid_function      -- casadi.Function interpolating gridded values (a table's lookup)
 
 Frequency sweeps
 ================
@@ -145,7 +146,7 @@ from casflex.modal.subspace import (
     track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
-from casflex.modal.table_functions import local_bspline_function
+from casflex.modal.table_functions import grid_function, local_bspline_function
 from casflex.modal.tablekeys import canonical, robot_fingerprint, tmm_digest
 from casflex.modal.tables import (
     ModalTable,
@@ -235,6 +236,7 @@ __all__ = [
     "canonical",
     "tmm_digest",
     "local_bspline_function",
+    "grid_function",
     # frequency sweeps
     "frequency_sweep",
     "FrequencySweep",

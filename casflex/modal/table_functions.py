@@ -48,6 +48,8 @@ Examples
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -58,10 +60,12 @@ from casflex.errors import ModelError
 if TYPE_CHECKING:  # casadi is imported where it is used, as in the rest of casflex.modal
     import casadi as ca
 
-__all__ = ["local_bspline_function", "DEGREE"]
+__all__ = ["grid_function", "local_bspline_function", "DEGREE"]
 
 #: degree of the interpolating B-spline (cubic, as ``casadi.interpolant("bspline")``)
 DEGREE = 3
+
+_TWO_PI = 2.0 * math.pi
 
 
 def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike, *,
@@ -169,3 +173,118 @@ def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike, *,
     for r in range(p + 1):  # basis function i - p + r
         out = out + basis[r] * read(i - p + r)
     return ca.Function(name, [x], [out], ["x"], ["f"], {"never_inline": True})
+
+
+def grid_function(name: str, grid: Sequence[ArrayLike], data: ArrayLike, *,
+                  periodic: Sequence[bool] | None = None, method: str = "bspline",
+                  lookup: str = "interpolant") -> ca.Function:
+    """``casadi.Function`` interpolating gridded values (the lookup of a modal table).
+
+    Parameters
+    ----------
+    name : str
+        Name of the returned Function and of its output.
+    grid : sequence of array_like
+        One increasing axis per shape joint (rad).
+    data : array_like
+        Values on the grid, shape ``grid shape + value shape`` (value shape ``()``,
+        ``(n,)``, ``(r, c)`` or higher).
+    periodic : sequence of bool, optional
+        Per axis, whether it may span a full turn: such an axis
+        (:func:`casflex.modal.periodic_axis_kind`) is padded by three points on each side
+        and its argument wrapped into the period. Default: no axis.
+    method : {"bspline", "linear"}
+        ``casadi.interpolant`` plugin; B-splines (cubic, interpolating, needing at least
+        4 points per axis) give smooth derivatives for the dynamics.
+    lookup : {"interpolant", "local", "static"}
+        ``"local"``: a one-axis B-spline by :func:`local_bspline_function` (the same
+        spline, leaner C); ``"static"``: the same with its table kept out of the declared
+        work memory (``rows="static"``); else ``casadi.interpolant``.
+
+    Returns
+    -------
+    casadi.Function
+        ``f(q_shape) -> value``. Scalars and vectors come out as column vectors, matrices
+        with their shape, higher arrays flattened in C order. Beyond a non-periodic
+        axis's ends the value at the end is held.
+
+    Examples
+    --------
+    >>> axis = np.linspace(0.0, 3.0, 7)
+    >>> f = grid_function("sq", [axis], axis**2)
+    >>> round(float(f(1.25)), 12)   # a cubic spline reproduces a quadratic exactly
+    1.5625
+    >>> float(f(5.0))               # held at the end of the axis
+    9.0
+    """
+    import casadi as ca
+
+    from casflex.modal.fits import periodic_axis_kind
+    if method not in ("bspline", "linear") or lookup not in ("interpolant", "local", "static"):
+        raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}, {lookup=}")
+    data = np.asarray(data, dtype=float)
+    nd = len(grid)
+    vshape = data.shape[nd:]
+    flat = _flatten_values(data, nd)
+    axes = [np.asarray(a, dtype=float) for a in grid]
+    periodic = periodic or (False,) * nd
+    wrap = []
+    for ax in range(nd):
+        kind = periodic_axis_kind(axes[ax]) if periodic[ax] else None
+        if kind is not None:
+            axes[ax], flat = _pad_periodic(axes[ax], flat, ax, kind)
+        wrap.append(None if kind is None else (float(grid[ax][0]), _TWO_PI))
+    need = 4 if method == "bspline" else 2
+    for ax, a in enumerate(axes):
+        if a.size < need:
+            raise ModelError(f"axis {ax} of the table has {a.size} points; the "
+                             f"{method!r} interpolant needs at least {need}")
+    x = ca.MX.sym("q_shape", nd)
+    if flat.shape[-1] == 0:  # e.g. no joint springs: an empty quantity
+        empty = ca.MX(ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1))))
+        return ca.Function(name, [x], [empty], ["q_shape"], [name])
+    if lookup in ("local", "static") and method == "bspline" and nd == 1:
+        rows = "static" if lookup == "static" else "pointer"
+        interp = local_bspline_function(f"{name}_local", axes[0], flat, rows=rows)
+    else:  # binary search: bit-identical to CasADi's default scan, in log2(n) steps
+        interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes],
+                                np.moveaxis(flat, -1, 0).ravel(order="F"),
+                                {"lookup_mode": ["binary"] * nd})
+    parts = []
+    for ax in range(nd):
+        xi = x[ax]
+        if wrap[ax] is not None:
+            lo, period = wrap[ax]
+            xi = xi - period * ca.floor((xi - lo) / period)
+        else:  # held at the ends: CasADi's B-splines are 0 beyond their knots
+            lo, hi = axes[ax][0], axes[ax][-1]  # (fmin's derivative is ½ at a tie)
+            xi = ca.if_else(xi < lo, lo, ca.if_else(xi > hi, hi, xi))
+        parts.append(xi)
+    out = interp(ca.vertcat(*parts))
+    if len(vshape) == 2:
+        out = ca.reshape(out, vshape[0], vshape[1])
+    return ca.Function(name, [x], [out], ["q_shape"], [name])
+
+
+def _flatten_values(data, nd):
+    """grid_shape + value_shape -> grid_shape + (n,), matrices column-major (casadi)."""
+    if data.ndim - nd == 2:  # column-major flattening of each matrix
+        data = np.swapaxes(data, nd, nd + 1)
+    return data.reshape(data.shape[:nd] + (-1,))
+
+
+def _pad_periodic(axis, flat, ax, kind, pad=3):
+    """Extend a full-turn axis (and the data along it) by ``pad`` points on each side."""
+    if kind == "closed":
+        base_axis = axis[:-1]
+        base = np.take(flat, np.arange(axis.size - 1), axis=ax)
+    else:
+        base_axis, base = axis, flat
+    n = base_axis.size
+    pad = min(pad, n)
+    left_axis = base_axis[n - pad:] - _TWO_PI
+    right_axis = base_axis[:pad] + _TWO_PI
+    new_axis = np.concatenate([left_axis, base_axis, right_axis])
+    left = np.take(base, np.arange(n - pad, n), axis=ax)
+    right = np.take(base, np.arange(pad), axis=ax)
+    return new_axis, np.concatenate([left, base, right], axis=ax)

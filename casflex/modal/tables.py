@@ -85,6 +85,7 @@ from casflex.errors import ModelError
 from casflex.modal import rotated, subspace
 from casflex.modal import tracking as trk
 from casflex.modal.fits import periodic_axis_kind
+from casflex.modal.table_functions import grid_function
 from casflex.modal.tablekeys import canonical, robot_fingerprint, tmm_digest
 
 if TYPE_CHECKING:
@@ -109,7 +110,6 @@ FORMAT_VERSION = 1
 EXTRA_MODES = 2
 #: shifts [rad] tried, in order, to step off a configuration with a multiple root
 DEGENERATE_SHIFTS = (1e-4, 1e-3, 1e-2)
-TWO_PI = 2.0 * math.pi
 #: below this MAC between tracked grid neighbours build_table warns (RuntimeWarning)
 MIN_MAC = 0.8
 #: Largest grid (points) :func:`build_table` starts on: a grid of ``max_points`` points
@@ -505,89 +505,20 @@ class ModalTable:
         >>> t.function("m")(1.0).shape
         (2, 2)
         """
-        import casadi as ca
-
-        from casflex.modal.table_functions import local_bspline_function
-        if method not in ("bspline", "linear") or lookup not in ("interpolant", "local",
-                                                                   "static"):
-            raise ModelError(f"method must be 'bspline' or 'linear'; got {method!r}, {lookup=}")
         values = {"omega": self.omega, **self.values}
         if name not in values:
             raise ModelError(f"no quantity {name!r} in the table; it has {self.names}")
         data = np.asarray(values[name], dtype=float)
-        gshape = self.shape
-        nd = len(gshape)
+        nd = len(self.shape)
         if entries is not None:
             cols = np.asarray(entries, dtype=int).ravel()
             size = int(np.prod(data.shape[nd:]))
             if cols.size and (cols.min() < 0 or cols.max() >= size):
                 raise ModelError(f"entries of {name!r} must lie in [0, {size}); got "
                                  f"{cols.min()}..{cols.max()}")
-            data = data.reshape(gshape + (size,))[..., cols]
-        vshape = data.shape[nd:]
-        flat = _flatten_values(data, nd)
-        axes = [np.asarray(a, dtype=float) for a in self.grid]
-        periodic = self.periodic or (False,) * nd
-        wrap = []
-        for ax in range(nd):
-            kind = periodic_axis_kind(axes[ax]) if periodic[ax] else None
-            if kind is not None:
-                axes[ax], flat = _pad_periodic(axes[ax], flat, ax, kind)
-            wrap.append(None if kind is None else (float(self.grid[ax][0]), TWO_PI))
-        need = 4 if method == "bspline" else 2
-        for ax, a in enumerate(axes):
-            if a.size < need:
-                raise ModelError(f"axis {ax} of the table has {a.size} points; the "
-                                 f"{method!r} interpolant needs at least {need}")
-        x = ca.MX.sym("q_shape", nd)
-        if flat.shape[-1] == 0:  # e.g. no joint springs: an empty quantity
-            empty = ca.MX(ca.DM.zeros(*(vshape if len(vshape) == 2 else (0, 1))))
-            return ca.Function(name, [x], [empty], ["q_shape"], [name])
-        if lookup in ("local", "static") and method == "bspline" and nd == 1:
-            interp = local_bspline_function(f"{name}_local", axes[0], flat,
-                                            rows="static" if lookup == "static" else "pointer")
-        else:  # binary search: bit-identical to CasADi's default scan, in log2(n) steps
-            interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes],
-                                    np.moveaxis(flat, -1, 0).ravel(order="F"),
-                                    {"lookup_mode": ["binary"] * nd})
-        parts = []
-        for ax in range(nd):
-            xi = x[ax]
-            if wrap[ax] is not None:
-                lo, period = wrap[ax]
-                xi = xi - period * ca.floor((xi - lo) / period)
-            else:  # held at the ends: CasADi's B-splines are 0 beyond their knots
-                lo, hi = axes[ax][0], axes[ax][-1]  # (fmin's derivative is ½ at a tie)
-                xi = ca.if_else(xi < lo, lo, ca.if_else(xi > hi, hi, xi))
-            parts.append(xi)
-        out = interp(ca.vertcat(*parts))
-        if len(vshape) == 2:
-            out = ca.reshape(out, vshape[0], vshape[1])
-        return ca.Function(name, [x], [out], ["q_shape"], [name])
-
-
-def _flatten_values(data, nd):
-    """grid_shape + value_shape -> grid_shape + (n,), matrices column-major (casadi)."""
-    if data.ndim - nd == 2:  # column-major flattening of each matrix
-        data = np.swapaxes(data, nd, nd + 1)
-    return data.reshape(data.shape[:nd] + (-1,))
-
-
-def _pad_periodic(axis, flat, ax, kind, pad=3):
-    """Extend a full-turn axis (and the data along it) by ``pad`` points on each side."""
-    if kind == "closed":
-        base_axis = axis[:-1]
-        base = np.take(flat, np.arange(axis.size - 1), axis=ax)
-    else:
-        base_axis, base = axis, flat
-    n = base_axis.size
-    pad = min(pad, n)
-    left_axis = base_axis[n - pad:] - TWO_PI
-    right_axis = base_axis[:pad] + TWO_PI
-    new_axis = np.concatenate([left_axis, base_axis, right_axis])
-    left = np.take(base, np.arange(n - pad, n), axis=ax)
-    right = np.take(base, np.arange(pad), axis=ax)
-    return new_axis, np.concatenate([left, base, right], axis=ax)
+            data = data.reshape(self.shape + (size,))[..., cols]
+        return grid_function(name, self.grid, data, periodic=self.periodic, method=method,
+                             lookup=lookup)
 
 
 def _check_grid(robot, grid, joints):
@@ -768,7 +699,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
         "modes": modes_key, "n_modes": int(n_modes), "weighting": weighting,
         "tracking": source_digest(trk), "quantities": _function_identity(
             quantities if quantities else None),
-        "tables": source_digest(build_table, ModalTable, _pad_periodic),
+        "tables": source_digest(build_table, ModalTable, grid_function),
         **({} if basis == "eigen" else {"basis": basis,
                                         "subspace": source_digest(subspace, rotated)}),
     })
