@@ -189,6 +189,7 @@ from casflex.modal.integrals import (
     rigid_pseudo_inertias,
 )
 from casflex.modal.normalize import gauss_legendre
+from casflex.model.strain_kinematics import KINEMATICS, point_mass_terms, rod_nodes
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -334,7 +335,7 @@ class FlexibleModel:
                  gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
                  damping_ratio: float | None = None, delta_order: int = 1,
                  modal_mass: str = "first_order", *, shape_rates: bool = False,
-                 foreshortening: bool = False) -> None:
+                 foreshortening: bool = False, kinematics: str = "truncated") -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
         self.robot = robot
@@ -372,7 +373,19 @@ class FlexibleModel:
         if self.foreshortening and delta_order == 0:
             raise ModelError("foreshortening=True needs delta_order=1: it keeps M_qq to "
                              "second order in delta, the rest of M to first")
-        self._reads_samples = self.shape_rates or self.foreshortening
+        if kinematics not in KINEMATICS:
+            raise ModelError(f"kinematics must be one of {', '.join(map(repr, KINEMATICS))}; "
+                             f"got {kinematics!r}")
+        self.kinematics = kinematics
+        if kinematics == "exact":
+            for bad, why in ((delta_order == 0, "delta_order=0: M is exact in delta"),
+                             (self.foreshortening, "foreshortening=True: the exact rods "
+                              "shorten as they bend already"),
+                             (modal_mass == "identity", "modal_mass='identity': it would "
+                              "drop the modal mass the exact kinematics compute")):
+                if bad:
+                    raise ModelError(f"kinematics='exact' does not go with {why}")
+        self._reads_samples = self.shape_rates or self.foreshortening or kinematics == "exact"
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
@@ -553,10 +566,7 @@ class FlexibleModel:
             if link.beam_along == "a":
                 P = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
                 P4 = _rot4(P @ _rz_np(link.section_angle))
-                sh = self._shortening(ib, link) if self.foreshortening and m else None
-                self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
-                                              ib, sh))
-                A = A @ P4 @ self._beam_end(ib, link.length, sh and sh[0]) @ P4.T
+                A = self._beam(A @ P4, T_prev, row, link, ib, pseudo) @ P4.T
                 ib += 1
             elif link.a != 0.0:
                 A = A @ _trans([link.a, 0.0, 0.0])
@@ -572,10 +582,7 @@ class FlexibleModel:
             A = A @ _rz(theta)
             if link.beam_along == "d":
                 P4 = _rot4(_rz_np(link.section_angle))
-                sh = self._shortening(ib, link) if self.foreshortening and m else None
-                self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
-                                              ib, sh))
-                A = A @ P4 @ self._beam_end(ib, link.length, sh and sh[0]) @ P4.T
+                A = self._beam(A @ P4, T_prev, row, link, ib, pseudo) @ P4.T
                 ib += 1
             elif link.d != 0.0:
                 A = A @ _trans([0.0, 0.0, link.d])
@@ -586,6 +593,20 @@ class FlexibleModel:
             self.T.append(T)
             T_prev = T
         self.tip = T[:3, 3]
+
+    def _beam(self, A, T_prev, row, link, b, pseudo):
+        """Append the body of beam ``b`` (base pose ``T_prev @ A``) and return ``A`` times
+        its end transform (truncated or exact kinematics)."""
+        m = self.m
+        if self.kinematics == "exact":
+            rod = rod_nodes(link, b, self.Q["sample_u"], self.Q["sample_theta"], self.delta)
+            body = self._body("beam", row, T_prev @ A, pseudo[row][1], b)
+            body["rod"] = rod
+            self.bodies.append(body)
+            return A @ rod["end"]
+        sh = self._shortening(b, link) if self.foreshortening and m else None
+        self.bodies.append(self._body("beam", row, T_prev @ A, pseudo[row][1], b, sh))
+        return A @ self._beam_end(b, link.length, sh and sh[0])
 
     def _body(self, kind, row, T, J0, b, shortening=None):
         m, Q = self.m, self.Q
@@ -611,6 +632,12 @@ class FlexibleModel:
         Vg = ca.SX(0)
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
+        if self.kinematics == "exact":
+            M, Vg = point_mass_terms(self.bodies, X, self.gravity,
+                                     self._fill if self.shape_rates else None)
+            for k, row in enumerate(self.robot.joint_rows):
+                M[k, k] += self.robot.links[row].motor_inertia
+            return M, Vg
         rates = self._shape_rate_terms() if self.shape_rates and m else None
         for body in self.bodies:
             # the pose to one order more than M: ∂T/∂δ must be right to `order`
@@ -720,7 +747,9 @@ class FlexibleModel:
         self.tip = self._fill(self.tip)
         for body in self.bodies:
             body["T"] = self._fill(body["T"])
-        if self.foreshortening:
+        if self.kinematics == "exact":
+            pass  # M is exact in δ
+        elif self.foreshortening:
             # the δ rows need T to second order in δ where it multiplies q̇ q̇ only: M_qq
             Mqq = _taylor(M[:n, :n], d, 2)
             M = _taylor(M, d, self.delta_order)
@@ -739,7 +768,8 @@ class FlexibleModel:
             M[n:, n:] = ca.SX.eye(m)
         elif self.modal_mass == "first_order":
             M[n:, n:] = M[n:, n:] - ca.substitute(M[n:, n:], d, ca.SX.zeros(m)) + ca.SX.eye(m)
-        Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
+        if self.kinematics != "exact":
+            Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
         if self.full_stiffness and m:  # a rotated basis: ½ δᵀK̃δ, D = 2ζ sqrtm(K̃)
             self.K, root = self._full_stiffness
             self.D = 2.0 * self.damping_ratio * root
