@@ -334,7 +334,7 @@ class FlexibleModel:
     def __init__(self, robot: Robot, provider: Any,
                  gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
                  damping_ratio: float | None = None, delta_order: int = 1,
-                 modal_mass: str = "first_order", *, shape_rates: bool = False,
+                 modal_mass: str | None = None, *, shape_rates: bool = False,
                  foreshortening: bool = False, kinematics: str = "truncated") -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
@@ -361,6 +361,8 @@ class FlexibleModel:
             raise ModelError(f"damping_ratio must lie in [0, 1); got {zeta}")
         self.damping_ratio = zeta
         self.delta_order = delta_order
+        if modal_mass is None:  # the exact kinematics' own modal block (module docstring)
+            modal_mass = "kinematic" if kinematics == "exact" else "first_order"
         if modal_mass not in ("first_order", "identity", "kinematic"):
             raise ModelError("modal_mass must be 'first_order', 'identity' or 'kinematic'; "
                              f"got {modal_mass!r}")
@@ -633,8 +635,8 @@ class FlexibleModel:
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
         if self.kinematics == "exact":
-            M, Vg = point_mass_terms(self.bodies, X, self.gravity,
-                                     self._fill if self.shape_rates else None)
+            M, self._point_bias, Vg = point_mass_terms(
+                self.bodies, X, self.dX, self.gravity, self._fill if self.shape_rates else None)
             for k, row in enumerate(self.robot.joint_rows):
                 M[k, k] += self.robot.links[row].motor_inertia
             return M, Vg
@@ -767,6 +769,7 @@ class FlexibleModel:
         if self.modal_mass == "identity":
             M[n:, n:] = ca.SX.eye(m)
         elif self.modal_mass == "first_order":
+            self._point_modal_block = M[n:, n:]
             M[n:, n:] = M[n:, n:] - ca.substitute(M[n:, n:], d, ca.SX.zeros(m)) + ca.SX.eye(m)
         if self.kinematics != "exact":
             Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
@@ -784,12 +787,11 @@ class FlexibleModel:
         self.potential = Vg + Ve
         self.G = ca.gradient(self.potential, X)
         self.kinetic = 0.5 * dX.T @ M @ dX
-        N = n + m
-        Mdot = ca.reshape(ca.jacobian(_vec(M), X) @ dX, N, N)
-        Jac = ca.jacobian(M @ dX, X)
-        self.C = 0.5 * (Mdot + Jac - Jac.T)
-        # C Ẋ without forming C: d/dt(M Ẋ) at Ẍ = 0 minus ∂T/∂X (the same Christoffel sum)
-        Cdx = ca.jtimes(M @ dX, X, dX) - ca.gradient(self.kinetic, X)
+        if self.kinematics == "exact":
+            Cdx = self._exact_bias(M)
+        else:
+            # C Ẋ without forming C: d/dt(M Ẋ) at Ẍ = 0 minus ∂T/∂X (the Christoffel sum)
+            Cdx = ca.jtimes(M @ dX, X, dX) - ca.gradient(self.kinetic, X)
         damp = ca.vertcat(ca.SX.zeros(n), self.D @ self.ddelta) if m else ca.SX.zeros(n)
         self.h = Cdx + self.G + damp  # everything but M Ẍ and the input
         rhs = ca.vertcat(self.tau, ca.SX.zeros(m)) - self.h
@@ -805,6 +807,31 @@ class FlexibleModel:
             dddelta = ca.SX(0, 1)
         self.prescribed_dddelta = dddelta
         self.prescribed_tau = Mqq @ self.ddq + Mqd @ dddelta + h_q
+
+    @property
+    def C(self) -> ca.SX:
+        """The Coriolis matrix ``C(X, Ẋ)`` from the Christoffel symbols of ``M`` (built on
+        first use: the equations of motion use ``C Ẋ`` without forming it)."""
+        C = self.__dict__.get("_coriolis")
+        if C is None:
+            N, M, X, dX = self.n + self.m, self.M, self.X, self.dX
+            Mdot = ca.reshape(ca.jacobian(_vec(M), X) @ dX, N, N)
+            Jac = ca.jacobian(M @ dX, X)
+            C = self._coriolis = 0.5 * (Mdot + Jac - Jac.T)
+        return C
+
+    def _exact_bias(self, M):
+        """``C Ẋ`` of the exact kinematics from the points' kinetic energy (Lagrange's
+        ``d/dt ∂T/∂Ẋ − ∂T/∂X`` at ``Ẍ = 0``, no derivative of ``M``), plus that of the
+        configuration-dependent correction ``M_δδ(q, 0) → I`` of ``modal_mass``."""
+        X, dX, n = self.X, self.dX, self.n
+        h = self._fill(self._point_bias)
+        if self.modal_mass == "first_order" and self.m:
+            fixed = M[n:, n:] - self._point_modal_block
+            p = fixed @ self.ddelta
+            h = h + ca.jtimes(ca.vertcat(ca.SX.zeros(n), p), X, dX) \
+                - ca.gradient(0.5 * ca.dot(self.ddelta, p), X)
+        return h
 
     def _solve(self, M, rhs):
         n, m = self.n, self.m

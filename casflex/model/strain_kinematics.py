@@ -29,21 +29,25 @@ the TMM's own local state).
 The rod at the quadrature nodes
 -------------------------------
 The rod is walked through the nodes ``0 = s_0 < s_1 < … < s_K = L``: the
-``ROD_POINTS`` (48) Gauss–Legendre points of the link, the same rule as the tables'
-integrals ``C1``, ``C2`` (:func:`~casflex.modal.integrals.configuration_quantities`), and
-the two ends. A step from ``s_k`` to ``s_{k+1}`` turns the section by the increment
-``Δϑ = ϑ(s_{k+1}) − ϑ(s_k)`` (``∫ κ ds`` over the step, exact to first order) in two
-Cayley half-turns, and advances it by the step's local displacement read in the
-mid-step frame::
+``ROD_POINTS`` Gauss–Legendre points of the link and its two ends. By default these are
+the tables' own 16 sample points, so the polynomial is only a check (``P`` is the
+identity; other counts interpolate). Why 16 suffice: Gauss–Legendre with 16 points
+integrates polynomials of degree 31 exactly, and the mass matrix at δ = 0 equals the
+default model's (48-point integrals ``C1``, ``C2``) to 5e-14 with five modes; the rod's
+nonlinear part (below, error O(h²)) moves the static tip 254 mm across the plane of the
+Table 8 arm by 0.001 % of the deflection between 16 and 48 points (+0.064 % and +0.063 %
+against the 3-D reference, ``tests/model/test_spatial_static.py``). A step from ``s_k``
+to ``s_{k+1}`` turns the section by the increment ``Δϑ = ϑ(s_{k+1}) − ϑ(s_k)`` (``∫ κ
+ds`` over the step, exact to first order) in two Cayley half-turns, and advances it by
+the step's local displacement read in the mid-step frame::
 
     R_mid = R_k cay(½Δϑ),   r_{k+1} = r_k + R_mid (h e_z + Δw − ϑ_mid × h e_z),
     R_{k+1} = R_mid cay(½Δϑ)
 
 (``Δw = w(s_{k+1}) − w(s_k)``, ``ϑ_mid = ½(ϑ(s_k) + ϑ(s_{k+1}))``). To first order in δ
 every node lands exactly on ``s_k e_z + w(s_k)`` with rotation ``I + [ϑ(s_k)]×``: the
-default model's kinematics are reproduced to the interpolation's accuracy. The
-nonlinear part is a second-order (midpoint) integrator of the rod, error O(h²) with the
-largest step ``h ≈ πL / 96``.
+default model's kinematics are reproduced exactly. The nonlinear part is a second-order
+(midpoint) integrator of the rod, error O(h²).
 
 Mass and the tip body
 ---------------------
@@ -51,11 +55,20 @@ A node carries the section's mass ``ρA w_k`` and torsional inertia ``ρI_p w_k`
 the Gauss–Legendre weight; the sections have no rotary inertia of bending, as in the TMM
 field equations and :func:`~casflex.modal.integrals.section_pseudo_inertia`). The tip
 body is a rigid body on the end frame ``(R_K, r_K)``, which is also the link's end
-transform, so outboard links, the tool point and the sensors ride on the exact end. The
-mass matrix is ``M = Σ_k ρA w_k J_kᵀ J_k + ρI_p w_k a_kᵀ a_k`` plus the pseudo-inertia
-terms of the tip and rigid bodies, with ``J_k = ∂p_k/∂X`` the Jacobian of the node's
-position and ``a_k = (R e_y)ᵀ ∂(R e_x)/∂X`` that of its rotation about the beam axis; it
-is exact in δ (no truncation). Gravity's potential comes from the same points.
+transform, so the outboard links and the tool point ride on the exact end. Mass matrix,
+bias forces and gravity follow from these point masses exactly in δ, without
+truncation (:func:`point_mass_terms`); ``K`` is the default model's.
+
+The modal block
+---------------
+With these kinematics the model's modal mass at δ = 0 is what the rods compute from
+the interpolated tables: the identity at the grid points (5e-14), 1e-4 off between the
+points of the Table 8 arm's 1.5° table (the cubic splines' error on the shapes). The
+default model forces it to the identity (``modal_mass="first_order"``); here the
+default is ``"kinematic"``, the rods' own block, because the correction would double the
+cost of the bias forces (it needs the Christoffel symbols of ``M_δδ(q, 0)``), for a
+frequency error of 5e-5. ``modal_mass="first_order"`` is accepted and applies the
+correction.
 """
 
 from __future__ import annotations
@@ -79,8 +92,9 @@ __all__ = ["KINEMATICS", "ROD_POINTS", "node_interpolation", "point_mass_terms",
 #: displacements added to the undeformed links (default) or the rods rebuilt from the
 #: modal strains.
 KINEMATICS = ("truncated", "exact")
-#: Gauss–Legendre points per flexible link that carry its mass in the exact kinematics.
-ROD_POINTS = 48
+#: Gauss–Legendre points per flexible link that carry its mass in the exact kinematics
+#: (the tabulated samples' own points: module docstring).
+ROD_POINTS = RATE_SAMPLES
 
 
 def _barycentric(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -127,7 +141,7 @@ def node_interpolation(link: Link, points: int = ROD_POINTS
     >>> link = load("problems/arm2link.toml").links[2]
     >>> s, w, P = node_interpolation(link)
     >>> s.shape, P.shape, bool(np.isclose(w.sum(), link.length))
-    ((50,), (50, 17), True)
+    ((18,), (18, 17), True)
     >>> samples = rate_samples(link)[0]
     >>> bool(np.allclose(P @ np.sin(samples), np.sin(s)))   # sin vanishes at the base
     True
@@ -171,7 +185,7 @@ def _sampled(values, beam, m, delta):
 
 
 def rod_nodes(link: Link, beam: int, sample_u: ca.SX, sample_theta: ca.SX, delta: ca.SX,
-              points: int = ROD_POINTS) -> dict:
+              points: int | None = None) -> dict:
     """The exact rod of one flexible link in its local beam frame (module docstring).
 
     Parameters
@@ -185,8 +199,8 @@ def rod_nodes(link: Link, beam: int, sample_u: ca.SX, sample_theta: ca.SX, delta
         ([kg^-1/2 m], [kg^-1/2 rad]).
     delta : casadi.SX
         Modal amplitudes [√kg m].
-    points : int
-        Gauss–Legendre points that carry the link's mass.
+    points : int, optional
+        Gauss–Legendre points that carry the link's mass (default ``ROD_POINTS``).
 
     Returns
     -------
@@ -212,7 +226,7 @@ def rod_nodes(link: Link, beam: int, sample_u: ca.SX, sample_theta: ca.SX, delta
     True
     """
     m = delta.numel()
-    s, weights, P = node_interpolation(link, points)
+    s, weights, P = node_interpolation(link, ROD_POINTS if points is None else points)
     W = ca.DM(P) @ _sampled(sample_u, beam, m, delta)  # (K+1, 3): w(s_k)
     TH = ca.DM(P) @ _sampled(sample_theta, beam, m, delta)  # ϑ(s_k)
     R, r = ca.SX.eye(3), ca.SX.zeros(3)
@@ -238,9 +252,18 @@ def rod_nodes(link: Link, beam: int, sample_u: ca.SX, sample_theta: ca.SX, delta
             "rhoIp": link.material.rho * link.section.Ip}
 
 
-def point_mass_terms(bodies: list[dict], X: ca.SX, gravity: np.ndarray,
-                     fill: Callable[[ca.SX], ca.SX] | None = None) -> tuple[ca.SX, ca.SX]:
-    """Mass matrix and gravitational potential of the exact kinematics (module docstring).
+def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarray,
+                     fill: Callable[[ca.SX], ca.SX] | None = None
+                     ) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """Mass matrix, bias forces and gravitational potential of the exact kinematics.
+
+    Every inertial term is a weighted sum of squared rates of quantities that are
+    functions of ``X`` alone: a node's position (weight ``ρA w_k``), its section's axes
+    ``R e_x``, ``R e_y``, ``R e_z`` (weights ``½, ½, −½`` times ``ρI_p w_k``: twice the
+    kinetic energy of the torsion is ``ρI_p (ω·R e_z)² = Tr(Ṙ J Ṙᵀ)`` with ``J =
+    ½ρI_p diag(1, 1, −1)``), the rows of a rigid body's pose (its pseudo-inertia). With
+    ``y(X)`` stacking them, ``W`` the weights and ``J = ∂y/∂X``: ``M = Jᵀ W J`` and the
+    bias ``C Ẋ = Jᵀ W (∂²y/∂X²)[Ẋ, Ẋ]`` (no derivative of ``M`` is formed).
 
     Parameters
     ----------
@@ -248,74 +271,71 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, gravity: np.ndarray,
         The model's inertial pieces (:attr:`FlexibleModel.bodies`): a flexible link
         carries ``rod`` (:func:`rod_nodes`) on its base pose ``T``, a rigid piece its
         pseudo-inertia ``C0`` on ``T``.
-    X : casadi.SX
-        The generalised coordinates ``[q; δ]``.
+    X, dX : casadi.SX
+        The generalised coordinates ``[q; δ]`` and their rates.
     gravity : numpy.ndarray
         Gravity in the base frame [m/s²].
     fill : callable, optional
-        Applied to the positions before they are differentiated: the model's
-        substitution of the tabulated values for their placeholders, so that the
-        Jacobians also differentiate the shapes along the shape joints
-        (``shape_rates=True``). None: the shapes are frozen in the velocities.
+        Applied to ``y`` before it is differentiated: the model's substitution of the
+        tabulated values for their placeholders, so that the derivatives also see the
+        shapes change along the shape joints (``shape_rates=True``). None: the shapes
+        are frozen in the velocities.
 
     Returns
     -------
     M : casadi.SX
         (N, N) mass matrix without the motor inertias [kg, kg m, kg m²].
+    bias : casadi.SX
+        (N,) ``C Ẋ`` [N, N m].
     V : casadi.SX
         Gravitational potential [J].
 
     Examples
     --------
     >>> import casadi as ca
-    >>> X = ca.SX.sym("X", 1)
+    >>> X, dX = ca.SX.sym("X", 1), ca.SX.sym("dX", 1)
     >>> T = ca.SX.eye(4)
-    >>> T[0, 3] = X[0]   # a 2 kg point mass sliding along x
+    >>> T[0, 3], T[1, 3] = ca.cos(X[0]), ca.sin(X[0])   # 2 kg on a unit circle
     >>> body = {"T": T, "C0": ca.DM(pseudo_inertia(2.0))}
-    >>> M, V = point_mass_terms([body], X, np.array([-9.81, 0.0, 0.0]))
-    >>> float(ca.evalf(M)), float(ca.evalf(ca.substitute(V, X, ca.DM(1.0))))
-    (2.0, 19.62)
+    >>> M, bias, V = point_mass_terms([body], X, dX, np.array([0.0, -9.81, 0.0]))
+    >>> f = ca.Function("f", [X, dX], [M, bias, V])
+    >>> [round(float(v), 6) for v in f(0.5, 3.0)]   # 2 kg m², no bias, m g y
+    [2.0, 0.0, 9.405338]
     """
-    pos, ex, ey, mass, torsion, poses = [], [], [], [], [], []
+    rows, blocks, pos, mass = [], [], [], []
+    gh = ca.DM(np.r_[gravity, 0.0])
+    Vg = ca.SX(0)
     for body in bodies:
         T, rod = body["T"], body.get("rod")
-        if rod is None:
-            poses.append((T, ca.DM(body["C0"])))
-            continue
-        R0, p0 = T[:3, :3], T[:3, 3]
-        for k, w in enumerate(rod["weights"]):
-            if w == 0.0:
-                continue
-            R = R0 @ rod["R"][k]
-            pos.append(p0 + R0 @ rod["r"][k])
-            ex.append(R[:, 0])
-            ey.append(R[:, 1])
-            mass.append(rod["rhoA"] * w)
-            torsion.append(rod["rhoIp"] * w)
-        if rod["tip"] is not None:
-            poses.append((T @ rod["end"], ca.DM(rod["tip"])))
-    rows = [T[r, :].T for T, _ in poses for r in range(3)]
-    stacked = ca.vertcat(*pos, *ex, *rows)
+        poses = [] if rod is not None else [(T, body["C0"])]
+        if rod is not None:
+            R0, p0 = T[:3, :3], T[:3, 3]
+            for k, w in enumerate(rod["weights"]):
+                if w == 0.0:
+                    continue
+                R = R0 @ rod["R"][k]
+                p = p0 + R0 @ rod["r"][k]
+                rows.append(p)
+                blocks.append(rod["rhoA"] * w * np.eye(3))
+                c = 0.5 * rod["rhoIp"] * w
+                if c:
+                    rows += [R[:, 0], R[:, 1], R[:, 2]]
+                    blocks += [c * np.eye(3), c * np.eye(3), -c * np.eye(3)]
+                pos.append(p)
+                mass.append(rod["rhoA"] * w)
+            if rod["tip"] is not None:
+                poses.append((T @ rod["end"], rod["tip"]))
+        for pose, Psi in poses:
+            rows.append(ca.vec(pose[:3, :].T))  # the three rows, each (4,)
+            blocks.append(np.kron(np.eye(3), np.asarray(Psi, dtype=float)))
+            Vg -= gh.T @ pose @ ca.DM(Psi)[:, 3]
+    if pos:
+        Vg -= ca.dot(ca.DM(gravity), ca.horzcat(*pos) @ ca.DM(mass))
+    y = ca.vertcat(*rows)
     if fill is not None:
-        stacked = fill(stacked)
-    J = ca.jacobian(stacked, X)
-    K = len(pos)
-    N = X.numel()
-    M = ca.SX.zeros(N, N)
-    Vg = ca.SX(0)
-    g = ca.DM(gravity)
-    if K:
-        Jp = J[:3 * K, :]
-        M += Jp.T @ (ca.diag(ca.DM(np.repeat(mass, 3))) @ Jp)
-        # rotation about the beam axis: ω·(R e_z) = (R e_y)·d(R e_x)/dt
-        A = ca.vertcat(*[ey[k].T @ J[3 * (K + k):3 * (K + k) + 3, :] for k in range(K)])
-        M += A.T @ (ca.diag(ca.DM(torsion)) @ A)
-        Vg -= ca.dot(g, ca.horzcat(*pos) @ ca.DM(mass))
-    gh = ca.DM(np.r_[gravity, 0.0])
-    start = 6 * K
-    for i, (T, Psi) in enumerate(poses):
-        for r in range(3):
-            JT = J[start + 12 * i + 4 * r:start + 12 * i + 4 * r + 4, :]
-            M += JT.T @ Psi @ JT
-        Vg -= gh.T @ T @ Psi[:, 3]
-    return M, Vg
+        y = fill(y)
+    W = ca.DM(ca.diagcat(*[ca.DM(b) for b in blocks])) if blocks else ca.DM(0, 0)
+    J = ca.jacobian(y, X)
+    acc = ca.jtimes(ca.jtimes(y, X, dX), X, dX)
+    WJ = W @ J
+    return J.T @ WJ, WJ.T @ acc, Vg
