@@ -635,7 +635,7 @@ class FlexibleModel:
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
         if self.kinematics == "exact":
-            M, self._point_bias, Vg = point_mass_terms(
+            M, self._point_bias, self._point_coriolis, Vg = point_mass_terms(
                 self.bodies, X, self.dX, self.gravity, self._fill if self.shape_rates else None)
             for k, row in enumerate(self.robot.joint_rows):
                 M[k, k] += self.robot.links[row].motor_inertia
@@ -759,7 +759,8 @@ class FlexibleModel:
         else:
             M = _taylor(M, d, self.delta_order)
         M = 0.5 * (M + M.T)
-        if n and 0 not in self.provider.shape_joints:
+        self._q1_free = bool(n) and 0 not in self.provider.shape_joints
+        if self._q1_free:
             # Joint 1 turns the whole moving structure about an axis fixed in the base (it is
             # not a shape joint: nothing massive or elastic lies inboard of it), and kinetic
             # energy is invariant under that rotation, so M does not depend on q1. Setting
@@ -813,6 +814,18 @@ class FlexibleModel:
         """The Coriolis matrix ``C(X, Ẋ)`` from the Christoffel symbols of ``M`` (built on
         first use: the equations of motion use ``C Ẋ`` without forming it)."""
         C = self.__dict__.get("_coriolis")
+        if C is None and self.kinematics == "exact":
+            # the points' C = Jᵀ W J̇ (strain_kinematics.point_mass_terms), plus the
+            # Christoffel matrix of the modal block's correction (modal_mass)
+            C = self._fill(self._point_coriolis)
+            fixed = self._modal_correction()
+            if fixed is not None:
+                n, X, dX = self.n, self.X, self.dX
+                E = ca.diagcat(ca.SX.zeros(n, n), fixed)
+                Edot = ca.reshape(ca.jacobian(_vec(E), X) @ dX, n + self.m, n + self.m)
+                Jac = ca.jacobian(E @ dX, X)
+                C = C + 0.5 * (Edot + Jac - Jac.T)
+            C = self._coriolis = ca.substitute(C, self.q[0], 0) if self._q1_free else C
         if C is None:
             N, M, X, dX = self.n + self.m, self.M, self.X, self.dX
             Mdot = ca.reshape(ca.jacobian(_vec(M), X) @ dX, N, N)
@@ -820,14 +833,21 @@ class FlexibleModel:
             C = self._coriolis = 0.5 * (Mdot + Jac - Jac.T)
         return C
 
+    def _modal_correction(self):
+        """``I − M_δδ(q, 0)``, the change ``modal_mass="first_order"`` makes to the exact
+        kinematics' modal block (None when it makes none)."""
+        if self.modal_mass != "first_order" or not self.m:
+            return None
+        return self.M[self.n:, self.n:] - self._point_modal_block
+
     def _exact_bias(self, M):
         """``C Ẋ`` of the exact kinematics from the points' kinetic energy (Lagrange's
         ``d/dt ∂T/∂Ẋ − ∂T/∂X`` at ``Ẍ = 0``, no derivative of ``M``), plus that of the
         configuration-dependent correction ``M_δδ(q, 0) → I`` of ``modal_mass``."""
         X, dX, n = self.X, self.dX, self.n
         h = self._fill(self._point_bias)
-        if self.modal_mass == "first_order" and self.m:
-            fixed = M[n:, n:] - self._point_modal_block
+        fixed = self._modal_correction()
+        if fixed is not None:
             p = fixed @ self.ddelta
             h = h + ca.jtimes(ca.vertcat(ca.SX.zeros(n), p), X, dX) \
                 - ca.gradient(0.5 * ca.dot(self.ddelta, p), X)

@@ -254,8 +254,8 @@ def rod_nodes(link: Link, beam: int, sample_u: ca.SX, sample_theta: ca.SX, delta
 
 def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarray,
                      fill: Callable[[ca.SX], ca.SX] | None = None
-                     ) -> tuple[ca.SX, ca.SX, ca.SX]:
-    """Mass matrix, bias forces and gravitational potential of the exact kinematics.
+                     ) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
+    """Mass matrix, bias forces, Coriolis matrix and gravity potential of the exact kinematics.
 
     Every inertial term is a weighted sum of squared rates of quantities that are
     functions of ``X`` alone: a node's position (weight ``ρA w_k``), its section's axes
@@ -263,7 +263,8 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
     kinetic energy of the torsion is ``ρI_p (ω·R e_z)² = Tr(Ṙ J Ṙᵀ)`` with ``J =
     ½ρI_p diag(1, 1, −1)``), the rows of a rigid body's pose (its pseudo-inertia). With
     ``y(X)`` stacking them, ``W`` the weights and ``J = ∂y/∂X``: ``M = Jᵀ W J`` and the
-    bias ``C Ẋ = Jᵀ W (∂²y/∂X²)[Ẋ, Ẋ]`` (no derivative of ``M`` is formed).
+    bias ``C Ẋ = Jᵀ W (∂²y/∂X²)[Ẋ, Ẋ]`` (no derivative of ``M`` is formed), with the
+    Coriolis matrix ``C = Jᵀ W J̇`` (``Ṁ − 2C = J̇ᵀ W J − Jᵀ W J̇`` is skew).
 
     Parameters
     ----------
@@ -287,6 +288,8 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
         (N, N) mass matrix without the motor inertias [kg, kg m, kg m²].
     bias : casadi.SX
         (N,) ``C Ẋ`` [N, N m].
+    C : casadi.SX
+        (N, N) ``Jᵀ W J̇``.
     V : casadi.SX
         Gravitational potential [J].
 
@@ -297,7 +300,7 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
     >>> T = ca.SX.eye(4)
     >>> T[0, 3], T[1, 3] = ca.cos(X[0]), ca.sin(X[0])   # 2 kg on a unit circle
     >>> body = {"T": T, "C0": ca.DM(pseudo_inertia(2.0))}
-    >>> M, bias, V = point_mass_terms([body], X, dX, np.array([0.0, -9.81, 0.0]))
+    >>> M, bias, C, V = point_mass_terms([body], X, dX, np.array([0.0, -9.81, 0.0]))
     >>> f = ca.Function("f", [X, dX], [M, bias, V])
     >>> [round(float(v), 6) for v in f(0.5, 3.0)]   # 2 kg m², no bias, m g y
     [2.0, 0.0, 9.405338]
@@ -338,4 +341,4 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
     J = ca.jacobian(y, X)
     acc = ca.jtimes(ca.jtimes(y, X, dX), X, dX)
     WJ = W @ J
-    return J.T @ WJ, WJ.T @ acc, Vg
+    return J.T @ WJ, WJ.T @ acc, WJ.T @ ca.jtimes(J, X, dX), Vg
