@@ -101,6 +101,7 @@ def test_rod_of_constant_curvature_and_twist_is_a_helix(arm):
     assert np.abs(E[:3, 3] - integral @ [0.0, 0.0, 1.0]).max() < 1.02 * position
 
 
+@pytest.mark.slow
 def test_node_interpolation_gives_the_tmm_shapes(arm):
     """The polynomial through the 17 tabulated samples (and the base) gives the modes'
     link-local w and ϑ anywhere: compared at 24 Gauss points with the TMM's own local
@@ -127,6 +128,7 @@ def test_node_interpolation_gives_the_tmm_shapes(arm):
 # ------------------------------------------------------------------ against the default
 
 
+@pytest.mark.slow
 def test_first_order_agrees_with_the_default_model(pointwise):
     """At δ = 0 the two kinematics are the same model: M (the 16 rod points against the
     tables' 48-point integrals: Gauss–Legendre exact for these shapes, measured 5e-14),
@@ -262,3 +264,27 @@ def test_default_and_modal_mass(arm):
     assert FlexibleModel(arm, provider).kinematics == "truncated"
     assert FlexibleModel(arm, provider).modal_mass == "first_order"
     assert FlexibleModel(arm, provider, kinematics="exact").modal_mass == "kinematic"
+
+
+# ------------------------------------------------------------------ consumers
+
+
+@pytest.mark.slow
+def test_consumers_that_need_truncated_kinematics_refuse(arm):
+    """``poly`` simulation (M polynomial in δ) and the accelerometers' point kinematics
+    (first order inside a link) cannot take the exact model yet: a ModelError naming
+    the option, never a silently truncated number."""
+    from casflex.moves import Move
+    from casflex.sensors import Accelerometer, SensorSet, kinematic_measurement
+    from casflex.simulate import simulate_prescribed
+
+    sensors = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    model = FlexibleModel(arm, PointwiseProvider(arm, Q, count=1, points=sensors.points),
+                          gravity=None, kinematics="exact")
+    move = Move(np.zeros(3), np.array([-0.1, 0.0, 0.0]), 0.2, settle=0.0)
+    with pytest.raises(ModelError, match="kinematics='exact'"):
+        simulate_prescribed(model, move, dt=0.01, method="poly")
+    with pytest.raises(ModelError, match="kinematics='exact'"):
+        kinematic_measurement(model, sensors)
+    result = simulate_prescribed(model, move, dt=0.01, method="rk4")  # rk4 takes it
+    assert np.isfinite(result.tip_deflection).all()
