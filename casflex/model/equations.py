@@ -168,6 +168,39 @@ the reference, and within a 0.14 % gap on move 3 (``tests/exact_ritz.py``,
 only a third of it, and the out-of-plane modes' second-order tip terms are short.
 ``simulate_prescribed(method="poly")`` takes the δ² part of ``M_qq`` as exact arrays of
 its own (:func:`casflex.simulate.poly.configuration_function`).
+
+Exact kinematics in strain coordinates (``kinematics="exact"``)
+---------------------------------------------------------------
+The option that closes Table 9 move 3 (issue 19). The modes, δ, ``K = Ω²`` and the
+damping stay; each flexible link is rebuilt from the modes' strains (curvature, twist
+rate and axial strain scaled by δ) by a short chain of small rotations through the 16
+Gauss points the tables already sample (``sample_u``, ``sample_theta``), and its mass
+sits on those points (with the sections' torsional inertia) and on the tip body riding
+the exact end frame (:mod:`casflex.model.strain_kinematics`). ``M``, the bias forces
+and gravity follow from these point masses exactly in δ; the end transforms, hence the
+outboard links and the tip, are exact too. To first order in δ the model is the
+default one (``M`` at δ = 0 to 5e-14, the tip Jacobian to 1e-14). The modal block is the
+rods' own (``modal_mass`` defaults to ``"kinematic"`` here: 1e-4 from the identity
+between the 1.5° grid's points); ``"first_order"`` forces the identity at δ = 0 at about
+twice the cost; ``"identity"``, ``delta_order=0`` and ``foreshortening`` are refused (the
+rods shorten by themselves). With ``shape_rates=True`` the velocities also
+differentiate the tabulated shapes along the shape joints (the complete kinetic
+energy of the moving basis).
+
+Fidelity (5 modes, 1.5° table, stored independent references): Table 9 move 3 against
+the 3-D geometrically exact beams, peak −0.006 %, residual −0.01 %, gap 0.13 % of the
+peak (default kinematics: gap 5.4 % at best); statically across the plane +0.06 % at
+254 mm (default +2.5 %); with ``shape_rates`` the planar ANCF moves (move 2, elbow 2 rad
+in 1 s and 2 s) within 0.1 % / 0.13 % / 0.31 % (peak / residual / gap, worst of the
+three). Without ``shape_rates`` the planar elbow moves still miss (gap up to 38 %): the
+shapes' rates matter there, the exact kinematics on Table 9 move 3.
+
+Cost (``benchmarks/README_fidelity.md``): ~8× the SX instructions of the modal rows
+(``dddelta`` 0.23 M against 30 k), so the option is off by default. ``poly`` simulation
+and the accelerometers' point kinematics (hence the EKF plant with accelerometers and the
+design job) refuse it with a :class:`~casflex.errors.ModelError`; ``method="rk4"`` (and
+the adaptive integrators), the strain sensors' curvature (linear in δ, exact here),
+``functions()`` and code generation of its Functions take it.
 """
 
 from __future__ import annotations
@@ -280,8 +313,9 @@ class FlexibleModel:
         Modal damping ratio ζ (default ``robot.damping_ratio``).
     delta_order : {1, 0}
         Order in δ kept in ``M`` and in the gravitational potential (module docstring).
-    modal_mass : {"first_order", "identity", "kinematic"}
-        The modal block of ``M`` (module docstring).
+    modal_mass : {"first_order", "identity", "kinematic"}, optional
+        The modal block of ``M`` (module docstring); default ``"first_order"``
+        (``"kinematic"`` with ``kinematics="exact"``).
     shape_rates : bool
         Keep the velocity terms of mode shapes that change with the shape joints
         (module docstring; default off). Needs ``delta_order=1`` and a provider with the
@@ -292,6 +326,13 @@ class FlexibleModel:
         Keep the beams' shortening and ``M_qq`` to second order in δ: the geometric
         (centrifugal) stiffening of fast moves (module docstring; default off). Needs
         ``delta_order=1`` and the ``sample_theta`` quantity.
+    kinematics : {"truncated", "exact"}
+        ``"truncated"`` (default): the modal displacements added to the undeformed
+        links, to first order in δ (second with ``foreshortening``). ``"exact"``: each
+        flexible link rebuilt from the modes' strains, ``M`` and the bias forces exact in
+        δ (module docstring; large deflections; ~8× the cost). Needs the
+        ``sample_u``/``sample_theta`` quantities; ``modal_mass`` then defaults to
+        ``"kinematic"``.
 
     Attributes
     ----------
