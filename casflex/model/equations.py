@@ -198,9 +198,10 @@ shapes' rates matter there, the exact kinematics on Table 9 move 3.
 Cost (``benchmarks/README_fidelity.md``): ~8× the SX instructions of the modal rows
 (``dddelta`` 0.23 M against 30 k), so the option is off by default. ``poly`` simulation
 and the accelerometers' point kinematics (hence the EKF plant with accelerometers and the
-design job) refuse it with a :class:`~casflex.errors.ModelError`; ``method="rk4"`` (and
-the adaptive integrators), the strain sensors' curvature (linear in δ, exact here),
-``functions()`` and code generation of its Functions take it.
+design job) refuse it with a :class:`~casflex.errors.ModelError`; ``method="rk4"`` and
+``functions()`` take it (the strain sensors' curvature is linear in δ, exact here). The
+Functions are SX, but C code generation of them is not verified: the C of ``dddelta``
+(0.23 M instructions) had not compiled after 10 min at ``-O1`` on a loaded machine.
 """
 
 from __future__ import annotations

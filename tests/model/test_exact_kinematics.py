@@ -288,3 +288,4 @@ def test_consumers_that_need_truncated_kinematics_refuse(arm):
         kinematic_measurement(model, sensors)
     result = simulate_prescribed(model, move, dt=0.01, method="rk4")  # rk4 takes it
     assert np.isfinite(result.tip_deflection).all()
+
