@@ -191,7 +191,7 @@ Fidelity (5 modes, 1.5° table, stored independent references): Table 9 move 3 a
 the 3-D geometrically exact beams, peak −0.006 %, residual −0.01 %, gap 0.13 % of the
 peak (default kinematics: gap 5.4 % at best); statically across the plane +0.06 % at
 254 mm (default +2.5 %); with ``shape_rates`` the planar ANCF moves (move 2, elbow 2 rad
-in 1 s and 2 s) within 0.1 % / 0.13 % / 0.31 % (peak / residual / gap, worst of the
+in 1 s and 2 s) within 0.1 % / 0.12 % / 0.31 % (peak / residual / gap, worst of the
 three). Without ``shape_rates`` the planar elbow moves still miss (gap up to 38 %): the
 shapes' rates matter there, the exact kinematics on Table 9 move 3.
 
