@@ -34,9 +34,17 @@
     speed-up of a pure-Python loop on 2 processes over 1, before and after (what the shared
     machine offered at the time).
 
+``--kinematics``: instead of the above, ``FlexibleModel(kinematics="exact")`` against the
+default kinematics, side by side in one process (5 modes, the 1.5° table, no gravity):
+SX instructions of ``mass``, ``ode``, ``dddelta``; the model's build (with
+``functions()``); the median time of one ``dddelta`` evaluation (rounds alternated); and
+move 1 with ``method="rk4"`` (the exact model's route: ``poly`` refuses it), the warm call
+of each, alternated. Keys ``kinematics_<variant>_<figure>`` and the ratios
+``kinematics_ratio_<figure>``.
+
 Usage::
 
-    python benchmarks/bench_model.py [--json] [--skip-dask]
+    python benchmarks/bench_model.py [--json] [--skip-dask] [--kinematics]
 """
 
 from __future__ import annotations
@@ -142,13 +150,61 @@ def bench(skip_dask=False):
     return out
 
 
+def bench_kinematics(rounds=3):
+    """The exact kinematics against the default, side by side (module docstring)."""
+    from casflex.model import build_model
+    from casflex.moves import load_move
+    from casflex.robot import load
+    from casflex.simulate import simulate_prescribed
+
+    robot = load(ROOT / "problems/arm2link.toml")
+    move = load_move(ROOT / "problems/moves.toml:move1")
+    out, models = {}, {}
+    with tempfile.TemporaryDirectory() as cache:
+        for variant in ("truncated", "exact"):
+            build_model(robot, 5, cache_dir=cache, gravity=None)  # the table, once
+            t0 = time.perf_counter()
+            model, _ = build_model(robot, 5, cache_dir=cache, gravity=None,
+                                   kinematics=variant)
+            f = model.functions()
+            out[f"kinematics_{variant}_build_s"] = time.perf_counter() - t0
+            out[f"kinematics_{variant}_sx_instructions"] = {
+                k: int(f[k].n_instructions()) for k in ("mass", "ode", "dddelta")}
+            models[variant] = model
+            simulate_prescribed(model, move, dt=1e-3)  # builds the RK4 step
+    rng = np.random.default_rng(0)
+    args = [rng.normal(0.0, 0.3, 3), rng.normal(0.0, 0.3, 3), rng.normal(0.0, 0.3, 3),
+            rng.normal(0.0, 0.01, 5), rng.normal(0.0, 0.1, 5)]
+    calls, sims = {v: [] for v in models}, {v: [] for v in models}
+    for _ in range(rounds):
+        for variant, model in models.items():
+            f = model.functions()["dddelta"]
+            t0 = time.perf_counter()
+            for _ in range(200):
+                f(*args)
+            calls[variant].append((time.perf_counter() - t0) / 200)
+            t0 = time.perf_counter()
+            simulate_prescribed(model, move, dt=1e-3)
+            sims[variant].append(time.perf_counter() - t0)
+    for variant in models:
+        out[f"kinematics_{variant}_dddelta_call_s"] = float(np.median(calls[variant]))
+        out[f"kinematics_{variant}_move1_rk4_s"] = float(np.median(sims[variant]))
+        out[f"kinematics_{variant}_move1_rk4_runs_s"] = sims[variant]
+    for figure in ("build_s", "dddelta_call_s", "move1_rk4_s"):
+        out[f"kinematics_ratio_{figure}"] = (out[f"kinematics_exact_{figure}"]
+                                             / out[f"kinematics_truncated_{figure}"])
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--skip-dask", action="store_true", help="leave the Dask part out")
+    parser.add_argument("--kinematics", action="store_true",
+                        help="the exact kinematics against the default, side by side")
     args = parser.parse_args(argv)
     before = cpu_capacity()
-    result = bench(args.skip_dask)
+    result = bench_kinematics() if args.kinematics else bench(args.skip_dask)
     result["cpu_capacity_2_processes"] = [before, cpu_capacity()]
     result.update({"nproc": os.cpu_count(), "cpu": _cpu_model(),
                    "python": platform.python_version(),

@@ -613,6 +613,10 @@ def _point_data(model, sensors):
 
 def _point_pose(model, sensors, data, sensor):
     """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ)."""
+    if getattr(model, "kinematics", "truncated") == "exact":
+        raise ModelError("sensor kinematics of a model with kinematics='exact' are not "
+                         "implemented: the points would ride on the truncated link-local "
+                         "deflection (strain sensors are exact; issue 19)")
     m = model.m
     i = sensors.point_index(sensor)
     T = _beam_body(model, sensor.row)["T"]

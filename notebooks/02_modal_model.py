@@ -368,5 +368,30 @@ fig.tight_layout()
 # stiffer, meets the targets (``benchmarks/README_fidelity.md``).
 
 # %% [markdown]
+# ### After: the links rebuilt from the modal strains (``kinematics="exact"``)
+#
+# ``FlexibleModel(kinematics="exact")`` (session 9, ``casflex/model/strain_kinematics.py``)
+# is that model inside casflex: the same five modes, δ and stiffness, but each link
+# rebuilt from the modes' curvature, twist and axial strain at the 16 points the tables
+# already sample, and M, the bias forces and gravity from those point masses, exact in
+# δ. It has no ``poly`` form, so it runs with plain RK4 (5 ms steps: 1 ms gives the same
+# figures to 0.01 %). With the 1.5° table the tests measure peak −0.006 %, residual
+# −0.01 %, gap 0.13 % (``tests/model/test_spatial_fidelity.py``); with ``shape_rates``
+# as well the planar moves of section 2.6 come within 0.3 %
+# (``benchmarks/README_fidelity.md``). It costs ~2× the RK4 simulation and ~5× the SX
+# instructions of the modal rows, so it stays an option.
+
+# %%
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore", RuntimeWarning)
+    variants["exact"] = build_model(ROBOT, n_modes=5, step=np.radians(3.0), cache_dir=CACHE,
+                                    processes=2, gravity=None, kinematics="exact")[0]
+spatial["exact"] = casflex_run_3d(variants["exact"], MOVE3, dt=5e-3)
+c = compare_3d(spatial["exact"], spatial["reference"], MOVE3.duration)
+spatial_rows.append(["move3", "exact", f"{c['peak_ref_mm']:.1f}", f"{c['peak_pct']:+.2f}",
+                     f"{c['residual_pct']:+.2f}", f"{c['gap_pct']:.2f}"])
+table(spatial_rows, ["move", "model", "peak ref [mm]", "peak %", "residual %", "gap %"])
+
+# %% [markdown]
 # **Next:** [3. Estimation](03_estimation.ipynb) measures the flexible states this model
 # simulates, with accelerometers or strain gauges and an EKF.

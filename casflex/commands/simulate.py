@@ -2,7 +2,8 @@
 
 ``casflex simulate ROBOT.toml --move FILE:NAME [--modes 5] [--dt 0.001] [--step 1.5deg]
 [--gravity | --no-gravity] [--method poly|rk4|cvodes|idas] [--jit] [--shape-rates]
-[--foreshortening] [--cache-dir DIR | --no-cache] [--plot FILE.png] [--json]``
+[--foreshortening] [--kinematics truncated|exact] [--cache-dir DIR | --no-cache]
+[--plot FILE.png] [--json]``
 
 ``--method poly`` (the default) takes the same RK4 steps as ``--method rk4`` on the exact
 polynomial form of the modal rows: the same result (to rounding) several times faster
@@ -85,6 +86,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--foreshortening", action="store_true",
                         help="model option: the beams' shortening (geometric stiffening on "
                              "fast moves; costs time)")
+    parser.add_argument("--kinematics", choices=("truncated", "exact"), default="truncated",
+                        help="model option: 'exact' rebuilds the links from the modal "
+                             "strains (large deflections; ~8x the cost of a step; needs "
+                             "--method rk4, cvodes or idas)")
     add_cache_arguments(parser)
     add_plot_argument(parser, "joint angles, torques, modal amplitudes and tip deflection")
 
@@ -151,7 +156,11 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if jit and args.method != "poly":
         raise ModelError(f"--jit: needs --method poly; got --method {args.method}")
     options = {"shape_rates": getattr(args, "shape_rates", False),
-               "foreshortening": getattr(args, "foreshortening", False)}
+               "foreshortening": getattr(args, "foreshortening", False),
+               "kinematics": getattr(args, "kinematics", "truncated")}
+    if options["kinematics"] == "exact" and args.method == "poly":
+        raise ModelError("--kinematics exact: needs --method rk4, cvodes or idas (poly needs "
+                         "a model polynomial in delta)")
     cache_dir = cache_dir_of(args)
     if jit:  # the compiled library must live on disk: --no-cache gives a temporary one
         with disk_cache(cache_dir) as tmp:

@@ -647,6 +647,8 @@ def cached_gain_schedule(model: FlexibleModel, Q: ArrayLike, R: ArrayLike, epsil
         "modes": model.m, "delta_order": model.delta_order, "modal_mass": model.modal_mass,
         "shape_rates": model.shape_rates,
         "foreshortening": getattr(model, "foreshortening", False),
+        # (only when set: the keys of existing truncated-kinematics schedules stay valid)
+        **({"kinematics": "exact"} if getattr(model, "kinematics", "") == "exact" else {}),
         "Q": Q, "R": R, "epsilon": float(epsilon), "axis": axis.tolist(),
         "joints": list(joints),
         **({"axes": [a.tolist() for a in axes]} if limits or box is not None else {}),

@@ -367,7 +367,8 @@ def _study_model(study, cache_dir, processes, progress, n_modes=None):
                               gravity=gravity,
                               delta_order=study.model["delta_order"],
                               shape_rates=study.model["shape_rates"],
-                              foreshortening=study.model["foreshortening"])
+                              foreshortening=study.model["foreshortening"],
+                              kinematics=study.model["kinematics"])
         return model, None
     return build_model(study.robot, n_modes or study.model["modes"],
                        step=study.model["grid_step"],
@@ -375,6 +376,7 @@ def _study_model(study, cache_dir, processes, progress, n_modes=None):
                        delta_order=study.model["delta_order"], cache_dir=cache_dir,
                        shape_rates=study.model["shape_rates"],
                        foreshortening=study.model["foreshortening"],
+                       kinematics=study.model["kinematics"],
                        method=study.model["interpolation"], processes=processes,
                        progress=progress, basis=study.model["basis"],
                        fit=None if study.model["fit"] == "grid" else study.model["fit"])

@@ -37,7 +37,7 @@ __all__ = ["Study", "load_study"]
 # every section of a study file, its keys and their defaults (None: required or "unset")
 _SECTIONS = {
     "model": {"modes": 3, "grid_step": 3.0, "delta_order": 0, "gravity": False,
-              "shape_rates": False, "foreshortening": False,
+              "shape_rates": False, "foreshortening": False, "kinematics": "truncated",
               "interpolation": "bspline", "fit": "grid", "basis": "eigen"},
     "shaper": {"vtol": 0.05, "margin": 0.20, "n_samples": 200},
     "simulation": {"dt": 1e-3, "settle": None},
@@ -209,6 +209,13 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
         raise fail("model.shape_rates", True, "needs model.delta_order = 1", path=path)
     if _flag(path, "model.foreshortening", m["foreshortening"]) and m["delta_order"] != 1:
         raise fail("model.foreshortening", True, "needs model.delta_order = 1", path=path)
+    m["kinematics"] = one_of("model.kinematics", m["kinematics"], ("truncated", "exact"))
+    if m["kinematics"] == "exact":
+        # the job simulates with the polynomial form and fits its sensors with the
+        # truncated point kinematics: both refuse the exact model (issue 19)
+        raise fail("model.kinematics", "exact", "is not supported by the design job yet (its "
+                   "poly simulation and accelerometers need the truncated kinematics); use "
+                   "'casflex simulate --kinematics exact --method rk4'", path=path)
     s = settings["shaper"]
     s["vtol"] = plausible(num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True),
                           "vtol", "shaper.vtol", path=path)

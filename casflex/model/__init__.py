@@ -20,6 +20,19 @@ The equations of motion (:mod:`casflex.model.equations`)
 FlexibleModel
     Symbolic rigid–flexible model; ``functions()`` gives its casadi Functions.
 
+Exact kinematics in strain coordinates (:mod:`casflex.model.strain_kinematics`)
+-------------------------------------------------------------------------------
+KINEMATICS
+    The kinematics a model can use: ``"truncated"`` (default) or ``"exact"``.
+ROD_POINTS
+    Gauss–Legendre points per flexible link of the exact rods.
+node_interpolation
+    The rod's nodes along a link and the map from the tabulated samples.
+rod_nodes
+    One link rebuilt exactly from the modal strains (SX).
+point_mass_terms
+    Mass matrix, bias forces, Coriolis matrix and gravity of the exact rods.
+
 Providers of the modal quantities (:mod:`casflex.model.providers`)
 ------------------------------------------------------------------
 TableProvider
@@ -56,6 +69,13 @@ from casflex.model.providers import (
     rigid_provider,
     zero_entries,
 )
+from casflex.model.strain_kinematics import (
+    KINEMATICS,
+    ROD_POINTS,
+    node_interpolation,
+    point_mass_terms,
+    rod_nodes,
+)
 
 __all__ = [
     # building a model
@@ -64,6 +84,12 @@ __all__ = [
     "sensor_quantities",
     # the equations of motion
     "FlexibleModel",
+    # exact kinematics
+    "KINEMATICS",
+    "ROD_POINTS",
+    "node_interpolation",
+    "point_mass_terms",
+    "rod_nodes",
     # providers
     "TableProvider",
     "ChebyshevProvider",

@@ -168,6 +168,40 @@ the reference, and within a 0.14 % gap on move 3 (``tests/exact_ritz.py``,
 only a third of it, and the out-of-plane modes' second-order tip terms are short.
 ``simulate_prescribed(method="poly")`` takes the δ² part of ``M_qq`` as exact arrays of
 its own (:func:`casflex.simulate.poly.configuration_function`).
+
+Exact kinematics in strain coordinates (``kinematics="exact"``)
+---------------------------------------------------------------
+The option that closes Table 9 move 3 (issue 19). The modes, δ, ``K = Ω²`` and the
+damping stay; each flexible link is rebuilt from the modes' strains (curvature, twist
+rate and axial strain scaled by δ) by a short chain of small rotations through the 16
+Gauss points the tables already sample (``sample_u``, ``sample_theta``), and its mass
+sits on those points (with the sections' torsional inertia) and on the tip body riding
+the exact end frame (:mod:`casflex.model.strain_kinematics`). ``M``, the bias forces
+and gravity follow from these point masses exactly in δ; the end transforms, hence the
+outboard links and the tip, are exact too. To first order in δ the model is the
+default one (``M`` at δ = 0 to 5e-14, the tip Jacobian to 1e-14). The modal block is the
+rods' own (``modal_mass`` defaults to ``"kinematic"`` here: 1e-4 from the identity
+between the 1.5° grid's points); ``"first_order"`` forces the identity at δ = 0 at about
+twice the cost; ``"identity"``, ``delta_order=0`` and ``foreshortening`` are refused (the
+rods shorten by themselves). With ``shape_rates=True`` the velocities also
+differentiate the tabulated shapes along the shape joints (the complete kinetic
+energy of the moving basis).
+
+Fidelity (5 modes, 1.5° table, stored independent references): Table 9 move 3 against
+the 3-D geometrically exact beams, peak −0.006 %, residual −0.01 %, gap 0.13 % of the
+peak (default kinematics: gap 5.4 % at best); statically across the plane +0.06 % at
+254 mm (default +2.5 %); with ``shape_rates`` the planar ANCF moves (move 2, elbow 2 rad
+in 1 s and 2 s) within 0.1 % / 0.12 % / 0.31 % (peak / residual / gap, worst of the
+three). Without ``shape_rates`` the planar elbow moves still miss (gap up to 38 %): the
+shapes' rates matter there, the exact kinematics on Table 9 move 3.
+
+Cost (``benchmarks/README_fidelity.md``): ~8× the SX instructions of the modal rows
+(``dddelta`` 0.23 M against 30 k), so the option is off by default. ``poly`` simulation
+and the accelerometers' point kinematics (hence the EKF plant with accelerometers and the
+design job) refuse it with a :class:`~casflex.errors.ModelError`; ``method="rk4"`` and
+``functions()`` take it (the strain sensors' curvature is linear in δ, exact here). The
+Functions are SX, but C code generation of them is not verified: the C of ``dddelta``
+(0.23 M instructions) had not compiled after 10 min at ``-O1`` on a loaded machine.
 """
 
 from __future__ import annotations
@@ -189,6 +223,7 @@ from casflex.modal.integrals import (
     rigid_pseudo_inertias,
 )
 from casflex.modal.normalize import gauss_legendre
+from casflex.model.strain_kinematics import KINEMATICS, point_mass_terms, rod_nodes
 
 if TYPE_CHECKING:
     from casflex.robot import Robot
@@ -279,8 +314,9 @@ class FlexibleModel:
         Modal damping ratio ζ (default ``robot.damping_ratio``).
     delta_order : {1, 0}
         Order in δ kept in ``M`` and in the gravitational potential (module docstring).
-    modal_mass : {"first_order", "identity", "kinematic"}
-        The modal block of ``M`` (module docstring).
+    modal_mass : {"first_order", "identity", "kinematic"}, optional
+        The modal block of ``M`` (module docstring); default ``"first_order"``
+        (``"kinematic"`` with ``kinematics="exact"``).
     shape_rates : bool
         Keep the velocity terms of mode shapes that change with the shape joints
         (module docstring; default off). Needs ``delta_order=1`` and a provider with the
@@ -291,6 +327,13 @@ class FlexibleModel:
         Keep the beams' shortening and ``M_qq`` to second order in δ: the geometric
         (centrifugal) stiffening of fast moves (module docstring; default off). Needs
         ``delta_order=1`` and the ``sample_theta`` quantity.
+    kinematics : {"truncated", "exact"}
+        ``"truncated"`` (default): the modal displacements added to the undeformed
+        links, to first order in δ (second with ``foreshortening``). ``"exact"``: each
+        flexible link rebuilt from the modes' strains, ``M`` and the bias forces exact in
+        δ (module docstring; large deflections; ~8× the cost). Needs the
+        ``sample_u``/``sample_theta`` quantities; ``modal_mass`` then defaults to
+        ``"kinematic"``.
 
     Attributes
     ----------
@@ -333,8 +376,8 @@ class FlexibleModel:
     def __init__(self, robot: Robot, provider: Any,
                  gravity: ArrayLike | str | None = _GRAVITY_DEFAULT,
                  damping_ratio: float | None = None, delta_order: int = 1,
-                 modal_mass: str = "first_order", *, shape_rates: bool = False,
-                 foreshortening: bool = False) -> None:
+                 modal_mass: str | None = None, *, shape_rates: bool = False,
+                 foreshortening: bool = False, kinematics: str = "truncated") -> None:
         if delta_order not in (0, 1):
             raise ModelError(f"delta_order must be 0 or 1; got {delta_order!r}")
         self.robot = robot
@@ -360,6 +403,8 @@ class FlexibleModel:
             raise ModelError(f"damping_ratio must lie in [0, 1); got {zeta}")
         self.damping_ratio = zeta
         self.delta_order = delta_order
+        if modal_mass is None:  # the exact kinematics' own modal block (module docstring)
+            modal_mass = "kinematic" if kinematics == "exact" else "first_order"
         if modal_mass not in ("first_order", "identity", "kinematic"):
             raise ModelError("modal_mass must be 'first_order', 'identity' or 'kinematic'; "
                              f"got {modal_mass!r}")
@@ -372,7 +417,19 @@ class FlexibleModel:
         if self.foreshortening and delta_order == 0:
             raise ModelError("foreshortening=True needs delta_order=1: it keeps M_qq to "
                              "second order in delta, the rest of M to first")
-        self._reads_samples = self.shape_rates or self.foreshortening
+        if kinematics not in KINEMATICS:
+            raise ModelError(f"kinematics must be one of {', '.join(map(repr, KINEMATICS))}; "
+                             f"got {kinematics!r}")
+        self.kinematics = kinematics
+        if kinematics == "exact":
+            for bad, why in ((delta_order == 0, "delta_order=0: M is exact in delta"),
+                             (self.foreshortening, "foreshortening=True: the exact rods "
+                              "shorten as they bend already"),
+                             (modal_mass == "identity", "modal_mass='identity': it would "
+                              "drop the modal mass the exact kinematics compute")):
+                if bad:
+                    raise ModelError(f"kinematics='exact' does not go with {why}")
+        self._reads_samples = self.shape_rates or self.foreshortening or kinematics == "exact"
 
         self.q = ca.SX.sym("q", n)
         self.dq = ca.SX.sym("dq", n)
@@ -553,10 +610,7 @@ class FlexibleModel:
             if link.beam_along == "a":
                 P = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
                 P4 = _rot4(P @ _rz_np(link.section_angle))
-                sh = self._shortening(ib, link) if self.foreshortening and m else None
-                self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
-                                              ib, sh))
-                A = A @ P4 @ self._beam_end(ib, link.length, sh and sh[0]) @ P4.T
+                A = self._beam(A @ P4, T_prev, row, link, ib, pseudo) @ P4.T
                 ib += 1
             elif link.a != 0.0:
                 A = A @ _trans([link.a, 0.0, 0.0])
@@ -572,10 +626,7 @@ class FlexibleModel:
             A = A @ _rz(theta)
             if link.beam_along == "d":
                 P4 = _rot4(_rz_np(link.section_angle))
-                sh = self._shortening(ib, link) if self.foreshortening and m else None
-                self.bodies.append(self._body("beam", row, T_prev @ A @ P4, pseudo[row][1],
-                                              ib, sh))
-                A = A @ P4 @ self._beam_end(ib, link.length, sh and sh[0]) @ P4.T
+                A = self._beam(A @ P4, T_prev, row, link, ib, pseudo) @ P4.T
                 ib += 1
             elif link.d != 0.0:
                 A = A @ _trans([0.0, 0.0, link.d])
@@ -586,6 +637,20 @@ class FlexibleModel:
             self.T.append(T)
             T_prev = T
         self.tip = T[:3, 3]
+
+    def _beam(self, A, T_prev, row, link, b, pseudo):
+        """Append the body of beam ``b`` (base pose ``T_prev @ A``) and return ``A`` times
+        its end transform (truncated or exact kinematics)."""
+        m = self.m
+        if self.kinematics == "exact":
+            rod = rod_nodes(link, b, self.Q["sample_u"], self.Q["sample_theta"], self.delta)
+            body = self._body("beam", row, T_prev @ A, pseudo[row][1], b)
+            body["rod"] = rod
+            self.bodies.append(body)
+            return A @ rod["end"]
+        sh = self._shortening(b, link) if self.foreshortening and m else None
+        self.bodies.append(self._body("beam", row, T_prev @ A, pseudo[row][1], b, sh))
+        return A @ self._beam_end(b, link.length, sh and sh[0])
 
     def _body(self, kind, row, T, J0, b, shortening=None):
         m, Q = self.m, self.Q
@@ -611,6 +676,12 @@ class FlexibleModel:
         Vg = ca.SX(0)
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
+        if self.kinematics == "exact":
+            M, self._point_bias, self._point_coriolis, Vg = point_mass_terms(
+                self.bodies, X, self.dX, self.gravity, self._fill if self.shape_rates else None)
+            for k, row in enumerate(self.robot.joint_rows):
+                M[k, k] += self.robot.links[row].motor_inertia
+            return M, Vg
         rates = self._shape_rate_terms() if self.shape_rates and m else None
         for body in self.bodies:
             # the pose to one order more than M: ∂T/∂δ must be right to `order`
@@ -720,7 +791,9 @@ class FlexibleModel:
         self.tip = self._fill(self.tip)
         for body in self.bodies:
             body["T"] = self._fill(body["T"])
-        if self.foreshortening:
+        if self.kinematics == "exact":
+            pass  # M is exact in δ
+        elif self.foreshortening:
             # the δ rows need T to second order in δ where it multiplies q̇ q̇ only: M_qq
             Mqq = _taylor(M[:n, :n], d, 2)
             M = _taylor(M, d, self.delta_order)
@@ -728,7 +801,8 @@ class FlexibleModel:
         else:
             M = _taylor(M, d, self.delta_order)
         M = 0.5 * (M + M.T)
-        if n and 0 not in self.provider.shape_joints:
+        self._q1_free = bool(n) and 0 not in self.provider.shape_joints
+        if self._q1_free:
             # Joint 1 turns the whole moving structure about an axis fixed in the base (it is
             # not a shape joint: nothing massive or elastic lies inboard of it), and kinetic
             # energy is invariant under that rotation, so M does not depend on q1. Setting
@@ -738,8 +812,10 @@ class FlexibleModel:
         if self.modal_mass == "identity":
             M[n:, n:] = ca.SX.eye(m)
         elif self.modal_mass == "first_order":
+            self._point_modal_block = M[n:, n:]
             M[n:, n:] = M[n:, n:] - ca.substitute(M[n:, n:], d, ca.SX.zeros(m)) + ca.SX.eye(m)
-        Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
+        if self.kinematics != "exact":
+            Vg = _taylor(Vg, d, 2 if self.foreshortening else self.delta_order)
         if self.full_stiffness and m:  # a rotated basis: ½ δᵀK̃δ, D = 2ζ sqrtm(K̃)
             self.K, root = self._full_stiffness
             self.D = 2.0 * self.damping_ratio * root
@@ -754,12 +830,11 @@ class FlexibleModel:
         self.potential = Vg + Ve
         self.G = ca.gradient(self.potential, X)
         self.kinetic = 0.5 * dX.T @ M @ dX
-        N = n + m
-        Mdot = ca.reshape(ca.jacobian(_vec(M), X) @ dX, N, N)
-        Jac = ca.jacobian(M @ dX, X)
-        self.C = 0.5 * (Mdot + Jac - Jac.T)
-        # C Ẋ without forming C: d/dt(M Ẋ) at Ẍ = 0 minus ∂T/∂X (the same Christoffel sum)
-        Cdx = ca.jtimes(M @ dX, X, dX) - ca.gradient(self.kinetic, X)
+        if self.kinematics == "exact":
+            Cdx = self._exact_bias(M)
+        else:
+            # C Ẋ without forming C: d/dt(M Ẋ) at Ẍ = 0 minus ∂T/∂X (the Christoffel sum)
+            Cdx = ca.jtimes(M @ dX, X, dX) - ca.gradient(self.kinetic, X)
         damp = ca.vertcat(ca.SX.zeros(n), self.D @ self.ddelta) if m else ca.SX.zeros(n)
         self.h = Cdx + self.G + damp  # everything but M Ẍ and the input
         rhs = ca.vertcat(self.tau, ca.SX.zeros(m)) - self.h
@@ -775,6 +850,50 @@ class FlexibleModel:
             dddelta = ca.SX(0, 1)
         self.prescribed_dddelta = dddelta
         self.prescribed_tau = Mqq @ self.ddq + Mqd @ dddelta + h_q
+
+    @property
+    def C(self) -> ca.SX:
+        """The Coriolis matrix ``C(X, Ẋ)`` from the Christoffel symbols of ``M`` (built on
+        first use: the equations of motion use ``C Ẋ`` without forming it)."""
+        C = self.__dict__.get("_coriolis")
+        if C is None and self.kinematics == "exact":
+            # the points' C = Jᵀ W J̇ (strain_kinematics.point_mass_terms), plus the
+            # Christoffel matrix of the modal block's correction (modal_mass)
+            C = self._fill(self._point_coriolis)
+            fixed = self._modal_correction()
+            if fixed is not None:
+                n, X, dX = self.n, self.X, self.dX
+                E = ca.diagcat(ca.SX.zeros(n, n), fixed)
+                Edot = ca.reshape(ca.jacobian(_vec(E), X) @ dX, n + self.m, n + self.m)
+                Jac = ca.jacobian(E @ dX, X)
+                C = C + 0.5 * (Edot + Jac - Jac.T)
+            C = self._coriolis = ca.substitute(C, self.q[0], 0) if self._q1_free else C
+        if C is None:
+            N, M, X, dX = self.n + self.m, self.M, self.X, self.dX
+            Mdot = ca.reshape(ca.jacobian(_vec(M), X) @ dX, N, N)
+            Jac = ca.jacobian(M @ dX, X)
+            C = self._coriolis = 0.5 * (Mdot + Jac - Jac.T)
+        return C
+
+    def _modal_correction(self):
+        """``I − M_δδ(q, 0)``, the change ``modal_mass="first_order"`` makes to the exact
+        kinematics' modal block (None when it makes none)."""
+        if self.modal_mass != "first_order" or not self.m:
+            return None
+        return self.M[self.n:, self.n:] - self._point_modal_block
+
+    def _exact_bias(self, M):
+        """``C Ẋ`` of the exact kinematics from the points' kinetic energy (Lagrange's
+        ``d/dt ∂T/∂Ẋ − ∂T/∂X`` at ``Ẍ = 0``, no derivative of ``M``), plus that of the
+        configuration-dependent correction ``M_δδ(q, 0) → I`` of ``modal_mass``."""
+        X, dX, n = self.X, self.dX, self.n
+        h = self._fill(self._point_bias)
+        fixed = self._modal_correction()
+        if fixed is not None:
+            p = fixed @ self.ddelta
+            h = h + ca.jtimes(ca.vertcat(ca.SX.zeros(n), p), X, dX) \
+                - ca.gradient(0.5 * ca.dot(self.ddelta, p), X)
+        return h
 
     def _solve(self, M, rhs):
         n, m = self.n, self.m

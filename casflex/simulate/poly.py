@@ -94,6 +94,9 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     >>> configuration_function(model).name_out()
     ['M', 'dM', 'omega', 'domega2', 'g0', 'gd']
     """
+    if getattr(model, "kinematics", "truncated") == "exact":
+        raise ModelError("simulate_prescribed(method='poly') needs M and g polynomial in "
+                         "delta; a model with kinematics='exact' is not: use method='rk4'")
     memo = step_cache(model)
     F = memo.get("poly_F")
     if F is not None:

@@ -350,7 +350,8 @@ def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-
                   step: float | None = None, gravity: bool = False, method: str = "rk4",
                   jit: bool = False, cache_dir: str | Path | None = None,
                   progress: bool = True, shape_rates: bool = False,
-                  foreshortening: bool = False) -> tuple[SimulationResult, object, object]:
+                  foreshortening: bool = False, kinematics: str = "truncated"
+                  ) -> tuple[SimulationResult, object, object]:
     """Build the modal model of a robot and simulate a move with perfect joint tracking.
 
     Parameters
@@ -375,6 +376,9 @@ def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-
     shape_rates, foreshortening : bool
         Options of :class:`casflex.model.FlexibleModel` (off by default; fidelity on
         fast moves against their cost: ``benchmarks/README_fidelity.md``).
+    kinematics : {"truncated", "exact"}
+        The :class:`casflex.model.FlexibleModel` option (``"exact"``: the links rebuilt
+        from the modal strains; not with ``method="poly"``).
 
     Returns
     -------
@@ -398,7 +402,8 @@ def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-
     t0 = time.perf_counter()
     model, table = build_model(robot, n_modes, step=step, cache_dir=cache_dir,
                                progress=progress, gravity="robot" if gravity else None,
-                               shape_rates=shape_rates, foreshortening=foreshortening)
+                               shape_rates=shape_rates, foreshortening=foreshortening,
+                               kinematics=kinematics)
     model_s = time.perf_counter() - t0
     options = {"jit": True, "cache_dir": cache_dir} if jit else {}
     result = simulate_prescribed(model, move, dt=dt, method=method, **options)

@@ -45,3 +45,15 @@ def test_flags_reach_simulate_move(captured, flags, rates, short):
     rc, out, err = _cli([*ARGS, *flags])
     assert rc == 2 and "stopped by the test" in err
     assert captured["shape_rates"] is rates and captured["foreshortening"] is short
+    assert captured["kinematics"] == "truncated"
+
+
+def test_kinematics_reaches_simulate_move(captured):
+    rc, out, err = _cli([*ARGS, "--kinematics", "exact", "--method", "rk4"])
+    assert rc == 2 and "stopped by the test" in err
+    assert captured["kinematics"] == "exact"
+
+
+def test_exact_kinematics_refuse_poly(captured):
+    rc, out, err = _cli([*ARGS, "--kinematics", "exact"])  # poly is the default method
+    assert rc == 2 and "--kinematics exact: needs --method rk4" in err and not captured

@@ -65,3 +65,21 @@ def test_bad_foreshortening_fails_before_heavy_work(model_study, tmp_path, build
         design.run_design(model_study(replace=(("delta_order = 0", lines),)), tmp_path / "out")
     assert "model.foreshortening" in str(info.value) and rule in str(info.value)
     assert not build_kwargs
+
+
+@pytest.mark.parametrize("lines, rule", [
+    ('delta_order = 1\nkinematics = "nonlinear"', "must be one of"),
+    ('delta_order = 1\nkinematics = "exact"', "not supported by the design job yet"),
+])
+def test_kinematics_checked_before_heavy_work(model_study, tmp_path, build_kwargs, lines, rule):
+    with pytest.raises(ProblemFileError) as info:
+        design.run_design(model_study(replace=(("delta_order = 0", lines),)), tmp_path / "out")
+    assert "model.kinematics" in str(info.value) and rule in str(info.value)
+    assert not build_kwargs
+
+
+def test_kinematics_truncated_by_default(model_study, tmp_path, build_kwargs):
+    path = model_study(replace=(("delta_order = 0", "delta_order = 1"),))
+    with pytest.raises(RuntimeError, match="stop"):
+        design.run_design(path, tmp_path / "out")
+    assert build_kwargs["kinematics"] == "truncated"

@@ -24,12 +24,18 @@ from fidelity_spatial import MOVE3, casflex_run, compare, reference_run  # noqa:
 # rotations (twist and slope of link 1 ~0.13-0.15 rad), a term of third order in δ beyond
 # the model's structure: statically the model is 2.5 % too soft across the plane at 254
 # mm, as the swing here is 3.0 % too large; with the arm 4 times stiffer (69 mm) both
-# variants meet the targets (benchmarks/README_fidelity.md).
+# variants meet the targets (benchmarks/README_fidelity.md). The kinematics truncated at
+# δ² are the cause: ``kinematics="exact"`` meets the targets (session 9).
 _VARIANTS = {
     "default": {},
     "rates": {"shape_rates": True},  # q2, q3 held: the shapes do not change, as default
     "rates_short": {"shape_rates": True, "foreshortening": True},
+    # the links rebuilt from the modal strains (session 9): measured peak -0.006 %,
+    # residual -0.010 %, gap 0.127 % of peak at 1 ms; the same at 2 ms and within 0.002 %
+    # at 5 ms (gap 0.129 %), the step used here to keep the test near 20 s
+    "exact": {"kinematics": "exact"},
 }
+_STEPS = {"exact": 5e-3}
 _MISSES = {
     "default": "peak -0.41 %, residual +0.28 %, gap 7.5 % of peak",
     "rates": "peak -0.41 %, residual +0.28 %, gap 7.5 % of peak",
@@ -51,7 +57,8 @@ def _cases():
 @pytest.mark.parametrize("variant", list(_cases()))
 def test_move3_fidelity_targets(arm_model, variant):
     model, _ = arm_model(5, step_deg=1.5, gravity=None, **_VARIANTS[variant])
-    c = compare(casflex_run(model, MOVE3), reference_run(), MOVE3.duration)
+    c = compare(casflex_run(model, MOVE3, dt=_STEPS.get(variant, 1e-3)), reference_run(),
+                MOVE3.duration)
     assert abs(c["peak_pct"]) < 2.0, c
     assert abs(c["residual_pct"]) < 5.0, c
     assert c["gap_pct"] < 5.0, c
