@@ -188,7 +188,8 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     design = shaping.shaper_for_move(model, move, vtol=study.shaper["vtol"],
                                      margin=study.shaper["margin"],
                                      n_samples=study.shaper["n_samples"],
-                                     dt=dt)  # impulses on the loop's sample grid
+                                     dt=dt,  # impulses on the loop's sample grid
+                                     cache_dir=cache_dir)  # a second run reads it
     timings["shaper_s"] = time.perf_counter() - t0
     shaped = ShapedMove(move, design.shaper)
     t_f = np.linspace(0.0, shaped.t_end, 2 * study.shaper["n_samples"] + 1)  # all simulated
