@@ -23,6 +23,9 @@ run_design
     Run the whole job of a study and write its report.
 DesignResult
     What a job produced: the summary, the output directory, the files written.
+c_bundle_key
+    The digest of everything the job's C bundle is generated from (a second run with the
+    same key keeps the bundle and its build).
 
 The planned move (:mod:`casflex.design.planner`)
 ------------------------------------------------
@@ -43,7 +46,7 @@ Examples
 
 from __future__ import annotations
 
-from casflex.design.job import DesignResult, run_design
+from casflex.design.job import DesignResult, c_bundle_key, run_design
 from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.study import Study, load_study
 
@@ -54,6 +57,7 @@ __all__ = [
     # the job
     "run_design",
     "DesignResult",
+    "c_bundle_key",
     # the planned move
     "plan_next_to_shaped",
     "planner_summary",
