@@ -27,6 +27,11 @@ c_bundle_key
     The digest of everything the job's C bundle is generated from (a second run with the
     same key keeps the bundle and its build).
 
+The loop's EKF step, cached (:mod:`casflex.design.ekf_cache`)
+-------------------------------------------------------------
+loop_ekf_step
+    The study's EKF step, read from the cache when built from the same inputs before.
+
 The planned move (:mod:`casflex.design.planner`)
 ------------------------------------------------
 plan_next_to_shaped
@@ -46,6 +51,7 @@ Examples
 
 from __future__ import annotations
 
+from casflex.design.ekf_cache import loop_ekf_step
 from casflex.design.job import DesignResult, c_bundle_key, run_design
 from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.study import Study, load_study
@@ -58,6 +64,8 @@ __all__ = [
     "run_design",
     "DesignResult",
     "c_bundle_key",
+    # the loop's EKF step, cached
+    "loop_ekf_step",
     # the planned move
     "plan_next_to_shaped",
     "planner_summary",

@@ -38,6 +38,7 @@ import numpy as np
 from casflex._json import jsonable
 from casflex._parallel import worker_pool
 from casflex._validate import fail, output_directory
+from casflex.design.ekf_cache import loop_ekf_step
 from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
@@ -245,7 +246,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     elif table is not None and study.model["fit"] != "grid":
         plant_grid = _grid_axes(study, table)[0]
     plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)  # the job's cache
-    ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
+    ekf = loop_ekf_step(plant, study, table, dt, cache_dir)  # built once, then cached
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
