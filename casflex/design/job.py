@@ -252,6 +252,11 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
                  "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
                  "ddq": "difference"}
+    # the loops with the true state fed back run in the figures' workers meanwhile
+    say("where the tracking error comes from: the loops with the true state fed back ...")
+    sources_started = _start_tracking_sources(figure_pool, model, controller, slow, shaped,
+                                              t_end, dt, jit=study.codegen["compile"],
+                                              cache_dir=cache_dir)
     divergence = None
     try:
         loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
@@ -261,9 +266,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
         divergence = _divergence(exc)
         say(f"WARNING: the closed loop with the EKF diverged: {exc}")
         loop = _diverged_loop(model, t_end, dt)
-    say("where the tracking error comes from: the loop with the true state fed back ...")
-    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt,
-                                jit=study.codegen["compile"], cache_dir=cache_dir)
+    sources = {key: _tracking_error(finish) for key, finish in sources_started.items()}
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite and divergence is None:  # the state bounded, the estimate not
@@ -519,25 +522,32 @@ def _diverged_loop(model, t_end, dt):
                             tip_rigid=nans(3), n=n, m=m, x_hat=nans(2 * m))
 
 
-def _tracking_sources(model, controller, slow, shaped, t_end, dt, jit=False, cache_dir=None):
-    """Largest joint tracking error [rad] of the sampled loop with the true state fed back:
-    under the whole law and under its slow (rigid) part alone. Against the loop with the
-    EKF they say where the tracking error comes from (the report's comment). ``jit``: the
-    loops' steps compiled (cached), as the loop with the EKF."""
-    from casflex.simulate import simulate_closed_loop
+def _start_tracking_sources(pool, model, controller, slow, shaped, t_end, dt, jit=False,
+                            cache_dir=None):
+    """Start the sampled loops with the true state fed back, under the whole law and under
+    its slow (rigid) part alone, in ``pool``'s workers (here without a pool): ``{key:
+    finish}`` (:func:`casflex.simulate.start_closed_loop`). Their largest joint tracking
+    errors (:func:`_tracking_error`), against the loop with the EKF, say where its tracking
+    error comes from (the report's comment). ``jit``: the loops' steps compiled (cached),
+    as the loop with the EKF."""
+    from casflex.simulate import start_closed_loop
 
     laws = {"true_state": controller}
     if slow is not None:
         laws["slow_law_true_state"] = slow
-    sources = {}
-    for key, law in laws.items():
-        try:
-            run = simulate_closed_loop(model, law, shaped, t_end=t_end, dt=dt, sampled=True,
-                                       method="rk4", jit=jit, cache_dir=cache_dir)
-            sources[key] = float(np.abs(run.tracking_error).max())
-        except SolverError:  # diverged: the report says so
-            sources[key] = math.nan
-    return sources
+    executor = None if pool is None else pool.executor
+    return {key: start_closed_loop(executor, model, law, shaped, t_end=t_end, dt=dt,
+                                   sampled=True, method="rk4", jit=jit, cache_dir=cache_dir)
+            for key, law in laws.items()}
+
+
+def _tracking_error(finish):
+    """Largest joint tracking error [rad] of a started loop (NaN if it diverged: the
+    report says so)."""
+    try:
+        return float(np.abs(finish().tracking_error).max())
+    except SolverError:
+        return math.nan
 
 
 def _estimation_errors(model, loop):
