@@ -4,7 +4,8 @@ Building the step of the loop (:func:`casflex.estimation.ekf_step_function`: the
 lookups, whose B-spline coefficients import :mod:`scipy.interpolate`, the measurement
 model, Jacobians and common-subexpression elimination) is a large part of a second run
 of a study that nothing has changed. :func:`loop_ekf_step` keeps the step's serialised
-graph in casflex's cache (:mod:`casflex._cache`), keyed on everything it is built from;
+graph in casflex's cache (:mod:`casflex._cache`), keyed on everything it is built from
+(a hit neither tabulates nor reads the plant);
 the graph read back is the one stored, so the loop, its compiled library and the C
 bundle's key (:func:`casflex.design.c_bundle_key`) are those of the first run.
 """
@@ -13,15 +14,16 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from casflex._cache import (
     cache_root,
-    content_digest,
     digest,
     load_verified,
     make_cache_directory,
@@ -31,7 +33,7 @@ from casflex._json import jsonable
 
 if TYPE_CHECKING:
     from casflex.design.study import Study
-    from casflex.estimation import FlexiblePlant
+    from casflex.model import FlexibleModel
 
 __all__ = ["loop_ekf_step"]
 
@@ -41,25 +43,31 @@ _BUILT_BY = ("estimation", "model", "modal", "sensors.py", "robot.py",
              "simulate/integrators.py")
 
 
-def loop_ekf_step(plant: FlexiblePlant, study: Study, table: object, dt: float,
+def loop_ekf_step(model: FlexibleModel, table: object, study: Study, dt: float,
+                  plant_grid: Sequence[ArrayLike] | None = None,
                   cache_dir: str | os.PathLike | bool | None = None) -> ca.Function:
-    """``ekf_step_function(plant, study.sensors, Q, R, dt)`` of the study's estimator, read
-    from the cache when it was built from the same inputs before.
+    """The EKF step of the study's loop, read from the cache when it was built from the same
+    inputs before: ``ekf_step_function(tabulate_plant(model, grid=plant_grid), sensors,
+    Q, R, dt)``.
 
     Parameters
     ----------
-    plant : casflex.estimation.FlexiblePlant
-        The tabulated plant of the study's model (:func:`casflex.estimation.tabulate_plant`).
+    model : casflex.model.FlexibleModel
+        The study's model (:func:`casflex.model.build_model` with the study's settings).
+    table : casflex.modal.ModalTable
+        Its modal table; the table's cache key (``table.info["key"]``) and the study's
+        ``[model]`` settings identify the model. Without one (a robot without a shape
+        joint, a fitted model) the step is built without the cache.
     study : casflex.design.Study
         Its ``estimator`` ``Q`` and ``R``, its sensors and its ``[model]`` settings.
-    table : casflex.modal.ModalTable
-        The model's modal table; its cache key (``table.info["key"]``) and the model's
-        settings identify the model. Without one (a robot without a shape joint, a
-        fitted model) the step is built without the cache.
     dt : float
         Sample time [s].
+    plant_grid : sequence of array_like, optional
+        Grid axes of the plant's table [rad] (:func:`casflex.estimation.tabulate_plant`'s
+        ``grid``; default the model table's grid).
     cache_dir : str or pathlib.Path or bool, optional
-        Cache root (default the casflex cache directory); ``False``: no cache.
+        Cache root (default the casflex cache directory), also the plant's; ``False``: no
+        cache.
 
     Returns
     -------
@@ -71,19 +79,20 @@ def loop_ekf_step(plant: FlexiblePlant, study: Study, table: object, dt: float,
     A robot without a shape joint has no modal table: the step is built, not cached.
 
     >>> from casflex.design import load_study
-    >>> from casflex.estimation import tabulate_plant
     >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> study = load_study("problems/studies/arm2link_move1.toml")
     >>> provider = PointwiseProvider(study.robot, [0, 0, 0], 1, study.sensors.points)
-    >>> plant = tabulate_plant(FlexibleModel(study.robot, provider), cache_dir=False)
-    >>> loop_ekf_step(plant, study, None, 1e-3).name_out()
+    >>> step = loop_ekf_step(FlexibleModel(study.robot, provider), None, study, 1e-3,
+    ...                      cache_dir=False)
+    >>> step.name_out()
     ['x_next', 'P_next', 'x_post']
     """
-    from casflex.estimation import ekf_step_function
+    from casflex.estimation import ekf_step_function, tabulate_plant
 
     e = study.estimator
 
     def build():
+        plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)
         return ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
 
     info = getattr(table, "info", None)
@@ -91,7 +100,7 @@ def loop_ekf_step(plant: FlexiblePlant, study: Study, table: object, dt: float,
     if root is None or not isinstance(info, dict) or not info.get("key") or \
             study.model["fit"] != "grid":
         return build()
-    key = _key(plant, study, info["key"], dt)
+    key = _key(study, info["key"], plant_grid, dt)
     path = root / "ekf" / f"ekf-{key[:32]}.npz"
     hit = load_verified(path, key)
     if hit is not None:
@@ -102,28 +111,15 @@ def loop_ekf_step(plant: FlexiblePlant, study: Study, table: object, dt: float,
     return step
 
 
-def _key(plant, study, table_key, dt):
-    """SHA-256 of the step's inputs: the modal table's key and the model's settings (the
-    model), the plant's arrays and settings, the sensors, ``Q``, ``R``, ``dt``, the
-    CasADi version and the source files of the code that builds a step."""
-    arrays = {"pattern": np.asarray(plant.pattern)}
-    for name in ("keep", "constant"):
-        if getattr(plant, name, None) is not None:
-            arrays[name] = np.asarray(getattr(plant, name))
-    if plant.table is not None:
-        arrays.update({f"table_{k}": np.asarray(v) for k, v in plant.table.values.items()})
-        arrays.update({f"grid{i}": np.asarray(a) for i, a in enumerate(plant.table.grid)})
+def _key(study, table_key, plant_grid, dt):
+    """SHA-256 of the step's inputs: the modal table's key and the study's model settings
+    (the model), the plant's grid, the sensors, ``Q``, ``R``, ``dt``, the versions and the
+    source files of the code that tabulates the plant and builds the step."""
     e = study.estimator
     return digest({
         "table": table_key, "model": jsonable(study.model),
-        "plant": content_digest(arrays),
-        "plant_settings": jsonable({"shape_joints": plant.shape_joints,
-                                    "fourier_joints": plant.fourier_joints,
-                                    "degree": plant.degree, "order": plant.order,
-                                    "lookup": plant.lookup,
-                                    "monomials": repr(plant.monomials),
-                                    "periodic": None if plant.table is None
-                                    else plant.table.periodic}),
+        "plant_grid": None if plant_grid is None else
+        [np.asarray(a, dtype=float).tolist() for a in plant_grid],
         "sensors": [repr(s) for s in study.sensors.sensors],
         "points": repr(list(study.sensors.points)),
         "Q": jsonable(e["Q"]), "R": jsonable(e["R"]), "dt": float(dt),

@@ -245,8 +245,8 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
         plant_grid = _plant_grid(_grid_axes(study, table), move)
     elif table is not None and study.model["fit"] != "grid":
         plant_grid = _grid_axes(study, table)[0]
-    plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)  # the job's cache
-    ekf = loop_ekf_step(plant, study, table, dt, cache_dir)  # built once, then cached
+    # built once, then read from the job's cache (with the plant it is built from)
+    ekf = loop_ekf_step(model, table, study, dt, plant_grid, cache_dir)
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
@@ -297,6 +297,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     def c_ekf():  # the guarded step: built only when the bundle is generated
         if not study.codegen["guard"]:
             return ekf
+        plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)
         return ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt,
                                  guard=Guard(np.eye(2 * m) * e["P0"], gate=gate))
 
