@@ -99,10 +99,16 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     log : callable, optional
         ``log(message)`` for one-line progress messages (the CLI prints them to stderr).
     cache_dir : str or pathlib.Path, optional
-        Modal-table cache (default the casflex cache directory): a second run with the
-        same robot and grid reads the table instead of recomputing it.
+        The job's cache (default the casflex cache directory): a second run with the same
+        inputs reads the modal table, the SI design
+        (:func:`casflex.shaping.cached_si_design`), the EKF plant and step
+        (:func:`casflex.design.loop_ekf_step`), the gain schedule and the compiled loops
+        instead of computing them again, and keeps ``c/`` when its inputs are unchanged
+        (:func:`casflex.design.c_bundle_key`).
     processes : int, optional
-        Worker processes of the tabulation.
+        Worker processes of the tabulation; ``1`` also draws the figures and runs the
+        loops with the true state fed back in this process (otherwise two worker
+        processes do, alongside the job).
 
     Returns
     -------
