@@ -157,7 +157,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     ['accessibility.png', 'estimation.png']
     """
     # the figures are drawn by worker processes alongside the job's own work (the largest
-    # part of a second run otherwise); processes=1 draws them here
+    # part of a second run otherwise), and the loops with the true state fed back run
+    # there; imported before the workers fork, so that they need not import it again.
+    # processes=1: all here
+    import casflex.simulate  # noqa: F401
+
     with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool:
         return _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool)
 
