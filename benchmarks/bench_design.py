@@ -19,9 +19,15 @@ run):
 ``load``
     the 1-minute load average before each run.
 
+With ``--stage-cpu`` every run is ``--processes 1`` (figures drawn in the job's process)
+and ``timings_s`` holds the CPU seconds of each stage instead of its wall time (the job's
+stage clock, ``time.perf_counter``, replaced by the process's CPU clock): the figure that
+holds when the machine is loaded.
+
 Usage::
 
     python benchmarks/bench_design.py [--json] [--repeat 3] [--code DIR] [--study FILE]
+                                      [--stage-cpu]
 """
 
 from __future__ import annotations
@@ -41,7 +47,10 @@ STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
 #: the CLI in a fresh process, reporting its own and its children's CPU on stderr's last
 #: line (the job's JSON summary on stdout)
 RUNNER = """
-import json, resource, sys
+import json, resource, sys, time
+if sys.argv[1] == "--stage-cpu":  # the stages' clock: this process's CPU time
+    time.perf_counter = time.process_time
+    del sys.argv[1]
 from casflex.cli import main
 code = main(sys.argv[1:])
 own, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF,
@@ -52,14 +61,17 @@ sys.exit(code)
 """
 
 
-def run_once(code_root, study, out):
-    """One ``casflex design`` process on ``code_root``'s casflex: wall, CPU, timings."""
+def run_once(code_root, study, out, stage_cpu=False):
+    """One ``casflex design`` process on ``code_root``'s casflex: wall, CPU, timings
+    (``stage_cpu``: in one process, the stages' CPU seconds)."""
     env = dict(os.environ, PYTHONPATH=str(code_root), MPLBACKEND="Agg")
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", RUNNER, "design", str(study), "--out",
-                           str(out), "--json"], env=env, capture_output=True, text=True,
-                          cwd=code_root)
+    flags = ["--stage-cpu"] if stage_cpu else []
+    extra = ["--processes", "1"] if stage_cpu else []
+    proc = subprocess.run([sys.executable, "-c", RUNNER, *flags, "design", str(study),
+                           "--out", str(out), "--json", *extra], env=env,
+                          capture_output=True, text=True, cwd=code_root)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise SystemExit(f"design failed ({code_root}):\n{proc.stderr[-2000:]}")
@@ -74,6 +86,8 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=3, help="second runs per checkout")
     parser.add_argument("--code", type=Path, help="another checkout, measured alternately")
     parser.add_argument("--study", type=Path, default=STUDY)
+    parser.add_argument("--stage-cpu", action="store_true",
+                        help="one process per run; timings_s in CPU seconds per stage")
     args = parser.parse_args(argv)
 
     trees = {"new": ROOT}
@@ -83,10 +97,10 @@ def main(argv=None):
               for key in trees}
     with tempfile.TemporaryDirectory() as tmp:
         for key, root in trees.items():  # the first runs: caches and output filled
-            run_once(root, args.study.resolve(), Path(tmp) / key)
+            run_once(root, args.study.resolve(), Path(tmp) / key, args.stage_cpu)
         for _ in range(args.repeat):
             for key, root in trees.items():
-                run = run_once(root, args.study.resolve(), Path(tmp) / key)
+                run = run_once(root, args.study.resolve(), Path(tmp) / key, args.stage_cpu)
                 for name, value in run.items():
                     result[key][name].append(value)
     result["nproc"] = os.cpu_count()

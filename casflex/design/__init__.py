@@ -23,6 +23,14 @@ run_design
     Run the whole job of a study and write its report.
 DesignResult
     What a job produced: the summary, the output directory, the files written.
+c_bundle_key
+    The digest of everything the job's C bundle is generated from (a second run with the
+    same key keeps the bundle and its build).
+
+The loop's EKF step, cached (:mod:`casflex.design.ekf_cache`)
+-------------------------------------------------------------
+loop_ekf_step
+    The study's EKF step, read from the cache when built from the same inputs before.
 
 The planned move (:mod:`casflex.design.planner`)
 ------------------------------------------------
@@ -43,7 +51,8 @@ Examples
 
 from __future__ import annotations
 
-from casflex.design.job import DesignResult, run_design
+from casflex.design.ekf_cache import loop_ekf_step
+from casflex.design.job import DesignResult, c_bundle_key, run_design
 from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.study import Study, load_study
 
@@ -54,6 +63,9 @@ __all__ = [
     # the job
     "run_design",
     "DesignResult",
+    "c_bundle_key",
+    # the loop's EKF step, cached
+    "loop_ekf_step",
     # the planned move
     "plan_next_to_shaped",
     "planner_summary",

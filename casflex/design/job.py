@@ -38,12 +38,13 @@ import numpy as np
 from casflex._json import jsonable
 from casflex._parallel import worker_pool
 from casflex._validate import fail, output_directory
+from casflex.design.ekf_cache import loop_ekf_step
 from casflex.design.planner import plan_next_to_shaped, planner_summary
 from casflex.design.report import write_report
 from casflex.design.study import Study, load_study
 from casflex.errors import SolverError
 
-__all__ = ["DesignResult", "run_design"]
+__all__ = ["DesignResult", "run_design", "c_bundle_key"]
 
 #: ω_min / ω_c below which the report says the time-scale separation is weak
 SEPARATION_REQUIRED = 3.0
@@ -98,10 +99,16 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     log : callable, optional
         ``log(message)`` for one-line progress messages (the CLI prints them to stderr).
     cache_dir : str or pathlib.Path, optional
-        Modal-table cache (default the casflex cache directory): a second run with the
-        same robot and grid reads the table instead of recomputing it.
+        The job's cache (default the casflex cache directory): a second run with the same
+        inputs reads the modal table, the SI design
+        (:func:`casflex.shaping.cached_si_design`), the EKF plant and step
+        (:func:`casflex.design.loop_ekf_step`), the gain schedule and the compiled loops
+        instead of computing them again, and keeps ``c/`` when its inputs are unchanged
+        (:func:`casflex.design.c_bundle_key`).
     processes : int, optional
-        Worker processes of the tabulation.
+        Worker processes of the tabulation; ``1`` also draws the figures and runs the
+        loops with the true state fed back in this process (otherwise two worker
+        processes do, alongside the job).
 
     Returns
     -------
@@ -150,7 +157,11 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     ['accessibility.png', 'estimation.png']
     """
     # the figures are drawn by worker processes alongside the job's own work (the largest
-    # part of a second run otherwise); processes=1 draws them here
+    # part of a second run otherwise), and the loops with the true state fed back run
+    # there; imported before the workers fork, so that they need not import it again.
+    # processes=1: all here
+    import casflex.simulate  # noqa: F401
+
     with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool:
         return _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool)
 
@@ -188,7 +199,8 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     design = shaping.shaper_for_move(model, move, vtol=study.shaper["vtol"],
                                      margin=study.shaper["margin"],
                                      n_samples=study.shaper["n_samples"],
-                                     dt=dt)  # impulses on the loop's sample grid
+                                     dt=dt,  # impulses on the loop's sample grid
+                                     cache_dir=cache_dir)  # a second run reads it
     timings["shaper_s"] = time.perf_counter() - t0
     shaped = ShapedMove(move, design.shaper)
     t_f = np.linspace(0.0, shaped.t_end, 2 * study.shaper["n_samples"] + 1)  # all simulated
@@ -243,13 +255,18 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
         plant_grid = _plant_grid(_grid_axes(study, table), move)
     elif table is not None and study.model["fit"] != "grid":
         plant_grid = _grid_axes(study, table)[0]
-    plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)  # the job's cache
-    ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt)
+    # built once, then read from the job's cache (with the plant it is built from)
+    ekf = loop_ekf_step(model, table, study, dt, plant_grid, cache_dir)
     m = model.m
     # as in the generated rt_step: q̈ for the EKF from the backward difference of q̇
     estimator = {"step": ekf, "sensors": study.sensors, "P0": np.eye(2 * m) * e["P0"],
                  "x0": np.zeros(2 * m), "R": np.diag(e["R"]), "seed": e["seed"],
                  "ddq": "difference"}
+    # the loops with the true state fed back run in the figures' workers meanwhile
+    say("where the tracking error comes from: the loops with the true state fed back ...")
+    sources_started = _start_tracking_sources(figure_pool, model, controller, slow, shaped,
+                                              t_end, dt, jit=study.codegen["compile"],
+                                              cache_dir=cache_dir)
     divergence = None
     try:
         loop = simulate_closed_loop(model, controller, shaped, t_end=t_end, dt=dt,
@@ -259,9 +276,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
         divergence = _divergence(exc)
         say(f"WARNING: the closed loop with the EKF diverged: {exc}")
         loop = _diverged_loop(model, t_end, dt)
-    say("where the tracking error comes from: the loop with the true state fed back ...")
-    sources = _tracking_sources(model, controller, slow, shaped, t_end, dt,
-                                jit=study.codegen["compile"], cache_dir=cache_dir)
+    sources = {key: _tracking_error(finish) for key, finish in sources_started.items()}
     timings["closed_loop_s"] = time.perf_counter() - t0
     loop_finite = bool(np.all(np.isfinite(loop.x)) and np.all(np.isfinite(loop.x_hat)))
     if not loop_finite and divergence is None:  # the state bounded, the estimate not
@@ -285,13 +300,19 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     t0 = time.perf_counter()
     say("generating the C bundle ...")
     limits = _torque_limits(study, shaped_run, loop) if study.codegen["guard"] else None
-    c_ekf = ekf
     gate = None
     if study.codegen["guard"]:
         gate = DEFAULT_GATE if e["gate"] is None else e["gate"]
-        c_ekf = ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt,
-                                  guard=Guard(np.eye(2 * m) * e["P0"], gate=gate))
-    c_bundle = _c_bundle(study, model, plant, c_ekf, controller, out / "c", dt, limits)
+
+    def c_ekf():  # the guarded step: built only when the bundle is generated
+        if not study.codegen["guard"]:
+            return ekf
+        plant = tabulate_plant(model, grid=plant_grid, cache_dir=cache_dir)
+        return ekf_step_function(plant, study.sensors, e["Q"], e["R"], dt,
+                                 guard=Guard(np.eye(2 * m) * e["P0"], gate=gate))
+
+    c_bundle = _c_bundle(study, c_ekf, c_bundle_key(study, ekf, controller, dt, limits, gate),
+                         controller, out / "c", dt, limits)
     # the loop's shaper as a delay/amplitude table (its impulses are on the dt grid)
     from casflex.codegen import shaper_table_bundle
     shaper_c = shaper_table_bundle(design.shaper, dt, f"{study.codegen['name']}_shaper",
@@ -514,25 +535,32 @@ def _diverged_loop(model, t_end, dt):
                             tip_rigid=nans(3), n=n, m=m, x_hat=nans(2 * m))
 
 
-def _tracking_sources(model, controller, slow, shaped, t_end, dt, jit=False, cache_dir=None):
-    """Largest joint tracking error [rad] of the sampled loop with the true state fed back:
-    under the whole law and under its slow (rigid) part alone. Against the loop with the
-    EKF they say where the tracking error comes from (the report's comment). ``jit``: the
-    loops' steps compiled (cached), as the loop with the EKF."""
-    from casflex.simulate import simulate_closed_loop
+def _start_tracking_sources(pool, model, controller, slow, shaped, t_end, dt, jit=False,
+                            cache_dir=None):
+    """Start the sampled loops with the true state fed back, under the whole law and under
+    its slow (rigid) part alone, in ``pool``'s workers (here without a pool): ``{key:
+    finish}`` (:func:`casflex.simulate.start_closed_loop`). Their largest joint tracking
+    errors (:func:`_tracking_error`), against the loop with the EKF, say where its tracking
+    error comes from (the report's comment). ``jit``: the loops' steps compiled (cached),
+    as the loop with the EKF."""
+    from casflex.simulate import start_closed_loop
 
     laws = {"true_state": controller}
     if slow is not None:
         laws["slow_law_true_state"] = slow
-    sources = {}
-    for key, law in laws.items():
-        try:
-            run = simulate_closed_loop(model, law, shaped, t_end=t_end, dt=dt, sampled=True,
-                                       method="rk4", jit=jit, cache_dir=cache_dir)
-            sources[key] = float(np.abs(run.tracking_error).max())
-        except SolverError:  # diverged: the report says so
-            sources[key] = math.nan
-    return sources
+    executor = None if pool is None else pool.executor
+    return {key: start_closed_loop(executor, model, law, shaped, t_end=t_end, dt=dt,
+                                   sampled=True, method="rk4", jit=jit, cache_dir=cache_dir)
+            for key, law in laws.items()}
+
+
+def _tracking_error(finish):
+    """Largest joint tracking error [rad] of a started loop (NaN if it diverged: the
+    report says so)."""
+    try:
+        return float(np.abs(finish().tracking_error).max())
+    except SolverError:
+        return math.nan
 
 
 def _estimation_errors(model, loop):
@@ -730,50 +758,113 @@ def _torque_limits(study, shaped_run, loop):
     return np.where(limits > 0, limits, np.max(limits))
 
 
-def _c_bundle(study, model, plant, ekf, controller, c_dir, dt, torque_limits=None):
-    """Generate (and compile, unless unchanged or switched off) the real-time C bundle:
-    ``rt_step`` (:mod:`casflex.codegen.rtloop`: encoders, reference and sensor sample to torques and
-    the updated estimator), plus ``ekf_step`` and the controller alone. A guarded ``ekf``
-    (``codegen.guard``) makes ``rt_step`` skip bad samples, hold non-finite inputs, keep P
-    positive definite, return a status word and clip the torques to ``torque_limits``."""
+def c_bundle_key(study: Study, ekf, controller, dt: float, torque_limits=None,
+                 gate: float | None = None) -> str:
+    """SHA-256 of everything the design job's C bundle (``c/``) is generated from.
+
+    A second run whose key equals the one recorded next to the bundle keeps the bundle and
+    its build instead of generating it again: the key covers the EKF step of the loop
+    (its serialised graph: the plant, the model's sensor tables, the sensors, ``Q``, ``R``
+    and ``dt``), the guard's settings (the guarded step is built from the same inputs),
+    the controller's serialised graph, the sensors, ``dt``, the torque limits, the
+    ``[codegen]`` settings, the CasADi version and the source of the code that builds the
+    guarded step and generates the bundle.
+
+    Parameters
+    ----------
+    study : Study
+    ekf : casadi.Function
+        The (unguarded) EKF step of the loop (:func:`casflex.estimation.ekf_step_function`).
+    controller : casadi.Function
+        The controller ``(qd, dqd, ddqd, x) -> tau``.
+    dt : float
+        Sample time [s].
+    torque_limits : array_like, optional
+        Torque limits of the guarded ``rt_step`` [N m] (``None``: unguarded).
+    gate : float, optional
+        The guard's innovation gate (``None``: unguarded).
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+
+    Examples
+    --------
+    >>> import casadi as ca
+    >>> study = load_study("problems/studies/arm2link_move1.toml")
+    >>> x = ca.SX.sym("x")
+    >>> f, g = ca.Function("f", [x], [2 * x]), ca.Function("f", [x], [3 * x])
+    >>> a = c_bundle_key(study, f, f, 1e-3, [1.0, 2.0, 3.0], 5.0)
+    >>> a == c_bundle_key(study, f, f, 1e-3, [1.0, 2.0, 3.0], 5.0)
+    True
+    >>> a == c_bundle_key(study, f, g, 1e-3, [1.0, 2.0, 3.0], 5.0)   # another controller
+    False
+    >>> a == c_bundle_key(study, f, f, 1e-3, [1.0, 2.0, 3.5], 5.0)   # another limit
+    False
+    """
+    import casadi as ca
+
+    from casflex import codegen
+    from casflex._cache import digest, source_digest
+    from casflex.codegen import bundle, compiler, estimator, rtloop, templates
+    from casflex.estimation import ekf as ekf_module
+    from casflex.estimation import guard
+
+    def graph(function):
+        return hashlib.sha256(function.serialize().encode()).hexdigest()
+
+    sensors = study.sensors
+    return digest({
+        "ekf": graph(ekf), "controller": graph(controller), "dt": float(dt),
+        "guard": None if gate is None else {"P0": float(study.estimator["P0"]),
+                                             "gate": float(gate)},
+        "torque_limits": None if torque_limits is None else
+        np.asarray(torque_limits, dtype=float).tolist(),
+        "sensors": [repr(s) for s in sensors.sensors], "points": repr(list(sensors.points)),
+        "codegen": {k: jsonable(v) for k, v in study.codegen.items()},
+        "casadi": ca.__version__,
+        "source": source_digest(ekf_module, guard, codegen, bundle, compiler, estimator,
+                                rtloop, templates, _c_bundle),
+    })
+
+
+def _c_bundle(study, c_ekf, key, controller, c_dir, dt, torque_limits=None):
+    """Generate (and compile, unless switched off) the real-time C bundle, or keep the one
+    in ``c_dir`` if it was generated from the same inputs (``key``, :func:`c_bundle_key`,
+    recorded in ``c/.digest``) and its library is there: ``rt_step``
+    (:mod:`casflex.codegen.rtloop`: encoders, reference and sensor sample to torques and
+    the updated estimator), plus ``ekf_step`` and the controller alone. ``c_ekf()`` builds
+    the EKF step of the bundle; a guarded one (``codegen.guard``) makes ``rt_step`` skip
+    bad samples, hold non-finite inputs, keep P positive definite, return a status word
+    and clip the torques to ``torque_limits``."""
+    import json
+
     from casflex import codegen
     from casflex.codegen import rt_bundle
 
     name = study.codegen["name"]
-    staging = c_dir.parent / (c_dir.name + ".new")
-    if staging.exists():
-        shutil.rmtree(staging)
-
-    def generate(directory):
-        return rt_bundle(ekf, controller, study.sensors, dt, directory, name=name,
-                         extra=(ekf, controller), torque_limits=torque_limits)
-
-    bundle = generate(staging)
-    digest = _digest(staging)
-    functions = [f.name for f in bundle.functions]
-    library_name = bundle.library.name
-    if c_dir.is_dir() and (c_dir / ".digest").is_file() and \
-            (c_dir / ".digest").read_text() == digest and (c_dir / library_name).is_file():
-        shutil.rmtree(staging)  # same sources as the last run: keep its build
-        compiled = "reused"
+    record_path = c_dir / ".digest"
+    try:
+        record = json.loads(record_path.read_text())
+    except (OSError, ValueError):  # none, or an older job's plain digest
+        record = None
+    if isinstance(record, dict) and record.get("key") == key and \
+            (c_dir / str(record.get("library"))).is_file():
+        compiled = "reused"  # same inputs as the last run: keep its sources and build
+        functions = list(record["functions"])
     else:
         if c_dir.exists():
             shutil.rmtree(c_dir)
-        shutil.rmtree(staging)
-        bundle = generate(c_dir)  # generated in place: the README names its own directory
+        ekf = c_ekf()
+        bundle = rt_bundle(ekf, controller, study.sensors, dt, c_dir, name=name,
+                           extra=(ekf, controller), torque_limits=torque_limits)
+        functions = [f.name for f in bundle.functions]
         compiled = False
         if study.codegen["compile"]:
             codegen.build(bundle)
             compiled = True
-        (c_dir / ".digest").write_text(digest)
+        record_path.write_text(json.dumps({"key": key, "functions": functions,
+                                           "library": bundle.library.name}))
     files = sorted(p.name for p in c_dir.iterdir() if not p.name.startswith("."))
     return files, functions, compiled
-
-
-def _digest(directory):
-    h = hashlib.sha256()
-    for p in sorted(Path(directory).iterdir()):
-        if p.is_file():
-            h.update(p.name.encode())
-            h.update(p.read_bytes())
-    return h.hexdigest()

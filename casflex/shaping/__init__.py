@@ -74,6 +74,10 @@ LP_MAX_SOLVES               budget of LP solves of one grid search (deterministi
 grid_near                   the grid shaper nearest an analogue one (digital shapers)
 grid_feasible               one feasibility LP on a given grid
 
+The cache of SI designs (:mod:`casflex.shaping.si_cache`)
+--------------------------------------------------------
+cached_si_design            an SI design kept in casflex's cache, keyed on ranges and options
+
 The convolved EI start (:mod:`casflex.shaping.si_start`)
 --------------------------------------------------------
 initial_si_guess            convolved EI shapers at the range midpoints
@@ -157,6 +161,7 @@ from casflex.shaping.si import (
     si_shaper_slsqp,
     solve_si_nlp,
 )
+from casflex.shaping.si_cache import cached_si_design
 from casflex.shaping.si_hessian import si_nlp_with_hessian
 from casflex.shaping.si_start import GUESS_MAX_IMPULSES, initial_si_guess
 
@@ -203,6 +208,7 @@ __all__ = [
     "si_shaper",
     "si_shaper_slsqp",
     "si_nlp_with_hessian",
+    "cached_si_design",
     "LP_GRID_STEPS",
     "LP_MAX_SAMPLES",
     "LP_MAX_SOLVES",

@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize
 
 from casflex.errors import ProblemFileError, SolverError
 from casflex.shaping.ei_fit_table import FIT_BOXES, FIT_TABLE
@@ -99,6 +98,7 @@ def _undamped_features(tau, amp, centre):
 
 def _solve(kind, zeta, vtol):
     """Normalised EI-family shaper; damped forms solved from the defining conditions."""
+    from scipy import optimize  # here: importing it costs ~0.5 s
     closed, centre = _HUMP_KINDS[kind]
     tau0, amp0 = closed(vtol)
     if zeta == 0.0:

@@ -33,7 +33,6 @@ import cmath
 import math
 
 import numpy as np
-from scipy import optimize
 
 from casflex._validate import fail
 from casflex.errors import ProblemFileError, SolverError
@@ -115,6 +114,7 @@ def um_zv(omega: float, zeta: float = 0.0) -> Shaper:
     >>> s.times.round(6).tolist(), s.amplitudes.tolist()
     ([0.0, 0.166667, 0.333333], [1.0, -1.0, 1.0])
     """
+    from scipy import optimize  # here: importing it costs ~0.5 s
     omega = check_omega(omega)
     zeta = check_zeta(zeta)
     if zeta == 0.0:
@@ -171,6 +171,7 @@ def sna_zv(omega: float, zeta: float = 0.0, negative: float = 1.0) -> Shaper:
     >>> float(abs(sna_zv(2 * math.pi, 0.1, 0.5).amplitudes[1]))
     0.5
     """
+    from scipy import optimize  # here: importing it costs ~0.5 s
     omega = check_omega(omega)
     zeta = check_zeta(zeta)
     if not isinstance(negative, (int, float)) or not math.isfinite(negative) or negative < 0:
@@ -241,6 +242,7 @@ def um_zvd(omega: float, zeta: float = 0.0) -> Shaper:
     >>> s.times.round(6).tolist(), s.amplitudes.tolist()
     ([0.0, 0.089513, 0.366234, 0.642955, 0.732468], [1.0, -1.0, 1.0, -1.0, 1.0])
     """
+    from scipy import optimize  # here: importing it costs ~0.5 s
     omega = check_omega(omega)
     zeta = check_zeta(zeta)
     if zeta > _UM_ZVD_ZETA_MAX:
@@ -312,6 +314,7 @@ def um_ei(omega: float, zeta: float = 0.0, vtol: float = 0.05) -> Shaper:
     >>> s.times.round(5).tolist(), s.amplitudes.tolist()
     ([0.0, 0.09408, 0.36837, 0.64266, 0.73673], [1.0, -1.0, 1.0, -1.0, 1.0])
     """
+    from scipy import optimize  # here: importing it costs ~0.5 s
     omega = check_omega(omega)
     zeta = check_zeta(zeta)
     if zeta > _UM_ZVD_ZETA_MAX:

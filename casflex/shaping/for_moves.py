@@ -39,6 +39,7 @@ from casflex.shaping.si import (
     initial_si_guess,
     si_shaper,
 )
+from casflex.shaping.si_cache import cached_si_design
 
 if TYPE_CHECKING:
     from casflex.modal.tables import ModalTable
@@ -552,6 +553,7 @@ def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
                     *, point: int | ca.Function | None = None, n_samples: int = 400,
                     n_impulses: str | int | None = "auto",
                     time_limit: float | None = DEFAULT_TIME_LIMIT,
+                    cache_dir: str | os.PathLike | bool = False,
                     **si_options) -> MoveShaperResult:
     """Design the SI shaper of a planned move from its modal contributions (§6.1.4).
 
@@ -589,6 +591,10 @@ def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
     time_limit : float or None, optional
         Wall-clock limit of the SI design, s (both attempts of ``"auto"`` together; see
         :func:`si_shaper`; None: no limit).
+    cache_dir : str or os.PathLike or bool, optional
+        Keep the SI design in casflex's cache (:func:`~casflex.shaping.cached_si_design`,
+        keyed on the ranges and every option): a path, ``None`` for the default cache
+        directory, ``False`` (default) to design without the cache.
     **si_options
         Further keyword arguments of :func:`si_shaper`.
 
@@ -622,11 +628,30 @@ def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
     _, omega = frequencies_along(model, reference, n_samples)
     ranges = _ranges_from_omega(omega, margin, model.damping_ratio if zeta is None else zeta,
                                 tol)
+    if isinstance(n_impulses, str) and n_impulses != "auto":
+        raise fail("n_impulses", n_impulses, "must be 'auto', None or an integer >= 1",
+                   error=ProblemFileError)
+    options = {"n_impulses": n_impulses, "time_limit": time_limit, **si_options}
+    si = cached_si_design(ranges, options, lambda: _si_design(ranges, n_impulses, time_limit,
+                                                              si_options), cache_dir)
+    return MoveShaperResult(
+        shaper=si.shaper,
+        ranges=list(ranges),
+        contributions=r,
+        raw_contributions=raw,
+        tolerances=tol,
+        omega_min=omega.min(axis=0),
+        omega_max=omega.max(axis=0),
+        margin=margin,
+        si=si,
+    )
+
+
+def _si_design(ranges, n_impulses, time_limit, si_options):
+    """The SI design of :func:`shaper_for_move` (``n_impulses="auto"``: the smaller start
+    first, the full one if that fails within the time limit)."""
     active = sum(1 for x in ranges if x.vtol < 1.0)
     if isinstance(n_impulses, str):
-        if n_impulses != "auto":
-            raise fail("n_impulses", n_impulses, "must be 'auto', None or an integer >= 1",
-                       error=ProblemFileError)
         limit = 4 * active
         guess_size = len(initial_si_guess(ranges)) if active else 1
         if active and guess_size > limit:
@@ -643,17 +668,7 @@ def shaper_for_move(model: FlexibleModel, reference: Move | SampledReference,
             si = si_shaper(ranges, None, time_limit=time_limit, **si_options)
     else:
         si = si_shaper(ranges, n_impulses, time_limit=time_limit, **si_options)
-    return MoveShaperResult(
-        shaper=si.shaper,
-        ranges=list(ranges),
-        contributions=r,
-        raw_contributions=raw,
-        tolerances=tol,
-        omega_min=omega.min(axis=0),
-        omega_max=omega.max(axis=0),
-        margin=margin,
-        si=si,
-    )
+    return si
 
 
 def shaper_for_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, vtol: float = 0.05,

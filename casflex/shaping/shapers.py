@@ -29,7 +29,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import optimize
 
 from casflex._validate import number
 from casflex.errors import ProblemFileError
@@ -587,6 +586,7 @@ def band_maximum(shaper: Shaper, omega_min: float, omega_max: float, zeta: float
     >>> round(vmax, 4), [round(float(w), 3) for w, _ in peaks[:2]]
     (0.1564, [9.0, 11.0])
     """
+    from scipy import optimize  # here: importing it costs ~0.5 s
     if omega_max == omega_min:
         v = residual_vibration(shaper, omega_min, zeta, definition=definition)
         return v, [(omega_min, v)]

@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import optimize
 
 from casflex._validate import fail, number
 from casflex.errors import ProblemFileError, SolverError
@@ -276,6 +275,7 @@ def solve_si_nlp(samples: SISample, guess: Shaper, method: str = "ipopt",
     >>> sol.success, round(sol.shaper.duration, 2)
     (True, 0.99)
     """
+    from scipy import optimize  # here: importing it costs ~0.5 s
     guess = as_shaper(guess)
     n = len(guess)
     x, f, g_sum, g_order, v2, lim = _si_functions(n, samples)

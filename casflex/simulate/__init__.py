@@ -32,6 +32,8 @@ simulate_torque
 simulate_closed_loop
     A tracking controller ``(qd, dqd, ddqd, x) -> τ`` on a move: continuous or sampled,
     impulsive tip force, EKF in the loop.
+start_closed_loop
+    The same with its sample steps in a worker process; the result is finished later.
 
 Sensor data (:mod:`casflex.simulate.measurements`)
 ---------------------------------------------------
@@ -69,11 +71,11 @@ from casflex.simulate.integrators import rk4_step
 from casflex.simulate.measurements import SimulatedData, simulate_data
 from casflex.simulate.prescribed import sample_reference, simulate_move, simulate_prescribed
 from casflex.simulate.results import ClosedLoopResult, SimulationResult, decay_time
-from casflex.simulate.torque import simulate_closed_loop, simulate_torque
+from casflex.simulate.torque import simulate_closed_loop, simulate_torque, start_closed_loop
 
 __all__ = ["SimulationResult", "simulate_prescribed", "simulate_torque", "sample_reference",
            "plot_result", "simulate_move", "simulate_closed_loop", "ClosedLoopResult",
-           "decay_time", "rk4_step", "simulate_data", "SimulatedData"]
+           "decay_time", "rk4_step", "simulate_data", "SimulatedData", "start_closed_loop"]
 
 
 def __getattr__(name):

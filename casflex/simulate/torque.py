@@ -24,6 +24,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
 from typing import TYPE_CHECKING
 
 import casadi as ca
@@ -53,7 +54,7 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["simulate_torque", "simulate_closed_loop", "impulse_jump"]
+__all__ = ["simulate_torque", "simulate_closed_loop", "start_closed_loop", "impulse_jump"]
 
 #: a torque law of :func:`simulate_torque`: ``u(t, x)``, a ``casadi.Function`` of
 #: ``(t, x)``, constant torques or ``None`` (zero)
@@ -463,6 +464,75 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
     >>> bool(np.max(np.abs(r.tracking_error)) < 1e-6)
     True
     """
+    return _closed_loop(None, model, controller, move, x0, t_end, dt, impulse, method,
+                        substeps, sampled, estimator, rtol, atol, loop, jit, cache_dir)()
+
+
+def start_closed_loop(executor: Executor, model: FlexibleModel, controller: ca.Function,
+                      move: Move | ShapedMove, **options) -> Callable[[], ClosedLoopResult]:
+    """Start :func:`simulate_closed_loop` in a worker process; the result comes later.
+
+    The sample steps of a loop with the state fed back (``method="rk4"`` or
+    ``sampled=True``, no ``impulse``, no ``estimator``) run in a worker of ``executor``
+    (one ``mapaccum`` call of the step Function, compiled when ``jit``: the worker loads
+    the same library); its step is built here first. Any other loop runs here, now. The
+    returned callable waits for the worker and finishes the result here (divergence
+    checks, tip positions): the same numbers as :func:`simulate_closed_loop`, which a
+    caller can overlap with other work, such as another loop in this process.
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor
+        A process pool (:func:`casflex._parallel.worker_pool`'s ``executor``), or
+        ``None`` to run here.
+    model, controller, move
+        As for :func:`simulate_closed_loop`.
+    **options
+        The keyword arguments of :func:`simulate_closed_loop` (``x0``, ``t_end``, ``dt``
+        [s], ``method``, ``sampled``, ``jit``, ``cache_dir`` ...).
+
+    Returns
+    -------
+    callable
+        ``finish() -> ClosedLoopResult`` (raises what :func:`simulate_closed_loop` would:
+        :class:`~casflex.errors.SolverError` for a diverged loop).
+
+    Examples
+    --------
+    >>> from concurrent.futures import ProcessPoolExecutor
+    >>> from casflex.robot import load
+    >>> from casflex.moves import Move
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.control import inversion_controller
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+    >>> move = Move([0, 0, 0], [-0.1, 0, 0], 0.5, settle=0.0)
+    >>> with ProcessPoolExecutor(1) as pool:
+    ...     finish = start_closed_loop(pool, model, inversion_controller(model), move,
+    ...                                dt=5e-3, sampled=True)
+    ...     r = finish()
+    >>> here = simulate_closed_loop(model, inversion_controller(model), move, dt=5e-3,
+    ...                             sampled=True)
+    >>> bool(np.array_equal(r.x, here.x))
+    True
+    """
+    defaults = dict(x0=None, t_end=None, dt=1e-3, impulse=None, method="cvodes", substeps=1,
+                    sampled=False, estimator=None, rtol=1e-8, atol=1e-10, loop="auto",
+                    jit=False, cache_dir=None)
+    unknown = set(options) - set(defaults)
+    if unknown:
+        raise ModelError(f"start_closed_loop: unknown options {sorted(unknown)}")
+    o = {**defaults, **options}
+    return _closed_loop(executor, model, controller, move, o["x0"], o["t_end"], o["dt"],
+                        o["impulse"], o["method"], o["substeps"], o["sampled"],
+                        o["estimator"], o["rtol"], o["atol"], o["loop"], o["jit"],
+                        o["cache_dir"])
+
+
+def _closed_loop(executor, model, controller, move, x0, t_end, dt, impulse, method,
+                 substeps, sampled, estimator, rtol, atol, loop, jit, cache_dir):
+    """:func:`simulate_closed_loop` as ``finish() -> ClosedLoopResult``, its state-feedback
+    sample steps in a worker of ``executor`` when there is one (:func:`start_closed_loop`)."""
     n, m = model.n, model.m
     nx = 2 * (n + m)
     dt = float(dt)
@@ -486,7 +556,7 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
 
     t_s = ca.SX.sym("t")
     x_s = ca.SX.sym("x", nx)
-    x_hat = None
+    x_hat = pending = X = tau_all = None
     if estimator is None and method == "cvodes" and not sampled:
         # the law acts continuously: CVODES between the switches of the reference
         dae = {"x": x_s, "t": t_s, "ode": ode(x_s, controller(*ref(t_s), x_s))}
@@ -503,11 +573,29 @@ def simulate_closed_loop(model: FlexibleModel, controller: ca.Function,
         else:  # MX: calls to the model's functions, each generated once in the C
             step = _compiled_sample_step(_state_feedback_step(
                 ode, controller, ref, nx, dt, substeps, sampled, ca.MX), jit, cache_dir)
-        X, tau_all = _run_mapaccum(step, x0, t, kd, jump)
+        if executor is not None and kd is None:  # the steps in a worker process
+            pending = executor.submit(_run_mapaccum, step, x0, t)
+        else:
+            X, tau_all = _run_mapaccum(step, x0, t, kd, jump)
     else:
         X, tau_all, x_hat = _run_with_estimator(model, controller, ref, x0, t, dt,
                                                 substeps, kd, jump, estimator, loop, jit,
                                                 cache_dir)
+
+    def finish():
+        if pending is None:
+            return _closed_loop_result(model, ref, t, X, tau_all, x_hat, dt)
+        return _closed_loop_result(model, ref, t, *pending.result(), x_hat, dt)
+
+    return finish
+
+
+def _closed_loop_result(model, ref, t, X, tau_all, x_hat, dt):
+    """The :class:`ClosedLoopResult` of the states and torques on the grid ``t``, checked
+    for divergence (:class:`~casflex.errors.SolverError`)."""
+    n, m = model.n, model.m
+    f = model.functions()
+    N = t.size - 1
     hint = (f"an unstable closed loop, or dt = {dt} s too large for the highest mode (RK4 "
             "needs omega dt < 2.8)")
     check_divergence("simulate_closed_loop", t, {"q": X[:, :n], "delta": X[:, n:n + m],
