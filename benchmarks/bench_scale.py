@@ -198,6 +198,9 @@ def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree
                    heldout_terms=fit.info["held_out"], gauge=fit.info["gauge"],
                    axis_ratio=fit.info["axis_ratio"],
                    min_overlap=fit.info.get("min_overlap"),
+                   resumed_points=fit.info.get("resumed_points"),
+                   checkpoint_mb=(_dir_mb(fit_options["checkpoint"])
+                                  if fit_options.get("checkpoint") else None),
                    values_mb=sum(c.nbytes for c in fit.coefficients.values()) / 1e6)
 
         def f(x, name="omega" if basis == "eigen" else "stiffness"):
@@ -258,10 +261,13 @@ def main(argv=None):
                     help="fit_terms: double every axis over target, or the worst one")
     ap.add_argument("--max-points", type=int, default=None,
                     help="fit_terms: stop refining before a grid of more points")
+    ap.add_argument("--checkpoint", default=None,
+                    help="fit_terms: directory keeping the solved points (resumes from it)")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     fit_options = {"gauge": args.gauge, "reference_degree": args.reference_degree,
-                   "refine": args.refine, "max_points": args.max_points}
+                   "refine": args.refine, "max_points": args.max_points,
+                   "checkpoint": args.checkpoint}
     if args.one:
         print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes,
                                  args.max_degree, fit_options)))
@@ -278,6 +284,8 @@ def main(argv=None):
                 cmd += ["--max-degree", str(args.max_degree)]
             if args.max_points is not None:
                 cmd += ["--max-points", str(args.max_points)]
+            if args.checkpoint is not None:
+                cmd += ["--checkpoint", args.checkpoint]
             cmd += ["--gauge", args.gauge, "--reference-degree", str(args.reference_degree),
                     "--refine", args.refine]
             done = subprocess.run(cmd, capture_output=True, text=True, check=False)
