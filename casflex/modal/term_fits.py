@@ -25,9 +25,14 @@ How
    :mod:`casflex.modal.gauge`: an analytic function of the joints; the 4-joint arm at
    32 × 32 gives held-out ω 4.7e-8 and terms 6.0e-7, against 3.4e-5 and 9.9e-4).
 3. Coefficients; each axis's degree doubles while the tail estimate (twice the larger of
-   the two highest coefficients along it) of any term exceeds its target: ``target`` relative to the
-   term's peak over the box for the model terms, ``omega_target`` relative to ω (or to
-   ``2 λ_min`` for the stiffness block of the smooth basis).
+   the two highest coefficients along it) of any term exceeds its target: ``target``
+   relative to the term's scale for the model terms, ``omega_target`` relative to ω (or
+   to ``2 λ_min`` for the stiffness block of the smooth basis). A term's scale is its peak
+   over the box, but at least :data:`TERM_FLOOR` times the largest peak of its family
+   (:data:`TERM_FAMILIES`: the same field at other places, e.g. every sensor value): a
+   term that is zero to round-off (the axial strain of bending modes, coefficients
+   ~1e-20) would otherwise read its round-off as an O(1) relative error and never
+   converge.
 
 The estimate is checked at held-out configurations against direct TMM (``held_out=``):
 the modes are solved there, matched to the tracked modes of the nearest sample by their
@@ -71,10 +76,21 @@ from casflex.modal.subspace import DEFAULT_GAP
 if TYPE_CHECKING:
     from casflex.robot import Robot
 
-__all__ = ["TERM_TARGET", "fit_model_terms"]
+__all__ = ["TERM_TARGET", "TERM_FLOOR", "TERM_FAMILIES", "term_scales", "fit_model_terms"]
 
 #: default error target of the model terms, relative to each term's peak (issue 21)
 TERM_TARGET = 1e-3
+#: a term's error is relative to at least this fraction of the largest peak of its family
+#: (module notes): round-off of the family's values is ~1e-16 of its peak, so a term that
+#: is zero to round-off reads ~1e-7 at most, and a term that is really this small
+#: matters to the model no more than the family's error target allows
+TERM_FLOOR = 1e-9
+#: families of terms whose values are the same kind of quantity (a term not listed is its
+#: own family): the sensor values, the sampled shapes and the end transforms
+TERM_FAMILIES = (
+    ("point_u", "point_theta", "point_curvature", "point_twist_rate", "point_axial_strain"),
+    ("sample_u", "sample_theta"), ("end_u", "end_theta"),
+)
 #: new sample points solved at once: their raw mode shapes (~0.1 MB each for three
 #: flexible links) are held only while their quantities are computed
 CHUNK_POINTS = 1024
@@ -89,7 +105,7 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
                     omega_target: float = OMEGA_TARGET, start_degree: int = 8,
                     max_degree: int = 64, extra_modes: int = 2, gap: float = DEFAULT_GAP,
                     held_out: ArrayLike | None = None, processes: int | None = None,
-                    progress: bool = False, gauge: str = "neighbour",
+                    progress: bool = False, gauge: str | None = None,
                     reference_degree: int = 4, refine: str = "all",
                     max_points: int | None = None,
                     checkpoint: str | os.PathLike | None = None) -> ChebyshevFit:
@@ -136,12 +152,15 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         Local worker processes (default ``os.cpu_count()``).
     progress : bool
         Progress bars on stderr.
-    gauge : {"neighbour", "reference"}
-        How the smooth basis is chosen within each cluster: Procrustes against the grid
-        neighbours (:func:`casflex.modal.subspace.smooth_basis`), or against a fixed
-        polynomial reference field (:func:`casflex.modal.gauge.reference_basis`: analytic
-        in the joints, so the fits converge geometrically; ``info["min_overlap"]`` is the
-        smallest singular value of the overlap with the reference).
+    gauge : {"reference", "neighbour"}, optional
+        How the smooth basis is chosen within each cluster: against a fixed polynomial
+        reference field (:func:`casflex.modal.gauge.reference_basis`: analytic in the
+        joints, so the fits converge geometrically; ``info["min_overlap"]`` is the
+        smallest singular value of the overlap with the reference; the default of
+        ``basis="smooth"``), or Procrustes against the grid neighbours
+        (:func:`casflex.modal.subspace.smooth_basis`; converges only algebraically over
+        two or more shape joints). The eigen basis has no gauge to choose (reported as
+        ``"neighbour"``: its tracking follows the neighbours).
     reference_degree : int
         Degree per axis of the reference field (``gauge="reference"``): the neighbour
         basis at the Lobatto points of that degree, interpolated by its Chebyshev
@@ -199,6 +218,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     if not (target > 0.0 and omega_target > 0.0):
         raise ModelError(f"targets must be positive relative errors; got {target!r}, "
                          f"{omega_target!r}")
+    if gauge is None:
+        gauge = "reference" if basis == "smooth" else "neighbour"
     if gauge not in ("neighbour", "reference"):
         raise ModelError(f"gauge must be 'neighbour' or 'reference'; got {gauge!r}")
     nd, count = len(joints), int(n_modes) + int(extra_modes)
@@ -660,6 +681,34 @@ def _round(store, n_modes, robot, basis, gap, reference, target, omega_target):
     return coefficients, peaks, tracking, low, estimate, per_axis, ends
 
 
+def term_scales(peaks: Mapping[str, float]) -> dict[str, float]:
+    """The scale each term's error is measured against: its peak, floored by its family's.
+
+    Parameters
+    ----------
+    peaks : dict of str to float
+        Largest magnitude of every term over the sample grid (units of each term).
+
+    Returns
+    -------
+    dict of str to float
+        ``max(peak, TERM_FLOOR · largest peak of the family)`` per term
+        (:data:`TERM_FAMILIES`; a term not in a family is its own).
+
+    Examples
+    --------
+    >>> s = term_scales({"point_curvature": 2.0, "point_axial_strain": 8e-21, "C1": 0.5})
+    >>> s["point_axial_strain"], s["point_curvature"], s["C1"]
+    (2e-09, 2.0, 0.5)
+    """
+    out = {}
+    for name, peak in peaks.items():
+        family = next((f for f in TERM_FAMILIES if name in f), (name,))
+        top = max(float(peaks.get(m, 0.0)) for m in family)
+        out[name] = max(float(peak), TERM_FLOOR * top)
+    return out
+
+
 #: the tail estimate is this multiple of the larger of the two highest coefficients: the
 #: truncated series and the aliasing of the interpolant add up to about twice the last
 #: coefficients when they decay geometrically (arm2link, 3 modes, full turn: with a factor
@@ -677,6 +726,7 @@ def _estimates(peaks, omega_min, coefficients, nd, target, omega_target):
     target (``peaks``: each term's largest magnitude over the grid; ``omega_min``: each
     mode's lowest ω)."""
     estimate, per_axis = {}, [0.0] * nd
+    scales = term_scales(peaks)
     lam_min = float(np.min(omega_min)) ** 2
     for name, coef in coefficients.items():
         worst = 0.0
@@ -691,7 +741,7 @@ def _estimates(peaks, omega_min, coefficients, nd, target, omega_target):
                 scale = 2.0 * lam_min if name == "stiffness" else np.sqrt(lam_min)
                 rel = float(np.max(tail) / scale)
             else:
-                peak = peaks[name]
+                peak = scales[name]
                 rel = float(np.max(tail)) / peak if peak > 0.0 else 0.0
             worst = max(worst, rel)
             goal = omega_target if name in FREQUENCY_TERMS else target
@@ -747,7 +797,7 @@ def _entrywise(errors, fit, func, robot, q, shapes, reference, peaks):
     for name, ref in direct.items():
         if not ref.size or name not in fit.coefficients:
             continue
-        peak = peaks[name]
+        peak = term_scales(peaks)[name]
         err = float(np.max(np.abs(fit.evaluate(name, x) - ref))) / peak if peak else 0.0
         errors[name] = max(errors.get(name, 0.0), err)
 
@@ -801,6 +851,6 @@ def _held_out(fit, func, robot, qs, raw, tracking, axes, peaks, count, reference
             if name == "omega":
                 err = float(np.max(np.abs(got / ref - 1.0)))
             else:
-                err = float(np.max(np.abs(got - ref))) / peaks[name]
+                err = float(np.max(np.abs(got - ref))) / term_scales(peaks)[name]
             errors[name] = max(errors.get(name, 0.0), err)
     return errors
