@@ -28,7 +28,9 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     basis invariants with ``--gauge neighbour``. ``--refine worst`` doubles one axis per
     round (dimension-adaptive), ``--max-points`` caps the grid; ``axis_ratio`` reports
     each axis's estimate over its target, ``cpu_seconds`` the CPU of the process and its
-    workers (``cpu_main_seconds``: the main process alone).
+    workers (``cpu_main_seconds``: the main process alone). ``--checkpoint DIR`` keeps
+    the solved points in DIR (a file per 1024-point chunk): a run interrupted and started
+    again resumes from them (``resumed_points``; ``checkpoint_mb`` its size on disk).
 
 ``tracking``
     the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
@@ -55,7 +57,8 @@ Usage::
 
     python benchmarks/bench_scale.py [--json] [--cases arm2link arm4_spatial]
                                      [--methods grid fit] [--heldout N] [--processes P]
-                                     [--max-degree D]
+                                     [--max-degree D] [--refine worst]
+                                     [--max-points N] [--checkpoint DIR]
 """
 
 from __future__ import annotations
