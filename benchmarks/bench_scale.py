@@ -28,7 +28,9 @@ For each case, two ways to obtain the natural frequencies over the shape joints'
     basis invariants with ``--gauge neighbour``. ``--refine worst`` doubles one axis per
     round (dimension-adaptive), ``--max-points`` caps the grid; ``axis_ratio`` reports
     each axis's estimate over its target, ``cpu_seconds`` the CPU of the process and its
-    workers (``cpu_main_seconds``: the main process alone).
+    workers (``cpu_main_seconds``: the main process alone). ``--checkpoint DIR`` keeps
+    the solved points in DIR (a file per 1024-point chunk): a run interrupted and started
+    again resumes from them (``resumed_points``; ``checkpoint_mb`` its size on disk).
 
 ``tracking``
     the lowest neighbour MAC of the tracked modes with the eigen basis and with the smooth
@@ -55,7 +57,8 @@ Usage::
 
     python benchmarks/bench_scale.py [--json] [--cases arm2link arm4_spatial]
                                      [--methods grid fit] [--heldout N] [--processes P]
-                                     [--max-degree D]
+                                     [--max-degree D] [--refine worst]
+                                     [--max-points N] [--checkpoint DIR]
 """
 
 from __future__ import annotations
@@ -198,6 +201,9 @@ def _terms(out, method, robot, joints, n_modes, qs, cache, processes, max_degree
                    heldout_terms=fit.info["held_out"], gauge=fit.info["gauge"],
                    axis_ratio=fit.info["axis_ratio"],
                    min_overlap=fit.info.get("min_overlap"),
+                   resumed_points=fit.info.get("resumed_points"),
+                   checkpoint_mb=(_dir_mb(fit_options["checkpoint"])
+                                  if fit_options.get("checkpoint") else None),
                    values_mb=sum(c.nbytes for c in fit.coefficients.values()) / 1e6)
 
         def f(x, name="omega" if basis == "eigen" else "stiffness"):
@@ -258,10 +264,13 @@ def main(argv=None):
                     help="fit_terms: double every axis over target, or the worst one")
     ap.add_argument("--max-points", type=int, default=None,
                     help="fit_terms: stop refining before a grid of more points")
+    ap.add_argument("--checkpoint", default=None,
+                    help="fit_terms: directory keeping the solved points (resumes from it)")
     ap.add_argument("--one", nargs=2, metavar=("CASE", "METHOD"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     fit_options = {"gauge": args.gauge, "reference_degree": args.reference_degree,
-                   "refine": args.refine, "max_points": args.max_points}
+                   "refine": args.refine, "max_points": args.max_points,
+                   "checkpoint": args.checkpoint}
     if args.one:
         print(json.dumps(run_one(args.one[0], args.one[1], args.heldout, args.processes,
                                  args.max_degree, fit_options)))
@@ -278,6 +287,8 @@ def main(argv=None):
                 cmd += ["--max-degree", str(args.max_degree)]
             if args.max_points is not None:
                 cmd += ["--max-points", str(args.max_points)]
+            if args.checkpoint is not None:
+                cmd += ["--checkpoint", args.checkpoint]
             cmd += ["--gauge", args.gauge, "--reference-degree", str(args.reference_degree),
                     "--refine", args.refine]
             done = subprocess.run(cmd, capture_output=True, text=True, check=False)

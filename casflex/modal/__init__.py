@@ -76,6 +76,9 @@ Smooth fits
    periodic_axis_kind      -- whether a grid axis spans a full turn ("closed", "open", None)
    fit_model_terms         -- Chebyshev fits of every model term, checked against direct TMM
    TERM_TARGET             -- default relative error target of the model terms
+   TERM_FLOOR              -- floor of a term's error scale, relative to its family's peak
+   TERM_FAMILIES           -- the families of terms that share a scale floor
+   term_scales             -- the scale each term's error is measured against
 
 Modal tables
 ============
@@ -155,7 +158,13 @@ from casflex.modal.tables import (
     default_quantities,
     shape_joints,
 )
-from casflex.modal.term_fits import TERM_TARGET, fit_model_terms
+from casflex.modal.term_fits import (
+    TERM_FAMILIES,
+    TERM_FLOOR,
+    TERM_TARGET,
+    fit_model_terms,
+    term_scales,
+)
 from casflex.modal.tracking import (
     GridTracking,
     Tracking,
@@ -226,6 +235,9 @@ __all__ = [
     "periodic_axis_kind",
     "fit_model_terms",
     "TERM_TARGET",
+    "TERM_FLOOR",
+    "TERM_FAMILIES",
+    "term_scales",
     # modal tables
     "build_table",
     "ModalTable",

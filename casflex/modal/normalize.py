@@ -47,6 +47,7 @@ basis vector's direction and makes the group mass-orthonormal.
 from __future__ import annotations
 
 import functools
+import weakref
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -73,6 +74,12 @@ __all__ = [
 #: ModeShapes fields indexed by mode first; mass_normalize transforms all of them
 #: (the same tuple as :data:`casflex.tmm.solve.MODE_FIELDS`).
 SHAPE_FIELDS = MODE_FIELDS
+
+#: id of every live ModeShapes that :func:`mass_normalize` returned -> (weak reference,
+#: quadrature): given one of them again with the same quadrature it returns it as it is
+#: (normalising twice cost 4.4 ms a point on the 6-joint arm and moved nothing but the
+#: last digits)
+_NORMALIZED: dict[int, tuple] = {}
 
 
 def _beam_link(robot, shapes, beam):
@@ -320,7 +327,8 @@ def mass_normalize(robot: Robot, shapes: ModeShapes, method: str = "gauss",
     the modes of a k-fold root are mass-orthonormalised by Gram–Schmidt (module
     docstring). Every shape field (:data:`SHAPE_FIELDS`) is transformed alike, so
     moments, forces, slopes, curvatures, tip-body motions and spring rotations stay
-    consistent with the displacements.
+    consistent with the displacements. Modes this function returned are given back as
+    they are (same quadrature): normalising them again would only move the last digits.
 
     Parameters
     ----------
@@ -352,6 +360,9 @@ def mass_normalize(robot: Robot, shapes: ModeShapes, method: str = "gauss",
     ...             np.sign(raw.displacement[:, 1, -1, :])))
     True
     """
+    seen = _NORMALIZED.get(id(shapes))
+    if seen is not None and seen[0]() is shapes and seen[1:] == (method, points):
+        return shapes
     M = modal_mass_matrix(robot, shapes, method=method, points=points)
     m = M.shape[0]
     S = np.zeros((m, m))
@@ -369,4 +380,8 @@ def mass_normalize(robot: Robot, shapes: ModeShapes, method: str = "gauss",
     for name in SHAPE_FIELDS:
         a = np.asarray(getattr(shapes, name))
         new[name] = np.tensordot(S, a, axes=(1, 0)) if a.shape[0] == m else a
-    return replace(shapes, **new)
+    out = replace(shapes, **new)
+    key = id(out)
+    _NORMALIZED[key] = (weakref.ref(out, lambda _, key=key: _NORMALIZED.pop(key, None)),
+                        method, points)
+    return out

@@ -25,9 +25,14 @@ How
    :mod:`casflex.modal.gauge`: an analytic function of the joints; the 4-joint arm at
    32 × 32 gives held-out ω 4.7e-8 and terms 6.0e-7, against 3.4e-5 and 9.9e-4).
 3. Coefficients; each axis's degree doubles while the tail estimate (twice the larger of
-   the two highest coefficients along it) of any term exceeds its target: ``target`` relative to the
-   term's peak over the box for the model terms, ``omega_target`` relative to ω (or to
-   ``2 λ_min`` for the stiffness block of the smooth basis).
+   the two highest coefficients along it) of any term exceeds its target: ``target``
+   relative to the term's scale for the model terms, ``omega_target`` relative to ω (or
+   to ``2 λ_min`` for the stiffness block of the smooth basis). A term's scale is its peak
+   over the box, but at least :data:`TERM_FLOOR` times the largest peak of its family
+   (:data:`TERM_FAMILIES`: the same field at other places, e.g. every sensor value): a
+   term that is zero to round-off (the axial strain of bending modes, coefficients
+   ~1e-20) would otherwise read its round-off as an O(1) relative error and never
+   converge.
 
 The estimate is checked at held-out configurations against direct TMM (``held_out=``):
 the modes are solved there, matched to the tracked modes of the nearest sample by their
@@ -43,9 +48,11 @@ gauge and every entry of every term is compared.
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -69,10 +76,21 @@ from casflex.modal.subspace import DEFAULT_GAP
 if TYPE_CHECKING:
     from casflex.robot import Robot
 
-__all__ = ["TERM_TARGET", "fit_model_terms"]
+__all__ = ["TERM_TARGET", "TERM_FLOOR", "TERM_FAMILIES", "term_scales", "fit_model_terms"]
 
 #: default error target of the model terms, relative to each term's peak (issue 21)
 TERM_TARGET = 1e-3
+#: a term's error is relative to at least this fraction of the largest peak of its family
+#: (module notes): round-off of the family's values is ~1e-16 of its peak, so a term that
+#: is zero to round-off reads ~1e-7 at most, and a term that is really this small
+#: matters to the model no more than the family's error target allows
+TERM_FLOOR = 1e-9
+#: families of terms whose values are the same kind of quantity (a term not listed is its
+#: own family): the sensor values, the sampled shapes and the end transforms
+TERM_FAMILIES = (
+    ("point_u", "point_theta", "point_curvature", "point_twist_rate", "point_axial_strain"),
+    ("sample_u", "sample_theta"), ("end_u", "end_theta"),
+)
 #: new sample points solved at once: their raw mode shapes (~0.1 MB each for three
 #: flexible links) are held only while their quantities are computed
 CHUNK_POINTS = 1024
@@ -87,9 +105,10 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
                     omega_target: float = OMEGA_TARGET, start_degree: int = 8,
                     max_degree: int = 64, extra_modes: int = 2, gap: float = DEFAULT_GAP,
                     held_out: ArrayLike | None = None, processes: int | None = None,
-                    progress: bool = False, gauge: str = "neighbour",
+                    progress: bool = False, gauge: str | None = None,
                     reference_degree: int = 4, refine: str = "all",
-                    max_points: int | None = None) -> ChebyshevFit:
+                    max_points: int | None = None,
+                    checkpoint: str | os.PathLike | None = None) -> ChebyshevFit:
     """Fit every model term (and ω) over the joint box with tensor Chebyshev series.
 
     Parameters
@@ -133,17 +152,27 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         Local worker processes (default ``os.cpu_count()``).
     progress : bool
         Progress bars on stderr.
-    gauge : {"neighbour", "reference"}
-        How the smooth basis is chosen within each cluster: Procrustes against the grid
-        neighbours (:func:`casflex.modal.subspace.smooth_basis`), or against a fixed
-        polynomial reference field (:func:`casflex.modal.gauge.reference_basis`: analytic
-        in the joints, so the fits converge geometrically; ``info["min_overlap"]`` is the
-        smallest singular value of the overlap with the reference).
+    gauge : {"reference", "neighbour"}, optional
+        How the smooth basis is chosen within each cluster: against a fixed polynomial
+        reference field (:func:`casflex.modal.gauge.reference_basis`: analytic in the
+        joints, so the fits converge geometrically; ``info["min_overlap"]`` is the
+        smallest singular value of the overlap with the reference; the default of
+        ``basis="smooth"``), or Procrustes against the grid neighbours
+        (:func:`casflex.modal.subspace.smooth_basis`; converges only algebraically over
+        two or more shape joints). The eigen basis has no gauge to choose (reported as
+        ``"neighbour"``: its tracking follows the neighbours).
     reference_degree : int
         Degree per axis of the reference field (``gauge="reference"``): the neighbour
         basis at the Lobatto points of that degree, interpolated by its Chebyshev
         polynomial; ``0`` takes the eigenmodes at the box's centre everywhere. Its points
         are nested in the fit's when it divides ``start_degree``.
+    checkpoint : str or os.PathLike, optional
+        Directory that keeps the solved points, a file per chunk of
+        :data:`CHUNK_POINTS` (``basis="smooth"`` only; ~8 KB a point for three flexible
+        links and two modes). A fit interrupted and started again with the same inputs
+        and code takes them from there instead of solving them again (the files carry a
+        key of everything the points depend on and a digest of their content; stale or
+        damaged files are ignored). ``info["resumed_points"]`` counts them.
 
     Returns
     -------
@@ -189,6 +218,8 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
     if not (target > 0.0 and omega_target > 0.0):
         raise ModelError(f"targets must be positive relative errors; got {target!r}, "
                          f"{omega_target!r}")
+    if gauge is None:
+        gauge = "reference" if basis == "smooth" else "neighbour"
     if gauge not in ("neighbour", "reference"):
         raise ModelError(f"gauge must be 'neighbour' or 'reference'; got {gauge!r}")
     nd, count = len(joints), int(n_modes) + int(extra_modes)
@@ -197,33 +228,35 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         raise ModelError(f"reference_degree must be 0 or an integer >= 2; got "
                          f"{reference_degree!r}")
     degrees = [int(start_degree)] * nd
-    solved: dict[tuple[float, ...], Any] = {}
+    store = _PointGrid([lobatto_points(lo, hi, d) for (lo, hi), d in zip(box, degrees,
+                                                                          strict=True)])
+    saved = None if checkpoint is None else _Checkpoint(
+        checkpoint, robot, func, joints, box, count, int(n_modes), basis, gauge,
+        int(reference_degree), gap)
     reference = None
     if basis == "smooth" and gauge == "reference":
         reference = _reference_field(func, robot, joints, box, count, int(n_modes),
-                                     int(reference_degree), gap, solved, processes, progress)
+                                     int(reference_degree), gap, store, processes, progress)
     while True:
-        axes = [lobatto_points(lo, hi, d) for (lo, hi), d in zip(box, degrees, strict=True)]
-        gshape = tuple(a.size for a in axes)
-        keys = [tuple(float(a[i]) for a, i in zip(axes, idx, strict=True))
-                for idx in np.ndindex(gshape)]
-        todo = [k for k in keys if k not in solved]
+        axes = store.axes
+        if saved is not None:
+            saved.fill(store)
+        todo = np.argwhere(~store.have)  # C order, as np.ndindex
         for start in range(0, len(todo), CHUNK_POINTS):  # mode shapes of a chunk at a time
-            chunk = todo[start:start + CHUNK_POINTS]
+            chunk = [tuple(int(i) for i in idx) for idx in todo[start:start + CHUNK_POINTS]]
             qs = np.zeros((len(chunk), robot.n_joints))
-            for r, key in enumerate(chunk):
-                qs[r, list(joints)] = key
+            qs[:, list(joints)] = [store.coordinates(idx) for idx in chunk]
             got = _solve(func, robot, qs, count, int(n_modes), basis, processes, progress)
             if reference is not None:  # features -> overlap with the reference field
                 got = _overlaps(got, reference, qs[:, list(joints)])
-            solved.update(zip(chunk, got, strict=True))
-        raw = np.empty(gshape, dtype=object)
-        for idx, key in zip(np.ndindex(gshape), keys, strict=True):
-            raw[idx] = solved[key][0]
-        data, tracking, low = _basis_terms(raw, [solved[k] for k in keys], gshape,
-                                           int(n_modes), robot, basis, gap, reference)
-        coefficients = {k: chebyshev_coefficients(v, nd) for k, v in data.items()}
-        estimate, per_axis = _estimates(data, coefficients, nd, target, omega_target)
+            for idx, point in zip(chunk, got, strict=True):
+                store.put(idx, point)
+            store.solved += len(chunk)
+            del got
+            if saved is not None:
+                saved.save(store, chunk)
+        coefficients, peaks, tracking, low, estimate, per_axis, ends = _round(
+            store, int(n_modes), robot, basis, gap, reference, target, omega_target)
         grow = [ax for ax in range(nd) if per_axis[ax] > 1.0 and degrees[ax] < max_degree]
         if grow and refine == "worst":
             grow = [max(grow, key=lambda ax: per_axis[ax])]
@@ -232,33 +265,224 @@ def fit_model_terms(robot: Robot, n_modes: int, *,
         if not grow or (max_points is not None
                         and int(np.prod([d + 1 for d in nxt])) > int(max_points)):
             break
+        del coefficients
         degrees = nxt
+        store.regrid([lobatto_points(lo, hi, d) for (lo, hi), d in zip(box, degrees,
+                                                                       strict=True)])
     clusters = (tracking.clusters if basis == "smooth"
                 else tuple((k,) for k in range(int(n_modes))))
-    info = {"points": len(solved), "grid_shape": list(gshape), "estimate": estimate,
+    info = {"points": store.solved, "grid_shape": list(store.shape), "estimate": estimate,
             "target": float(target), "omega_target": float(omega_target),
             "converged": bool(max(per_axis) <= 1.0), "basis": basis,
             "axis_ratio": [float(r) for r in per_axis],
-            "quantity": "model terms", "periodic": _periodic(box, data, estimate),
+            "quantity": "model terms", "periodic": _periodic(box, ends, peaks, estimate),
             "min_mac": float(np.nanmin(tracking.mac)) if np.isfinite(tracking.mac).any()
             else (None if reference is not None else 1.0), "gauge": gauge}
+    if saved is not None:
+        info["resumed_points"] = saved.resumed
     if low is not None:
         info["min_overlap"] = float(np.min(low))
+    raw = store.slots[0] if basis == "eigen" else None
     fit = ChebyshevFit(box=box, shape_joints=joints, degrees=tuple(degrees),
                        coefficients=coefficients, clusters=clusters, info=info)
     if held_out is not None:
         info["held_out"] = _held_out(fit, func, robot, held_out, raw, tracking, axes,
-                                     data, count, reference)
+                                     peaks, count, reference)
     info["seconds"] = time.perf_counter() - t0
     return fit
 
 
-def _reference_field(func, robot, joints, box, count, n_modes, degree, gap, solved,
+class _PointGrid:
+    """The solved sample points of the current tensor grid, held as one preallocated
+    array per slot of a point's tuple (:func:`_point_solve`: raw modes, the dict of
+    normalised quantities, S⁻¹, features or overlap, modal mass, ω) over the grid and
+    filled in place, so that nothing is held per point beyond its values (a dict of
+    arrays per point had cost ~41 KB a point on arm6 against 7.7 KB of values)."""
+
+    def __init__(self, axes):
+        self.axes = [np.asarray(a, dtype=float) for a in axes]
+        self.shape = tuple(a.size for a in self.axes)
+        self.size = int(np.prod(self.shape))
+        self.have = np.zeros(self.shape, dtype=bool)
+        self.slots: list | None = None
+        self.solved = 0  # TMM solves made for the fit (this grid and the earlier ones)
+
+    def coordinates(self, idx):
+        return [float(a[i]) for a, i in zip(self.axes, idx, strict=True)]
+
+    def _empty(self, item):
+        """Storage for one slot over the grid, from its value at one point."""
+        if item is None:
+            return None
+        if isinstance(item, Mapping):
+            return {k: self._empty(np.asarray(v, dtype=float)) for k, v in item.items()}
+        if isinstance(item, np.ndarray):
+            return np.empty(self.shape + item.shape, dtype=item.dtype)
+        return np.empty(self.shape, dtype=object)  # raw mode shapes (eigen basis)
+
+    def put(self, idx, point):
+        if self.slots is None:
+            self.slots = [self._empty(p) for p in point]
+        for slot, item in zip(self.slots, point, strict=True):
+            if isinstance(slot, dict):
+                if set(slot) != set(item):
+                    raise ModelError(f"the quantity function returned the keys "
+                                     f"{sorted(item)} at one point and {sorted(slot)} at "
+                                     "another")
+                for k, v in item.items():
+                    slot[k][idx] = v
+            elif slot is not None:
+                slot[idx] = item
+        self.have[idx] = True
+
+    def merge(self, other):
+        """Copy ``other``'s points that lie on this grid (exactly equal coordinates:
+        Lobatto points of degree d are among those of degree 2d) into this fresh grid."""
+        if other.slots is None:
+            return
+        new, old = [], []
+        for a_new, a_old in zip(self.axes, other.axes, strict=True):
+            pos = np.clip(np.searchsorted(a_old, a_new), 0, a_old.size - 1)
+            hit = a_old[pos] == a_new
+            new.append(np.flatnonzero(hit))
+            old.append(pos[hit])
+        if self.slots is None:
+            nd = len(other.shape)
+            self.slots = [None if s is None else
+                          {k: np.empty(self.shape + v.shape[nd:]) for k, v in s.items()}
+                          if isinstance(s, dict) else np.empty(self.shape + s.shape[nd:],
+                                                               dtype=s.dtype)
+                          for s in other.slots]
+        if any(ix.size == 0 for ix in new):
+            return
+        to, frm = np.ix_(*new), np.ix_(*old)
+        for mine, theirs in zip(self.slots, other.slots, strict=True):
+            if isinstance(mine, dict):
+                for k, v in theirs.items():
+                    mine[k][to] = v[frm]
+            elif mine is not None:
+                mine[to] = theirs[frm]
+        self.have[to] = other.have[frm]
+
+    def regrid(self, axes):
+        """Move to a finer tensor grid, keeping the points it shares with this one."""
+        finer = _PointGrid(axes)
+        finer.merge(self)
+        finer.solved = self.solved
+        self.__dict__.update(finer.__dict__)
+
+    def index(self, x):
+        """The grid index of the point ``x`` (exact coordinates), or None."""
+        idx = []
+        for a, xi in zip(self.axes, x, strict=True):
+            i = int(np.clip(np.searchsorted(a, xi), 0, a.size - 1))
+            if a[i] != xi:
+                return None
+            idx.append(i)
+        return tuple(idx)
+
+
+class _Checkpoint:
+    """The solved points of a fit on disk, a file per chunk, keyed by everything a point
+    depends on (``fit_model_terms(checkpoint=)``)."""
+
+    def __init__(self, directory, robot, func, joints, box, count, n_modes, basis, gauge,
+                 reference_degree, gap):
+        import casflex
+        import casflex.modal.gauge
+        import casflex.modal.integrals
+        import casflex.modal.normalize
+        import casflex.modal.rotated
+        import casflex.modal.subspace
+        import casflex.tmm.chain
+        import casflex.tmm.fast
+        import casflex.tmm.kernels
+        import casflex.tmm.solve
+        from casflex._cache import digest, source_digest
+        from casflex.modal.tables import robot_fingerprint
+
+        if basis != "smooth":
+            raise ModelError("checkpoint= needs basis='smooth' (the eigen basis keeps every "
+                             "point's mode shapes for its tracking)")
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.key = digest({
+            "casflex": casflex.__version__, "robot": robot_fingerprint(robot),
+            "function": _function_key(func), "joints": list(joints),
+            "box": [list(b) for b in box], "count": count, "n_modes": n_modes,
+            "gauge": gauge, "reference_degree": reference_degree, "gap": float(gap),
+            "code": source_digest(casflex.tmm.chain, casflex.tmm.fast, casflex.tmm.kernels,
+                                  casflex.tmm.solve, casflex.modal.normalize,
+                                  casflex.modal.integrals, casflex.modal.rotated,
+                                  casflex.modal.subspace, casflex.modal.gauge,
+                                  _point_solve, _point_terms, _overlaps, _reference_field,
+                                  lobatto_points, chebyshev_coefficients)})
+        self.resumed = 0
+        self.used: set[str] = set()
+
+    def save(self, store, chunk):
+        from casflex._cache import save_verified
+
+        arrays = {"x": np.array([store.coordinates(idx) for idx in chunk])}
+        ix = tuple(np.array(chunk).T)
+        for k, slot in enumerate(store.slots):
+            if isinstance(slot, dict):
+                arrays.update({f"v_{name}": v[ix] for name, v in slot.items()})
+            elif slot is not None:
+                arrays[f"s{k}"] = slot[ix]
+        n = len(list(self.directory.glob("points-*.npz")))
+        save_verified(self.directory / f"points-{n:05d}-{os.getpid()}.npz", self.key,
+                      **arrays)
+
+    def fill(self, store):
+        """Put the stored points that lie on ``store``'s grid and are not in it yet."""
+        from casflex._cache import load_verified
+
+        for path in sorted(self.directory.glob("points-*.npz")):
+            if path.name in self.used:
+                continue
+            data = load_verified(path, self.key)
+            if data is None:  # another key, truncated or altered: not used
+                continue
+            left = 0
+            for r, x in enumerate(data["x"]):
+                idx = store.index(x)
+                if idx is None:
+                    left += 1
+                    continue
+                if store.have[idx]:
+                    continue
+                store.put(idx, (None, {k[2:]: v[r] for k, v in data.items()
+                                       if k.startswith("v_")})
+                          + tuple(data[f"s{k}"][r] if f"s{k}" in data else None
+                                  for k in range(2, 6)))
+                self.resumed += 1
+                store.solved += 1
+            if not left:
+                self.used.add(path.name)
+
+
+def _function_key(func):
+    """What identifies a quantity function in a checkpoint's key."""
+    import functools
+
+    from casflex._cache import source_digest
+    from casflex._json import jsonable
+
+    if isinstance(func, functools.partial):
+        return {"partial": _function_key(func.func), "args": jsonable(list(func.args)),
+                "keywords": jsonable(dict(func.keywords))}
+    return {"name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
+            "digest": source_digest(func)}
+
+
+def _reference_field(func, robot, joints, box, count, n_modes, degree, gap, store,
                      processes, progress):
     """The reference of the fixed gauge as a Chebyshev series of mass-orthonormal feature
     rows (``"rows"``, n × f): the neighbour basis at the Lobatto points of ``degree``, or
     the eigenmodes at the box's centre (``degree`` 0). The points solved for it go to
-    ``solved`` with their features replaced by their overlap with the field."""
+    ``store`` (those on its grid) with their features replaced by their overlap with the
+    field."""
     from casflex.modal.gauge import reference_rows
     from casflex.modal.subspace import track_features_smooth
 
@@ -290,7 +514,12 @@ def _reference_field(func, robot, joints, box, count, n_modes, degree, gap, solv
                          coefficients={"rows": chebyshev_coefficients(
                              rows.reshape(gshape + rows.shape[1:]), nd)},
                          clusters=sb.clusters, info={"min_mac": sb.min_mac})
-    solved.update(zip(keys, _overlaps(got, field, qs[:, list(joints)]), strict=True))
+    own = _PointGrid(axes)
+    for idx, point in zip(np.ndindex(gshape), _overlaps(got, field, qs[:, list(joints)]),
+                          strict=True):
+        own.put(idx, point)
+    store.merge(own)
+    store.solved += own.size
     return field
 
 
@@ -358,24 +587,24 @@ def _point_terms(func, robot, q, shapes, basis, n_modes):
             np.asarray(shapes.omega, dtype=float))
 
 
-def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap, reference=None):
-    """Every term of the chosen basis over the sample grid (``grid_shape + value``), the
-    tracking, and (reference gauge) the smallest overlap with the reference per point."""
+def _basis(store, n_modes, robot, basis, gap, reference):
+    """The tracking of the chosen basis over the sample grid, the map from every point's
+    normalised modes to it (``grid_shape + (n, k)``) and (reference gauge) the smallest
+    overlap with the reference per point."""
     from casflex.modal.gauge import MIN_OVERLAP, reference_basis
     from casflex.modal.subspace import mode_clusters, track_features_smooth
     from casflex.modal.tracking import track_grid
 
+    gshape = store.shape
+    _, _, S, features, mass, omega = store.slots
     low = None
     if reference is not None:
-        overlap = np.array([p[3] for p in per_point]).reshape(gshape + (n_modes, n_modes))
-        mass = np.array([p[4] for p in per_point]).reshape(gshape + (n_modes, n_modes))
-        omega = np.array([p[5] for p in per_point]).reshape(gshape + per_point[0][5].shape)
         clusters = mode_clusters(omega, n_modes, gap)
         if clusters[-1][-1] + 1 != n_modes:
             raise ModelError(f"{n_modes} modes split the cluster of close modes "
                              f"{[k + 1 for k in clusters[-1]]} (relative gap < {gap:g} "
                              f"somewhere): use {clusters[-1][-1] + 1} modes")
-        tracking, low = reference_basis(overlap, omega, clusters, mass)
+        tracking, low = reference_basis(features, omega, clusters, mass)
         if float(np.min(low)) < MIN_OVERLAP:
             where = np.unravel_index(int(np.argmin(low)), low.shape)
             raise ModelError(f"the reference gauge breaks down: at sample {where[:-1]} the "
@@ -384,29 +613,100 @@ def _basis_terms(raw, per_point, gshape, n_modes, robot, basis, gap, reference=N
                              f"{float(np.min(low)):.3g} < {MIN_OVERLAP}); use "
                              "gauge='neighbour' or a smaller box")
     elif basis == "smooth":
-        features = np.empty(gshape, dtype=object)
-        for idx, point in zip(np.ndindex(gshape), per_point, strict=True):
-            features[idx] = point[3]
-        mass = np.array([p[4] for p in per_point]).reshape(gshape + per_point[0][4].shape)
-        omega = np.array([p[5] for p in per_point]).reshape(gshape + per_point[0][5].shape)
-        tracking = track_features_smooth(features, omega, n_modes, mass, gap)
+        rows = np.empty(gshape, dtype=object)
+        for idx in np.ndindex(gshape):
+            rows[idx] = features[idx]
+        tracking = track_features_smooth(rows, omega, n_modes, mass, gap)
     else:
-        tracking = track_grid(raw, count=n_modes, robot=robot)
-    data: dict[str, np.ndarray] = {}  # written in place: no per-point copies are stacked
-    for idx, (_, values, S_inv, *_rest) in zip(np.ndindex(gshape), per_point, strict=True):
-        T = np.asarray(tracking.transform[idx], dtype=float)[:, :S_inv.shape[0]] @ S_inv
+        tracking = track_grid(store.slots[0], count=n_modes, robot=robot)
+    T = None
+    for idx in np.ndindex(gshape):
+        t = np.asarray(tracking.transform[idx], dtype=float)[:, :S.shape[-1]] @ S[idx]
         if basis == "eigen":  # tracked modes are scaled raw modes: unit modal mass rows
-            T = T / np.linalg.norm(T, axis=1, keepdims=True)
-        point = rotate_quantities(values, T)
-        if basis == "eigen":
-            point["omega"] = values["omega"][tracking.order[idx]]
-        for name, v in point.items():
-            if name not in data:
-                data[name] = np.empty(gshape + np.shape(v))
-            data[name][idx] = v
+            t = t / np.linalg.norm(t, axis=1, keepdims=True)
+        if T is None:
+            T = np.empty(gshape + t.shape)
+        T[idx] = t
+    return tracking, T, low
+
+
+def _basis_terms(store, T, tracking, basis) -> Iterator[tuple[str, np.ndarray]]:
+    """Every term of the chosen basis over the sample grid (``grid_shape + value``), one
+    term at a time (:func:`_round` turns each into coefficients before the next)."""
+    values = store.slots[1]
+    for name, stored in values.items():
+        if name in ("omega", "stiffness", "stiffness_root"):  # not linear in the shapes
+            continue
+        out = None
+        for idx in np.ndindex(store.shape):
+            v = rotate_quantities({name: stored[idx]}, T[idx])[name]
+            if out is None:
+                out = np.empty(store.shape + v.shape)
+            out[idx] = v
+        yield name, out
     if basis == "smooth":
-        data.update(stiffness_values(tracking), omega=tracking.omega)
-    return data, tracking, low
+        yield from stiffness_values(tracking).items()
+        yield "omega", tracking.omega
+        return
+    omega = values["omega"]
+    out = np.empty(store.shape + tracking.order[(0,) * len(store.shape)].shape)
+    for idx in np.ndindex(store.shape):
+        out[idx] = omega[idx][tracking.order[idx]]
+    yield "omega", out
+
+
+def _round(store, n_modes, robot, basis, gap, reference, target, omega_target):
+    """One round of the fit on the current grid: the basis, then term by term its values,
+    their peak, the mismatch of their ends along every axis and their coefficients (the
+    values of a term are dropped before the next is formed: the round holds the stored
+    points, the coefficients and one term's values)."""
+    nd = len(store.shape)
+    tracking, T, low = _basis(store, n_modes, robot, basis, gap, reference)
+    coefficients, peaks, ends = {}, {}, {}
+    omega_min = None
+    for name, values in _basis_terms(store, T, tracking, basis):
+        if values.size:
+            peaks[name] = float(np.max(np.abs(values)))
+            ends[name] = [float(np.max(np.abs(np.take(values, 0, axis=ax)
+                                              - np.take(values, -1, axis=ax))))
+                          for ax in range(nd)]
+        else:
+            peaks[name] = 0.0
+        if name == "omega":
+            omega_min = np.min(values.reshape(-1, values.shape[-1]), axis=0)
+        coefficients[name] = chebyshev_coefficients(values, nd)
+        del values
+    estimate, per_axis = _estimates(peaks, omega_min, coefficients, nd, target,
+                                    omega_target)
+    return coefficients, peaks, tracking, low, estimate, per_axis, ends
+
+
+def term_scales(peaks: Mapping[str, float]) -> dict[str, float]:
+    """The scale each term's error is measured against: its peak, floored by its family's.
+
+    Parameters
+    ----------
+    peaks : dict of str to float
+        Largest magnitude of every term over the sample grid (units of each term).
+
+    Returns
+    -------
+    dict of str to float
+        ``max(peak, TERM_FLOOR · largest peak of the family)`` per term
+        (:data:`TERM_FAMILIES`; a term not in a family is its own).
+
+    Examples
+    --------
+    >>> s = term_scales({"point_curvature": 2.0, "point_axial_strain": 8e-21, "C1": 0.5})
+    >>> s["point_axial_strain"], s["point_curvature"], s["C1"]
+    (2e-09, 2.0, 0.5)
+    """
+    out = {}
+    for name, peak in peaks.items():
+        family = next((f for f in TERM_FAMILIES if name in f), (name,))
+        top = max(float(peaks.get(m, 0.0)) for m in family)
+        out[name] = max(float(peak), TERM_FLOOR * top)
+    return out
 
 
 #: the tail estimate is this multiple of the larger of the two highest coefficients: the
@@ -421,11 +721,13 @@ def _tail(coef, nd, ax):
     return TAIL_FACTOR * np.max(t.reshape(-1, *coef.shape[nd:]), axis=0)
 
 
-def _estimates(data, coefficients, nd, target, omega_target):
+def _estimates(peaks, omega_min, coefficients, nd, target, omega_target):
     """Per term: the tail estimate as a relative error; per axis: the worst ratio to its
-    target."""
+    target (``peaks``: each term's largest magnitude over the grid; ``omega_min``: each
+    mode's lowest ω)."""
     estimate, per_axis = {}, [0.0] * nd
-    lam_min = float(np.min(data["omega"])) ** 2
+    scales = term_scales(peaks)
+    lam_min = float(np.min(omega_min)) ** 2
     for name, coef in coefficients.items():
         worst = 0.0
         if not coef.size:  # a quantity without entries (no joint springs)
@@ -434,13 +736,12 @@ def _estimates(data, coefficients, nd, target, omega_target):
         for ax in range(nd):
             tail = _tail(coef, nd, ax)
             if name == "omega":
-                rel = float(np.max(tail / np.min(data["omega"].reshape(-1, tail.size),
-                                                  axis=0)))
+                rel = float(np.max(tail / omega_min))
             elif name in FREQUENCY_TERMS:  # [rad²/s²] and [rad/s]: as a relative ω error
                 scale = 2.0 * lam_min if name == "stiffness" else np.sqrt(lam_min)
                 rel = float(np.max(tail) / scale)
             else:
-                peak = float(np.max(np.abs(data[name]))) if data[name].size else 0.0
+                peak = scales[name]
                 rel = float(np.max(tail)) / peak if peak > 0.0 else 0.0
             worst = max(worst, rel)
             goal = omega_target if name in FREQUENCY_TERMS else target
@@ -449,18 +750,17 @@ def _estimates(data, coefficients, nd, target, omega_target):
     return estimate, per_axis
 
 
-def _periodic(box, data, estimate):
-    """Per axis: a full-turn box whose terms agree at both ends (to their estimates)."""
+def _periodic(box, ends, peaks, estimate):
+    """Per axis: a full-turn box whose terms agree at both ends (to their estimates;
+    ``ends[name][axis]``: the largest mismatch of a term's two ends along the axis)."""
     out = []
     for ax, (lo, hi) in enumerate(box):
         full = abs((hi - lo) - 2.0 * np.pi) <= 1e-9
         ok = full
-        for name, v in data.items():
-            if not ok or not v.size:
+        for name, mismatch in ends.items():
+            if not ok:
                 continue
-            a, b = np.take(v, 0, axis=ax), np.take(v, -1, axis=ax)
-            peak = float(np.max(np.abs(v)))
-            ok = float(np.max(np.abs(a - b))) <= 10.0 * max(estimate[name], 1e-9) * peak
+            ok = mismatch[ax] <= 10.0 * max(estimate[name], 1e-9) * peaks[name]
         out.append(bool(ok))
     return out
 
@@ -476,7 +776,7 @@ def _invariant(name, value):
     return L.T @ L
 
 
-def _entrywise(errors, fit, func, robot, q, shapes, reference, data):
+def _entrywise(errors, fit, func, robot, q, shapes, reference, peaks):
     """The reference gauge defines the basis at any configuration, not only on the grid:
     the direct solve is put in that basis and every entry of every term compared (relative
     to the term's peak; ω of the eigenvalues of ``K̃``, relative)."""
@@ -497,12 +797,12 @@ def _entrywise(errors, fit, func, robot, q, shapes, reference, data):
     for name, ref in direct.items():
         if not ref.size or name not in fit.coefficients:
             continue
-        peak = float(np.max(np.abs(data[name])))
+        peak = term_scales(peaks)[name]
         err = float(np.max(np.abs(fit.evaluate(name, x) - ref))) / peak if peak else 0.0
         errors[name] = max(errors.get(name, 0.0), err)
 
 
-def _held_out(fit, func, robot, qs, raw, tracking, axes, data, count, reference=None):
+def _held_out(fit, func, robot, qs, raw, tracking, axes, peaks, count, reference=None):
     """Largest error of every term at ``qs`` against direct TMM (module notes)."""
     from casflex.modal.tables import compute_modes
     from casflex.modal.tracking import combine, correlation
@@ -514,7 +814,7 @@ def _held_out(fit, func, robot, qs, raw, tracking, axes, data, count, reference=
     for q, shapes in zip(qs, direct_shapes, strict=True):
         x = q[joints]
         if reference is not None:
-            _entrywise(errors, fit, func, robot, q, shapes, reference, data)
+            _entrywise(errors, fit, func, robot, q, shapes, reference, peaks)
             continue
         values, S_inv = normalized_quantities(func, robot, q, shapes)
         if fit.info["basis"] == "smooth":
@@ -551,6 +851,6 @@ def _held_out(fit, func, robot, qs, raw, tracking, axes, data, count, reference=
             if name == "omega":
                 err = float(np.max(np.abs(got / ref - 1.0)))
             else:
-                err = float(np.max(np.abs(got - ref))) / float(np.max(np.abs(data[name])))
+                err = float(np.max(np.abs(got - ref))) / term_scales(peaks)[name]
             errors[name] = max(errors.get(name, 0.0), err)
     return errors
