@@ -215,26 +215,53 @@ def _beam_values(c, w, vals):
         vals[18 + r] = lam**3 * T
 
 
-def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
+def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, det_only):
     """Columns 6–11 of the system matrix of configuration c at ω, into U (12 × 6).
 
     The beam matrix is applied through its 40 non-zero entries and the rotation
     ``blockdiag(R, R, R, R)`` through its four 3 × 3 blocks; ``W`` and ``vals`` are work
-    arrays (12 × 6, 20).
+    arrays (12 × 6, 29: the beam's 20 quantities, then a 3 × 3 rotation).
+
+    The start ``[0; I]`` is rotated into the first beam's components by copying Rᵀ
+    (the products with 0 and 1 are exact). With ``det_only`` U is good for
+    ``det U[6:12]`` only, which does not change under ``blockdiag(R, R)`` (det R = 1):
+    a beam followed by a beam (or by nothing) keeps U in its own components, and the
+    next beam turns it with the one rotation ``R_nextᵀ R`` instead of two.
     """
     U[:, :] = 0.0
     for i in range(6):
         U[6 + i, i] = 1.0
     w2 = w * w
-    for j in range(kind.size):
+    fresh = True  # U is still [0; I], in base components
+    local = -1  # with det_only: U is in the components of beam ``local`` (-1: base)
+    E = kind.size
+    for j in range(E):
         if kind[j] == 0:
             R = R3[c, j]
-            for b in range(4):  # W = blockdiag(Rᵀ) U: base to local components
-                for i in range(3):
-                    r0, r1, r2 = R[0, i], R[1, i], R[2, i]
-                    for col in range(6):
-                        W[3 * b + i, col] = (r0 * U[3 * b, col] + r1 * U[3 * b + 1, col]
-                                             + r2 * U[3 * b + 2, col])
+            if fresh:  # W = blockdiag(Rᵀ) [0; I]: rows 6–11 hold blockdiag(Rᵀ, Rᵀ)
+                W[:, :] = 0.0
+                for b in range(2):
+                    for i in range(3):
+                        for k in range(3):
+                            W[6 + 3 * b + i, 3 * b + k] = R[k, i]
+            else:
+                if local >= 0:  # Q = Rᵀ R_local: from beam ``local``'s components to R's
+                    Rp = R3[c, local]
+                    for i in range(3):
+                        for k in range(3):
+                            vals[20 + 3 * i + k] = (R[0, i] * Rp[0, k] + R[1, i] * Rp[1, k]
+                                                    + R[2, i] * Rp[2, k])
+                else:  # Q = Rᵀ: base to local components
+                    for i in range(3):
+                        for k in range(3):
+                            vals[20 + 3 * i + k] = R[k, i]
+                for b in range(4):  # W = blockdiag(Q) U
+                    for i in range(3):
+                        r0, r1, r2 = vals[20 + 3 * i], vals[21 + 3 * i], vals[22 + 3 * i]
+                        for col in range(6):
+                            W[3 * b + i, col] = (r0 * U[3 * b, col] + r1 * U[3 * b + 1, col]
+                                                 + r2 * U[3 * b + 2, col])
+            fresh = False
             _beam_values(beam[j], w, vals)
             U[:, :] = 0.0
             for i in range(40):  # U = B W over the non-zero entries of B
@@ -243,6 +270,10 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
                 v = vals[gather[j, i]] * ratio[j, i]
                 for col in range(6):
                     U[row, col] += v * W[column, col]
+            if det_only and (j == E - 1 or kind[j + 1] == 0):
+                local = j
+                continue
+            local = -1
             for b in range(4):  # back to base components: blockdiag(R) U
                 for i in range(3):
                     r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
@@ -262,6 +293,7 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
                 for col in range(6):
                     U[6 + i, col] -= w2 * W[3 + i, col]
                     U[9 + i, col] -= w2 * W[i, col]
+            fresh = False
         else:
             Tj = T[c, j]
             for i in range(12):
@@ -271,6 +303,7 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
                         s += Tj[i, k] * U[k, col]
                     W[i, col] = s
             U[:, :] = W
+            fresh = False
 
 
 def _slogdet6(U, A):
@@ -302,13 +335,13 @@ def _slogdet6(U, A):
 
 
 def _work():
-    """Work arrays of the point kernels: (12 × 6) × 2, 20 values, (12 × 12), (6 × 6) × 8."""
-    return (np.empty((12, 6)), np.empty((12, 6)), np.empty(20), np.empty((12, 12)),
+    """Work arrays of the point kernels: (12 × 6) × 2, 29 values, (12 × 12), (6 × 6) × 8."""
+    return (np.empty((12, 6)), np.empty((12, 6)), np.empty(29), np.empty((12, 12)),
             np.empty((8, 6, 6)))
 
 
 def _point_slogdet(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A):
-    _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals)
+    _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, True)
     return _slogdet6(U, A)
 
 
@@ -317,7 +350,8 @@ def _system(cfg, omega, kind, beam, flat, gather, ratio, R3, M, T):
     out = np.empty((omega.size, 12, 6))
     U, W, vals, _, _ = _work()
     for p in range(omega.size):
-        _point_system(cfg[p], omega[p], kind, beam, flat, gather, ratio, R3, M, T, U, W, vals)
+        _point_system(cfg[p], omega[p], kind, beam, flat, gather, ratio, R3, M, T, U, W, vals,
+                      False)
         out[p] = U
     return out
 
