@@ -371,17 +371,26 @@ def _field(c, flat, gather, ratio, s, omega, z):
     return out
 
 
-def _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A):
+def _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A, ends, known):
     """Brent's method (zeroin) on det subU in a bracket [a, b] holding one simple root.
 
     The determinant is scaled by its magnitude at an end (from the log-determinant: no
-    overflow). Returns the root, False when there is no sign change at the ends or a
-    determinant is not finite, and the number of determinant evaluations.
+    overflow). ``ends`` holds (sign, log|det|) at a and b: read where ``known`` says so
+    (bit 1: a, bit 2: b; a bracket sharing an end with one already refined), evaluated
+    and written otherwise. Returns the root, False when there is no sign change at the
+    ends or a determinant is not finite, and the number of determinant evaluations.
     """
     eps = 2.220446049250313e-16
-    sa, la = _point_slogdet(c, a, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A)
-    sb, lb = _point_slogdet(c, b, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A)
-    evaluations = 2
+    evaluations = 0
+    if known & 1 == 0:
+        ends[0], ends[1] = _point_slogdet(c, a, kind, beam, flat, gather, ratio, R3, M, T, U,
+                                          W, vals, A)
+        evaluations += 1
+    if known & 2 == 0:
+        ends[2], ends[3] = _point_slogdet(c, b, kind, beam, flat, gather, ratio, R3, M, T, U,
+                                          W, vals, A)
+        evaluations += 1
+    sa, la, sb, lb = ends[0], ends[1], ends[2], ends[3]
     if not (math.isfinite(la) or sa == 0.0) or not (math.isfinite(lb) or sb == 0.0):
         return 0.5 * (a + b), False, evaluations
     ref = la if math.isfinite(la) else lb
@@ -451,9 +460,10 @@ def _refine(cfg, lo, hi, kind, beam, flat, gather, ratio, R3, M, T):
     ok = np.ones(n, dtype=np.bool_)
     evaluations = 0
     U, W, vals, _, B = _work()
+    ends = np.empty(4)
     for i in range(n):
         roots[i], ok[i], k = _brent(cfg[i], lo[i], hi[i], kind, beam, flat, gather, ratio,
-                                    R3, M, T, U, W, vals, B[0])
+                                    R3, M, T, U, W, vals, B[0], ends, 0)
         evaluations += k
     return roots, ok, evaluations
 
@@ -742,6 +752,7 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
     status = np.zeros(C, dtype=np.int64)
     U, W, vals, Tc, B = _work()
     A = np.empty((6, 6))
+    ends = np.empty(4)
     for c in range(C):
         grid = np.empty(points.size - 1 + 8 * 64)
         counts = np.empty(grid.size, dtype=np.int64)
@@ -822,6 +833,11 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         roots = np.empty(width)
         mult = np.empty(width, dtype=np.int64)
         found = 0
+        # the ends of the brackets refined so far and their determinants: neighbouring
+        # brackets share an end, whose determinant is then not evaluated again
+        seen = np.empty(2 * width)
+        seen_ends = np.empty((2 * width, 2))
+        n_seen = 0
         while top > 0 and not broken:
             top -= 1
             a, b, na, nb = lo[top], hi[top], nlo[top], nhi[top]
@@ -833,8 +849,21 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                 break
             if nb - na == 1:
                 a = max(a, 1e-12 * b)
+                known = 0
+                for i in range(n_seen):
+                    if seen[i] == a:
+                        ends[0], ends[1] = seen_ends[i, 0], seen_ends[i, 1]
+                        known |= 1
+                    elif seen[i] == b:
+                        ends[2], ends[3] = seen_ends[i, 0], seen_ends[i, 1]
+                        known |= 2
                 r, ok, _ = _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W,
-                                  vals, A)
+                                  vals, A, ends, known)
+                for i in range(2):
+                    if known & (1 << i) == 0 and n_seen < seen.size:
+                        seen[n_seen] = a if i == 0 else b
+                        seen_ends[n_seen, 0], seen_ends[n_seen, 1] = ends[2 * i], ends[2 * i + 1]
+                        n_seen += 1
                 if not ok:  # no sign change seen: bisect on the exact counts instead
                     v, ok = _count_point(c, a, kind, beam, flat, gather, ratio, R3, M, G,
                                          axis, stiffness, vals, Tc, B)
