@@ -215,26 +215,53 @@ def _beam_values(c, w, vals):
         vals[18 + r] = lam**3 * T
 
 
-def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
+def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, det_only):
     """Columns 6–11 of the system matrix of configuration c at ω, into U (12 × 6).
 
     The beam matrix is applied through its 40 non-zero entries and the rotation
     ``blockdiag(R, R, R, R)`` through its four 3 × 3 blocks; ``W`` and ``vals`` are work
-    arrays (12 × 6, 20).
+    arrays (12 × 6, 29: the beam's 20 quantities, then a 3 × 3 rotation).
+
+    The start ``[0; I]`` is rotated into the first beam's components by copying Rᵀ
+    (the products with 0 and 1 are exact). With ``det_only`` U is good for
+    ``det U[6:12]`` only, which does not change under ``blockdiag(R, R)`` (det R = 1):
+    a beam followed by a beam (or by nothing) keeps U in its own components, and the
+    next beam turns it with the one rotation ``R_nextᵀ R`` instead of two.
     """
     U[:, :] = 0.0
     for i in range(6):
         U[6 + i, i] = 1.0
     w2 = w * w
-    for j in range(kind.size):
+    fresh = True  # U is still [0; I], in base components
+    local = -1  # with det_only: U is in the components of beam ``local`` (-1: base)
+    E = kind.size
+    for j in range(E):
         if kind[j] == 0:
             R = R3[c, j]
-            for b in range(4):  # W = blockdiag(Rᵀ) U: base to local components
-                for i in range(3):
-                    r0, r1, r2 = R[0, i], R[1, i], R[2, i]
-                    for col in range(6):
-                        W[3 * b + i, col] = (r0 * U[3 * b, col] + r1 * U[3 * b + 1, col]
-                                             + r2 * U[3 * b + 2, col])
+            if fresh:  # W = blockdiag(Rᵀ) [0; I]: rows 6–11 hold blockdiag(Rᵀ, Rᵀ)
+                W[:, :] = 0.0
+                for b in range(2):
+                    for i in range(3):
+                        for k in range(3):
+                            W[6 + 3 * b + i, 3 * b + k] = R[k, i]
+            else:
+                if local >= 0:  # Q = Rᵀ R_local: from beam ``local``'s components to R's
+                    Rp = R3[c, local]
+                    for i in range(3):
+                        for k in range(3):
+                            vals[20 + 3 * i + k] = (R[0, i] * Rp[0, k] + R[1, i] * Rp[1, k]
+                                                    + R[2, i] * Rp[2, k])
+                else:  # Q = Rᵀ: base to local components
+                    for i in range(3):
+                        for k in range(3):
+                            vals[20 + 3 * i + k] = R[k, i]
+                for b in range(4):  # W = blockdiag(Q) U
+                    for i in range(3):
+                        r0, r1, r2 = vals[20 + 3 * i], vals[21 + 3 * i], vals[22 + 3 * i]
+                        for col in range(6):
+                            W[3 * b + i, col] = (r0 * U[3 * b, col] + r1 * U[3 * b + 1, col]
+                                                 + r2 * U[3 * b + 2, col])
+            fresh = False
             _beam_values(beam[j], w, vals)
             U[:, :] = 0.0
             for i in range(40):  # U = B W over the non-zero entries of B
@@ -243,6 +270,10 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
                 v = vals[gather[j, i]] * ratio[j, i]
                 for col in range(6):
                     U[row, col] += v * W[column, col]
+            if det_only and (j == E - 1 or kind[j + 1] == 0):
+                local = j
+                continue
+            local = -1
             for b in range(4):  # back to base components: blockdiag(R) U
                 for i in range(3):
                     r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
@@ -262,6 +293,7 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
                 for col in range(6):
                     U[6 + i, col] -= w2 * W[3 + i, col]
                     U[9 + i, col] -= w2 * W[i, col]
+            fresh = False
         else:
             Tj = T[c, j]
             for i in range(12):
@@ -271,6 +303,7 @@ def _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals):
                         s += Tj[i, k] * U[k, col]
                     W[i, col] = s
             U[:, :] = W
+            fresh = False
 
 
 def _slogdet6(U, A):
@@ -302,13 +335,13 @@ def _slogdet6(U, A):
 
 
 def _work():
-    """Work arrays of the point kernels: (12 × 6) × 2, 20 values, (12 × 12), (6 × 6) × 8."""
-    return (np.empty((12, 6)), np.empty((12, 6)), np.empty(20), np.empty((12, 12)),
+    """Work arrays of the point kernels: (12 × 6) × 2, 29 values, (12 × 12), (6 × 6) × 8."""
+    return (np.empty((12, 6)), np.empty((12, 6)), np.empty(29), np.empty((12, 12)),
             np.empty((8, 6, 6)))
 
 
 def _point_slogdet(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A):
-    _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals)
+    _point_system(c, w, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, True)
     return _slogdet6(U, A)
 
 
@@ -317,7 +350,8 @@ def _system(cfg, omega, kind, beam, flat, gather, ratio, R3, M, T):
     out = np.empty((omega.size, 12, 6))
     U, W, vals, _, _ = _work()
     for p in range(omega.size):
-        _point_system(cfg[p], omega[p], kind, beam, flat, gather, ratio, R3, M, T, U, W, vals)
+        _point_system(cfg[p], omega[p], kind, beam, flat, gather, ratio, R3, M, T, U, W, vals,
+                      False)
         out[p] = U
     return out
 
@@ -337,17 +371,26 @@ def _field(c, flat, gather, ratio, s, omega, z):
     return out
 
 
-def _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A):
+def _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A, ends, known):
     """Brent's method (zeroin) on det subU in a bracket [a, b] holding one simple root.
 
     The determinant is scaled by its magnitude at an end (from the log-determinant: no
-    overflow). Returns the root, False when there is no sign change at the ends or a
-    determinant is not finite, and the number of determinant evaluations.
+    overflow). ``ends`` holds (sign, log|det|) at a and b: read where ``known`` says so
+    (bit 1: a, bit 2: b; a bracket sharing an end with one already refined), evaluated
+    and written otherwise. Returns the root, False when there is no sign change at the
+    ends or a determinant is not finite, and the number of determinant evaluations.
     """
     eps = 2.220446049250313e-16
-    sa, la = _point_slogdet(c, a, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A)
-    sb, lb = _point_slogdet(c, b, kind, beam, flat, gather, ratio, R3, M, T, U, W, vals, A)
-    evaluations = 2
+    evaluations = 0
+    if known & 1 == 0:
+        ends[0], ends[1] = _point_slogdet(c, a, kind, beam, flat, gather, ratio, R3, M, T, U,
+                                          W, vals, A)
+        evaluations += 1
+    if known & 2 == 0:
+        ends[2], ends[3] = _point_slogdet(c, b, kind, beam, flat, gather, ratio, R3, M, T, U,
+                                          W, vals, A)
+        evaluations += 1
+    sa, la, sb, lb = ends[0], ends[1], ends[2], ends[3]
     if not (math.isfinite(la) or sa == 0.0) or not (math.isfinite(lb) or sb == 0.0):
         return 0.5 * (a + b), False, evaluations
     ref = la if math.isfinite(la) else lb
@@ -417,9 +460,10 @@ def _refine(cfg, lo, hi, kind, beam, flat, gather, ratio, R3, M, T):
     ok = np.ones(n, dtype=np.bool_)
     evaluations = 0
     U, W, vals, _, B = _work()
+    ends = np.empty(4)
     for i in range(n):
         roots[i], ok[i], k = _brent(cfg[i], lo[i], hi[i], kind, beam, flat, gather, ratio,
-                                    R3, M, T, U, W, vals, B[0])
+                                    R3, M, T, U, W, vals, B[0], ends, 0)
         evaluations += k
     return roots, ok, evaluations
 
@@ -708,6 +752,7 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
     status = np.zeros(C, dtype=np.int64)
     U, W, vals, Tc, B = _work()
     A = np.empty((6, 6))
+    ends = np.empty(4)
     for c in range(C):
         grid = np.empty(points.size - 1 + 8 * 64)
         counts = np.empty(grid.size, dtype=np.int64)
@@ -788,6 +833,11 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
         roots = np.empty(width)
         mult = np.empty(width, dtype=np.int64)
         found = 0
+        # the ends of the brackets refined so far and their determinants: neighbouring
+        # brackets share an end, whose determinant is then not evaluated again
+        seen = np.empty(2 * width)
+        seen_ends = np.empty((2 * width, 2))
+        n_seen = 0
         while top > 0 and not broken:
             top -= 1
             a, b, na, nb = lo[top], hi[top], nlo[top], nhi[top]
@@ -799,8 +849,21 @@ def _search(points, cap, count, omega_max, double_tol, rtol, kind, beam, flat, g
                 break
             if nb - na == 1:
                 a = max(a, 1e-12 * b)
+                known = 0
+                for i in range(n_seen):
+                    if seen[i] == a:
+                        ends[0], ends[1] = seen_ends[i, 0], seen_ends[i, 1]
+                        known |= 1
+                    elif seen[i] == b:
+                        ends[2], ends[3] = seen_ends[i, 0], seen_ends[i, 1]
+                        known |= 2
                 r, ok, _ = _brent(c, a, b, kind, beam, flat, gather, ratio, R3, M, T, U, W,
-                                  vals, A)
+                                  vals, A, ends, known)
+                for i in range(2):
+                    if known & (1 << i) == 0 and n_seen < seen.size:
+                        seen[n_seen] = a if i == 0 else b
+                        seen_ends[n_seen, 0], seen_ends[n_seen, 1] = ends[2 * i], ends[2 * i + 1]
+                        n_seen += 1
                 if not ok:  # no sign change seen: bisect on the exact counts instead
                     v, ok = _count_point(c, a, kind, beam, flat, gather, ratio, R3, M, G,
                                          axis, stiffness, vals, Tc, B)

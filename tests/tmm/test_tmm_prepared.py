@@ -265,3 +265,46 @@ def test_lazy_grid_counts_find_every_root(name, monkeypatch):
         above = count_below(chain, w * (1.0 + 1e-9))
         np.testing.assert_array_equal(below, np.arange(w.size))
         np.testing.assert_array_equal(above, np.arange(1, w.size + 1))
+
+
+@pytest.mark.parametrize("name", ["arm2link", "onelink", "arm4_spatial"])
+def test_brent_on_the_determinant_path_equals_brentq_on_the_full_system(name):
+    # the compiled Brent evaluates det subU on a shortened chain product: no rotation of
+    # the start [0; I], consecutive beams joined by one rotation R_nextᵀ R, and the last
+    # beam's rotation back to base components left out (det U[6:12] does not change under
+    # blockdiag(R, R)). Reference: scipy's brentq on the determinant of the full system
+    # matrix (``system_points``: every rotation made, numpy's LU)
+    import scipy.optimize
+
+    robot = load(f"problems/{name}.toml")
+    prepared = fast.prepare(robot)
+    compared = 0
+    for q in np.random.default_rng(5).uniform(-np.pi, np.pi, (3, robot.n_joints)):
+        k = prepared.pose(q[None, :])
+        w = natural_frequencies(robot, q, count=4)
+        if np.any(np.diff(w) < 1e-6 * w[1:]):
+            continue  # near-double roots: no sign change in a narrow bracket
+
+        def det(omega, scale, k=k):
+            sub = kernels.system_points(np.zeros(1, dtype=np.int64), np.array([omega]),
+                                        k["kind"], k["beam"], k["flat"], k["gather"],
+                                        k["ratio"], k["R3"], k["M"], k["T"])[0, 6:]
+            sign, logabs = np.linalg.slogdet(sub)
+            return sign * np.exp(logabs - scale)
+
+        lo, hi = w * (1.0 - 1e-3), w * (1.0 + 1e-3)
+        found, ok, _ = kernels.refine_brackets(np.zeros(w.size, dtype=np.int64), lo, hi,
+                                               k["kind"], k["beam"], k["flat"], k["gather"],
+                                               k["ratio"], k["R3"], k["M"], k["T"])
+        assert ok.all()
+        for root, a, b in zip(found, lo, hi, strict=True):
+            scale = np.linalg.slogdet(kernels.system_points(
+                np.zeros(1, dtype=np.int64), np.array([a]), k["kind"], k["beam"], k["flat"],
+                k["gather"], k["ratio"], k["R3"], k["M"], k["T"])[0, 6:])[1]
+            reference = scipy.optimize.brentq(det, a, b, args=(scale,), xtol=1e-14 * a,
+                                              rtol=1e-15)
+            compared += 1
+            # both refine to ~1e-13 on determinants equal to round-off (as the compiled
+            # and numpy searches in test_tmm_fast.py)
+            np.testing.assert_allclose(root, reference, rtol=1e-11, err_msg=f"q = {q}")
+    assert compared >= 8
