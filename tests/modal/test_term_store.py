@@ -5,10 +5,13 @@ References:
   session-8 code (commit 24a3e7a, points held in a dict per point), stored with their
   SHA-256. The points are now held in preallocated arrays over the grid and the
   coefficients formed term by term; the same arithmetic must give the same bits.
-- the mass normalisation is done once per point now; done twice (as the session-8 code
-  did, reproduced here by handing the quantity function a copy of the normalised modes)
-  the fit must be bit-identical to the stored one, and done once it may differ only by
-  round-off.
+- the mass normalisation is done once per point now, and the TMM's Brent search has
+  shed rotations that do not change its determinant (roots move by up to 1e-12 relative
+  on arm2link): the fit may differ from the stored one only by round-off. When the
+  storage changed (this session) the fit with the session-8 double normalisation
+  (reproduced here by handing the quantity function a copy of the normalised modes) was
+  bit-identical to the stored one on the session-8 TMM; that comparison is no longer
+  possible bit for bit, and the double-normalised fit is held to the same round-off.
 """
 
 import dataclasses
@@ -54,7 +57,7 @@ def _fits(quantities=None, **smooth_options):
     return {"smooth": smooth, "eigen": eigen}
 
 
-def _check(fits, reference, exact):
+def _check(fits, reference):
     for tag, fit in fits.items():
         assert list(fit.degrees) == reference[f"{tag}.degrees"].tolist()
         assert fit.info["points"] == int(reference[f"{tag}.points"])
@@ -62,25 +65,25 @@ def _check(fits, reference, exact):
         assert set(fit.coefficients) == names - {"degrees", "points"}
         for name, coef in fit.coefficients.items():
             ref = reference[f"{tag}.{name}"]
-            if exact:
-                assert np.array_equal(coef, ref), (tag, name)
-            elif ref.size:
-                # one normalisation fewer moves each sample by a few ulp; a coefficient
-                # sums at most 45 of them: 1e-14 of the peak is ~20x the 5e-16 seen
+            if ref.size:
+                # one normalisation fewer (or the TMM's round-off) moves each sample by a
+                # few ulp; a coefficient sums at most 45 of them: 1e-14 of the peak is ~20x
+                # the 5e-16 seen
                 assert np.abs(coef - ref).max() <= 1e-14 * np.abs(ref).max(), (tag, name)
 
 
-def test_the_fits_are_bit_identical_to_the_session_8_code_with_its_double_normalisation():
-    """Same arithmetic, other storage: the same bits. The smooth fit leaves ``gauge`` at
-    its default, which is now the reference gauge the stored fit asked for."""
+def test_the_fits_equal_the_session_8_code_with_its_double_normalisation():
+    """Same arithmetic, other storage: the same fit to round-off (see the module's
+    docstring for why no longer bit for bit). The smooth fit leaves ``gauge`` at its
+    default, which is now the reference gauge the stored fit asked for."""
     fits = _fits(quantities=normalized_twice)
     assert fits["smooth"].info["gauge"] == "reference"
     assert fits["eigen"].info["gauge"] == "neighbour"
-    _check(fits, _reference(), exact=True)
+    _check(fits, _reference())
 
 
 def test_normalising_once_changes_the_fits_by_round_off_only():
-    _check(_fits(), _reference(), exact=False)
+    _check(_fits(), _reference())
 
 
 def test_mass_normalize_gives_its_own_output_back_and_normalises_anything_else():
