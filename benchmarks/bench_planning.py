@@ -73,6 +73,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--move", default="move1", help="move of problems/moves.toml")
     parser.add_argument("--robust", type=float, default=0.0,
                         help="relative frequency error of the robust plan (default 0)")
+    parser.add_argument("--dt", type=float, default=1e-4,
+                        help="step of the verification by simulation [s] (default 1e-4: "
+                             "1 ms straddles the plan's acceleration jumps)")
+    parser.add_argument("--no-progress-stop", action="store_true",
+                        help="only Ipopt's own stopping tests (no ProgressStop)")
     args = parser.parse_args(argv)
 
     from casflex.design.study import load_study
@@ -89,13 +94,13 @@ def main(argv: list[str] | None = None) -> dict:
         options["hessian_approximation"] = "limited-memory"
     kw = {"intervals": args.intervals, "ipopt_options": options,
           "transcription": args.transcription, "max_iter": args.max_iter,
-          "dynamics": args.dynamics}
+          "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop}
     usage = resource.getrusage(resource.RUSAGE_SELF)
     # what `casflex plan` runs: the model (study's options), the SI-shaped move, its
     # limits (held joints: no torque limit), the plan, the 1 ms verification
     c = plan_robot_move(study.robot, move, 3, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1,
-                        robust=args.robust, **kw)
+                        robust=args.robust, dt=args.dt, **kw)
     after = resource.getrusage(resource.RUSAGE_SELF)
     plan, s = c.plan, c.summary()
     end = plan.stats["end"]
@@ -122,7 +127,8 @@ def main(argv: list[str] | None = None) -> dict:
            "warm_start_duals": warm.stats.get("warm_start_duals"),
            "status_warm": warm.stats["status"],
            "run_cpu_s": (after.ru_utime + after.ru_stime) - (usage.ru_utime + usage.ru_stime),
-           "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0]}
+           "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0],
+           "dt": args.dt, "progress_stop": not args.no_progress_stop}
     if args.json:
         print(json.dumps(out))
     else:
