@@ -35,7 +35,8 @@ def test_plan_cli_json_and_files(tmp_path, capsys, model_cache):
                 "solve_s", "status"):
         assert key in result
     assert set(result["shaped"]) >= {"duration", "residual_tip_deflection", "torque_peak"}
-    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level",
+                                "Stopped_On_Progress")
     # joints 2 and 3 are held by the move: no torque limit (JSON null), velocity limit
     # 1e-3 of joint 1's
     assert result["limits"]["torque"][1:] == [None, None]
@@ -72,8 +73,10 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     # Ipopt may stop at its acceptable level (plan_move's documented rule: optimality 1e-2
-    # over 15 iterates, constraints to 1e-6); the verification below judges the plan
-    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    # over 15 iterates, constraints to 1e-6) or on the progress of T (ProgressStop); the
+    # verification below judges the plan
+    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level",
+                                "Stopped_On_Progress")
     # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
     # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
     assert result["duration"] < result["shaped"]["duration"]

@@ -107,3 +107,18 @@ def test_progress_stop_leaves_a_converging_solve_alone(onelink):
     np.testing.assert_array_equal(on.node_tau, off.node_tau)
     with pytest.raises(ModelError, match="progress_stop"):
         plan_move(model, move, guess=shaped, end="rest", progress_stop="yes", **kw)
+
+
+def test_plan_robot_move_checks_the_ocp_model_options_before_building():
+    # refused in one line naming the option, before any table or fit is built
+    from casflex.planning import plan_robot_move
+
+    move = Move([0.0, 0.0, 0.0], [-0.5, 0.0, 0.0], 2.0)
+    arm = load("problems/arm2link.toml")
+    with pytest.raises(ModelError, match="ocp_fit"):
+        plan_robot_move(arm, move, 2, ocp_fit="spline")
+    with pytest.raises(ModelError, match="ocp_modes"):
+        plan_robot_move(arm, move, 2, ocp_modes=3)
+    swing = Move([0.0], [1.0], 2.0)
+    with pytest.raises(ModelError, match="shape joint"):
+        plan_robot_move(load("problems/onelink.toml"), swing, 1, ocp_fit="chebyshev")
