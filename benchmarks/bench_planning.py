@@ -24,7 +24,8 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``hessian``, ``dynamics``, ``residual_torque_driven``, ``residual_ocp``, ``robust``,
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
-``ocp_fit``, ``ocp_modes``.
+``ocp_fit``, ``ocp_modes``, ``trace`` (T and the constraint violation at every Ipopt
+iterate of the cold solve).
 
 Usage::
 
@@ -136,7 +137,9 @@ def main(argv: list[str] | None = None) -> dict:
            "run_cpu_s": (after.ru_utime + after.ru_stime) - (usage.ru_utime + usage.ru_stime),
            "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0],
            "dt": args.dt, "progress_stop": not args.no_progress_stop,
-           "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3}
+           "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3,
+           "trace": [[round(f, 5), float(f"{v:.1e}")]
+                     for f, v in plan.stats.get("objective_trace", [])]}
     if args.json:
         print(json.dumps(out))
     else:

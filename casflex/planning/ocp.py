@@ -797,6 +797,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
+    if rule is not None:  # (objective, constraint violation) of every Ipopt iterate
+        info["objective_trace"] = [list(pair) for pair in rule.trace]
     if residual_cons:
         info["residual_bound"] = [float(values(e)) for e in residual_cons]
     solution = {"x": np.asarray(values(opti.x), dtype=float).ravel(),

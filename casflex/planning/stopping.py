@@ -58,6 +58,11 @@ class ProgressStop:
         Largest constraint violation of a feasible iterate (as the constraints are posed:
         the planner's rows are scaled by their magnitudes).
 
+    Attributes
+    ----------
+    trace : list of (float, float)
+        ``(objective, violation)`` of every iterate seen.
+
     Examples
     --------
     A descent that creeps: it stops at the 10th feasible iterate below 1e-3 of spread.
@@ -74,6 +79,7 @@ class ProgressStop:
     feasibility: float = 1e-6
     start: float | None = field(default=None, init=False)
     history: list[float] = field(default_factory=list, init=False)
+    trace: list[tuple[float, float]] = field(default_factory=list, init=False)
     stopped: bool = field(default=False, init=False)
 
     def __post_init__(self) -> None:
@@ -105,6 +111,7 @@ class ProgressStop:
         [False, False, False, False, False, True]
         """
         f = float(objective)
+        self.trace.append((f, float(violation)))
         if self.start is None:  # the first iterate: the guess
             self.start = f
         if not np.isfinite(f) or not violation <= self.feasibility:
