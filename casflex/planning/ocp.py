@@ -477,8 +477,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Name of the result (default the move's name with ``+planned``).
     progress_stop : ProgressStop or bool
         Also stop when the objective has stopped moving at feasible iterates
-        (:class:`casflex.planning.ProgressStop`; ``True``: its defaults, ``False``: only
-        Ipopt's own tests). Such a plan has ``stats["status"] == "Stopped_On_Progress"``;
+        (:class:`casflex.planning.ProgressStop`; ``True``: its defaults, with ``leave =
+        0`` for a warm start with multipliers; ``False``: only Ipopt's own tests). Such a plan has ``stats["status"] == "Stopped_On_Progress"``;
         the simulations of :func:`casflex.planning.verify_plan` judge it.
 
     Returns
@@ -737,7 +737,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.set_initial(opti.lam_g, duals["lam_g"])
         options.update(WARM_START_OPTIONS)
     options.update(ipopt_options or {})
-    rule = (ProgressStop() if progress_stop is True else progress_stop) or None
+    # from a neighbouring solution's iterate and multipliers the start is near the
+    # optimum: the objective need not leave it before the rule may stop
+    rule = (ProgressStop(leave=0.0 if duals is not None else ProgressStop.leave)
+            if progress_stop is True else progress_stop) or None
     if rule is not None:
         if not isinstance(rule, ProgressStop):
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
