@@ -478,8 +478,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     progress_stop : ProgressStop or bool
         Also stop when the objective has stopped moving at feasible iterates
         (:class:`casflex.planning.ProgressStop`; ``True``: its defaults, with ``leave =
-        0`` for a warm start with multipliers; ``False``: only Ipopt's own tests). Such a plan has ``stats["status"] == "Stopped_On_Progress"``;
-        the simulations of :func:`casflex.planning.verify_plan` judge it.
+        0`` for a warm start with multipliers; ``False``: only Ipopt's own tests). Such
+        a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
+        :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
+        holds the objective and the constraint violation of every iterate.
 
     Returns
     -------
