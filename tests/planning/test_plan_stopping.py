@@ -71,6 +71,7 @@ def onelink():
     return model, move, shaped, {"torque_limit": tau, "velocity_limit": v, "intervals": 40}
 
 
+@pytest.mark.slow  # two one-link solves and a 0.1 ms verification: ~3-5 s
 def test_progress_stop_ends_a_solve_that_ipopt_would_not_end(onelink):
     # Ipopt's own tests switched off (tol 1e-14, no acceptable stop): only the rule can end
     # the solve before max_iter. Reference: the same problem converged by Ipopt (tol 1e-8)
