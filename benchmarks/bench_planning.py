@@ -14,7 +14,7 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``duration`` / ``shaped_duration``
     planned and shaped durations, s;
 ``residual`` / ``shaped_residual``
-    residual tip deflections with the joints on the move, simulated at 1 ms, m;
+    residual tip deflections with the joints on the move, simulated at ``--dt`` (0.1 ms), m;
 ``intervals``
     intervals of the OCP;
 ``solve_cpu_s`` / ``solve_warm_cpu_s``
@@ -23,13 +23,16 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``iterations`` / ``iterations_warm``, ``status`` / ``status_warm``, ``transcription``,
 ``hessian``, ``dynamics``, ``residual_torque_driven``, ``residual_ocp``, ``robust``,
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
-``load``.
+``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
+``ocp_fit``, ``ocp_modes``, ``trace`` (T and the constraint violation at every Ipopt
+iterate of the cold solve).
 
 Usage::
 
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
         [--transcription collocation|shooting] [--dynamics implicit|explicit]
-        [--max-iter K] [--move NAME] [--robust R]
+        [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
+        [--ocp-modes N] [--no-progress-stop]
 """
 
 from __future__ import annotations
@@ -73,6 +76,15 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--move", default="move1", help="move of problems/moves.toml")
     parser.add_argument("--robust", type=float, default=0.0,
                         help="relative frequency error of the robust plan (default 0)")
+    parser.add_argument("--dt", type=float, default=1e-4,
+                        help="step of the verification by simulation [s] (default 1e-4: "
+                             "1 ms straddles the plan's acceleration jumps)")
+    parser.add_argument("--ocp-fit", choices=("chebyshev",), default=None,
+                        help="the OCP's model from Chebyshev fits (verified on the tables)")
+    parser.add_argument("--ocp-modes", type=int, default=None,
+                        help="modes of the OCP's model (verified on the study's 3)")
+    parser.add_argument("--no-progress-stop", action="store_true",
+                        help="only Ipopt's own stopping tests (no ProgressStop)")
     args = parser.parse_args(argv)
 
     from casflex.design.study import load_study
@@ -89,18 +101,19 @@ def main(argv: list[str] | None = None) -> dict:
         options["hessian_approximation"] = "limited-memory"
     kw = {"intervals": args.intervals, "ipopt_options": options,
           "transcription": args.transcription, "max_iter": args.max_iter,
-          "dynamics": args.dynamics}
+          "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop}
     usage = resource.getrusage(resource.RUSAGE_SELF)
     # what `casflex plan` runs: the model (study's options), the SI-shaped move, its
     # limits (held joints: no torque limit), the plan, the 1 ms verification
     c = plan_robot_move(study.robot, move, 3, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1,
-                        robust=args.robust, **kw)
+                        robust=args.robust, dt=args.dt, ocp_fit=args.ocp_fit,
+                        ocp_modes=args.ocp_modes, **kw)
     after = resource.getrusage(resource.RUSAGE_SELF)
     plan, s = c.plan, c.summary()
     end = plan.stats["end"]
     # a neighbouring problem: the end bound 5 % tighter, warm-started from the plan
-    warm = plan_move(c.model, move, end=0.95 * end, guess=plan, robust=args.robust,
+    warm = plan_move(c.ocp_model or c.model, move, end=0.95 * end, guess=plan, robust=args.robust,
                      torque_limit=c.limits["torque"], velocity_limit=c.limits["velocity"],
                      **kw)
     out = {"solve_s": plan.stats["solve_s"], "solve_warm_s": warm.stats["solve_s"],
@@ -122,7 +135,11 @@ def main(argv: list[str] | None = None) -> dict:
            "warm_start_duals": warm.stats.get("warm_start_duals"),
            "status_warm": warm.stats["status"],
            "run_cpu_s": (after.ru_utime + after.ru_stime) - (usage.ru_utime + usage.ru_stime),
-           "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0]}
+           "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0],
+           "dt": args.dt, "progress_stop": not args.no_progress_stop,
+           "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3,
+           "trace": [[round(f, 5), float(f"{v:.1e}")]
+                     for f, v in plan.stats.get("objective_trace", [])]}
     if args.json:
         print(json.dumps(out))
     else:

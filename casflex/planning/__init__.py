@@ -25,6 +25,14 @@ WARM_START_OPTIONS
     Ipopt options of a warm start of :func:`plan_move` from a neighbouring plan's
     iterate and multipliers.
 
+Stopping (:mod:`casflex.planning.stopping`)
+--------------------------------------------
+ProgressStop
+    The stop of a solve on the progress of its objective at feasible iterates (an Ipopt
+    iteration callback).
+PROGRESS_STATUS
+    The status of a plan that :class:`ProgressStop` ended.
+
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
 PlannedMove
@@ -91,6 +99,7 @@ from casflex.planning.scenarios import (
     static_deflection,
     tip_jacobian,
 )
+from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.planning.verify import PlanComparison, limit_excess, plan_robot_move, verify_plan
 
 __all__ = [
@@ -102,6 +111,9 @@ __all__ = [
     "TRANSCRIPTIONS",
     "DYNAMICS",
     "WARM_START_OPTIONS",
+    # stopping
+    "ProgressStop",
+    "PROGRESS_STATUS",
     # the result
     "PlannedMove",
     # limits

@@ -49,6 +49,7 @@ from casflex.model import FlexibleModel
 from casflex.moves import Move
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
+from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
@@ -402,7 +403,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               dynamics: str = "implicit",
               max_duration: float | None = None, max_iter: int = 500,
               ipopt_options: dict | None = None, settle: float | None = None,
-              name: str | None = None) -> PlannedMove:
+              name: str | None = None,
+              progress_stop: ProgressStop | bool = True) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -473,6 +475,13 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         ``settle`` of the result [s] (default the move's, or 3).
     name : str, optional
         Name of the result (default the move's name with ``+planned``).
+    progress_stop : ProgressStop or bool
+        Also stop when the objective has stopped moving at feasible iterates
+        (:class:`casflex.planning.ProgressStop`; ``True``: its defaults, with ``leave =
+        0`` for a warm start with multipliers; ``False``: only Ipopt's own tests). Such
+        a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
+        :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
+        holds the objective and the constraint violation of every iterate.
 
     Returns
     -------
@@ -730,19 +739,34 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.set_initial(opti.lam_g, duals["lam_g"])
         options.update(WARM_START_OPTIONS)
     options.update(ipopt_options or {})
-    opti.solver("ipopt", {"print_time": False}, options)
+    # from a neighbouring solution's iterate and multipliers the start is near the
+    # optimum: the objective need not leave it before the rule may stop
+    rule = (ProgressStop(leave=0.0 if duals is not None else ProgressStop.leave)
+            if progress_stop is True else progress_stop) or None
+    if rule is not None:
+        if not isinstance(rule, ProgressStop):
+            raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
+        rule = ProgressStop(rule.window, rule.rtol, rule.leave, rule.feasibility)  # fresh
+        bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
+                  for b in (opti.lbg, opti.ubg)]
+        callback = rule.callback(*bounds, opti.nx)
+        opti.solver("ipopt", {"print_time": False, "iteration_callback": callback}, options)
+    else:
+        opti.solver("ipopt", {"print_time": False}, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
         sol = opti.solve()
         ok = True
         values = sol.value
     except RuntimeError:
-        ok = False
+        ok = rule is not None and rule.stopped
         values = opti.debug.value
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
     status = str(stats.get("return_status", "unknown"))
+    if rule is not None and rule.stopped:
+        status = PROGRESS_STATUS
     Tv = float(values(T)) if duration is None else float(T)
     Xv = np.asarray(values(X), dtype=float).reshape(nxa, N + 1)
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
@@ -767,7 +791,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     ocp_residual = predicted_residual(model, qf, Xv[n:n + m, N], Xv[2 * n + m:nx, N],
                                       max(settle, 1.0)) if m else 0.0
     info = {
-        "status": status, "success": bool(stats.get("success", ok)),
+        "status": status, "success": bool(stats.get("success", False) or ok),
         "iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
         "solve_cpu_s": solve_cpu_s,
         "objective": objective, "objective_value": float(values(opti.f)),
@@ -778,6 +802,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
+    if rule is not None:  # (objective, constraint violation) of every Ipopt iterate
+        info["objective_trace"] = [list(pair) for pair in rule.trace]
     if residual_cons:
         info["residual_bound"] = [float(values(e)) for e in residual_cons]
     solution = {"x": np.asarray(values(opti.x), dtype=float).ravel(),

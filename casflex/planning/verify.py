@@ -45,6 +45,12 @@ def _residual_after(t, deflection, t_from):
     return float(np.max(np.linalg.norm(deflection[sel], axis=1)))
 
 
+def _bound_excess(residual, end):
+    if isinstance(end, str) or end is None:
+        return None
+    return max(0.0, float(residual) / float(end) - 1.0)
+
+
 def limit_excess(peak: Sequence[float], limit: Sequence[float]) -> list[float | None]:
     """How far verified peaks exceed the limits a plan was given, per joint.
 
@@ -179,6 +185,8 @@ class PlanComparison:
         move with the joints on it, and ``errors`` (``{"error", "residual"}``).
     timings : dict
         Seconds spent in each step.
+    ocp_model : casflex.model.FlexibleModel, optional
+        The model the plan was optimised on, when not ``model`` (fewer modes, fits).
 
     Examples
     --------
@@ -196,6 +204,7 @@ class PlanComparison:
     verification: dict
     shaped_verification: dict
     timings: dict = field(default_factory=dict)
+    ocp_model: Any = None
 
     def summary(self) -> dict:
         """The JSON result of ``casflex plan`` (SI units).
@@ -212,7 +221,10 @@ class PlanComparison:
             (``torque`` and ``velocity``: per joint, how far the verified peak exceeds the
             limit the plan was given, relative, 0 when within it; ``None`` for no limit:
             the OCP bounds the torque per interval and the velocity at the nodes and
-            collocation points, and between them the motion may pass a limit slightly).
+            collocation points, and between them the motion may pass a limit slightly),
+            ``end_bound_excess`` (how far the verified residual passes the plan's end
+            bound, relative, 0 within it; ``None`` for ``end="rest"``/``"free"``: the
+            judge of a plan that Ipopt or :class:`~casflex.planning.ProgressStop` ended).
 
         Examples
         --------
@@ -234,6 +246,9 @@ class PlanComparison:
         0.5
         >>> c.summary()["limit_excess"]
         {'torque': [0.0], 'velocity': [0.0]}
+        >>> c.plan.stats["end"] = 0.01   # a residual bound [m]: the verified 0 is within it
+        >>> c.summary()["end_bound_excess"]
+        0.0
         """
         v, s, p = self.verification, self.shaped_verification, self.plan
         return {
@@ -257,6 +272,7 @@ class PlanComparison:
             "limits": {k: list(map(float, val)) for k, val in self.limits.items()},
             "limit_excess": {k: limit_excess(v[f"{k}_peak"], self.limits[k])
                              for k in ("torque", "velocity") if k in self.limits},
+            "end_bound_excess": _bound_excess(v["prescribed"], p.stats.get("end")),
             "solve_s": p.stats.get("solve_s"),
             "status": p.stats.get("status"),
             "iterations": p.stats.get("iterations"),
@@ -275,6 +291,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                     cache_dir: str | os.PathLike | None = None,
                     processes: int | None = None, progress: bool = False,
                     log: Callable[[str], None] | None = None,
+                    ocp_modes: int | None = None, ocp_fit: str | None = None,
                     **plan_options: Any) -> PlanComparison:
     """Plan a move of a robot at the limits of its SI-shaped version and verify both.
 
@@ -315,6 +332,14 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         For the modal tables (:func:`casflex.model.build_model`).
     log : callable, optional
         ``log(message)``: one line per step.
+    ocp_modes : int, optional
+        Modes of the OCP's model (default ``n_modes``); the shaper, the limits and the
+        verification keep the ``n_modes`` model, so a plan on fewer modes is judged on
+        all of them.
+    ocp_fit : {None, "chebyshev"}
+        The OCP's model from Chebyshev fits of the model terms instead of the tables'
+        B-splines (:func:`casflex.model.build_model`'s ``fit``); verified on the tables'
+        model.
     **plan_options
         More keywords of :func:`casflex.planning.plan_move` (``torque_limit``... override
         the shaped move's).
@@ -352,6 +377,13 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     robot.within_limits(move.q0, f"move '{move.name}' start q0")
     robot.within_limits(move.qf, f"move '{move.name}' goal qf")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
+    ocp_modes = n_modes if ocp_modes is None else number(ocp_modes, "ocp_modes", low=1,
+                                                         high=n_modes, integer=True)
+    if ocp_fit is not None and ocp_fit != "chebyshev":
+        raise fail("ocp_fit", ocp_fit, "must be None (the tables) or 'chebyshev'")
+    if (ocp_modes != n_modes or ocp_fit is not None) and not shape_joints(robot):
+        raise fail("ocp_fit" if ocp_fit else "ocp_modes", ocp_fit or ocp_modes,
+                   f"needs a robot with a shape joint; '{robot.name}' has none")
     say = log or (lambda message: None)
     timings = {}
     t0 = time.perf_counter()
@@ -368,6 +400,13 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         model = FlexibleModel(robot, PointwiseProvider(robot, np.zeros(robot.n_joints),
                                                        count=n_modes),
                               gravity=None, delta_order=delta_order)
+    ocp_model = model
+    if ocp_modes != n_modes or ocp_fit is not None:
+        say(f"building the OCP's {ocp_modes}-mode model"
+            + (" (Chebyshev fits)" if ocp_fit else ""))
+        ocp_model, _ = build_model(robot, n_modes=ocp_modes, step=step, gravity=None,
+                                   delta_order=delta_order, cache_dir=cache_dir,
+                                   processes=processes, progress=progress, fit=ocp_fit)
     timings["model_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(f"designing the SI shaper of {move.name} (margin ±{100 * margin:g} %)")
@@ -408,7 +447,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     if objective == "energy" and duration is None:
         duration = float(shaped.duration)
     t0 = time.perf_counter()
-    plan = plan_move(model, move, objective=objective, duration=duration,
+    plan = plan_move(ocp_model, move, objective=objective, duration=duration,
                      intervals=intervals, torque_limit=limits["torque"],
                      velocity_limit=limits["velocity"], end=end, robust=robust,
                      guess=plan_options.pop("guess", shaped), **plan_options)
@@ -422,4 +461,5 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     timings["verify_s"] = time.perf_counter() - t0
     return PlanComparison(model=model, move=move, shaped=shaped, plan=plan,
                           limits=limits, verification=verification,
-                          shaped_verification=shaped_check, timings=timings)
+                          shaped_verification=shaped_check, timings=timings,
+                          ocp_model=ocp_model)

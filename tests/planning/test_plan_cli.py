@@ -28,14 +28,18 @@ def test_plan_cli_json_and_files(tmp_path, capsys, model_cache):
     # than the shaped move's 2.76 s; with 24 it takes 2.11 s
     code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small", "--modes", "1",
                  "--step", "30deg", "--intervals", "24", "--processes", "1",
-                 "--cache-dir", str(model_cache), "--out", str(out), "--json"])
+                 "--cache-dir", str(model_cache), "--out", str(out), "--json",
+                 # the 1 ms checks (the default 0.1 ms costs ~35 s more CPU here); the
+                 # budget below is the 1 ms simulator's
+                 "--dt", "1e-3"])
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     for key in ("duration", "torque_peak", "velocity_peak", "residual_tip_deflection",
                 "solve_s", "status"):
         assert key in result
     assert set(result["shaped"]) >= {"duration", "residual_tip_deflection", "torque_peak"}
-    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level",
+                                "Stopped_On_Progress")
     # joints 2 and 3 are held by the move: no torque limit (JSON null), velocity limit
     # 1e-3 of joint 1's
     assert result["limits"]["torque"][1:] == [None, None]
@@ -68,12 +72,14 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
     moves.write_text(ONELINK_MOVE)
     tol = 2e-3
     code = main(["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
-                 "--end", str(tol), "--json"])
+                 "--end", str(tol), "--json", "--dt", "1e-3"])  # 1 ms: the suite's time
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     # Ipopt may stop at its acceptable level (plan_move's documented rule: optimality 1e-2
-    # over 15 iterates, constraints to 1e-6); the verification below judges the plan
-    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    # over 15 iterates, constraints to 1e-6) or on the progress of T (ProgressStop); the
+    # verification below judges the plan
+    assert result["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level",
+                                "Stopped_On_Progress")
     # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
     # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
     assert result["duration"] < result["shaped"]["duration"]
