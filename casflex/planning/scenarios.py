@@ -148,7 +148,8 @@ def frequency_shifted_model(model: FlexibleModel, error: float) -> FlexibleModel
     return FlexibleModel(model.robot, ScaledFrequencyProvider(model.provider, 1.0 + error),
                          gravity=model.gravity, damping_ratio=model.damping_ratio,
                          delta_order=model.delta_order, modal_mass=model.modal_mass,
-                         shape_rates=model.shape_rates, foreshortening=model.foreshortening)
+                         shape_rates=model.shape_rates, foreshortening=model.foreshortening,
+                         kinematics=model.kinematics)
 
 
 def static_deflection(model: FlexibleModel, q: ArrayLike) -> np.ndarray:

@@ -184,6 +184,10 @@ def test_scenario_models_keep_the_model_options(robot):
     shifted = frequency_shifted_model(model, 0.1)
     assert (shifted.shape_rates, shifted.foreshortening) == (True, True)
     assert shifted.delta_order == model.delta_order
+    exact = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None,
+                          kinematics="exact")
+    shifted = frequency_shifted_model(exact, 0.1)
+    assert (shifted.kinematics, shifted.modal_mass) == ("exact", exact.modal_mass)
 
 
 def test_implicit_and_explicit_dynamics_agree(flexible):
