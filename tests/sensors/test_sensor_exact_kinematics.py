@@ -40,8 +40,8 @@ SENSORS = SensorSet([
 
 @pytest.fixture(scope="module")
 def pointwise(arm):
-    """Both kinematics on the same three modes frozen at ``Q``, gravity on."""
-    provider = PointwiseProvider(arm, Q, count=3, points=SENSORS.points)
+    """Both kinematics on the same two modes frozen at ``Q``, gravity on."""
+    provider = PointwiseProvider(arm, Q, count=2, points=SENSORS.points)
     return (FlexibleModel(arm, provider), FlexibleModel(arm, provider, kinematics="exact"))
 
 
@@ -67,7 +67,7 @@ def test_first_order_equals_the_truncated_sensor(pointwise):
         jac.append(ca.Function("j", [model.delta, x, u, a],
                                [p, ca.jacobian(p, model.delta), y,
                                 ca.jacobian(y, ca.vertcat(x, a))]))
-    for _ in range(3):
+    for _ in range(2):
         u = np.r_[RNG.uniform(-1, 1, 3), RNG.normal(0, 1, 3), RNG.normal(0, 3, 3)]
         args = (z, np.zeros(2 * m), u, z)
         for a, b in zip(jac[0](*args), jac[1](*args), strict=True):
@@ -83,11 +83,16 @@ def test_first_order_equals_the_truncated_sensor(pointwise):
 # ------------------------------------------------------------------ the arc
 
 
-def _arc_model(arm, bend, points):
+@pytest.fixture(scope="module")
+def one_mode(arm):
+    """The quantities of one mode at ``Q`` (the arc's fields replace its shapes)."""
+    return PointwiseProvider(arm, Q, count=1).quantities
+
+
+def _arc_model(arm, base, bend, points):
     """An exact model whose one mode bends link 1 with constant curvature ``κ = bend/L``
     about its local x (``ϑ = κ s e_x``, ``w = −½ κ s² e_y``, the arc's first order), link 2
     undeformed; the tabulated values at the sensor ``points`` from the same field."""
-    base = PointwiseProvider(arm, Q, count=1).quantities
     link = arm.links[2]
     k = bend / link.length
     values = {key: np.array(v, copy=True) for key, v in base.items()}
@@ -115,7 +120,7 @@ def _walk_bounds(link, s, k):
 
 
 @pytest.mark.parametrize("bend", [0.15, 1.5])
-def test_sensor_rides_the_circular_arc(arm, bend):
+def test_sensor_rides_the_circular_arc(arm, one_mode, bend):
     """At δ = 1 the link is the arc: a sensor at ``s`` sits at ``(0, −(1 − cos κs)/κ,
     sin(κs)/κ)`` in the link's base frame, its section turned by ``κs`` about x, and
     the sensing element at the offset turned with it; the frame of a sensor is read from
@@ -129,7 +134,7 @@ def test_sensor_rides_the_circular_arc(arm, bend):
         probes += [Accelerometer(2, s, name=f"p{s}_{a}", offset=tuple(c * np.eye(4)[i, :3]))
                    for i, a in enumerate("xyzo")]
     sensors = SensorSet(list(SENSORS) + probes)
-    model, k = _arc_model(arm, bend, sensors.points)
+    model, k = _arc_model(arm, one_mode, bend, sensors.points)
     pos = point_position_function(model, sensors)
     out = {name: v.full().ravel()
            for name, v in zip(pos.name_out(), pos(Q, [1.0]), strict=True)}
@@ -152,3 +157,46 @@ def test_sensor_rides_the_circular_arc(arm, bend):
         R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
         _, angle = _walk_bounds(link, s, k)
         assert np.abs(T[:3, :3].T @ frame - R).max() < 1.02 * angle + 1e-12
+
+
+# ------------------------------------------------------------------ acceleration
+
+# q(t) = Q0 + QA sin(W t), δ(t) = D0 + DA sin(W t): elbow travel ±0.8 rad at 3 rad/s, and
+# deflections into the nonlinear range (0.05 √kg m: ~0.1 rad at the links' ends)
+Q0, QA = np.array([0.2, -0.3, 0.4]), np.array([0.5, -0.7, 0.8])
+D0, DA = np.array([0.03, -0.05, 0.02]), np.array([0.02, 0.03, -0.03])
+W = 3.0
+
+
+def _traj(t):
+    s, c = np.sin(W * t), np.cos(W * t)
+    return (Q0 + QA * s, QA * W * c, -QA * W**2 * s,
+            D0 + DA * s, DA * W * c, -DA * W**2 * s)
+
+
+@pytest.mark.slow
+def test_acceleration_is_second_derivative_of_position(arm_model):
+    """The signals of the exact model (inertial frame, gravity on: ``p̈ − g``; tabulated
+    shapes following the elbow, 3 modes, 15° table) equal the second time derivative of
+    the sensor's position (``point_position_function``) by a Richardson-extrapolated
+    central difference along a trajectory, plus ``−g``, for the full and the lean sensor
+    graph (the estimator's). Difference error: truncation ~dt⁴|p⁽⁶⁾|/360 and rounding
+    ~1e-16 m/dt², both ~1e-10 m/s² (as test_sensor_shape_rates.py); 1e-6 m/s² is far
+    above them and far below the nonlinear part of the signal."""
+    sensors = SENSORS.with_options(frame="inertial", gravity=True, rigid=True)
+    model, _ = arm_model(3, step_deg=15, points=sensors.points, kinematics="exact")
+    g = np.asarray(model.gravity, dtype=float)
+    pos = point_position_function(model, sensors)
+    graphs = [kinematic_measurement(model, sensors, lean=lean) for lean in (False, True)]
+    for t0 in (0.1, 0.8):
+        q, dq, ddq, d, dd, ddd = _traj(t0)
+        fd2 = []
+        for dt in (2e-3, 1e-3):
+            p = [np.concatenate([o.full().ravel()
+                                 for o in pos(*(_traj(t)[i] for i in (0, 3)))])
+                 for t in (t0 - dt, t0, t0 + dt)]
+            fd2.append((p[0] - 2.0 * p[1] + p[2]) / dt**2)
+        fd = (4.0 * fd2[1] - fd2[0]) / 3.0 - np.tile(g, len(sensors))
+        for h in graphs:
+            y = h(np.r_[d, dd], np.r_[q, dq, ddq], ddd).full().ravel()
+            np.testing.assert_allclose(y, fd, rtol=0, atol=1e-6)
