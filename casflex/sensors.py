@@ -21,6 +21,13 @@ which is eq. 148 (``T̈ r + 2 Ṫ ṙ + T r̈``) with the deflection of the inbo
 ``T_b`` included, and with ``δ̈`` eliminated through the flexible rows of the equations of
 motion (eq. 157–158, :attr:`casflex.model.FlexibleModel.prescribed_dddelta`).
 
+On a model with ``kinematics="exact"`` the point rides the exact rod instead
+(:mod:`casflex.model.strain_kinematics`): the model's walk from the link's base through
+its nodes, continued to ``s`` with the tabulated ``w(s)``, ``ϑ(s)`` of the sensor point
+(:func:`~casflex.model.strain_kinematics.rod_point`), gives the section's rotation
+``R_s`` and centre ``r_s``, and ``p = T_b [r_s + R_s o; 1]``, ``R = R_b R_s``; to first
+order in δ this is the point above.
+
 * ``frame = "sensor"`` (default): components along the axes of the deflected link at the
   sensor, ``R = R_b (I + [ϑ(s)δ ×])`` (eq. 153); ``"inertial"``: base-frame components.
 * ``gravity = True`` (default, MEMS and other DC-coupled sensors): the sensor measures the
