@@ -459,10 +459,11 @@ def _depends(fexact, n, m, joints, rng):
 
 def _check_modal_block(model, joints, seed):
     """Refuse a model whose modal mass block at δ = 0 changes with a joint the plant
-    expands in a Fourier series: the rows then depend on it through ``M_δδ(q, 0)⁻¹``,
-    which no trigonometric polynomial holds (``kinematics="exact"`` with its own modal
-    block, ``modal_mass="kinematic"``, on a provider without that joint as a shape
-    joint). The default truncated model has ``M_δδ(q, 0) = I``."""
+    expands in a Fourier series (any joint but the shape joints): the rows then depend
+    on it through ``M_δδ(q, 0)⁻¹``, which no trigonometric polynomial holds
+    (``kinematics="exact"`` with its own modal block, ``modal_mass="kinematic"``, on a
+    provider without that joint as a shape joint). The default truncated model has
+    ``M_δδ(q, 0) = I``."""
     n, m = model.n, model.m
     if not m or not joints:
         return
@@ -594,11 +595,11 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     choice(derivatives, "derivatives", ("exact", "differences"))
     n, m = model.n, model.m
     rng = np.random.default_rng(seed)
-    fexact = exact_plant_function(model)
     shape = tuple(model.provider.shape_joints)
     others = [j for j in range(n) if j not in shape]
+    _check_modal_block(model, others, seed)
+    fexact = exact_plant_function(model)
     fourier = _depends(fexact, n, m, others, rng)
-    _check_modal_block(model, fourier, seed)
     mono = _monomials(n)
     designs = _designs(n)
     Dm = np.array([_monomial_values(mono, dq, ddq) for dq, ddq in designs])
