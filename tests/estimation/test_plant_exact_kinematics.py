@@ -36,28 +36,29 @@ def test_exact_modal_block_on_a_fourier_joint_is_refused(arm):
 
 DT = 1e-3
 DQ, DDQ = np.array([0.5, -1.5, 2.0]), np.array([1.0, -2.0, 3.0])
-# [δ; δ̇] small enough that the plant's truncation (second order in Δ) is far below the
-# tolerance, as in test_plant_model_options.py
-X = np.array([0.001, -0.0005, 0.0008, 0.01, -0.005, 0.008])
+# [δ; δ̇] of the one mode, small enough that the plant's truncation (second order in Δ)
+# is far below the tolerance, as in test_plant_model_options.py
+X = np.array([0.001, 0.01])
 
 
 @pytest.mark.slow
 def test_ekf_runs_on_an_exact_model(arm_model, accel_sensors):
-    """An exact model on the 15° table (3 modes, q3 the shape joint: its modal block is
+    """An exact model on the 15° table (one mode, q3 the shape joint: its modal block is
     held by the B-spline), its plant tabulated on every sixth grid point (4 points: the
-    tabulation of the exact rows costs ~7× the truncated model's, 304 s against 41 s on
-    the full 24-point grid under load). At a grid point the EKF step (mask 0) predicts as
-    RK4 on the model's own rows, to the plant's truncation in Δ (measured 1.1e-4 of the
-    step's change; bound 1e-3); given the signals the exact sensor model gives at the
-    prior (``kinematic_measurement`` with the plant's δ̈), the update (before the
-    prediction) leaves the state unchanged, to rounding (measured 1.5e-16): the EKF
-    measures with the exact rods. The truncated sensors' signals at that state move it
-    by 0.013, so the check would see a truncated measurement."""
+    tabulation of the exact rows costs ~7× the truncated model's, 304 s against 41 s
+    with 3 modes on the full 24-point grid under load). At a grid point the EKF step
+    (mask 0) predicts as RK4 on the model's own rows, to the plant's truncation in Δ
+    (~|X|² ~ 1e-4 of δ̈; measured 1.3e-7 of the step's change, bound 1e-3); given the
+    signals the exact sensor model gives at the prior (``kinematic_measurement`` with
+    the plant's δ̈), the update (before the prediction) leaves the state unchanged, to
+    rounding (measured 4e-17): the EKF measures with the exact rods. The truncated
+    model's signals at that state move it by 7e-4, so the check would see a truncated
+    measurement."""
     from casflex.estimation import ekf_step_function
     from casflex.sensors import kinematic_measurement
     from casflex.simulate.integrators import rk4_step
 
-    model, table = arm_model(3, step_deg=15, gravity=None, points=accel_sensors.points,
+    model, table = arm_model(1, step_deg=15, gravity=None, points=accel_sensors.points,
                              kinematics="exact")
     grid = (np.asarray(table.grid[0])[::6],)
     plant = tabulate_plant(model, grid=grid, cache_dir=False)
@@ -82,8 +83,7 @@ def test_ekf_runs_on_an_exact_model(arm_model, accel_sensors):
     y = kinematic_measurement(model, accel_sensors)(X, u, ddd).full().ravel()
     post = step(X, P, u, y, np.ones(ny))[0].full().ravel()
     np.testing.assert_allclose(post, pred, rtol=0, atol=1e-9 * np.abs(pred).max())
-    plain, _ = arm_model(3, step_deg=15, gravity=None, delta_order=1,  # as
-                         points=accel_sensors.points)  # test_plant_model_options.py
+    plain, _ = arm_model(1, step_deg=15, gravity=None, points=accel_sensors.points)
     y_plain = kinematic_measurement(plain, accel_sensors)(X, u, ddd).full().ravel()
     moved = step(X, P, u, y_plain, np.ones(ny))[0].full().ravel()
     assert np.abs(moved - pred).max() > 1e3 * 1e-9 * np.abs(pred).max()
