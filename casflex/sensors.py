@@ -21,6 +21,13 @@ which is eq. 148 (``T̈ r + 2 Ṫ ṙ + T r̈``) with the deflection of the inbo
 ``T_b`` included, and with ``δ̈`` eliminated through the flexible rows of the equations of
 motion (eq. 157–158, :attr:`casflex.model.FlexibleModel.prescribed_dddelta`).
 
+On a model with ``kinematics="exact"`` the point rides the exact rod instead
+(:mod:`casflex.model.strain_kinematics`): the model's walk from the link's base through
+its nodes, continued to ``s`` with the tabulated ``w(s)``, ``ϑ(s)`` of the sensor point
+(:func:`~casflex.model.strain_kinematics.rod_point`), gives the section's rotation
+``R_s`` and centre ``r_s``, and ``p = T_b [r_s + R_s o; 1]``, ``R = R_b R_s``; to first
+order in δ this is the point above.
+
 * ``frame = "sensor"`` (default): components along the axes of the deflected link at the
   sensor, ``R = R_b (I + [ϑ(s)δ ×])`` (eq. 153); ``"inertial"``: base-frame components.
 * ``gravity = True`` (default, MEMS and other DC-coupled sensors): the sensor measures the
@@ -75,6 +82,8 @@ import numpy as np
 from casflex._problemfile import TableReader, read_toml
 from casflex._validate import choice, fail, identifier, plausible, to_float
 from casflex.errors import ModelError, ProblemFileError
+from casflex.modal.integrals import RATE_KEYS
+from casflex.model.strain_kinematics import rod_nodes, rod_point
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
@@ -608,18 +617,21 @@ def _point_data(model, sensors):
             data[key] = shared[key]
         else:
             data[key] = ca.SX(f(model.q_shape))
+    if getattr(model, "kinematics", "truncated") == "exact":
+        # the exact rods are walked through the shapes sampled inside the links
+        for key in RATE_KEYS:
+            data[key] = (shared[key] if shared is not None and key in shared
+                         else ca.SX(model.provider.function(key)(model.q_shape)))
     return data
 
 
 def _point_pose(model, sensors, data, sensor):
-    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ)."""
-    if getattr(model, "kinematics", "truncated") == "exact":
-        raise ModelError("sensor kinematics of a model with kinematics='exact' are not "
-                         "implemented: the points would ride on the truncated link-local "
-                         "deflection (strain sensors are exact; issue 19)")
+    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ): on the link-local
+    deflection to first order (default kinematics), or on the exact rod (``"exact"``)."""
     m = model.m
     i = sensors.point_index(sensor)
-    T = _beam_body(model, sensor.row)["T"]
+    body = _beam_body(model, sensor.row)
+    T = body["T"]
     d = model.delta
     w = ca.SX.zeros(3)
     th = ca.SX.zeros(3)
@@ -627,9 +639,19 @@ def _point_pose(model, sensors, data, sensor):
         k = (i * m + j) * 3
         w += d[j] * data["point_u"][k:k + 3]
         th += d[j] * data["point_theta"][k:k + 3]
-    Rl = ca.SX.eye(3) + ca.skew(th)
     off = ca.DM(list(getattr(sensor, "offset", (0.0, 0.0, 0.0))))
-    local = ca.vertcat(0, 0, sensor.s) + w + Rl @ off
+    if getattr(model, "kinematics", "truncated") == "exact":
+        # the rod walked from the link's base through the model's nodes to s (one rod per
+        # link and call, shared by the link's sensors)
+        rods = data.setdefault("rods", {})
+        if sensor.row not in rods:
+            rods[sensor.row] = rod_nodes(model.robot.links[sensor.row], body["beam"],
+                                         data["sample_u"], data["sample_theta"], d)
+        Rl, centre = rod_point(rods[sensor.row], sensor.s, w, th)
+        local = centre + Rl @ off
+    else:
+        Rl = ca.SX.eye(3) + ca.skew(th)
+        local = ca.vertcat(0, 0, sensor.s) + w + Rl @ off
     p = T[:3, :3] @ local + T[:3, 3]
     return p, T[:3, :3] @ Rl
 
@@ -776,6 +798,9 @@ def _placeholder_kinematics(model, sensors):
         col = model.Q[name]
         syms += [col[i] for i in range(col.numel()) if col[i].is_symbolic()]
     for key in sorted(shared):
+        if key in model.Q:  # the shapes sampled inside the links: the model's placeholders
+            data[key] = model.Q[key]
+            continue
         # entries vanishing over the whole grid stay constant zeros, as in the model
         sym = ca.SX.sym(key, shared[key].numel())
         zero = model.provider.zero_entries(key) if shared[key].numel() else []

@@ -60,6 +60,7 @@ from casflex._cache import (
     source_digest,
 )
 from casflex._validate import choice
+from casflex.errors import ModelError
 
 if TYPE_CHECKING:
     from casflex.modal.tables import ModalTable
@@ -456,6 +457,36 @@ def _depends(fexact, n, m, joints, rng):
     return tuple(out)
 
 
+def _check_modal_block(model, joints, seed):
+    """Refuse a model whose modal mass block at δ = 0 changes with a joint the plant
+    expands in a Fourier series (any joint but the shape joints): the rows then depend
+    on it through ``M_δδ(q, 0)⁻¹``, which no trigonometric polynomial holds
+    (``kinematics="exact"`` with its own modal block, ``modal_mass="kinematic"``, on a
+    provider without that joint as a shape joint). The default truncated model has
+    ``M_δδ(q, 0) = I``."""
+    n, m = model.n, model.m
+    if not m or not joints:
+        return
+    block = ca.Function("modal_block", [model.q], [ca.substitute(
+        model.M[n:, n:], model.delta, ca.DM.zeros(m))])
+    rng = np.random.default_rng([seed, 19])  # not the tabulation's stream
+    for j in joints:
+        for _ in range(2):
+            q = rng.uniform(-np.pi, np.pi, n)
+            q2 = q.copy()
+            q2[j] += rng.uniform(0.5, 2.5)
+            a, b = block(q).full(), block(q2).full()
+            if np.abs(a - b).max() > 1e-9 * max(np.abs(a).max(), 1e-300):
+                raise ModelError(
+                    f"the model's modal mass block M_δδ(q, 0) changes with q{j + 1} "
+                    f"(by {np.abs(a - b).max():.2g}), which is not a shape joint of its "
+                    f"provider: the plant's Fourier series in q{j + 1} cannot hold its "
+                    "inverse. Build the model with modal_mass='first_order' (M_δδ(q, 0) = I) "
+                    f"or on a provider with q{j + 1} among its shape joints (kinematics="
+                    f"{getattr(model, 'kinematics', 'truncated')!r}, modal_mass="
+                    f"{getattr(model, 'modal_mass', None)!r})")
+
+
 def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = None,
                    step: float | None = None, degree: int = 2, eps: float = 1e-4,
                    check: bool = True, seed: int = 0, order: int = 2, eps2: float = 1e-3,
@@ -525,6 +556,13 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     -------
     FlexiblePlant
 
+    Raises
+    ------
+    casflex.errors.ModelError
+        When the model's modal mass block ``M_δδ(q, 0)`` changes with a joint the plant
+        would expand in a Fourier series (``kinematics="exact"`` with
+        ``modal_mass="kinematic"`` on a provider without that shape joint).
+
     Examples
     --------
     >>> from casflex.robot import load
@@ -557,9 +595,10 @@ def tabulate_plant(model: FlexibleModel, *, grid: Sequence[ArrayLike] | None = N
     choice(derivatives, "derivatives", ("exact", "differences"))
     n, m = model.n, model.m
     rng = np.random.default_rng(seed)
-    fexact = exact_plant_function(model)
     shape = tuple(model.provider.shape_joints)
     others = [j for j in range(n) if j not in shape]
+    _check_modal_block(model, others, seed)
+    fexact = exact_plant_function(model)
     fourier = _depends(fexact, n, m, others, rng)
     mono = _monomials(n)
     designs = _designs(n)

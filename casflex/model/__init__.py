@@ -30,6 +30,8 @@ node_interpolation
     The rod's nodes along a link and the map from the tabulated samples.
 rod_nodes
     One link rebuilt exactly from the modal strains (SX).
+rod_point
+    The section of a rod at an arc length between its nodes (the sensors' points).
 point_mass_terms
     Mass matrix, bias forces, Coriolis matrix and gravity of the exact rods.
 
@@ -75,6 +77,7 @@ from casflex.model.strain_kinematics import (
     node_interpolation,
     point_mass_terms,
     rod_nodes,
+    rod_point,
 )
 
 __all__ = [
@@ -90,6 +93,7 @@ __all__ = [
     "node_interpolation",
     "point_mass_terms",
     "rod_nodes",
+    "rod_point",
     # providers
     "TableProvider",
     "ChebyshevProvider",
