@@ -196,12 +196,17 @@ three). Without ``shape_rates`` the planar elbow moves still miss (gap up to 38 
 shapes' rates matter there, the exact kinematics on Table 9 move 3.
 
 Cost (``benchmarks/README_fidelity.md``): ~8× the SX instructions of the modal rows
-(``dddelta`` 0.23 M against 30 k), so the option is off by default. ``poly`` simulation
-and the accelerometers' point kinematics (hence the EKF plant with accelerometers and the
-design job) refuse it with a :class:`~casflex.errors.ModelError`; ``method="rk4"`` and
-``functions()`` take it (the strain sensors' curvature is linear in δ, exact here). The
-Functions are SX, but C code generation of them is not verified: the C of ``dddelta``
-(0.23 M instructions) had not compiled after 10 min at ``-O1`` on a loaded machine.
+(``dddelta`` 0.23 M against 30 k), so the option is off by default. ``method="rk4"``,
+``functions()`` and the sensors take it: an accelerometer rides the exact rod
+(:func:`~casflex.model.strain_kinematics.rod_point`; its measurement graph is ~55× the
+truncated one) and the strain sensors' curvature is linear in δ, exact here. The EKF
+plant (``tabulate_plant``) takes it when the joints it expands in Fourier series leave
+the modal block ``M_δδ(q, 0)`` unchanged — the exact model's block follows the rods, so
+the elbow must be a shape joint (a table) or ``modal_mass="first_order"`` be chosen;
+otherwise it refuses with a :class:`~casflex.errors.ModelError`. ``poly`` simulation and
+the design job refuse the option. The Functions are SX, but C code generation of them is
+not verified: the C of ``dddelta`` (0.23 M instructions) had not compiled after 10 min
+at ``-O1`` on a loaded machine.
 """
 
 from __future__ import annotations
