@@ -74,9 +74,12 @@ def test_small_slow_move_agrees(arm_model, ref_cache, shape_rates):
 # of the peak, against the converged reference (16 elements, 1 ms: 32 elements and 0.5 ms
 # move it by < 0.5 % of the peak). Measured with 5 modes, default 1.5° grid, RK4 at 1 ms
 # (benchmarks/README_fidelity.md); a model variant that misses is xfail(strict) with its
-# numbers, so that a fix shows as XPASS.
+# numbers, so that a fix shows as XPASS. The default model's misses (move2: peak +0.90 %,
+# residual +0.53 %, gap 8.4 % of peak; elbow2_1s: +5.66 / +1.68 / 24.9 %; elbow2_2s:
+# +1.39 / +5.44 / 20.7 %) are the issue's own table; they are measured by
+# `python benchmarks/bench_fidelity.py --variants base` and no longer re-run here (~50 s
+# of the suite's 15 minutes for a known miss).
 _VARIANTS = {
-    "default": {},
     "rates": {"shape_rates": True},
     "rates_short": {"shape_rates": True, "foreshortening": True},
     # the links rebuilt from the modal strains, with the shapes' rates (session 9),
@@ -88,9 +91,6 @@ _VARIANTS = {
 }
 _STEPS = {"rates_exact": 5e-3}
 _MISSES = {
-    ("move2", "default"): "peak +0.90 %, residual +0.53 %, gap 8.4 % of peak",
-    ("elbow2_1s", "default"): "peak +5.66 %, residual +1.68 %, gap 24.9 % of peak",
-    ("elbow2_2s", "default"): "peak +1.39 %, residual +5.44 %, gap 20.7 % of peak",
     ("elbow2_1s", "rates"): "peak +1.35 %, residual +5.64 %, gap 3.6 % of peak",
 }
 
