@@ -91,6 +91,7 @@ Modal tables
    robot_fingerprint   -- canonical description of what changes a robot's dynamics
    canonical           -- exact JSON-able canonical form of a value (for cache keys)
    tmm_digest          -- digest of the TMM's source (part of the cached modes' key)
+   function_identity   -- what identifies a quantity function in a cache key
    local_bspline_function -- a table's cubic B-spline evaluated locally (lean generated C)
    grid_function      -- casadi.Function interpolating gridded values (a table's lookup)
 
@@ -150,7 +151,7 @@ from casflex.modal.subspace import (
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
 from casflex.modal.table_functions import grid_function, local_bspline_function
-from casflex.modal.tablekeys import canonical, robot_fingerprint, tmm_digest
+from casflex.modal.tablekeys import canonical, function_identity, robot_fingerprint, tmm_digest
 from casflex.modal.tables import (
     ModalTable,
     build_table,
@@ -247,6 +248,7 @@ __all__ = [
     "robot_fingerprint",
     "canonical",
     "tmm_digest",
+    "function_identity",
     "local_bspline_function",
     "grid_function",
     # frequency sweeps

@@ -1,13 +1,16 @@
 """Cache keys of the modal tables: a robot's canonical description and the TMM's code.
 
-The keys of :func:`casflex.modal.build_table` hash what changes a table's values: the
-robot (:func:`robot_fingerprint`), the grid and settings in an exact canonical form
-(:func:`canonical`) and the source of the code that computes them (:func:`tmm_digest`).
+The keys of :func:`casflex.modal.build_table` (and of :func:`casflex.modal.fit_model_terms`'s
+checkpoints) hash what changes a table's values: the robot (:func:`robot_fingerprint`),
+the grid and settings in an exact canonical form (:func:`canonical`), the source of the
+code that computes them (:func:`tmm_digest`) and the quantity function
+(:func:`function_identity`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from typing import TYPE_CHECKING, Any
 
@@ -18,7 +21,7 @@ from casflex._cache import source_digest
 if TYPE_CHECKING:
     from casflex.robot import Robot
 
-__all__ = ["canonical", "robot_fingerprint", "tmm_digest"]
+__all__ = ["canonical", "function_identity", "robot_fingerprint", "tmm_digest"]
 
 
 def canonical(obj: Any) -> Any:
@@ -118,3 +121,49 @@ def tmm_digest() -> str:
 
     return source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
                           casflex.tmm.kernels, casflex.tmm.conditioning, casflex.robot)
+
+
+def function_identity(func: Any) -> Any:
+    """What identifies a quantity function in a cache key: its name, version and source.
+
+    Parameters
+    ----------
+    func : callable or None
+        A quantity function (``(robot, q, shapes) -> dict``), a ``functools.partial`` of
+        one, or None. :func:`casflex.modal.default_quantities` also stands for the mass
+        normalisation and the mode integrals it calls.
+
+    Returns
+    -------
+    object
+        A JSON-able description: name, version and a digest of the source; for a partial,
+        the identity of its function with its arguments in canonical form.
+
+    Examples
+    --------
+    >>> from casflex.modal import default_quantities
+    >>> function_identity(default_quantities)["name"]
+    'casflex.modal.tables.default_quantities'
+    >>> sorted(function_identity(functools.partial(max, default=0)))
+    ['args', 'keywords', 'partial']
+    """
+    from casflex.modal.tables import default_quantities
+
+    if func is default_quantities:
+        import casflex.modal.integrals
+        import casflex.modal.normalize
+
+        return {"name": "casflex.modal.tables.default_quantities",
+                "digest": source_digest(default_quantities, casflex.modal.normalize,
+                                         casflex.modal.integrals)}
+    if func is None:
+        return None
+    if isinstance(func, functools.partial):
+        return {"partial": function_identity(func.func),
+                "args": canonical(list(func.args)),
+                "keywords": canonical(dict(func.keywords))}
+    return {
+        "name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
+        "version": str(getattr(func, "version", getattr(func, "__version__", ""))),
+        "digest": source_digest(func),
+    }

@@ -54,7 +54,6 @@ by the others.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import os
@@ -86,7 +85,12 @@ from casflex.modal import rotated, subspace
 from casflex.modal import tracking as trk
 from casflex.modal.fits import periodic_axis_kind
 from casflex.modal.table_functions import grid_function
-from casflex.modal.tablekeys import canonical, robot_fingerprint, tmm_digest
+from casflex.modal.tablekeys import (
+    canonical,
+    function_identity,
+    robot_fingerprint,
+    tmm_digest,
+)
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -365,27 +369,6 @@ def compute_modes(robot: Robot, qs: ArrayLike, count: int, *, n_points: int = 51
 
 
 # ------------------------------------------------------------------ keys and files
-
-
-def _function_identity(func):
-    if func is default_quantities:
-        import casflex.modal.integrals
-        import casflex.modal.normalize
-
-        return {"name": "casflex.modal.tables.default_quantities",
-                "digest": source_digest(default_quantities, casflex.modal.normalize,
-                                         casflex.modal.integrals)}
-    if func is None:
-        return None
-    if isinstance(func, functools.partial):
-        return {"partial": _function_identity(func.func),
-                "args": canonical(list(func.args)),
-                "keywords": canonical(dict(func.keywords))}
-    return {
-        "name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
-        "version": str(getattr(func, "version", getattr(func, "__version__", ""))),
-        "digest": source_digest(func),
-    }
 
 
 # ------------------------------------------------------------------ the table
@@ -697,7 +680,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     })
     table_key = digest({
         "modes": modes_key, "n_modes": int(n_modes), "weighting": weighting,
-        "tracking": source_digest(trk), "quantities": _function_identity(
+        "tracking": source_digest(trk), "quantities": function_identity(
             quantities if quantities else None),
         "tables": source_digest(build_table, ModalTable, grid_function),
         **({} if basis == "eigen" else {"basis": basis,

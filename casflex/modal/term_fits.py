@@ -399,7 +399,7 @@ class _Checkpoint:
         import casflex.tmm.kernels
         import casflex.tmm.solve
         from casflex._cache import digest, source_digest
-        from casflex.modal.tables import robot_fingerprint
+        from casflex.modal.tablekeys import function_identity, robot_fingerprint
 
         if basis != "smooth":
             raise ModelError("checkpoint= needs basis='smooth' (the eigen basis keeps every "
@@ -408,7 +408,7 @@ class _Checkpoint:
         self.directory.mkdir(parents=True, exist_ok=True)
         self.key = digest({
             "casflex": casflex.__version__, "robot": robot_fingerprint(robot),
-            "function": _function_key(func), "joints": list(joints),
+            "function": function_identity(func), "joints": list(joints),
             "box": [list(b) for b in box], "count": count, "n_modes": n_modes,
             "gauge": gauge, "reference_degree": reference_degree, "gap": float(gap),
             "code": source_digest(casflex.tmm.chain, casflex.tmm.fast, casflex.tmm.kernels,
@@ -460,20 +460,6 @@ class _Checkpoint:
                 store.solved += 1
             if not left:
                 self.used.add(path.name)
-
-
-def _function_key(func):
-    """What identifies a quantity function in a checkpoint's key."""
-    import functools
-
-    from casflex._cache import source_digest
-    from casflex._json import jsonable
-
-    if isinstance(func, functools.partial):
-        return {"partial": _function_key(func.func), "args": jsonable(list(func.args)),
-                "keywords": jsonable(dict(func.keywords))}
-    return {"name": f"{getattr(func, '__module__', '?')}.{getattr(func, '__qualname__', '?')}",
-            "digest": source_digest(func)}
 
 
 def _reference_field(func, robot, joints, box, count, n_modes, degree, gap, store,
