@@ -135,24 +135,37 @@ def _noop(x):
     return x
 
 
-def measure_build(client, robot, grid, n_modes, keep=True):
-    """Build a table on ``client``; wall, client CPU (main, other threads), workers' CPU.
-    ``keep=False``: the raw modes come to the client (the path before issue 17 part 6's
-    second step, ``casflex.modal.tables.KEEP_ON_WORKERS``)."""
+#: the Dask paths of ``build_table`` measured: ``tables.KEEP_ON_WORKERS`` and
+#: ``tables.TRACK_ON_WORKERS`` of each ("lines": session 10, the tracking on the workers
+#: by grid lines; "kept": session 9, raw modes kept on the workers, tracking in the
+#: client; "client": before, every point's raw modes through the client)
+PATHS = {"lines": (True, True), "kept": (True, False), "client": (False, False)}
+
+
+def measure_build(client, robot, grid, n_modes, path="lines", idle=False):
+    """Build a table on ``client`` by ``path`` (:data:`PATHS`); wall, client CPU (main,
+    other threads), workers' CPU. ``idle``: then leave the cluster idle for the same wall
+    time and record its background CPU over it (``idle_client_s``, ``idle_workers_s``)."""
     from casflex.modal import tables
 
     w0, c0 = client.run(_cpu), _thread_cpu()
     t0 = time.perf_counter()
-    before, tables.KEEP_ON_WORKERS = getattr(tables, "KEEP_ON_WORKERS", None), keep
+    before = tables.KEEP_ON_WORKERS, tables.TRACK_ON_WORKERS
+    tables.KEEP_ON_WORKERS, tables.TRACK_ON_WORKERS = PATHS[path]
     try:
         table = tables.build_table(robot, grid, n_modes, cache_dir=False, client=client)
     finally:
-        tables.KEEP_ON_WORKERS = before
+        tables.KEEP_ON_WORKERS, tables.TRACK_ON_WORKERS = before
     wall = time.perf_counter() - t0
     c1, w1 = _thread_cpu(), client.run(_cpu)
-    workers = sum(w1[k] - w0[k] for k in w1)
-    return table, {"wall_s": wall, "client_main_s": c1[0] - c0[0],
-                   "client_other_s": c1[1] - c0[1], "workers_s": workers}
+    got = {"wall_s": wall, "client_main_s": c1[0] - c0[0],
+           "client_other_s": c1[1] - c0[1], "workers_s": sum(w1[k] - w0[k] for k in w1)}
+    if idle:
+        time.sleep(wall)
+        c2, w2 = _thread_cpu(), client.run(_cpu)
+        got.update(idle_client_s=sum(c2) - sum(c1), idle_workers_s=sum(w2[k] - w1[k]
+                                                                        for k in w2))
+    return table, got
 
 
 def measure_tasks(client, n_tasks, idle_s=3.0):
@@ -260,7 +273,8 @@ def bench_pool_blas(repeat):
 
 
 def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s):
-    """Predicted speed-up of a table build on ``workers`` workers over one worker.
+    """Predicted speed-up of a table build on ``workers`` workers over one worker, by the
+    path of session 9 (``"kept"``: tasks of points, the tracking in the client).
 
     Wall(W) = N c + T(W) o + max(N w / W, one chunk of w) where N points cost ``w``
     [s] each in the workers and ``c`` each in the client (unpickling, tracking: serial),
@@ -272,6 +286,27 @@ def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s
         tasks = 2 * -(-n_points // chunk)
         return (n_points * client_s_per_point + tasks * task_s
                 + max(n_points * worker_s_per_point / w, chunk * worker_s_per_point))
+
+    return {str(w): wall(1) / wall(w) for w in workers}
+
+
+def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point, task_s):
+    """:func:`projection` for the path by grid lines (``"lines"``, session 10).
+
+    The L lines along the last axis (n points each) go in B(W) = min(L, 2 W) blocks
+    (:func:`casflex.modal.line_blocks`), two tasks each; a worker holds up to ⌈B / W⌉
+    blocks of up to ⌈L / B⌉ lines: Wall(W) = N c + 2 B(W) o + ⌈B / W⌉ ⌈L / B⌉ n w.
+    Past W = L / 2 the blocks are single lines and the workers beyond L idle."""
+    from casflex.modal import line_blocks
+
+    n_lines, n_last = int(np.prod(grid_shape[:-1])), int(grid_shape[-1])
+    n_points = n_lines * n_last
+
+    def wall(w):
+        blocks = line_blocks(n_lines, w)
+        most = max(sum(b.size for b in blocks[i::w]) for i in range(min(w, len(blocks))))
+        return (n_points * client_s_per_point + 2 * len(blocks) * task_s
+                + most * n_last * worker_s_per_point)
 
     return {str(w): wall(1) / wall(w) for w in workers}
 
@@ -327,15 +362,16 @@ def bench_dask(repeat, n_tasks):
             # a while, which in the worker's event loop would stop its heartbeats
             clients[n].gather([clients[n].submit(_warm, workers=[w], pure=False)
                                for w in clients[n].scheduler_info()["workers"]])
-        for _ in range(repeat):
+        for r in range(repeat):
             for n in (1, 2):
                 tables[n], used = measure_build(clients[n], robot, grid, 4)
                 times[n] = min(times[n], used["wall_s"])
-                if n == 2:
-                    cpu.append(used)
-                    tables["old"], used = measure_build(clients[n], robot, grid, 4,
-                                                        keep=False)
-                    cpu_old.append(used)
+            # the 2-worker build by the new path and the old, in turn first, each
+            # followed by the idle cluster over its wall time
+            for path in (("lines", "kept") if r % 2 == 0 else ("kept", "lines")):
+                tables[path], used = measure_build(clients[2], robot, grid, 4, path,
+                                                   idle=True)
+                (cpu if path == "lines" else cpu_old).append(used)
         tasks = measure_tasks(clients[2], n_tasks)
         tasks_old_new = measure_tasks_old_new(clients[2], n_tasks)
         from casflex._parallel import blas_threads
@@ -344,13 +380,22 @@ def bench_dask(repeat, n_tasks):
         arm3 = load(ARM3)
         small = [np.linspace(lo, hi, 4) for lo, hi in
                  (arm3.joint_limits[k] for k in (1, 2, 3))]
-        _, arm3_cpu = measure_build(clients[2], arm3, small, 4)
-        arm3_cpu["points"] = 4 ** 3
+        arm3_cpu = {}
+        for path in ("lines", "kept"):
+            _, arm3_cpu[path] = measure_build(clients[2], arm3, small, 4, path)
+            arm3_cpu[path]["points"] = 4 ** 3
     same = all(np.array_equal(tables[1].values[k], tables[m].values[k])
                and tables[1].info["periodic"] == tables[m].info["periodic"]
-               for k in tables[1].values for m in (2, "old"))
+               for k in tables[1].values for m in (2, "lines", "kept"))
     return (times, same, tables[2], cpu, tasks, arm3_cpu, tasks_old_new, worker_blas,
             cpu_old)
+
+
+def _net_fraction(c):
+    """The overhead fraction net of the cluster's background: the idle cluster's CPU over
+    the same wall time taken from the client's and from the workers' CPU."""
+    return ((c["client_main_s"] + c["client_other_s"] - c["idle_client_s"])
+            / (c["workers_s"] - c["idle_workers_s"]))
 
 
 def _burn(n):
@@ -434,8 +479,17 @@ def main(argv=None):
         "dask_client_cpu_s": [{"main": c["client_main_s"], "other": c["client_other_s"]}
                               for c in cpu],
         "dask_workers_cpu_s": [c["workers_s"] for c in cpu],
+        "dask_overhead_cpu_fraction_net": [_net_fraction(c) for c in cpu],
+        "dask_idle_cpu_s": [{"client": c["idle_client_s"], "workers": c["idle_workers_s"],
+                             "over_s": c["wall_s"]} for c in cpu],
         "dask_overhead_cpu_fraction_old": [(c["client_main_s"] + c["client_other_s"])
                                            / c["workers_s"] for c in cpu_old],
+        "dask_overhead_cpu_fraction_net_old": [_net_fraction(c) for c in cpu_old],
+        "dask_idle_cpu_s_old": [{"client": c["idle_client_s"],
+                                 "workers": c["idle_workers_s"], "over_s": c["wall_s"]}
+                                for c in cpu_old],
+        "dask_wall_s_2_workers": {"new": [c["wall_s"] for c in cpu],
+                                  "old": [c["wall_s"] for c in cpu_old]},
         "dask_client_cpu_s_old": [{"main": c["client_main_s"],
                                    "other": c["client_other_s"]} for c in cpu_old],
         "dask_workers_cpu_s_old": [c["workers_s"] for c in cpu_old],
@@ -443,9 +497,11 @@ def main(argv=None):
         "dask_task_old_new": tasks_old_new,
         "dask_worker_blas_threads": list(worker_blas.values()),
         "pool_blas": pool_blas,
-        "arm3_per_point_ms": {"workers": 1e3 * arm3["workers_s"] / arm3["points"],
-                              "client_main": 1e3 * arm3["client_main_s"] / arm3["points"],
-                              "client_other": 1e3 * arm3["client_other_s"] / arm3["points"]},
+        "arm3_per_point_ms": {path: {
+            "workers": 1e3 * a["workers_s"] / a["points"],
+            "client_main": 1e3 * a["client_main_s"] / a["points"],
+            "client_other": 1e3 * a["client_other_s"] / a["points"]}
+            for path, a in arm3.items()},
         "sweep_s": sweep_s,
         "dask_tables_identical": bool(same),
         "table_points": None if table is None else int(table.omega.shape[0]),
@@ -458,17 +514,22 @@ def main(argv=None):
         "python": platform.python_version(),
         "load": os.getloadavg(),
     }
-    n2d = int(np.prod(table2d.omega.shape[:2]))
-    best = min(cpu, key=lambda c: c["client_main_s"] + c["client_other_s"])
+    shape2d = table2d.omega.shape[:2]
+    n2d = int(np.prod(shape2d))
     task_s = 1e-3 * tasks["client_cpu_net_ms"]
     workers = (1, 2, 4, 8, 16, 32, 64)
-    result["projection"] = {
-        "testbed_2d": projection(workers, n2d, best["workers_s"] / n2d,
-                                 best["client_main_s"] / n2d, task_s),
-        "arm3_spatial_3d": projection(workers, ARM3_AXIS_POINTS ** 3,
-                                      arm3["workers_s"] / arm3["points"],
-                                      arm3["client_main_s"] / arm3["points"], task_s),
-    }
+    result["projection"], result["projection_old"] = {}, {}
+    for key, runs, a3 in (("projection", cpu, arm3["lines"]),
+                          ("projection_old", cpu_old, arm3["kept"])):
+        best = min(runs, key=lambda c: c["client_main_s"] + c["client_other_s"])
+        project = projection_lines if key == "projection" else (
+            lambda w, shape, *a: projection(w, int(np.prod(shape)), *a))
+        result[key] = {
+            "testbed_2d": project(workers, shape2d, best["workers_s"] / n2d,
+                                  best["client_main_s"] / n2d, task_s),
+            "arm3_spatial_3d": project(workers, (ARM3_AXIS_POINTS,) * 3,
+                                       a3["workers_s"] / a3["points"],
+                                       a3["client_main_s"] / a3["points"], task_s)}
     if args.json:
         print(json.dumps(result))
     else:

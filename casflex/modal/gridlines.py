@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from casflex._parallel import map_keep, map_kept
+from casflex.errors import ModelError
 from casflex.modal import tracking as trk
 
 if TYPE_CHECKING:
@@ -110,29 +111,59 @@ def _block_tables(kept, point_kept, tracked_point, args, base_transforms, send_u
     unit = [trk.tracked_unit_features(t, data["features"])
             for t, (data, _) in zip(T, kept, strict=True)]
     position = {int(line): j for j, line in enumerate(lines)}
-    points = []
-    for p, ((data, arrays), t) in enumerate(zip(kept, T, strict=True)):
+    ndim, m = len(strides) + 1, T[0].shape[0]
+    # the block's results stacked per field: a few arrays for the client to unpickle,
+    # not a dict per point
+    edges = np.full((n_points, ndim, m), np.nan)
+    has_edge = np.zeros((n_points, ndim), dtype=bool)
+    order = np.argmax(np.abs(np.array(T)), axis=2)
+    sign = np.empty((n_points, m))
+    values, features = [], {}
+    for p, ((_, arrays), t) in enumerate(zip(kept, T, strict=True)):
         j, i = divmod(p, n_last)
-        order = np.argmax(np.abs(t), axis=1)
-        sign = np.sign(t[np.arange(t.shape[0]), order])
-        sign[sign == 0] = 1.0
-        edges = {}
+        s = np.sign(t[np.arange(m), order[p]])
+        s[s == 0] = 1.0
+        sign[p] = s
         if i > 0:  # along the last axis, inside the line; the others: across lines
-            edges[len(strides)] = _edge(unit[p - 1], unit[p])
+            edges[p, ndim - 1], has_edge[p, ndim - 1] = _edge(unit[p - 1], unit[p]), True
             for axis, (stride, at_start) in enumerate(strides):
                 prev = position.get(int(lines[j]) - stride)
                 if not at_start[j] and prev is not None:
-                    edges[axis] = _edge(unit[prev * n_last + i], unit[p])
-        quantities, features, _ = tracked_point(
-            arrays, args["func"], args["robot"], args["points"][p][1], t, order,
+                    edges[p, axis] = _edge(unit[prev * n_last + i], unit[p])
+                    has_edge[p, axis] = True
+        got, tracked, _ = tracked_point(
+            arrays, args["func"], args["robot"], args["points"][p][1], t, order[p],
             args["n_modes"], args["boundary"][p], args["weighting"], None)
-        points.append({"transform": t, "order": order, "sign": sign, "mac": mac[p],
-                       "degenerate": degenerate[p], "edges": edges,
-                       "omega": data["omega"][order][:args["n_modes"]],
-                       "quantities": quantities, "features": features})
+        values.append(got)
+        if tracked is not None:
+            features[p] = tracked
+    blank = np.full(m, np.nan)
+    block = {"transform": np.array(T), "order": order, "sign": sign,
+             "mac": np.array([blank if q is None else q for q in mac]),
+             "degenerate": np.array([bool(d) for d in degenerate]), "edges": edges,
+             "has_edge": has_edge, "values": _stack_values(values),
+             "omega": np.array([data["omega"][o][:args["n_modes"]]
+                                for (data, _), o in zip(kept, order, strict=True)]),
+             "features": features}
     units = {int(lines[j]): unit[j * n_last:(j + 1) * n_last] for j in range(len(lines))
              if send_unit[j]}
-    return points, units, redone
+    return block, units, redone
+
+
+def _stack_values(values):
+    """Per quantity, the points' values stacked (equal names and shapes, or the error
+    build_table gives)."""
+    names = sorted(values[0])
+    out = {}
+    for name in names:
+        try:
+            stack = [np.asarray(v[name], dtype=float) for v in values]
+        except KeyError as missing:
+            raise ModelError(f"quantity {missing} is missing at some grid points") from None
+        if any(a.shape != stack[0].shape for a in stack):
+            raise ModelError(f"quantity {name!r} changes shape across the grid")
+        out[name] = np.array(stack)
+    return out
 
 
 def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
@@ -178,7 +209,8 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
     dict
         ``tracking`` (:class:`casflex.modal.GridTracking` of all the computed modes),
         ``omega`` (grid shape + (n_modes,)) [rad/s], ``shifted`` (grid of bool: modes from
-        a shifted configuration), ``values`` (per point, C order, the quantities),
+        a shifted configuration), ``values`` (per quantity, its values over the grid:
+        grid shape + the quantity's shape),
         ``tracked`` (object grid: tracked features at ``boundary``), ``redone`` (a block
         whose raw modes were gone was recomputed), ``modes_done`` and
         ``tracking_done`` (``time.perf_counter()`` [s] at the end of the first stage and
@@ -206,14 +238,16 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
     # per axis but the last: the line index offset of the previous neighbour
     line_strides = [int(np.prod(line_shape[a + 1:])) for a in range(ndim - 1)]
     line_index = list(np.ndindex(line_shape)) if line_shape else [()]
-    bset = set(boundary)
+    on_boundary = np.zeros(int(np.prod(gshape)), dtype=bool)
+    for idx in boundary:
+        on_boundary[np.ravel_multi_index(idx, gshape)] = True
 
     def block_args(lines):
         flats = [int(line) * n_last + i for line in lines for i in range(n_last)]
         return {"points": [point_args[f] for f in flats], "n_last": n_last,
                 "lines": lines, "func": quantities, "robot": point_args[0][0],
                 "n_modes": int(n_modes), "weighting": weighting,
-                "boundary": [np.unravel_index(f, gshape) in bset for f in flats],
+                "boundary": [bool(on_boundary[f]) for f in flats],
                 "line_strides": [(s, [line_index[int(line)][a] == 0 for line in lines])
                                  for a, s in enumerate(line_strides)]}
 
@@ -241,44 +275,55 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
                 cross.append((a, line - s, line))
     need = {line for _, prev, line in cross} | {prev for _, prev, _ in cross}
 
-    m = gb.order.shape[-1]
-    transform = np.empty(gshape, dtype=object)
-    order = np.empty(gshape + (m,), dtype=int)
-    sign = np.empty(gshape + (m,))
-    mac = np.full(gshape + (m,), np.nan)
-    degenerate = np.zeros(gshape, dtype=bool)
-    edge = np.full(gshape + (ndim, m), np.nan)
-    omega = np.empty(gshape + (int(n_modes),))
-    tracked = np.empty(gshape, dtype=object)
-    values = [None] * int(np.prod(gshape))
-    units, redone = {}, False
-    for li in line_index:  # the base plane: tracked here
-        mac[li + (0,)], degenerate[li + (0,)] = gb.mac[li], gb.degenerate[li]
-        edge[li + (0, slice(0, ndim - 1))] = gb.edge_correlation[li]
+    m, n_total = gb.order.shape[-1], int(np.prod(gshape))
+    # the grid's arrays, and flat views of them in C order: a block's points are one
+    # contiguous range
+    transform = np.empty(n_total, dtype=object)
+    order = np.empty((n_total, m), dtype=int)
+    sign = np.empty((n_total, m))
+    mac = np.full((n_total, m), np.nan)
+    degenerate = np.zeros(n_total, dtype=bool)
+    edge = np.full((n_total, ndim, m), np.nan)
+    omega = np.empty((n_total, int(n_modes)))
+    tracked = np.empty(n_total, dtype=object)
+    base_flat = np.arange(n_lines) * n_last
+    mac[base_flat] = gb.mac.reshape(n_lines, m)  # the base plane: tracked here
+    degenerate[base_flat] = gb.degenerate.reshape(n_lines)
+    edge[base_flat, :ndim - 1] = gb.edge_correlation.reshape(n_lines, ndim - 1, m)
+    values, units, redone = [None] * len(blocks), {}, False
     jobs = [(b, (point_kept, tracked_point, a,
                  [gb.transform[line_index[int(line)]] for line in a["lines"]],
                  [int(line) in need for line in a["lines"]])) for b, a in enumerate(args)]
-    for b, (points, got_units, again) in map_kept(
+    for b, (block, got_units, again) in map_kept(
             _block_tables, jobs, client, token, where, progress=progress,
             desc="quantities (blocks of grid lines)", chunksize=1):
         units.update(got_units)
         redone = redone or again
-        for p, point in enumerate(points):
-            j, i = divmod(p, n_last)
-            idx = line_index[int(blocks[b][j])] + (i,)
-            transform[idx], order[idx], sign[idx] = (point["transform"], point["order"],
-                                                     point["sign"])
-            if i > 0:
-                mac[idx], degenerate[idx] = point["mac"], point["degenerate"]
-            for axis, e in point["edges"].items():
-                edge[idx + (axis,)] = e
-            omega[idx], tracked[idx] = point["omega"], point["features"]
-            values[int(np.ravel_multi_index(idx, gshape))] = point["quantities"]
+        at = slice(int(blocks[b][0]) * n_last, (int(blocks[b][-1]) + 1) * n_last)
+        for k, t in enumerate(block["transform"]):
+            transform[at.start + k] = t
+        order[at], sign[at], omega[at] = block["order"], block["sign"], block["omega"]
+        rest = np.arange(at.start, at.stop) % n_last > 0  # the base plane's are set
+        mac[at][rest], degenerate[at][rest] = block["mac"][rest], block["degenerate"][rest]
+        edge[at][block["has_edge"]] = block["edges"][block["has_edge"]]
+        for p, features in block["features"].items():
+            tracked[at.start + p] = features
+        values[b] = block["values"]
     for a, prev, line in cross:
         for i in range(1, n_last):
-            edge[line_index[line] + (i, a)] = _edge(units[prev][i], units[line][i])
-    result = trk.GridTracking(transform=transform, order=order, sign=sign, mac=mac,
-                              degenerate=degenerate, edge_correlation=edge)
-    return {"tracking": result, "omega": omega, "shifted": shifted, "values": values,
-            "tracked": tracked, "redone": redone, "modes_done": t_modes,
-            "tracking_done": t_tracking}
+            edge[line * n_last + i, a] = _edge(units[prev][i], units[line][i])
+    stacked = {}
+    for name in values[0]:
+        parts = [v.get(name) for v in values]
+        if any(v is None or v.shape[1:] != parts[0].shape[1:] for v in parts):
+            raise ModelError(f"quantity {name!r} changes shape across the grid")
+        stacked[name] = np.concatenate(parts).reshape(gshape + parts[0].shape[1:])
+    transform = transform.reshape(gshape)
+    result = trk.GridTracking(
+        transform=transform, order=order.reshape(gshape + (m,)),
+        sign=sign.reshape(gshape + (m,)), mac=mac.reshape(gshape + (m,)),
+        degenerate=degenerate.reshape(gshape), edge_correlation=edge.reshape(
+            gshape + (ndim, m)))
+    return {"tracking": result, "omega": omega.reshape(gshape + (int(n_modes),)),
+            "shifted": shifted, "values": stacked, "tracked": tracked.reshape(gshape),
+            "redone": redone, "modes_done": t_modes, "tracking_done": t_tracking}

@@ -723,7 +723,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                 weighting, progress=progress)
             gt, omega, shifted, tracked = (got[k] for k in ("tracking", "omega", "shifted",
                                                              "tracked"))
-            per_point = got["values"]
+            per_point = None  # got["values"]: stacked over the grid by the driver
             info.update(computed_modes=len(indices), cached_modes=0,
                         computed_quantities=len(indices))
             t_modes = got["modes_done"]
@@ -853,7 +853,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
             drop_kept(client, token)
         raise
     info["periodic"] = periodic = _periodic_flags(grid, tracked, omega, robot, weighting)
-    if quantities:
+    if by_lines:
+        values.update(sorted((k, v) for k, v in got["values"].items() if k != "omega"))
+    elif quantities:
         names = sorted(per_point[0])
         for name in names:
             if name == "omega":
