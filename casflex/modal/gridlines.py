@@ -39,12 +39,13 @@ if TYPE_CHECKING:
 
 __all__ = ["tabulate_by_lines", "BLOCKS_PER_WORKER", "line_blocks"]
 
-#: blocks of lines per worker thread: the tasks of each stage (more balance the load
-#: of a busy machine; fewer cost the scheduler less)
-BLOCKS_PER_WORKER = 2
+#: blocks of lines per worker thread: the tasks of each stage. More would balance
+#: workers of unequal speed (a shared machine, a mixed cluster); each task costs the
+#: scheduler and the client ~1.5-4 ms of CPU (benchmarks/README_tables.md), so one
+BLOCKS_PER_WORKER = 1
 
 
-def line_blocks(n_lines: int, workers: int, per_worker: int = BLOCKS_PER_WORKER
+def line_blocks(n_lines: int, workers: int, per_worker: int | None = None
                 ) -> list[np.ndarray]:
     """The lines of each task: ``min(n_lines, per_worker × workers)`` blocks of
     consecutive lines, their sizes differing by one at most.
@@ -55,8 +56,8 @@ def line_blocks(n_lines: int, workers: int, per_worker: int = BLOCKS_PER_WORKER
         Lines along the grid's last axis (the product of the other axes' sizes).
     workers : int
         Worker threads of the cluster.
-    per_worker : int
-        Blocks per worker thread.
+    per_worker : int, optional
+        Blocks per worker thread (default :data:`BLOCKS_PER_WORKER`).
 
     Returns
     -------
@@ -65,9 +66,11 @@ def line_blocks(n_lines: int, workers: int, per_worker: int = BLOCKS_PER_WORKER
 
     Examples
     --------
-    >>> [b.tolist() for b in line_blocks(5, 1)]
+    >>> [b.tolist() for b in line_blocks(5, 1, per_worker=2)]
     [[0, 1, 2], [3, 4]]
     """
+    if per_worker is None:
+        per_worker = BLOCKS_PER_WORKER
     return [b for b in np.array_split(np.arange(n_lines),
                                       max(1, min(n_lines, per_worker * workers))) if b.size]
 
@@ -170,7 +173,7 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
                       point_args: Sequence[tuple], point_kept: Callable,
                       tracked_point: Callable, quantities: Callable, n_modes: int,
                       boundary: set, weighting: str | None, *, progress: bool = False,
-                      per_worker: int = BLOCKS_PER_WORKER) -> dict:
+                      per_worker: int | None = None) -> dict:
     """Raw modes, tracking and quantities of a grid by lines on a Dask cluster (see the
     module notes).
 
@@ -201,8 +204,8 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
         Of the MAC (:func:`casflex.modal.shape_features`).
     progress : bool
         Progress bars on stderr (blocks of lines).
-    per_worker : int
-        Blocks per worker thread (:func:`line_blocks`).
+    per_worker : int, optional
+        Blocks per worker thread (:func:`line_blocks`; default :data:`BLOCKS_PER_WORKER`).
 
     Returns
     -------
@@ -222,7 +225,7 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
     ``tests/modal/test_gridlines.py``), :func:`casflex.modal.build_table` calls it for a grid
     of two or more shape joints without a cache. Without one the blocks are planned alone:
 
-    >>> [b.tolist() for b in line_blocks(10, 2)]
+    >>> [b.tolist() for b in line_blocks(10, 2, per_worker=2)]
     [[0, 1, 2], [3, 4, 5], [6, 7], [8, 9]]
     """
     import time

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from casflex.modal import gridlines, tables
-from casflex.modal.gridlines import line_blocks
+from casflex.modal.gridlines import BLOCKS_PER_WORKER, line_blocks
 from casflex.modal.tables import build_table
 from casflex.modal.tracking import (
     point_tracking_data,
@@ -21,10 +21,13 @@ TIMINGS = ("seconds", "seconds_modes", "seconds_tracking", "seconds_quantities")
 def test_line_blocks_cover_every_line_once_in_order():
     for n_lines in (1, 2, 5, 10, 37):
         for workers in (1, 2, 3, 8):
-            blocks = line_blocks(n_lines, workers)
-            assert np.concatenate(blocks).tolist() == list(range(n_lines))
-            sizes = [b.size for b in blocks]
-            assert len(blocks) == min(n_lines, 2 * workers) and max(sizes) - min(sizes) <= 1
+            for per_worker in (None, 1, 2):
+                blocks = line_blocks(n_lines, workers, per_worker)
+                assert np.concatenate(blocks).tolist() == list(range(n_lines))
+                sizes = [b.size for b in blocks]
+                assert len(blocks) == min(n_lines, (per_worker or BLOCKS_PER_WORKER)
+                                          * workers)
+                assert max(sizes) - min(sizes) <= 1
 
 
 def test_a_path_tracked_from_its_data_equals_the_grid_tracking(arm):
@@ -71,12 +74,14 @@ def _drop_then_map_kept(real):
     return call
 
 
-@pytest.mark.slow  # ~6 s on two cores: three builds of 27 points each way
+@pytest.mark.slow  # ~6 s on two cores: the serial builds and five on the cluster
 @pytest.mark.filterwarnings("ignore:modal table of")  # the coarse grids' MAC
 def test_tables_by_lines_equal_the_serial_build_bit_for_bit(testbed, monkeypatch):
-    # 2-D: 5 lines in 4 blocks on 2 workers, so edges between lines both inside a block
-    # and across blocks; both axes full turns (the periodicity check on both ends);
-    # 3-D: 6 lines of the 3-link spatial arm, edges across blocks along both axes
+    # 2-D: 5 lines in blocks of 3 and 2 on 2 workers (3, 1 and 1 per block with two
+    # blocks per worker), so edges between lines both inside a block and across blocks;
+    # both axes full turns (the periodicity check on both ends); 3-D: 6 lines of the
+    # 3-link spatial arm, edges across blocks along axis 0 (and along axis 1 with two
+    # blocks per worker)
     distributed = pytest.importorskip("distributed")
     arm3 = load("problems/arm3_spatial.toml")
     cases = [(testbed, [np.linspace(-np.pi, np.pi, 5, endpoint=False),
@@ -86,14 +91,15 @@ def test_tables_by_lines_equal_the_serial_build_bit_for_bit(testbed, monkeypatch
     serial = [build_table(robot, grid, n, cache_dir=False, processes=1)
               for robot, grid, n in cases]
     assert serial[0].periodic == (True, True)
-    assert [len(line_blocks(int(np.prod([a.size for a in grid[:-1]])), 2))
-            for _, grid, _ in cases] == [4, 4]
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         assert tables.KEEP_ON_WORKERS and tables.TRACK_ON_WORKERS
-        for (robot, grid, n), theirs in zip(cases, serial, strict=True):
-            _same_table(build_table(robot, grid, n, cache_dir=False, client=client), theirs)
+        for per_worker in (1, 2):
+            monkeypatch.setattr(gridlines, "BLOCKS_PER_WORKER", per_worker)
+            for (robot, grid, n), theirs in zip(cases, serial, strict=True):
+                _same_table(build_table(robot, grid, n, cache_dir=False, client=client),
+                            theirs)
         # raw modes gone from the workers (a worker left): recomputed, still identical
         monkeypatch.setattr(gridlines, "map_kept", _drop_then_map_kept(gridlines.map_kept))
         robot, grid, n = cases[0]
