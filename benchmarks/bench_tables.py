@@ -15,16 +15,25 @@
 ``dask_overhead_cpu_fraction``
     CPU of the client process (the Dask client, the scheduler and the nannies of a
     ``LocalCluster`` all run in it: building the tasks, pickling and unpickling their
-    data, the tracking stage of :func:`casflex.modal.build_table`, the scheduler's
-    bookkeeping) over the CPU of the workers, in the 2-worker runs (one value per run);
+    data, the tracking of the grid's base plane (:mod:`casflex.modal.gridlines`), the
+    scheduler's bookkeeping, the cluster's background work) over the CPU of the workers,
+    in the 2-worker runs (one value per run): the issue's metric, gross.
     ``dask_client_cpu_s`` splits the client's CPU into its main thread (build_table's
     own work) and the others (scheduler, comms, nannies), ``dask_workers_cpu_s`` the
-    workers' CPU.
-``dask_overhead_cpu_fraction_old``, ``dask_client_cpu_s_old``, ``dask_workers_cpu_s_old``
-    the same for the path before (``casflex.modal.tables.KEEP_ON_WORKERS = False``: every
-    point's raw mode shapes come to the client, which tracks them and sends the tracked
-    shapes back), a build after each 2-worker build on the same cluster; the tables
-    compared (``dask_tables_identical`` covers 1 worker, 2 workers and the old path).
+    workers' CPU, ``dask_wall_s_2_workers`` the wall time of those builds.
+``dask_overhead_cpu_fraction_net``, ``dask_idle_cpu_s``
+    after each of those builds the cluster is left idle for the same wall time; its CPU
+    then (client process, workers) is the background a build pays per second of wall
+    whatever it does (heartbeats, monitors; a wall time stretched by a loaded machine
+    stretches it). The net fraction takes it from both sides:
+    (client − idle client) / (workers − idle workers).
+``dask_overhead_cpu_fraction_old``, ``..._net_old``, ``dask_client_cpu_s_old``,
+``dask_workers_cpu_s_old``, ``dask_idle_cpu_s_old``
+    the same for the path before (session 9: ``casflex.modal.tables.TRACK_ON_WORKERS =
+    False``: the raw modes kept on the workers, every point's tracking data through the
+    client, which tracks the whole grid), on the same cluster, old and new alternated
+    (which comes first changes every repeat); the tables compared
+    (``dask_tables_identical`` covers 1 worker, 2 workers and both paths).
 ``dask_task``
     the per-task cost of the Dask path, from ``--tasks`` no-op chunks run through
     :func:`casflex._parallel.parallel_map` on the 2-worker cluster: the client process's
@@ -43,11 +52,13 @@
     with the workers' BLAS left at OpenBLAS's default (``old``: one thread per core, the
     path before issue 17 part 6) and set to one thread (``new``), alternated ``--repeat``
     times: wall [s] and CPU of the process and its workers [s] of each run.
-``projection``
+``projection``, ``projection_old``
     the speed-up on 4–64 workers predicted from those measurements (see
-    :func:`projection`) for the testbed grid and for ``problems/arm3_spatial.toml`` (three
-    shape joints, 12 × 12 × 12 points over its joint limits, 4 modes), whose per-point CPU
-    in the workers and in the client is measured on a 4 × 4 × 4 grid on the same cluster.
+    :func:`projection_lines` for the new path and :func:`projection` for the old) for the
+    testbed grid and for ``problems/arm3_spatial.toml`` (three shape joints, 12 × 12 × 12
+    points over its joint limits, 4 modes), whose per-point CPU in the workers and in the
+    client (``arm3_per_point_ms``, both paths) is measured on a 4 × 4 × 4 grid on the
+    same cluster.
 ``cpu_capacity_2_processes``
     speed-up of a pure-Python loop on 2 processes over 1, before and after: what the
     machine offers at the time (other jobs on the same cores lower it); read the Dask
@@ -121,14 +132,12 @@ def _cpu():
 
 
 def _thread_cpu():
-    """CPU seconds of this process's threads: (main thread, all others)."""
-    import threading
-
-    import psutil
-
-    main = threading.main_thread().native_id
-    times = {t.id: t.user_time + t.system_time for t in psutil.Process().threads()}
-    return times.get(main, 0.0), sum(v for k, v in times.items() if k != main)
+    """CPU seconds of this process: (main thread, all other threads). From the kernel's
+    per-thread and per-process clocks (``time.thread_time``, ``getrusage``), not the
+    10 ms ticks of ``/proc``: the client's share of a build is a few tens of ms. Call it
+    from the main thread."""
+    main = time.thread_time()
+    return main, _cpu() - main
 
 
 def _noop(x):
@@ -362,6 +371,9 @@ def bench_dask(repeat, n_tasks):
             # a while, which in the worker's event loop would stop its heartbeats
             clients[n].gather([clients[n].submit(_warm, workers=[w], pure=False)
                                for w in clients[n].scheduler_info()["workers"]])
+        # untimed: the client's first calls of each path import and warm what they use
+        for n, path in ((1, "lines"), (2, "lines"), (2, "kept")):
+            measure_build(clients[n], robot, grid, 4, path)
         for r in range(repeat):
             for n in (1, 2):
                 tables[n], used = measure_build(clients[n], robot, grid, 4)
