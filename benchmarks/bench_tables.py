@@ -302,10 +302,10 @@ def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s
 def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point, task_s):
     """:func:`projection` for the path by grid lines (``"lines"``, session 10).
 
-    The L lines along the last axis (n points each) go in B(W) = min(L, 2 W) blocks
-    (:func:`casflex.modal.line_blocks`), two tasks each; a worker holds up to ⌈B / W⌉
-    blocks of up to ⌈L / B⌉ lines: Wall(W) = N c + 2 B(W) o + ⌈B / W⌉ ⌈L / B⌉ n w.
-    Past W = L / 2 the blocks are single lines and the workers beyond L idle."""
+    The L lines along the last axis (n points each) go in B(W) = min(L, k W) blocks
+    (:func:`casflex.modal.line_blocks`, k = ``BLOCKS_PER_WORKER``), two tasks each; the
+    worker with the most lines (blocks dealt in turn) sets the pace:
+    Wall(W) = N c + 2 B(W) o + (its lines) n w. Past W = L the workers beyond L idle."""
     from casflex.modal import line_blocks
 
     n_lines, n_last = int(np.prod(grid_shape[:-1])), int(grid_shape[-1])
