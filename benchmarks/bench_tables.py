@@ -303,7 +303,8 @@ def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point
     """:func:`projection` for the path by grid lines (``"lines"``, session 10).
 
     The L lines along the last axis (n points each) go in B(W) = min(L, k W) blocks
-    (:func:`casflex.modal.line_blocks`, k = ``BLOCKS_PER_WORKER``), two tasks each; the
+    (:func:`casflex.modal.line_blocks`, k = ``BLOCKS_PER_WORKER``, more for blocks of at
+    most ``MAX_BLOCK_POINTS`` points), two tasks each; the
     worker with the most lines (blocks dealt in turn) sets the pace:
     Wall(W) = N c + 2 B(W) o + (its lines) n w. Past W = L the workers beyond L idle."""
     from casflex.modal import line_blocks
@@ -312,7 +313,7 @@ def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point
     n_points = n_lines * n_last
 
     def wall(w):
-        blocks = line_blocks(n_lines, w)
+        blocks = line_blocks(n_lines, w, line_points=n_last)
         most = max(sum(b.size for b in blocks[i::w]) for i in range(min(w, len(blocks))))
         return (n_points * client_s_per_point + 2 * len(blocks) * task_s
                 + most * n_last * worker_s_per_point)

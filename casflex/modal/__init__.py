@@ -99,6 +99,7 @@ Modal tables
    tabulate_by_lines  -- a table's modes, tracking and quantities by grid lines on Dask
    line_blocks        -- the blocks of grid lines of tabulate_by_lines' tasks
    BLOCKS_PER_WORKER  -- blocks of grid lines per Dask worker thread
+   MAX_BLOCK_POINTS   -- most grid points in one block of tabulate_by_lines (progress)
 
 Frequency sweeps
 ================
@@ -118,7 +119,12 @@ from casflex.modal.fits import (
     periodic_axis_kind,
 )
 from casflex.modal.gauge import MIN_OVERLAP, reference_basis, reference_rows
-from casflex.modal.gridlines import BLOCKS_PER_WORKER, line_blocks, tabulate_by_lines
+from casflex.modal.gridlines import (
+    BLOCKS_PER_WORKER,
+    MAX_BLOCK_POINTS,
+    line_blocks,
+    tabulate_by_lines,
+)
 from casflex.modal.integrals import (
     POINT_KEYS,
     QUANTITY_KEYS,
@@ -264,6 +270,7 @@ __all__ = [
     "tabulate_by_lines",
     "line_blocks",
     "BLOCKS_PER_WORKER",
+    "MAX_BLOCK_POINTS",
     # frequency sweeps
     "frequency_sweep",
     "FrequencySweep",

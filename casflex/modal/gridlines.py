@@ -37,18 +37,23 @@ from casflex.modal import tracking as trk
 if TYPE_CHECKING:
     from distributed import Client
 
-__all__ = ["tabulate_by_lines", "BLOCKS_PER_WORKER", "line_blocks"]
+__all__ = ["tabulate_by_lines", "BLOCKS_PER_WORKER", "MAX_BLOCK_POINTS", "line_blocks"]
 
 #: blocks of lines per worker thread: the tasks of each stage. More would balance
 #: workers of unequal speed (a shared machine, a mixed cluster); each task costs the
 #: scheduler and the client ~1.5-4 ms of CPU (benchmarks/README_tables.md), so one
 BLOCKS_PER_WORKER = 1
+#: most grid points in one block, where the grid allows: a block reports when it is
+#: done, so this keeps the progress bar moving on a large grid (a few s of TMM between
+#: steps) at a per-task cost of < 0.1 % of the block's work
+MAX_BLOCK_POINTS = 256
 
 
-def line_blocks(n_lines: int, workers: int, per_worker: int | None = None
-                ) -> list[np.ndarray]:
-    """The lines of each task: ``min(n_lines, per_worker × workers)`` blocks of
-    consecutive lines, their sizes differing by one at most.
+def line_blocks(n_lines: int, workers: int, per_worker: int | None = None,
+                line_points: int = 1) -> list[np.ndarray]:
+    """The lines of each task: blocks of consecutive lines, their sizes differing by one
+    at most; ``per_worker`` blocks per worker thread, or as many more per worker as keep
+    a block within :data:`MAX_BLOCK_POINTS` points; at most one block per line.
 
     Parameters
     ----------
@@ -57,7 +62,9 @@ def line_blocks(n_lines: int, workers: int, per_worker: int | None = None
     workers : int
         Worker threads of the cluster.
     per_worker : int, optional
-        Blocks per worker thread (default :data:`BLOCKS_PER_WORKER`).
+        Blocks per worker thread at least (default :data:`BLOCKS_PER_WORKER`).
+    line_points : int
+        Points of a line (the size of the grid's last axis).
 
     Returns
     -------
@@ -68,9 +75,14 @@ def line_blocks(n_lines: int, workers: int, per_worker: int | None = None
     --------
     >>> [b.tolist() for b in line_blocks(5, 1, per_worker=2)]
     [[0, 1, 2], [3, 4]]
+    >>> len(line_blocks(144, 2, line_points=12))   # 12 x 12 x 12: 8 blocks of 216 points
+    8
     """
     if per_worker is None:
         per_worker = BLOCKS_PER_WORKER
+    workers = max(1, int(workers))
+    per_worker = max(int(per_worker),
+                     -(-int(n_lines) * int(line_points) // (MAX_BLOCK_POINTS * workers)))
     return [b for b in np.array_split(np.arange(n_lines),
                                       max(1, min(n_lines, per_worker * workers))) if b.size]
 
@@ -234,7 +246,7 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
     line_shape = gshape[:-1]
     n_lines = int(np.prod(line_shape))
     workers = max(1, sum(client.nthreads().values()))
-    blocks = line_blocks(n_lines, workers, per_worker)
+    blocks = line_blocks(n_lines, workers, per_worker, n_last)
     block_of = np.empty(n_lines, dtype=int)
     for b, lines in enumerate(blocks):
         block_of[lines] = b

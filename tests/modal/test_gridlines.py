@@ -1,10 +1,13 @@
 """casflex.modal.gridlines: a Dask table build tracked on the workers, by grid lines."""
 
+import functools
+
 import numpy as np
 import pytest
 
+from casflex.errors import ModelError
 from casflex.modal import gridlines, tables
-from casflex.modal.gridlines import BLOCKS_PER_WORKER, line_blocks
+from casflex.modal.gridlines import BLOCKS_PER_WORKER, MAX_BLOCK_POINTS, line_blocks
 from casflex.modal.tables import build_table
 from casflex.modal.tracking import (
     point_tracking_data,
@@ -28,6 +31,13 @@ def test_line_blocks_cover_every_line_once_in_order():
                 assert len(blocks) == min(n_lines, (per_worker or BLOCKS_PER_WORKER)
                                           * workers)
                 assert max(sizes) - min(sizes) <= 1
+    # a large grid: blocks of at most MAX_BLOCK_POINTS points, as many on every worker
+    for n_lines, line_points, workers in ((144, 12, 2), (4096, 16, 3), (10, 300, 4)):
+        blocks = line_blocks(n_lines, workers, line_points=line_points)
+        assert np.concatenate(blocks).tolist() == list(range(n_lines))
+        assert len(blocks) % workers == 0 or len(blocks) == n_lines
+        assert max(b.size for b in blocks) * line_points <= max(MAX_BLOCK_POINTS,
+                                                                line_points)
 
 
 def test_a_path_tracked_from_its_data_equals_the_grid_tracking(arm):
@@ -62,6 +72,11 @@ def _same_table(ours, theirs):
     assert ours.periodic == theirs.periodic
     assert {k: v for k, v in ours.info.items() if k not in TIMINGS} == {
         k: v for k, v in theirs.info.items() if k not in TIMINGS}
+
+
+def _shape_quantities(robot, q, shapes, axis):
+    """A quantity function whose value has 1 element where q[axis] > 0, else 2."""
+    return {"x": np.zeros(1 if q[axis] > 0 else 2)}
 
 
 def _drop_then_map_kept(real):
@@ -100,6 +115,13 @@ def test_tables_by_lines_equal_the_serial_build_bit_for_bit(testbed, monkeypatch
             for (robot, grid, n), theirs in zip(cases, serial, strict=True):
                 _same_table(build_table(robot, grid, n, cache_dir=False, client=client),
                             theirs)
+        # a quantity that changes shape: one line, inside a block (along the lines) or
+        # between blocks (across them)
+        robot, grid, _ = cases[0]
+        for axis in (2, 1):
+            with pytest.raises(ModelError, match="'x' changes shape across the grid"):
+                build_table(robot, grid, 2, cache_dir=False, client=client,
+                            quantities=functools.partial(_shape_quantities, axis=axis))
         # raw modes gone from the workers (a worker left): recomputed, still identical
         monkeypatch.setattr(gridlines, "map_kept", _drop_then_map_kept(gridlines.map_kept))
         robot, grid, n = cases[0]
