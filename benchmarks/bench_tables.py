@@ -169,7 +169,8 @@ def measure_build(client, robot, grid, n_modes, path="lines", idle=False):
     c1, w1 = _thread_cpu(), client.run(_cpu)
     got = {"wall_s": wall, "client_main_s": c1[0] - c0[0],
            "client_other_s": c1[1] - c0[1], "workers_s": sum(w1[k] - w0[k] for k in w1)}
-    if idle:
+    if idle:  # the client's window: from after that client.run to before the next
+        c1 = _thread_cpu()
         time.sleep(wall)
         c2, w2 = _thread_cpu(), client.run(_cpu)
         got.update(idle_client_s=sum(c2) - sum(c1), idle_workers_s=sum(w2[k] - w1[k]
