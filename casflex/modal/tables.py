@@ -9,7 +9,9 @@ space"). This module tabulates them:
 2. :func:`build_table` runs the TMM (:func:`casflex.tmm.modes`) at every point of a grid of
    the shape joints — in parallel, on a local process pool or a Dask cluster (without a
    cache the raw modes stay on its workers) — then tracks identity and sign sequentially
-   (:mod:`casflex.modal.tracking`), then evaluates the model quantities (by default
+   (:mod:`casflex.modal.tracking`; on a Dask cluster without a cache, a grid of two or
+   more shape joints line by line on the workers: :mod:`casflex.modal.gridlines`), then
+   evaluates the model quantities (by default
    :func:`casflex.modal.integrals.configuration_quantities` after
    :func:`casflex.modal.normalize.mass_normalize`).
 3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the
@@ -585,7 +587,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     cache_dir : str or Path or False, optional
         Cache directory (default :func:`default_cache_dir`); ``False`` disables caching.
     client : dask.distributed.Client, optional
-        Map the per-point work over this cluster instead of a local process pool.
+        Map the per-point work over this cluster instead of a local process pool
+        (without a cache and with two or more shape joints, the tracking too, by grid
+        lines: :func:`casflex.modal.tabulate_by_lines`).
     processes : int, optional
         Local worker processes (default ``os.cpu_count()``; ``1`` runs in-process).
     progress : bool
