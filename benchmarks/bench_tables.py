@@ -15,16 +15,25 @@
 ``dask_overhead_cpu_fraction``
     CPU of the client process (the Dask client, the scheduler and the nannies of a
     ``LocalCluster`` all run in it: building the tasks, pickling and unpickling their
-    data, the tracking stage of :func:`casflex.modal.build_table`, the scheduler's
-    bookkeeping) over the CPU of the workers, in the 2-worker runs (one value per run);
+    data, the tracking of the grid's base plane (:mod:`casflex.modal.gridlines`), the
+    scheduler's bookkeeping, the cluster's background work) over the CPU of the workers,
+    in the 2-worker runs (one value per run): the issue's metric, gross.
     ``dask_client_cpu_s`` splits the client's CPU into its main thread (build_table's
     own work) and the others (scheduler, comms, nannies), ``dask_workers_cpu_s`` the
-    workers' CPU.
-``dask_overhead_cpu_fraction_old``, ``dask_client_cpu_s_old``, ``dask_workers_cpu_s_old``
-    the same for the path before (``casflex.modal.tables.KEEP_ON_WORKERS = False``: every
-    point's raw mode shapes come to the client, which tracks them and sends the tracked
-    shapes back), a build after each 2-worker build on the same cluster; the tables
-    compared (``dask_tables_identical`` covers 1 worker, 2 workers and the old path).
+    workers' CPU, ``dask_wall_s_2_workers`` the wall time of those builds.
+``dask_overhead_cpu_fraction_net``, ``dask_idle_cpu_s``
+    after each of those builds the cluster is left idle for the same wall time; its CPU
+    then (client process, workers) is the background a build pays per second of wall
+    whatever it does (heartbeats, monitors; a wall time stretched by a loaded machine
+    stretches it). The net fraction takes it from both sides:
+    (client − idle client) / (workers − idle workers).
+``dask_overhead_cpu_fraction_old``, ``..._net_old``, ``dask_client_cpu_s_old``,
+``dask_workers_cpu_s_old``, ``dask_idle_cpu_s_old``
+    the same for the path before (session 9: ``casflex.modal.tables.TRACK_ON_WORKERS =
+    False``: the raw modes kept on the workers, every point's tracking data through the
+    client, which tracks the whole grid), on the same cluster, old and new alternated
+    (which comes first changes every repeat); the tables compared
+    (``dask_tables_identical`` covers 1 worker, 2 workers and both paths).
 ``dask_task``
     the per-task cost of the Dask path, from ``--tasks`` no-op chunks run through
     :func:`casflex._parallel.parallel_map` on the 2-worker cluster: the client process's
@@ -43,11 +52,13 @@
     with the workers' BLAS left at OpenBLAS's default (``old``: one thread per core, the
     path before issue 17 part 6) and set to one thread (``new``), alternated ``--repeat``
     times: wall [s] and CPU of the process and its workers [s] of each run.
-``projection``
+``projection``, ``projection_old``
     the speed-up on 4–64 workers predicted from those measurements (see
-    :func:`projection`) for the testbed grid and for ``problems/arm3_spatial.toml`` (three
-    shape joints, 12 × 12 × 12 points over its joint limits, 4 modes), whose per-point CPU
-    in the workers and in the client is measured on a 4 × 4 × 4 grid on the same cluster.
+    :func:`projection_lines` for the new path and :func:`projection` for the old) for the
+    testbed grid and for ``problems/arm3_spatial.toml`` (three shape joints, 12 × 12 × 12
+    points over its joint limits, 4 modes), whose per-point CPU in the workers and in the
+    client (``arm3_per_point_ms``, both paths) is measured on a 4 × 4 × 4 grid on the
+    same cluster.
 ``cpu_capacity_2_processes``
     speed-up of a pure-Python loop on 2 processes over 1, before and after: what the
     machine offers at the time (other jobs on the same cores lower it); read the Dask
@@ -121,38 +132,50 @@ def _cpu():
 
 
 def _thread_cpu():
-    """CPU seconds of this process's threads: (main thread, all others)."""
-    import threading
-
-    import psutil
-
-    main = threading.main_thread().native_id
-    times = {t.id: t.user_time + t.system_time for t in psutil.Process().threads()}
-    return times.get(main, 0.0), sum(v for k, v in times.items() if k != main)
+    """CPU seconds of this process: (main thread, all other threads). From the kernel's
+    per-thread and per-process clocks (``time.thread_time``, ``getrusage``), not the
+    10 ms ticks of ``/proc``: the client's share of a build is a few tens of ms. Call it
+    from the main thread."""
+    main = time.thread_time()
+    return main, _cpu() - main
 
 
 def _noop(x):
     return x
 
 
-def measure_build(client, robot, grid, n_modes, keep=True):
-    """Build a table on ``client``; wall, client CPU (main, other threads), workers' CPU.
-    ``keep=False``: the raw modes come to the client (the path before issue 17 part 6's
-    second step, ``casflex.modal.tables.KEEP_ON_WORKERS``)."""
+#: the Dask paths of ``build_table`` measured: ``tables.KEEP_ON_WORKERS`` and
+#: ``tables.TRACK_ON_WORKERS`` of each ("lines": session 10, the tracking on the workers
+#: by grid lines; "kept": session 9, raw modes kept on the workers, tracking in the
+#: client; "client": before, every point's raw modes through the client)
+PATHS = {"lines": (True, True), "kept": (True, False), "client": (False, False)}
+
+
+def measure_build(client, robot, grid, n_modes, path="lines", idle=False):
+    """Build a table on ``client`` by ``path`` (:data:`PATHS`); wall, client CPU (main,
+    other threads), workers' CPU. ``idle``: then leave the cluster idle for the same wall
+    time and record its background CPU over it (``idle_client_s``, ``idle_workers_s``)."""
     from casflex.modal import tables
 
     w0, c0 = client.run(_cpu), _thread_cpu()
     t0 = time.perf_counter()
-    before, tables.KEEP_ON_WORKERS = getattr(tables, "KEEP_ON_WORKERS", None), keep
+    before = tables.KEEP_ON_WORKERS, tables.TRACK_ON_WORKERS
+    tables.KEEP_ON_WORKERS, tables.TRACK_ON_WORKERS = PATHS[path]
     try:
         table = tables.build_table(robot, grid, n_modes, cache_dir=False, client=client)
     finally:
-        tables.KEEP_ON_WORKERS = before
+        tables.KEEP_ON_WORKERS, tables.TRACK_ON_WORKERS = before
     wall = time.perf_counter() - t0
     c1, w1 = _thread_cpu(), client.run(_cpu)
-    workers = sum(w1[k] - w0[k] for k in w1)
-    return table, {"wall_s": wall, "client_main_s": c1[0] - c0[0],
-                   "client_other_s": c1[1] - c0[1], "workers_s": workers}
+    got = {"wall_s": wall, "client_main_s": c1[0] - c0[0],
+           "client_other_s": c1[1] - c0[1], "workers_s": sum(w1[k] - w0[k] for k in w1)}
+    if idle:  # the client's window: from after that client.run to before the next
+        c1 = _thread_cpu()
+        time.sleep(wall)
+        c2, w2 = _thread_cpu(), client.run(_cpu)
+        got.update(idle_client_s=sum(c2) - sum(c1), idle_workers_s=sum(w2[k] - w1[k]
+                                                                        for k in w2))
+    return table, got
 
 
 def measure_tasks(client, n_tasks, idle_s=3.0):
@@ -260,7 +283,8 @@ def bench_pool_blas(repeat):
 
 
 def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s):
-    """Predicted speed-up of a table build on ``workers`` workers over one worker.
+    """Predicted speed-up of a table build on ``workers`` workers over one worker, by the
+    path of session 9 (``"kept"``: tasks of points, the tracking in the client).
 
     Wall(W) = N c + T(W) o + max(N w / W, one chunk of w) where N points cost ``w``
     [s] each in the workers and ``c`` each in the client (unpickling, tracking: serial),
@@ -272,6 +296,28 @@ def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s
         tasks = 2 * -(-n_points // chunk)
         return (n_points * client_s_per_point + tasks * task_s
                 + max(n_points * worker_s_per_point / w, chunk * worker_s_per_point))
+
+    return {str(w): wall(1) / wall(w) for w in workers}
+
+
+def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point, task_s):
+    """:func:`projection` for the path by grid lines (``"lines"``, session 10).
+
+    The L lines along the last axis (n points each) go in B(W) = min(L, k W) blocks
+    (:func:`casflex.modal.line_blocks`, k = ``BLOCKS_PER_WORKER``, more for blocks of at
+    most ``MAX_BLOCK_POINTS`` points), two tasks each; the
+    worker with the most lines (blocks dealt in turn) sets the pace:
+    Wall(W) = N c + 2 B(W) o + (its lines) n w. Past W = L the workers beyond L idle."""
+    from casflex.modal import line_blocks
+
+    n_lines, n_last = int(np.prod(grid_shape[:-1])), int(grid_shape[-1])
+    n_points = n_lines * n_last
+
+    def wall(w):
+        blocks = line_blocks(n_lines, w, line_points=n_last)
+        most = max(sum(b.size for b in blocks[i::w]) for i in range(min(w, len(blocks))))
+        return (n_points * client_s_per_point + 2 * len(blocks) * task_s
+                + most * n_last * worker_s_per_point)
 
     return {str(w): wall(1) / wall(w) for w in workers}
 
@@ -327,15 +373,19 @@ def bench_dask(repeat, n_tasks):
             # a while, which in the worker's event loop would stop its heartbeats
             clients[n].gather([clients[n].submit(_warm, workers=[w], pure=False)
                                for w in clients[n].scheduler_info()["workers"]])
-        for _ in range(repeat):
+        # untimed: the client's first calls of each path import and warm what they use
+        for n, path in ((1, "lines"), (2, "lines"), (2, "kept")):
+            measure_build(clients[n], robot, grid, 4, path)
+        for r in range(repeat):
             for n in (1, 2):
                 tables[n], used = measure_build(clients[n], robot, grid, 4)
                 times[n] = min(times[n], used["wall_s"])
-                if n == 2:
-                    cpu.append(used)
-                    tables["old"], used = measure_build(clients[n], robot, grid, 4,
-                                                        keep=False)
-                    cpu_old.append(used)
+            # the 2-worker build by the new path and the old, in turn first, each
+            # followed by the idle cluster over its wall time
+            for path in (("lines", "kept") if r % 2 == 0 else ("kept", "lines")):
+                tables[path], used = measure_build(clients[2], robot, grid, 4, path,
+                                                   idle=True)
+                (cpu if path == "lines" else cpu_old).append(used)
         tasks = measure_tasks(clients[2], n_tasks)
         tasks_old_new = measure_tasks_old_new(clients[2], n_tasks)
         from casflex._parallel import blas_threads
@@ -344,13 +394,22 @@ def bench_dask(repeat, n_tasks):
         arm3 = load(ARM3)
         small = [np.linspace(lo, hi, 4) for lo, hi in
                  (arm3.joint_limits[k] for k in (1, 2, 3))]
-        _, arm3_cpu = measure_build(clients[2], arm3, small, 4)
-        arm3_cpu["points"] = 4 ** 3
+        arm3_cpu = {}
+        for path in ("lines", "kept"):
+            _, arm3_cpu[path] = measure_build(clients[2], arm3, small, 4, path)
+            arm3_cpu[path]["points"] = 4 ** 3
     same = all(np.array_equal(tables[1].values[k], tables[m].values[k])
                and tables[1].info["periodic"] == tables[m].info["periodic"]
-               for k in tables[1].values for m in (2, "old"))
+               for k in tables[1].values for m in (2, "lines", "kept"))
     return (times, same, tables[2], cpu, tasks, arm3_cpu, tasks_old_new, worker_blas,
             cpu_old)
+
+
+def _net_fraction(c):
+    """The overhead fraction net of the cluster's background: the idle cluster's CPU over
+    the same wall time taken from the client's and from the workers' CPU."""
+    return ((c["client_main_s"] + c["client_other_s"] - c["idle_client_s"])
+            / (c["workers_s"] - c["idle_workers_s"]))
 
 
 def _burn(n):
@@ -434,8 +493,17 @@ def main(argv=None):
         "dask_client_cpu_s": [{"main": c["client_main_s"], "other": c["client_other_s"]}
                               for c in cpu],
         "dask_workers_cpu_s": [c["workers_s"] for c in cpu],
+        "dask_overhead_cpu_fraction_net": [_net_fraction(c) for c in cpu],
+        "dask_idle_cpu_s": [{"client": c["idle_client_s"], "workers": c["idle_workers_s"],
+                             "over_s": c["wall_s"]} for c in cpu],
         "dask_overhead_cpu_fraction_old": [(c["client_main_s"] + c["client_other_s"])
                                            / c["workers_s"] for c in cpu_old],
+        "dask_overhead_cpu_fraction_net_old": [_net_fraction(c) for c in cpu_old],
+        "dask_idle_cpu_s_old": [{"client": c["idle_client_s"],
+                                 "workers": c["idle_workers_s"], "over_s": c["wall_s"]}
+                                for c in cpu_old],
+        "dask_wall_s_2_workers": {"new": [c["wall_s"] for c in cpu],
+                                  "old": [c["wall_s"] for c in cpu_old]},
         "dask_client_cpu_s_old": [{"main": c["client_main_s"],
                                    "other": c["client_other_s"]} for c in cpu_old],
         "dask_workers_cpu_s_old": [c["workers_s"] for c in cpu_old],
@@ -443,9 +511,11 @@ def main(argv=None):
         "dask_task_old_new": tasks_old_new,
         "dask_worker_blas_threads": list(worker_blas.values()),
         "pool_blas": pool_blas,
-        "arm3_per_point_ms": {"workers": 1e3 * arm3["workers_s"] / arm3["points"],
-                              "client_main": 1e3 * arm3["client_main_s"] / arm3["points"],
-                              "client_other": 1e3 * arm3["client_other_s"] / arm3["points"]},
+        "arm3_per_point_ms": {path: {
+            "workers": 1e3 * a["workers_s"] / a["points"],
+            "client_main": 1e3 * a["client_main_s"] / a["points"],
+            "client_other": 1e3 * a["client_other_s"] / a["points"]}
+            for path, a in arm3.items()},
         "sweep_s": sweep_s,
         "dask_tables_identical": bool(same),
         "table_points": None if table is None else int(table.omega.shape[0]),
@@ -458,17 +528,22 @@ def main(argv=None):
         "python": platform.python_version(),
         "load": os.getloadavg(),
     }
-    n2d = int(np.prod(table2d.omega.shape[:2]))
-    best = min(cpu, key=lambda c: c["client_main_s"] + c["client_other_s"])
+    shape2d = table2d.omega.shape[:2]
+    n2d = int(np.prod(shape2d))
     task_s = 1e-3 * tasks["client_cpu_net_ms"]
     workers = (1, 2, 4, 8, 16, 32, 64)
-    result["projection"] = {
-        "testbed_2d": projection(workers, n2d, best["workers_s"] / n2d,
-                                 best["client_main_s"] / n2d, task_s),
-        "arm3_spatial_3d": projection(workers, ARM3_AXIS_POINTS ** 3,
-                                      arm3["workers_s"] / arm3["points"],
-                                      arm3["client_main_s"] / arm3["points"], task_s),
-    }
+    result["projection"], result["projection_old"] = {}, {}
+    for key, runs, a3 in (("projection", cpu, arm3["lines"]),
+                          ("projection_old", cpu_old, arm3["kept"])):
+        best = min(runs, key=lambda c: c["client_main_s"] + c["client_other_s"])
+        project = projection_lines if key == "projection" else (
+            lambda w, shape, *a: projection(w, int(np.prod(shape)), *a))
+        result[key] = {
+            "testbed_2d": project(workers, shape2d, best["workers_s"] / n2d,
+                                  best["client_main_s"] / n2d, task_s),
+            "arm3_spatial_3d": project(workers, (ARM3_AXIS_POINTS,) * 3,
+                                       a3["workers_s"] / a3["points"],
+                                       a3["client_main_s"] / a3["points"], task_s)}
     if args.json:
         print(json.dumps(result))
     else:

@@ -10,7 +10,8 @@ one buffer.
 
 On Dask, :func:`map_keep` leaves a part of each result on the worker that made it, for
 :func:`map_kept` to use there (a table build's raw mode shapes: only the tracking's data
-of each point travels to the client).
+travels to the client, of each point, or by grid lines of each line's first point:
+:mod:`casflex.modal.gridlines`).
 
 Every worker process (local pool or Dask) runs its BLAS on one thread
 (:func:`single_threaded_blas`): the workers already fill the cores, and OpenBLAS's own

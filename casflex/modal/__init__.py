@@ -39,6 +39,8 @@ Mode tracking
    GridTracking    -- result of track_grid, with the correlation across every grid edge
    track_grid_features -- track_grid from per-point tracking data (no mode shapes kept)
    point_tracking_data -- what track_grid_features needs of one point (features, groups)
+   track_path_features -- track one path off the spanning tree from its points' data
+   tracked_unit_features -- unit feature rows of tracked modes (the grid's edge correlation)
    mac             -- modified modal assurance criterion of every pair of modes
    correlation     -- signed normalised correlation of every pair of modes
    shape_features  -- feature vectors whose dot products are the MAC inner product
@@ -94,6 +96,10 @@ Modal tables
    function_identity   -- what identifies a quantity function in a cache key
    local_bspline_function -- a table's cubic B-spline evaluated locally (lean generated C)
    grid_function      -- casadi.Function interpolating gridded values (a table's lookup)
+   tabulate_by_lines  -- a table's modes, tracking and quantities by grid lines on Dask
+   line_blocks        -- the blocks of grid lines of tabulate_by_lines' tasks
+   BLOCKS_PER_WORKER  -- blocks of grid lines per Dask worker thread
+   MAX_BLOCK_POINTS   -- most grid points in one block of tabulate_by_lines (progress)
 
 Frequency sweeps
 ================
@@ -113,6 +119,12 @@ from casflex.modal.fits import (
     periodic_axis_kind,
 )
 from casflex.modal.gauge import MIN_OVERLAP, reference_basis, reference_rows
+from casflex.modal.gridlines import (
+    BLOCKS_PER_WORKER,
+    MAX_BLOCK_POINTS,
+    line_blocks,
+    tabulate_by_lines,
+)
 from casflex.modal.integrals import (
     POINT_KEYS,
     QUANTITY_KEYS,
@@ -177,6 +189,8 @@ from casflex.modal.tracking import (
     track,
     track_grid,
     track_grid_features,
+    track_path_features,
+    tracked_unit_features,
 )
 
 __all__ = [
@@ -204,6 +218,8 @@ __all__ = [
     "track_grid",
     "track_grid_features",
     "point_tracking_data",
+    "track_path_features",
+    "tracked_unit_features",
     "GridTracking",
     "mac",
     "correlation",
@@ -251,6 +267,10 @@ __all__ = [
     "function_identity",
     "local_bspline_function",
     "grid_function",
+    "tabulate_by_lines",
+    "line_blocks",
+    "BLOCKS_PER_WORKER",
+    "MAX_BLOCK_POINTS",
     # frequency sweeps
     "frequency_sweep",
     "FrequencySweep",

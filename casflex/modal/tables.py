@@ -9,7 +9,9 @@ space"). This module tabulates them:
 2. :func:`build_table` runs the TMM (:func:`casflex.tmm.modes`) at every point of a grid of
    the shape joints — in parallel, on a local process pool or a Dask cluster (without a
    cache the raw modes stay on its workers) — then tracks identity and sign sequentially
-   (:mod:`casflex.modal.tracking`), then evaluates the model quantities (by default
+   (:mod:`casflex.modal.tracking`; on a Dask cluster without a cache, a grid of two or
+   more shape joints line by line on the workers: :mod:`casflex.modal.gridlines`), then
+   evaluates the model quantities (by default
    :func:`casflex.modal.integrals.configuration_quantities` after
    :func:`casflex.modal.normalize.mass_normalize`).
 3. :class:`ModalTable` turns any tabulated quantity into a ``casadi.Function`` of the
@@ -81,7 +83,7 @@ from casflex._cache import (
 )
 from casflex._parallel import drop_kept, map_keep, map_kept, parallel_map
 from casflex.errors import ModelError
-from casflex.modal import rotated, subspace
+from casflex.modal import gridlines, rotated, subspace
 from casflex.modal import tracking as trk
 from casflex.modal.fits import periodic_axis_kind
 from casflex.modal.table_functions import grid_function
@@ -126,6 +128,8 @@ MAX_GRID_POINTS = 100_000
 SECONDS_PER_POINT_AND_LINK = 0.015
 #: keep a Dask build's raw modes on the workers (no cache; False: the path before)
 KEEP_ON_WORKERS = True
+#: with them kept, track grids of 2+ shape joints there by lines (casflex.modal.gridlines)
+TRACK_ON_WORKERS = True
 
 
 # ------------------------------------------------------------------ shape joints
@@ -583,7 +587,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     cache_dir : str or Path or False, optional
         Cache directory (default :func:`default_cache_dir`); ``False`` disables caching.
     client : dask.distributed.Client, optional
-        Map the per-point work over this cluster instead of a local process pool.
+        Map the per-point work over this cluster instead of a local process pool
+        (without a cache and with two or more shape joints, the tracking too, by grid
+        lines: :func:`casflex.modal.tabulate_by_lines`).
     processes : int, optional
         Local worker processes (default ``os.cpu_count()``; ``1`` runs in-process).
     progress : bool
@@ -711,8 +717,23 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
     kept = (KEEP_ON_WORKERS and client is not None and not use_cache and bool(quantities)
             and basis == "eigen")
     token, where = uuid.uuid4().hex, {}
+    by_lines = kept and TRACK_ON_WORKERS and len(gshape) > 1
     try:
-        if kept:
+        if by_lines:  # tracking and quantities on the workers, by grid lines
+            got = gridlines.tabulate_by_lines(
+                client, token, gshape, [(robot, q_at(idx), count, n_points, directions,
+                                         weighting) for idx in indices], _point_kept,
+                _tracked_point, quantities, n_modes, _boundary_points(grid, gshape),
+                weighting, progress=progress)
+            gt, omega, shifted, tracked = (got[k] for k in ("tracking", "omega", "shifted",
+                                                             "tracked"))
+            per_point = None  # got["values"]: stacked over the grid by the driver
+            info.update(computed_modes=len(indices), cached_modes=0,
+                        computed_quantities=len(indices))
+            t_modes = got["modes_done"]
+            if got["redone"]:
+                drop_kept(client, token)
+        elif kept:
             points, shifted = np.empty(gshape, dtype=object), np.zeros(gshape, dtype=bool)
             for flat, data, worker in map_keep(
                     _point_kept, [(flat, (robot, q_at(idx), count, n_points, directions,
@@ -781,14 +802,14 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
                                   else 1.0),
             degenerate_points=int(gt.degenerate.sum()), shifted_points=int(shifted.sum()),
             periodic=None, joints=list(joints))
-        t_tracking = time.perf_counter()
+        t_tracking = got["tracking_done"] if by_lines else time.perf_counter()
 
         # ---- stage 3: quantities (parallel, cached per point)
         values = {"omega": omega}
         if basis == "smooth":  # clusters: 1-based sorted modes, as in the messages
             values.update(rotated.stiffness_values(gt))
             info["clusters"] = gt.clusters_1based()
-        if kept:
+        if kept and not by_lines:
             boundary = _boundary_points(grid, gshape)
             per_point, tracked, redone = [None] * len(indices), np.empty(gshape, object), False
             for flat, (result, features, again) in map_kept(
@@ -803,7 +824,7 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
             if redone:  # some ran away from their kept parts: free those
                 drop_kept(client, token)
             info["computed_quantities"] = len(indices)
-        elif quantities:
+        elif quantities and not kept:
             per_point = [None] * len(indices)
             missing = []
             for flat in range(len(indices)):
@@ -836,7 +857,9 @@ def build_table(robot: Robot, grid: ArrayLike | Sequence[ArrayLike], n_modes: in
             drop_kept(client, token)
         raise
     info["periodic"] = periodic = _periodic_flags(grid, tracked, omega, robot, weighting)
-    if quantities:
+    if by_lines:
+        values.update(sorted((k, v) for k, v in got["values"].items() if k != "omega"))
+    elif quantities:
         names = sorted(per_point[0])
         for name in names:
             if name == "omega":

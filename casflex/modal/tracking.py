@@ -86,6 +86,8 @@ __all__ = [
     "track_grid",
     "track_grid_features",
     "point_tracking_data",
+    "track_path_features",
+    "tracked_unit_features",
 ]
 
 
@@ -805,8 +807,74 @@ def track_grid_features(points: np.ndarray, count: int | None = None) -> GridTra
     for idx in np.ndindex(points.shape):
         data = points[idx]
         feats[idx], grps[idx] = data["features"], data["groups"]
-        peaks[idx] = SimpleNamespace(omega=data["omega"], displacement=data["displacement"])
+        peaks[idx] = _peak_data(data)
     return _track_grid(feats, grps, peaks, count)
+
+
+def track_path_features(points: Sequence[dict], reference: ArrayLike) -> Tracking:
+    """:func:`track` along a path from each point's :func:`point_tracking_data`, continuing
+    already tracked modes: the work of one path of :func:`track_grid`'s spanning tree off
+    its first axis, which can run where the path's data is.
+
+    Parameters
+    ----------
+    points : sequence of dict
+        :func:`point_tracking_data` of the path's points (after the tracked point).
+    reference : numpy.ndarray
+        (n, n_features) tracked feature rows of the point just before the path: its
+        transform times its features.
+
+    Returns
+    -------
+    Tracking
+        As :func:`track` with ``reference``; bit for bit what :func:`track_grid` computes
+        for the same path.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import modes
+    >>> robot = load("problems/arm2link.toml")
+    >>> raw = [[modes(robot, [0, a, b], count=4) for b in (0.2, 0.3, 0.4)] for a in (0.0, 0.5)]
+    >>> gt = track_grid(raw, count=3, robot=robot)
+    >>> data = [point_tracking_data(s, robot) for s in raw[1]]
+    >>> ref = gt.transform[1, 0] @ data[0]["features"]
+    >>> tr = track_path_features(data[1:], ref)
+    >>> bool(np.array_equal(tr.order, gt.order[1, 1:]))
+    True
+    """
+    return _track_features([p["features"] for p in points], [p["groups"] for p in points],
+                           [_peak_data(p) for p in points], ref=np.asarray(reference))
+
+
+def tracked_unit_features(transform: ArrayLike, features: np.ndarray) -> np.ndarray:
+    """Unit-norm feature rows of the tracked modes: their dot products across a grid edge
+    are :attr:`GridTracking.edge_correlation`.
+
+    Parameters
+    ----------
+    transform : numpy.ndarray
+        (n, m) tracking transform of the point.
+    features : numpy.ndarray
+        (m, n_features) features of its raw modes (:func:`shape_features`).
+
+    Returns
+    -------
+    numpy.ndarray
+        (n, n_features), each nonzero row scaled to unit length.
+
+    Examples
+    --------
+    >>> u = tracked_unit_features(np.eye(2), np.array([[3.0, 4.0], [0.0, 0.0]]))
+    >>> u.tolist()
+    [[0.6, 0.8], [0.0, 0.0]]
+    """
+    return _unit_rows(np.asarray(transform) @ features)
+
+
+def _peak_data(data):
+    """What :func:`_rescale_peak` reads of a point, from its tracking data."""
+    return SimpleNamespace(omega=data["omega"], displacement=data["displacement"])
 
 
 def _track_grid(feats, grps, arr, count):
@@ -856,7 +924,7 @@ def _track_grid(feats, grps, arr, count):
         s = np.sign(t[np.arange(n), order[idx]])
         s[s == 0] = 1.0
         sign[idx] = s
-        unit[idx] = _unit_rows(t @ feats[idx])
+        unit[idx] = tracked_unit_features(t, feats[idx])
     edge = np.full(gshape + (ndim, n), np.nan)
     for idx in np.ndindex(gshape):
         for axis in range(ndim):
