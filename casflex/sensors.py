@@ -628,10 +628,16 @@ def _point_data(model, sensors):
 def _point_pose(model, sensors, data, sensor):
     """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ): on the link-local
     deflection to first order (default kinematics), or on the exact rod (``"exact"``)."""
+    T = _beam_body(model, sensor.row)["T"]
+    Rl, local = _point_local(model, sensors, data, sensor)
+    return T[:3, :3] @ local + T[:3, 3], T[:3, :3] @ Rl
+
+
+def _point_local(model, sensors, data, sensor):
+    """Rotation ``R_l`` and position of the sensing element in the link's base frame."""
     m = model.m
     i = sensors.point_index(sensor)
     body = _beam_body(model, sensor.row)
-    T = body["T"]
     d = model.delta
     w = ca.SX.zeros(3)
     th = ca.SX.zeros(3)
@@ -648,12 +654,9 @@ def _point_pose(model, sensors, data, sensor):
             rods[sensor.row] = rod_nodes(model.robot.links[sensor.row], body["beam"],
                                          data["sample_u"], data["sample_theta"], d)
         Rl, centre = rod_point(rods[sensor.row], sensor.s, w, th)
-        local = centre + Rl @ off
-    else:
-        Rl = ca.SX.eye(3) + ca.skew(th)
-        local = ca.vertcat(0, 0, sensor.s) + w + Rl @ off
-    p = T[:3, :3] @ local + T[:3, 3]
-    return p, T[:3, :3] @ Rl
+        return Rl, centre + Rl @ off
+    Rl = ca.SX.eye(3) + ca.skew(th)
+    return Rl, ca.vertcat(0, 0, sensor.s) + w + Rl @ off
 
 
 def point_position_function(model: FlexibleModel, sensors: SensorSet) -> ca.Function:
@@ -734,8 +737,9 @@ def _exact_signals(model, sensors, dddelta):
     return [ca.substitute(o, acc, dddelta) for o in outs]
 
 
-def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant"):
-    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked.
+def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursive=False):
+    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked;
+    ``recursive``: the accelerometers by :func:`_recursive_acceleration`.
 
     ``lean``: with a table provider, the table entries the signals need (and their
     derivatives along the shape joints) come from one small spline of just those entries
@@ -766,18 +770,100 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant"):
             eps = ca.vertcat(-sen.distance[0] * kap[0], -sen.distance[1] * kap[1])
             outs.append(ca.vertcat(*[eps[_AXES[a]] for a in sen.axes]))
             continue
-        p, R = _point_pose(body_model, sensors, data, sen)
-        v = ca.jtimes(p, X, dX)
-        a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ddX)
-        if sen.gravity:
-            a = a - g
-        y = R.T @ a if sen.frame == "sensor" else a
+        y = _recursive_acceleration(body_model, sensors, data, sen, X, dX, ddX, g) \
+            if recursive else None
+        if y is None:
+            p, R = _point_pose(body_model, sensors, data, sen)
+            v = ca.jtimes(p, X, dX)
+            a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ddX)
+            if sen.gravity:
+                a = a - g
+            y = R.T @ a if sen.frame == "sensor" else a
         if not sen.rigid:
             y = y - _rigid_substitute(y, model, acc)
         outs.append(ca.vertcat(*[y[_AXES[c]] for c in sen.axes]))
     if lean:
         outs = _lean_tables(model, outs, V, Vd, Vdd, lookup)
     return outs
+
+
+def _base_factors(model, row):
+    """``(factors, k)``: 4 × 4 factors whose product is the pose of the base frame of the
+    beam on DH row ``row`` (the rows before it, ``model.A``, and the row's own factor up to
+    the beam), the first ``k`` of them rigid (no δ; exact rotations); checked against the
+    model's pose at a random point. ``None`` where they differ (the graph form is used)."""
+    link = model.robot.links[row]
+    c, s = math.cos(link.alpha), math.sin(link.alpha)
+    F = ca.SX(ca.DM([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]]))
+    cs, ss = math.cos(link.section_angle), math.sin(link.section_angle)
+    section = np.array([[cs, -ss, 0.0, 0.0], [ss, cs, 0.0, 0.0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    if link.beam_along == "a":
+        F = F @ ca.DM(np.eye(4)[[2, 0, 1, 3]] @ section)
+    elif link.joint_stiffness is None:
+        F[0, 3] = link.a
+        theta = link.theta + sum(model.q[k] for k, r in enumerate(model.robot.joint_rows)
+                                 if r == row)
+        c, s = ca.cos(theta), ca.sin(theta)
+        F = F @ ca.blockcat([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        F = F @ ca.DM(section)
+    else:
+        return None
+    factors = list(model.A[:row]) + [F]
+    k = 0
+    while k < len(factors) and not ca.depends_on(factors[k], model.delta):
+        k += 1
+    T, L = ca.SX.eye(4), ca.SX.eye(4)
+    for i, Fi in enumerate(factors):
+        T = T @ Fi
+        L = T if i < k else L
+    ref = _beam_body(model, row)["T"]
+    syms = ca.symvar(ca.veccat(T, ref, L))
+    check = ca.Function("check", syms, [ca.norm_inf(T - ref), ca.norm_inf(ref),
+                                        ca.norm_inf(L[:3, :3].T @ L[:3, :3] - ca.DM.eye(3))])
+    dev, size, ortho = (float(v) for v in check(*np.random.default_rng(0).normal(
+        scale=0.3, size=len(syms))))
+    if not dev <= 1e-12 * (1.0 + size):
+        return None
+    return factors, (k if ortho <= 1e-12 else 0)
+
+
+def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g):
+    """Specific force (or acceleration) of an accelerometer along the sensor's axes (or the
+    base's) by a recursive pass over the factors of its pose (None where they are not
+    known; the caller then differentiates the whole pose). The point's position, velocity
+    and acceleration are carried from the link-local point inward through each flexible
+    factor ``F`` (``p ← F p``, ``ṗ ← Ḟ p + F ṗ``, ``p̈ ← F̈ p + 2 Ḟ ṗ + F p̈``); the rigid
+    leading factors ``L`` enter as the body-frame rates ``Lᵀ L̇`` and ``Lᵀ L̈`` (exact
+    rotations: ``Lᵀ L = I``), so ``Lᵀ p̈`` needs no product through them. The same signal
+    as the time derivatives of the whole pose to rounding, on a graph a fraction of the
+    size (and so is its reverse-mode Jacobian)."""
+    base = _base_factors(model, sen.row)
+    if base is None:
+        return None
+    factors, k = base
+    Rl, p = _point_local(model, sensors, data, sen)
+    pd = ca.jtimes(p, X, dX)
+    pdd = ca.jtimes(pd, X, dX) + ca.jtimes(p, X, ddX)
+    for F in reversed(factors[k:]):
+        Fd = ca.jtimes(F, X, dX)
+        Fdd = ca.jtimes(Fd, X, dX) + ca.jtimes(F, X, ddX)
+        R, Rd, Rdd = F[:3, :3], Fd[:3, :3], Fdd[:3, :3]
+        p, pd, pdd = (R @ p + F[:3, 3], Rd @ p + R @ pd + Fd[:3, 3],
+                      Rdd @ p + 2 * (Rd @ pd) + R @ pdd + Fdd[:3, 3])
+    L = ca.SX.eye(4)
+    for F in factors[:k]:
+        L = L @ F
+    Ld = ca.jtimes(L, X, dX)
+    Ldd = ca.jtimes(Ld, X, dX) + ca.jtimes(L, X, ddX)
+    RL = L[:3, :3]
+    a = (RL.T @ Ldd[:3, :3]) @ p + 2 * ((RL.T @ Ld[:3, :3]) @ pd) + pdd + RL.T @ Ldd[:3, 3]
+    if sen.gravity:
+        a = a - RL.T @ g
+    if sen.frame != "sensor":
+        return RL @ a
+    for F in factors[k:]:
+        a = F[:3, :3].T @ a
+    return Rl.T @ a
 
 
 def _lean_applicable(model):
@@ -865,7 +951,7 @@ def _wrap(model, sensors, outs, name):
 
 def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = "h_kin",
                           rigid_part: bool = False, lean: bool = False,
-                          lookup: str = "interpolant") -> ca.Function:
+                          lookup: str = "interpolant", recursive: bool = False) -> ca.Function:
     """The measurement with ``δ̈`` as an input: ``(x, u, dddelta) -> y``.
 
     The estimator substitutes its own (lean) model of the flexible accelerations; with
@@ -891,6 +977,11 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
         (:meth:`casflex.modal.tables.ModalTable.function`); ``"local"`` is the same spline
         with leaner generated C (:func:`casflex.modal.local_bspline_function`), the
         default of the estimator (:func:`casflex.estimation.ekf_step_function`).
+    recursive : bool
+        The accelerometers by a recursive pass over the factors of their pose (the rigid
+        leading ones as body-frame rates) instead of the time derivatives of the whole
+        pose: the same signals to rounding on a much smaller graph (so a cheaper
+        Jacobian; the estimator's default). Ignored with ``rigid_part``.
 
     Returns
     -------
@@ -921,5 +1012,5 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
             else:
                 keep.append(ca.DM.zeros(o.numel()))
         return ca.Function(name, [u], [ca.vertcat(*keep)], ["u"], ["y_rigid"])
-    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean=lean, lookup=lookup))
+    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean, lookup, recursive))
     return ca.Function(name, [x, u, acc], [y], ["x", "u", "dddelta"], ["y"])
