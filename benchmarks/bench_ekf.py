@@ -28,7 +28,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
 [--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
-[--forms]
+[--forms] [--recursive]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -47,6 +47,11 @@ spline table and the measurement's sensor-entry tables evaluated by ``casadi.int
 
 ``--forms`` the same for the scalar covariance updates in Joseph form (``joseph=True``,
 the step of session 8) and in standard form (the default): key ``forms``.
+
+``--recursive`` the same for the accelerometer signals as time derivatives of the whole
+sensor pose (``recursive=False``, the step of session 9) and by the recursive pass over
+the pose's factors (the default, ``casflex.sensors.kinematic_measurement``): key
+``recursive``.
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -82,15 +87,18 @@ ISSUE_WIDTH = 4
 #: the build counted by ``--callgrind``: NATIVE for AVX2 machines (valgrind has no AVX-512)
 CALLGRIND_FLAGS = "-O3 -march=x86-64-v3 -ffp-contract=off"
 FIRST = {"jacobians": "first_order"}
-BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False}
+BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False, "recursive": False}
+POSE = {"jacobians": "first_order", "recursive": False}  # the step of session 9
 # (label, plant order, pruned plant, ekf_step_function options, compiler flags)
 VARIANTS = [
     ("first-order plant, exact, no cse, batch, full tables, -O2", 1, False,
-     {"jacobians": "exact", "cse": False, "update": "batch", "lean": False}, "-O2"),
+     {"jacobians": "exact", "cse": False, "update": "batch", "lean": False,
+      "recursive": False}, "-O2"),
     ("before: order 2, first_order, batch, full tables", 2, False, BEFORE, NATIVE),
     ("+ pruned plant", 2, True, BEFORE, NATIVE),
-    ("+ sensor-entry tables", 2, True, {**FIRST, "update": "batch"}, NATIVE),
-    ("+ sequential update (default)", 2, True, FIRST, NATIVE),
+    ("+ sensor-entry tables", 2, True, {**POSE, "update": "batch"}, NATIVE),
+    ("+ sequential update", 2, True, POSE, NATIVE),
+    ("+ recursive accelerometers (default)", 2, True, FIRST, NATIVE),
     ("default, jacobians=linearized", 2, True, {"jacobians": "linearized"}, NATIVE),
     ("default, jacobians=exact", 2, True, {"jacobians": "exact"}, NATIVE),
     ("default, -O2", 2, True, FIRST, "-O2"),
@@ -287,7 +295,7 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
     breaks = grid[0] + h_grid * np.arange(-4, round((grid[-1] - grid[0]) / h_grid) + 6)
     coef = sx_to_python(plant.function(), breaks)
     pairs = plant.pairs
-    hk = kinematic_measurement(plant.model, sensors, lean=True)
+    hk = kinematic_measurement(plant.model, sensors, lean=True, recursive=True)
     xs, us, acs = ca.SX.sym("x", nx), ca.SX.sym("u", 3 * plant.n), ca.SX.sym("a", m)
     hs = hk(xs, us, acs)
     hjac = sx_to_python(ca.Function("hjac", [xs, us, acs],
@@ -444,6 +452,10 @@ def main(argv=None):
     parser.add_argument("--forms", action="store_true",
                         help="also time and count the step with the scalar updates in Joseph "
                         "and in standard form (the default), interleaved over --rounds")
+    parser.add_argument("--recursive", action="store_true",
+                        help="also time and count the step with the accelerometers as the "
+                        "whole pose's time derivatives (before) and by the recursive pass "
+                        "(now), interleaved over --rounds")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -556,6 +568,12 @@ def main(argv=None):
             {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                                      update=args.update, joseph=form == "joseph")
              for form in ("joseph", "standard")}, "form ")
+    recursive = {}
+    if args.recursive:  # the accelerometers: whole-pose derivatives vs the recursive pass
+        recursive = side_by_side(
+            {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                                     update=args.update, recursive=form == "recursive")
+             for form in ("pose", "recursive")}, "accelerometers ")
     guarded = {}
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
@@ -634,6 +652,8 @@ def main(argv=None):
         out["lookups"] = lookups
     if forms:
         out["forms"] = forms
+    if recursive:
+        out["recursive"] = recursive
     if guarded:
         out["guarded"] = guarded
     if variants:

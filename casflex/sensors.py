@@ -626,32 +626,28 @@ def _point_data(model, sensors):
 
 
 def _point_pose(model, sensors, data, sensor):
-    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ): on the link-local
-    deflection to first order (default kinematics), or on the exact rod (``"exact"``)."""
+    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ) (:func:`_point_local`)."""
     T = _beam_body(model, sensor.row)["T"]
     Rl, local = _point_local(model, sensors, data, sensor)
     return T[:3, :3] @ local + T[:3, 3], T[:3, :3] @ Rl
 
 
 def _point_local(model, sensors, data, sensor):
-    """Rotation ``R_l`` and position of the sensing element in the link's base frame."""
-    m = model.m
-    i = sensors.point_index(sensor)
-    body = _beam_body(model, sensor.row)
-    d = model.delta
-    w = ca.SX.zeros(3)
-    th = ca.SX.zeros(3)
+    """Rotation ``R_l`` and position of the sensing element in the link's base frame: on
+    the link-local deflection to first order (default kinematics), or on the exact rod."""
+    m, i, d = model.m, sensors.point_index(sensor), model.delta
+    w, th = ca.SX.zeros(3), ca.SX.zeros(3)
     for j in range(m):
         k = (i * m + j) * 3
-        w += d[j] * data["point_u"][k:k + 3]
-        th += d[j] * data["point_theta"][k:k + 3]
+        w, th = w + d[j] * data["point_u"][k:k + 3], th + d[j] * data["point_theta"][k:k + 3]
     off = ca.DM(list(getattr(sensor, "offset", (0.0, 0.0, 0.0))))
     if getattr(model, "kinematics", "truncated") == "exact":
         # the rod walked from the link's base through the model's nodes to s (one rod per
         # link and call, shared by the link's sensors)
         rods = data.setdefault("rods", {})
         if sensor.row not in rods:
-            rods[sensor.row] = rod_nodes(model.robot.links[sensor.row], body["beam"],
+            rods[sensor.row] = rod_nodes(model.robot.links[sensor.row],
+                                         _beam_body(model, sensor.row)["beam"],
                                          data["sample_u"], data["sample_theta"], d)
         Rl, centre = rod_point(rods[sensor.row], sensor.s, w, th)
         return Rl, centre + Rl @ off
@@ -692,8 +688,7 @@ def point_position_function(model: FlexibleModel, sensors: SensorSet) -> ca.Func
 
 
 def _rigid_substitute(expr, model, extra=None):
-    syms = [model.delta, model.ddelta] + ([extra] if extra is not None else [])
-    v = ca.vertcat(*syms)
+    v = ca.vertcat(model.delta, model.ddelta, *([extra] if extra is not None else []))
     return ca.substitute(expr, v, ca.DM.zeros(v.numel()))
 
 
@@ -746,9 +741,7 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
     instead of the model's spline of every quantity (:func:`_lean_tables`); the same
     expressions to rounding; ``lookup`` as :meth:`casflex.modal.tables.ModalTable.function`."""
     q, dq, ddq, d, dd = model.q, model.dq, model.ddq, model.delta, model.ddelta
-    X = ca.vertcat(q, d)
-    dX = ca.vertcat(dq, dd)
-    ddX = ca.vertcat(ddq, acc)
+    X, dX, ddX = ca.vertcat(q, d), ca.vertcat(dq, dd), ca.vertcat(ddq, acc)
     lean = lean and _lean_applicable(model)
     if lean:
         # table entries as placeholders V(q_shape), with their rates as symbols: the time
@@ -770,8 +763,8 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
             eps = ca.vertcat(-sen.distance[0] * kap[0], -sen.distance[1] * kap[1])
             outs.append(ca.vertcat(*[eps[_AXES[a]] for a in sen.axes]))
             continue
-        y = _recursive_acceleration(body_model, sensors, data, sen, X, dX, ddX, g) \
-            if recursive else None
+        y = (_recursive_acceleration(body_model, sensors, data, sen, X, dX, ddX, g)
+             if recursive else None)
         if y is None:
             p, R = _point_pose(body_model, sensors, data, sen)
             v = ca.jtimes(p, X, dX)
@@ -788,30 +781,26 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
 
 
 def _base_factors(model, row):
-    """``(factors, k)``: 4 × 4 factors whose product is the pose of the base frame of the
-    beam on DH row ``row`` (the rows before it, ``model.A``, and the row's own factor up to
-    the beam), the first ``k`` of them rigid (no δ; exact rotations); checked against the
-    model's pose at a random point. ``None`` where they differ (the graph form is used)."""
+    """``(factors, k)``: factors of the pose of the beam's base frame on DH row ``row``
+    (``model.A`` before it, the row's own up to the beam), the first ``k`` rigid (no δ,
+    exact rotations); checked against that pose at a random point (else ``None``)."""
     link = model.robot.links[row]
     c, s = math.cos(link.alpha), math.sin(link.alpha)
     F = ca.SX(ca.DM([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]]))
-    cs, ss = math.cos(link.section_angle), math.sin(link.section_angle)
-    section = np.array([[cs, -ss, 0.0, 0.0], [ss, cs, 0.0, 0.0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    c, s = math.cos(link.section_angle), math.sin(link.section_angle)
+    section = ca.DM([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
     if link.beam_along == "a":
-        F = F @ ca.DM(np.eye(4)[[2, 0, 1, 3]] @ section)
+        F = F @ ca.DM(np.eye(4)[[2, 0, 1, 3]]) @ section
     elif link.joint_stiffness is None:
         F[0, 3] = link.a
         theta = link.theta + sum(model.q[k] for k, r in enumerate(model.robot.joint_rows)
                                  if r == row)
         c, s = ca.cos(theta), ca.sin(theta)
-        F = F @ ca.blockcat([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-        F = F @ ca.DM(section)
+        F = F @ ca.blockcat([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]) @ section
     else:
         return None
     factors = list(model.A[:row]) + [F]
-    k = 0
-    while k < len(factors) and not ca.depends_on(factors[k], model.delta):
-        k += 1
+    k = next((i for i, F in enumerate(factors) if ca.depends_on(F, model.delta)), len(factors))
     T, L = ca.SX.eye(4), ca.SX.eye(4)
     for i, Fi in enumerate(factors):
         T = T @ Fi
@@ -828,15 +817,11 @@ def _base_factors(model, row):
 
 
 def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g):
-    """Specific force (or acceleration) of an accelerometer along the sensor's axes (or the
-    base's) by a recursive pass over the factors of its pose (None where they are not
-    known; the caller then differentiates the whole pose). The point's position, velocity
-    and acceleration are carried from the link-local point inward through each flexible
-    factor ``F`` (``p ← F p``, ``ṗ ← Ḟ p + F ṗ``, ``p̈ ← F̈ p + 2 Ḟ ṗ + F p̈``); the rigid
-    leading factors ``L`` enter as the body-frame rates ``Lᵀ L̇`` and ``Lᵀ L̈`` (exact
-    rotations: ``Lᵀ L = I``), so ``Lᵀ p̈`` needs no product through them. The same signal
-    as the time derivatives of the whole pose to rounding, on a graph a fraction of the
-    size (and so is its reverse-mode Jacobian)."""
+    """An accelerometer's signal by a recursive pass over the factors of its pose (None if
+    they are not known): the point carried inward through each flexible factor ``F``
+    (``p ← F p``, ``ṗ ← Ḟ p + F ṗ``, ``p̈ ← F̈ p + 2 Ḟ ṗ + F p̈``), the rigid leading ones
+    ``L`` as the body-frame rates ``Lᵀ L̇``, ``Lᵀ L̈`` (``Lᵀ L = I``). The whole pose's
+    time derivatives to rounding, on a much smaller graph (and Jacobian)."""
     base = _base_factors(model, sen.row)
     if base is None:
         return None
@@ -978,10 +963,9 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
         with leaner generated C (:func:`casflex.modal.local_bspline_function`), the
         default of the estimator (:func:`casflex.estimation.ekf_step_function`).
     recursive : bool
-        The accelerometers by a recursive pass over the factors of their pose (the rigid
-        leading ones as body-frame rates) instead of the time derivatives of the whole
-        pose: the same signals to rounding on a much smaller graph (so a cheaper
-        Jacobian; the estimator's default). Ignored with ``rigid_part``.
+        The accelerometers by a recursive pass over the factors of their pose instead of
+        the whole pose's time derivatives: the same signals to rounding, a much smaller
+        graph and Jacobian (the estimator's default). Ignored with ``rigid_part``.
 
     Returns
     -------
