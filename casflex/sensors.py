@@ -83,6 +83,7 @@ from casflex._problemfile import TableReader, read_toml
 from casflex._validate import choice, fail, identifier, plausible, to_float
 from casflex.errors import ModelError, ProblemFileError
 from casflex.modal.integrals import RATE_KEYS
+from casflex.model.pose_factors import pose_factors
 from casflex.model.strain_kinematics import rod_nodes, rod_point
 
 if TYPE_CHECKING:
@@ -763,7 +764,7 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
             eps = ca.vertcat(-sen.distance[0] * kap[0], -sen.distance[1] * kap[1])
             outs.append(ca.vertcat(*[eps[_AXES[a]] for a in sen.axes]))
             continue
-        y = (_recursive_acceleration(body_model, sensors, data, sen, X, dX, ddX, g)
+        y = (_recursive_acceleration(body_model, sensors, data, sen, X, dX, ddX, g, lean)
              if recursive else None)
         if y is None:
             p, R = _point_pose(body_model, sensors, data, sen)
@@ -780,49 +781,13 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
     return outs
 
 
-def _base_factors(model, row):
-    """``(factors, k)``: factors of the pose of the beam's base frame on DH row ``row``
-    (``model.A`` before it, the row's own up to the beam), the first ``k`` rigid (no δ,
-    exact rotations); checked against that pose at a random point (else ``None``)."""
-    link = model.robot.links[row]
-    c, s = math.cos(link.alpha), math.sin(link.alpha)
-    F = ca.SX(ca.DM([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]]))
-    c, s = math.cos(link.section_angle), math.sin(link.section_angle)
-    section = ca.DM([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-    if link.beam_along == "a":
-        F = F @ ca.DM(np.eye(4)[[2, 0, 1, 3]]) @ section
-    elif link.joint_stiffness is None:
-        F[0, 3] = link.a
-        theta = link.theta + sum(model.q[k] for k, r in enumerate(model.robot.joint_rows)
-                                 if r == row)
-        c, s = ca.cos(theta), ca.sin(theta)
-        F = F @ ca.blockcat([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]) @ section
-    else:
-        return None
-    factors = list(model.A[:row]) + [F]
-    k = next((i for i, F in enumerate(factors) if ca.depends_on(F, model.delta)), len(factors))
-    T, L = ca.SX.eye(4), ca.SX.eye(4)
-    for i, Fi in enumerate(factors):
-        T = T @ Fi
-        L = T if i < k else L
-    ref = _beam_body(model, row)["T"]
-    syms = ca.symvar(ca.veccat(T, ref, L))
-    check = ca.Function("check", syms, [ca.norm_inf(T - ref), ca.norm_inf(ref),
-                                        ca.norm_inf(L[:3, :3].T @ L[:3, :3] - ca.DM.eye(3))])
-    dev, size, ortho = (float(v) for v in check(*np.random.default_rng(0).normal(
-        scale=0.3, size=len(syms))))
-    if not dev <= 1e-12 * (1.0 + size):
-        return None
-    return factors, (k if ortho <= 1e-12 else 0)
-
-
-def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g):
+def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g, lean):
     """An accelerometer's signal by a recursive pass over the factors of its pose (None if
     they are not known): the point carried inward through each flexible factor ``F``
     (``p ← F p``, ``ṗ ← Ḟ p + F ṗ``, ``p̈ ← F̈ p + 2 Ḟ ṗ + F p̈``), the rigid leading ones
     ``L`` as the body-frame rates ``Lᵀ L̇``, ``Lᵀ L̈`` (``Lᵀ L = I``). The whole pose's
     time derivatives to rounding, on a much smaller graph (and Jacobian)."""
-    base = _base_factors(model, sen.row)
+    base = pose_factors(model, sen.row, placeholders=lean)
     if base is None:
         return None
     factors, k = base
