@@ -28,7 +28,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
 [--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
-[--forms] [--recursive]
+[--forms] [--recursive] [--peak]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -47,6 +47,13 @@ spline table and the measurement's sensor-entry tables evaluated by ``casadi.int
 
 ``--forms`` the same for the scalar covariance updates in Joseph form (``joseph=True``,
 the step of session 8) and in standard form (the default): key ``forms``.
+
+``--peak`` also measures this machine's scalar double-precision peak in a tight loop (16
+independent multiply-add chains, unfused, in CPU time, best of 5 runs: ``peak_ops_per_ns``),
+its running clock (a chain of dependent integer adds, one cycle each:
+``clock_ghz_measured``) and the step's operations at that peak
+(``flop_limit_measured_us``), the measured counterpart of ``flop_limit_us`` (two operations
+per cycle at the nominal clock of /proc/cpuinfo).
 
 ``--recursive`` the same for the accelerometer signals as time derivatives of the whole
 sensor pose (``recursive=False``, the step of session 9) and by the recursive pass over
@@ -401,6 +408,62 @@ def flop_limit(step):
 
 
 
+#: tight loops of ``--peak``: 16 independent mul-add chains (scalar double, no FMA), and a
+#: chain of dependent integer adds (one cycle each on any x86 core: the running clock)
+PEAK_SOURCE = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+static double now(void) {
+  struct timespec t; clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+int main(int argc, char **argv) {
+  long n = atol(argv[1]);
+  volatile double seed = 1.0000001;
+  double m = seed, a = 1e-9 * seed, x[16], s = 0.0;
+  for (int i = 0; i < 16; i++) x[i] = 1.0 + i * 1e-3;
+  double t0 = now();
+#define S(i) x[i] = x[i] * m + a;
+  for (long k = 0; k < n; k++) {  /* unrolled: the 16 chains live in registers */
+    S(0) S(1) S(2) S(3) S(4) S(5) S(6) S(7) S(8) S(9) S(10) S(11) S(12) S(13) S(14) S(15)
+  }
+  double tf = now() - t0;
+  volatile long seedi = 3; long z = seedi, c = seedi;
+  t0 = now();
+  for (long k = 0; k < n; k++)
+    __asm__ volatile("add %1, %0\n\tadd %1, %0\n\tadd %1, %0\n\tadd %1, %0\n\t"
+                     "add %1, %0\n\tadd %1, %0\n\tadd %1, %0\n\tadd %1, %0" : "+r"(z) : "r"(c));
+  double ti = now() - t0;
+  for (int i = 0; i < 16; i++) s += x[i];
+  printf("%.6f %.6f %g %ld\n", 32.0 * n / tf / 1e9, 8.0 * n / ti / 1e9, s, z);
+  return 0;
+}
+"""
+
+
+def measured_peak(tmp, runs=5, n=30_000_000):
+    """``(scalar double operations per ns, clock in GHz)`` of this machine, the best of
+    ``runs`` runs of :data:`PEAK_SOURCE` (``-O2 -march=native -fno-tree-vectorize
+    -ffp-contract=off``: scalar, unfused, as the step's operations), in CPU time; None
+    without a C compiler."""
+    import shutil
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    src, exe = Path(tmp) / "peak.c", Path(tmp) / "peak"
+    src.write_text(PEAK_SOURCE)
+    subprocess.run([cc, "-O2", "-march=native", "-fno-tree-vectorize", "-ffp-contract=off",
+                    str(src), "-o", str(exe)], check=True, capture_output=True)
+    best = (0.0, 0.0)
+    for _ in range(runs):
+        ops, ghz = (float(v) for v in subprocess.run(
+            [str(exe), str(n)], check=True, capture_output=True, text=True).stdout.split()[:2])
+        best = (max(best[0], ops), max(best[1], ghz))
+    return best
+
+
 def timed_rounds(results, steps, rounds, time_c, log, prefix=""):
     """Time each compiled step of ``steps`` (label -> Function) with ``time_c(label, step)
     -> (us, deviation, _)`` in ``rounds`` interleaved rounds; ``results[label]`` gathers the
@@ -452,6 +515,10 @@ def main(argv=None):
     parser.add_argument("--forms", action="store_true",
                         help="also time and count the step with the scalar updates in Joseph "
                         "and in standard form (the default), interleaved over --rounds")
+    parser.add_argument("--peak", action="store_true",
+                        help="also measure this machine's scalar floating-point peak and "
+                        "clock in tight loops (keys peak_ops_per_ns, clock_ghz_measured, "
+                        "flop_limit_measured_us)")
     parser.add_argument("--recursive", action="store_true",
                         help="also time and count the step with the accelerometers as the "
                         "whole pose's time derivatives (before) and by the recursive pass "
@@ -648,6 +715,13 @@ def main(argv=None):
         # instructions per cycle that the timed median implies (the load inflates it less
         # than the time: a busy spell lowers the apparent IPC)
         out["implied_ipc"] = None if ins is None or ghz is None else ins / (c_us * ghz * 1e3)
+    if args.peak:
+        with tempfile.TemporaryDirectory() as tmp:
+            peak = measured_peak(tmp)
+        if peak is not None:
+            out["peak_ops_per_ns"], out["clock_ghz_measured"] = peak
+            # the step's operations at that peak: no schedule of them does better
+            out["flop_limit_measured_us"] = out["flops_per_step"] / (peak[0] * 1e3)
     if lookups:
         out["lookups"] = lookups
     if forms:
