@@ -64,33 +64,41 @@ def _compare(model, sensors, rng, trials=4, jacobian=True, **options):
     return _operations(graph), _operations(rec)
 
 
-def test_recursive_equals_pose_derivatives(arm):
-    """Two modes frozen at one shape-joint angle, gravity on, the first-order link-local
-    deflection (the default kinematics). The recursive graph must be the smaller one
-    (else it fell back to the whole-pose form and compared it with itself)."""
-    provider = PointwiseProvider(arm, [0.1, 0.3, -0.8], count=2, points=SENSORS.points)
+@pytest.fixture(scope="module")
+def provider(arm):
+    """Two modes frozen at one shape-joint angle, at the points of SENSORS (a TMM solve,
+    ~2 s: shared by the tests below)."""
+    return PointwiseProvider(arm, [0.1, 0.3, -0.8], count=2, points=SENSORS.points)
+
+
+def test_recursive_equals_pose_derivatives(arm, provider):
+    """Gravity on, the first-order link-local deflection (the default kinematics). The
+    recursive graph must be the smaller one (else it fell back to the whole-pose form and
+    compared it with itself)."""
     model = FlexibleModel(arm, provider)
     ops_graph, ops_rec = _compare(model, SENSORS, np.random.default_rng(17))
     assert ops_rec < 0.8 * ops_graph, (ops_rec, ops_graph)
 
 
 @pytest.mark.slow
-def test_recursive_on_the_exact_rod(arm):
+def test_recursive_on_the_exact_rod(arm, provider):
     """``kinematics="exact"``: the sensors ride the exact rod (``rod_point``) and link 1's
     end is its rod's end frame. The signals only (the rod walks make the Jacobian graphs
     ~10⁶ operations, a minute to build); the rod dominates both graphs, so no size
     claim."""
     sensors = SensorSet([Accelerometer(3, 0.63, name="mid2", offset=OFFSET),
-                         Accelerometer(3, 1.0, name="tip", frame="inertial", rigid=False)])
-    provider = PointwiseProvider(arm, [0.1, 0.3, -0.8], count=2, points=sensors.points)
+                         Accelerometer(3, 1.0, name="tip", frame="inertial", rigid=False)],
+                        points=SENSORS.points)
     model = FlexibleModel(arm, provider, kinematics="exact")
     _compare(model, sensors, np.random.default_rng(19), jacobian=False)
 
 
+@pytest.mark.slow
 def test_recursive_lean_table_model(arm_model):
     """Three modes tabulated over the elbow (15° grid, the sensor points of
     test_sensors.py's table model): the estimator's lean measurement, its table entries
-    and their first and second rates along the elbow filled from one local spline."""
+    and their first and second rates along the elbow filled from one local spline (~4 s
+    with the table's build: slow; the fast suite's EKF tests run this path)."""
     points = [(2, 0.6), (3, 1.0)]
     model, _ = arm_model(3, points=points, gravity=None)
     sensors = SensorSet([Accelerometer(2, 0.6, name="a1"),
