@@ -18,7 +18,8 @@ The step is that of the second-order plant (``tabulate_plant(order=2)``, Fourier
 coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_order"``,
 the sequential scalar updates (``update="auto"``: R is diagonal; standard form ``P − k
 bᵀ``, ``joseph=False``), the RK4 transition matrix in closed form and the sensor-entry
-tables of the measurement (``lean=True``, evaluated locally as the plant's table),
+tables of the measurement (``lean=True``, evaluated locally as the plant's table), the
+accelerometers by the recursive pass over their pose's factors (``recursive=True``),
 compiled with ``-O3 -march=native
 -ffp-contract=off`` (no FMA contraction: within 1e-10 of Python,
 tests/codegen/test_codegen_ekf.py; options below). ``--compare`` also times, in the same run, the
@@ -28,7 +29,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
 [--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
-[--forms]
+[--forms] [--recursive] [--peak]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -47,6 +48,18 @@ spline table and the measurement's sensor-entry tables evaluated by ``casadi.int
 
 ``--forms`` the same for the scalar covariance updates in Joseph form (``joseph=True``,
 the step of session 8) and in standard form (the default): key ``forms``.
+
+``--peak`` also measures this machine's scalar double-precision peak in a tight loop (16
+independent multiply-add chains, unfused, in CPU time, best of 5 runs: ``peak_ops_per_ns``),
+its running clock (a chain of dependent integer adds, one cycle each:
+``clock_ghz_measured``) and the step's operations at that peak
+(``flop_limit_measured_us``), the measured counterpart of ``flop_limit_us`` (two operations
+per cycle at the nominal clock of /proc/cpuinfo).
+
+``--recursive`` the same for the accelerometer signals as time derivatives of the whole
+sensor pose (``recursive=False``, the step of session 9) and by the recursive pass over
+the pose's factors (the default, ``casflex.sensors.kinematic_measurement``): key
+``recursive``.
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -82,15 +95,18 @@ ISSUE_WIDTH = 4
 #: the build counted by ``--callgrind``: NATIVE for AVX2 machines (valgrind has no AVX-512)
 CALLGRIND_FLAGS = "-O3 -march=x86-64-v3 -ffp-contract=off"
 FIRST = {"jacobians": "first_order"}
-BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False}
+BEFORE = {"jacobians": "first_order", "update": "batch", "lean": False, "recursive": False}
+POSE = {"jacobians": "first_order", "recursive": False}  # the step of session 9
 # (label, plant order, pruned plant, ekf_step_function options, compiler flags)
 VARIANTS = [
     ("first-order plant, exact, no cse, batch, full tables, -O2", 1, False,
-     {"jacobians": "exact", "cse": False, "update": "batch", "lean": False}, "-O2"),
+     {"jacobians": "exact", "cse": False, "update": "batch", "lean": False,
+      "recursive": False}, "-O2"),
     ("before: order 2, first_order, batch, full tables", 2, False, BEFORE, NATIVE),
     ("+ pruned plant", 2, True, BEFORE, NATIVE),
-    ("+ sensor-entry tables", 2, True, {**FIRST, "update": "batch"}, NATIVE),
-    ("+ sequential update (default)", 2, True, FIRST, NATIVE),
+    ("+ sensor-entry tables", 2, True, {**POSE, "update": "batch"}, NATIVE),
+    ("+ sequential update", 2, True, POSE, NATIVE),
+    ("+ recursive accelerometers (default)", 2, True, FIRST, NATIVE),
     ("default, jacobians=linearized", 2, True, {"jacobians": "linearized"}, NATIVE),
     ("default, jacobians=exact", 2, True, {"jacobians": "exact"}, NATIVE),
     ("default, -O2", 2, True, FIRST, "-O2"),
@@ -287,7 +303,7 @@ def numpy_step_factory(plant, sensors, Q, R, dt):
     breaks = grid[0] + h_grid * np.arange(-4, round((grid[-1] - grid[0]) / h_grid) + 6)
     coef = sx_to_python(plant.function(), breaks)
     pairs = plant.pairs
-    hk = kinematic_measurement(plant.model, sensors, lean=True)
+    hk = kinematic_measurement(plant.model, sensors, lean=True, recursive=True)
     xs, us, acs = ca.SX.sym("x", nx), ca.SX.sym("u", 3 * plant.n), ca.SX.sym("a", m)
     hs = hk(xs, us, acs)
     hjac = sx_to_python(ca.Function("hjac", [xs, us, acs],
@@ -393,6 +409,62 @@ def flop_limit(step):
 
 
 
+#: tight loops of ``--peak``: 16 independent mul-add chains (scalar double, no FMA), and a
+#: chain of dependent integer adds (one cycle each on any x86 core: the running clock)
+PEAK_SOURCE = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+static double now(void) {
+  struct timespec t; clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+int main(int argc, char **argv) {
+  long n = atol(argv[1]);
+  volatile double seed = 1.0000001;
+  double m = seed, a = 1e-9 * seed, x[16], s = 0.0;
+  for (int i = 0; i < 16; i++) x[i] = 1.0 + i * 1e-3;
+  double t0 = now();
+#define S(i) x[i] = x[i] * m + a;
+  for (long k = 0; k < n; k++) {  /* unrolled: the 16 chains live in registers */
+    S(0) S(1) S(2) S(3) S(4) S(5) S(6) S(7) S(8) S(9) S(10) S(11) S(12) S(13) S(14) S(15)
+  }
+  double tf = now() - t0;
+  volatile long seedi = 3; long z = seedi, c = seedi;
+  t0 = now();
+  for (long k = 0; k < n; k++)
+    __asm__ volatile("add %1, %0\n\tadd %1, %0\n\tadd %1, %0\n\tadd %1, %0\n\t"
+                     "add %1, %0\n\tadd %1, %0\n\tadd %1, %0\n\tadd %1, %0" : "+r"(z) : "r"(c));
+  double ti = now() - t0;
+  for (int i = 0; i < 16; i++) s += x[i];
+  printf("%.6f %.6f %g %ld\n", 32.0 * n / tf / 1e9, 8.0 * n / ti / 1e9, s, z);
+  return 0;
+}
+"""
+
+
+def measured_peak(tmp, runs=5, n=30_000_000):
+    """``(scalar double operations per ns, clock in GHz)`` of this machine, the best of
+    ``runs`` runs of :data:`PEAK_SOURCE` (``-O2 -march=native -fno-tree-vectorize
+    -ffp-contract=off``: scalar, unfused, as the step's operations), in CPU time; None
+    without a C compiler."""
+    import shutil
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    src, exe = Path(tmp) / "peak.c", Path(tmp) / "peak"
+    src.write_text(PEAK_SOURCE)
+    subprocess.run([cc, "-O2", "-march=native", "-fno-tree-vectorize", "-ffp-contract=off",
+                    str(src), "-o", str(exe)], check=True, capture_output=True)
+    best = (0.0, 0.0)
+    for _ in range(runs):
+        ops, ghz = (float(v) for v in subprocess.run(
+            [str(exe), str(n)], check=True, capture_output=True, text=True).stdout.split()[:2])
+        best = (max(best[0], ops), max(best[1], ghz))
+    return best
+
+
 def timed_rounds(results, steps, rounds, time_c, log, prefix=""):
     """Time each compiled step of ``steps`` (label -> Function) with ``time_c(label, step)
     -> (us, deviation, _)`` in ``rounds`` interleaved rounds; ``results[label]`` gathers the
@@ -444,6 +516,14 @@ def main(argv=None):
     parser.add_argument("--forms", action="store_true",
                         help="also time and count the step with the scalar updates in Joseph "
                         "and in standard form (the default), interleaved over --rounds")
+    parser.add_argument("--peak", action="store_true",
+                        help="also measure this machine's scalar floating-point peak and "
+                        "clock in tight loops (keys peak_ops_per_ns, clock_ghz_measured, "
+                        "flop_limit_measured_us)")
+    parser.add_argument("--recursive", action="store_true",
+                        help="also time and count the step with the accelerometers as the "
+                        "whole pose's time derivatives (before) and by the recursive pass "
+                        "(now), interleaved over --rounds")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -556,6 +636,12 @@ def main(argv=None):
             {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                                      update=args.update, joseph=form == "joseph")
              for form in ("joseph", "standard")}, "form ")
+    recursive = {}
+    if args.recursive:  # the accelerometers: whole-pose derivatives vs the recursive pass
+        recursive = side_by_side(
+            {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                                     update=args.update, recursive=form == "recursive")
+             for form in ("pose", "recursive")}, "accelerometers ")
     guarded = {}
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
@@ -630,10 +716,19 @@ def main(argv=None):
         # instructions per cycle that the timed median implies (the load inflates it less
         # than the time: a busy spell lowers the apparent IPC)
         out["implied_ipc"] = None if ins is None or ghz is None else ins / (c_us * ghz * 1e3)
+    if args.peak:
+        with tempfile.TemporaryDirectory() as tmp:
+            peak = measured_peak(tmp)
+        if peak is not None:
+            out["peak_ops_per_ns"], out["clock_ghz_measured"] = peak
+            # the step's operations at that peak: no schedule of them does better
+            out["flop_limit_measured_us"] = out["flops_per_step"] / (peak[0] * 1e3)
     if lookups:
         out["lookups"] = lookups
     if forms:
         out["forms"] = forms
+    if recursive:
+        out["recursive"] = recursive
     if guarded:
         out["guarded"] = guarded
     if variants:

@@ -83,6 +83,7 @@ from casflex._problemfile import TableReader, read_toml
 from casflex._validate import choice, fail, identifier, plausible, to_float
 from casflex.errors import ModelError, ProblemFileError
 from casflex.modal.integrals import RATE_KEYS
+from casflex.model.pose_factors import pose_factors
 from casflex.model.strain_kinematics import rod_nodes, rod_point
 
 if TYPE_CHECKING:
@@ -626,34 +627,33 @@ def _point_data(model, sensors):
 
 
 def _point_pose(model, sensors, data, sensor):
-    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ): on the link-local
-    deflection to first order (default kinematics), or on the exact rod (``"exact"``)."""
-    m = model.m
-    i = sensors.point_index(sensor)
-    body = _beam_body(model, sensor.row)
-    T = body["T"]
-    d = model.delta
-    w = ca.SX.zeros(3)
-    th = ca.SX.zeros(3)
+    """Position (3,) and rotation (3 × 3) of a sensor, SX in (q, δ) (:func:`_point_local`)."""
+    T = _beam_body(model, sensor.row)["T"]
+    Rl, local = _point_local(model, sensors, data, sensor)
+    return T[:3, :3] @ local + T[:3, 3], T[:3, :3] @ Rl
+
+
+def _point_local(model, sensors, data, sensor):
+    """Rotation ``R_l`` and position of the sensing element in the link's base frame: on
+    the link-local deflection to first order (default kinematics), or on the exact rod."""
+    m, i, d = model.m, sensors.point_index(sensor), model.delta
+    w, th = ca.SX.zeros(3), ca.SX.zeros(3)
     for j in range(m):
         k = (i * m + j) * 3
-        w += d[j] * data["point_u"][k:k + 3]
-        th += d[j] * data["point_theta"][k:k + 3]
+        w, th = w + d[j] * data["point_u"][k:k + 3], th + d[j] * data["point_theta"][k:k + 3]
     off = ca.DM(list(getattr(sensor, "offset", (0.0, 0.0, 0.0))))
     if getattr(model, "kinematics", "truncated") == "exact":
         # the rod walked from the link's base through the model's nodes to s (one rod per
         # link and call, shared by the link's sensors)
         rods = data.setdefault("rods", {})
         if sensor.row not in rods:
-            rods[sensor.row] = rod_nodes(model.robot.links[sensor.row], body["beam"],
+            rods[sensor.row] = rod_nodes(model.robot.links[sensor.row],
+                                         _beam_body(model, sensor.row)["beam"],
                                          data["sample_u"], data["sample_theta"], d)
         Rl, centre = rod_point(rods[sensor.row], sensor.s, w, th)
-        local = centre + Rl @ off
-    else:
-        Rl = ca.SX.eye(3) + ca.skew(th)
-        local = ca.vertcat(0, 0, sensor.s) + w + Rl @ off
-    p = T[:3, :3] @ local + T[:3, 3]
-    return p, T[:3, :3] @ Rl
+        return Rl, centre + Rl @ off
+    Rl = ca.SX.eye(3) + ca.skew(th)
+    return Rl, ca.vertcat(0, 0, sensor.s) + w + Rl @ off
 
 
 def point_position_function(model: FlexibleModel, sensors: SensorSet) -> ca.Function:
@@ -689,8 +689,7 @@ def point_position_function(model: FlexibleModel, sensors: SensorSet) -> ca.Func
 
 
 def _rigid_substitute(expr, model, extra=None):
-    syms = [model.delta, model.ddelta] + ([extra] if extra is not None else [])
-    v = ca.vertcat(*syms)
+    v = ca.vertcat(model.delta, model.ddelta, *([extra] if extra is not None else []))
     return ca.substitute(expr, v, ca.DM.zeros(v.numel()))
 
 
@@ -734,17 +733,16 @@ def _exact_signals(model, sensors, dddelta):
     return [ca.substitute(o, acc, dddelta) for o in outs]
 
 
-def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant"):
-    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked.
+def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursive=False):
+    """Signals with δ̈ a free symbol ``acc``; the rigid part removed where asked;
+    ``recursive``: the accelerometers by :func:`_recursive_acceleration`.
 
     ``lean``: with a table provider, the table entries the signals need (and their
     derivatives along the shape joints) come from one small spline of just those entries
     instead of the model's spline of every quantity (:func:`_lean_tables`); the same
     expressions to rounding; ``lookup`` as :meth:`casflex.modal.tables.ModalTable.function`."""
     q, dq, ddq, d, dd = model.q, model.dq, model.ddq, model.delta, model.ddelta
-    X = ca.vertcat(q, d)
-    dX = ca.vertcat(dq, dd)
-    ddX = ca.vertcat(ddq, acc)
+    X, dX, ddX = ca.vertcat(q, d), ca.vertcat(dq, dd), ca.vertcat(ddq, acc)
     lean = lean and _lean_applicable(model)
     if lean:
         # table entries as placeholders V(q_shape), with their rates as symbols: the time
@@ -766,18 +764,56 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant"):
             eps = ca.vertcat(-sen.distance[0] * kap[0], -sen.distance[1] * kap[1])
             outs.append(ca.vertcat(*[eps[_AXES[a]] for a in sen.axes]))
             continue
-        p, R = _point_pose(body_model, sensors, data, sen)
-        v = ca.jtimes(p, X, dX)
-        a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ddX)
-        if sen.gravity:
-            a = a - g
-        y = R.T @ a if sen.frame == "sensor" else a
+        y = (_recursive_acceleration(body_model, sensors, data, sen, X, dX, ddX, g, lean)
+             if recursive else None)
+        if y is None:
+            p, R = _point_pose(body_model, sensors, data, sen)
+            v = ca.jtimes(p, X, dX)
+            a = ca.jtimes(v, X, dX) + ca.jtimes(p, X, ddX)
+            if sen.gravity:
+                a = a - g
+            y = R.T @ a if sen.frame == "sensor" else a
         if not sen.rigid:
             y = y - _rigid_substitute(y, model, acc)
         outs.append(ca.vertcat(*[y[_AXES[c]] for c in sen.axes]))
     if lean:
         outs = _lean_tables(model, outs, V, Vd, Vdd, lookup)
     return outs
+
+
+def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g, lean):
+    """An accelerometer's signal by a recursive pass over the factors of its pose (None if
+    they are not known): the point carried inward through each flexible factor ``F``
+    (``p ← F p``, ``ṗ ← Ḟ p + F ṗ``, ``p̈ ← F̈ p + 2 Ḟ ṗ + F p̈``), the rigid leading ones
+    ``L`` as the body-frame rates ``Lᵀ L̇``, ``Lᵀ L̈`` (``Lᵀ L = I``). The whole pose's
+    time derivatives to rounding, on a much smaller graph (and Jacobian)."""
+    base = pose_factors(model, sen.row, placeholders=lean)
+    if base is None:
+        return None
+    factors, k = base
+    Rl, p = _point_local(model, sensors, data, sen)
+    pd = ca.jtimes(p, X, dX)
+    pdd = ca.jtimes(pd, X, dX) + ca.jtimes(p, X, ddX)
+    for F in reversed(factors[k:]):
+        Fd = ca.jtimes(F, X, dX)
+        Fdd = ca.jtimes(Fd, X, dX) + ca.jtimes(F, X, ddX)
+        R, Rd, Rdd = F[:3, :3], Fd[:3, :3], Fdd[:3, :3]
+        p, pd, pdd = (R @ p + F[:3, 3], Rd @ p + R @ pd + Fd[:3, 3],
+                      Rdd @ p + 2 * (Rd @ pd) + R @ pdd + Fdd[:3, 3])
+    L = ca.SX.eye(4)
+    for F in factors[:k]:
+        L = L @ F
+    Ld = ca.jtimes(L, X, dX)
+    Ldd = ca.jtimes(Ld, X, dX) + ca.jtimes(L, X, ddX)
+    RL = L[:3, :3]
+    a = (RL.T @ Ldd[:3, :3]) @ p + 2 * ((RL.T @ Ld[:3, :3]) @ pd) + pdd + RL.T @ Ldd[:3, 3]
+    if sen.gravity:
+        a = a - RL.T @ g
+    if sen.frame != "sensor":
+        return RL @ a
+    for F in factors[k:]:
+        a = F[:3, :3].T @ a
+    return Rl.T @ a
 
 
 def _lean_applicable(model):
@@ -865,7 +901,7 @@ def _wrap(model, sensors, outs, name):
 
 def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = "h_kin",
                           rigid_part: bool = False, lean: bool = False,
-                          lookup: str = "interpolant") -> ca.Function:
+                          lookup: str = "interpolant", recursive: bool = False) -> ca.Function:
     """The measurement with ``δ̈`` as an input: ``(x, u, dddelta) -> y``.
 
     The estimator substitutes its own (lean) model of the flexible accelerations; with
@@ -891,6 +927,10 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
         (:meth:`casflex.modal.tables.ModalTable.function`); ``"local"`` is the same spline
         with leaner generated C (:func:`casflex.modal.local_bspline_function`), the
         default of the estimator (:func:`casflex.estimation.ekf_step_function`).
+    recursive : bool
+        The accelerometers by a recursive pass over the factors of their pose instead of
+        the whole pose's time derivatives: the same signals to rounding, a much smaller
+        graph and Jacobian (the estimator's default). Ignored with ``rigid_part``.
 
     Returns
     -------
@@ -921,5 +961,5 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
             else:
                 keep.append(ca.DM.zeros(o.numel()))
         return ca.Function(name, [u], [ca.vertcat(*keep)], ["u"], ["y_rigid"])
-    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean=lean, lookup=lookup))
+    y = ca.vertcat(*_kin_signals(model, sensors, acc, lean, lookup, recursive))
     return ca.Function(name, [x, u, acc], [y], ["x", "u", "dddelta"], ["y"])

@@ -135,7 +135,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       linear_measurement: bool = False, prefilter: float | None = None,
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
                       update: str = "auto", lean: bool = True, joseph: bool = False,
-                      guard: gd.Guard | None = None) -> ca.Function:
+                      guard: gd.Guard | None = None, recursive: bool = True) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
     Parameters
@@ -207,6 +207,11 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         Evaluate in the measurement model only the modal-table entries it uses, from one
         small B-spline (:func:`casflex.sensors.kinematic_measurement`, ``lean``): the
         same expressions to rounding; ``False``: the model's spline of every quantity.
+    recursive : bool
+        The accelerometer signals by a recursive pass over the factors of their pose
+        (:func:`casflex.sensors.kinematic_measurement`, ``recursive``): the same signals to
+        rounding on a smaller graph, so ``h`` and its Jacobian ``H`` take fewer operations;
+        ``False``: the time derivatives of the whole pose (the step before).
     guard : casflex.estimation.Guard, optional
         Guarded step (:mod:`casflex.estimation.guard`: non-finite inputs, innovation
         gating, covariance bounds, status word; not with ``sqrt``). Adds the input
@@ -260,7 +265,8 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         raise fail("guard", "Guard(...)", "needs the plain form (sqrt=False)")
     if guard is not None and guard.P_reset.shape != (nx, nx):
         raise fail("guard.P_reset", guard.P_reset.shape, f"must be {nx} x {nx}")
-    hkin = kinematic_measurement(model, sensors, lean=lean, lookup=plant.lookup)
+    hkin = kinematic_measurement(model, sensors, lean=lean, lookup=plant.lookup,
+                                 recursive=recursive)
     x = ca.SX.sym("x", nx)
     Pin = ca.SX.sym("S" if sqrt else "P", nx, nx)
     u = ca.SX.sym("u", 3 * n)
