@@ -35,6 +35,12 @@ rod_point
 point_mass_terms
     Mass matrix, bias forces, Coriolis matrix and gravity of the exact rods.
 
+A beam's base pose as factors (:mod:`casflex.model.pose_factors`)
+-----------------------------------------------------------------
+pose_factors
+    One factor per rotation, translation and beam end, checked against the model's pose
+    (the accelerometers' recursive pass).
+
 Providers of the modal quantities (:mod:`casflex.model.providers`)
 ------------------------------------------------------------------
 TableProvider
@@ -63,6 +69,7 @@ from __future__ import annotations
 
 from casflex.model.build import build_model, default_grid, sensor_quantities
 from casflex.model.equations import FlexibleModel
+from casflex.model.pose_factors import pose_factors
 from casflex.model.providers import (
     ChebyshevProvider,
     ConstantProvider,
@@ -94,6 +101,8 @@ __all__ = [
     "point_mass_terms",
     "rod_nodes",
     "rod_point",
+    # a beam's base pose as factors
+    "pose_factors",
     # providers
     "TableProvider",
     "ChebyshevProvider",
