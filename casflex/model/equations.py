@@ -797,14 +797,12 @@ class FlexibleModel:
         self.tip = self._fill(self.tip)
         for body in self.bodies:
             body["T"] = self._fill(body["T"])
-        if self.kinematics == "exact":
-            pass  # M is exact in δ
-        elif self.foreshortening:
+        if self.foreshortening:  # (refused with the exact kinematics)
             # the δ rows need T to second order in δ where it multiplies q̇ q̇ only: M_qq
             Mqq = _taylor(M[:n, :n], d, 2)
             M = _taylor(M, d, self.delta_order)
             M[:n, :n] = Mqq
-        else:
+        elif self.kinematics != "exact":  # the exact M is exact in δ
             M = _taylor(M, d, self.delta_order)
         M = 0.5 * (M + M.T)
         self._q1_free = bool(n) and 0 not in self.provider.shape_joints
