@@ -36,11 +36,13 @@
 
 ``--kinematics``: instead of the above, ``FlexibleModel(kinematics="exact")`` against the
 default kinematics, side by side in one process (5 modes, the 1.5° table, no gravity):
-SX instructions of ``mass``, ``ode``, ``dddelta``; the model's build (with
-``functions()``); the median time of one ``dddelta`` evaluation (rounds alternated); and
-move 1 with ``method="rk4"`` (the exact model's route: ``poly`` refuses it), the warm call
-of each, alternated. Keys ``kinematics_<variant>_<figure>`` and the ratios
-``kinematics_ratio_<figure>``.
+SX instructions of ``mass``, ``forward``, ``ode``, ``dddelta``; the model's build (with
+``functions()``); the median time of one evaluation of ``forward``, ``ode`` and
+``dddelta`` in CasADi's VM (rounds alternated); and move 1 with ``method="rk4"`` (the
+exact model's route: ``poly`` refuses it), the warm call of each, alternated. Keys
+``kinematics_<variant>_<figure>`` and the ratios ``kinematics_ratio_<figure>``;
+``casflex_path`` names the package measured, so that two versions of the exact model
+are compared by running this script under each (``PYTHONPATH``) in turn.
 
 Usage::
 
@@ -169,30 +171,38 @@ def bench_kinematics(rounds=3):
             f = model.functions()
             out[f"kinematics_{variant}_build_s"] = time.perf_counter() - t0
             out[f"kinematics_{variant}_sx_instructions"] = {
-                k: int(f[k].n_instructions()) for k in ("mass", "ode", "dddelta")}
+                k: int(f[k].n_instructions()) for k in ("mass", "forward", "ode", "dddelta")}
             models[variant] = model
             simulate_prescribed(model, move, dt=1e-3)  # builds the RK4 step
     rng = np.random.default_rng(0)
-    args = [rng.normal(0.0, 0.3, 3), rng.normal(0.0, 0.3, 3), rng.normal(0.0, 0.3, 3),
-            rng.normal(0.0, 0.01, 5), rng.normal(0.0, 0.1, 5)]
-    calls, sims = {v: [] for v in models}, {v: [] for v in models}
+    q, dq, ddq = (rng.normal(0.0, 0.3, 3) for _ in range(3))
+    d, dd = rng.normal(0.0, 0.01, 5), rng.normal(0.0, 0.1, 5)
+    args = {"dddelta": (q, dq, ddq, d, dd), "forward": (q, dq, d, dd, ddq),
+            "ode": (np.r_[q, d, dq, dd], ddq)}
+    calls = {(v, k): [] for v in models for k in args}
+    sims = {v: [] for v in models}
     for _ in range(rounds):
         for variant, model in models.items():
-            f = model.functions()["dddelta"]
-            t0 = time.perf_counter()
-            for _ in range(200):
-                f(*args)
-            calls[variant].append((time.perf_counter() - t0) / 200)
+            for key, a in args.items():
+                f = model.functions()[key]
+                t0 = time.perf_counter()
+                for _ in range(200):
+                    f(*a)
+                calls[variant, key].append((time.perf_counter() - t0) / 200)
             t0 = time.perf_counter()
             simulate_prescribed(model, move, dt=1e-3)
             sims[variant].append(time.perf_counter() - t0)
     for variant in models:
-        out[f"kinematics_{variant}_dddelta_call_s"] = float(np.median(calls[variant]))
+        for key in args:
+            out[f"kinematics_{variant}_{key}_call_s"] = float(np.median(calls[variant, key]))
         out[f"kinematics_{variant}_move1_rk4_s"] = float(np.median(sims[variant]))
         out[f"kinematics_{variant}_move1_rk4_runs_s"] = sims[variant]
-    for figure in ("build_s", "dddelta_call_s", "move1_rk4_s"):
+    for figure in ("build_s", "forward_call_s", "ode_call_s", "dddelta_call_s", "move1_rk4_s"):
         out[f"kinematics_ratio_{figure}"] = (out[f"kinematics_exact_{figure}"]
                                              / out[f"kinematics_truncated_{figure}"])
+    import casflex
+
+    out["casflex_path"] = str(Path(casflex.__file__).parent)
     return out
 
 

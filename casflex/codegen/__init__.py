@@ -55,6 +55,7 @@ Bundles of a robot and its sensors (:mod:`casflex.codegen.robot_bundles`)
 -------------------------------------------------------------------------
 realtime_bundles  build the model and write its EKF (and model) bundles (``casflex codegen``)
 rt_functions      the named functions and units of the estimator bundle
+exact_forward     the forward dynamics of an exact-kinematics model as calls (for C)
 
 Input shaper table (:mod:`casflex.codegen.shaper_table`)
 ---------------------------------------------------------
@@ -136,7 +137,7 @@ from casflex.codegen.estimator import (
 from casflex.codegen.jit import compile_cached
 from casflex.codegen.plan_table import plan_table_bundle
 from casflex.codegen.replay import HarnessResult, harness, run_harness
-from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
+from casflex.codegen.robot_bundles import exact_forward, realtime_bundles, rt_functions
 from casflex.codegen.rtloop import (
     closed_loop_bundle,
     loop_step_function,
@@ -184,6 +185,7 @@ __all__ = [
     # bundles of a robot and its sensors
     "realtime_bundles",
     "rt_functions",
+    "exact_forward",
     # input shaper table
     "shaper_table_bundle",
     # planned move table

@@ -21,6 +21,11 @@ dissertation's ``M(q)``). The forward-dynamics bundle keeps ``M`` to first order
 (``delta_order=1``) without a controller and is the controller's ``M(q)`` model with one
 (:mod:`casflex.codegen.robot_bundles`).
 
+``--kinematics exact`` makes the forward-dynamics bundle the model with exact kinematics
+(the links rebuilt from the modal strains, as ``casflex simulate --kinematics exact``;
+``delta_order=1`` with or without ``--controller``); the estimator is unchanged. It needs
+the model bundle (not with ``--no-model``).
+
 ``--fit chebyshev`` fits every model term as a Chebyshev series over the joint box
 instead of interpolating a grid (no ``--step``); ``--basis smooth`` uses the smooth basis
 of clusters of close modes (:func:`casflex.model.build_model`, the design studies'
@@ -138,6 +143,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--torque-limit", type=float, nargs="+", default=None,
                         metavar="N_M", help="--guard with --controller: torque limit of "
                         "each joint (one value for all, or one per joint 1..n), N m")
+    parser.add_argument("--kinematics", choices=("truncated", "exact"), default="truncated",
+                        help="kinematics of the forward-dynamics bundle: 'exact' rebuilds the "
+                             "links from the modal strains (large deflections; a C file "
+                             "several times larger)")
     add_cache_arguments(parser)
 
 
@@ -163,8 +172,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     Raises
     ------
     casflex.errors.ModelError
-        ``--modes < 1``, ``--dt <= 0``, ``--R`` missing for sensors without noise, or
-        ``--step`` with ``--fit chebyshev``.
+        ``--modes < 1``, ``--dt <= 0``, ``--R`` missing for sensors without noise,
+        ``--step`` with ``--fit chebyshev``, or ``--kinematics exact`` with ``--no-model``.
 
     Examples
     --------
@@ -207,6 +216,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         raise ModelError(f"--torque-limit: must be > 0 N m; got {limits}")
     if limits is not None and len(limits) == 1:
         limits = limits[0]
+    if args.kinematics == "exact" and args.no_model:
+        raise ModelError("--kinematics exact: applies to the forward-dynamics bundle, which "
+                         "--no-model leaves out")
     if args.fit == "chebyshev" and args.step is not None:
         raise ModelError(f"--step {args.step}: the grid step of the modal tables; --fit "
                          "chebyshev has no grid (leave --step out)")
@@ -225,7 +237,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         dt=args.dt, sqrt=args.sqrt, prefilter=args.prefilter, jacobians=args.jacobians,
         controller=args.controller, kp=args.kp, kd=args.kd, q_weight=args.q_weight,
         r_weight=args.r_weight, guard=guard, torque_limits=limits, fit=args.fit,
-        basis=args.basis, log=log,
+        basis=args.basis, kinematics=args.kinematics, log=log,
         progress=True, cache_dir=cache_dir)
     files, functions = [], []
     for b in bundles:

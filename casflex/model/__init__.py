@@ -33,7 +33,7 @@ rod_nodes
 rod_point
     The section of a rod at an arc length between its nodes (the sensors' points).
 point_mass_terms
-    Mass matrix, bias forces, Coriolis matrix and gravity of the exact rods.
+    Mass matrix, bias forces and gravity of the exact rods (assembled per link).
 
 A beam's base pose as factors (:mod:`casflex.model.pose_factors`)
 -----------------------------------------------------------------

@@ -682,8 +682,9 @@ class FlexibleModel:
         gh = ca.DM(np.r_[self.gravity, 0.0])
         order = self.delta_order
         if self.kinematics == "exact":
-            M, self._point_bias, self._point_coriolis, Vg = point_mass_terms(
-                self.bodies, X, self.dX, self.gravity, self._fill if self.shape_rates else None)
+            q1 = self.q[0] if n and 0 not in self.provider.shape_joints else None  # _q1_free
+            M, self._point_bias, Vg = point_mass_terms(
+                self.bodies, X, self.dX, self.gravity, self._fill if self.shape_rates else None, q1)
             for k, row in enumerate(self.robot.joint_rows):
                 M[k, k] += self.robot.links[row].motor_inertia
             return M, Vg
@@ -796,14 +797,12 @@ class FlexibleModel:
         self.tip = self._fill(self.tip)
         for body in self.bodies:
             body["T"] = self._fill(body["T"])
-        if self.kinematics == "exact":
-            pass  # M is exact in δ
-        elif self.foreshortening:
+        if self.foreshortening:  # (refused with the exact kinematics)
             # the δ rows need T to second order in δ where it multiplies q̇ q̇ only: M_qq
             Mqq = _taylor(M[:n, :n], d, 2)
             M = _taylor(M, d, self.delta_order)
             M[:n, :n] = Mqq
-        else:
+        elif self.kinematics != "exact":  # the exact M is exact in δ
             M = _taylor(M, d, self.delta_order)
         M = 0.5 * (M + M.T)
         self._q1_free = bool(n) and 0 not in self.provider.shape_joints
@@ -862,9 +861,9 @@ class FlexibleModel:
         first use: the equations of motion use ``C Ẋ`` without forming it)."""
         C = self.__dict__.get("_coriolis")
         if C is None and self.kinematics == "exact":
-            # the points' C = Jᵀ W J̇ (strain_kinematics.point_mass_terms), plus the
-            # Christoffel matrix of the modal block's correction (modal_mass)
-            C = self._fill(self._point_coriolis)
+            # the points' C = Jᵀ W J̇ = ½ ∂(C Ẋ)/∂Ẋ (strain_kinematics.point_mass_terms),
+            # plus the Christoffel matrix of the modal block's correction (modal_mass)
+            C = self._fill(0.5 * ca.jacobian(self._point_bias, self.dX))
             fixed = self._modal_correction()
             if fixed is not None:
                 n, X, dX = self.n, self.X, self.dX

@@ -309,19 +309,60 @@ def rod_point(rod: dict, s: float, w: ca.SX, theta: ca.SX) -> tuple[ca.SX, ca.SX
                      rod["theta"][k], theta)
 
 
-def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarray,
-                     fill: Callable[[ca.SX], ca.SX] | None = None
-                     ) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
-    """Mass matrix, bias forces, Coriolis matrix and gravity potential of the exact kinematics.
+def _local_points(body: dict) -> tuple[list, list]:
+    """A flexible link's inertia as weighted 4-vectors ``ṽ`` in its base frame: its
+    kinetic energy is ``½ Σ w |d/dt(T ṽ)|²`` over the top three rows (module docstring of
+    :func:`point_mass_terms`)."""
+    rod = body["rod"]
+    points, weights = [], []
+    for k, w in enumerate(rod["weights"]):
+        if w == 0.0:
+            continue
+        points.append(ca.vertcat(rod["r"][k], 1.0))
+        weights.append(rod["rhoA"] * w)
+        c = 0.5 * rod["rhoIp"] * w
+        if c:
+            R = rod["R"][k]
+            points += [ca.vertcat(R[:, 0], 0.0), ca.vertcat(R[:, 1], 0.0),
+                       ca.vertcat(R[:, 2], 0.0)]
+            weights += [c, c, -c]
+    if rod["tip"] is not None:
+        # Tr(Ṗ Ψ Ṗᵀ) = Σ λ_i |Ṗ u_i|² with Ψ = Σ λ_i u_i u_iᵀ and P = T E: the tip body
+        # is the points E u_i of weights λ_i (the rows' last entries are constant)
+        lam, U = np.linalg.eigh(np.asarray(rod["tip"], dtype=float))
+        for i in np.flatnonzero(np.abs(lam) > 0.0):
+            points.append(rod["end"] @ ca.DM(U[:, i]))
+            weights.append(float(lam[i]))
+    return points, weights
 
-    Every inertial term is a weighted sum of squared rates of quantities that are
-    functions of ``X`` alone: a node's position (weight ``ρA w_k``), its section's axes
-    ``R e_x``, ``R e_y``, ``R e_z`` (weights ``½, ½, −½`` times ``ρI_p w_k``: twice the
+
+def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarray,
+                     fill: Callable[[ca.SX], ca.SX] | None = None,
+                     invariant: ca.SX | None = None) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """Mass matrix, bias forces and gravity potential of the exact kinematics.
+
+    Every inertial term is a weighted sum of squared rates of points ``T ṽ`` (top three
+    rows), ``T(X)`` a body's base pose and ``ṽ(X)`` a homogeneous 4-vector in that frame:
+    a rod node ``[r_k; 1]`` (weight ``ρA w_k``), its section's axes ``[R_k e_x; 0]``,
+    ``[R_k e_y; 0]``, ``[R_k e_z; 0]`` (weights ``½, ½, −½`` times ``ρI_p w_k``: twice the
     kinetic energy of the torsion is ``ρI_p (ω·R e_z)² = Tr(Ṙ J Ṙᵀ)`` with ``J =
-    ½ρI_p diag(1, 1, −1)``), the rows of a rigid body's pose (its pseudo-inertia). With
-    ``y(X)`` stacking them, ``W`` the weights and ``J = ∂y/∂X``: ``M = Jᵀ W J`` and the
-    bias ``C Ẋ = Jᵀ W (∂²y/∂X²)[Ẋ, Ẋ]`` (no derivative of ``M`` is formed), with the
-    Coriolis matrix ``C = Jᵀ W J̇`` (``Ṁ − 2C = J̇ᵀ W J − Jᵀ W J̇`` is skew).
+    ½ρI_p diag(1, 1, −1)``), the tip body ``E u_i`` on the rod's end frame ``E`` (weights
+    ``λ_i``, ``Ψ = Σ λ_i u_i u_iᵀ`` its pseudo-inertia), and a rigid piece's
+    pseudo-inertia ``C0`` on ``T``. With ``ṗ = Ṫ ṽ + R v̇`` (``R`` the pose's rotation,
+    ``v`` the top of ``ṽ``), the body's mass matrix is assembled from the pose's
+    Jacobian ``J_r = ∂T[r, :]ᵀ/∂X`` and three sums over its points, functions of the
+    link's own coordinates only::
+
+        Ψ = Σ w ṽ ṽᵀ,   Γ_c = Σ w ṽ ∂v_c/∂X,   M_loc = Σ w (∂v/∂X)ᵀ ∂v/∂X,
+        M = Σ_r (J_rᵀ Ψ J_r + J_rᵀ G_r + G_rᵀ J_r) + M_loc,   G_r = Σ_c R[r, c] Γ_c
+
+    (``|R v̇| = |v̇|``): the nodes are differentiated once, in the link's frame, and the
+    chain only through the poses, instead of every node through the whole chain (the
+    same ``M = Jᵀ W J`` to round-off; tests/model/test_exact_kinematics.py compares the
+    two). The bias forces are the Christoffel form ``d/dt(M Ẋ) − ∂T/∂X`` at ``Ẍ = 0``;
+    for point masses this is ``Jᵀ W (∂²y/∂X²)[Ẋ, Ẋ]``, and the Coriolis matrix
+    ``C = Jᵀ W J̇`` of the points is ``½ ∂(C Ẋ)/∂Ẋ`` (``J̇ Ẋ`` is quadratic in Ẋ), so
+    ``Ṁ − 2C`` is skew.
 
     Parameters
     ----------
@@ -334,10 +375,14 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
     gravity : numpy.ndarray
         Gravity in the base frame [m/s²].
     fill : callable, optional
-        Applied to ``y`` before it is differentiated: the model's substitution of the
-        tabulated values for their placeholders, so that the derivatives also see the
-        shapes change along the shape joints (``shape_rates=True``). None: the shapes
-        are frozen in the velocities.
+        Applied to the poses and points before they are differentiated: the model's
+        substitution of the tabulated values for their placeholders, so that the
+        derivatives also see the shapes change along the shape joints
+        (``shape_rates=True``). None: the shapes are frozen in the velocities.
+    invariant : casadi.SX, optional
+        Coordinates the kinetic energy does not depend on (a first joint about an axis
+        fixed in the base): set to zero in ``M`` and the bias, which removes their
+        trigonometric terms. The potential keeps them.
 
     Returns
     -------
@@ -345,8 +390,6 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
         (N, N) mass matrix without the motor inertias [kg, kg m, kg m²].
     bias : casadi.SX
         (N,) ``C Ẋ`` [N, N m].
-    C : casadi.SX
-        (N, N) ``Jᵀ W J̇``.
     V : casadi.SX
         Gravitational potential [J].
 
@@ -357,45 +400,71 @@ def point_mass_terms(bodies: list[dict], X: ca.SX, dX: ca.SX, gravity: np.ndarra
     >>> T = ca.SX.eye(4)
     >>> T[0, 3], T[1, 3] = ca.cos(X[0]), ca.sin(X[0])   # 2 kg on a unit circle
     >>> body = {"T": T, "C0": ca.DM(pseudo_inertia(2.0))}
-    >>> M, bias, C, V = point_mass_terms([body], X, dX, np.array([0.0, -9.81, 0.0]))
+    >>> M, bias, V = point_mass_terms([body], X, dX, np.array([0.0, -9.81, 0.0]))
     >>> f = ca.Function("f", [X, dX], [M, bias, V])
     >>> [round(float(v), 6) + 0.0 for v in f(0.5, 3.0)]   # 2 kg m², no bias, m g y
     [2.0, 0.0, 9.406329]
     """
-    rows, blocks, pos, mass = [], [], [], []
+    N = X.numel()
     gh = ca.DM(np.r_[gravity, 0.0])
-    Vg = ca.SX(0)
+    same = (lambda e: e) if fill is None else fill
+    # every pose and every link's points in one vector, differentiated once (shared sweeps)
+    poses, locals_, pieces, at = [], [], [], 0
     for body in bodies:
-        T, rod = body["T"], body.get("rod")
-        poses = [] if rod is not None else [(T, body["C0"])]
-        if rod is not None:
-            R0, p0 = T[:3, :3], T[:3, 3]
-            for k, w in enumerate(rod["weights"]):
-                if w == 0.0:
-                    continue
-                R = R0 @ rod["R"][k]
-                p = p0 + R0 @ rod["r"][k]
-                rows.append(p)
-                blocks.append(rod["rhoA"] * w * np.eye(3))
-                c = 0.5 * rod["rhoIp"] * w
-                if c:
-                    rows += [R[:, 0], R[:, 1], R[:, 2]]
-                    blocks += [c * np.eye(3), c * np.eye(3), -c * np.eye(3)]
-                pos.append(p)
-                mass.append(rod["rhoA"] * w)
-            if rod["tip"] is not None:
-                poses.append((T @ rod["end"], rod["tip"]))
-        for pose, Psi in poses:
-            rows.append(ca.vec(pose[:3, :].T))  # the three rows, each (4,)
-            blocks.append(np.kron(np.eye(3), np.asarray(Psi, dtype=float)))
-            Vg -= gh.T @ pose @ ca.DM(Psi)[:, 3]
-    if pos:
-        Vg -= ca.dot(ca.DM(gravity), ca.horzcat(*pos) @ ca.DM(mass))
-    y = ca.vertcat(*rows)
-    if fill is not None:
-        y = fill(y)
-    W = ca.DM(ca.diagcat(*[ca.DM(b) for b in blocks])) if blocks else ca.DM(0, 0)
-    J = ca.jacobian(y, X)
-    acc = ca.jtimes(ca.jtimes(y, X, dX), X, dX)
-    WJ = W @ J
-    return J.T @ WJ, WJ.T @ acc, WJ.T @ ca.jtimes(J, X, dX), Vg
+        T = same(body["T"])
+        poses.append(T)
+        entry = [at]
+        at += 12
+        if body.get("rod") is not None:
+            points, weights = _local_points(body)
+            Vt = same(ca.horzcat(*points))  # (4, P); the last row is constant
+            locals_.append((Vt, ca.diag(ca.DM(weights))))
+            entry.append(at)
+            at += 3 * len(points)
+        else:
+            locals_.append(None)
+        pieces.append(entry)
+    Y = ca.vertcat(*[ca.vertcat(ca.vec(T[:3, :]), ca.vec(loc[0][:3, :]) if loc else ca.SX(0, 1))
+                     for T, loc in zip(poses, locals_, strict=True)])
+    Jac = ca.jacobian(Y, X)
+    Yd = ca.jtimes(Y, X, dX)
+    Ydd = ca.jtimes(Yd, X, dX)
+    if invariant is not None:  # coordinates M and the bias do not depend on (zeroed)
+        zero = ca.SX.zeros(invariant.numel())
+        Jac, Yd, Ydd, Y = ca.substitute([Jac, Yd, Ydd, Y], [invariant], [zero])
+    M, bias, Vg = ca.SX.zeros(N, N), ca.SX.zeros(N), ca.SX(0)
+    for body, T, loc, entry in zip(bodies, poses, locals_, pieces, strict=True):
+        a = entry[0]
+        Tg = T  # gravity keeps every coordinate
+        T = ca.vertcat(ca.reshape(Y[a:a + 12], 3, 4), T[3, :])
+        Td, Tdd = ca.reshape(Yd[a:a + 12], 3, 4), ca.reshape(Ydd[a:a + 12], 3, 4)
+        JT = [Jac[a + r:a + 12:3, :] for r in range(3)]  # ∂T[r, :]ᵀ/∂X, (4, N)
+        R, Rd = T[:3, :3], Td[:, :3]
+        if loc is None:
+            Psi = ca.SX(body["C0"])
+            A = Psi @ Tdd.T
+        else:
+            Vt, Wd = loc
+            b, P = entry[1], Vt.shape[1]
+            Vt = ca.vertcat(ca.reshape(Y[b:b + 3 * P], 3, P), Vt[3, :])
+            Jc = [Jac[b + c:b + 3 * P:3, :] for c in range(3)]  # ∂v_c/∂X, (P, N)
+            Vd = ca.reshape(Yd[b:b + 3 * P], 3, P)
+            Vdd = ca.reshape(Ydd[b:b + 3 * P], 3, P)
+            VW = Vt @ Wd
+            Psi = VW @ Vt.T
+            Gam = [VW @ Jc[c] for c in range(3)]  # Γ_c, (4, N)
+            for c in range(3):
+                M += Jc[c].T @ Wd @ Jc[c]
+            for r in range(3):
+                B = JT[r].T @ sum(R[r, c] * Gam[c] for c in range(3))
+                M += B + B.T
+            A = Psi @ Tdd.T + 2.0 * (VW @ Vd.T) @ Rd.T + (VW @ Vdd.T) @ R.T
+            K = R.T @ Tdd
+            Z = Wd @ (2.0 * (R.T @ Rd) @ Vd + Vdd).T  # (P, 3)
+            for c in range(3):
+                bias += Gam[c].T @ K[c, :].T + Jc[c].T @ Z[:, c]
+        for r in range(3):
+            M += JT[r].T @ Psi @ JT[r]
+            bias += JT[r].T @ A[:, r]
+        Vg -= gh.T @ Tg @ Psi[:, 3]
+    return M, bias, Vg

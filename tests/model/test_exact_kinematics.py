@@ -244,6 +244,82 @@ def test_free_motion_conserves_energy(tabulated):
     assert drift[2e-3] > 8.0 * drift[1e-3], drift
 
 
+def _full_chain(model):
+    """The exact model's mass matrix, bias forces and Coriolis matrix straight from the
+    points (session 9's construction): every node's position and section axes, the tip
+    body's pose rows and the rigid pieces' pose rows, in the base frame, stacked in
+    ``y(X)`` with weights ``W`` and differentiated through the whole chain: ``M = Jᵀ W J``
+    (plus the motor inertias), ``C Ẋ = Jᵀ W ∂²y[Ẋ, Ẋ]``, ``C = Jᵀ W J̇``. The rods are
+    rebuilt here from the provider's shapes as functions of the shape joints, so the
+    derivatives see the shapes follow them (the model's ``shape_rates=True``)."""
+    from casflex.modal.integrals import pseudo_inertia
+
+    shapes = {k: ca.SX(model.provider.function(k)(model.q_shape))
+              for k in ("sample_u", "sample_theta")}
+    rows, blocks = [], []
+    for body in model.bodies:
+        T = body["T"]
+        if body.get("rod") is None:
+            poses = [(T, np.asarray(body["C0"]))]
+        else:
+            link = model.robot.links[body["row"]]
+            rod = rod_nodes(link, body["beam"], shapes["sample_u"], shapes["sample_theta"],
+                            model.delta)
+            R0, p0 = T[:3, :3], T[:3, 3]
+            for k, w in enumerate(rod["weights"]):
+                if w == 0.0:
+                    continue
+                R = R0 @ rod["R"][k]
+                c = 0.5 * rod["rhoIp"] * w
+                rows += [p0 + R0 @ rod["r"][k], R[:, 0], R[:, 1], R[:, 2]]
+                blocks += [rod["rhoA"] * w, c, c, -c]
+            poses = [] if link.tip.is_empty else [(T @ rod["end"], pseudo_inertia(
+                link.tip.mass, link.tip.inertia, link.tip.com_offset))]
+        for pose, Psi in poses:
+            rows.append(ca.vec(pose[:3, :].T))
+            blocks.append(np.kron(np.eye(3), Psi))
+    W = ca.diagcat(*[ca.DM(np.atleast_2d(b) * np.eye(3) if np.ndim(b) == 0 else b)
+                     for b in blocks])
+    y, X, dX = ca.vertcat(*rows), model.X, model.dX
+    J = ca.jacobian(y, X)
+    motors = np.zeros(model.n + model.m)
+    motors[:model.n] = [model.robot.links[row].motor_inertia for row in model.robot.joint_rows]
+    WJ = W @ J
+    return ca.Function("full", [model.q, model.delta, model.dq, model.ddelta],
+                       [J.T @ WJ + ca.diag(motors),
+                        WJ.T @ ca.jtimes(ca.jtimes(y, X, dX), X, dX),
+                        WJ.T @ ca.jtimes(J, X, dX)])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("which", ["pointwise", "tabulated"])
+def test_link_frame_assembly_equals_the_full_chain(which, request):
+    """``point_mass_terms`` differentiates each link's points once in the link's frame
+    and the chain only through the base poses; M, the bias forces and C must equal the
+    straightforward Jacobian of every point through the whole chain (:func:`_full_chain`)
+    at random states, to round-off: 1e-12 of each quantity's largest entry (the two
+    differ only in the order of the sums and in |R v̇| = |v̇| for the orthogonal poses).
+    Five modes frozen at one configuration (the tip body, no shape joint), and three
+    modes on the table with the shapes following q3 (``shape_rates``)."""
+    model = request.getfixturevalue(which)
+    model = model[1] if which == "pointwise" else model
+    f = model.functions()
+    n, m = model.n, model.m
+    full = _full_chain(model)
+    for _ in range(3):
+        q, dq, d, dd = _state(n, m)
+        d = 4.0 * d  # ~0.2 √kg m: well into the nonlinear range of the rods
+        M, bias, C = (v.full() for v in full(q, d, dq, dd))
+        got = {"M": f["mass"](q, d).full(), "C": f["coriolis"](q, d, dq, dd).full(),
+               "bias": (f["coriolis"](q, d, dq, dd) @ np.r_[dq, dd]).full()}
+        for name, ref in (("M", M), ("C", C), ("bias", bias)):
+            np.testing.assert_allclose(got[name], ref, rtol=0,
+                                       atol=1e-12 * np.abs(ref).max(), err_msg=name)
+    h = ca.Function("h", [model.q, model.delta, model.dq, model.ddelta], [model.h - model.G])
+    np.testing.assert_allclose(h(q, d, dq, dd).full(), bias, rtol=0,
+                               atol=1e-12 * np.abs(bias).max())
+
+
 # ------------------------------------------------------------------ validation
 
 
