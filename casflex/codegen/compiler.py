@@ -12,11 +12,13 @@ function of that library back into Python.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -93,8 +95,11 @@ def find_compiler(compiler: str | Sequence[str] | None = None) -> list[str]:
     return [found, *cmd[1:]]
 
 
-def run_compiler(cmd: Sequence[str], cwd: str | os.PathLike) -> None:
+def run_compiler(cmd: Sequence[str], cwd: str | os.PathLike, timeout_s: float = 600.0) -> None:
     """Run one compiler command in ``cwd``; a failure raises with the compiler's stderr.
+
+    The command runs in its own process group, so a timeout or an interrupt (Ctrl-C) stops
+    the compiler driver's children (``cc1``, ``as``, ``ld``) too, not only the driver.
 
     Parameters
     ----------
@@ -102,12 +107,14 @@ def run_compiler(cmd: Sequence[str], cwd: str | os.PathLike) -> None:
         The full command, e.g. ``[*find_compiler(), "-O2", "-o", "prog", "prog.c", "-lm"]``.
     cwd : str or os.PathLike
         Working directory (relative paths in ``cmd`` are relative to it).
+    timeout_s : float, optional
+        Wall-clock limit [s]; past it the command's whole process group is killed.
 
     Raises
     ------
     casflex.codegen.BuildError
-        The compiler cannot be run, runs longer than 600 s, or exits with an error (the
-        message holds the command and the end of its stderr).
+        The compiler cannot be run, runs longer than ``timeout_s``, or exits with an error
+        (the message holds the command and the end of its stderr).
 
     Examples
     --------
@@ -123,16 +130,29 @@ def run_compiler(cmd: Sequence[str], cwd: str | os.PathLike) -> None:
     casflex.codegen.BuildError: compilation failed (exit status 1): ...
     """
     cmd = [str(c) for c in cmd]
+    posix = os.name == "posix"
     try:
-        proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=600)
+        proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=posix)
     except OSError as exc:
         raise BuildError(f"could not run the C compiler {cmd[0]!r}: {exc}") from exc
-    except subprocess.TimeoutExpired as exc:
-        raise BuildError(f"the C compiler timed out after 600 s: {shlex.join(cmd)}") from exc
+    try:
+        _, stderr = proc.communicate(timeout=timeout_s)
+    except BaseException as exc:  # the timeout, or KeyboardInterrupt: stop the whole group
+        if posix:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+        else:
+            proc.kill()
+        proc.communicate()
+        if isinstance(exc, subprocess.TimeoutExpired):
+            raise BuildError(f"the C compiler timed out after {timeout_s:g} s: "
+                             f"{shlex.join(cmd)}") from exc
+        raise
     if proc.returncode != 0:
         raise BuildError(
             f"compilation failed (exit status {proc.returncode}): {shlex.join(cmd)}\n"
-            f"{proc.stderr.strip()[-4000:]}"
+            f"{stderr.strip()[-4000:]}"
         )
 
 

@@ -9,15 +9,19 @@ from __future__ import annotations
 
 import ctypes
 import json
+import os
 import shutil
 import subprocess
+import sys
+import time
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
 import pytest
 
 from casflex import codegen
-from casflex.codegen import BuildError, CodegenError
+from casflex.codegen import BuildError, CodegenError, run_compiler
 from casflex.errors import CasflexError
 from casflex.simulate.integrators import rk4_step
 
@@ -487,3 +491,21 @@ def test_reentrant_concurrent_threads(tmp_path):
     out = subprocess.run([str(tmp_path / "mt")], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
     assert out.stdout.startswith("ok ")
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+def test_run_compiler_timeout_stops_the_children(tmp_path):
+    """A compiler driver killed on its timeout must not leave its children (``cc1``)
+    running: a shell standing in for the driver starts a child and waits on it."""
+    script = "sleep 60 >/dev/null 2>&1 & echo $! > child.pid; wait"
+    with pytest.raises(BuildError, match="timed out after 0.5 s"):
+        run_compiler(["sh", "-c", script], tmp_path, timeout_s=0.5)
+    child = int((tmp_path / "child.pid").read_text())
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:   # gone, or a zombie waiting for init to reap it
+        stat = Path(f"/proc/{child}/stat")
+        if not stat.exists() or stat.read_text().split(") ")[1].startswith("Z"):
+            return
+        time.sleep(0.05)
+    os.kill(child, 9)
+    pytest.fail(f"the compiler's child {child} was still running after the timeout")
