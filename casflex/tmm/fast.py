@@ -242,9 +242,6 @@ def prepare(robot) -> Prepared | None:
     if not kernels.AVAILABLE:
         return None
     key = robot.links
-    last = _LAST
-    if last[0] is key:  # the same links object again: no hash of every parameter (~3 µs)
-        return last[1]
     try:
         found = CACHE[key]
     except TypeError:  # unhashable parameters
@@ -256,7 +253,6 @@ def prepare(robot) -> Prepared | None:
             CACHE.move_to_end(key)
         except KeyError:  # evicted meanwhile by another thread: still a valid set-up
             pass
-        _remember(key, found)
         return found
     template = build_chain(robot, np.zeros(robot.n_joints))
     try:
@@ -270,18 +266,7 @@ def prepare(robot) -> Prepared | None:
             CACHE.popitem(last=False)
         except KeyError:  # emptied meanwhile by another thread
             break
-    _remember(key, found)
     return found
-
-
-#: the links and the set-up of the last :func:`prepare` (links hashed by value are
-#: immutable, so the same object has the same set-up; one tuple: atomic for threads)
-_LAST: tuple = (None, None)
-
-
-def _remember(key, found):
-    global _LAST
-    _LAST = (key, found)
 
 
 class Prepared:

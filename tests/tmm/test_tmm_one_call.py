@@ -103,9 +103,9 @@ def test_refused_q_and_robots_take_the_full_path():
         modes(bad, [0.1, 0.2, 0.3], count=2)
 
 
-def test_the_last_set_up_is_never_another_robots():
-    # prepare's fast path keys on the links object itself: a robot with other links (a
-    # stiffer link 2) right after gets its own set-up and its own frequencies
+def test_alternating_robots_get_their_own_set_ups():
+    # the one call takes the set-up prepare finds for the robot's links: a robot with
+    # other links (a stiffer link 2) called in turn gets its own set-up and frequencies
     arm = load("problems/arm2link.toml")
     link = arm.links[3]
     stiff = dataclasses.replace(arm, links=(*arm.links[:3], dataclasses.replace(
