@@ -135,12 +135,13 @@ def _single(q, theta0, joint_rows, alpha, rows, stages, C, t, kind, Mloc, stiffn
     shaped = not bad and s.shape[0] > 0 and s.shape[1] >= 2 and n > 0
     for i in range(n):
         shaped = shaped and multiplicity[0, i] == 1
-    w = values[0, :n]
-    m = n if shaped else 0  # no shapes: the kernels on no mode (empty fields)
-    sub = _system(np.zeros(m, dtype=np.int64), w[:m], kind, beam, flat, gather, ratio, R3, M,
-                  T)
-    fields = _shapes(0, w[:m], sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T,
-                     axis, stiffness)
+    w = values[0, :n].copy()  # contiguous: the kernels' compiled versions for the
+    # four-call path's arrays are reused (another layout would compile them again)
+    wm = w.copy() if shaped else np.empty(0)  # no shapes: the kernels on no mode
+    sub = _system(np.zeros(wm.size, dtype=np.int64), wm, kind, beam, flat, gather, ratio,
+                  R3, M, T)
+    fields = _shapes(0, wm, sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T, axis,
+                     stiffness)
     shaped = shaped and fields[-1]
     nb, P = s.shape
     R = np.empty((nb, 3, 3))
@@ -157,7 +158,8 @@ def _single(q, theta0, joint_rows, alpha, rows, stages, C, t, kind, Mloc, stiffn
     for b in range(bodies.size):
         for i in range(3):
             body_position[b, i] = start[0, bodies[b], i]
-    return (w, multiplicity[0, :n], bad, shaped, fields[:-1], R, position, body_position)
+    return (w, multiplicity[0, :n].copy(), bad, shaped, fields[:-1], R, position,
+            body_position)
 
 
 def _compile():
