@@ -4,10 +4,10 @@
 prepared robot (:mod:`casflex.tmm.fast`) ran four compiled kernels — the pose, the root
 search, the system matrix at the roots, the shapes — with Python between them: the packed
 arrays' dict, the result lists, the sample points' positions in numpy. On the Table 8 arm
-that glue was ~24 % of ``modes`` (57 of 242 µs, measured under load). Here the same kernels are called
-from one compiled function (:func:`single`), with the same arguments in the same order, so
-the roots and the shapes are bit for bit those of the four separate calls; only the
-Python around them is gone.
+that glue was ~24 % of ``modes`` (57 of 242 µs, measured under load). Here the same
+kernels are called from one compiled function (:func:`single`), with the same arguments in
+the same order, so the roots and the shapes are bit for bit those of the four separate
+calls; only the Python around them is gone.
 
 Whatever the separate calls would hand to the full path still goes there: a robot not
 prepared, a ``q`` to refuse, a search breakdown (:func:`single` returns None), and multiple
