@@ -34,8 +34,8 @@ from casflex.tmm.chain import build_chain
 from casflex.tmm.conditioning import check_chain, lowest_beam_frequency
 
 __all__ = [
-    "CACHE", "Prepared", "compiled_shapes", "prepare", "roots", "search_points", "search_scales",
-    "shape_fields", "shape_layout",
+    "CACHE", "Prepared", "compiled_kernel", "compiled_shapes", "prepare", "roots",
+    "search_points", "search_scales", "shape_fields", "shape_layout", "SHAPE_FIELDS",
 ]
 
 #: Prepared set-ups (or None: the robot needs the full path) by ``robot.links``, newest last
@@ -174,13 +174,7 @@ def roots(robot, qs, count: int | None, omega_max: float | None, double_tol: flo
         return None, None
     if arrays is None:
         return None, None
-    points = prepared.points.get(omega_max)
-    if points is None:
-        probe, grid = search_points(prepared.reference_frequency,
-                                    prepared.lowest_beam_frequency, omega_max)
-        points = np.concatenate([[probe], grid])
-        if len(prepared.points) < 64:
-            prepared.points[omega_max] = points
+    points = prepared.search_grid(omega_max)
     found = kernels.search(arrays, points, prepared.cap, count, omega_max, double_tol, rtol)
     return found, (prepared, arrays)
 
@@ -335,6 +329,35 @@ class Prepared:
         if layout is None:
             layout = self.layouts[n_points] = shape_layout(self.elements, n_points)
         return layout
+
+    def search_grid(self, omega_max: float | None) -> np.ndarray:
+        """The static probe, then the search grid (:func:`search_points`), kept per
+        ``omega_max`` (64 at most).
+
+        Parameters
+        ----------
+        omega_max : float or None
+            Upper limit of the search [rad/s], or None for a search by count.
+
+        Returns
+        -------
+        numpy.ndarray
+            (37,) or (33,) [rad/s].
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> prepare(load("problems/arm2link.toml")).search_grid(None).size
+        37
+        """
+        points = self.points.get(omega_max)
+        if points is None:
+            probe, grid = search_points(self.reference_frequency, self.lowest_beam_frequency,
+                                        omega_max)
+            points = np.concatenate([[probe], grid])
+            if len(self.points) < 64:
+                self.points[omega_max] = points
+        return points
 
     def pose(self, qs: np.ndarray) -> dict | None:
         """The packed arrays of :mod:`casflex.tmm.kernels` at configurations ``qs``.
@@ -491,7 +514,7 @@ def shape_fields(arrays: dict, c: int, omega: np.ndarray, s: np.ndarray,
                              k["stiffness"])
     if not out[-1]:
         return None
-    return dict(zip(_SHAPE_FIELDS, out[:-1], strict=True))
+    return dict(zip(SHAPE_FIELDS, out[:-1], strict=True))
 
 
 def shape_layout(elements, n_points: int) -> dict:
@@ -827,12 +850,35 @@ def _shapes(c, omega, sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T,
     return disp, rot, mom, frc, slope, curvature, twist, axial, body, body_local, spring, True
 
 
-#: the fields :func:`_shapes` returns, in order
-_SHAPE_FIELDS = ("displacement", "rotation", "moment", "force", "slope", "curvature",
+#: the fields :func:`shape_fields` returns, in order
+SHAPE_FIELDS = ("displacement", "rotation", "moment", "force", "slope", "curvature",
                  "twist_rate", "axial_strain", "body_state", "body_state_local",
                  "spring_rotation")
 _KERNELS: dict = {}
 _COMPILE_LOCK = threading.Lock()
+
+
+def compiled_kernel(name: str):
+    """This module's compiled kernel ``name``, wrapped with numba on first use (for
+    :mod:`casflex.tmm.one_call`, which calls it from its own compiled code).
+
+    Parameters
+    ----------
+    name : str
+        ``"pose"`` (the walk of :meth:`Prepared.pose`) or ``"shapes"`` (the body of
+        :func:`shape_fields`).
+
+    Returns
+    -------
+    numba.core.registry.CPUDispatcher
+
+    Examples
+    --------
+    >>> compiled_kernel("pose").py_func.__name__
+    '_pose'
+    """
+    _compile()
+    return _KERNELS[name]
 
 
 def _compile():

@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike
 
 from casflex.errors import ModelError, SolverError
 from casflex.tmm import elements as el
-from casflex.tmm import fast, kernels
+from casflex.tmm import fast, kernels, one_call
 from casflex.tmm.chain import Chain, body_mass_global, build_chain
 from casflex.tmm.conditioning import (
     check_chain,
@@ -616,7 +616,11 @@ def natural_frequencies(chain_or_robot: Chain | Robot, q: ArrayLike | None = Non
         raise ValueError("give count, omega_max or both")
     found = None
     if not isinstance(chain_or_robot, Chain):
-        found, _ = fast.roots(chain_or_robot, q, count, omega_max, double_tol, rtol)
+        one = one_call.single(chain_or_robot, q, count, omega_max, double_tol, rtol, 0)
+        if one is not None:
+            found = [one[:2]]
+        else:
+            found, _ = fast.roots(chain_or_robot, q, count, omega_max, double_tol, rtol)
     if found is None:
         chain = _as_chain(chain_or_robot, q)
         found = _roots(_Stack([chain]), count, omega_max, double_tol, rtol)
@@ -957,8 +961,14 @@ def modes(robot: Robot, q: ArrayLike, count: int | None = 5, omega_max: float | 
     """
     if count is None and omega_max is None:
         raise ValueError("give count, omega_max or both")
-    found, posed = fast.roots(robot, q, count, omega_max, 1e-9, 1e-12)  # the defaults
-    if found is not None:
+    one = one_call.single(robot, q, count, omega_max, 1e-9, 1e-12, n_points)  # the defaults
+    if one is not None:  # the same kernels as below, in one compiled call
+        if one[2] is not None:
+            return ModeShapes(**one[2])
+        found = [one[:2]]
+    else:
+        found, posed = fast.roots(robot, q, count, omega_max, 1e-9, 1e-12)
+    if one is None and found is not None:
         w, mult = found[0]
         if (mult == 1).all():  # simple roots: the compiled shapes
             shapes = _compiled_shapes(posed[0].shape_layout(n_points), posed[1], w, mult)
