@@ -24,6 +24,7 @@ and writes ``report.md``, PNG figures, ``summary.json`` and ``c/`` to an output 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import os
@@ -165,8 +166,43 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     # processes=1: all here
     import casflex.simulate  # noqa: F401
 
-    with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool:
+    with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool, \
+            _workers_ended_on_exit():
         return _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool)
+
+
+@contextlib.contextmanager
+def _workers_ended_on_exit():
+    """End this process's worker processes when the job stops early: on an exception
+    (``KeyboardInterrupt`` included) they are terminated instead of finishing their
+    figures; on ``SIGTERM`` (default handling, main thread) too, and then the job ends
+    by the signal as it would have. Without this a killed job left its figure workers
+    behind (blocked on their task queue, which they hold open themselves)."""
+    import multiprocessing
+    import signal
+    import threading
+
+    def end_workers():
+        for child in multiprocessing.active_children():
+            child.terminate()
+
+    def on_sigterm(signum, frame):
+        end_workers()
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    watch = (threading.current_thread() is threading.main_thread()
+             and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL)
+    if watch:
+        signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    except BaseException:
+        end_workers()
+        raise
+    finally:
+        if watch:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool):
