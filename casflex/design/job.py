@@ -165,9 +165,12 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     # there; imported before the workers fork, so that they need not import it again.
     # processes=1: all here
     import casflex.simulate  # noqa: F401
+    from casflex.modal import interpolant_cache
 
+    # (the B-spline lookups rebuilt from cached tables, the gain schedule's among them,
+    # read back instead of fitted again)
     with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool, \
-            _workers_ended_on_exit():
+            _workers_ended_on_exit(), interpolant_cache(cache_dir):
         return _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool)
 
 

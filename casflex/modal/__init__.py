@@ -94,6 +94,7 @@ Modal tables
    function_identity   -- what identifies a quantity function in a cache key
    local_bspline_function -- a table's cubic B-spline evaluated locally (lean generated C)
    grid_function      -- casadi.Function interpolating gridded values (a table's lookup)
+   interpolant_cache  -- within a block, grid_function's B-spline fits kept on disk
 
 Frequency sweeps
 ================
@@ -150,7 +151,11 @@ from casflex.modal.subspace import (
     track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
-from casflex.modal.table_functions import grid_function, local_bspline_function
+from casflex.modal.table_functions import (
+    grid_function,
+    interpolant_cache,
+    local_bspline_function,
+)
 from casflex.modal.tablekeys import canonical, function_identity, robot_fingerprint, tmm_digest
 from casflex.modal.tables import (
     ModalTable,
@@ -251,6 +256,7 @@ __all__ = [
     "function_identity",
     "local_bspline_function",
     "grid_function",
+    "interpolant_cache",
     # frequency sweeps
     "frequency_sweep",
     "FrequencySweep",
