@@ -176,17 +176,20 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
 
 @contextlib.contextmanager
 def _workers_ended_on_exit():
-    """End this process's worker processes when the job stops early: on an exception
+    """End the worker processes the job started when it stops early: on an exception
     (``KeyboardInterrupt`` included) they are terminated instead of finishing their
     figures; on ``SIGTERM`` (default handling, main thread) too, and then the job ends
-    by the signal as it would have. Without this a killed job left its figure workers
-    behind (blocked on their task queue, which they hold open themselves)."""
+    by the signal as it would have. Without this a killed job's workers ran on after it
+    (a busy one finished its figures; started from a shell's background job, both were
+    seen alive, running and sleeping, seconds later)."""
     import multiprocessing
     import signal
     import threading
 
+    before = set(multiprocessing.active_children())  # a caller's own: not the job's
+
     def end_workers():
-        for child in multiprocessing.active_children():
+        for child in set(multiprocessing.active_children()) - before:
             child.terminate()
 
     def on_sigterm(signum, frame):
