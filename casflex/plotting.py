@@ -189,6 +189,17 @@ def plot_sweep(q: ArrayLike, omega: ArrayLike, joint: int, tracked: bool = False
 # plain arrays. They have no layout engine; the job calls ``fig.tight_layout()`` before
 # saving (legends outside the axes are included in its bounding box).
 
+def _margins_in_inches(fig, rows, cols, *, left, right, bottom, top, wgap, hgap):
+    """Place a ``rows`` × ``cols`` grid of subplots with fixed margins and gaps [in]: no
+    layout engine, so saving the figure draws it once."""
+    width, height = fig.get_size_inches()
+    panel_w = (width - left - right - (cols - 1) * wgap) / cols
+    panel_h = (height - bottom - top - (rows - 1) * hgap) / rows
+    fig.subplots_adjust(left=left / width, right=1.0 - right / width,
+                        bottom=bottom / height, top=1.0 - top / height,
+                        wspace=wgap / panel_w, hspace=hgap / panel_h)
+
+
 def _outside_legend(ax, **kwargs):
     """A legend to the right of the axes, where it cannot cover data."""
     return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
@@ -937,8 +948,13 @@ def plot_joint_tracking(runs: Sequence[tuple[str, ArrayLike, ArrayLike, ArrayLik
     """
     if not runs:
         raise ModelError("plot_joint_tracking: give at least one run")
-    fig = Figure(figsize=(12, 2.6 * len(runs) + 0.6), layout="constrained")
+    # margins fixed in inches instead of a layout engine: constrained layout measured every
+    # tick label twice more than the drawing does (its passes and a draw before the one
+    # saved), the largest part of the design job's figures (issue 17)
+    fig = Figure(figsize=(12, 2.6 * len(runs) + 0.6))
     axes = np.atleast_2d(fig.subplots(len(runs), 3, sharex=True))
+    _margins_in_inches(fig, len(runs), 3, left=1.0, right=0.1, bottom=0.55, top=0.3,
+                       wgap=0.95, hgap=0.38)
     ends = [move_end] * len(runs) if move_end is None or np.ndim(move_end) == 0 \
         else list(move_end)
     if len(ends) != len(runs):
@@ -952,12 +968,14 @@ def plot_joint_tracking(runs: Sequence[tuple[str, ArrayLike, ArrayLike, ArrayLik
             row[1].plot(t, error[:, j], color=f"C{j}", lw=1.0, label=f"q{j + 1}")
             row[2].plot(t, tau[:, j], color=f"C{j}", lw=0.8, label=f"τ{j + 1}")
         peak = float(np.max(np.abs(error))) if error.size else 0.0
-        row[0].set_title("joint angles (dashed: plan)", fontsize=9)
+        # at the top of the axes (y given: not moved over tick labels or an offset text,
+        # which these panels do not have there; the error panel's may have an offset)
+        row[0].set_title("joint angles (dashed: plan)", fontsize=9, y=1.0)
         row[1].set_title(f"tracking error, max |q − q_d| = {peak:.3g} rad", fontsize=9)
         if peak == 0.0:
             row[1].text(0.5, 0.7, "q = q_d: joints on the plan", transform=row[1].transAxes,
                         ha="center", va="center", fontsize=9, color="0.3")
-        row[2].set_title("joint torques", fontsize=9)
+        row[2].set_title("joint torques", fontsize=9, y=1.0)
         for ax, ylabel in zip(row, (f"{label}\nq [rad]", "q − q_d [rad]", "τ [N m]"),
                               strict=True):
             ax.set_ylabel(ylabel)

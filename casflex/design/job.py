@@ -24,6 +24,7 @@ and writes ``report.md``, PNG figures, ``summary.json`` and ``c/`` to an output 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import os
@@ -50,6 +51,9 @@ __all__ = ["DesignResult", "run_design", "c_bundle_key"]
 SEPARATION_REQUIRED = 3.0
 #: the largest joint tracking error [rad] the report calls acceptable (issue 18)
 TRACKING_TARGET = 0.05
+#: the report's figures, in the order of ``summary["figures"]``
+FIGURES = ("frequencies.png", "prv.png", "tip_deflection.png", "estimation.png",
+           "accessibility.png", "joint_tracking.png")
 
 
 @dataclass
@@ -161,9 +165,50 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
     # there; imported before the workers fork, so that they need not import it again.
     # processes=1: all here
     import casflex.simulate  # noqa: F401
+    from casflex.modal import interpolant_cache
 
-    with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool:
+    # (the B-spline lookups rebuilt from cached tables, the gain schedule's among them,
+    # read back instead of fitted again)
+    with worker_pool(min(2, processes or os.cpu_count() or 1)) as figure_pool, \
+            _workers_ended_on_exit(), interpolant_cache(cache_dir):
         return _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool)
+
+
+@contextlib.contextmanager
+def _workers_ended_on_exit():
+    """End the worker processes the job started when it stops early: on an exception
+    (``KeyboardInterrupt`` included) they are terminated instead of finishing their
+    figures; on ``SIGTERM`` (default handling, main thread) too, and then the job ends
+    by the signal as it would have. Without this a killed job's workers ran on after it
+    (a busy one finished its figures; started from a shell's background job, both were
+    seen alive, running and sleeping, seconds later)."""
+    import multiprocessing
+    import signal
+    import threading
+
+    before = set(multiprocessing.active_children())  # a caller's own: not the job's
+
+    def end_workers():
+        for child in set(multiprocessing.active_children()) - before:
+            child.terminate()
+
+    def on_sigterm(signum, frame):
+        end_workers()
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    watch = (threading.current_thread() is threading.main_thread()
+             and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL)
+    if watch:
+        signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    except BaseException:
+        end_workers()
+        raise
+    finally:
+        if watch:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool):
@@ -205,6 +250,16 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     shaped = ShapedMove(move, design.shaper)
     t_f = np.linspace(0.0, shaped.t_end, 2 * study.shaper["n_samples"] + 1)  # all simulated
     t_f, omega_along = shaping.frequencies_along(model, (t_f, *shaped.sample(t_f)))
+    t_acc = np.linspace(0.0, shaped.duration, 201)
+    acc = control.accessibility_along(model, shaped, t_acc)
+    # the figures known before the loops, drawn by the two workers (each importing
+    # matplotlib first) while this process simulates and builds the controller: then
+    # neither competes with the closed loop, nor imports matplotlib after it
+    early_figures = [_shaper_figure_specs(study, design, t_f, omega_along, shaped.duration),
+                     [_accessibility_figure_spec(t_acc, acc)]]
+    figures_started = []
+    if study.planner is None:  # no table left that a forked process pool may compute
+        figures_started = _start_figures(figure_pool, out, early_figures)
 
     # 4. simulations --------------------------------------------------------------------------
     t0 = time.perf_counter()
@@ -232,10 +287,9 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
                                          log=say)
         timings["planner_s"] = time.perf_counter() - t0
 
-    # the shaper's figures: the workers start (and import matplotlib) here, after the last
-    # table a process pool may compute (forked while this process has no other thread)
-    figures_started = _start_figures(figure_pool, out, [_shaper_figure_specs(
-        study, design, t_f, omega_along, shaped.duration)])  # one worker
+    if study.planner is not None:  # the workers start after the planner's tables (forked
+        # while this process has no other thread)
+        figures_started = _start_figures(figure_pool, out, early_figures)
 
     # 5. controller and its stability along the shaped move ---------------------------------
     t0 = time.perf_counter()
@@ -288,12 +342,10 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
 
     # the figures of the runs, drawn by the workers while the C bundle is generated --------
     t_figures = time.perf_counter()
-    t_acc = np.linspace(0.0, shaped.duration, 201)
-    acc = control.accessibility_along(model, shaped, t_acc)
     estimation = _estimation_errors(model, loop)
-    run_figures = _run_figure_specs(study, unshaped_run, shaped_run, loop, estimation, t_acc,
-                                    acc, shaped.duration)
-    # joint_tracking.png (nine panels) costs about what the other three do together
+    run_figures = _run_figure_specs(study, unshaped_run, shaped_run, loop, estimation,
+                                    shaped.duration)
+    # joint_tracking.png (nine panels) costs about what the other two do together
     figures_started += _start_figures(figure_pool, out, [run_figures[:-1], run_figures[-1:]])
 
     # 6. C bundle -----------------------------------------------------------------------------
@@ -329,7 +381,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     timings["codegen_s"] = time.perf_counter() - t0
 
     # 7. figures and report ---------------------------------------------------------------------
-    figures = _finish_figures(figures_started)
+    figures = sorted(_finish_figures(figures_started), key=lambda p: FIGURES.index(p.name))
     if comparison is not None and comparison.plan is not None:
         figures.append(_save_plan_figure(out, comparison))
     timings["figures_s"] = time.perf_counter() - t_figures  # overlaps codegen_s
@@ -681,9 +733,15 @@ def _shaper_figure_specs(study, design, t_f, omega, move_end):
     ]
 
 
-def _run_figure_specs(study, unshaped, shaped_run, loop, estimation, t_acc, acc, move_end):
+def _accessibility_figure_spec(t_acc, acc):
+    """``accessibility.png`` (the accessibility along the shaped move), as
+    :func:`_shaper_figure_specs`."""
+    return ("accessibility.png", "plot_accessibility_along", (t_acc, acc), {}, True)
+
+
+def _run_figure_specs(study, unshaped, shaped_run, loop, estimation, move_end):
     """The report's figures of the runs (``tip_deflection.png``, ``estimation.png``,
-    ``accessibility.png``, ``joint_tracking.png``), as :func:`_shaper_figure_specs`."""
+    ``joint_tracking.png``), as :func:`_shaper_figure_specs`."""
     law = study.controller["law"]
     deflections = [("unshaped", unshaped.t, unshaped.tip_deflection),
                    ("shaped", shaped_run.t, shaped_run.tip_deflection),
@@ -698,8 +756,7 @@ def _run_figure_specs(study, unshaped, shaped_run, loop, estimation, t_acc, acc,
     return [
         ("tip_deflection.png", "plot_tip_deflection", (deflections, move_end), {}, True),
         ("estimation.png", "plot_estimation_error", (loop.t, *estimation), {}, True),
-        ("accessibility.png", "plot_accessibility_along", (t_acc, acc), {}, True),
-        ("joint_tracking.png", "plot_joint_tracking",  # constrained layout
+        ("joint_tracking.png", "plot_joint_tracking",  # its own fixed layout
          (tracking, [study.move.duration, move_end, move_end]), {}, False),
     ]
 
@@ -725,9 +782,10 @@ def _start_figures(pool, out, groups):
     them here and return their paths when there is no pool.
 
     Drawing (importing matplotlib, its layout and rasterisation) is the largest part of a
-    second run; in workers it overlaps the job's own work. While the job computes, one
-    group at a time keeps a single worker busy (the job keeps its core on two); after the
-    closed loop, two groups share the two workers while the C bundle is generated."""
+    second run; in workers it overlaps the job's own work. The figures known before the
+    loops go to both workers as soon as they are known (each imports matplotlib then, while
+    the job simulates and builds the controller); after the closed loop, two groups of
+    about equal cost share the two workers while the C bundle is generated."""
     if pool is None:
         return [_draw_figures(out, group) for group in groups]
     return [pool.executor.submit(_draw_figures, out, group) for group in groups]

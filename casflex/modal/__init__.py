@@ -100,6 +100,7 @@ Modal tables
    line_blocks        -- the blocks of grid lines of tabulate_by_lines' tasks
    BLOCKS_PER_WORKER  -- blocks of grid lines per Dask worker thread
    MAX_BLOCK_POINTS   -- most grid points in one block of tabulate_by_lines (progress)
+   interpolant_cache  -- within it, grid_function's B-spline fits are kept on disk
 
 Frequency sweeps
 ================
@@ -162,7 +163,11 @@ from casflex.modal.subspace import (
     track_grid_smooth,
 )
 from casflex.modal.sweep import FrequencySweep, frequency_sweep
-from casflex.modal.table_functions import grid_function, local_bspline_function
+from casflex.modal.table_functions import (
+    grid_function,
+    interpolant_cache,
+    local_bspline_function,
+)
 from casflex.modal.tablekeys import canonical, function_identity, robot_fingerprint, tmm_digest
 from casflex.modal.tables import (
     ModalTable,
@@ -271,6 +276,7 @@ __all__ = [
     "line_blocks",
     "BLOCKS_PER_WORKER",
     "MAX_BLOCK_POINTS",
+    "interpolant_cache",
     # frequency sweeps
     "frequency_sweep",
     "FrequencySweep",

@@ -48,8 +48,11 @@ Examples
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import math
-from collections.abc import Sequence
+import os
+from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -60,12 +63,78 @@ from casflex.errors import ModelError
 if TYPE_CHECKING:  # casadi is imported where it is used, as in the rest of casflex.modal
     import casadi as ca
 
-__all__ = ["grid_function", "local_bspline_function", "DEGREE"]
+__all__ = ["grid_function", "local_bspline_function", "interpolant_cache", "DEGREE"]
 
 #: degree of the interpolating B-spline (cubic, as ``casadi.interpolant("bspline")``)
 DEGREE = 3
 
 _TWO_PI = 2.0 * math.pi
+
+#: the cache root of :func:`interpolant_cache` while its block runs (``None``: off)
+_FIT_CACHE: list = [None]
+
+
+@contextlib.contextmanager
+def interpolant_cache(cache_dir: str | os.PathLike | bool | None = None) -> Iterator[None]:
+    """Within the block, :func:`grid_function`'s B-spline interpolants are kept in the
+    on-disk cache: fitted once, then read back.
+
+    ``casadi.interpolant("bspline")`` fits the spline's coefficients each time it is built
+    (tenths of a second for a gain schedule's table); a job that rebuilds the same
+    lookups from cached tables on every run (:func:`casflex.design.run_design`) reads the
+    built Function instead. The file's key is the name, the method, the grid, the values
+    (their bytes), the options and the CasADi version, so a changed table never reads a
+    stale fit; the Function read back is the one stored (same coefficients, same
+    evaluation, the same serialised graph).
+
+    Parameters
+    ----------
+    cache_dir : str or pathlib.Path or bool, optional
+        Cache root (default the casflex cache directory); ``False``: no caching.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> axis = np.linspace(0.0, 3.0, 7)
+    >>> with interpolant_cache(tempfile.mkdtemp()):
+    ...     first = grid_function("sq", [axis], axis**2)
+    ...     again = grid_function("sq", [axis], axis**2)   # read back, not fitted
+    >>> first.serialize() == again.serialize(), round(float(again(1.25)), 12)
+    (True, 1.5625)
+    """
+    from casflex._cache import cache_root
+
+    previous = _FIT_CACHE[0]
+    _FIT_CACHE[0] = cache_root(cache_dir)
+    try:
+        yield
+    finally:
+        _FIT_CACHE[0] = previous
+
+
+def _interpolant(name, method, axes, values, options):
+    """``casadi.interpolant(name, method, axes, values, options)``, read from and kept in
+    the cache of :func:`interpolant_cache` (B-splines, while it is on)."""
+    import casadi as ca
+
+    root = _FIT_CACHE[0]
+    if root is None or method != "bspline":  # a linear interpolant has nothing to fit
+        return ca.interpolant(name, method, axes, values, options)
+    from casflex._cache import digest, load_verified, make_cache_directory, save_verified
+
+    values = np.ascontiguousarray(values, dtype=float)
+    key = digest({"name": name, "method": method, "axes": [list(map(float, a)) for a in axes],
+                  "values": hashlib.sha256(values.tobytes()).hexdigest(),
+                  "shape": list(values.shape), "options": options,
+                  "casadi": ca.__version__})
+    path = root / "interpolants" / f"{name}-{key[:32]}.npz"
+    hit = load_verified(path, key)
+    if hit is not None:
+        return ca.Function.deserialize(hit["function"].tobytes().decode())
+    f = ca.interpolant(name, method, axes, values, options)
+    make_cache_directory(path.parent)
+    save_verified(path, key, function=np.frombuffer(f.serialize().encode(), dtype=np.uint8))
+    return f
 
 
 def local_bspline_function(name: str, axis: ArrayLike, values: ArrayLike, *,
@@ -247,9 +316,9 @@ def grid_function(name: str, grid: Sequence[ArrayLike], data: ArrayLike, *,
         rows = "static" if lookup == "static" else "pointer"
         interp = local_bspline_function(f"{name}_local", axes[0], flat, rows=rows)
     else:  # binary search: bit-identical to CasADi's default scan, in log2(n) steps
-        interp = ca.interpolant(f"{name}_{method}", method, [list(a) for a in axes],
-                                np.moveaxis(flat, -1, 0).ravel(order="F"),
-                                {"lookup_mode": ["binary"] * nd})
+        interp = _interpolant(f"{name}_{method}", method, [list(a) for a in axes],
+                              np.moveaxis(flat, -1, 0).ravel(order="F"),
+                              {"lookup_mode": ["binary"] * nd})
     parts = []
     for ax in range(nd):
         xi = x[ax]
