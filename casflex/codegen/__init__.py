@@ -37,6 +37,7 @@ Estimator (:mod:`casflex.codegen.estimator`)
 ekf_bundle      the EKF bundle: ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals``
 model_bundle    functions of the model (default its forward dynamics)
 split_forward   the model's forward dynamics as calls of its smaller functions (for C)
+exact_forward   the same for an exact-kinematics model (``split_forward`` hands over to it)
 ekf_units       units of the EKF functions' ports
 covariance_run  ``ekf_step`` for millions of steps in C, checking the covariance
 add_status_defines  the status bits of guarded steps appended to a bundle header
@@ -55,7 +56,6 @@ Bundles of a robot and its sensors (:mod:`casflex.codegen.robot_bundles`)
 -------------------------------------------------------------------------
 realtime_bundles  build the model and write its EKF (and model) bundles (``casflex codegen``)
 rt_functions      the named functions and units of the estimator bundle
-exact_forward     the forward dynamics of an exact-kinematics model as calls (for C)
 
 Input shaper table (:mod:`casflex.codegen.shaper_table`)
 ---------------------------------------------------------
@@ -131,13 +131,14 @@ from casflex.codegen.estimator import (
     covariance_run,
     ekf_bundle,
     ekf_units,
+    exact_forward,
     model_bundle,
     split_forward,
 )
 from casflex.codegen.jit import compile_cached
 from casflex.codegen.plan_table import plan_table_bundle
 from casflex.codegen.replay import HarnessResult, harness, run_harness
-from casflex.codegen.robot_bundles import exact_forward, realtime_bundles, rt_functions
+from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
 from casflex.codegen.rtloop import (
     closed_loop_bundle,
     loop_step_function,

@@ -50,8 +50,8 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.sensors import SensorSet
 
-__all__ = ["ekf_units", "ekf_bundle", "model_bundle", "split_forward", "covariance_run",
-           "add_status_defines"]
+__all__ = ["ekf_units", "ekf_bundle", "model_bundle", "split_forward", "exact_forward",
+           "covariance_run", "add_status_defines"]
 
 
 def ekf_units(sensors: SensorSet, prefix: str = "") -> dict[str, dict[str, str]]:
@@ -212,7 +212,8 @@ def split_forward(model: FlexibleModel) -> ca.Function:
     subexpressions merged, ``potential_forces``, ``damping`` and a small linear solve,
     each generated as its own C function. ``C Ẋ = d/dt(M Ẋ)|_{Ẍ=0} − ∂T/∂X`` as in the model
     (:mod:`casflex.model.equations`); the result equals the model's ``forward`` to
-    rounding (the operations are the same, grouped differently).
+    rounding (the operations are the same, grouped differently). For a model with
+    ``kinematics="exact"`` it is :func:`exact_forward`.
 
     Parameters
     ----------
@@ -236,6 +237,8 @@ def split_forward(model: FlexibleModel) -> ca.Function:
     >>> bool(np.allclose(a, b, rtol=1e-13, atol=0))
     True
     """
+    if model.kinematics == "exact":
+        return exact_forward(model)
     f = model.functions()
     n, m = model.n, model.m
     q, dq, tau = ca.MX.sym("q", n), ca.MX.sym("dq", n), ca.MX.sym("tau", n)
@@ -266,6 +269,57 @@ def split_forward(model: FlexibleModel) -> ca.Function:
         sol = ca.solve(Ms, rs)
     solve = ca.Function("forward_solve", [Ms, rs], [sol], ["M", "rhs"], ["ddX"])
     ddX = solve(M, ca.vertcat(tau, ca.MX.zeros(m)) - h)
+    return ca.Function("forward", [q, dq, d, dd, tau], [ddX[:n], ddX[n:]],
+                       ["q", "dq", "delta", "ddelta", "tau"], ["ddq", "dddelta"])
+
+
+def exact_forward(model: FlexibleModel) -> ca.Function:
+    """The forward dynamics of a model with exact kinematics as calls of smaller functions.
+
+    :func:`split_forward` forms the bias forces as the Christoffel form
+    of ``M`` differentiated once more, which for ``kinematics="exact"`` differentiates
+    the rods a third time and, without ``shape_rates``, would let the shapes' rates in
+    that the model leaves out. Here ``M Ẍ = [τ; 0] − h`` is the model's own ``M`` and
+    ``h`` (bias, potential and damping forces: :attr:`FlexibleModel.h`), each an SX
+    function with common subexpressions merged (``forward_mass``, ``forward_bias``),
+    and a small linear solve (``forward_solve``), each generated as its own C function.
+    It equals the model's ``forward`` to rounding.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        Any model; meant for ``kinematics="exact"``.
+
+    Returns
+    -------
+    casadi.Function
+        ``forward(q, dq, delta, ddelta, tau) -> (ddq, dddelta)`` [rad/s², √kg·m/s²], the
+        ports of the model's ``forward``.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0.4], 1),
+    ...                       kinematics="exact")
+    >>> args = ([0.1, 0.2, 0.3], [0.5, -0.4, 0.3], [0.1], [0.8], [1.0, 0.5, 0.2])
+    >>> a = np.vstack([o.full() for o in model.functions()["forward"](*args)])
+    >>> b = np.vstack([o.full() for o in exact_forward(model)(*args)])
+    >>> bool(np.allclose(a, b, rtol=1e-12, atol=0))
+    True
+    """
+    n, m = model.n, model.m
+    names = ["q", "delta", "dq", "ddelta"]
+    sym = [model.q, model.delta, model.dq, model.ddelta]
+    mass = ca.Function("forward_mass", sym[:2], [model.M], names[:2], ["M"], {"cse": True})
+    bias = ca.Function("forward_bias", sym, [model.h], names, ["h"], {"cse": True})
+    N = n + m
+    Ms, rs = ca.SX.sym("M", N, N), ca.SX.sym("rhs", N)
+    solve = ca.Function("forward_solve", [Ms, rs], [ca.solve(Ms, rs)], ["M", "rhs"], ["ddX"])
+    q, dq, tau = ca.MX.sym("q", n), ca.MX.sym("dq", n), ca.MX.sym("tau", n)
+    d, dd = ca.MX.sym("delta", m), ca.MX.sym("ddelta", m)
+    ddX = solve(mass(q, d), ca.vertcat(tau, ca.MX.zeros(m)) - bias(q, d, dq, dd))
     return ca.Function("forward", [q, dq, d, dd, tau], [ddX[:n], ddX[n:]],
                        ["q", "dq", "delta", "ddelta", "tau"], ["ddq", "dddelta"])
 

@@ -34,8 +34,9 @@ Which model each part uses:
 * **the exact kinematics** (``kinematics="exact"``, ``casflex codegen --kinematics
   exact``): the forward-dynamics bundle is :class:`casflex.model.FlexibleModel` with
   ``kinematics="exact"`` (``M`` and the bias forces exact in ``δ``; ``delta_order=1``,
-  with or without a controller), its ``forward`` split by :func:`exact_forward`. The
-  estimator and the controller keep their ``M(q)`` model.
+  with or without a controller), its ``forward`` split by
+  :func:`casflex.codegen.exact_forward`. The estimator and the controller keep their
+  ``M(q)`` model.
 
 Extending the bundle: :func:`rt_functions` returns its named CasADi functions and their
 units; add yours to both before generating them with :func:`casflex.codegen.generate`.
@@ -65,7 +66,7 @@ if TYPE_CHECKING:
     from casflex.robot import Robot
     from casflex.sensors import SensorSet
 
-__all__ = ["exact_forward", "rt_functions", "realtime_bundles"]
+__all__ = ["rt_functions", "realtime_bundles"]
 
 #: order of the estimator bundle's functions (others follow in their dict order)
 _EKF_ORDER = ("ekf_step", "plant", "measurement", "rigid_signals", "rt_step")
@@ -370,71 +371,10 @@ def realtime_bundles(robot: str | os.PathLike | Robot, sensors: str | os.PathLik
             # exact kinematics whenever asked for (module docstring)
             options["delta_order"] = 0 if controller and kinematics != "exact" else 1
             simulation = _bundle_model(flexible, table, {**options, "kinematics": kinematics})
-            if kinematics == "exact":
-                bundles.append(generate([exact_forward(simulation)], out / f"{name}_model",
-                                        name=f"{name}_model", units=_FORWARD_UNITS))
-            else:
-                bundles.append(model_bundle(simulation, out / f"{name}_model",
-                                            name=f"{name}_model"))
+            bundles.append(model_bundle(simulation, out / f"{name}_model",
+                                        name=f"{name}_model"))
             stages.update()
     return bundles
-
-
-#: units of ``forward``'s ports (as :func:`casflex.codegen.model_bundle` writes them)
-_FORWARD_UNITS = {"forward": {"q": "rad", "dq": "rad/s", "delta": "sqrt(kg) m",
-                             "ddelta": "sqrt(kg) m/s", "tau": "N m", "ddq": "rad/s^2",
-                             "dddelta": "sqrt(kg) m/s^2"}}
-
-
-def exact_forward(model: FlexibleModel) -> ca.Function:
-    """The forward dynamics of a model with exact kinematics as calls of smaller functions.
-
-    :func:`casflex.codegen.split_forward` forms the bias forces as the Christoffel form
-    of ``M`` differentiated once more, which for ``kinematics="exact"`` differentiates
-    the rods a third time and, without ``shape_rates``, would let the shapes' rates in
-    that the model leaves out. Here ``M Ẍ = [τ; 0] − h`` is the model's own ``M`` and
-    ``h`` (bias, potential and damping forces: :attr:`FlexibleModel.h`), each an SX
-    function with common subexpressions merged (``forward_mass``, ``forward_bias``),
-    and a small linear solve (``forward_solve``), each generated as its own C function.
-    It equals the model's ``forward`` to rounding.
-
-    Parameters
-    ----------
-    model : casflex.model.FlexibleModel
-        Any model; meant for ``kinematics="exact"``.
-
-    Returns
-    -------
-    casadi.Function
-        ``forward(q, dq, delta, ddelta, tau) -> (ddq, dddelta)`` [rad/s², √kg·m/s²], the
-        ports of the model's ``forward``.
-
-    Examples
-    --------
-    >>> from casflex.robot import load
-    >>> from casflex.model import FlexibleModel, PointwiseProvider
-    >>> robot = load("problems/arm2link.toml")
-    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0.4], 1),
-    ...                       kinematics="exact")
-    >>> args = ([0.1, 0.2, 0.3], [0.5, -0.4, 0.3], [0.1], [0.8], [1.0, 0.5, 0.2])
-    >>> a = np.vstack([o.full() for o in model.functions()["forward"](*args)])
-    >>> b = np.vstack([o.full() for o in exact_forward(model)(*args)])
-    >>> bool(np.allclose(a, b, rtol=1e-12, atol=0))
-    True
-    """
-    n, m = model.n, model.m
-    names = ["q", "delta", "dq", "ddelta"]
-    sym = [model.q, model.delta, model.dq, model.ddelta]
-    mass = ca.Function("forward_mass", sym[:2], [model.M], names[:2], ["M"], {"cse": True})
-    bias = ca.Function("forward_bias", sym, [model.h], names, ["h"], {"cse": True})
-    N = n + m
-    Ms, rs = ca.SX.sym("M", N, N), ca.SX.sym("rhs", N)
-    solve = ca.Function("forward_solve", [Ms, rs], [ca.solve(Ms, rs)], ["M", "rhs"], ["ddX"])
-    q, dq, tau = ca.MX.sym("q", n), ca.MX.sym("dq", n), ca.MX.sym("tau", n)
-    d, dd = ca.MX.sym("delta", m), ca.MX.sym("ddelta", m)
-    ddX = solve(mass(q, d), ca.vertcat(tau, ca.MX.zeros(m)) - bias(q, d, dq, dd))
-    return ca.Function("forward", [q, dq, d, dd, tau], [ddX[:n], ddX[n:]],
-                       ["q", "dq", "delta", "ddelta", "tau"], ["ddq", "dddelta"])
 
 
 def _bundle_model(flexible, table, options):

@@ -67,7 +67,8 @@ def _states(n, m, rng):
             1e-2 * rng.normal(size=m), rng.normal(size=n)]
 
 
-@pytest.mark.parametrize("options", [{}, {"delta_order": 0}, {"modal_mass": "identity"}])
+@pytest.mark.parametrize("options", [{}, {"delta_order": 0}, {"modal_mass": "identity"},
+                                     {"kinematics": "exact"}])
 def test_split_forward_is_the_model_forward(arm, options):
     # modes frozen at one configuration: the model's q-dependence is its kinematics only
     provider = PointwiseProvider(arm, [0.0, 0.0, 0.4], 2)
