@@ -18,7 +18,13 @@ homogeneous, so its value at δ is the k-th derivative along ``s δ`` over ``k!`
 differentiates ``g`` ``p`` times in the scalar ``s`` (forward mode) and folds ``s = 0``.
 This is the reference any ``poly`` form of the exact model must reproduce, and it
 measures the order ``p`` the error budget needs (:func:`taylor_modal_rows`,
-:func:`simulate_taylor`; figures in ``benchmarks/README_fidelity.md``).
+:func:`simulate_taylor`; ``benchmarks/bench_exact_poly.py --budget``). Measured with 5
+modes on Table 9 move 3 (239 mm of tip deflection), the gap to the exact rows' run in %
+of the peak: 4.3 (p = 1, about the default kinematics' miss), 0.10 (p = 2), 0.012
+(p = 3); on the planar elbow move (2 rad in 1 s, 31 mm) 0.07, 4e-4, 3e-6. Degree 2 is
+what the issue's 5 % budget needs. What the truncation neglects: the terms of degree
+``p + 1`` and above in δ of the coefficients listed above (the stiffness and damping
+are exact).
 
 It is not a fast path: the rows along the ray cost several times the exact rows
 (``p = 3``: ~5× the SX instructions), because the cost of configuration-only
