@@ -252,7 +252,11 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
         e["gate"] = num("estimator.gate", e["gate"], low=1.0)
     g = settings["codegen"]
     identifier(g["name"], "codegen.name", path=path)
-    _flag(path, "codegen.compile", g["compile"])
+    if _flag(path, "codegen.compile", g["compile"]) and m["kinematics"] == "exact":
+        # measured: cc -O1 of the exact model's closed-loop step ran > 8 min at 3.8 GB
+        raise fail("codegen.compile", True, "cannot go with model.kinematics = 'exact': the "
+                   "exact model's C does not compile in reasonable time; set codegen.compile "
+                   "= false (benchmarks/README_fidelity.md)", path=path)
     _flag(path, "codegen.guard", g["guard"])
     if g["torque_limits"] is not None:
         limits = np.atleast_1d(np.asarray(g["torque_limits"], dtype=object))
