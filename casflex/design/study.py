@@ -210,12 +210,9 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
     if _flag(path, "model.foreshortening", m["foreshortening"]) and m["delta_order"] != 1:
         raise fail("model.foreshortening", True, "needs model.delta_order = 1", path=path)
     m["kinematics"] = one_of("model.kinematics", m["kinematics"], ("truncated", "exact"))
-    if m["kinematics"] == "exact":
-        # the job simulates with the polynomial form and fits its sensors with the
-        # truncated point kinematics: both refuse the exact model (issue 19)
-        raise fail("model.kinematics", "exact", "is not supported by the design job yet (its "
-                   "poly simulation and accelerometers need the truncated kinematics); use "
-                   "'casflex simulate --kinematics exact --method rk4'", path=path)
+    if m["kinematics"] == "exact" and m["delta_order"] != 1:
+        # the exact rods keep M exact in delta: a zeroth-order M contradicts them
+        raise fail("model.kinematics", "exact", "needs model.delta_order = 1", path=path)
     s = settings["shaper"]
     s["vtol"] = plausible(num("shaper.vtol", s["vtol"], low=0.0, high=1.0, low_open=True),
                           "vtol", "shaper.vtol", path=path)
@@ -255,7 +252,11 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
         e["gate"] = num("estimator.gate", e["gate"], low=1.0)
     g = settings["codegen"]
     identifier(g["name"], "codegen.name", path=path)
-    _flag(path, "codegen.compile", g["compile"])
+    if _flag(path, "codegen.compile", g["compile"]) and m["kinematics"] == "exact":
+        # measured: cc -O1 of the exact model's closed-loop step ran > 8 min at 3.8 GB
+        raise fail("codegen.compile", True, "cannot go with model.kinematics = 'exact': the "
+                   "exact model's C does not compile in reasonable time; set codegen.compile "
+                   "= false (benchmarks/README_fidelity.md)", path=path)
     _flag(path, "codegen.guard", g["guard"])
     if g["torque_limits"] is not None:
         limits = np.atleast_1d(np.asarray(g["torque_limits"], dtype=object))

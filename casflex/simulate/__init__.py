@@ -55,6 +55,14 @@ plot_result
     Joint angles, torques, modal amplitudes and tip deflection of a
     :class:`SimulationResult` (from :mod:`casflex.plotting`).
 
+The exact kinematics truncated in δ (:mod:`casflex.simulate.exact_taylor`)
+-------------------------------------------------------------------------
+taylor_modal_rows
+    The modal rows with every ``(q, δ)``-coefficient cut at a degree in δ: what a
+    ``poly`` form of ``kinematics="exact"`` would integrate (its error budget).
+simulate_taylor
+    Prescribed motion on those rows, by the RK4 steps of ``method="rk4"``.
+
 Integration (:mod:`casflex.simulate.integrators`)
 -------------------------------------------------
 rk4_step
@@ -67,6 +75,7 @@ Measured costs of the methods: ``benchmarks/README_model.md``.
 
 from __future__ import annotations
 
+from casflex.simulate.exact_taylor import simulate_taylor, taylor_modal_rows
 from casflex.simulate.integrators import rk4_step
 from casflex.simulate.measurements import SimulatedData, simulate_data
 from casflex.simulate.prescribed import sample_reference, simulate_move, simulate_prescribed
@@ -75,7 +84,8 @@ from casflex.simulate.torque import simulate_closed_loop, simulate_torque, start
 
 __all__ = ["SimulationResult", "simulate_prescribed", "simulate_torque", "sample_reference",
            "plot_result", "simulate_move", "simulate_closed_loop", "ClosedLoopResult",
-           "decay_time", "rk4_step", "simulate_data", "SimulatedData", "start_closed_loop"]
+           "decay_time", "rk4_step", "simulate_data", "SimulatedData", "start_closed_loop",
+           "taylor_modal_rows", "simulate_taylor"]
 
 
 def __getattr__(name):

@@ -69,7 +69,7 @@ def test_bad_foreshortening_fails_before_heavy_work(model_study, tmp_path, build
 
 @pytest.mark.parametrize("lines, rule", [
     ('delta_order = 1\nkinematics = "nonlinear"', "must be one of"),
-    ('delta_order = 1\nkinematics = "exact"', "not supported by the design job yet"),
+    ('delta_order = 0\nkinematics = "exact"', "needs model.delta_order = 1"),
 ])
 def test_kinematics_checked_before_heavy_work(model_study, tmp_path, build_kwargs, lines, rule):
     with pytest.raises(ProblemFileError) as info:
