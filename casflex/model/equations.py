@@ -203,10 +203,10 @@ truncated one) and the strain sensors' curvature is linear in δ, exact here. Th
 plant (``tabulate_plant``) takes it when the joints it expands in Fourier series leave
 the modal block ``M_δδ(q, 0)`` unchanged — the exact model's block follows the rods, so
 the elbow must be a shape joint (a table) or ``modal_mass="first_order"`` be chosen;
-otherwise it refuses with a :class:`~casflex.errors.ModelError`. ``poly`` simulation and
-the design job refuse the option. The Functions are SX, but C code generation of them is
-not verified: the C of ``dddelta`` (0.23 M instructions) had not compiled after 10 min
-at ``-O1`` on a loaded machine.
+otherwise it refuses with a :class:`~casflex.errors.ModelError`. ``poly`` simulation
+refuses the option; the design job simulates it by RK4 (``codegen.compile = false``).
+C code: :func:`casflex.codegen.exact_forward`, verified on one mode; compiling the
+3-mode bundle at ``-O2`` takes ~150 s of CPU (README_fidelity.md).
 """
 
 from __future__ import annotations
