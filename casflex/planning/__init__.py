@@ -24,6 +24,9 @@ DYNAMICS
 WARM_START_OPTIONS
     Ipopt options of a warm start of :func:`plan_move` from a neighbouring plan's
     iterate and multipliers.
+LIMIT_STATUSES
+    Ipopt's statuses of a solve ended by an iteration or time limit, whose feasible last
+    iterate :func:`plan_move` returns.
 
 Stopping (:mod:`casflex.planning.stopping`)
 --------------------------------------------
@@ -85,6 +88,7 @@ from __future__ import annotations
 from casflex.planning.limits import shaped_move_limits
 from casflex.planning.ocp import (
     DYNAMICS,
+    LIMIT_STATUSES,
     OBJECTIVES,
     TRANSCRIPTIONS,
     WARM_START_OPTIONS,
@@ -111,6 +115,7 @@ __all__ = [
     "TRANSCRIPTIONS",
     "DYNAMICS",
     "WARM_START_OPTIONS",
+    "LIMIT_STATUSES",
     # stopping
     "ProgressStop",
     "PROGRESS_STATUS",
