@@ -47,13 +47,14 @@ from casflex._validate import choice, fail, number, vector
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
+from casflex.planning.assembly import block_derivatives
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
-           "DYNAMICS", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
+           "DYNAMICS", "DERIVATIVES", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
 
 #: the objectives of :func:`plan_move`
 OBJECTIVES = ("time", "energy", "weighted")
@@ -63,6 +64,10 @@ TRANSCRIPTIONS = ("collocation", "shooting")
 
 #: the forms of the dynamics in the collocation of :func:`plan_move`
 DYNAMICS = ("implicit", "explicit")
+
+#: how :func:`plan_move` builds the NLP's derivatives: CasADi's sweeps through the whole
+#: problem, or per-interval blocks (:func:`casflex.planning.block_derivatives`)
+DERIVATIVES = ("casadi", "blocks")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -411,7 +416,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               max_duration: float | None = None, max_iter: int = 500,
               ipopt_options: dict | None = None, settle: float | None = None,
               name: str | None = None,
-              progress_stop: ProgressStop | bool = True) -> PlannedMove:
+              progress_stop: ProgressStop | bool = True,
+              derivatives: str = "casadi") -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -489,6 +495,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
         :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
         holds the objective and the constraint violation of every iterate.
+    derivatives : {"casadi", "blocks"}
+        How the NLP's constraint Jacobian and Hessian of the Lagrangian are built:
+        CasADi's sweeps through the whole problem, or (implicit collocation only) the
+        interval function's own Jacobian and Hessian evaluated per interval and
+        scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`).
+        The same derivatives to round-off; only their cost differs.
 
     Returns
     -------
@@ -548,6 +560,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     degree = number(degree, "degree", low=1, high=5, integer=True)
     dynamics = choice(dynamics, "dynamics", DYNAMICS)
     implicit = transcription == "collocation" and dynamics == "implicit"
+    derivatives = choice(derivatives, "derivatives", DERIVATIVES)
+    if derivatives == "blocks" and not implicit:
+        raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
+                   "dynamics 'implicit'")
+    blocks = derivatives == "blocks"
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
@@ -667,13 +684,24 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1)
             opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
             opti.set_initial(Ac, Ac_guess.T)
-            defects, torque_defects, Xf = G.map(N)(X[:, :N], Xc, Ac, U, T / N)
-            opti.subject_to(ca.vec(torque_defects / np.repeat(su[:, None], N * degree,
-                                                               axis=1)) == 0)
+            block_args = [X[:, :N], Xc, Ac, U, T / N]
+            defects, torque_defects, Xf = G.map(N)(*block_args)
+            if blocks:
+                # the interval's end state is linear in its states: outside G, so that
+                # only the defects need G's derivatives
+                _, D = _collocation_matrices(degree)
+                Xf = D[0] * X[:, :N] + sum(D[j + 1] * Xc[:, j::degree]
+                                           for j in range(degree))
+            torque_scale = np.repeat(su[:, None], N * degree, axis=1)
+            block_rows = [opti.ng]
+            opti.subject_to(ca.vec(torque_defects / torque_scale) == 0)
         else:
             G, _ = _collocation_function(ode, nxa, n, degree)
             defects, Xf = G.map(N)(X[:, :N], Xc, U, T / N)
-        opti.subject_to(ca.vec(defects / np.repeat(sx[:, None], N * degree, axis=1)) == 0)
+        defect_scale = np.repeat(sx[:, None], N * degree, axis=1)
+        if implicit:
+            block_rows.insert(0, opti.ng)
+        opti.subject_to(ca.vec(defects / defect_scale) == 0)
         opti.set_initial(Xc, augmented(Xc_guess))
     else:
         F = _interval_function(ode, nxa, n, substeps)
@@ -760,9 +788,13 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
         callback = rule.callback(*bounds, opti.nx)
-        opti.solver("ipopt", {"print_time": False, "iteration_callback": callback}, options)
+        plugin = {"print_time": False, "iteration_callback": callback}
     else:
-        opti.solver("ipopt", {"print_time": False}, options)
+        plugin = {"print_time": False}
+    if blocks:
+        plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
+                                        [0, 1], block_rows, [defect_scale, torque_scale], N))
+    opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
         sol = opti.solve()
@@ -818,6 +850,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
+        "derivatives": derivatives,
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
