@@ -28,6 +28,15 @@ LIMIT_STATUSES
     Ipopt's statuses of a solve ended by an iteration or time limit, whose feasible last
     iterate :func:`plan_move` returns.
 
+DERIVATIVES
+    How :func:`plan_move` builds the NLP's derivatives (CasADi's, or per-interval blocks).
+
+Derivatives from per-interval blocks (:mod:`casflex.planning.assembly`)
+-----------------------------------------------------------------------
+block_derivatives
+    The NLP's constraint Jacobian and Hessian of the Lagrangian assembled from the
+    interval function's own derivatives (Ipopt's ``jac_g`` and ``hess_lag``).
+
 Stopping (:mod:`casflex.planning.stopping`)
 --------------------------------------------
 ProgressStop
@@ -85,8 +94,10 @@ Examples
 
 from __future__ import annotations
 
+from casflex.planning.assembly import block_derivatives
 from casflex.planning.limits import shaped_move_limits
 from casflex.planning.ocp import (
+    DERIVATIVES,
     DYNAMICS,
     LIMIT_STATUSES,
     OBJECTIVES,
@@ -116,6 +127,9 @@ __all__ = [
     "DYNAMICS",
     "WARM_START_OPTIONS",
     "LIMIT_STATUSES",
+    "DERIVATIVES",
+    # derivatives from blocks
+    "block_derivatives",
     # stopping
     "ProgressStop",
     "PROGRESS_STATUS",

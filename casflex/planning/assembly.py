@@ -111,6 +111,7 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     """
     x = opti.x
     nx = x.shape[0]
+    args = [a if isinstance(a, ca.MX) else ca.MX(ca.DM(a)) for a in args]
     adv = opti.advanced
     xs = np.asarray(adv.x_linear_scale, dtype=float).ravel() if nx else np.zeros(0)
     xo = np.asarray(adv.x_linear_scale_offset, dtype=float).ravel() if nx else np.zeros(0)

@@ -854,6 +854,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
+    # CPU seconds and calls of every function Ipopt evaluated (t_proc_nlp_jac_g...)
+    info["timings"] = {k: float(v) for k, v in stats.items()
+                       if k.startswith(("t_proc_", "n_call_")) and np.isscalar(v)}
     info["constraint_violation"] = info_violation
     if rule is not None:  # (objective, constraint violation) of every Ipopt iterate
         info["objective_trace"] = [list(pair) for pair in rule.trace]
