@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import casadi as ca
@@ -417,7 +418,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               ipopt_options: dict | None = None, settle: float | None = None,
               name: str | None = None,
               progress_stop: ProgressStop | bool = True,
-              derivatives: str = "casadi") -> PlannedMove:
+              derivatives: str = "casadi",
+              compile_function: Callable[[list], list] | None = None) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -501,6 +503,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         interval function's own Jacobian and Hessian evaluated per interval and
         scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`).
         The same derivatives to round-off; only their cost differs.
+    compile_function : callable, optional
+        With ``derivatives="blocks"``: ``compile_function(functions) -> functions``, the
+        interval's Jacobian and Hessian functions replaced by compiled ones (e.g. C
+        through :func:`casflex.codegen.compile_cached`, which the planning package may
+        not import: the caller passes it). Default: interpreted.
 
     Returns
     -------
@@ -793,7 +800,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         plugin = {"print_time": False}
     if blocks:
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
-                                        [0, 1], block_rows, [defect_scale, torque_scale], N))
+                                        [0, 1], block_rows, [defect_scale, torque_scale], N,
+                                        compile_function=compile_function))
     opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
