@@ -11,8 +11,6 @@ Planning (:mod:`casflex.planning.ocp`)
 --------------------------------------
 plan_move
     The optimal control problem: objectives, limits, end conditions, robust scenarios.
-plan_limits
-    Peak torques and velocities of a reference with the joints on it (the default limits).
 predicted_residual
     The residual tip deflection of the free vibration from an end state.
 OBJECTIVES
@@ -54,6 +52,8 @@ Limits (:mod:`casflex.planning.limits`)
 ---------------------------------------
 shaped_move_limits
     The torque and velocity limits of a plan from the shaped version of its move.
+plan_limits
+    Peak torques and velocities of a reference with the joints on it (the default limits).
 
 Verification (:mod:`casflex.planning.verify`)
 ---------------------------------------------
@@ -95,7 +95,7 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.assembly import block_derivatives
-from casflex.planning.limits import shaped_move_limits
+from casflex.planning.limits import plan_limits, shaped_move_limits
 from casflex.planning.ocp import (
     DERIVATIVES,
     DYNAMICS,
@@ -103,7 +103,6 @@ from casflex.planning.ocp import (
     OBJECTIVES,
     TRANSCRIPTIONS,
     WARM_START_OPTIONS,
-    plan_limits,
     plan_move,
     predicted_residual,
 )

@@ -54,7 +54,7 @@ from casflex.planning.scenarios import frequency_shifted_model, static_deflectio
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
-__all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
+__all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
            "DYNAMICS", "DERIVATIVES", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
 
 #: the objectives of :func:`plan_move`
@@ -994,42 +994,3 @@ def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
     why = (" - the limits are too low to reach the goal"
            + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
     return f"plan_move: Ipopt found no plan ({status}){where}{why}"
-
-
-def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Peak joint torques and velocities of a reference with the joints on it.
-
-    The comparison of a planned and a shaped move is fair when the planner gets the
-    shaped move's peaks as its limits (:func:`casflex.simulate.simulate_prescribed`
-    gives the torques that produce the shaped motion).
-
-    Parameters
-    ----------
-    model : casflex.model.FlexibleModel
-    reference : casflex.moves.Move or ShapedMove or PlannedMove
-    dt : float
-        Simulation step [s].
-
-    Returns
-    -------
-    torque_peak : numpy.ndarray, shape (n,)
-        [N m]
-    velocity_peak : numpy.ndarray, shape (n,)
-        [rad/s]
-
-    Examples
-    --------
-    >>> from casflex.model import PointwiseProvider
-    >>> from casflex.robot import load
-    >>> robot = load("problems/onelink.toml")
-    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
-    >>> tau, v = plan_limits(model, Move([0.0], [1.0], 2.0, settle=0.0))
-    >>> tau.shape, round(float(v[0]), 6)
-    ((1,), 1.0)
-    """
-    from casflex.simulate import simulate_prescribed
-
-    run = simulate_prescribed(model, reference, dt=dt, t_end=float(reference.duration))
-    return run.torque_peak, np.max(np.abs(run.dq), axis=0)
-
