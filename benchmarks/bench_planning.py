@@ -87,7 +87,8 @@ def main(argv: list[str] | None = None) -> dict:
                         help="modes of the OCP's model (verified on the study's 3)")
     parser.add_argument("--no-progress-stop", action="store_true",
                         help="only Ipopt's own stopping tests (no ProgressStop)")
-    parser.add_argument("--derivatives", choices=("casadi", "blocks"), default="casadi",
+    parser.add_argument("--derivatives", choices=("casadi", "blocks", "blocks-jacobian"),
+                        default="casadi",
                         help="the NLP's derivatives: CasADi's sweeps (default) or "
                              "per-interval blocks (casflex.planning.block_derivatives)")
     parser.add_argument("--compile", action="store_true",

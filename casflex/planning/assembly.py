@@ -58,7 +58,7 @@ def _interval_inputs(G, arg_shapes, n):
 def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Sequence[Any],
                       outputs: Sequence[int], rows: Sequence[int],
                       scales: Sequence[np.ndarray], n: int,
-                      compile_function: Any = None) -> dict:
+                      compile_function: Any = None, hessian: bool = True) -> dict:
     """``jac_g`` and ``hess_lag`` for ``opti.solver`` from per-interval blocks.
 
     The constraints of ``opti`` must be complete. Output ``outputs[j]`` of the mapped call
@@ -87,11 +87,15 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     compile_function : callable, optional
         ``compile_function(list of Function) -> list of Function`` (e.g. compiled C);
         default: the SX functions interpreted.
+    hessian : bool
+        Also the Hessian of the Lagrangian (else only ``jac_g``: Ipopt's Hessian stays
+        CasADi's).
 
     Returns
     -------
     dict
-        ``{"jac_g": Function, "hess_lag": Function}``: CasADi's ``nlpsol`` options.
+        ``{"jac_g": Function, "hess_lag": Function}`` (without ``hess_lag`` when
+        ``hessian`` is false): CasADi's ``nlpsol`` options.
 
     Examples
     --------
@@ -130,11 +134,12 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     y = ca.vertcat(*[ca.vec(gout[j]) for j in outputs])
     mu = ca.SX.sym("mu", y.shape[0])
     Jz = ca.jacobian(y, z)
-    Hz = ca.triu(ca.hessian(ca.dot(mu, y), z)[0])
+    Hz = ca.triu(ca.hessian(ca.dot(mu, y), z)[0]) if hessian else ca.SX(z.shape[0], z.shape[0])
     jac_f = ca.Function("interval_jac", [z], [ca.vertcat(*Jz.nonzeros())])
     hess_f = ca.Function("interval_hess", [z, mu], [ca.vertcat(*Hz.nonzeros())])
     if compile_function is not None:
-        jac_f, hess_f = compile_function([jac_f, hess_f])
+        jac_f, hess_f = compile_function([jac_f, hess_f] if hessian else [jac_f]) + \
+            ([] if hessian else [hess_f])
     jrow, jcol = Jz.sparsity().get_triplet()
     hrow, hcol = Hz.sparsity().get_triplet()
     jrow, jcol, hrow, hcol = (np.asarray(a, dtype=int) for a in (jrow, jcol, hrow, hcol))
@@ -223,14 +228,18 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     g_all, g_rest, f = g_all / gs, g_rest / gs, f / fs
     Z = _stacked_inputs(G, margs, n)
     jac_rest = ca.jacobian(g_rest, xt)
-    hess_rest = ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g * keep, g_rest), xt)[0])
+    hess_rest = ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g * keep, g_rest), xt)[0]) \
+        if hessian else None
     jblocks = jac_f.map(n)(Z)
     jac_dyn = ca.MX(jac_dyn_sp, ca.mtimes(jac_map, ca.vec(jblocks)))
-    muk = ca.reshape(lam_g[mu_rows] * mu_scale, ny, n)
-    hblocks = hess_f.map(n)(Z, muk)
-    hess_dyn = ca.MX(hess_dyn_sp, ca.mtimes(hess_map, ca.vec(hblocks)))
+    if hessian:
+        muk = ca.reshape(lam_g[mu_rows] * mu_scale, ny, n)
+        hblocks = hess_f.map(n)(Z, muk)
+        hess_dyn = ca.MX(hess_dyn_sp, ca.mtimes(hess_map, ca.vec(hblocks)))
     jac_g = ca.Function("nlp_jac_g", [xt, p], [g_all, jac_rest + jac_dyn],
                         ["x", "p"], ["g", "jac_g_x"])
+    if not hessian:
+        return {"jac_g": jac_g}
     hess_lag = ca.Function("nlp_hess_l", [xt, p, lam_f, lam_g], [hess_rest + hess_dyn],
                            ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
     return {"jac_g": jac_g, "hess_lag": hess_lag}

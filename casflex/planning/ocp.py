@@ -67,8 +67,9 @@ TRANSCRIPTIONS = ("collocation", "shooting")
 DYNAMICS = ("implicit", "explicit")
 
 #: how :func:`plan_move` builds the NLP's derivatives: CasADi's sweeps through the whole
-#: problem, or per-interval blocks (:func:`casflex.planning.block_derivatives`)
-DERIVATIVES = ("casadi", "blocks")
+#: problem, per-interval blocks (:func:`casflex.planning.block_derivatives`), or the
+#: constraint Jacobian from blocks and the Hessian CasADi's
+DERIVATIVES = ("casadi", "blocks", "blocks-jacobian")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -497,12 +498,15 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
         :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
         holds the objective and the constraint violation of every iterate.
-    derivatives : {"casadi", "blocks"}
+    derivatives : {"casadi", "blocks", "blocks-jacobian"}
         How the NLP's constraint Jacobian and Hessian of the Lagrangian are built:
         CasADi's sweeps through the whole problem, or (implicit collocation only) the
         interval function's own Jacobian and Hessian evaluated per interval and
-        scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`).
-        The same derivatives to round-off; only their cost differs.
+        scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`),
+        or the Jacobian so and the Hessian CasADi's. The same derivatives to
+        round-off; only their cost differs (move 1 of the design study, interpreted:
+        Jacobian 0.48 s against 0.77 s, Hessian 1.40 s against 0.95 s per call;
+        ``benchmarks/README_planning.md``).
     compile_function : callable, optional
         With ``derivatives="blocks"``: ``compile_function(functions) -> functions``, the
         interval's Jacobian and Hessian functions replaced by compiled ones (e.g. C
@@ -568,10 +572,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     dynamics = choice(dynamics, "dynamics", DYNAMICS)
     implicit = transcription == "collocation" and dynamics == "implicit"
     derivatives = choice(derivatives, "derivatives", DERIVATIVES)
-    if derivatives == "blocks" and not implicit:
+    blocks = derivatives != "casadi"
+    if blocks and not implicit:
         raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
                    "dynamics 'implicit'")
-    blocks = derivatives == "blocks"
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
@@ -801,7 +805,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if blocks:
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
                                         [0, 1], block_rows, [defect_scale, torque_scale], N,
-                                        compile_function=compile_function))
+                                        compile_function=compile_function,
+                                        hessian=derivatives == "blocks"))
     opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:

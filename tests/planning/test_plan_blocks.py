@@ -53,6 +53,8 @@ def test_block_derivatives_equal_casadi_s_own(fixed_duration):
     # variables (x = s x~ + o), at a random point with random multipliers
     opti, G, args, mapped, rows, scales, N = _toy_problem(fixed_duration)
     d = block_derivatives(opti, G, args, mapped, [0, 1], rows, scales, N)
+    assert sorted(block_derivatives(opti, G, args, mapped, [0, 1], rows, scales, N,
+                                    hessian=False)) == ["jac_g"]
     adv = opti.advanced
     s = np.asarray(adv.x_linear_scale).ravel()
     o = np.asarray(adv.x_linear_scale_offset).ravel()
@@ -97,13 +99,13 @@ def test_plans_with_block_derivatives_equal_casadi_s(onelink, kw):
     move = Move([0.0], [1.0], 2.0, settle=1.0)
     common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, **kw}
     a = plan_move(onelink, move, derivatives="casadi", **common)
-    b = plan_move(onelink, move, derivatives="blocks", **common)
-    assert a.stats["success"] and b.stats["success"]
-    assert b.stats["derivatives"] == "blocks"
-    assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
-    assert b.duration == pytest.approx(a.duration, rel=1e-9)
-    # torques: measured up to 3.5e-7 of the limit apart (the ≤ 2 mm robust case)
-    np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
+    for derivatives in ("blocks", "blocks-jacobian"):
+        b = plan_move(onelink, move, derivatives=derivatives, **common)
+        assert b.stats["derivatives"] == derivatives
+        assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
+        assert b.duration == pytest.approx(a.duration, rel=1e-9)
+        # torques: measured up to 3.5e-7 of the limit apart (the ≤ 2 mm robust case)
+        np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
 
 
 def test_block_derivatives_need_implicit_collocation(onelink):
