@@ -25,14 +25,16 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
 ``ocp_fit``, ``ocp_modes``, ``trace`` (T and the constraint violation at every Ipopt
-iterate of the cold solve).
+iterate of the cold solve), ``derivatives``, ``compiled`` (seconds of each
+``compile_cached`` call and whether it built), ``timings`` / ``timings_warm`` (CasADi's
+CPU seconds and calls per NLP function: ``t_proc_nlp_jac_g``, ``t_proc_nlp_hess_l``...).
 
 Usage::
 
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
         [--transcription collocation|shooting] [--dynamics implicit|explicit]
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
-        [--ocp-modes N] [--no-progress-stop]
+        [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks] [--compile]
 """
 
 from __future__ import annotations
@@ -85,6 +87,13 @@ def main(argv: list[str] | None = None) -> dict:
                         help="modes of the OCP's model (verified on the study's 3)")
     parser.add_argument("--no-progress-stop", action="store_true",
                         help="only Ipopt's own stopping tests (no ProgressStop)")
+    parser.add_argument("--derivatives", choices=("casadi", "blocks", "blocks-jacobian"),
+                        default="casadi",
+                        help="the NLP's derivatives: CasADi's sweeps (default) or "
+                             "per-interval blocks (casflex.planning.block_derivatives)")
+    parser.add_argument("--compile", action="store_true",
+                        help="with --derivatives blocks: the interval blocks in C "
+                             "(casflex.codegen.compile_cached; built once, cached)")
     args = parser.parse_args(argv)
 
     from casflex.design.study import load_study
@@ -101,7 +110,19 @@ def main(argv: list[str] | None = None) -> dict:
         options["hessian_approximation"] = "limited-memory"
     kw = {"intervals": args.intervals, "ipopt_options": options,
           "transcription": args.transcription, "max_iter": args.max_iter,
-          "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop}
+          "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop,
+          "derivatives": args.derivatives}
+    compiled = {}
+    if args.compile:
+        from casflex.codegen import compile_cached
+
+        def compile_blocks(functions):
+            lib, info = compile_cached(functions, "plan_blocks")
+            compiled.setdefault("compile_s", []).append(info["seconds"])
+            compiled.setdefault("built", []).append(info["built"])
+            return [lib[f.name()] for f in functions]
+
+        kw["compile_function"] = compile_blocks
     usage = resource.getrusage(resource.RUSAGE_SELF)
     # what `casflex plan` runs: the model (study's options), the SI-shaped move, its
     # limits (held joints: no torque limit), the plan, the 1 ms verification
@@ -138,6 +159,9 @@ def main(argv: list[str] | None = None) -> dict:
            "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0],
            "dt": args.dt, "progress_stop": not args.no_progress_stop,
            "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3,
+           "derivatives": args.derivatives, "compiled": compiled or None,
+           "timings": plan.stats.get("timings"),
+           "timings_warm": warm.stats.get("timings"),
            "trace": [[round(f, 5), float(f"{v:.1e}")]
                      for f, v in plan.stats.get("objective_trace", [])]}
     if args.json:

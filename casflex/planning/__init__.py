@@ -11,8 +11,6 @@ Planning (:mod:`casflex.planning.ocp`)
 --------------------------------------
 plan_move
     The optimal control problem: objectives, limits, end conditions, robust scenarios.
-plan_limits
-    Peak torques and velocities of a reference with the joints on it (the default limits).
 predicted_residual
     The residual tip deflection of the free vibration from an end state.
 OBJECTIVES
@@ -24,6 +22,18 @@ DYNAMICS
 WARM_START_OPTIONS
     Ipopt options of a warm start of :func:`plan_move` from a neighbouring plan's
     iterate and multipliers.
+LIMIT_STATUSES
+    Ipopt's statuses of a solve ended by an iteration or time limit, whose feasible last
+    iterate :func:`plan_move` returns.
+
+DERIVATIVES
+    How :func:`plan_move` builds the NLP's derivatives (CasADi's, or per-interval blocks).
+
+Derivatives from per-interval blocks (:mod:`casflex.planning.assembly`)
+-----------------------------------------------------------------------
+block_derivatives
+    The NLP's constraint Jacobian and Hessian of the Lagrangian assembled from the
+    interval function's own derivatives (Ipopt's ``jac_g`` and ``hess_lag``).
 
 Stopping (:mod:`casflex.planning.stopping`)
 --------------------------------------------
@@ -42,6 +52,8 @@ Limits (:mod:`casflex.planning.limits`)
 ---------------------------------------
 shaped_move_limits
     The torque and velocity limits of a plan from the shaped version of its move.
+plan_limits
+    Peak torques and velocities of a reference with the joints on it (the default limits).
 
 Verification (:mod:`casflex.planning.verify`)
 ---------------------------------------------
@@ -82,13 +94,15 @@ Examples
 
 from __future__ import annotations
 
-from casflex.planning.limits import shaped_move_limits
+from casflex.planning.assembly import block_derivatives
+from casflex.planning.limits import plan_limits, shaped_move_limits
 from casflex.planning.ocp import (
+    DERIVATIVES,
     DYNAMICS,
+    LIMIT_STATUSES,
     OBJECTIVES,
     TRANSCRIPTIONS,
     WARM_START_OPTIONS,
-    plan_limits,
     plan_move,
     predicted_residual,
 )
@@ -111,6 +125,10 @@ __all__ = [
     "TRANSCRIPTIONS",
     "DYNAMICS",
     "WARM_START_OPTIONS",
+    "LIMIT_STATUSES",
+    "DERIVATIVES",
+    # derivatives from blocks
+    "block_derivatives",
     # stopping
     "ProgressStop",
     "PROGRESS_STATUS",

@@ -7,17 +7,15 @@ share: the peak torques and velocities of the shaped move with the joints on it
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from casflex.planning.ocp import plan_limits
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["shaped_move_limits"]
+__all__ = ["shaped_move_limits", "plan_limits"]
 
 
 def shaped_move_limits(model: FlexibleModel, move: Move, shaped: ShapedMove, *,
@@ -68,3 +66,43 @@ def shaped_move_limits(model: FlexibleModel, move: Move, shaped: ShapedMove, *,
     v_lim = np.where(held, 1e-3 * max(moving_v, 1e-9),
                      np.maximum(v_lim, 1e-6 * max(float(v_lim.max()), 1e-12)))
     return tau_lim, v_lim
+
+
+def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Peak joint torques and velocities of a reference with the joints on it.
+
+    The comparison of a planned and a shaped move is fair when the planner gets the
+    shaped move's peaks as its limits (:func:`casflex.simulate.simulate_prescribed`
+    gives the torques that produce the shaped motion).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    reference : casflex.moves.Move or ShapedMove or PlannedMove
+    dt : float
+        Simulation step [s].
+
+    Returns
+    -------
+    torque_peak : numpy.ndarray, shape (n,)
+        [N m]
+    velocity_peak : numpy.ndarray, shape (n,)
+        [rad/s]
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import Move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> tau, v = plan_limits(model, Move([0.0], [1.0], 2.0, settle=0.0))
+    >>> tau.shape, round(float(v[0]), 6)
+    ((1,), 1.0)
+    """
+    from casflex.simulate import simulate_prescribed
+
+    run = simulate_prescribed(model, reference, dt=dt, t_end=float(reference.duration))
+    return run.torque_peak, np.max(np.abs(run.dq), axis=0)
+

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import casadi as ca
@@ -47,13 +48,14 @@ from casflex._validate import choice, fail, number, vector
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
+from casflex.planning.assembly import block_derivatives
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
-__all__ = ["plan_move", "plan_limits", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
-           "DYNAMICS", "WARM_START_OPTIONS"]
+__all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
+           "DYNAMICS", "DERIVATIVES", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
 
 #: the objectives of :func:`plan_move`
 OBJECTIVES = ("time", "energy", "weighted")
@@ -63,6 +65,11 @@ TRANSCRIPTIONS = ("collocation", "shooting")
 
 #: the forms of the dynamics in the collocation of :func:`plan_move`
 DYNAMICS = ("implicit", "explicit")
+
+#: how :func:`plan_move` builds the NLP's derivatives: CasADi's sweeps through the whole
+#: problem, per-interval blocks (:func:`casflex.planning.block_derivatives`), or the
+#: constraint Jacobian from blocks and the Hessian CasADi's
+DERIVATIVES = ("casadi", "blocks", "blocks-jacobian")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -84,6 +91,13 @@ WARM_START_OPTIONS = {"warm_start_init_point": "yes", "warm_start_bound_push": 1
 #: a solve that has converged, creeping in T, passes 15 in a row at the cost of ~12 more
 #: iterations (on the one-link arm those reach the 1e-8 optimality instead)
 _ACCEPTABLE_ITER = 15
+#: largest constraint violation of a last iterate returned at an iteration or time limit
+#: (Ipopt's ``acceptable_constr_viol_tol`` of the planner, ProgressStop's feasibility)
+_FEASIBLE = 1e-6
+#: Ipopt's statuses of a solve ended by a limit, not by a failure: its last iterate is
+#: returned when it is feasible (``stats["success"]`` False, the status kept)
+LIMIT_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
+                  "Maximum_WallTime_Exceeded")
 
 
 def _limit(value, n, field, unit):
@@ -404,7 +418,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               max_duration: float | None = None, max_iter: int = 500,
               ipopt_options: dict | None = None, settle: float | None = None,
               name: str | None = None,
-              progress_stop: ProgressStop | bool = True) -> PlannedMove:
+              progress_stop: ProgressStop | bool = True,
+              derivatives: str = "casadi",
+              compile_function: Callable[[list], list] | None = None) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -482,6 +498,20 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
         :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
         holds the objective and the constraint violation of every iterate.
+    derivatives : {"casadi", "blocks", "blocks-jacobian"}
+        How the NLP's constraint Jacobian and Hessian of the Lagrangian are built:
+        CasADi's sweeps through the whole problem, or (implicit collocation only) the
+        interval function's own Jacobian and Hessian evaluated per interval and
+        scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`),
+        or the Jacobian so and the Hessian CasADi's. The same derivatives to
+        round-off; only their cost differs (move 1 of the design study, interpreted:
+        Jacobian 0.48 s against 0.77 s, Hessian 1.40 s against 0.95 s per call;
+        ``benchmarks/README_planning.md``).
+    compile_function : callable, optional
+        With ``derivatives="blocks"``: ``compile_function(functions) -> functions``, the
+        interval's Jacobian and Hessian functions replaced by compiled ones (e.g. C
+        through :func:`casflex.codegen.compile_cached`, which the planning package may
+        not import: the caller passes it). Default: interpreted.
 
     Returns
     -------
@@ -494,7 +524,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     casflex.errors.SolverError
         No feasible plan: the torque limit cannot hold the arm against gravity at the start
         or the goal, or Ipopt failed; the message names the limits active at its last
-        iterate.
+        iterate. A solve that ends at an iteration or time limit
+        (:data:`LIMIT_STATUSES`) with its last iterate feasible (constraints to 1e-6) is
+        not a failure: that iterate is returned with its status
+        (``stats["converged"]`` False) for the simulations to judge.
 
     Examples
     --------
@@ -538,6 +571,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     degree = number(degree, "degree", low=1, high=5, integer=True)
     dynamics = choice(dynamics, "dynamics", DYNAMICS)
     implicit = transcription == "collocation" and dynamics == "implicit"
+    derivatives = choice(derivatives, "derivatives", DERIVATIVES)
+    blocks = derivatives != "casadi"
+    if blocks and not implicit:
+        raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
+                   "dynamics 'implicit'")
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
@@ -657,13 +695,24 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1)
             opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
             opti.set_initial(Ac, Ac_guess.T)
-            defects, torque_defects, Xf = G.map(N)(X[:, :N], Xc, Ac, U, T / N)
-            opti.subject_to(ca.vec(torque_defects / np.repeat(su[:, None], N * degree,
-                                                               axis=1)) == 0)
+            block_args = [X[:, :N], Xc, Ac, U, T / N]
+            defects, torque_defects, Xf = G.map(N)(*block_args)
+            if blocks:
+                # the interval's end state is linear in its states: outside G, so that
+                # only the defects need G's derivatives
+                _, D = _collocation_matrices(degree)
+                Xf = D[0] * X[:, :N] + sum(D[j + 1] * Xc[:, j::degree]
+                                           for j in range(degree))
+            torque_scale = np.repeat(su[:, None], N * degree, axis=1)
+            block_rows = [opti.ng]
+            opti.subject_to(ca.vec(torque_defects / torque_scale) == 0)
         else:
             G, _ = _collocation_function(ode, nxa, n, degree)
             defects, Xf = G.map(N)(X[:, :N], Xc, U, T / N)
-        opti.subject_to(ca.vec(defects / np.repeat(sx[:, None], N * degree, axis=1)) == 0)
+        defect_scale = np.repeat(sx[:, None], N * degree, axis=1)
+        if implicit:
+            block_rows.insert(0, opti.ng)
+        opti.subject_to(ca.vec(defects / defect_scale) == 0)
         opti.set_initial(Xc, augmented(Xc_guess))
     else:
         F = _interval_function(ode, nxa, n, substeps)
@@ -750,17 +799,29 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
         callback = rule.callback(*bounds, opti.nx)
-        opti.solver("ipopt", {"print_time": False, "iteration_callback": callback}, options)
+        plugin = {"print_time": False, "iteration_callback": callback}
     else:
-        opti.solver("ipopt", {"print_time": False}, options)
+        plugin = {"print_time": False}
+    if blocks:
+        plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
+                                        [0, 1], block_rows, [defect_scale, torque_scale], N,
+                                        compile_function=compile_function,
+                                        hessian=derivatives == "blocks"))
+    opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
         sol = opti.solve()
         ok = True
         values = sol.value
     except RuntimeError:
-        ok = rule is not None and rule.stopped
         values = opti.debug.value
+        status = str(opti.stats().get("return_status", "unknown"))
+        # stopped by the rule, or by an iteration / time limit at a feasible iterate: the
+        # plan is returned with its status and the simulations judge it (move 1 of the
+        # design study ended max_iter at T = 2.407 s, feasible, 25 % below the shaped
+        # move); an infeasible last iterate is no plan
+        ok = (rule is not None and rule.stopped) or (
+            status in LIMIT_STATUSES and _violation(opti, values) <= _FEASIBLE)
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
@@ -770,9 +831,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     Tv = float(values(T)) if duration is None else float(T)
     Xv = np.asarray(values(X), dtype=float).reshape(nxa, N + 1)
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
+    info_violation = _violation(opti, values)
     if not ok:
         raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
-                                    n, m, N, duration))
+                                    n, m, N, duration) + f" (largest constraint violation "
+                          f"of the last iterate {info_violation:.1e})")
     # the dense trajectory: the substeps of every interval
     # the dense trajectory: ``substeps`` samples per interval, from the interval's own
     # discretisation (the RK4 substeps, or the collocation polynomial)
@@ -792,6 +855,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                       max(settle, 1.0)) if m else 0.0
     info = {
         "status": status, "success": bool(stats.get("success", False) or ok),
+        "converged": bool(stats.get("success", False)),
         "iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
         "solve_cpu_s": solve_cpu_s,
         "objective": objective, "objective_value": float(values(opti.f)),
@@ -799,9 +863,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
+        "derivatives": derivatives,
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
+    # CPU seconds and calls of every function Ipopt evaluated (t_proc_nlp_jac_g...)
+    info["timings"] = {k: float(v) for k, v in stats.items()
+                       if k.startswith(("t_proc_", "n_call_")) and np.isscalar(v)}
+    info["constraint_violation"] = info_violation
     if rule is not None:  # (objective, constraint violation) of every Ipopt iterate
         info["objective_trace"] = [list(pair) for pair in rule.trace]
     if residual_cons:
@@ -815,6 +884,17 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         settle=settle, name=name, propagator=propagate, solution=solution,
         description=f"{objective}-optimal plan, {N} intervals ({transcription}), end {end!r}"
                     + (f", robust ±{robust:g}" if errors else ""))
+
+
+def _violation(opti, values):
+    """Largest constraint violation of an iterate, as the constraints are posed (the
+    planner's rows scaled by their magnitudes, as Ipopt and :class:`ProgressStop` see
+    them)."""
+    g = np.asarray(values(opti.g), dtype=float).ravel()
+    lbg = np.asarray(values(opti.lbg), dtype=float).ravel()
+    ubg = np.asarray(values(opti.ubg), dtype=float).ravel()
+    excess = np.r_[lbg - g, g - ubg, 0.0]
+    return float(np.max(excess[np.isfinite(excess)]))
 
 
 def _warm_duals(opti, guess):
@@ -919,42 +999,3 @@ def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
     why = (" - the limits are too low to reach the goal"
            + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
     return f"plan_move: Ipopt found no plan ({status}){where}{why}"
-
-
-def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Peak joint torques and velocities of a reference with the joints on it.
-
-    The comparison of a planned and a shaped move is fair when the planner gets the
-    shaped move's peaks as its limits (:func:`casflex.simulate.simulate_prescribed`
-    gives the torques that produce the shaped motion).
-
-    Parameters
-    ----------
-    model : casflex.model.FlexibleModel
-    reference : casflex.moves.Move or ShapedMove or PlannedMove
-    dt : float
-        Simulation step [s].
-
-    Returns
-    -------
-    torque_peak : numpy.ndarray, shape (n,)
-        [N m]
-    velocity_peak : numpy.ndarray, shape (n,)
-        [rad/s]
-
-    Examples
-    --------
-    >>> from casflex.model import PointwiseProvider
-    >>> from casflex.robot import load
-    >>> robot = load("problems/onelink.toml")
-    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
-    >>> tau, v = plan_limits(model, Move([0.0], [1.0], 2.0, settle=0.0))
-    >>> tau.shape, round(float(v[0]), 6)
-    ((1,), 1.0)
-    """
-    from casflex.simulate import simulate_prescribed
-
-    run = simulate_prescribed(model, reference, dt=dt, t_end=float(reference.duration))
-    return run.torque_peak, np.max(np.abs(run.dq), axis=0)
-

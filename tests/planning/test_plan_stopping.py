@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from casflex.errors import ModelError
+from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move, ShapedMove
 from casflex.planning import (
@@ -113,6 +113,30 @@ def test_progress_stop_leaves_a_converging_solve_alone(onelink):
     np.testing.assert_array_equal(on.node_tau, off.node_tau)
     with pytest.raises(ModelError, match="progress_stop"):
         plan_move(model, move, guess=shaped, end="rest", progress_stop="yes", **kw)
+
+
+def test_a_feasible_last_iterate_at_max_iter_is_returned(onelink):
+    # Ipopt's own tests and the rule switched off: the solve can only end at max_iter.
+    # Reference: the same problem converged (tol 1e-8) from the rigid bang-bang guess.
+    model, move, shaped, kw = onelink
+    end = 2e-3
+    reference = plan_move(model, move, guess="rigid", end=end, progress_stop=False, **kw)
+    strict = {"tol": 1e-14, "acceptable_iter": 1000}
+    plan = plan_move(model, move, guess=shaped, end=end, ipopt_options=strict, max_iter=20,
+                     progress_stop=False, **kw)
+    # returned with Ipopt's status, not raised; feasible to the planner's 1e-6
+    assert plan.stats["status"] == "Maximum_Iterations_Exceeded"
+    assert plan.stats["success"] and not plan.stats["converged"]
+    assert plan.stats["iterations"] == 20
+    assert plan.stats["constraint_violation"] <= 1e-6
+    # the one-link solve has converged by iterate ~16 (measured 1e-8 relative here):
+    # the returned iterate is the minimum, to the solver's tolerance
+    assert plan.duration == pytest.approx(reference.duration, rel=1e-6)
+    # an infeasible last iterate (3 iterates from the shaped start) is no plan: the
+    # error names the status and the violation
+    with pytest.raises(SolverError, match="Maximum_Iterations_Exceeded.*violation"):
+        plan_move(model, move, guess=shaped, end=end, ipopt_options=strict, max_iter=3,
+                  progress_stop=False, **kw)
 
 
 def test_plan_robot_move_checks_the_ocp_model_options_before_building():

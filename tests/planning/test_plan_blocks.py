@@ -1,0 +1,116 @@
+"""The NLP's derivatives assembled from per-interval blocks (casflex.planning.assembly)
+against CasADi's own derivatives of the whole problem, and plans made with them against
+plans made with CasADi's."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from casflex.errors import ModelError
+from casflex.model import FlexibleModel, PointwiseProvider
+from casflex.moves import Move
+from casflex.planning import block_derivatives, plan_move
+from casflex.robot import load
+
+
+def _toy_problem(fixed_duration=False):
+    """An Opti problem of the planner's shape: a nonlinear interval function mapped over
+    5 intervals, its inputs node columns, interval columns and T / N, its rows scaled,
+    the variables linearly scaled (with an offset), other nonlinear constraints and
+    objective terms beside it."""
+    x, xc, u, h = ca.SX.sym("x", 2), ca.SX.sym("xc", 2, 2), ca.SX.sym("u"), ca.SX.sym("h")
+    G = ca.Function("G", [x, xc, u, h],
+                    [h * ca.sin(xc[0, :]) * x[1] - xc[1, :] ** 2 + u * x[0],
+                     ca.vertcat(h ** 2 * u * xc[0, 0], ca.exp(0.1 * xc[1, 1]) * x[0]),
+                     x + h])  # the last output is not a constraint row
+    N = 5
+    opti = ca.Opti()
+    X, Xc, U = opti.variable(2, N + 1), opti.variable(2, 2 * N), opti.variable(1, N)
+    T = 2.0 if fixed_duration else opti.variable()
+    opti.set_linear_scale(X, 3.0, 0.5)
+    opti.set_linear_scale(Xc, np.linspace(0.5, 2.0, 4 * N).reshape(2, 2 * N))
+    if not fixed_duration:
+        opti.set_linear_scale(T, 2.0)
+        opti.subject_to(opti.bounded(0.1, T, 10.0))
+    args = [X[:, :N], Xc, U, T / N]
+    a, b, c = G.map(N)(*args)
+    opti.subject_to(X[:, 0] == 0)
+    sa, sb = np.linspace(1.0, 2.0, 2 * N).reshape(1, 2 * N), np.full((2, N), 0.25)
+    rows = [opti.ng]
+    opti.subject_to(ca.vec(a / sa) == 0)
+    opti.subject_to(X[0, 1:] ** 2 + X[1, 1:] * X[0, 1:] - c[0, :] <= 1)  # uses output 2
+    rows.append(opti.ng)
+    opti.subject_to(ca.vec(b / sb) == 0)
+    opti.minimize((T if not fixed_duration else 0) + ca.sumsqr(U) * T + ca.sumsqr(Xc) ** 2)
+    return opti, G, args, [a, b], rows, [sa, sb], N
+
+
+@pytest.mark.parametrize("fixed_duration", [False, True])
+def test_block_derivatives_equal_casadi_s_own(fixed_duration):
+    # the reference: CasADi's Jacobian and Hessian of the whole NLP in Opti's scaled
+    # variables (x = s x~ + o), at a random point with random multipliers
+    opti, G, args, mapped, rows, scales, N = _toy_problem(fixed_duration)
+    d = block_derivatives(opti, G, args, mapped, [0, 1], rows, scales, N)
+    assert sorted(block_derivatives(opti, G, args, mapped, [0, 1], rows, scales, N,
+                                    hessian=False)) == ["jac_g"]
+    adv = opti.advanced
+    s = np.asarray(adv.x_linear_scale).ravel()
+    o = np.asarray(adv.x_linear_scale_offset).ravel()
+    xt = ca.MX.sym("xt", opti.nx)
+    nlp = ca.Function("nlp", [opti.x], [opti.f, opti.g])
+    f, g = nlp(s * xt + o)
+    lam_f, lam_g = ca.MX.sym("lf"), ca.MX.sym("lg", opti.ng)
+    ref_jac = ca.Function("rj", [xt], [g, ca.jacobian(g, xt)])
+    ref_hess = ca.Function("rh", [xt, lam_f, lam_g],
+                           [ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g, g), xt)[0])])
+    rng = np.random.default_rng(15)
+    for _ in range(3):
+        xv, lf, lg = rng.normal(size=opti.nx), rng.normal(), rng.normal(size=opti.ng)
+        g_b, J_b = d["jac_g"](xv, [])
+        g_r, J_r = ref_jac(xv)
+        H_b = d["hess_lag"](xv, [], lf, lg)
+        H_r = ref_hess(xv, lf, lg)
+        # the same sums of the same products in another order: round-off of the entries
+        np.testing.assert_allclose(g_b.full(), g_r.full(), rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(J_b.full(), J_r.full(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(H_b.full(), H_r.full(), rtol=1e-12, atol=1e-12)
+        assert np.all(np.triu(H_b.full()) == H_b.full())  # Ipopt's upper triangle
+
+
+@pytest.fixture(scope="module")
+def onelink():
+    robot = load("problems/onelink.toml")
+    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+
+
+@pytest.mark.parametrize("kw", [
+    {"end": 2e-3},
+    {"end": "rest", "robust": 0.1},
+    {"objective": "energy", "duration": 2.5, "end": "rest"},
+])
+def test_plans_with_block_derivatives_equal_casadi_s(onelink, kw):
+    # the derivatives are the same to round-off (above), so both solves reach the same
+    # optimum to Ipopt's tolerance (1e-8). The iterations may differ: with the end at rest
+    # in three scenarios the KKT systems are degenerate, and another sparsity pattern
+    # (another pivot order in MUMPS) takes another path (robust case: 17 and 24
+    # iterations, durations equal to 1e-12 relative)
+    move = Move([0.0], [1.0], 2.0, settle=1.0)
+    common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, **kw}
+    a = plan_move(onelink, move, derivatives="casadi", **common)
+    for derivatives in ("blocks", "blocks-jacobian"):
+        b = plan_move(onelink, move, derivatives=derivatives, **common)
+        assert b.stats["derivatives"] == derivatives
+        assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
+        assert b.duration == pytest.approx(a.duration, rel=1e-9)
+        # torques: measured up to 3.5e-7 of the limit apart (the ≤ 2 mm robust case)
+        np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
+
+
+def test_block_derivatives_need_implicit_collocation(onelink):
+    with pytest.raises(ModelError, match="derivatives"):
+        plan_move(onelink, [0.0], [1.0], torque_limit=0.05, transcription="shooting",
+                  derivatives="blocks")
+    with pytest.raises(ModelError, match="derivatives"):
+        plan_move(onelink, [0.0], [1.0], torque_limit=0.05, derivatives="exact")
