@@ -106,6 +106,11 @@ def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
                  "--out", str(notes)])
     assert code == 2
     assert "--out" in capsys.readouterr().err
+    code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small",
+                 "--derivatives", "sparse"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--derivatives" in err and "sparse" in err and "blocks-jacobian" in err
 
 
 def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
