@@ -295,9 +295,12 @@ def main(argv: list[str] | None = None) -> dict:
             "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT}
     if args.onelink:
         run_onelink(args, out_path)
+        store(out_path, "meta", {**json.loads(out_path.read_text())["meta"],
+                                 "dt": args.dt, "robust": args.robust})
     for name in args.moves:
         run_move(name, args, study, out_path, set(args.robust_moves))
         data = json.loads(out_path.read_text())
+        data["meta"].update({"dt": args.dt, "robust": args.robust})
         data["meta"].setdefault("runs", {})[name] = {
             **meta, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "load": os.getloadavg()[0]}
