@@ -1,0 +1,316 @@
+"""Planned against SI-shaped moves 1-3 of the design study, nominal and at a frequency error.
+
+For every move of ``--moves`` (Table 9 moves of ``problems/moves.toml``) on the model of
+``problems/studies/arm2link_move1.toml`` (Table 8 arm with the testbed's actuators, 3
+modes, 3° grid, ``delta_order`` 0, no gravity):
+
+1. the SI-shaped move (±20 %, Vtol 5 %, as the design study shapes it) and the nominal
+   minimum-time plan at its peak torques and velocities, with its residual tip
+   deflection as the end bound (:func:`casflex.planning.plan_robot_move`, what ``casflex
+   plan`` runs; cold, from the shaped move);
+2. for the moves of ``--robust-moves``: the robust plan (``robust = r``: the end bound
+   must hold on the models whose frequencies are off by ±r too; the bound is the largest
+   residual of the shaped move over −r, 0, +r, as ``casflex plan --robust`` takes it),
+   warm-started node by node from the nominal plan;
+3. each of them evaluated at the frequency errors −r, 0, +r
+   (:func:`casflex.planning.frequency_shifted_model`) by the verification simulators at
+   ``--dt`` (0.1 ms): the joints on the move (prescribed motion) and the move's torques
+   open loop (torque-driven; for the shaped move, the torques of its nominal
+   prescribed-motion run). Residual = largest ‖tip deflection‖ after the move ends.
+
+Every finished step is written at once to ``--out`` (a JSON file, merged with what it
+holds: a run that is stopped keeps the moves it finished). The file's SHA-256 is printed
+at the end; ``notebooks/07_planning.py`` and ``tests/planning/test_plan_moves_data.py``
+read the stored ``benchmarks/data/planning_moves.json`` and check that hash.
+
+``--onelink`` adds the one-link arm's cases of the notebook (cheap, seconds): the robust
+and nominal plans of a 1 rad swing at ±10 % and the duration-vs-residual-tolerance
+curve.
+
+Usage::
+
+    nice -n 10 python benchmarks/bench_planning_moves.py [--moves move1 move2 move3]
+        [--robust-moves move1] [--robust 0.1] [--dt 1e-4] [--onelink]
+        [--out benchmarks/data/planning_moves.json] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = ROOT / "benchmarks" / "data" / "planning_moves.json"
+#: sampling of the stored curves (joint motion, tip deflection) [s]
+CURVE_DT = 5e-3
+
+
+def log(message: str) -> None:
+    """One line on stderr with the wall clock, the process's CPU seconds and the load.
+
+    Parameters
+    ----------
+    message : str
+        What happened.
+    """
+    print(f"[{time.strftime('%H:%M:%S')} cpu {time.process_time():7.1f} s load "
+          f"{os.getloadavg()[0]:4.1f}] {message}", file=sys.stderr, flush=True)
+
+
+def _sig(x, digits=7):
+    """Round to ``digits`` significant digits (JSON size; far below every tolerance)."""
+    return [float(f"{v:.{digits}g}") for v in np.asarray(x, dtype=float).ravel()]
+
+
+def residual_after(t, deflection, t_from):
+    """Largest ‖tip deflection‖ at and after ``t_from`` [m]."""
+    sel = t >= t_from - 1e-12
+    return float(np.max(np.linalg.norm(deflection[sel], axis=1)))
+
+
+def shaped_torque_law(model, run, duration):
+    """The shaped move's torques of its nominal prescribed-motion run, open loop: read at
+    the middle of each step (second order in the step), the holding torque after the
+    move (zero without gravity)."""
+    from casflex.planning import static_deflection
+
+    qf = run.q[-1]
+    hold = model.functions()["potential_forces"](
+        qf, static_deflection(model, qf)).full().ravel()[:model.n]
+    t, tau = run.t, run.tau
+    dt = float(t[1] - t[0])
+
+    def law(s, x):
+        if s >= duration - 1e-9:
+            return hold
+        return np.array([np.interp(s + 0.5 * dt, t, tau[:, j]) for j in range(model.n)])
+
+    return law
+
+
+def evaluate(model, reference, torque_law, errors, dt):
+    """Residuals of ``reference`` at each frequency error: joints on it, torques open loop.
+
+    Returns the record of one move: ``errors``, ``prescribed`` and ``torque`` residuals
+    [m] per error, the joint end error of the torque runs [rad], the nominal run's
+    torque and velocity peaks, and its curves every ``CURVE_DT``."""
+    from casflex.planning import frequency_shifted_model, static_deflection
+    from casflex.simulate import simulate_prescribed, simulate_torque
+
+    T, t_end = float(reference.duration), float(reference.t_end)
+    out = {"errors": [float(r) for r in errors], "prescribed": [], "torque": [],
+           "torque_end_error": []}
+    nominal = None
+    for r in errors:
+        mod = frequency_shifted_model(model, float(r))
+        d0 = static_deflection(mod, reference.q0)
+        pres = simulate_prescribed(mod, reference, dt=dt, t_end=t_end)
+        out["prescribed"].append(residual_after(pres.t, pres.tip_deflection, T))
+        x0 = np.r_[reference.q0, d0, np.zeros(mod.n + mod.m)]
+        tr = simulate_torque(mod, torque_law, x0, t_end=t_end, dt=dt)
+        out["torque"].append(residual_after(tr.t, tr.tip_deflection, T))
+        k = min(int(np.searchsorted(tr.t, T - 1e-12)), tr.t.size - 1)
+        out["torque_end_error"].append(float(np.linalg.norm(tr.q[k] - reference.qf)))
+        log(f"  error {r:+.2f}: residual prescribed {1e3 * out['prescribed'][-1]:.4f} mm, "
+            f"torque-driven {1e3 * out['torque'][-1]:.4f} mm")
+        if r == 0.0:
+            nominal = pres
+    if nominal is None:
+        nominal = simulate_prescribed(model, reference, dt=dt, t_end=t_end)
+    out["torque_peak"] = nominal.torque_peak.tolist()
+    out["velocity_peak"] = np.max(np.abs(nominal.dq), axis=0).tolist()
+    stride = max(1, int(round(CURVE_DT / dt)))
+    out["curves"] = {"t": _sig(nominal.t[::stride], 6),
+                     "q": [_sig(c, 6) for c in nominal.q[::stride].T],
+                     "tip_deflection": _sig(np.linalg.norm(
+                         nominal.tip_deflection[::stride], axis=1), 5)}
+    return out, nominal
+
+
+def plan_record(plan, limits, evaluation, model):
+    """The stored record of a plan: its statistics, limits, limit excess and evaluation."""
+    from casflex.planning import limit_excess
+
+    st = plan.stats
+    rec = {"duration": plan.duration, "status": st.get("status"),
+           "iterations": st.get("iterations"), "solve_s": st.get("solve_s"),
+           "solve_cpu_s": st.get("solve_cpu_s"), "intervals": st.get("intervals"),
+           "end_bound": st.get("end"), "scenarios": st.get("scenarios"),
+           "ocp_residual": st.get("ocp_residual"),
+           "residual_bound": st.get("residual_bound"),
+           "warm_start": st.get("warm_start"),
+           "limits": {k: [float(v) for v in val] for k, val in limits.items()}}
+    rec.update(evaluation)
+    rec["limit_excess"] = {k: limit_excess(evaluation[f"{k}_peak"], limits[k])
+                           for k in ("torque", "velocity")}
+    return rec
+
+
+def store(path: Path, key: str, value) -> None:
+    """Merge ``{key: value}`` into the JSON file at ``path`` (atomically)."""
+    from casflex._cache import atomic_write_text
+
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data[key] = value
+    data.setdefault("meta", {})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+def run_move(name, args, study, out_path, robust_moves):
+    """Shaped, nominal plan and (for ``robust_moves``) robust plan of one move."""
+    from casflex.moves import load_move
+    from casflex.planning import ProgressStop, plan_move, plan_robot_move
+
+    move = load_move(f"problems/moves.toml:{name}")
+    r = args.robust
+    errors = [-r, 0.0, r]
+    log(f"{name}: nominal plan (cold, from the SI-shaped move)")
+    c0 = time.process_time()
+    c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
+                        delta_order=study.model["delta_order"], processes=1, dt=args.dt,
+                        vtol=study.shaper["vtol"], margin=study.shaper["margin"],
+                        max_iter=args.max_iter, log=log)
+    log(f"{name}: planned {c.plan.duration:.4f} s ({c.plan.stats['status']}, "
+        f"{c.plan.stats['iterations']} iterations, {c.plan.stats['solve_cpu_s']:.0f} s CPU);"
+        f" shaped {c.shaped.duration:.4f} s; run CPU {time.process_time() - c0:.0f} s")
+    model, shaped = c.model, c.shaped
+    limits = {k: np.asarray(v, dtype=float) for k, v in c.limits.items()}
+    log(f"{name}: evaluating the shaped move at {errors}")
+    shaped_run = c.shaped_verification["run"]
+    shaped_eval, _ = evaluate(model, shaped, shaped_torque_law(model, shaped_run,
+                                                               shaped.duration), errors,
+                              args.dt)
+    record = {"move": name, "description": move.description,
+              "q0": move.q0.tolist(), "qf": move.qf.tolist(),
+              "shaped": {"duration": float(shaped.duration),
+                         "shaper": {"times": _sig(shaped.shaper.times, 10),
+                                    "amplitudes": _sig(shaped.shaper.amplitudes, 10)},
+                         **shaped_eval}}
+    log(f"{name}: evaluating the nominal plan at {errors}")
+    ev, _ = evaluate(model, c.plan, c.plan.torque_law(), errors, args.dt)
+    record["planned"] = plan_record(c.plan, limits, ev, model)
+    store(out_path, name, record)
+    log(f"{name}: nominal stored")
+    if name in robust_moves:
+        end = max(shaped_eval["prescribed"])
+        log(f"{name}: robust ±{r:g} plan, end bound {1e3 * end:.4f} mm (the shaped move's "
+            "largest over the errors), warm from the nominal plan")
+        robust = plan_move(model, move, end=end, robust=r, guess=c.plan,
+                           torque_limit=limits["torque"], velocity_limit=limits["velocity"],
+                           max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0))
+        log(f"{name}: robust {robust.duration:.4f} s ({robust.stats['status']}, "
+            f"{robust.stats['iterations']} iterations, {robust.stats['solve_cpu_s']:.0f} s "
+            "CPU)")
+        ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
+        record["robust"] = plan_record(robust, limits, ev, model)
+        record["robust"]["robust"] = r
+        store(out_path, name, record)
+        log(f"{name}: robust stored")
+    return record
+
+
+def run_onelink(args, out_path):
+    """The one-link arm's robust comparison and duration-vs-tolerance curve (seconds)."""
+    from casflex.model import FlexibleModel, PointwiseProvider
+    from casflex.planning import plan_move, verify_plan
+    from casflex.robot import load
+
+    robot = load("problems/onelink.toml")
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    kw = {"torque_limit": 0.1, "intervals": 84, "settle": 1.0}
+    bound, r = 2e-3, args.robust
+    rec = {"case": "problems/onelink.toml, 1 mode, 0 -> 1 rad at 0.1 N m, 84 intervals",
+           "bound": bound, "robust": r, "errors": [-r, 0.0, r], "plans": {}}
+    for label, rb in (("nominal", 0.0), ("robust", r)):
+        p = plan_move(model, [0.0], [1.0], end=bound, robust=rb, **kw)
+        v = verify_plan(model, p, dt=1e-4, errors=[-r, r], torque=False)
+        rec["plans"][label] = {"duration": p.duration, "status": p.stats["status"],
+                               "prescribed": [v["errors"][0]["prescribed"], v["prescribed"],
+                                              v["errors"][1]["prescribed"]]}
+        log(f"onelink {label}: {p.duration:.4f} s, residuals "
+            f"{[round(1e3 * x, 4) for x in rec['plans'][label]['prescribed']]} mm")
+    bounds = [5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4]
+    free = plan_move(model, [0.0], [1.0], end="free", **kw)
+    previous, curve = free, []
+    for b in bounds:
+        p = plan_move(model, [0.0], [1.0], end=b, guess=previous, **kw)
+        v = verify_plan(model, p, dt=1e-4, torque=False)
+        curve.append({"bound": b, "duration": p.duration, "prescribed": v["prescribed"],
+                      "status": p.stats["status"]})
+        previous = p
+    rest = plan_move(model, [0.0], [1.0], end="rest", guess=previous, **kw)
+    J = 0.01 + 2700.0 * 0.007 * 0.005 * 1.0**3 / 3.0
+    rec["tradeoff"] = {"curve": curve, "free": free.duration,
+                       "free_residual": free.stats["ocp_residual"], "rest": rest.duration,
+                       "rigid_minimum": 2.0 * math.sqrt(1.0 * J / 0.1)}
+    store(out_path, "onelink", rec)
+    log("onelink stored")
+    return rec
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Run the comparison; print a summary or (``--json``) the stored JSON object.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments.
+
+    Returns
+    -------
+    dict
+        What the output file holds.
+    """
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--moves", nargs="*", default=["move1", "move2", "move3"])
+    parser.add_argument("--robust-moves", nargs="*", default=["move1"])
+    parser.add_argument("--robust", type=float, default=0.1)
+    parser.add_argument("--dt", type=float, default=1e-4,
+                        help="step of the verification simulators [s]")
+    parser.add_argument("--max-iter", type=int, default=500)
+    parser.add_argument("--modes", type=int, default=3, help="modes of the model (study: 3)")
+    parser.add_argument("--onelink", action="store_true")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+
+    from casflex.design.study import load_study
+
+    os.chdir(ROOT)
+    out_path = args.out.resolve()
+    study = load_study("problems/studies/arm2link_move1.toml")
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True, cwd=ROOT).stdout.strip()
+    meta = {"robust": args.robust, "dt": args.dt, "study": "arm2link_move1.toml",
+            "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT}
+    if args.onelink:
+        run_onelink(args, out_path)
+        store(out_path, "meta", {**json.loads(out_path.read_text())["meta"],
+                                 "dt": args.dt, "robust": args.robust})
+    for name in args.moves:
+        run_move(name, args, study, out_path, set(args.robust_moves))
+        data = json.loads(out_path.read_text())
+        data["meta"].update({"dt": args.dt, "robust": args.robust})
+        data["meta"].setdefault("runs", {})[name] = {
+            **meta, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "load": os.getloadavg()[0]}
+        store(out_path, "meta", data["meta"])
+    data = json.loads(out_path.read_text())
+    log(f"{out_path}: sha256 {hashlib.sha256(out_path.read_bytes()).hexdigest()}")
+    if args.json:
+        print(json.dumps(data))
+    return data
+
+
+if __name__ == "__main__":
+    main()
