@@ -94,8 +94,8 @@ _ACCEPTABLE_ITER = 15
 #: largest constraint violation of a last iterate returned at an iteration or time limit
 #: (Ipopt's ``acceptable_constr_viol_tol`` of the planner, ProgressStop's feasibility)
 _FEASIBLE = 1e-6
-#: Ipopt's statuses of a solve ended by a limit, not by a failure: its last iterate is
-#: returned when it is feasible (``stats["success"]`` False, the status kept)
+#: Ipopt's statuses of a solve ended by a limit, not a failure: a feasible last iterate is
+#: returned, its status kept (``stats["success"]`` True, ``stats["converged"]`` False)
 LIMIT_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
                   "Maximum_WallTime_Exceeded")
 
@@ -503,10 +503,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         CasADi's sweeps through the whole problem, or (implicit collocation only) the
         interval function's own Jacobian and Hessian evaluated per interval and
         scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`),
-        or the Jacobian so and the Hessian CasADi's. The same derivatives to
-        round-off; only their cost differs (move 1 of the design study, interpreted:
-        Jacobian 0.48 s against 0.77 s, Hessian 1.40 s against 0.95 s per call;
-        ``benchmarks/README_planning.md``).
+        or the Jacobian so and the Hessian CasADi's. Equal to round-off, at another cost
+        (move 1, per call: Jacobian 0.48 s vs 0.77 s, Hessian 1.40 s vs 0.95 s).
     compile_function : callable, optional
         With ``derivatives="blocks"``: ``compile_function(functions) -> functions``, the
         interval's Jacobian and Hessian functions replaced by compiled ones (e.g. C
