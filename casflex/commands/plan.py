@@ -93,12 +93,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default="collocation",
                         help="Gauss-Legendre collocation, 3 points per interval (default), "
                         "or multiple shooting with RK4 substeps")
-    parser.add_argument("--derivatives", default="casadi",
-                        metavar="casadi|blocks-jacobian|blocks",
-                        help="the NLP's derivatives: CasADi's sweeps (default), or with "
-                        "collocation the interval's own Jacobian (blocks-jacobian: ~40 %% "
-                        "cheaper per call on 3-link moves) and Hessian (blocks) scattered "
-                        "per interval")
+    parser.add_argument("--derivatives", default="casadi", metavar="KIND",
+                        help="the NLP's derivatives: casadi (CasADi's sweeps, the default), "
+                        "or with collocation blocks-jacobian (the interval's own Jacobian "
+                        "scattered per interval: ~40 %% cheaper per call on move 1) or "
+                        "blocks (its Hessian too)")
     parser.add_argument("--end", default=None, metavar="rest|free|TOL",
                         help="end condition of the modes: at rest, free, or a residual tip "
                         "deflection bound in m (default the shaped move's residual)")
