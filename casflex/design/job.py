@@ -267,10 +267,11 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     t_end = shaped.t_end
     # the exact fast path (casflex.simulate, method="poly"): equal to RK4 on the model;
     # its Chebyshev pieces do not converge on linearly interpolated tables: RK4 there
-    # and its rows take a diagonal stiffness: a smooth basis' full K̃ needs RK4 as well
+    # and its rows take a diagonal stiffness: a smooth basis' full K̃ needs RK4 as well;
+    # the exact kinematics' rows are not a polynomial in δ (issue 19): RK4 on them
     sim_method = "poly" if (study.model["interpolation"] == "bspline"
-                            and study.model["basis"] == "eigen") else "rk4"
-    sim_method = _exact_method(study, sim_method)
+                            and study.model["basis"] == "eigen"
+                            and study.model["kinematics"] != "exact") else "rk4"
     unshaped_run = simulate_prescribed(model, move, dt=dt, t_end=t_end, method=sim_method)
     shaped_run = simulate_prescribed(model, shaped, dt=dt, t_end=t_end, method=sim_method)
     timings["simulate_s"] = time.perf_counter() - t0
@@ -423,12 +424,6 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
     c_files = c_bundle[0]
     files = [*write_report(out, study, summary), *figures] + [out / "c" / f for f in c_files]
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)
-
-
-def _exact_method(study, method):
-    """The simulation method for ``model.kinematics``: the exact model's rows are not a
-    polynomial in δ, so ``poly`` gives way to RK4 on them (issue 19)."""
-    return "rk4" if study.model["kinematics"] == "exact" else method
 
 
 def _study_model(study, cache_dir, processes, progress, n_modes=None):
