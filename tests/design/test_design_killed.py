@@ -12,7 +12,6 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
 
 
 def _stat(pid):
@@ -47,17 +46,12 @@ def _group_alive(pgid):
 
 @pytest.mark.slow  # 10-20 s: a fresh interpreter, the tables of a small study
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
-def test_sigterm_ends_the_jobs_workers(tmp_path):
+def test_sigterm_ends_the_jobs_workers(tmp_path, model_study):
     # a small study (one mode, a coarse grid), an empty cache, two processes
-    text = STUDY.read_text()
-    for old, new in [('"../', f'"{ROOT}/problems/'), ("modes = 3 ", "modes = 1 "),
-                     ("grid_step = 3.0", "grid_step = 30.0"), ("dt = 0.001", "dt = 0.005"),
-                     ("settle = 3.0", "settle = 0.5"), ('"composite"', '"inversion"'),
-                     ("compile = true", "compile = false")]:
-        assert old in text
-        text = text.replace(old, new)
-    study = tmp_path / "small.toml"
-    study.write_text(text)
+    study = model_study(replace=[
+        ("modes = 3 ", "modes = 1 "), ("grid_step = 3.0", "grid_step = 30.0"),
+        ("dt = 0.001", "dt = 0.005"), ("settle = 3.0", "settle = 0.5"),
+        ('"composite"', '"inversion"'), ("compile = true", "compile = false")])
     env = dict(os.environ, MPLBACKEND="Agg")
     log = tmp_path / "stderr.txt"  # a file: workers left behind would hold a pipe open
     with log.open("wb") as err:
