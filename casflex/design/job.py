@@ -770,7 +770,8 @@ def _run_figure_specs(study, unshaped, shaped_run, loop, estimation, move_end):
                 (f"shaped, {law} law + EKF", loop.t, loop.q, loop.qd, loop.tau)]
     return [
         ("tip_deflection.png", "plot_tip_deflection", (deflections, move_end), {}, True),
-        ("estimation.png", "plot_estimation_error", (loop.t, *estimation), {}, True),
+        ("estimation.png", "plot_estimation_error", (loop.t, *estimation), {},
+         False),  # its own fixed layout
         ("joint_tracking.png", "plot_joint_tracking",  # its own fixed layout
          (tracking, [study.move.duration, move_end, move_end]), {}, False),
     ]
