@@ -19,6 +19,9 @@ run):
 ``load``
     the 1-minute load average before each run.
 
+and, for the whole run, ``nproc``, ``bytecode`` and ``stage_clock`` (what ``timings_s``
+measures: ``"wall"``, or CPU with ``--stage-cpu``/``--stage-cpu-pool``).
+
 With ``--bytecode`` the runs compile casflex's modules to bytecode once and read it back
 (``PYTHONPYCACHEPREFIX`` in the temporary directory, ``PYTHONDONTWRITEBYTECODE`` unset), as
 a user's second run does; without it they inherit the environment (this machine's sets
@@ -28,12 +31,15 @@ a user's second run does; without it they inherit the environment (this machine'
 With ``--stage-cpu`` every run is ``--processes 1`` (figures drawn in the job's process)
 and ``timings_s`` holds the CPU seconds of each stage instead of its wall time (the job's
 stage clock, ``time.perf_counter``, replaced by the process's CPU clock): the figure that
-holds when the machine is loaded.
+holds when the machine is loaded. ``--stage-cpu-pool`` is the same clock with the job's
+two worker processes as a user runs it: each stage's CPU of the job's own process (a
+wait for the workers costs none), what the stage's wall time would be on two free cores
+if the job never waited for them.
 
 Usage::
 
     python benchmarks/bench_design.py [--json] [--repeat 3] [--code DIR] [--study FILE]
-                                      [--stage-cpu] [--bytecode]
+                                      [--stage-cpu | --stage-cpu-pool] [--bytecode]
 """
 
 from __future__ import annotations
@@ -67,10 +73,11 @@ sys.exit(code)
 """
 
 
-def run_once(code_root, study, out, stage_cpu=False, pycache=None):
+def run_once(code_root, study, out, stage_cpu=False, pycache=None, pool=False):
     """One ``casflex design`` process on ``code_root``'s casflex: wall, CPU, timings
-    (``stage_cpu``: in one process, the stages' CPU seconds; ``pycache``: the bytecode
-    written to and read from that directory)."""
+    (``stage_cpu``: the stages' CPU seconds, in one process or, with ``pool``, the job's
+    own beside its workers; ``pycache``: the bytecode written to and read from that
+    directory)."""
     env = dict(os.environ, PYTHONPATH=str(code_root), MPLBACKEND="Agg")
     if pycache is not None:
         env.pop("PYTHONDONTWRITEBYTECODE", None)
@@ -78,7 +85,7 @@ def run_once(code_root, study, out, stage_cpu=False, pycache=None):
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     flags = ["--stage-cpu"] if stage_cpu else []
-    extra = ["--processes", "1"] if stage_cpu else []
+    extra = ["--processes", "1"] if stage_cpu and not pool else []
     proc = subprocess.run([sys.executable, "-c", RUNNER, *flags, "design", str(study),
                            "--out", str(out), "--json", *extra], env=env,
                           capture_output=True, text=True, cwd=code_root)
@@ -96,12 +103,17 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=3, help="second runs per checkout")
     parser.add_argument("--code", type=Path, help="another checkout, measured alternately")
     parser.add_argument("--study", type=Path, default=STUDY)
-    parser.add_argument("--stage-cpu", action="store_true",
-                        help="one process per run; timings_s in CPU seconds per stage")
+    clock = parser.add_mutually_exclusive_group()
+    clock.add_argument("--stage-cpu", action="store_true",
+                       help="one process per run; timings_s in CPU seconds per stage")
+    clock.add_argument("--stage-cpu-pool", action="store_true",
+                       help="timings_s in CPU seconds of the job's process per stage, "
+                            "its workers as usual")
     parser.add_argument("--bytecode", action="store_true",
                         help="compiled bytecode kept between runs (as a user's install)")
     args = parser.parse_args(argv)
 
+    stage_cpu = args.stage_cpu or args.stage_cpu_pool
     trees = {"new": ROOT}
     if args.code is not None:
         trees = {"old": args.code.resolve(), "new": ROOT}
@@ -112,16 +124,18 @@ def main(argv=None):
             return Path(tmp) / f"pycache-{key}" if args.bytecode else None
 
         for key, root in trees.items():  # the first runs: caches and output filled
-            run_once(root, args.study.resolve(), Path(tmp) / key, args.stage_cpu,
-                     pycache(key))
+            run_once(root, args.study.resolve(), Path(tmp) / key, stage_cpu,
+                     pycache(key), args.stage_cpu_pool)
         for _ in range(args.repeat):
             for key, root in trees.items():
-                run = run_once(root, args.study.resolve(), Path(tmp) / key, args.stage_cpu,
-                               pycache(key))
+                run = run_once(root, args.study.resolve(), Path(tmp) / key, stage_cpu,
+                               pycache(key), args.stage_cpu_pool)
                 for name, value in run.items():
                     result[key][name].append(value)
     result["nproc"] = os.cpu_count()
     result["bytecode"] = args.bytecode
+    result["stage_clock"] = ("cpu, one process" if args.stage_cpu else
+                             "cpu of the job's process" if args.stage_cpu_pool else "wall")
     if args.json:
         print(json.dumps(result))
     else:

@@ -39,7 +39,8 @@ if TYPE_CHECKING:
     from tqdm import tqdm
 
 __all__ = ["parallel_map", "progress_bar", "worker_pool", "WorkerPool", "blas_threads",
-           "single_threaded_blas", "THREAD_VARIABLES", "map_keep", "map_kept", "drop_kept"]
+           "single_threaded_blas", "end_with_parent", "THREAD_VARIABLES", "map_keep",
+           "map_kept", "drop_kept"]
 
 #: the environment variables through which a user sets the BLAS and OpenMP threads
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
@@ -160,10 +161,70 @@ def single_threaded_blas() -> bool:
     return True
 
 
+#: ``prctl`` option: the signal a process gets when its parent ends (linux/prctl.h)
+_PR_SET_PDEATHSIG = 1
+
+
+def end_with_parent(parent: int | None = None) -> bool:
+    """Have Linux send this process ``SIGTERM`` when its parent ends
+    (``prctl(PR_SET_PDEATHSIG)``), so that a worker process does not outlive a parent that
+    was killed without a chance to end it (``SIGKILL``; an orderly exit ends the pools
+    itself). Elsewhere, or where ``prctl`` cannot be called, nothing changes.
+
+    The signal follows the thread that started the process: a pool's workers are started
+    by the thread of its first ``submit`` (:func:`worker_pool`'s caller), or by the
+    ``forkserver`` process, which itself ends with its parent's pipe.
+
+    Parameters
+    ----------
+    parent : int, optional
+        The pid the parent had: if it already ended before the call (the process then has
+        another parent), this process ends now (``SIGTERM``).
+
+    Returns
+    -------
+    bool
+        Whether the signal was set.
+
+    Examples
+    --------
+    In a child process (the signal would otherwise stay set on this one):
+
+    >>> import subprocess, sys
+    >>> code = "from casflex._parallel import end_with_parent; print(end_with_parent())"
+    >>> out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    >>> out.stdout.strip() == str(sys.platform.startswith("linux"))
+    True
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+            return False
+    except (OSError, AttributeError):
+        return False
+    if parent is not None and os.getppid() != parent:  # ended before prctl: no signal
+        os.kill(os.getpid(), signal.SIGTERM)
+    return True
+
+
+def _init_worker(parent):
+    """Initializer of a pool's worker processes: they end with their parent
+    (:func:`end_with_parent`) and run their BLAS on one thread
+    (:func:`single_threaded_blas`)."""
+    end_with_parent(parent)
+    single_threaded_blas()
+
+
 def _executor(processes):
     """Process pool: ``fork`` while this process has a single thread (works in scripts
     without a ``__main__`` guard and starts fast), ``forkserver`` when other threads run
-    (forking a threaded process can deadlock), the platform default elsewhere."""
+    (forking a threaded process can deadlock), the platform default elsewhere. Its workers
+    end with the process that started them, also when that is killed (Linux)."""
     import multiprocessing
     import threading
     from concurrent.futures import ProcessPoolExecutor
@@ -178,8 +239,10 @@ def _executor(processes):
     ctx = multiprocessing.get_context(method)
     if method == "forkserver":
         ctx.set_forkserver_preload(["casflex.modal.tables"])
+    # a forked worker's parent is this process; a forkserver's is the server
+    parent = os.getpid() if method == "fork" else None
     return ProcessPoolExecutor(max_workers=processes, mp_context=ctx,
-                               initializer=single_threaded_blas)
+                               initializer=_init_worker, initargs=(parent,))
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ PACKAGE = ROOT / "casflex"
 # or dotted sub-modules (the longest match wins).
 RANK = {
     "errors": 0, "_cache": 0, "_validate": 0, "_problemfile": 0, "_json": 0,
-    "_parallel": 0, "plotting": 0,
+    "_parallel": 0, "plotting": 0, "plotting_report": 0,
     "codegen.build": 0.5, "codegen.bundle": 0.5, "codegen.templates": 0.5,
     "codegen.jit": 0.5,
     "robot": 1,

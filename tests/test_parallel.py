@@ -1,4 +1,5 @@
-"""casflex._parallel: the workers' BLAS threads (issue 17 part 6)."""
+"""casflex._parallel: the workers' BLAS threads (issue 17 part 6), and workers that end
+with their parent."""
 
 from __future__ import annotations
 
@@ -73,6 +74,54 @@ def test_a_users_thread_setting_is_kept(tmp_path):
     if not r["parent"][0]:
         pytest.skip("numpy's BLAS is not OpenBLAS here")
     assert all(counts == [2] and env == "2" for counts, env in r["workers"])
+
+
+#: a parent holding a worker_pool: one worker busy (a long sleep), one idle; it prints
+#: the workers' pids once both run, then waits to be killed
+HOLDER = r"""
+import multiprocessing, os, sys, time
+from casflex._parallel import worker_pool
+
+with worker_pool(2) as pool:
+    busy = pool.executor.submit(time.sleep, 120)
+    pool.executor.submit(os.getpid).result()  # both workers started (fork: at once)
+    print(" ".join(str(p.pid) for p in multiprocessing.active_children()), flush=True)
+    time.sleep(120)
+"""
+
+
+def _alive(pid):
+    """A process that runs (a zombie left for a reaper counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_workers_end_when_their_parent_is_killed():
+    """SIGKILL leaves a parent no chance to end its pool: the workers get SIGTERM from the
+    kernel (end_with_parent in the pool's initializer) instead of running on (the idle
+    one would wait on its task queue for ever, the busy one finish its task first)."""
+    import signal
+    import time
+
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER], stdout=subprocess.PIPE,
+                              text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        workers = [int(pid) for pid in holder.stdout.readline().split()]
+        assert len(workers) == 2 and all(_alive(pid) for pid in workers)
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    deadline = time.monotonic() + 5.0
+    while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [pid for pid in workers if _alive(pid)]
+    for pid in left:  # do not leave them behind when the test fails
+        os.kill(pid, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their killed parent"
 
 
 def _fails_on_three(x):
