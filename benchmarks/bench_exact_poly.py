@@ -23,8 +23,10 @@
     truncated model)
     Table 9 move 1 (all joints −1 rad in 2 s, the default grid, 1 ms: the move of
     ``bench_model.py``) and Table 9 move 3 (the 1.5° grid, 5 ms, 3 s settle: the move of
-    ``--budget``), 5 modes, gravity off. Per move: SX instructions of poly's coefficient
-    function (``exact_poly_G`` of :mod:`casflex.simulate.exact_poly`, ``truncated_F`` of
+    ``--budget``), ``--modes`` modes (default 3: at 5 the coefficient function exceeds
+    the graph budget of :mod:`casflex.simulate.exact_poly`), gravity off. Per move: SX
+    instructions of poly's coefficient function (``exact_poly_G`` of
+    :mod:`casflex.simulate.exact_poly`, ``truncated_F`` of
     :func:`casflex.simulate.poly.configuration_function`) and of the exact model's
     ``dddelta``; the first call of each method (graph build included) and then
     ``--repeat`` warm calls of the three in alternation (wall and CPU seconds, min/max);
@@ -128,7 +130,7 @@ def _timed(fn):
     return out, time.perf_counter() - w, time.process_time() - c
 
 
-def cost(repeat=3, names=("move1", "move3")):
+def cost(repeat=3, names=("move1", "move3"), modes=3):
     """poly-exact against RK4-exact and poly-truncated (module docstring)."""
     from casflex.model import build_model
     from casflex.moves import Move, load_move
@@ -145,7 +147,7 @@ def cost(repeat=3, names=("move1", "move3")):
     out = {}
     for name in names:
         move, step, dt, options = cases[name]
-        models = {k: build_model(robot, 5, step=step, gravity=None, kinematics=k,
+        models = {k: build_model(robot, modes, step=step, gravity=None, kinematics=k,
                                  progress=False, **options)[0]
                   for k in ("exact", "truncated")}
         plan = {"poly_exact": ("exact", "poly"), "rk4_exact": ("exact", "rk4"),
@@ -164,7 +166,8 @@ def cost(repeat=3, names=("move1", "move3")):
         e, p = res["rk4_exact"], res["poly_exact"]
         peak = float(np.linalg.norm(e.tip_deflection, axis=1).max())
         out[name] = {
-            "loadavg": list(os.getloadavg()), "dt": dt, "steps": int(e.t.size - 1),
+            "loadavg": list(os.getloadavg()), "modes": modes, "dt": dt,
+            "steps": int(e.t.size - 1),
             "instructions": {
                 "exact_poly_G": int(p.info["poly_F_instructions"]),
                 "truncated_F": int(configuration_function(models["truncated"])
@@ -201,6 +204,9 @@ def main(argv=None):
     parser.add_argument("--cases", default="move1,move3", metavar="NAMES",
                         help="moves of --cost, comma-separated from move1, move3, "
                              "elbow2_1s (default move1,move3)")
+    parser.add_argument("--modes", type=int, default=3, metavar="M",
+                        help="modes of --cost (default 3: 5 exceed the graph budget of "
+                             "casflex.simulate.exact_poly)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     result = {"loadavg_start": list(os.getloadavg())}
@@ -209,7 +215,7 @@ def main(argv=None):
     if args.budget:
         result.update(budget())
     if args.cost:
-        result.update(cost(args.repeat, tuple(args.cases.split(","))))
+        result.update(cost(args.repeat, tuple(args.cases.split(",")), args.modes))
     result["loadavg_end"] = list(os.getloadavg())
     if args.json:
         print(json.dumps(result))

@@ -46,10 +46,14 @@ from casflex.simulate.integrators import step_cache
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
 
-__all__ = ["DEGREE", "configuration_function", "node_rows", "stage", "torque", "monomials"]
+__all__ = ["DEGREE", "GRAPH_BUDGET", "configuration_function", "node_rows", "stage", "torque",
+           "monomials"]
 
 #: degree in δ of the truncated coefficients (the error budget: exact_taylor)
 DEGREE = 2
+
+#: largest graph (SX nodes, projected) the coefficients' derivatives may build
+GRAPH_BUDGET = 8e6
 
 
 def monomials(d):
@@ -125,19 +129,35 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     q, dq, d, v = model.q, model.dq, model.delta, model.ddelta
     iu = np.triu_indices(N)
     upper = ca.vertcat(*[model.M[int(i), int(k)] for i, k in zip(*iu, strict=True)])
+    # the parts that depend on (q, q̇) only (the DH chain's trigonometry, the tables'
+    # B-spline calls) become symbols S while differentiating in δ and δ̇: their
+    # derivatives vanish, and AD through the tables' interpolant calls would otherwise
+    # take tens of GB (measured: > 21 GB at 5 modes on the 1.5° table)
+    core, S, values = ca.extract_parametric(ca.vertcat(upper, model.h), ca.vertcat(q, dq))
+    S, values = ca.vertcat(*S), ca.vertcat(*values)
+    upper, h = core[:iu[0].size], core[iu[0].size:]
     # h is quadratic in δ̇: its value, gradient and (constant) Hessian at δ̇ = 0
-    h = model.h
     h1 = ca.jacobian(h, v)                           # N × m
     h2 = ca.jacobian(ca.vec(h1), v)                  # N m × m
     pairs = []
     for j, k in zip(*np.triu_indices(m), strict=True):
         col = h2[int(j) * N:(int(j) + 1) * N, int(k)]
         pairs.append(0.5 * col if j == k else col)
-    at_rest = ca.Function("rates_at_zero", [q, dq, d, v],
-                          [ca.vertcat(h, ca.vec(h1), *pairs)])(q, dq, d, ca.DM.zeros(m))
+    at_rest = ca.Function("rates_at_zero", [q, dq, S, d, v],
+                          [ca.vertcat(h, ca.vec(h1), *pairs)])(q, dq, S, d, ca.DM.zeros(m))
     E = ca.vertcat(upper, at_rest)
+    # the Jacobian and Hessian in δ take ~(1 + m + m²) times E's graph before δ = 0 folds
+    # it: beyond the budget the build takes many GB (module docstring), refused up front
+    size = ca.Function("rows_at_rest", [q, dq, S, d], [E]).n_instructions()
+    projected = size * (1 + m + m * m)
+    if projected > GRAPH_BUDGET:
+        raise ModelError(
+            f"method='poly' with kinematics='exact' and {m} modes: its degree-2 "
+            f"coefficients by automatic differentiation would take ~{projected:.3g} SX "
+            f"nodes before folding (the rows' graph, {size}, times 1 + m + m² = "
+            f"{1 + m + m * m}), over the budget of {GRAPH_BUDGET:.3g}; use method='rk4'")
     C = _taylor_coefficients(E, d)
-    C = ca.Function("delta_at_zero", [q, dq, d], [C])(q, dq, ca.DM.zeros(m))
+    C = ca.Function("delta_at_zero", [q, dq, S, d], [C])(q, dq, values, ca.DM.zeros(m))
     sizes = np.cumsum([0, iu[0].size, N, N * m, N * m * (m + 1) // 2])
     outs = [C[int(a):int(b), :] for a, b in zip(sizes[:-1], sizes[1:], strict=True)]
     G = ca.Function("exact_poly_configuration", [q, dq], outs, ["q", "dq"],

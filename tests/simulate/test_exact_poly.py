@@ -30,6 +30,7 @@ def exact(arm):
     return FlexibleModel(arm, PointwiseProvider(arm, Q, count=2), kinematics="exact")
 
 
+@pytest.mark.slow  # the 2-mode coefficient function's graph: ~10 s of CPU
 def test_rows_and_torques_differ_from_the_exact_model_by_the_cube(exact):
     """The degree-2 stage and torque rows at one state differ from the exact model's by
     O(|δ|³): halving δ along a fixed direction (δ̇, q̇, q̈ fixed) divides the difference
@@ -76,8 +77,7 @@ def test_poly_runs_the_degree_two_truncation(exact):
     assert np.abs(poly.tip_deflection - taylor["tip_deflection"]).max() < 1e-9 * peak
     assert np.abs(poly.delta - taylor["delta"]).max() < 1e-9 * np.abs(taylor["delta"]).max()
     gap = np.abs(poly.tip_deflection - rk4.tip_deflection).max() / peak
-    print('gap', gap)
-    assert 1e-6 < gap < 0.05, gap
+    assert 1e-3 < gap < 0.05, gap  # measured 1.3 % (|δ| up to 0.27 √kg m, gravity on)
 
 
 def test_jit_and_the_truncated_configuration_refuse_the_exact_model(exact):
@@ -92,3 +92,14 @@ def test_jit_and_the_truncated_configuration_refuse_the_exact_model(exact):
         poly.configuration_function(exact)
     with pytest.raises(ModelError, match="kinematics='exact'"):
         exact_poly.configuration_function(FlexibleModel(exact.robot, exact.provider))
+
+
+def test_a_graph_over_the_budget_is_refused(arm, monkeypatch):
+    """The coefficients' derivatives would build ~(1 + m + m²) times the rows' graph
+    (5 modes: ~28 M nodes, > 6 GB measured): over :data:`exact_poly.GRAPH_BUDGET` the
+    build is refused up front, naming the projection and the way out (here a 1-mode model
+    against a budget lowered below its ~0.37 M)."""
+    model = FlexibleModel(arm, PointwiseProvider(arm, Q, count=1), kinematics="exact")
+    monkeypatch.setattr(exact_poly, "GRAPH_BUDGET", 1e5)
+    with pytest.raises(ModelError, match=r"1 modes.*times 1 \+ m \+ m² = 3.*method='rk4'"):
+        exact_poly.configuration_function(model)
