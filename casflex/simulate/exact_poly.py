@@ -28,6 +28,18 @@ q-Jacobians of ``M`` that :func:`casflex.simulate.poly.rows` contracts with ``q�
 The coefficients are CasADi derivatives of the model's ``M`` and ``h`` at δ = 0
 (first in δ̇, then the Jacobian and Hessian in δ), folded at δ = δ̇ = 0.
 
+Cost and limit. Differentiating twice in δ multiplies the rows' graph by about
+``1 + m + m²`` before δ = 0 folds it (the parts depending on ``(q, q̇)`` only, the DH
+chain's trigonometry and the tables' B-spline calls, are extracted as symbols first).
+Measured on the Table 8 arm, 1.5° table, gravity off: 3 modes, 0.43 M nodes projected
+to 5.6 M, the coefficient function 2.6 M instructions (18× the exact ``dddelta``), built
+in 14 s of CPU at 1.7 GB peak; 5 modes, 0.91 M projected to 28 M: the build passed 6 GB
+and was stopped. :data:`GRAPH_BUDGET` refuses such builds up front (``ModelError``, use
+``method="rk4"``). Reaching 5 modes cheaply needs the coefficients from a structured
+expansion (truncated Taylor arithmetic through the rod walk and the DH chain,
+contracted with the point masses per configuration) instead of AD of the assembled
+``M`` and ``h``. ``jit`` is refused with this form (graphs of millions of instructions).
+
 Functions: :func:`configuration_function` (the coefficient arrays),
 :func:`node_rows` (the stage and torque rows at the interpolation nodes), :func:`stage`
 (the RK4 right-hand side), :func:`torque`.
