@@ -92,18 +92,16 @@ def monomials(d):
     return ca.vertcat(1, d, *[d[int(a)] * d[int(b)] for a, b in zip(i, k, strict=True)])
 
 
-def _taylor_coefficients(E, d):
-    """``(R × L)``: the coefficients of ``μ(δ)`` of the degree-2 Taylor polynomial of the
-    column ``E(δ)`` at δ = 0 (still an expression in δ: the caller folds δ = 0)."""
-    m = d.numel()
-    J = ca.jacobian(E, d)                           # R × m
-    H = ca.jacobian(ca.vec(J), d)                   # R m × m: H[r + R j, k] = ∂²E_r/∂δ_j∂δ_k
-    R = E.numel()
-    pairs = []
-    for j, k in zip(*np.triu_indices(m), strict=True):
-        col = H[int(j) * R:(int(j) + 1) * R, int(k)]
-        pairs.append(0.5 * col if j == k else col)
-    return ca.horzcat(E, J, *pairs)
+def _second_order(E, x):
+    """``(J, pairs)`` of the column ``E``: its Jacobian in ``x`` (R × m) and the
+    coefficients of ``x_j x_k`` (j ≤ k, ``numpy.triu_indices`` order) of its quadratic
+    Taylor term, ``½ ∂²E/∂x_j²`` and ``∂²E/∂x_j∂x_k`` (R each), as expressions in x."""
+    m, R = x.numel(), E.numel()
+    J = ca.jacobian(E, x)
+    H = ca.jacobian(ca.vec(J), x)                   # H[r + R j, k] = ∂²E_r/∂x_j∂x_k
+    pairs = [H[int(j) * R:(int(j) + 1) * R, int(k)] * (0.5 if j == k else 1.0)
+             for j, k in zip(*np.triu_indices(m), strict=True)]
+    return J, pairs
 
 
 def configuration_function(model: FlexibleModel) -> ca.Function:
@@ -149,12 +147,7 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     S, values = ca.vertcat(*S), ca.vertcat(*values)
     upper, h = core[:iu[0].size], core[iu[0].size:]
     # h is quadratic in δ̇: its value, gradient and (constant) Hessian at δ̇ = 0
-    h1 = ca.jacobian(h, v)                           # N × m
-    h2 = ca.jacobian(ca.vec(h1), v)                  # N m × m
-    pairs = []
-    for j, k in zip(*np.triu_indices(m), strict=True):
-        col = h2[int(j) * N:(int(j) + 1) * N, int(k)]
-        pairs.append(0.5 * col if j == k else col)
+    h1, pairs = _second_order(h, v)
     at_rest = ca.Function("rates_at_zero", [q, dq, S, d, v],
                           [ca.vertcat(h, ca.vec(h1), *pairs)])(q, dq, S, d, ca.DM.zeros(m))
     E = ca.vertcat(upper, at_rest)
@@ -168,7 +161,8 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
             f"coefficients by automatic differentiation would take ~{projected:.3g} SX "
             f"nodes before folding (the rows' graph, {size}, times 1 + m + m² = "
             f"{1 + m + m * m}), over the budget of {GRAPH_BUDGET:.3g}; use method='rk4'")
-    C = _taylor_coefficients(E, d)
+    J, quadratic = _second_order(E, d)               # the degree-2 Taylor polynomial
+    C = ca.horzcat(E, J, *quadratic)
     C = ca.Function("delta_at_zero", [q, dq, S, d], [C])(q, dq, values, ca.DM.zeros(m))
     sizes = np.cumsum([0, iu[0].size, N, N * m, N * m * (m + 1) // 2])
     outs = [C[int(a):int(b), :] for a, b in zip(sizes[:-1], sizes[1:], strict=True)]
