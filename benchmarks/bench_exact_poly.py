@@ -19,9 +19,26 @@
     and the build time of each; 5 modes frozen at one configuration
     (``PointwiseProvider``, so that no table lookup is counted).
 
+``--cost`` (``method="poly"`` on the exact model, against RK4 on it and poly on the
+    truncated model)
+    Table 9 move 1 (all joints −1 rad in 2 s, the default grid, 1 ms: the move of
+    ``bench_model.py``) and Table 9 move 3 (the 1.5° grid, 5 ms, 3 s settle: the move of
+    ``--budget``), ``--modes`` modes (default 3: at 5 the coefficient function exceeds
+    the graph budget of :mod:`casflex.simulate.exact_poly`), gravity off. Per move: SX
+    instructions of poly's coefficient function (``exact_poly_G`` of
+    :mod:`casflex.simulate.exact_poly`, ``truncated_F`` of
+    :func:`casflex.simulate.poly.configuration_function`) and of the exact model's
+    ``dddelta``; the first call of each method (graph build included) and then
+    ``--repeat`` warm calls of the three in alternation (wall and CPU seconds, min/max);
+    poly's breakdown (pieces, coefficient evaluations, stage timings); the gap of
+    poly-exact to RK4 on the exact rows (the truncation, % of the exact peak tip
+    deflection) and, on move 3, to :func:`casflex.simulate.simulate_taylor` at degree 2
+    (the same truncation by another path; relative to the peak). ``--cases elbow2_1s``
+    adds the planar elbow move of ``--budget`` (``shape_rates=True``, 5 ms).
+
 Usage::
 
-    python benchmarks/bench_exact_poly.py [--budget] [--coefficients] [--json]
+    python benchmarks/bench_exact_poly.py [--budget] [--coefficients] [--cost] [--json]
 """
 
 from __future__ import annotations
@@ -32,6 +49,7 @@ import os
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import casadi as ca
@@ -106,11 +124,89 @@ def coefficients(orders=(1, 2)):
     return out
 
 
+def _timed(fn):
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w, time.process_time() - c
+
+
+def cost(repeat=3, names=("move1", "move3"), modes=3):
+    """poly-exact against RK4-exact and poly-truncated (module docstring)."""
+    from casflex.model import build_model
+    from casflex.moves import Move, load_move
+    from casflex.robot import load
+    from casflex.simulate import simulate_prescribed, simulate_taylor
+    from casflex.simulate.poly import configuration_function
+
+    robot = load(ROOT / "problems/arm2link.toml")
+    cases = {"move1": (load_move(ROOT / "problems/moves.toml:move1"), None, 1e-3, {}),
+             "move3": (Move(np.zeros(3), [-np.pi, 0.0, 0.0], 2.0, settle=3.0),
+                       np.radians(1.5), 5e-3, {}),
+             "elbow2_1s": (Move(np.zeros(3), [0.0, -0.8, 1.2], 1.0, settle=3.0),
+                           np.radians(1.5), 5e-3, {"shape_rates": True})}
+    out = {}
+    for name in names:
+        move, step, dt, options = cases[name]
+        models = {k: build_model(robot, modes, step=step, gravity=None, kinematics=k,
+                                 progress=False, **options)[0]
+                  for k in ("exact", "truncated")}
+        plan = {"poly_exact": ("exact", "poly"), "rk4_exact": ("exact", "rk4"),
+                "poly_truncated": ("truncated", "poly")}
+        runs = {k: partial(simulate_prescribed, models[kind], move, dt=dt, method=method)
+                for k, (kind, method) in plan.items()}
+        res, first, warm = {}, {}, {k: [] for k in runs}
+        for k, f in runs.items():
+            res[k], w, c = _timed(f)
+            first[k] = {"wall_s": w, "cpu_s": c}
+            print(name, k, "first", first[k], file=sys.stderr, flush=True)
+        for _ in range(repeat):
+            for k, f in runs.items():
+                _, w, c = _timed(f)
+                warm[k].append((w, c))
+        e, p = res["rk4_exact"], res["poly_exact"]
+        peak = float(np.linalg.norm(e.tip_deflection, axis=1).max())
+        out[name] = {
+            "loadavg": list(os.getloadavg()), "modes": modes, "dt": dt,
+            "steps": int(e.t.size - 1),
+            "instructions": {
+                "exact_poly_G": int(p.info["poly_F_instructions"]),
+                "truncated_F": int(configuration_function(models["truncated"])
+                                   .n_instructions()),
+                "exact_dddelta": int(models["exact"].functions()["dddelta"]
+                                     .n_instructions())},
+            "first_call": first,
+            "warm": {k: {"wall_s": [min(x[0] for x in v), max(x[0] for x in v)],
+                         "cpu_s": [min(x[1] for x in v), max(x[1] for x in v)]}
+                     for k, v in warm.items()},
+            "poly_exact_info": {k: v for k, v in p.info.items() if k.startswith("poly_")},
+            "poly_exact_vs_rk4_exact_gap_pct": 100.0 * float(
+                np.abs(p.tip_deflection - e.tip_deflection).max()) / peak,
+            "poly_exact_vs_rk4_exact_tau_rel": float(np.abs(p.tau - e.tau).max()
+                                                     / np.abs(e.tau).max()),
+            "exact_peak_m": peak}
+        if name != "move1":
+            r = simulate_taylor(models["exact"], move, 2, dt=dt)
+            out[name]["poly_exact_vs_taylor2_rel"] = float(
+                np.abs(p.tip_deflection - r["tip_deflection"]).max()) / peak
+        print(name, out[name], file=sys.stderr, flush=True)
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budget", action="store_true", help="error of degree p in delta")
     parser.add_argument("--coefficients", action="store_true",
                         help="instructions of the Taylor coefficients of the exact M")
+    parser.add_argument("--cost", action="store_true",
+                        help="poly on the exact model against RK4 and poly-truncated")
+    parser.add_argument("--repeat", type=int, default=3, metavar="N",
+                        help="warm calls per method with --cost (default 3)")
+    parser.add_argument("--cases", default="move1,move3", metavar="NAMES",
+                        help="moves of --cost, comma-separated from move1, move3, "
+                             "elbow2_1s (default move1,move3)")
+    parser.add_argument("--modes", type=int, default=3, metavar="M",
+                        help="modes of --cost (default 3: 5 exceed the graph budget of "
+                             "casflex.simulate.exact_poly)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     result = {"loadavg_start": list(os.getloadavg())}
@@ -118,6 +214,8 @@ def main(argv=None):
         result.update(coefficients())
     if args.budget:
         result.update(budget())
+    if args.cost:
+        result.update(cost(args.repeat, tuple(args.cases.split(",")), args.modes))
     result["loadavg_end"] = list(os.getloadavg())
     if args.json:
         print(json.dumps(result))

@@ -58,10 +58,13 @@ plot_result
 The exact kinematics truncated in δ (:mod:`casflex.simulate.exact_taylor`)
 -------------------------------------------------------------------------
 taylor_modal_rows
-    The modal rows with every ``(q, δ)``-coefficient cut at a degree in δ: what a
-    ``poly`` form of ``kinematics="exact"`` would integrate (its error budget).
+    The modal rows with every ``(q, δ)``-coefficient cut at a degree in δ: what the
+    ``poly`` form of ``kinematics="exact"`` integrates (its error budget).
 simulate_taylor
     Prescribed motion on those rows, by the RK4 steps of ``method="rk4"``.
+
+:mod:`casflex.simulate.exact_poly` is that ``poly`` form at degree 2 (coefficients of
+``(q, q̇)`` interpolated in time), used by ``simulate_prescribed(method="poly")``.
 
 Integration (:mod:`casflex.simulate.integrators`)
 -------------------------------------------------

@@ -34,7 +34,7 @@ _START = 5  # Chebyshev intervals per piece in the first round (then 10, 20, ...
 _MAX_NODES = 96
 
 
-def evaluate(F: ca.Function, qs: np.ndarray) -> np.ndarray:
+def evaluate(F: ca.Function, qs: np.ndarray, *rates: np.ndarray) -> np.ndarray:
     """Flat rows (len(qs) × R) of ``F`` at the configurations ``qs`` (one map call).
 
     Parameters
@@ -43,6 +43,9 @@ def evaluate(F: ca.Function, qs: np.ndarray) -> np.ndarray:
         :func:`configuration_function` (or its compiled form); two or more outputs.
     qs : numpy.ndarray, shape (T, n)
         Joint positions [rad].
+    *rates : numpy.ndarray, shape (T, n)
+        Further inputs of ``F`` (the joint rates [rad/s] of
+        :func:`casflex.simulate.exact_poly.configuration_function`).
 
     Returns
     -------
@@ -57,7 +60,7 @@ def evaluate(F: ca.Function, qs: np.ndarray) -> np.ndarray:
     array([[1., 0., 0., 2., 3.],
            [3., 0., 0., 4., 7.]])
     """
-    outs = F.map(qs.shape[0], "thread", 2)(qs.T)
+    outs = F.map(qs.shape[0], "thread", 2)(qs.T, *[x.T for x in rates])
     # column-major flattening of every output, one row per configuration
     return np.hstack([np.asarray(o.full()).reshape(-1, qs.shape[0], order="F").T
                       if o.numel() else np.zeros((qs.shape[0], 0)) for o in outs])
@@ -194,7 +197,8 @@ def _barycentric(tn, w, fv, t):
 
 def interpolants(F: ca.Function, sampler: _Sampler, breaks: np.ndarray, tol: float
                  ) -> tuple[list[_Piece], float, int, int]:
-    """Chebyshev interpolants of ``F(q(t))`` on every piece between ``breaks``.
+    """Chebyshev interpolants of ``F(q(t))`` (or ``F(q(t), q̇(t))``, as many of the
+    sampler's outputs as ``F`` has inputs) on every piece between ``breaks``.
 
     The node count of every piece doubles (nested Chebyshev–Lobatto nodes) until the
     previous interpolant agrees with ``F`` at the new nodes to ``tol`` relative to the
@@ -203,7 +207,8 @@ def interpolants(F: ca.Function, sampler: _Sampler, breaks: np.ndarray, tol: flo
     Parameters
     ----------
     F : casadi.Function
-        ``q -> arrays`` (:func:`configuration_function`), two or more outputs.
+        ``q -> arrays`` (:func:`configuration_function`) or ``(q, dq) -> arrays``, two
+        or more outputs.
     sampler : callable
         ``sampler(t) -> (q, dq, ddq)`` of the reference.
     breaks : numpy.ndarray
@@ -242,7 +247,8 @@ def interpolants(F: ca.Function, sampler: _Sampler, breaks: np.ndarray, tol: flo
     tq = np.concatenate([chebyshev_nodes(a, b, K)[0] for a, b in pieces])
     # F(q(t)) is continuous: a node shared by two pieces is evaluated once
     tu, back = np.unique(tq, return_inverse=True)
-    raw = evaluate(F, sampler(tu)[0])[back]
+    arity = F.n_in()  # F(q) or F(q, q̇): both continuous across the breaks
+    raw = evaluate(F, *sampler(tu)[:arity])[back]
     evaluations = tu.size
     sizes = [F.numel_out(i) for i in range(F.n_out())]
     edges = np.r_[0, np.cumsum(sizes)]
@@ -270,9 +276,9 @@ def interpolants(F: ca.Function, sampler: _Sampler, breaks: np.ndarray, tol: flo
             a, b = pieces[i]
             tn2, _ = chebyshev_nodes(a, b, 2 * K)
             new_t.append(tn2[1::2])  # the nodes of 2K not already in K
-        new_q = sampler(np.concatenate(new_t))[0]
-        new_raw = evaluate(F, new_q)
-        evaluations += new_q.shape[0]
+        new_x = sampler(np.concatenate(new_t))[:arity]
+        new_raw = evaluate(F, *new_x)
+        evaluations += new_x[0].shape[0]
         o = 0
         nxt = []
         for i, tnew in zip(todo, new_t, strict=True):

@@ -27,9 +27,9 @@ what the issue's 5 % budget needs. What the truncation neglects: the terms of de
 are exact).
 
 It is not a fast path: the rows along the ray cost several times the exact rows
-(``p = 3``: ~5× the SX instructions), because the cost of configuration-only
-coefficients lies in the Taylor coefficients themselves (measured:
-``benchmarks/README_fidelity.md``, "poly for the exact kinematics").
+(``p = 3``: ~5× the SX instructions). The ``poly`` form of degree 2,
+:mod:`casflex.simulate.exact_poly`, reproduces it with coefficients interpolated in time
+(measured: ``benchmarks/README_fidelity.md``, "poly for the exact kinematics").
 """
 
 from __future__ import annotations

@@ -7,7 +7,9 @@ configuration only (the derivation is in the Notes of
 ``foreshortening=True`` ``M_qq`` is quadratic in δ, which adds a term linear in δ to the
 modal rows and quadratic ones to the torques (:func:`configuration_function`). The
 configuration arrays ``F(q(t))`` are interpolated in time by Chebyshev pieces, then RK4
-runs on the polynomial form.
+runs on the polynomial form. A model with ``kinematics="exact"`` is not polynomial in δ:
+its form, truncated at degree 2, is :mod:`casflex.simulate.exact_poly`, which
+:func:`simulate` runs through the same interpolation and RK4 chunks.
 
 Configuration arrays
     :func:`configuration_function` (``F(q)``), :func:`unpack` (the flat rows as matrices).
@@ -35,6 +37,7 @@ import numpy as np
 
 from casflex.errors import ModelError
 from casflex.moves import reference_sampler
+from casflex.simulate import exact_poly
 from casflex.simulate.chebyshev import breaks, interpolants, piece_index, values_at
 from casflex.simulate.integrators import call_buffered, rk4_step, step_cache
 
@@ -95,8 +98,9 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     ['M', 'dM', 'omega', 'domega2', 'g0', 'gd']
     """
     if getattr(model, "kinematics", "truncated") == "exact":
-        raise ModelError("simulate_prescribed(method='poly') needs M and g polynomial in "
-                         "delta; a model with kinematics='exact' is not: use method='rk4'")
+        raise ModelError("configuration_function needs M and g polynomial in delta; a "
+                         "model with kinematics='exact' is not: its degree-2 coefficients "
+                         "are casflex.simulate.exact_poly.configuration_function")
     memo = step_cache(model)
     F = memo.get("poly_F")
     if F is not None:
@@ -553,17 +557,38 @@ def stage(m: int) -> tuple[ca.Function, int]:
 _CHUNK = 250
 
 
-def _rk4_chunk(model, dt):
+def _form(model):
+    """``(F, stage_of, node_rows, torque)`` of the model's polynomial form: the
+    truncated kinematics' (this module) or the exact kinematics' at degree 2 in δ
+    (:mod:`casflex.simulate.exact_poly`). ``stage_of(m)`` builds the stage ``(rhs,
+    size)``, ``node_rows(raw, dq, ddq)`` gives the stage and torque rows at the
+    interpolation nodes, ``torque(R, d, v, dd)`` the torques."""
+    n, m = model.n, model.m
+    if getattr(model, "kinematics", "truncated") == "exact":
+        return (exact_poly.configuration_function(model), exact_poly.stage,
+                lambda raw, dq, ddq: exact_poly.node_rows(raw, n, m, ddq),
+                lambda R, d, v, dd: exact_poly.torque(R, n, m, d, v, dd))
+    zeta = model.damping_ratio
+
+    def node_rows(raw, dq, ddq):
+        R = rows(unpack(raw, n, m, dq), dq, n, m, zeta)
+        return modal(R, ddq), torque_rows(R, ddq)
+
+    return (configuration_function(model), stage, node_rows,
+            lambda R, d, v, dd: torque(R, n, m, d, v, dd))
+
+
+def _rk4_chunk(model, dt, stage_of):
     """``mapaccum`` over ``_CHUNK`` RK4 steps with the coefficients at t, t + dt/2 and
     t + dt as the per-step input (building a mapaccum costs time linear in its length, so
-    a long simulation calls this chunk repeatedly)."""
+    a long simulation calls this chunk repeatedly); ``stage_of(m)`` builds the stage."""
     m = model.m
     memo = step_cache(model)
-    key = ("poly", m, float(dt))
+    key = ("poly", getattr(model, "kinematics", "truncated"), m, float(dt))
     cached = memo.get(key)
     if cached is not None:
         return cached
-    rhs, nc = stage(m)
+    rhs, nc = stage_of(m)
     z = ca.SX.sym("z", 2 * m)
     p = ca.SX.sym("p", 3 * nc)
     k = {}
@@ -689,10 +714,14 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
         # its stage rows take the stiffness as diag(ω²): a rotated basis has a full K̃
         raise ModelError("method='poly' needs a diagonal modal stiffness; this model has a "
                          "full K̃ (a smooth mode basis) — use method='rk4'")
+    if getattr(model, "kinematics", "truncated") == "exact" and jit is not False:
+        # measured: its coefficient function is 2.6 M SX instructions at 3 modes
+        raise ModelError("jit is not offered with kinematics='exact' and method='poly': "
+                         "the coefficient function is too large to compile; use jit=False")
     info = {}
     start = time.perf_counter()
-    F = configuration_function(model)
-    acc, rhs = _rk4_chunk(model, float(dt))
+    F, stage_of, node_rows, torque_of = _form(model)
+    acc, rhs = _rk4_chunk(model, float(dt), stage_of)
     info["poly_build_s"] = time.perf_counter() - start
     info["poly_F_instructions"] = int(F.n_instructions())
     if jit is not False:
@@ -706,7 +735,6 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
                 poly_max_nodes_per_piece=int(kmax) + 1, poly_interp_rel_err=err,
                 poly_interp_s=time.perf_counter() - start)
     start = time.perf_counter()
-    zeta = model.damping_ratio
     # stage and torque coefficients on the nodes of every piece, with the piece's q̈
     # (constant between the breaks; the nodes at a break take their own piece's side)
     sizes = [p[2].size for p in pieces]
@@ -714,11 +742,11 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
     dq_nodes = sampler(tn_all)[1]
     piece_ddq = sampler(np.array([0.5 * (p[0] + p[1]) for p in pieces]))[2]
     ddq_nodes = np.repeat(piece_ddq, sizes, axis=0)
-    node_rows = rows(unpack(np.vstack([p[4] for p in pieces]), n, m, dq_nodes),
-                     dq_nodes, n, m, zeta)
+    modal_rows, torque_rows_ = node_rows(np.vstack([p[4] for p in pieces]), dq_nodes,
+                                         ddq_nodes)
     cut = np.cumsum(sizes)[:-1]
-    modal_nodes = np.split(modal(node_rows, ddq_nodes), cut)
-    torque_nodes = np.split(torque_rows(node_rows, ddq_nodes), cut)
+    modal_nodes = np.split(modal_rows, cut)
+    torque_nodes = np.split(torque_rows_, cut)
     th = t[:-1] + 0.5 * dt
     ddq = sampler(t)[2]
     ddqh = sampler(th)[2]
@@ -745,6 +773,6 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
     DD = np.vstack([dds, dd_last])
     info["poly_integrate_s"] = time.perf_counter() - start
     start = time.perf_counter()
-    tau = torque(values_at(pieces, torque_nodes, t, ia), n, m, Z[:, :m], Z[:, m:], DD)
+    tau = torque_of(values_at(pieces, torque_nodes, t, ia), Z[:, :m], Z[:, m:], DD)
     info["poly_torque_s"] = time.perf_counter() - start
     return Z, tau, info

@@ -183,7 +183,7 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
     ModelError
         Joint-count mismatch, bad step, times or method; ``"poly"`` with a sampled or planned
         reference or when the interpolation does not reach 1e-10; ``jit`` with another
-        method.
+        method or with ``kinematics="exact"``.
     SolverError
         The CasADi integrator failed.
     casflex.codegen.BuildError
@@ -225,6 +225,14 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
     interpolation error; it is faster when the model is large and the reference crosses
     few table knots, and ``jit`` takes the evaluation of ``F`` and the RK4 steps out of
     CasADi's virtual machine (measured figures: ``benchmarks/README_model.md``).
+
+    With ``kinematics="exact"`` M and h are not polynomial in δ: ``"poly"`` integrates
+    the model whose ``(q, δ)``-coefficients are cut at degree 2 in δ
+    (:mod:`casflex.simulate.exact_poly`; its coefficients are functions of ``(q, q̇)``
+    interpolated the same way; the truncation measured at 0.1 % of the peak on Table 9
+    move 3, ``benchmarks/README_fidelity.md``), equal to
+    :func:`casflex.simulate.simulate_taylor` at degree 2 to the interpolation error, not
+    to ``"rk4"``; ``jit`` is refused there.
 
     Examples
     --------
@@ -378,7 +386,8 @@ def simulate_move(robot: Robot, move: Move, n_modes: int = 5, *, dt: float = 1e-
         fast moves against their cost: ``benchmarks/README_fidelity.md``).
     kinematics : {"truncated", "exact"}
         The :class:`casflex.model.FlexibleModel` option (``"exact"``: the links rebuilt
-        from the modal strains; not with ``method="poly"``).
+        from the modal strains; with ``method="poly"`` truncated at degree 2 in δ, see
+        :func:`simulate_prescribed`).
 
     Returns
     -------

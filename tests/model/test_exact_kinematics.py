@@ -347,8 +347,9 @@ def test_default_and_modal_mass(arm):
 
 @pytest.mark.slow
 def test_consumers_that_need_truncated_kinematics_refuse(arm):
-    """``poly`` simulation (M polynomial in δ) cannot take the exact model: a ModelError
-    naming the option, never a silently truncated number. The accelerometers take it
+    """Compiled ``poly`` simulation cannot take the exact model (its degree-2 coefficient
+    function is too large to compile; uncompiled poly takes it: tests/simulate/
+    test_exact_poly.py): a ModelError naming the option. The accelerometers take it
     (tests/sensors/test_sensor_exact_kinematics.py), and so does RK4."""
     from casflex.moves import Move
     from casflex.sensors import Accelerometer, SensorSet, kinematic_measurement
@@ -359,7 +360,7 @@ def test_consumers_that_need_truncated_kinematics_refuse(arm):
                           gravity=None, kinematics="exact")
     move = Move(np.zeros(3), np.array([-0.1, 0.0, 0.0]), 0.2, settle=0.0)
     with pytest.raises(ModelError, match="kinematics='exact'"):
-        simulate_prescribed(model, move, dt=0.01, method="poly")
+        simulate_prescribed(model, move, dt=0.01, method="poly", jit=True)
     assert kinematic_measurement(model, sensors).name_out() == ["y"]
     result = simulate_prescribed(model, move, dt=0.01, method="rk4")  # rk4 takes it
     assert np.isfinite(result.tip_deflection).all()

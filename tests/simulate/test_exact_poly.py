@@ -1,0 +1,105 @@
+"""``method="poly"`` on the exact kinematics, truncated at degree 2 in δ
+(casflex/simulate/exact_poly.py, issue 19).
+
+References, each computed without the coefficient arrays under test: the exact model's own
+rows and torques (``functions()["prescribed"]``), which the degree-2 form must match to
+O(|δ|³); the degree-2 truncation of :func:`casflex.simulate.simulate_taylor`, which
+differentiates the assembled rows along the ray through the state (a scalar), never
+forming a coefficient; RK4 on the exact rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from casflex.errors import ModelError
+from casflex.model import FlexibleModel, PointwiseProvider
+from casflex.moves import Move
+from casflex.simulate import exact_poly, simulate_prescribed, simulate_taylor
+from casflex.simulate.chebyshev import evaluate
+
+Q = np.array([0.1, 0.3, -0.8])  # in- and out-of-plane modes (test_exact_kinematics.py)
+RNG = np.random.default_rng(1919)
+
+
+@pytest.fixture(scope="module")
+def exact(arm):
+    """The exact kinematics on two modes frozen at ``Q``, gravity on (its δ-terms too);
+    its coefficient function is ~0.2 M instructions, ~10 s to build."""
+    return FlexibleModel(arm, PointwiseProvider(arm, Q, count=2), kinematics="exact")
+
+
+@pytest.mark.slow  # the 2-mode coefficient function's graph: ~10 s of CPU
+def test_rows_and_torques_differ_from_the_exact_model_by_the_cube(exact):
+    """The degree-2 stage and torque rows at one state differ from the exact model's by
+    O(|δ|³): halving δ along a fixed direction (δ̇, q̇, q̈ fixed) divides the difference
+    by 8, within x/÷ 1.3 (δ from 0.01 to 0.0025 √kg m, tip deflections of a few mm:
+    from 0.02 to 0.01 the ratio is still ~10.7, the δ⁴ term a third of the δ³ one). The
+    torques take the exact δ̈, so that they test the torque rows alone. At δ = 0 both
+    agree to rounding."""
+    n, m = exact.n, exact.m
+    q, dq, ddq = Q, RNG.normal(0.0, 1.0, 3), RNG.normal(0.0, 3.0, 3)
+    u, v = RNG.normal(0.0, 1.0, m), RNG.normal(0.0, 1.0, m)
+    u /= np.linalg.norm(u)
+    raw = evaluate(exact_poly.configuration_function(exact), q[None], dq[None])
+    modal, torques = exact_poly.node_rows(raw, n, m, ddq[None])
+    rhs, size = exact_poly.stage(m)
+    assert modal.shape == (1, size)
+    prescribed = exact.functions()["prescribed"]
+    errors = {"dd": [], "tau": []}
+    for s in (0.0, 0.01, 0.005, 0.0025):
+        d = s * u
+        tau, dd = (x.full().ravel() for x in prescribed(q, dq, ddq, d, v))
+        dd_poly = rhs(modal[0], np.r_[d, v]).full().ravel()[m:]
+        tau_poly = exact_poly.torque(torques, n, m, d[None], v[None], dd[None])[0]
+        errors["dd"].append(np.linalg.norm(dd_poly - dd) / np.linalg.norm(dd))
+        errors["tau"].append(np.linalg.norm(tau_poly - tau) / np.linalg.norm(tau))
+    for key, e in errors.items():
+        assert e[0] < 1e-12, (key, e)
+        for big, small in zip(e[1:-1], e[2:], strict=True):
+            assert 8 / 1.3 < big / small < 8 * 1.3, (key, e)
+
+
+@pytest.mark.slow  # the degree-2 ray graph of simulate_taylor and the coefficients: ~25 s
+def test_poly_runs_the_degree_two_truncation(exact):
+    """poly on the exact model integrates the rows that :func:`simulate_taylor` (degree
+    2) integrates, by another path (coefficients interpolated in time against derivatives
+    along the ray at every stage): same RK4 steps, so the runs agree to the interpolation
+    tolerance (1e-10 of each array's range), here within 1e-9 of the peak. Against RK4 on
+    the exact rows they differ by the truncation: not zero, and within a few % of the
+    peak on this hard turn of all joints with gravity (|δ| up to 0.27 √kg m)."""
+    move = Move(Q, Q + np.array([-1.0, 0.5, 0.5]), 0.5, settle=0.2)
+    poly = simulate_prescribed(exact, move, dt=1e-3, method="poly")
+    taylor = simulate_taylor(exact, move, 2, dt=1e-3)
+    rk4 = simulate_prescribed(exact, move, dt=1e-3)
+    peak = np.abs(taylor["tip_deflection"]).max()
+    assert np.abs(poly.tip_deflection - taylor["tip_deflection"]).max() < 1e-9 * peak
+    assert np.abs(poly.delta - taylor["delta"]).max() < 1e-9 * np.abs(taylor["delta"]).max()
+    gap = np.abs(poly.tip_deflection - rk4.tip_deflection).max() / peak
+    assert 1e-3 < gap < 0.05, gap  # measured 1.3 % (|δ| up to 0.27 √kg m, gravity on)
+
+
+def test_jit_and_the_truncated_configuration_refuse_the_exact_model(exact):
+    """The exact model's coefficient function is too large to compile (jit), and the
+    truncated kinematics' F(q) is not its form: ModelErrors that name the way out."""
+    from casflex.simulate import poly
+
+    move = Move(Q, Q + np.array([-0.1, 0.0, 0.0]), 0.2)
+    with pytest.raises(ModelError, match="jit.*kinematics='exact'"):
+        simulate_prescribed(exact, move, dt=0.01, method="poly", jit=True)
+    with pytest.raises(ModelError, match="exact_poly.configuration_function"):
+        poly.configuration_function(exact)
+    with pytest.raises(ModelError, match="kinematics='exact'"):
+        exact_poly.configuration_function(FlexibleModel(exact.robot, exact.provider))
+
+
+def test_a_graph_over_the_budget_is_refused(arm, monkeypatch):
+    """The coefficients' derivatives would build ~(1 + m + m²) times the rows' graph
+    (5 modes: ~28 M nodes, > 6 GB measured): over :data:`exact_poly.GRAPH_BUDGET` the
+    build is refused up front, naming the projection and the way out (here a 1-mode model
+    against a budget lowered below its ~0.37 M)."""
+    model = FlexibleModel(arm, PointwiseProvider(arm, Q, count=1), kinematics="exact")
+    monkeypatch.setattr(exact_poly, "GRAPH_BUDGET", 1e5)
+    with pytest.raises(ModelError, match=r"1 modes.*times 1 \+ m \+ m² = 3.*method='rk4'"):
+        exact_poly.configuration_function(model)
