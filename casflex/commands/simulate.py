@@ -159,8 +159,10 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
                "foreshortening": getattr(args, "foreshortening", False),
                "kinematics": getattr(args, "kinematics", "truncated")}
     if options["kinematics"] == "exact" and args.method == "poly":
-        raise ModelError("--kinematics exact: needs --method rk4, cvodes or idas (poly needs "
-                         "a model polynomial in delta)")
+        raise ModelError("--kinematics exact: needs --method rk4, cvodes or idas (poly "
+                         "gives rk4's result only for a model polynomial in delta; the exact "
+                         "model's poly form is cut at degree 2 in delta: "
+                         "casflex.simulate.simulate_prescribed(method='poly'))")
     cache_dir = cache_dir_of(args)
     if jit:  # the compiled library must live on disk: --no-cache gives a temporary one
         with disk_cache(cache_dir) as tmp:
