@@ -15,7 +15,8 @@ the shaped move's residual tip deflection as the end tolerance (``--end``), and 
 verification of the plan by simulation at ``--dt`` (0.1 ms by default): the planned
 joint motion with the prescribed-motion simulator and the planned torques with the
 torque-driven simulator.
-``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too,
+``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too
+(by default each scenario's bound is the shaped move's residual at that frequency error),
 and evaluates both moves there.
 
 JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_peak``

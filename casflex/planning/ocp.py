@@ -49,6 +49,7 @@ from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives
+from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
@@ -454,9 +455,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Lower and upper joint bounds [rad] at every node and collocation point (``±inf``
         for none). Default: the joint limits of ``model.robot`` (none where a joint has
         none). The start and the goal must lie within them.
-    end : "rest" or "free" or float
+    end : "rest" or "free" or float or sequence of float
         End condition of the modes: at rest (``δ`` static, ``δ̇ = 0``), no condition, or
-        the residual tip deflection bound (module docstring) [m].
+        the residual tip deflection bound (module docstring) [m], one for all scenarios or
+        one per scenario (nominal, −r, +r; ``stats["end"]`` the nominal, ``end_bounds`` all).
     deflection_bound : float, optional
         Bound on the tip deflection ‖tip − tip_rigid‖ at every node [m].
     robust : float
@@ -577,10 +579,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
-    if isinstance(end, str):
-        end = choice(end, "end", ("rest", "free"))
-    else:
-        end = number(end, "end", low=0.0, low_open=True)
+    end, end_list = end_bounds(end, 3 if robust > 0.0 and m else 1)
     if deflection_bound is not None:
         deflection_bound = number(deflection_bound, "deflection_bound", low=0.0,
                                   low_open=True)
@@ -751,9 +750,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                 opti.subject_to(dd == 0)
             else:
                 omega = np.sqrt(np.diag(s.functions()["stiffness"](qf).full()))
-                expr = _residual_terms(v_norm, omega, d, dd, ds, 1e-3 * end / max(m, 1))
-                residual_cons.append(expr)
-                opti.subject_to(expr <= end)
+                b = end_list[len(residual_cons)]
+                residual_cons.append(_residual_terms(v_norm, omega, d, dd, ds, 1e-3 * b / m))
+                opti.subject_to(residual_cons[-1] <= b)
     if deflection_bound is not None and m:
         tip = f["tip"]
         for k in range(1, N + 1):
@@ -858,7 +857,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "solve_cpu_s": solve_cpu_s,
         "objective": objective, "objective_value": float(values(opti.f)),
         "energy": float(values(energy)), "intervals": N, "substeps": substeps,
-        "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
+        "scenarios": [0.0, *errors], "end": end, "end_bounds": end_list,
+        "ocp_residual": ocp_residual,
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
         "derivatives": derivatives,
