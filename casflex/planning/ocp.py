@@ -49,6 +49,8 @@ from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives
+from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
+from casflex.planning.derivatives import implicit_collocation_function, static_lookup
 from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
@@ -68,9 +70,10 @@ TRANSCRIPTIONS = ("collocation", "shooting")
 DYNAMICS = ("implicit", "explicit")
 
 #: how :func:`plan_move` builds the NLP's derivatives: CasADi's sweeps through the whole
-#: problem, per-interval blocks (:func:`casflex.planning.block_derivatives`), or the
-#: constraint Jacobian from blocks and the Hessian CasADi's
-DERIVATIVES = ("casadi", "blocks", "blocks-jacobian")
+#: problem, per-interval blocks (:func:`casflex.planning.block_derivatives`), the
+#: constraint Jacobian from blocks and the Hessian CasADi's, or both from the blocks of
+#: one collocation point (:mod:`casflex.planning.derivatives`)
+DERIVATIVES = ("casadi", "blocks", "blocks-jacobian", "points")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -185,63 +188,6 @@ def _collocation_function(ode, nxa, n, degree):
     except RuntimeError:
         pass
     return G, tau_c[1:]
-
-
-def _implicit_collocation_function(model, shifted, nxa, degree):
-    """``G(x, Xc, Ac, τ, h) -> (defects, torque_defects, x_end)``: the collocation of
-    :func:`_collocation_function` with implicit dynamics. The joint accelerations ``Ac``
-    at the collocation points are NLP variables; the modal rows and the joint torques
-    that go with them come from the model's prescribed-motion form (``prescribed``:
-    ``δ̈`` from the modal rows of ``M Ẍ + h = [τ; 0]`` given ``q̈``, then ``τ`` from the
-    joint rows), and ``torque_defects = τ(x, q̈) − τ_interval``. No ``(n + m)`` square
-    system is solved symbolically, so the derivatives are a fraction of the explicit
-    form's. The frequency-shifted scenarios' modal rows take the same ``q̈``."""
-    n, m = model.n, model.m
-    nx = 2 * (n + m)
-    pres = model.functions()["prescribed"]
-    rows = [s.functions()["dddelta"] for s in shifted]
-    C, D = _collocation_matrices(degree)
-    x = ca.SX.sym("x", nxa)
-    Xc = ca.SX.sym("Xc", nxa, degree)
-    Ac = ca.SX.sym("Ac", n, degree)
-    u = ca.SX.sym("tau", n)
-    h = ca.SX.sym("h")
-    P = ca.horzcat(x, Xc)
-    defects, torque = [], []
-    for j in range(1, degree + 1):
-        xj, a = Xc[:, j - 1], Ac[:, j - 1]
-        q, d, dq, dd = xj[:n], xj[n:n + m], xj[n + m:2 * n + m], xj[2 * n + m:nx]
-        tau, ddd = pres(q, dq, a, d, dd)
-        xdot = [dq, dd, a, ddd]
-        for k, row in enumerate(rows):
-            z = xj[nx + 2 * m * k:nx + 2 * m * (k + 1)]
-            xdot += [z[m:], row(q, dq, a, z[:m], z[m:])]
-        defects.append(h * ca.vertcat(*xdot) - P @ C[:, j])
-        torque.append(tau - u)
-    G = ca.Function("implicit_collocation", [x, Xc, Ac, u, h],
-                    [ca.horzcat(*defects), ca.horzcat(*torque), P @ D],
-                    ["x", "Xc", "Ac", "tau", "h"], ["defects", "torque", "xf"])
-    try:
-        G = G.expand()
-    except RuntimeError:
-        pass
-    return G
-
-
-def _collocation_matrices(degree):
-    """``C[r, j] = l_r'(τ_j)`` and ``D[r] = l_r(1)`` of the Lagrange basis through 0 and
-    the ``degree`` Gauss–Legendre points (interval fractions)."""
-    tau_c = np.r_[0.0, ca.collocation_points(degree, "legendre")]
-    C = np.zeros((degree + 1, degree + 1))
-    D = np.zeros(degree + 1)
-    for r in range(degree + 1):
-        coeff = np.array([1.0])
-        for s in range(degree + 1):
-            if s != r:
-                coeff = np.convolve(coeff, [1.0, -tau_c[s]]) / (tau_c[r] - tau_c[s])
-        D[r] = np.polyval(coeff, 1.0)
-        C[r] = np.polyval(np.polyder(coeff), tau_c)
-    return C, D
 
 
 def _propagator(model, node_x, node_tau, h, substeps, tc=None, Xc=None):
@@ -500,18 +446,24 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
         :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
         holds the objective and the constraint violation of every iterate.
-    derivatives : {"casadi", "blocks", "blocks-jacobian"}
+    derivatives : {"casadi", "blocks", "blocks-jacobian", "points"}
         How the NLP's constraint Jacobian and Hessian of the Lagrangian are built:
         CasADi's sweeps through the whole problem, or (implicit collocation only) the
         interval function's own Jacobian and Hessian evaluated per interval and
         scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`),
-        or the Jacobian so and the Hessian CasADi's. Equal to round-off, at another cost
-        (move 1, per call: Jacobian 0.48 s vs 0.77 s, Hessian 1.40 s vs 0.95 s).
+        or the Jacobian so and the Hessian CasADi's, or both from the Jacobian and
+        Hessian of the dynamics at one collocation point, evaluated at all points in one
+        mapped call (:mod:`casflex.planning.derivatives`: small functions that compile
+        to C in seconds). Equal to round-off, at another cost (move 1, CPU seconds per
+        call, Jacobian / Hessian: 0.36 / 0.63 ``blocks-jacobian``, benchmarks/README_planning.md
+        for ``points``).
     compile_function : callable, optional
-        With ``derivatives="blocks"``: ``compile_function(functions) -> functions``, the
-        interval's Jacobian and Hessian functions replaced by compiled ones (e.g. C
+        With ``derivatives="blocks"`` or ``"points"``: ``compile_function(functions) ->
+        functions``, the Jacobian and Hessian functions replaced by compiled ones (e.g. C
         through :func:`casflex.codegen.compile_cached`, which the planning package may
-        not import: the caller passes it). Default: interpreted.
+        not import: the caller passes it); with ``"points"`` the OCP's dynamics then read
+        the tables through static local B-splines
+        (:func:`casflex.planning.derivatives.static_lookup`). Default: interpreted.
 
     Returns
     -------
@@ -687,7 +639,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Xc = opti.variable(nxa, N * degree)
         opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         if implicit:
-            G = _implicit_collocation_function(model, shifted, nxa, degree)
+            G, split = implicit_collocation_function(*(static_lookup(model, errors) if
+                                                       compile_function and derivatives ==
+                                                       "points" else (model, shifted)), degree)
             Ac = opti.variable(n, N * degree)
             sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1)
             opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
@@ -803,7 +757,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
                                         [0, 1], block_rows, [defect_scale, torque_scale], N,
                                         compile_function=compile_function,
-                                        hessian=derivatives == "blocks"))
+                                        hessian=derivatives != "blocks-jacobian",
+                                        point=split if derivatives == "points" else None))
     opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
