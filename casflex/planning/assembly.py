@@ -105,8 +105,8 @@ def point_split(name: str, zin: Sequence[ca.SX], points: Sequence[ca.SX], phi: c
     >>> Y = ca.SX.sym("Y", 1, 2)
     >>> G, split = point_split("G", [x, u], [ca.vertcat(x[0], u), ca.vertcat(x[1], u)],
     ...                        phi, Y, [Y - x.T], [0])
-    >>> float(G([1.0, 2.0], 3.0)[0, 1])   # sin(2) * 3 - 2
-    0.7278923145180599
+    >>> round(float(G([1.0, 2.0], 3.0)[0, 1]), 12)   # sin(2) * 3 - 2
+    0.727892280477
     >>> split.inputs.tolist(), split.rows.tolist()
     ([[0, 2], [1, 2]], [[0], [1]])
     """
