@@ -153,6 +153,30 @@ def test_plans_with_block_derivatives_equal_casadi_s(onelink, kw):
         np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
 
 
+def test_compiled_point_derivatives_give_casadi_s_plan(onelink, tmp_path):
+    # the point function's Jacobian and Hessian compiled to C (as casflex plan
+    # --derivatives points and benchmarks/bench_planning.py --compile do)
+    from casflex.codegen import compile_cached
+
+    built = []
+
+    def compile_points(functions):
+        lib, info = compile_cached(functions, "plan_points", cache_dir=tmp_path,
+                                   flags=("-O0",))
+        built.append(sorted(lib))
+        return [lib[f.name()] for f in functions]
+
+    move = Move([0.0], [1.0], 2.0, settle=1.0)
+    common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, "end": 2e-3}
+    a = plan_move(onelink, move, **common)
+    b = plan_move(onelink, move, derivatives="points", compile_function=compile_points,
+                  **common)
+    assert built == [["implicit_point_hess", "implicit_point_jac"]]
+    assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
+    assert b.duration == pytest.approx(a.duration, rel=1e-9)
+    np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
+
+
 def test_block_derivatives_need_implicit_collocation(onelink):
     with pytest.raises(ModelError, match="derivatives"):
         plan_move(onelink, [0.0], [1.0], torque_limit=0.05, transcription="shooting",
