@@ -124,13 +124,7 @@ def point_split(name: str, zin: Sequence[ca.SX], points: Sequence[ca.SX], phi: c
         raise ValueError("point_split: the outputs and the points must be linear in the "
                          "inputs and the point values")
     L, S, E = probe(np.zeros(z.shape[0]), np.zeros(Y.numel()))
-    rows = np.full(Y.numel(), -1)
-    St = _to_csr(S.T)
-    St.eliminate_zeros()
-    if np.any(np.diff(St.indptr) != 1) or np.any(St.data != 1.0):
-        raise ValueError("point_split: every point value must enter one output entry with "
-                         "factor 1")
-    rows[:] = St.indices
+    rows = _selection(S.T, "where every point value enters the outputs")
     inputs = _selection(E, "every point's input")
     nw, nyp = W.shape[0], Y.shape[0]
     return G, PointSplit(phi, inputs.reshape(K, nw), rows.reshape(K, nyp), _to_csr(L),
