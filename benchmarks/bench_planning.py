@@ -34,7 +34,8 @@ Usage::
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
         [--transcription collocation|shooting] [--dynamics implicit|explicit]
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
-        [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks] [--compile]
+        [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
+        [--compile [--compile-flags FLAGS]]
 """
 
 from __future__ import annotations
@@ -87,10 +88,13 @@ def main(argv: list[str] | None = None) -> dict:
                         help="modes of the OCP's model (verified on the study's 3)")
     parser.add_argument("--no-progress-stop", action="store_true",
                         help="only Ipopt's own stopping tests (no ProgressStop)")
-    parser.add_argument("--derivatives", choices=("casadi", "blocks", "blocks-jacobian"),
+    parser.add_argument("--derivatives",
+                        choices=("casadi", "blocks", "blocks-jacobian", "points"),
                         default="casadi",
                         help="the NLP's derivatives: CasADi's sweeps (default) or "
                              "per-interval blocks (casflex.planning.block_derivatives)")
+    parser.add_argument("--compile-flags", default="-O1", metavar="FLAGS",
+                        help="compiler flags of --compile (default -O1)")
     parser.add_argument("--compile", action="store_true",
                         help="with --derivatives blocks: the interval blocks in C "
                              "(casflex.codegen.compile_cached; built once, cached)")
@@ -117,7 +121,8 @@ def main(argv: list[str] | None = None) -> dict:
         from casflex.codegen import compile_cached
 
         def compile_blocks(functions):
-            lib, info = compile_cached(functions, "plan_blocks")
+            lib, info = compile_cached(functions, "plan_blocks",
+                                       flags=tuple(args.compile_flags.split()))
             compiled.setdefault("compile_s", []).append(info["seconds"])
             compiled.setdefault("built", []).append(info["built"])
             return [lib[f.name()] for f in functions]

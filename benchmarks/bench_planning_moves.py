@@ -9,8 +9,8 @@ modes, 3° grid, ``delta_order`` 0, no gravity):
    deflection as the end bound (:func:`casflex.planning.plan_robot_move`, what ``casflex
    plan`` runs; cold, from the shaped move);
 2. for the moves of ``--robust-moves``: the robust plan (``robust = r``: the end bound
-   must hold on the models whose frequencies are off by ±r too; the bound is the largest
-   residual of the shaped move over −r, 0, +r, as ``casflex plan --robust`` takes it),
+   must hold on the models whose frequencies are off by ±r too; each scenario's bound is
+   the shaped move's residual at that error, as ``casflex plan --robust`` takes it),
    warm-started node by node from the nominal plan;
 3. each of them evaluated at the frequency errors −r, 0, +r
    (:func:`casflex.planning.frequency_shifted_model`) by the verification simulators at
@@ -144,7 +144,8 @@ def plan_record(plan, limits, evaluation, model):
     rec = {"duration": plan.duration, "status": st.get("status"),
            "iterations": st.get("iterations"), "solve_s": st.get("solve_s"),
            "solve_cpu_s": st.get("solve_cpu_s"), "intervals": st.get("intervals"),
-           "end_bound": st.get("end"), "scenarios": st.get("scenarios"),
+           "end_bound": st.get("end"), "end_bounds": st.get("end_bounds"),
+           "scenarios": st.get("scenarios"),
            "ocp_residual": st.get("ocp_residual"),
            "residual_bound": st.get("residual_bound"),
            "warm_start": st.get("warm_start"),
@@ -202,9 +203,11 @@ def run_move(name, args, study, out_path, robust_moves):
     store(out_path, name, record)
     log(f"{name}: nominal stored")
     if name in robust_moves:
-        end = max(shaped_eval["prescribed"])
-        log(f"{name}: robust ±{r:g} plan, end bound {1e3 * end:.4f} mm (the shaped move's "
-            "largest over the errors), warm from the nominal plan")
+        # one bound per scenario (0, -r, +r): the shaped move's residual at that error
+        res = dict(zip(errors, shaped_eval["prescribed"], strict=True))
+        end = [res[0.0], res[-r], res[r]]
+        log(f"{name}: robust ±{r:g} plan, end bounds {[round(1e3 * b, 4) for b in end]} mm "
+            "(the shaped move's at 0, -r, +r), warm from the nominal plan")
         robust = plan_move(model, move, end=end, robust=r, guess=c.plan,
                            torque_limit=limits["torque"], velocity_limit=limits["velocity"],
                            max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0))

@@ -15,7 +15,8 @@ the shaped move's residual tip deflection as the end tolerance (``--end``), and 
 verification of the plan by simulation at ``--dt`` (0.1 ms by default): the planned
 joint motion with the prescribed-motion simulator and the planned torques with the
 torque-driven simulator.
-``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too,
+``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too
+(by default each scenario's bound is the shaped move's residual at that frequency error),
 and evaluates both moves there.
 
 JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_peak``
@@ -97,7 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the NLP's derivatives: casadi (CasADi's sweeps, the default), "
                         "or with collocation blocks-jacobian (the interval's own Jacobian "
                         "scattered per interval: ~40 %% cheaper per call on move 1) or "
-                        "blocks (its Hessian too)")
+                        "blocks (its Hessian too) or points (both from one collocation "
+                        "point's, compiled to C once and cached)")
     parser.add_argument("--end", default=None, metavar="rest|free|TOL",
                         help="end condition of the modes: at rest, free, or a residual tip "
                         "deflection bound in m (default the shaped move's residual)")
@@ -124,6 +126,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "deflection")
     add_processes_argument(parser, help="worker processes for the tables (default all CPUs)")
     add_cache_arguments(parser)
+
+
+def _compiler(derivatives, cache_dir):
+    """``compile_function`` of :func:`casflex.planning.plan_move` for ``"points"``: the
+    point function's Jacobian and Hessian compiled once (-O0: seconds; the cached
+    library is reused), ``None`` (interpreted) otherwise or without a cache."""
+    if derivatives != "points" or cache_dir is False:
+        return None
+    from casflex.codegen import compile_cached
+
+    def compile_points(functions):
+        lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir, flags=("-O0",))
+        return [lib[f.name()] for f in functions]
+    return compile_points
 
 
 def _end(text):
@@ -209,7 +225,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         cache_dir=cache_dir_of(args),
         processes=getattr(args, "processes", None), progress=True, log=log,
         max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
-        derivatives=derivatives, **options)
+        derivatives=derivatives, compile_function=_compiler(derivatives, cache_dir_of(args)),
+        **options)
     summary = comparison.summary()
     log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "
         f"({100 * summary['shortening']:.1f} % shorter); residual tip deflection planned "

@@ -27,13 +27,16 @@ LIMIT_STATUSES
     iterate :func:`plan_move` returns.
 
 DERIVATIVES
-    How :func:`plan_move` builds the NLP's derivatives (CasADi's, or per-interval blocks).
+    How :func:`plan_move` builds the NLP's derivatives (CasADi's, per-interval blocks, or
+    per-point blocks).
 
 Derivatives from per-interval blocks (:mod:`casflex.planning.assembly`)
 -----------------------------------------------------------------------
 block_derivatives
     The NLP's constraint Jacobian and Hessian of the Lagrangian assembled from the
-    interval function's own derivatives (Ipopt's ``jac_g`` and ``hess_lag``).
+    interval function's own derivatives (Ipopt's ``jac_g`` and ``hess_lag``), or from
+    those of one point function (``point``: :func:`casflex.planning.assembly.point_split`,
+    the implicit collocation's in :mod:`casflex.planning.derivatives`).
 
 Stopping (:mod:`casflex.planning.stopping`)
 --------------------------------------------
@@ -52,6 +55,8 @@ Limits (:mod:`casflex.planning.limits`)
 ---------------------------------------
 shaped_move_limits
     The torque and velocity limits of a plan from the shaped version of its move.
+end_bounds
+    :func:`plan_move`'s end condition: one residual bound, or one per scenario.
 plan_limits
     Peak torques and velocities of a reference with the joints on it (the default limits).
 
@@ -95,7 +100,7 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.assembly import block_derivatives
-from casflex.planning.limits import plan_limits, shaped_move_limits
+from casflex.planning.limits import end_bounds, plan_limits, shaped_move_limits
 from casflex.planning.ocp import (
     DERIVATIVES,
     DYNAMICS,
@@ -136,6 +141,7 @@ __all__ = [
     "PlannedMove",
     # limits
     "shaped_move_limits",
+    "end_bounds",
     # verification
     "verify_plan",
     "plan_robot_move",

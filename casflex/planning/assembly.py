@@ -22,13 +22,113 @@ variables and constraints (``x = s x̃ + o``, ``g̃ = g / s_g``).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["block_derivatives"]
+__all__ = ["block_derivatives", "PointSplit", "point_split"]
+
+
+@dataclass(frozen=True)
+class PointSplit:
+    """An interval function written as ``y(z) = L z + Σ_j S_j φ(E_j z)``: a linear part
+    and ``K`` calls of one point function ``φ`` on selections of the interval's stacked
+    inputs ``z`` (:func:`point_split`).
+
+    Attributes
+    ----------
+    phi : casadi.Function
+        ``φ(w) -> y_p`` (SX; one column input of ``nw`` entries, one column output of
+        ``nyp``).
+    inputs : numpy.ndarray, shape (K, nw)
+        Index in ``z`` of every entry of every point's ``w``.
+    rows : numpy.ndarray, shape (K, nyp)
+        Index in ``y`` (the stacked constraint outputs) of every point's output entries.
+    linear : scipy.sparse.csr_matrix, shape (ny, nz)
+        ``L``.
+    outputs : tuple of int
+        The interval function's outputs that ``y`` stacks.
+    """
+
+    phi: ca.Function
+    inputs: np.ndarray
+    rows: np.ndarray
+    linear: sp.csr_matrix
+    outputs: tuple
+
+
+def _selection(A, what):
+    """Column of the one unit entry of every row of the constant ``A`` (else ValueError)."""
+    A = _to_csr(A)
+    A.eliminate_zeros()
+    if np.any(np.diff(A.indptr) != 1) or np.any(A.data != 1.0):
+        raise ValueError(f"point_split: {what} must be a selection (one entry 1 per row)")
+    return A.indices.copy()
+
+
+def point_split(name: str, zin: Sequence[ca.SX], points: Sequence[ca.SX], phi: ca.Function,
+                Y: ca.SX, outs: Sequence[ca.SX], outputs: Sequence[int]
+                ) -> tuple[ca.Function, PointSplit]:
+    """The interval function built from ``K`` calls of a point function, and its split.
+
+    Parameters
+    ----------
+    name : str
+        Name of the interval function.
+    zin : sequence of casadi.SX
+        Its input symbols.
+    points : sequence of casadi.SX
+        ``w_j`` of every point (columns): selections of entries of ``zin``.
+    phi : casadi.Function
+        ``φ(w) -> y_p`` (SX).
+    Y : casadi.SX
+        Symbols ``(nyp, K)`` standing for ``φ(w_j)`` in ``outs``.
+    outs : sequence of casadi.SX
+        The interval function's outputs in ``zin`` and ``Y``; those of ``outputs`` linear
+        in them, each entry of ``Y`` in exactly one entry with factor 1.
+    outputs : sequence of int
+        The outputs that are constraint rows (:func:`block_derivatives`).
+
+    Returns
+    -------
+    (casadi.Function, PointSplit)
+        The interval function (``φ`` substituted, expanded to SX) and its split.
+
+    Examples
+    --------
+    >>> x, u = ca.SX.sym("x", 2), ca.SX.sym("u")
+    >>> w = ca.SX.sym("w", 2)
+    >>> phi = ca.Function("phi", [w], [ca.sin(w[0]) * w[1]])
+    >>> Y = ca.SX.sym("Y", 1, 2)
+    >>> G, split = point_split("G", [x, u], [ca.vertcat(x[0], u), ca.vertcat(x[1], u)],
+    ...                        phi, Y, [Y - x.T], [0])
+    >>> round(float(G([1.0, 2.0], 3.0)[0, 1]), 12)   # sin(2) * 3 - 2
+    0.727892280477
+    >>> split.inputs.tolist(), split.rows.tolist()
+    ([[0, 2], [1, 2]], [[0], [1]])
+    """
+    K = len(points)
+    z = ca.vertcat(*[ca.vec(s) for s in zin])
+    W = ca.horzcat(*points)
+    G = ca.Function(name, list(zin), [ca.substitute(o, ca.vec(Y), ca.vec(phi.map(K)(W)))
+                                      for o in outs])
+    y = ca.vertcat(*[ca.vec(outs[j]) for j in outputs])
+    probe = ca.Function("probe", [z, ca.vec(Y)],
+                        [ca.jacobian(y, z), ca.jacobian(y, ca.vec(Y)),
+                         ca.jacobian(ca.vec(W), z)])
+    if any(ca.depends_on(e, ca.vertcat(z, ca.vec(Y))) for e in
+           (ca.jacobian(y, z), ca.jacobian(y, ca.vec(Y)), ca.jacobian(ca.vec(W), z))):
+        raise ValueError("point_split: the outputs and the points must be linear in the "
+                         "inputs and the point values")
+    L, S, E = probe(np.zeros(z.shape[0]), np.zeros(Y.numel()))
+    rows = _selection(S.T, "where every point value enters the outputs")
+    inputs = _selection(E, "every point's input")
+    nw, nyp = W.shape[0], Y.shape[0]
+    return G, PointSplit(phi, inputs.reshape(K, nw), rows.reshape(K, nyp), _to_csr(L),
+                         tuple(outputs))
 
 
 def _to_csr(A):
@@ -58,7 +158,8 @@ def _interval_inputs(G, arg_shapes, n):
 def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Sequence[Any],
                       outputs: Sequence[int], rows: Sequence[int],
                       scales: Sequence[np.ndarray], n: int,
-                      compile_function: Any = None, hessian: bool = True) -> dict:
+                      compile_function: Any = None, hessian: bool = True,
+                      point: PointSplit | None = None) -> dict:
     """``jac_g`` and ``hess_lag`` for ``opti.solver`` from per-interval blocks.
 
     The constraints of ``opti`` must be complete. Output ``outputs[j]`` of the mapped call
@@ -90,6 +191,11 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     hessian : bool
         Also the Hessian of the Lagrangian (else only ``jac_g``: Ipopt's Hessian stays
         CasADi's).
+    point : PointSplit, optional
+        ``G`` as a linear part and calls of one point function (:func:`point_split`): the
+        blocks come from the point function's Jacobian and Hessian, evaluated at every
+        point of every interval in one mapped call (small functions: quick to compile),
+        instead of the whole interval's.
 
     Returns
     -------
@@ -127,22 +233,15 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     if gs.size != ng:
         gs = np.ones(ng)
 
-    # the interval function's derivatives, on its stacked inputs
-    zin = [ca.SX.sym(f"z{i}", G.sparsity_in(i)) for i in range(G.n_in())]
-    z = ca.vertcat(*[ca.vec(s) for s in zin])
-    gout = G.call(zin)
-    y = ca.vertcat(*[ca.vec(gout[j]) for j in outputs])
-    mu = ca.SX.sym("mu", y.shape[0])
-    Jz = ca.jacobian(y, z)
-    Hz = ca.triu(ca.hessian(ca.dot(mu, y), z)[0]) if hessian else ca.SX(z.shape[0], z.shape[0])
-    jac_f = ca.Function("interval_jac", [z], [ca.vertcat(*Jz.nonzeros())])
-    hess_f = ca.Function("interval_hess", [z, mu], [ca.vertcat(*Hz.nonzeros())])
-    if compile_function is not None:
-        jac_f, hess_f = compile_function([jac_f, hess_f] if hessian else [jac_f]) + \
-            ([] if hessian else [hess_f])
-    jrow, jcol = Jz.sparsity().get_triplet()
-    hrow, hcol = Hz.sparsity().get_triplet()
-    jrow, jcol, hrow, hcol = (np.asarray(a, dtype=int) for a in (jrow, jcol, hrow, hcol))
+    # the interval's derivatives on its stacked inputs z: entries (row in y, column in z)
+    # whose values are ``coef`` times entry ``src`` of the interval's value vector
+    if point is None:
+        jd, hd = _interval_entries(G, outputs, hessian, compile_function)
+    else:
+        if tuple(outputs) != tuple(point.outputs):
+            raise ValueError("block_derivatives: the point split covers other outputs")
+        jd, hd = _point_entries(point, hessian, compile_function)
+    nz = int(sum(G.sparsity_in(i).numel() for i in range(G.n_in())))
 
     # the NLP's rows of every output entry, per interval, and their divisors
     sizes = [G.sparsity_out(j).numel() for j in outputs]
@@ -172,7 +271,6 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
             raise ValueError("block_derivatives: an argument of the mapped call is not "
                              "linear in the NLP's variables")
     P = _interval_inputs(G, sel, n)
-    nz = int(z.shape[0])
     # every input entry of an interval is one NLP variable times a constant (a selection,
     # or T / N): var[k, i] and its factor, in the scaled variables
     var = np.zeros((n, nz), dtype=int)
@@ -189,26 +287,31 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
         fac[k, has] = Pk.data * xs[Pk.indices]
     # Jacobian: entry e of interval k's block goes to NLP row row_of[k, jrow[e]], column
     # var[k, jcol[e]]
-    nj, nh = jrow.size, hrow.size
+    jrow, jcol, jsrc, jcoef = jd["row"], jd["col"], jd["src"], jd["coef"]
+    nj, nvj = jrow.size, jd["values"]
     ks = np.repeat(np.arange(n), nj)
     es = np.tile(np.arange(nj), n)
     tr = row_of[ks, jrow[es]]
     tc = var[ks, jcol[es]]
-    coef = fac[ks, jcol[es]] / (div_of[ks, jrow[es]] * gscale_of[ks, jrow[es]])
+    coef = jcoef[es] * fac[ks, jcol[es]] / (div_of[ks, jrow[es]] * gscale_of[ks, jrow[es]])
     on = coef != 0.0
-    jac_dyn_sp, jac_map = _scatter(tr[on], tc[on], (ks * nj + es)[on], coef[on], ng, nx,
-                                   n * nj)
-    # Hessian: entry e of interval k's upper triangle (z rows hrow, columns hcol) goes to
-    # the upper triangle at its two variables; an off-diagonal entry whose two inputs are
-    # the same variable counts twice
-    ks = np.repeat(np.arange(n), nh)
-    es = np.tile(np.arange(nh), n)
-    v1, v2 = var[ks, hrow[es]], var[ks, hcol[es]]
-    coef = fac[ks, hrow[es]] * fac[ks, hcol[es]] * np.where(
-        (hrow[es] != hcol[es]) & (v1 == v2), 2.0, 1.0)
-    on = coef != 0.0
-    hess_dyn_sp, hess_map = _scatter(np.minimum(v1, v2)[on], np.maximum(v1, v2)[on],
-                                     (ks * nh + es)[on], coef[on], nx, nx, n * nh)
+    jac_dyn_sp, jac_map = _scatter(tr[on], tc[on], (ks * nvj + jsrc[es])[on], coef[on], ng,
+                                   nx, n * nvj)
+    if hessian:
+        # Hessian: entry e of interval k's upper triangle (z rows hrow, columns hcol) goes
+        # to the upper triangle at its two variables; an off-diagonal entry whose two
+        # inputs are the same variable counts twice
+        hrow, hcol, hsrc = hd["row"], hd["col"], hd["src"]
+        nh, nvh = hrow.size, hd["values"]
+        ks = np.repeat(np.arange(n), nh)
+        es = np.tile(np.arange(nh), n)
+        v1, v2 = var[ks, hrow[es]], var[ks, hcol[es]]
+        coef = fac[ks, hrow[es]] * fac[ks, hcol[es]] * np.where(
+            (hrow[es] != hcol[es]) & (v1 == v2), 2.0, 1.0)
+        on = coef != 0.0
+        hess_dyn_sp, hess_map = _scatter(np.minimum(v1, v2)[on], np.maximum(v1, v2)[on],
+                                         (ks * nvh + hsrc[es])[on], coef[on], nx, nx,
+                                         n * nvh)
     mu_rows = row_of.ravel()
     mu_scale = 1.0 / (div_of * gscale_of).ravel()
 
@@ -223,19 +326,22 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     # the rest of the problem: Opti's expressions with the interval rows taken out
     g_rest = ca.graph_substitute(opti.g, [mapped[j] for j in outputs],
                                  [ca.MX.zeros(mapped[j].sparsity()) for j in outputs])
-    nlp = ca.Function("nlp", [x, opti.p], [opti.g, g_rest, opti.f, *args])
-    g_all, g_rest, f, *margs = nlp.call([xu, p])
+    # the derivatives of the rest from a function of its own: differentiated through a
+    # call of a function that also returns opti.g, CasADi's sweeps would run through
+    # the mapped interval function too (move 1 of the design study: ~1.2 s per Hessian)
+    nlp = ca.Function("nlp", [x, opti.p], [opti.g, *args])
+    rest = ca.Function("rest", [x, opti.p], [g_rest, opti.f])
+    g_all, *margs = nlp.call([xu, p])
+    g_rest, f = rest.call([xu, p])
     g_all, g_rest, f = g_all / gs, g_rest / gs, f / fs
     Z = _stacked_inputs(G, margs, n)
     jac_rest = ca.jacobian(g_rest, xt)
     hess_rest = ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g * keep, g_rest), xt)[0]) \
         if hessian else None
-    jblocks = jac_f.map(n)(Z)
-    jac_dyn = ca.MX(jac_dyn_sp, ca.mtimes(jac_map, ca.vec(jblocks)))
+    jac_dyn = ca.MX(jac_dyn_sp, ca.mtimes(jac_map, ca.vec(jd["evaluate"](Z, n))))
     if hessian:
         muk = ca.reshape(lam_g[mu_rows] * mu_scale, ny, n)
-        hblocks = hess_f.map(n)(Z, muk)
-        hess_dyn = ca.MX(hess_dyn_sp, ca.mtimes(hess_map, ca.vec(hblocks)))
+        hess_dyn = ca.MX(hess_dyn_sp, ca.mtimes(hess_map, ca.vec(hd["evaluate"](Z, muk, n))))
     jac_g = ca.Function("nlp_jac_g", [xt, p], [g_all, jac_rest + jac_dyn],
                         ["x", "p"], ["g", "jac_g_x"])
     if not hessian:
@@ -243,6 +349,75 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     hess_lag = ca.Function("nlp_hess_l", [xt, p, lam_f, lam_g], [hess_rest + hess_dyn],
                            ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
     return {"jac_g": jac_g, "hess_lag": hess_lag}
+
+
+def _interval_entries(G, outputs, hessian, compile_function):
+    """The entries of the interval function's Jacobian and upper-triangular Hessian of
+    ``μᵀy`` (one value each, from its own symbolic derivatives) and their evaluation over
+    the intervals (``evaluate(Z, n)``, ``evaluate(Z, μ, n)``: one column per interval)."""
+    zin = [ca.SX.sym(f"z{i}", G.sparsity_in(i)) for i in range(G.n_in())]
+    z = ca.vertcat(*[ca.vec(s) for s in zin])
+    gout = G.call(zin)
+    y = ca.vertcat(*[ca.vec(gout[j]) for j in outputs])
+    Jsp, Hsp, jac_f, hess_f = _derivative_functions("interval", z, y, hessian,
+                                                    compile_function)
+    return (_entries(Jsp, lambda Z, n: jac_f.map(n)(Z)),
+            _entries(Hsp, lambda Z, mu, n: hess_f.map(n)(Z, mu)))
+
+
+def _derivative_functions(name, z, y, hessian, compile_function):
+    """Sparsities of ``∂y/∂z`` and of the upper triangle of ``∂²(μᵀy)/∂z²``, and the SX
+    functions of their nonzeros, ``name_jac(z)`` and ``name_hess(z, μ)`` (compiled by
+    ``compile_function`` when given)."""
+    mu = ca.SX.sym("mu", y.shape[0])
+    Jz = ca.jacobian(y, z)
+    Hz = ca.triu(ca.hessian(ca.dot(mu, y), z)[0]) if hessian else ca.SX(z.shape[0], z.shape[0])
+    jac_f = ca.Function(f"{name}_jac", [z], [ca.vertcat(*Jz.nonzeros())])
+    hess_f = ca.Function(f"{name}_hess", [z, mu], [ca.vertcat(*Hz.nonzeros())])
+    if compile_function is not None:
+        jac_f, hess_f = compile_function([jac_f, hess_f] if hessian else [jac_f]) + \
+            ([] if hessian else [hess_f])
+    return Jz.sparsity(), Hz.sparsity(), jac_f, hess_f
+
+
+def _entries(sparsity, evaluate):
+    rows, cols = (np.asarray(a, dtype=int) for a in sparsity.get_triplet())
+    return {"row": rows, "col": cols, "src": np.arange(rows.size), "coef": np.ones(rows.size),
+            "values": rows.size, "evaluate": evaluate}
+
+
+def _point_entries(point, hessian, compile_function):
+    """:func:`_interval_entries` from a :class:`PointSplit`: the point function's Jacobian
+    and Hessian evaluated at all ``K n`` points in one mapped call, the interval's entries
+    being the points' entries at their rows and columns plus the constant ``L``."""
+    phi = point.phi
+    K, nw = point.inputs.shape
+    nyp = point.rows.shape[1]
+    w = ca.SX.sym("w", nw)
+    Jsp, Hsp, jac_f, hess_f = _derivative_functions(phi.name(), w, phi(w), hessian,
+                                                    compile_function)
+    take = point.inputs.ravel().tolist()
+    take_mu = point.rows.ravel().tolist()
+
+    def points_of(Z, n):  # w of every point, one column each (interval-major)
+        return ca.reshape(Z[take, :], nw, K * n)
+
+    jr, jc = (np.asarray(a, dtype=int) for a in Jsp.get_triplet())
+    nnz = jr.size
+    L = point.linear.tocoo()
+    jac = {"row": np.r_[point.rows[:, jr].ravel(), L.row],
+           "col": np.r_[point.inputs[:, jc].ravel(), L.col],
+           "src": np.r_[np.arange(K * nnz), np.full(L.nnz, K * nnz)],
+           "coef": np.r_[np.ones(K * nnz), L.data], "values": K * nnz + 1,
+           "evaluate": lambda Z, n: ca.vertcat(
+               ca.reshape(jac_f.map(K * n)(points_of(Z, n)), K * nnz, n), ca.DM.ones(1, n))}
+    hr, hc = (np.asarray(a, dtype=int) for a in Hsp.get_triplet())
+    hess = {"row": point.inputs[:, hr].ravel(), "col": point.inputs[:, hc].ravel(),
+            "src": np.arange(K * hr.size), "values": K * hr.size,
+            "evaluate": lambda Z, muk, n: ca.reshape(
+                hess_f.map(K * n)(points_of(Z, n), ca.reshape(muk[take_mu, :], nyp, K * n)),
+                K * hr.size, n)}
+    return jac, hess
 
 
 def _stacked_inputs(G, args, n):

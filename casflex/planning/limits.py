@@ -1,8 +1,10 @@
-"""The planner's limits from the shaped version of a move (a fair comparison).
+"""The planner's limits from the shaped version of a move (a fair comparison), and its
+end condition per scenario.
 
 :func:`shaped_move_limits` is the rule ``casflex plan`` and the design job's ``[planner]``
 share: the peak torques and velocities of the shaped move with the joints on it
 (:func:`casflex.planning.plan_limits`), except for the joints the move holds.
+:func:`end_bounds` reads :func:`casflex.planning.plan_move`'s ``end``.
 """
 
 from __future__ import annotations
@@ -11,11 +13,66 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from casflex._validate import choice, fail, number
+
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["shaped_move_limits", "plan_limits"]
+__all__ = ["shaped_move_limits", "plan_limits", "end_bounds"]
+
+
+def end_bounds(end: Any, scenarios: int) -> tuple[str | float, list[float] | None]:
+    """:func:`casflex.planning.plan_move`'s ``end`` as ``(end, bounds)``.
+
+    Parameters
+    ----------
+    end : "rest" or "free" or float or sequence of float
+        The end condition: the modes at rest, none, one residual tip deflection bound
+        [m] for every scenario, or one bound per scenario [m] in the order of
+        ``stats["scenarios"]`` (nominal, ``-r``, ``+r``).
+    scenarios : int
+        Scenarios of the plan (1, or 3 with ``robust > 0``).
+
+    Returns
+    -------
+    (str or float, list of float or None)
+        ``"rest"`` / ``"free"`` and ``None``, or the nominal bound and the bound of every
+        scenario [m].
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``end`` is none of these, or a bound is not finite and > 0, or a sequence's
+        length is not ``scenarios``.
+
+    Examples
+    --------
+    >>> end_bounds(0.01, 3)
+    (0.01, [0.01, 0.01, 0.01])
+    >>> end_bounds([0.01, 0.02, 0.005], 3)
+    (0.01, [0.01, 0.02, 0.005])
+    >>> end_bounds([0.01, 0.02], 3)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: end = [0.01, 0.02]: must be one residual bound [m] per ...
+    """
+    if isinstance(end, str):
+        return choice(end, "end", ("rest", "free")), None
+    if np.ndim(end) == 0:
+        bound = number(end, "end", low=0.0, low_open=True)
+        return bound, [bound] * scenarios
+    try:
+        values = list(end)
+    except TypeError:
+        raise fail("end", end, "must be 'rest', 'free', a residual bound [m] or one bound "
+                   "per scenario") from None
+    if len(values) != scenarios:
+        raise fail("end", end, f"must be one residual bound [m] per scenario ({scenarios}"
+                   + (": nominal, -r, +r" if scenarios == 3 else ": the nominal model")
+                   + f"), got {len(values)}")
+    bounds = [number(v, f"end[{k}]", low=0.0, low_open=True) for k, v in enumerate(values)]
+    return bounds[0], bounds
 
 
 def shaped_move_limits(model: FlexibleModel, move: Move, shaped: ShapedMove, *,

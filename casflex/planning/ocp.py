@@ -49,6 +49,9 @@ from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives
+from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
+from casflex.planning.derivatives import implicit_collocation_function, static_lookup
+from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
@@ -67,9 +70,10 @@ TRANSCRIPTIONS = ("collocation", "shooting")
 DYNAMICS = ("implicit", "explicit")
 
 #: how :func:`plan_move` builds the NLP's derivatives: CasADi's sweeps through the whole
-#: problem, per-interval blocks (:func:`casflex.planning.block_derivatives`), or the
-#: constraint Jacobian from blocks and the Hessian CasADi's
-DERIVATIVES = ("casadi", "blocks", "blocks-jacobian")
+#: problem, per-interval blocks (:func:`casflex.planning.block_derivatives`), the
+#: constraint Jacobian from blocks and the Hessian CasADi's, or both from the blocks of
+#: one collocation point (:mod:`casflex.planning.derivatives`)
+DERIVATIVES = ("casadi", "blocks", "blocks-jacobian", "points")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -184,63 +188,6 @@ def _collocation_function(ode, nxa, n, degree):
     except RuntimeError:
         pass
     return G, tau_c[1:]
-
-
-def _implicit_collocation_function(model, shifted, nxa, degree):
-    """``G(x, Xc, Ac, τ, h) -> (defects, torque_defects, x_end)``: the collocation of
-    :func:`_collocation_function` with implicit dynamics. The joint accelerations ``Ac``
-    at the collocation points are NLP variables; the modal rows and the joint torques
-    that go with them come from the model's prescribed-motion form (``prescribed``:
-    ``δ̈`` from the modal rows of ``M Ẍ + h = [τ; 0]`` given ``q̈``, then ``τ`` from the
-    joint rows), and ``torque_defects = τ(x, q̈) − τ_interval``. No ``(n + m)`` square
-    system is solved symbolically, so the derivatives are a fraction of the explicit
-    form's. The frequency-shifted scenarios' modal rows take the same ``q̈``."""
-    n, m = model.n, model.m
-    nx = 2 * (n + m)
-    pres = model.functions()["prescribed"]
-    rows = [s.functions()["dddelta"] for s in shifted]
-    C, D = _collocation_matrices(degree)
-    x = ca.SX.sym("x", nxa)
-    Xc = ca.SX.sym("Xc", nxa, degree)
-    Ac = ca.SX.sym("Ac", n, degree)
-    u = ca.SX.sym("tau", n)
-    h = ca.SX.sym("h")
-    P = ca.horzcat(x, Xc)
-    defects, torque = [], []
-    for j in range(1, degree + 1):
-        xj, a = Xc[:, j - 1], Ac[:, j - 1]
-        q, d, dq, dd = xj[:n], xj[n:n + m], xj[n + m:2 * n + m], xj[2 * n + m:nx]
-        tau, ddd = pres(q, dq, a, d, dd)
-        xdot = [dq, dd, a, ddd]
-        for k, row in enumerate(rows):
-            z = xj[nx + 2 * m * k:nx + 2 * m * (k + 1)]
-            xdot += [z[m:], row(q, dq, a, z[:m], z[m:])]
-        defects.append(h * ca.vertcat(*xdot) - P @ C[:, j])
-        torque.append(tau - u)
-    G = ca.Function("implicit_collocation", [x, Xc, Ac, u, h],
-                    [ca.horzcat(*defects), ca.horzcat(*torque), P @ D],
-                    ["x", "Xc", "Ac", "tau", "h"], ["defects", "torque", "xf"])
-    try:
-        G = G.expand()
-    except RuntimeError:
-        pass
-    return G
-
-
-def _collocation_matrices(degree):
-    """``C[r, j] = l_r'(τ_j)`` and ``D[r] = l_r(1)`` of the Lagrange basis through 0 and
-    the ``degree`` Gauss–Legendre points (interval fractions)."""
-    tau_c = np.r_[0.0, ca.collocation_points(degree, "legendre")]
-    C = np.zeros((degree + 1, degree + 1))
-    D = np.zeros(degree + 1)
-    for r in range(degree + 1):
-        coeff = np.array([1.0])
-        for s in range(degree + 1):
-            if s != r:
-                coeff = np.convolve(coeff, [1.0, -tau_c[s]]) / (tau_c[r] - tau_c[s])
-        D[r] = np.polyval(coeff, 1.0)
-        C[r] = np.polyval(np.polyder(coeff), tau_c)
-    return C, D
 
 
 def _propagator(model, node_x, node_tau, h, substeps, tc=None, Xc=None):
@@ -454,9 +401,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Lower and upper joint bounds [rad] at every node and collocation point (``±inf``
         for none). Default: the joint limits of ``model.robot`` (none where a joint has
         none). The start and the goal must lie within them.
-    end : "rest" or "free" or float
+    end : "rest" or "free" or float or sequence of float
         End condition of the modes: at rest (``δ`` static, ``δ̇ = 0``), no condition, or
-        the residual tip deflection bound (module docstring) [m].
+        the residual tip deflection bound (module docstring) [m], one for all scenarios or
+        one per scenario (nominal, −r, +r; ``stats["end"]`` the nominal, ``end_bounds`` all).
     deflection_bound : float, optional
         Bound on the tip deflection ‖tip − tip_rigid‖ at every node [m].
     robust : float
@@ -498,18 +446,24 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
         :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
         holds the objective and the constraint violation of every iterate.
-    derivatives : {"casadi", "blocks", "blocks-jacobian"}
+    derivatives : {"casadi", "blocks", "blocks-jacobian", "points"}
         How the NLP's constraint Jacobian and Hessian of the Lagrangian are built:
         CasADi's sweeps through the whole problem, or (implicit collocation only) the
         interval function's own Jacobian and Hessian evaluated per interval and
         scattered into the NLP's matrices (:func:`casflex.planning.block_derivatives`),
-        or the Jacobian so and the Hessian CasADi's. Equal to round-off, at another cost
-        (move 1, per call: Jacobian 0.48 s vs 0.77 s, Hessian 1.40 s vs 0.95 s).
+        or the Jacobian so and the Hessian CasADi's, or both from the Jacobian and
+        Hessian of the dynamics at one collocation point, evaluated at all points in one
+        mapped call (:mod:`casflex.planning.derivatives`: small functions that compile
+        to C in seconds). Equal to round-off, at another cost (move 1, CPU seconds per
+        call, Jacobian / Hessian: 0.36 / 0.63 ``blocks-jacobian``, benchmarks/README_planning.md
+        for ``points``).
     compile_function : callable, optional
-        With ``derivatives="blocks"``: ``compile_function(functions) -> functions``, the
-        interval's Jacobian and Hessian functions replaced by compiled ones (e.g. C
+        With ``derivatives="blocks"`` or ``"points"``: ``compile_function(functions) ->
+        functions``, the Jacobian and Hessian functions replaced by compiled ones (e.g. C
         through :func:`casflex.codegen.compile_cached`, which the planning package may
-        not import: the caller passes it). Default: interpreted.
+        not import: the caller passes it); with ``"points"`` the OCP's dynamics then read
+        the tables through static local B-splines
+        (:func:`casflex.planning.derivatives.static_lookup`). Default: interpreted.
 
     Returns
     -------
@@ -577,10 +531,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
-    if isinstance(end, str):
-        end = choice(end, "end", ("rest", "free"))
-    else:
-        end = number(end, "end", low=0.0, low_open=True)
+    end, end_list = end_bounds(end, 3 if robust > 0.0 and m else 1)
     if deflection_bound is not None:
         deflection_bound = number(deflection_bound, "deflection_bound", low=0.0,
                                   low_open=True)
@@ -688,7 +639,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Xc = opti.variable(nxa, N * degree)
         opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         if implicit:
-            G = _implicit_collocation_function(model, shifted, nxa, degree)
+            G, split = implicit_collocation_function(*(static_lookup(model, errors) if
+                                                       compile_function and derivatives ==
+                                                       "points" else (model, shifted)), degree)
             Ac = opti.variable(n, N * degree)
             sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1)
             opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
@@ -751,9 +704,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                 opti.subject_to(dd == 0)
             else:
                 omega = np.sqrt(np.diag(s.functions()["stiffness"](qf).full()))
-                expr = _residual_terms(v_norm, omega, d, dd, ds, 1e-3 * end / max(m, 1))
-                residual_cons.append(expr)
-                opti.subject_to(expr <= end)
+                b = end_list[len(residual_cons)]
+                residual_cons.append(_residual_terms(v_norm, omega, d, dd, ds, 1e-3 * b / m))
+                opti.subject_to(residual_cons[-1] <= b)
     if deflection_bound is not None and m:
         tip = f["tip"]
         for k in range(1, N + 1):
@@ -804,7 +757,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
                                         [0, 1], block_rows, [defect_scale, torque_scale], N,
                                         compile_function=compile_function,
-                                        hessian=derivatives == "blocks"))
+                                        hessian=derivatives != "blocks-jacobian",
+                                        point=split if derivatives == "points" else None))
     opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
@@ -858,7 +812,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "solve_cpu_s": solve_cpu_s,
         "objective": objective, "objective_value": float(values(opti.f)),
         "energy": float(values(energy)), "intervals": N, "substeps": substeps,
-        "scenarios": [0.0, *errors], "end": end, "ocp_residual": ocp_residual,
+        "scenarios": [0.0, *errors], "end": end, "end_bounds": end_list,
+        "ocp_residual": ocp_residual,
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
         "derivatives": derivatives,

@@ -21,7 +21,7 @@ from casflex._validate import number
 from casflex.model import FlexibleModel
 
 __all__ = ["ScaledFrequencyProvider", "frequency_shifted_model", "static_deflection",
-           "tip_jacobian"]
+           "tip_jacobian", "with_provider"]
 
 
 class ScaledFrequencyProvider:
@@ -145,11 +145,37 @@ def frequency_shifted_model(model: FlexibleModel, error: float) -> FlexibleModel
     error = number(error, "frequency error", low=-1.0, low_open=True)
     if error == 0.0:
         return model
-    return FlexibleModel(model.robot, ScaledFrequencyProvider(model.provider, 1.0 + error),
-                         gravity=model.gravity, damping_ratio=model.damping_ratio,
-                         delta_order=model.delta_order, modal_mass=model.modal_mass,
-                         shape_rates=model.shape_rates, foreshortening=model.foreshortening,
-                         kinematics=model.kinematics)
+    return with_provider(model, ScaledFrequencyProvider(model.provider, 1.0 + error))
+
+
+def with_provider(model: FlexibleModel, provider: Any) -> FlexibleModel:
+    """``model`` with its modal quantities from ``provider`` (same robot and options).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    provider : object
+        A provider of :mod:`casflex.model.providers` (or a wrapper of one).
+
+    Returns
+    -------
+    casflex.model.FlexibleModel
+        Same robot, gravity, damping ratio, ``delta_order``, ``modal_mass``,
+        ``shape_rates``, ``foreshortening`` and ``kinematics``.
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> with_provider(model, model.provider).delta_order == model.delta_order
+    True
+    """
+    return FlexibleModel(model.robot, provider, gravity=model.gravity,
+                         damping_ratio=model.damping_ratio, delta_order=model.delta_order,
+                         modal_mass=model.modal_mass, shape_rates=model.shape_rates,
+                         foreshortening=model.foreshortening, kinematics=model.kinematics)
 
 
 def static_deflection(model: FlexibleModel, q: ArrayLike) -> np.ndarray:

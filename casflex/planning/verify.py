@@ -306,7 +306,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     no torque limit (its servo holds it against the reaction of the others' motion,
     which a faster move raises) and a velocity limit of 1e-3 of the moving joints'. The
     plan's end condition is, by default, the residual tip deflection of the shaped move
-    (with the joints on it). Both are simulated at ``dt`` (:func:`verify_plan`), and at
+    (with the joints on it), in each scenario of a robust plan the shaped move's at that
+    frequency error. Both are simulated at ``dt`` (:func:`verify_plan`), and at
     ``±robust`` when ``robust > 0``.
 
     Parameters
@@ -318,8 +319,9 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     objective, duration, robust, intervals
         As for :func:`casflex.planning.plan_move` (an ``"energy"`` plan lasts as long as
         the shaped move unless ``duration`` [s] is given).
-    end : "rest" or "free" or float, optional
-        End condition of the plan (default: the shaped move's residual [m]).
+    end : "rest" or "free" or float or sequence of float, optional
+        End condition of the plan (default: the shaped move's residual [m]; with
+        ``robust``, its residual at each of 0, −r, +r as that scenario's bound).
     step : float, optional
         Grid step of the modal tables [rad].
     delta_order : {1, 0}
@@ -437,9 +439,10 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
               for k, val in limits.items()}
     timings["shaped_s"] = time.perf_counter() - t0
     if end is None:
-        # the worst residual of the shaped move over the scenarios the plan must meet
-        end = max([shaped_check["residual"]] +
-                  [e["residual"] for e in shaped_check["errors"]])
+        # every scenario's bound is the shaped move's residual there (nominal, -r, +r):
+        # the plan leaves no more than the shaped move at each frequency error
+        end = [shaped_check["residual"]] + [e["residual"] for e in shaped_check["errors"]]
+        end = end[0] if len(end) == 1 else end
     say(f"planning {move.name}: objective {objective}, {intervals or 'default'} intervals, limits "
         f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
         f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"

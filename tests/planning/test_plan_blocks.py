@@ -55,6 +55,14 @@ def test_block_derivatives_equal_casadi_s_own(fixed_duration):
     d = block_derivatives(opti, G, args, mapped, [0, 1], rows, scales, N)
     assert sorted(block_derivatives(opti, G, args, mapped, [0, 1], rows, scales, N,
                                     hessian=False)) == ["jac_g"]
+    # the same sums of the same products in another order: round-off of the entries
+    _assert_equal_to_casadi_s(opti, d, 1e-12)
+
+
+def _assert_equal_to_casadi_s(opti, d, tol, scale=1.0, seed=15):
+    """``d``'s constraint values, Jacobian and Hessian equal CasADi's of the whole NLP in
+    Opti's scaled variables (x = s x~ + o) to ``tol`` (relative, and of the largest entry)
+    at random points (``scale`` times normal) with random multipliers."""
     adv = opti.advanced
     s = np.asarray(adv.x_linear_scale).ravel()
     o = np.asarray(adv.x_linear_scale_offset).ravel()
@@ -65,18 +73,55 @@ def test_block_derivatives_equal_casadi_s_own(fixed_duration):
     ref_jac = ca.Function("rj", [xt], [g, ca.jacobian(g, xt)])
     ref_hess = ca.Function("rh", [xt, lam_f, lam_g],
                            [ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g, g), xt)[0])])
-    rng = np.random.default_rng(15)
+    rng = np.random.default_rng(seed)
     for _ in range(3):
-        xv, lf, lg = rng.normal(size=opti.nx), rng.normal(), rng.normal(size=opti.ng)
+        xv, lf, lg = scale * rng.normal(size=opti.nx), rng.normal(), rng.normal(size=opti.ng)
         g_b, J_b = d["jac_g"](xv, [])
         g_r, J_r = ref_jac(xv)
         H_b = d["hess_lag"](xv, [], lf, lg)
         H_r = ref_hess(xv, lf, lg)
-        # the same sums of the same products in another order: round-off of the entries
-        np.testing.assert_allclose(g_b.full(), g_r.full(), rtol=1e-13, atol=1e-13)
-        np.testing.assert_allclose(J_b.full(), J_r.full(), rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(H_b.full(), H_r.full(), rtol=1e-12, atol=1e-12)
+        for new, ref in ((g_b, g_r), (J_b, J_r), (H_b, H_r)):
+            ref = ref.full()
+            np.testing.assert_allclose(new.full(), ref, rtol=tol,
+                                       atol=tol * max(np.max(np.abs(ref)), 1.0))
         assert np.all(np.triu(H_b.full()) == H_b.full())  # Ipopt's upper triangle
+
+
+def test_point_split_derivatives_equal_casadi_s_own(onelink):
+    # the planner's NLP shape with its interval function built from the point function
+    # of the implicit dynamics (the nominal one-link model and two frequency-shifted
+    # scenarios), every variable scaled with an offset, the rows scaled: the derivatives
+    # from the point blocks (casflex.planning.derivatives) against CasADi's of the whole
+    # scaled NLP
+    from casflex.planning import frequency_shifted_model
+    from casflex.planning.derivatives import implicit_collocation_function
+
+    shifted = [frequency_shifted_model(onelink, r) for r in (-0.1, 0.1)]
+    G, split = implicit_collocation_function(onelink, shifted, 3)
+    nxa, n, K, N = G.size1_in(0), onelink.n, 3, 4
+    rng = np.random.default_rng(3)
+    opti = ca.Opti()
+    X, Xc = opti.variable(nxa, N + 1), opti.variable(nxa, K * N)
+    Ac, U, T = opti.variable(n, K * N), opti.variable(n, N), opti.variable()
+    for v in (X, Xc, Ac, U):
+        opti.set_linear_scale(v, rng.uniform(0.1, 2.0, v.shape), rng.normal(size=v.shape))
+    opti.set_linear_scale(T, 1.7, 0.3)
+    args = [X[:, :N], Xc, Ac, U, T / N]
+    defects, torque, xf = G.map(N)(*args)
+    sd, st = rng.uniform(0.5, 3.0, defects.shape), rng.uniform(0.5, 3.0, torque.shape)
+    rows = [opti.ng]
+    opti.subject_to(ca.vec(defects / sd) == 0)
+    rows.append(opti.ng)
+    opti.subject_to(ca.vec(torque / st) == 0)
+    opti.subject_to(X[:, 1:] - xf == 0)
+    opti.subject_to(X[:, 0] == 0)
+    opti.subject_to(ca.sumsqr(X[:, N]) <= 1.0)
+    opti.minimize(T + ca.sumsqr(U) * T)
+    d = block_derivatives(opti, G, args, [defects, torque], [0, 1], rows, [sd, st], N,
+                          point=split)
+    _assert_equal_to_casadi_s(opti, d, 1e-10, scale=0.3)
+    with pytest.raises(ValueError, match="other outputs"):
+        block_derivatives(opti, G, args, [defects], [0], rows[:1], [sd], N, point=split)
 
 
 @pytest.fixture(scope="module")
@@ -99,13 +144,37 @@ def test_plans_with_block_derivatives_equal_casadi_s(onelink, kw):
     move = Move([0.0], [1.0], 2.0, settle=1.0)
     common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, **kw}
     a = plan_move(onelink, move, derivatives="casadi", **common)
-    for derivatives in ("blocks", "blocks-jacobian"):
+    for derivatives in ("blocks", "blocks-jacobian", "points"):
         b = plan_move(onelink, move, derivatives=derivatives, **common)
         assert b.stats["derivatives"] == derivatives
         assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
         assert b.duration == pytest.approx(a.duration, rel=1e-9)
         # torques: measured up to 3.5e-7 of the limit apart (the ≤ 2 mm robust case)
         np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
+
+
+def test_compiled_point_derivatives_give_casadi_s_plan(onelink, tmp_path):
+    # the point function's Jacobian and Hessian compiled to C (as casflex plan
+    # --derivatives points and benchmarks/bench_planning.py --compile do)
+    from casflex.codegen import compile_cached
+
+    built = []
+
+    def compile_points(functions):
+        lib, info = compile_cached(functions, "plan_points", cache_dir=tmp_path,
+                                   flags=("-O0",))
+        built.append(sorted(lib))
+        return [lib[f.name()] for f in functions]
+
+    move = Move([0.0], [1.0], 2.0, settle=1.0)
+    common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, "end": 2e-3}
+    a = plan_move(onelink, move, **common)
+    b = plan_move(onelink, move, derivatives="points", compile_function=compile_points,
+                  **common)
+    assert built == [["implicit_point_hess", "implicit_point_jac"]]
+    assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
+    assert b.duration == pytest.approx(a.duration, rel=1e-9)
+    np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
 
 
 def test_block_derivatives_need_implicit_collocation(onelink):

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from casflex.errors import SolverError
+from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel, PointwiseProvider, rigid_provider
 from casflex.planning import PlannedMove, frequency_shifted_model, plan_move, verify_plan
 from casflex.robot import load, loads
@@ -134,6 +134,39 @@ def test_robust_plan_keeps_tolerance_under_frequency_error(flexible):
     assert worst_nominal > 1.5 * tol
     assert worst_robust <= tol * BUDGET
     assert robust.duration > nominal.duration
+
+
+# a robust plan and its verification at 0.1 ms in three scenarios: ~3 s
+def test_robust_plan_meets_one_bound_per_scenario(flexible):
+    # distinct bounds for the nominal, -10 % and +10 % models: the verified residual of
+    # each scenario (an independent simulation of the planned joint motion on the
+    # frequency-shifted model) stays within its own bound, and the tightest one binds.
+    # A planner that applied the nominal bound (or the largest) everywhere would leave
+    # ~2 mm at +10 % (the robust plan with 2 mm everywhere holds 2.00 mm there)
+    r, bounds = 0.1, [2e-3, 3e-3, 1e-3]
+    plan = plan_move(flexible, [0.0], [THETA], torque_limit=TAU_MAX, end=bounds, robust=r,
+                     settle=1.0)
+    assert plan.stats["end"] == 2e-3 and plan.stats["end_bounds"] == bounds
+    assert plan.stats["scenarios"] == [0.0, -r, r]
+    v = verify_plan(flexible, plan, errors=(-r, r), torque=False, dt=DT)
+    verified = [v["prescribed"], v["errors"][0]["prescribed"], v["errors"][1]["prescribed"]]
+    for residual, bound in zip(verified, bounds, strict=True):
+        assert residual <= bound * BUDGET
+    assert verified[2] >= 0.9 * bounds[2]  # the +10 % bound is active
+
+
+def test_end_bounds_are_checked(flexible):
+    kw = {"torque_limit": TAU_MAX, "intervals": 20}
+    with pytest.raises(ModelError, match=r"end = \[0.002, 0.003\]: .*per scenario \(3"):
+        plan_move(flexible, [0.0], [THETA], end=[2e-3, 3e-3], robust=0.1, **kw)
+    with pytest.raises(ModelError, match=r"end = \[0.002, 0.003\]: .*per scenario \(1"):
+        plan_move(flexible, [0.0], [THETA], end=[2e-3, 3e-3], **kw)
+    with pytest.raises(ModelError, match=r"end\[1\] = -0.001: must be > 0"):
+        plan_move(flexible, [0.0], [THETA], end=[2e-3, -1e-3, 1e-3], robust=0.1, **kw)
+    with pytest.raises(ModelError, match=r"end\[2\] = inf: must be finite"):
+        plan_move(flexible, [0.0], [THETA], end=[2e-3, 1e-3, math.inf], robust=0.1, **kw)
+    with pytest.raises(ModelError, match="end = 'tight'"):
+        plan_move(flexible, [0.0], [THETA], end="tight", **kw)
 
 
 def test_infeasible_duration_names_the_torque_limit(flexible):

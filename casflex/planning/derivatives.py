@@ -1,0 +1,201 @@
+"""The implicit collocation interval of :func:`casflex.planning.plan_move` as calls of one
+point function, so that its derivatives can come from that small function's.
+
+At every collocation point the implicit dynamics are one function ``φ`` of the point's
+state, joint accelerations and the interval length (:func:`implicit_point_function`);
+the interval (:func:`implicit_collocation_function`) adds only linear terms (the
+collocation polynomial's derivative, the interval's torque). With
+``derivatives="points"`` the planner's Jacobian and Hessian blocks come from ``φ``'s own
+(:func:`casflex.planning.assembly.point_split`): a function a ``K``-th of the interval's
+size, which compiles to C in seconds where the interval's did not (move 1 of the design
+study: 103 MB of C, not compiled in 5 min).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from casflex.model import FlexibleModel, TableProvider
+from casflex.planning.assembly import PointSplit, point_split
+from casflex.planning.scenarios import frequency_shifted_model, with_provider
+
+__all__ = ["implicit_point_function", "implicit_collocation_function",
+           "collocation_matrices", "static_lookup"]
+
+
+def static_lookup(model: FlexibleModel, errors: list) -> tuple[FlexibleModel, list]:
+    """``model`` with its tables read by local B-splines whose coefficients are static
+    data (:class:`casflex.model.TableProvider` ``lookup="static"``, what the model's C
+    bundle uses), and its frequency-shifted scenarios at ``errors``.
+
+    The same spline to the rounding of its fit (≈ 1e-14 of the values). Compiled, the
+    ``casadi.interpolant`` lookups put the coefficient tables in the C of every
+    derivative: the point function's Jacobian and Hessian on move 1 of the design study
+    are 93 MB of C with them, 27 MB (12 s of ``cc -O0``) with these. A model without a
+    table is returned as it is.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    errors : list of float
+        Relative frequency errors of the scenarios.
+
+    Returns
+    -------
+    (casflex.model.FlexibleModel, list of casflex.model.FlexibleModel)
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> static_lookup(model, [])[0] is model
+    True
+    """
+    p = model.provider
+    if isinstance(p, TableProvider) and p.lookup == "interpolant":
+        model = with_provider(model, TableProvider(p.table, p.method, lookup="static"))
+    return model, [frequency_shifted_model(model, r) for r in errors]
+
+
+def collocation_matrices(degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """``C[r, j] = l_r'(τ_j)`` and ``D[r] = l_r(1)`` of the Lagrange basis through 0 and
+    the ``degree`` Gauss–Legendre points (interval fractions).
+
+    Parameters
+    ----------
+    degree : int
+        Collocation points per interval.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        ``C`` (``degree + 1`` square) and ``D`` (``degree + 1``) [1 / interval, 1].
+
+    Examples
+    --------
+    >>> C, D = collocation_matrices(1)   # the midpoint rule: p' = 2 (x_c - x_0)
+    >>> C[:, 1].tolist(), D.tolist()
+    ([-2.0, 2.0], [-1.0, 2.0])
+    """
+    tau_c = np.r_[0.0, ca.collocation_points(degree, "legendre")]
+    C = np.zeros((degree + 1, degree + 1))
+    D = np.zeros(degree + 1)
+    for r in range(degree + 1):
+        coeff = np.array([1.0])
+        for s in range(degree + 1):
+            if s != r:
+                coeff = np.convolve(coeff, [1.0, -tau_c[s]]) / (tau_c[r] - tau_c[s])
+        D[r] = np.polyval(coeff, 1.0)
+        C[r] = np.polyval(np.polyder(coeff), tau_c)
+    return C, D
+
+
+def implicit_point_function(model: FlexibleModel, shifted: list) -> ca.Function:
+    """``φ(w) = [h ẋa; τ]`` at one collocation point, ``w = [xa; q̈; h]``.
+
+    ``xa`` is the nominal state ``[q; δ; q̇; δ̇]`` and the modal state of every model of
+    ``shifted``; the modal accelerations come from the model's prescribed-motion form
+    (``prescribed``: ``δ̈`` from the modal rows of ``M Ẍ + h = [τ; 0]`` given ``q̈``, then
+    ``τ`` from the joint rows), the shifted models' from their modal rows under the same
+    joint motion.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    shifted : list of casflex.model.FlexibleModel
+        The frequency-shifted scenarios (:func:`casflex.planning.frequency_shifted_model`).
+
+    Returns
+    -------
+    casadi.Function
+        SX; ``w`` of ``nxa + n + 1`` entries [SI units of the states, rad/s², s],
+        output ``nxa + n`` entries (``h ẋa`` in state units, ``τ`` in N m).
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> phi = implicit_point_function(model, [])
+    >>> phi.size1_in(0), phi.size1_out(0)
+    (6, 5)
+    """
+    n, m = model.n, model.m
+    nx = 2 * (n + m)
+    nxa = nx + 2 * m * len(shifted)
+    pres = model.functions()["prescribed"]
+    rows = [s.functions()["dddelta"] for s in shifted]
+    w = ca.SX.sym("w", nxa + n + 1)
+    xj, a, h = w[:nxa], w[nxa:nxa + n], w[nxa + n]
+    q, d, dq, dd = xj[:n], xj[n:n + m], xj[n + m:2 * n + m], xj[2 * n + m:nx]
+    tau, ddd = pres(q, dq, a, d, dd)
+    xdot = [dq, dd, a, ddd]
+    for k, row in enumerate(rows):
+        z = xj[nx + 2 * m * k:nx + 2 * m * (k + 1)]
+        xdot += [z[m:], row(q, dq, a, z[:m], z[m:])]
+    return ca.Function("implicit_point", [w], [ca.vertcat(h * ca.vertcat(*xdot), tau)])
+
+
+def implicit_collocation_function(model: FlexibleModel, shifted: list, degree: int
+                                  ) -> tuple[ca.Function, PointSplit]:
+    """``G(x, Xc, Ac, τ, h) -> (defects, torque_defects, x_end)``: Gauss–Legendre
+    collocation of ``degree`` points on one interval of length ``h`` (torque ``τ``
+    constant) with implicit dynamics, and its split into calls of
+    :func:`implicit_point_function`.
+
+    The state is the polynomial of ``degree`` through ``x`` at 0 and ``Xc`` at the
+    collocation points; the joint accelerations ``Ac`` there are variables.
+    ``defects = h ẋ(t_j) − p'(t_j)``, ``torque_defects = τ(x_j, q̈_j) − τ`` at the points,
+    ``x_end`` the polynomial at the end of the interval. No ``(n + m)`` square system is
+    solved symbolically, so the derivatives are a fraction of the explicit form's.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    shifted : list of casflex.model.FlexibleModel
+        The frequency-shifted scenarios, whose modal rows take the same ``q̈``.
+    degree : int
+        Collocation points per interval.
+
+    Returns
+    -------
+    (casadi.Function, casflex.planning.assembly.PointSplit)
+        ``G`` (SX) and its split (outputs 0 and 1: the defects).
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> G, split = implicit_collocation_function(model, [], 3)
+    >>> G.name_out(), split.inputs.shape
+    (['defects', 'torque', 'xf'], (3, 6))
+    """
+    n = model.n
+    phi = implicit_point_function(model, shifted)
+    nxa = phi.size1_in(0) - n - 1
+    C, D = collocation_matrices(degree)
+    x = ca.SX.sym("x", nxa)
+    Xc = ca.SX.sym("Xc", nxa, degree)
+    Ac = ca.SX.sym("Ac", n, degree)
+    u = ca.SX.sym("tau", n)
+    h = ca.SX.sym("h")
+    Y = ca.SX.sym("Y", nxa + n, degree)  # φ at the points
+    P = ca.horzcat(x, Xc)
+    defects = ca.horzcat(*[Y[:nxa, j - 1] - P @ C[:, j] for j in range(1, degree + 1)])
+    torque = Y[nxa:, :] - ca.repmat(u, 1, degree)
+    points = [ca.vertcat(Xc[:, j], Ac[:, j], h) for j in range(degree)]
+    G, split = point_split("implicit_collocation", [x, Xc, Ac, u, h], points, phi, Y,
+                           [defects, torque, P @ D], [0, 1])
+    G = ca.Function(G.name(), G.sx_in(), G.call(G.sx_in()), ["x", "Xc", "Ac", "tau", "h"],
+                    ["defects", "torque", "xf"])
+    try:
+        G = G.expand()
+    except RuntimeError:
+        pass
+    return G, split
