@@ -51,6 +51,15 @@ class PointSplit:
         ``L``.
     outputs : tuple of int
         The interval function's outputs that ``y`` stacks.
+
+    Examples
+    --------
+    >>> import casadi as ca, numpy as np, scipy.sparse as sp
+    >>> w = ca.SX.sym("w")
+    >>> s = PointSplit(phi=ca.Function("phi", [w], [ca.sin(w)]), inputs=np.array([[0], [1]]),
+    ...                rows=np.array([[0], [1]]), linear=sp.csr_matrix((2, 2)), outputs=(0,))
+    >>> s.inputs.shape  # K = 2 points of one input entry each
+    (2, 1)
     """
 
     phi: ca.Function

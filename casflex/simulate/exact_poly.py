@@ -124,6 +124,19 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     -------
     casadi.Function
         ``exact_poly_configuration (q, dq) -> (M, h0, h1, h2)`` [SI units].
+
+    Examples
+    --------
+    One mode: N = 4, so M has 10 upper-triangle rows, and the monomials are 1, δ, δ².
+
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
+    ...                       gravity=None, kinematics="exact")
+    >>> G = configuration_function(model)
+    >>> G.name_out(), G.size_out(0)
+    (['M', 'h0', 'h1', 'h2'], (10, 3))
     """
     if getattr(model, "kinematics", "truncated") != "exact":
         raise ModelError("exact_poly needs a model with kinematics='exact'; got "
