@@ -44,7 +44,8 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     settings : dict
         The study's ``[planner]`` settings (:attr:`casflex.design.Study.planner`):
         ``objective``, ``duration`` [s], ``weight``, ``robust``, ``end`` (``"shaped"``:
-        the shaped move's residual, ``"rest"``, ``"free"`` or a bound [m]),
+        the shaped move's residual, in each robust scenario its residual there;
+        ``"rest"``, ``"free"`` or a bound [m]),
         ``intervals``, ``transcription``, ``max_iter``, ``verify_dt`` (step of the
         verification by simulation [s]; a step that straddles a torque switch integrates
         the jump of q̈ with an error of up to half a step, so the residual of a plan is
@@ -83,6 +84,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         PlanComparison,
         frequency_shifted_model,
         plan_move,
+        shaped_end,
         shaped_move_limits,
         verify_plan,
     )
@@ -101,8 +103,8 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         shaped_check["errors"].append({"error": r, "residual": run.residual_tip_deflection})
     tau_lim, v_lim = shaped_move_limits(model, move, shaped, dt=dt)  # as casflex plan
     end = settings["end"]
-    if end == "shaped":  # the worst residual of the shaped move over the scenarios
-        end = max([shaped_check["residual"]] + [e["residual"] for e in shaped_check["errors"]])
+    if end == "shaped":  # in each scenario, no more than the shaped move leaves there
+        end = shaped_end(shaped_check)
     duration = settings["duration"]
     if settings["objective"] != "time" and duration is None:
         duration = float(shaped.duration)
@@ -144,8 +146,9 @@ def planner_summary(comparison: Any, end: str | float) -> dict:
         ``success``; with a plan, :meth:`casflex.planning.PlanComparison.summary`
         (``duration`` [s], ``residual_tip_deflection`` (verified, m), ``torque_peak``
         [N m], ``shaped`` ...) and ``end_bound`` (the residual bound the plan was given, m,
-        or ``"rest"``/``"free"``); without one, ``error`` (the solver's message) and the
-        shaped move's ``shaped`` figures.
+        or ``"rest"``/``"free"``; a robust plan's nominal bound, with ``end_bounds`` the
+        bound of each scenario, nominal, −r, +r); without one, ``error`` (the solver's
+        message) and the shaped move's ``shaped`` figures.
 
     Examples
     --------
@@ -170,4 +173,7 @@ def planner_summary(comparison: Any, end: str | float) -> dict:
     summary["success"] = bool(comparison.plan.stats.get("success", False))
     summary["end"] = end
     summary["end_bound"] = bound if bound is not None else end
+    bounds = comparison.plan.stats.get("end_bounds")
+    if bounds is not None and len(bounds) > 1:
+        summary["end_bounds"] = [float(b) for b in bounds]
     return summary

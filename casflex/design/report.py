@@ -335,6 +335,9 @@ def _planner_lines(p):
     bound = p["end_bound"]
     bound_text = (f"residual tip deflection ≤ {_mm(bound)} mm" if isinstance(bound, float)
                   else {"rest": "modes at rest", "free": "no end condition"}.get(bound, bound))
+    if p.get("end_bounds"):
+        bound_text = ("residual tip deflection ≤ " + " / ".join(_mm(b) for b in p["end_bounds"])
+                      + " mm at the nominal, −, + frequency error")
     lines += [
         f"The {p['objective']}-optimal move (`casflex plan`, Ipopt {p['status']} in "
         f"{p['iterations']} iterations, {p['intervals']} intervals) at the torque and "

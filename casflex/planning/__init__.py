@@ -57,6 +57,8 @@ shaped_move_limits
     The torque and velocity limits of a plan from the shaped version of its move.
 end_bounds
     :func:`plan_move`'s end condition: one residual bound, or one per scenario.
+shaped_end
+    The end condition "no more than the shaped move" in every scenario.
 plan_limits
     Peak torques and velocities of a reference with the joints on it (the default limits).
 
@@ -100,7 +102,7 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.assembly import block_derivatives
-from casflex.planning.limits import end_bounds, plan_limits, shaped_move_limits
+from casflex.planning.limits import end_bounds, plan_limits, shaped_end, shaped_move_limits
 from casflex.planning.ocp import (
     DERIVATIVES,
     DYNAMICS,
@@ -142,6 +144,7 @@ __all__ = [
     # limits
     "shaped_move_limits",
     "end_bounds",
+    "shaped_end",
     # verification
     "verify_plan",
     "plan_robot_move",

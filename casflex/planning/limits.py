@@ -19,7 +19,37 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["shaped_move_limits", "plan_limits", "end_bounds"]
+__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end"]
+
+
+def shaped_end(shaped_check: dict) -> float | list[float]:
+    """The end condition "no more than the shaped move": the shaped move's residual tip
+    deflection [m] in every scenario (nominal, then each frequency error of
+    ``shaped_check["errors"]``), as :func:`casflex.planning.plan_move`'s ``end``.
+
+    Parameters
+    ----------
+    shaped_check : dict
+        ``residual`` (the shaped move's, nominal model) [m] and ``errors``, a list of
+        ``{"error", "residual"}`` (the shaped move's residual [m] at each frequency error).
+
+    Returns
+    -------
+    float or list of float
+        The nominal residual [m], or with errors one bound per scenario: nominal, then in
+        the order of ``errors``.
+
+    Examples
+    --------
+    >>> shaped_end({"residual": 0.01, "errors": []})
+    0.01
+    >>> shaped_end({"residual": 0.01, "errors": [{"error": -0.1, "residual": 0.02},
+    ...                                          {"error": 0.1, "residual": 0.005}]})
+    [0.01, 0.02, 0.005]
+    """
+    bounds = [float(shaped_check["residual"])]
+    bounds += [float(e["residual"]) for e in shaped_check["errors"]]
+    return bounds[0] if len(bounds) == 1 else bounds
 
 
 def end_bounds(end: Any, scenarios: int) -> tuple[str | float, list[float] | None]:

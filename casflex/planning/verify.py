@@ -28,7 +28,7 @@ import numpy as np
 
 from casflex._validate import fail, number
 from casflex.model import FlexibleModel
-from casflex.planning.limits import shaped_move_limits
+from casflex.planning.limits import shaped_end, shaped_move_limits
 from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection
@@ -441,8 +441,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     if end is None:
         # every scenario's bound is the shaped move's residual there (nominal, -r, +r):
         # the plan leaves no more than the shaped move at each frequency error
-        end = [shaped_check["residual"]] + [e["residual"] for e in shaped_check["errors"]]
-        end = end[0] if len(end) == 1 else end
+        end = shaped_end(shaped_check)
     say(f"planning {move.name}: objective {objective}, {intervals or 'default'} intervals, limits "
         f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
         f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"

@@ -119,6 +119,24 @@ def test_report_section(tmp_path):
     assert '"planner": {' in summary.read_text()
 
 
+def test_report_section_names_each_scenarios_bound(tmp_path):
+    # a robust plan is bounded in every scenario by the shaped move's residual there
+    study = design.load_study(ONELINK)
+    planner = {"success": True, "move": "swing", "duration": 1.96, "objective": "time",
+               "status": "Solve_Succeeded", "iterations": 23, "intervals": 113,
+               "end": "shaped", "end_bound": 2e-5, "end_bounds": [2e-5, 4e-5, 1e-5],
+               "verify_dt": 1e-4, "residual_tip_deflection": 1.9e-5,
+               "residual_torque_driven": 1.1e-5, "residual_ocp": 2e-5,
+               "torque_peak": [0.0435], "velocity_peak": [0.932],
+               "shortening": 1 - 1.96 / 2.25, "shaped": SHAPED, "robust": [],
+               "trajectory_csv": "planned_trajectory.csv",
+               "c_table": {"header": "o_plan.h", "source": "o_plan.c"}}
+    text = write_report(tmp_path, study, _summary(planner))[0].read_text()
+    section = text[text.index("## Planned move"):text.index("## Closed loop")]
+    assert ("residual tip deflection ≤ 0.02 / 0.04 / 0.01 mm at the nominal, −, + "
+            "frequency error") in section
+
+
 def test_report_section_without_a_plan(tmp_path):
     study = design.load_study(ONELINK)
     planner = {"success": False, "move": "swing", "error": "torque limit too low",
