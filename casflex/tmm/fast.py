@@ -657,5 +657,4 @@ def _compile():
         import numba
 
         jit = numba.njit(cache=True)
-        shape_kernel._null_vector = jit(shape_kernel._null_vector)  # called by shapes
-        _KERNELS.update(pose=jit(_pose), shapes=jit(shape_kernel.shapes))
+        _KERNELS.update(pose=jit(_pose), shapes=shape_kernel.wrap(jit))

@@ -5,8 +5,7 @@ state carried along the chain, the local state sampled along every beam with
 angle-addition recurrences on the uniform grid (one ``sin``/``cos``/``sinh``/``cosh`` per
 beam and mode instead of twelve per point), then the derived fields and the unit-peak
 scaling. Plain Python functions: :mod:`casflex.tmm.fast` wraps them with numba
-(``cache=True``) on first use, this module's ``_null_vector`` first, since
-:func:`shapes` calls it through this module's globals.
+(``cache=True``) on first use, through :func:`wrap`.
 
 The sampled state ``B(s) z`` is summed over the beam matrix's 40 non-zero entries in
 runs of one row each, in a register (a sum per row in memory made every term wait for
@@ -21,7 +20,7 @@ import math
 
 import numpy as np
 
-__all__ = ["shapes"]
+__all__ = ["shapes", "wrap"]
 
 
 def _null_vector(A, x, piv):
@@ -80,9 +79,45 @@ def _null_vector(A, x, piv):
 
 def shapes(c, omega, sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T, axis,
            stiffness):
-    """The fields of :data:`casflex.tmm.fast.SHAPE_FIELDS` of configuration ``c`` at the
-    simple roots ``omega``, from ``sub`` (m, 12, 6), the system columns 6–11 at them, then
-    True; False last when a null vector cannot be made (see the module docstring)."""
+    """The mode-shape fields of configuration ``c`` at its simple roots ``omega``.
+
+    Parameters
+    ----------
+    c : int
+        The configuration in the packed arrays.
+    omega : numpy.ndarray
+        (m,) simple natural frequencies [rad/s].
+    sub : numpy.ndarray
+        (m, 12, 6) columns 6–11 of the system matrix at them (``kernels.system_points``).
+    s : numpy.ndarray
+        (n_beams, n_points) uniform sample points from each beam's start [m].
+    moduli : numpy.ndarray
+        (n_beams, 4) ``EIx, EIy, GJ, EA`` [N m², N m², N m², N].
+    kind, beam, flat, gather, ratio, R3, M, T, axis, stiffness
+        The packed arrays of :mod:`casflex.tmm.kernels`.
+
+    Returns
+    -------
+    tuple
+        The fields of :data:`casflex.tmm.fast.SHAPE_FIELDS` in order (unit peak
+        displacement), then True; False last when a null vector cannot be made.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from casflex.robot import load
+    >>> from casflex.tmm import fast, kernels, natural_frequencies
+    >>> arm = load("problems/arm2link.toml")
+    >>> prepared = fast.prepare(arm)
+    >>> k, layout = prepared.pose(np.zeros((1, 3))), prepared.shape_layout(11)
+    >>> w = natural_frequencies(arm, [0.0, 0.0, 0.0], count=2)
+    >>> packed = [k[name] for name in ("kind", "beam", "flat", "gather", "ratio", "R3")]
+    >>> sub = kernels.system_points(np.zeros(2, dtype=np.int64), w, *packed, k["M"], k["T"])
+    >>> out = shapes(0, w, sub, layout["s"], layout["moduli"], *packed, k["M"], k["T"],
+    ...              k["axis"], k["stiffness"])
+    >>> out[0].shape, float(abs(out[0]).max()), out[-1]
+    ((2, 2, 11, 3), 1.0, True)
+    """
     m = omega.size
     nb, P = s.shape
     n_body, n_spring = 0, 0
@@ -268,3 +303,29 @@ def shapes(c, omega, sub, s, moduli, kind, beam, flat, gather, ratio, R3, M, T, 
         for i in range(n_spring):
             spring[mode, i] *= scale
     return disp, rot, mom, frc, slope, curvature, twist, axial, body, body_local, spring, True
+
+
+def wrap(jit):
+    """Wrap :func:`shapes` with ``jit``, its helper ``_null_vector`` first (:func:`shapes`
+    calls it through this module's globals). Once per process (numba refuses to wrap a
+    function twice): :func:`casflex.tmm.fast.compiled_kernel` does it under its lock.
+
+    Parameters
+    ----------
+    jit : callable
+        The decorator, ``numba.njit(cache=True)``.
+
+    Returns
+    -------
+    numba.core.registry.CPUDispatcher
+        The compiled :func:`shapes`.
+
+    Examples
+    --------
+    >>> from casflex.tmm import fast
+    >>> fast.compiled_kernel("shapes").py_func is shapes
+    True
+    """
+    global _null_vector
+    _null_vector = jit(_null_vector)
+    return jit(shapes)
