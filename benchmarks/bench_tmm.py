@@ -34,7 +34,9 @@ the run ended. ``--clock cpu`` times every call (TMM and FE alike) by the proces
 time instead of the wall clock (``clock`` in the JSON): on a loaded machine a call's wall
 time includes the time other processes ran, its CPU time does not. ``--code DIR`` runs
 the same script on the casflex package of another checkout (an older commit), to measure
-old and new side by side.
+old and new side by side. BLAS runs on one thread (``blas_threads``; the script sets
+``OPENBLAS_NUM_THREADS=1`` unless it is set): the TMM runs on one, and the FE's
+eigen-solution is no faster on two.
 
 Targets (issue 17): ≤ 1 ms per configuration with shapes, ≤ 0.3 ms frequencies only,
 sweep ≤ 0.2 s, ``ratio_fe`` ≥ 10.
@@ -55,12 +57,20 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import scipy.linalg
+# The FE's LAPACK/BLAS on one thread, as the TMM runs (set before numpy loads OpenBLAS; an
+# explicit OPENBLAS_NUM_THREADS wins). On its 96 × 96 pencil a second thread does not
+# help (0.50 ms on one thread, 0.91 ms on two, wall and CPU alike), and on a loaded
+# machine the waiting thread spins: the FE's CPU time then grew ~20-40× (fe_eigensolve_s
+# 21 ms at load 10-15), which made ratio_fe > 100 there.
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
 
-import casflex
-from casflex.robot import load
-from casflex.tmm import build_chain, modes, natural_frequencies, sweep_frequencies
+import numpy as np  # noqa: E402
+import scipy.linalg  # noqa: E402
+
+import casflex  # noqa: E402
+from casflex.robot import load  # noqa: E402
+from casflex.tmm import build_chain, modes, natural_frequencies, sweep_frequencies  # noqa: E402
 
 try:  # absent before the compiled kernels (to measure an older checkout side by side)
     from casflex.tmm import kernels
@@ -215,6 +225,7 @@ def main():
         "clock": args.clock,
         "code": str(Path(casflex.__file__).resolve().parents[1]),
         "load_average": os.getloadavg()[0],
+        "blas_threads": os.environ["OPENBLAS_NUM_THREADS"],
     }
     if args.json:
         print(json.dumps(result))

@@ -16,18 +16,19 @@ roots or a failed null vector (it returns the roots without shapes; the numpy sh
 
 from __future__ import annotations
 
+import hashlib
 import threading
 
 import numpy as np
 
-from casflex.tmm import fast, kernels
+from casflex.tmm import fast, kernels, shape_kernel
 
 __all__ = ["single"]
 
 _KERNEL: dict = {}
 _LOCK = threading.Lock()
 # the compiled kernels :func:`_single` calls, set by :func:`_compile` before it is wrapped
-_pose = _search = _system = _shapes = None
+_pose = _search = _system = _shapes = _body = None
 #: the sample points and moduli when no shapes are wanted (read-only like a layout's ``s``,
 #: so both calls share one compiled specialisation)
 _NO_POINTS = np.zeros((0, 2))
@@ -164,13 +165,36 @@ def _single(q, theta0, joint_rows, alpha, rows, stages, C, t, kind, Mloc, stiffn
 
 def _compile():
     """Wrap :func:`_single` once, with the other modules' compiled kernels as the globals
-    it calls (numba resolves them when it compiles; its machine code is cached)."""
+    it calls (numba resolves them when it compiles; its machine code is cached).
+
+    Numba keys a function's cache on its own bytecode and closure, not on the source of
+    what it calls: after a change to kernels.py, fast.py or shape_kernel.py a cached
+    ``_single`` would still run their old code. So the cached function is a closure over
+    the SHA-256 of those modules' source (:func:`_keyed`), and ``_single`` is compiled
+    into it (not cached on its own)."""
     with _LOCK:
         if "single" not in _KERNEL:
             import numba
 
             g = globals()
             g.update(_pose=fast.compiled_kernel("pose"), _shapes=fast.compiled_kernel("shapes"),
-                     _search=kernels.search_roots, _system=kernels.system_points)
-            _KERNEL["single"] = numba.njit(cache=True)(_single)
+                     _search=kernels.search_roots, _system=kernels.system_points,
+                     _body=numba.njit(_single))
+            digest = hashlib.sha256()
+            for module in (kernels, fast, shape_kernel):
+                with open(module.__file__, "rb") as source:
+                    digest.update(source.read())
+            _KERNEL["single"] = numba.njit(cache=True)(_keyed(digest.hexdigest()))
     return _KERNEL["single"]
+
+
+def _keyed(digest):
+    """:func:`_single` (as ``_body``) in a closure over ``digest`` (see :func:`_compile`)."""
+    def single(q, theta0, joint_rows, alpha, rows, stages, C, t, kind, Mloc, stiffness, beam,
+               flat, gather, ratio, points, cap, count, omega_max, double_tol, rtol, width, s,
+               moduli, beams, bodies):
+        digest  # noqa: B018 (a closure variable: part of numba's cache key)
+        return _body(q, theta0, joint_rows, alpha, rows, stages, C, t, kind, Mloc, stiffness,
+                     beam, flat, gather, ratio, points, cap, count, omega_max, double_tol,
+                     rtol, width, s, moduli, beams, bodies)
+    return single
