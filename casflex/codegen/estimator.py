@@ -42,6 +42,8 @@ from numpy.typing import ArrayLike
 from casflex.codegen.bundle import Bundle, generate
 from casflex.codegen.compiler import find_compiler, run_compiler
 from casflex.codegen.errors import BuildError
+from casflex.codegen.model_reads import reading_model
+from casflex.codegen.segments import MAX_INSTRUCTIONS, segmented
 from casflex.codegen.templates import covariance_run_source, status_header_text
 from casflex.errors import ModelError
 
@@ -199,7 +201,8 @@ def add_status_defines(bundle: Bundle, torque_limits: ArrayLike | None = None) -
                                     else [float(v) for v in np.ravel(torque_limits)]))
 
 
-def split_forward(model: FlexibleModel) -> ca.Function:
+def split_forward(model: FlexibleModel, max_instructions: int = MAX_INSTRUCTIONS
+                  ) -> ca.Function:
     """The model's forward dynamics as a graph of its own smaller functions, for C code.
 
     ``forward`` of :meth:`casflex.model.FlexibleModel.functions` is one SX graph: with
@@ -238,7 +241,7 @@ def split_forward(model: FlexibleModel) -> ca.Function:
     True
     """
     if model.kinematics == "exact":
-        return exact_forward(model)
+        return exact_forward(model, max_instructions)
     f = model.functions()
     n, m = model.n, model.m
     # Ṁ Ẋ (one forward direction) and ∂T/∂X (reverse) as SX functions of their own,
@@ -254,14 +257,17 @@ def split_forward(model: FlexibleModel) -> ca.Function:
                                                              Xs)], names, ["dT_dX"],
                        {"cse": True})
 
+    rate, grad = segmented(rate, max_instructions), segmented(grad, max_instructions)
+
     def bias(q, d, dq, dd):
         h = rate(q, d, dq, dd) - grad(q, d, dq, dd) + f["potential_forces"](q, d)
         return h + ca.vertcat(ca.MX.zeros(n), f["damping"](q) @ dd) if m else h
 
-    return _forward_of_calls(model, f["mass"], bias)
+    return _forward_of_calls(model, segmented(f["mass"], max_instructions), bias)
 
 
-def exact_forward(model: FlexibleModel) -> ca.Function:
+def exact_forward(model: FlexibleModel, max_instructions: int = MAX_INSTRUCTIONS
+                  ) -> ca.Function:
     """The forward dynamics of a model with exact kinematics as calls of smaller functions.
 
     :func:`split_forward` forms the bias forces as the Christoffel form
@@ -301,7 +307,8 @@ def exact_forward(model: FlexibleModel) -> ca.Function:
     sym = [model.q, model.delta, model.dq, model.ddelta]
     mass = ca.Function("forward_mass", sym[:2], [model.M], names[:2], ["M"], {"cse": True})
     bias = ca.Function("forward_bias", sym, [model.h], names, ["h"], {"cse": True})
-    return _forward_of_calls(model, mass, bias)
+    return _forward_of_calls(model, segmented(mass, max_instructions),
+                             segmented(bias, max_instructions))
 
 
 def _forward_of_calls(model, mass, bias):
@@ -332,7 +339,10 @@ def model_bundle(model: FlexibleModel, out_dir: str | os.PathLike, *,
 
     ``forward`` is generated as :func:`split_forward` (unless ``split=False``): the same
     dynamics in several C functions of moderate length, which gcc compiles several times
-    faster than the model's single graph.
+    faster than the model's single graph. The model is first rebuilt with its combined
+    table lookup limited to the quantities ``M`` and ``h`` read
+    (:func:`casflex.codegen.model_reads.reading_model`), so the C holds no table that
+    the dynamics do not read.
 
     Parameters
     ----------
@@ -365,6 +375,7 @@ def model_bundle(model: FlexibleModel, out_dir: str | os.PathLike, *,
     >>> model_bundle(m, tempfile.mkdtemp()).functions[0].inputs[4].name
     'tau'
     """
+    model = reading_model(model)  # the tables of the quantities M and h read, no others
     f = model.functions()
     units = {"forward": {"q": "rad", "dq": "rad/s", "delta": "sqrt(kg) m",
                          "ddelta": "sqrt(kg) m/s", "tau": "N m", "ddq": "rad/s^2",
