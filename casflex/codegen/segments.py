@@ -76,7 +76,10 @@ def segmented(f: ca.Function, max_instructions: int = MAX_INSTRUCTIONS) -> ca.Fu
     ops = [f.instruction_id(k) for k in range(n)]
     ins = [f.instruction_input(k) for k in range(n)]
     outs = [f.instruction_output(k) for k in range(n)]
-    nodes = f.instructions_sx()
+    calls = {k: None for k in range(n) if ops[k] == ca.OP_CALL}
+    if calls:  # the called functions, from the instructions' own nodes
+        nodes = f.instructions_sx()
+        calls = {k: nodes[k].which_function() for k in calls}
     bounds = list(range(0, n, int(max_instructions))) + [n]
     runs = list(zip(bounds[:-1], bounds[1:], strict=True))
 
@@ -117,7 +120,7 @@ def segmented(f: ca.Function, max_instructions: int = MAX_INSTRUCTIONS) -> ca.Fu
         live = sorted(((o[1], exports[o[1]][o[2]], s) for s, o in reads[r].items()
                        if o[0] == "run"))
         live_sym = ca.SX.sym("live", len(live))
-        work = {s: live_sym[j] for j, (_, _, s) in enumerate(live)}
+        work = {s: v for (_, _, s), v in zip(live, ca.vertsplit(live_sym), strict=True)}
         for s, o in reads[r].items():
             if o[0] == "in":
                 work[s] = sx_in[o[1]].nz[o[2]]
@@ -125,7 +128,7 @@ def segmented(f: ca.Function, max_instructions: int = MAX_INSTRUCTIONS) -> ca.Fu
                 work[s] = ca.SX(f.instruction_constant(o[1]))
         produced = []  # (output, nz, SX)
         for k in range(a, b):
-            _replay(ops[k], ins[k], outs[k], k, f, nodes, sx_in, work, produced)
+            _replay(ops[k], ins[k], outs[k], k, f, calls, sx_in, work, produced)
         order = sorted(exports[r], key=exports[r].get)
         piece = ca.Function(f"{f.name()}_part{r}", [*sx_in, live_sym],
                             [ca.vertcat(*[work[s] for s in order]),
@@ -146,7 +149,7 @@ def segmented(f: ca.Function, max_instructions: int = MAX_INSTRUCTIONS) -> ca.Fu
     return ca.Function(f.name(), mx_in, outputs, f.name_in(), f.name_out())
 
 
-def _replay(op, src, dst, k, f, nodes, sx_in, work, produced):
+def _replay(op, src, dst, k, f, calls, sx_in, work, produced):
     """Instruction ``k`` of ``f`` on the values in ``work`` (slot -> SX scalar)."""
     if op == ca.OP_INPUT:
         work[dst[0]] = sx_in[src[0]].nz[src[1]]
@@ -155,7 +158,7 @@ def _replay(op, src, dst, k, f, nodes, sx_in, work, produced):
     elif op == ca.OP_OUTPUT:
         produced.append((dst[0], dst[1], work[src[0]]))
     elif op == ca.OP_CALL:
-        fn = nodes[k].which_function()
+        fn = calls[k]
         args, at = [], 0
         for i in range(fn.n_in()):
             nnz = fn.nnz_in(i)
