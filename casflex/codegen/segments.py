@@ -165,7 +165,7 @@ def _replay(op, src, dst, k, f, calls, sx_in, work, produced):
             args.append(ca.SX(fn.sparsity_in(i), ca.vertcat(*[work[s] for s in
                                                               src[at:at + nnz]])))
             at += nnz
-        res = fn.call(args)
+        res = fn.call(args, False, True)  # a call node, as in f (never inlined)
         flat = [v for o in res for v in (o.nz[j] for j in range(o.nnz()))]
         for s, v in zip(dst, flat, strict=True):
             if s >= 0:

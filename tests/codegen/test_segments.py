@@ -17,8 +17,8 @@ from casflex.model import FlexibleModel, TableProvider
 def _chain():
     """An SX function of 1 000+ instructions with every kind of node the models have:
     unary and binary operations, constants, a call of an MX interpolant (the models'
-    static table lookup) and of an SX function, a sparse and a dense output, an output
-    entry that is a plain input and one that is a constant."""
+    static table lookup), of a B-spline's derivative and of an SX function, a sparse and
+    a dense output, an output entry that is a plain input and one that is a constant."""
     x, y = ca.SX.sym("x", 3), ca.SX.sym("y", 2, 2)
     grid = np.linspace(-4.0, 4.0, 9)
     table = ca.interpolant("table", "linear", [grid], np.c_[np.sin(grid), grid**2].ravel("F"))
@@ -31,6 +31,10 @@ def _chain():
                        v[2] / (2.0 + ca.cos(v[0])) + lookup[1],
                        twist(v[3] + 0.1 * k),
                        ca.exp(-v[0] ** 2) * y[1, 0] + v[1])
+    # a B-spline and its derivative: CasADi's AD calls a derivative function of the
+    # B-spline, which has no scalar (SX) form and must stay a call
+    spline = ca.interpolant("spline", "bspline", [grid], np.cos(grid))
+    v[3] = v[3] * ca.jacobian(spline(ca.tanh(x[0]) + 0.3 * x[1]), x)[1]
     sparse = ca.SX(ca.Sparsity.lower(3))
     sparse[0, 0], sparse[1, 0], sparse[2, 1] = v[0], x[1], 2.0
     sparse[1, 1], sparse[2, 2], sparse[2, 0] = v[1] * v[2], ca.sumsqr(v), v[3]
