@@ -272,6 +272,17 @@ def exact_forward(model: FlexibleModel, max_instructions: int = MAX_INSTRUCTIONS
     """:func:`split_forward` under the name the exact kinematics' bundle had (issue 19):
     the same calls for every kinematics since both use the model's own ``M`` and ``h``.
 
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    max_instructions : int
+        As for :func:`split_forward`.
+
+    Returns
+    -------
+    casadi.Function
+        :func:`split_forward` ``(model, max_instructions)``.
+
     Examples
     --------
     >>> from casflex.robot import load

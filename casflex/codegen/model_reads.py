@@ -80,6 +80,21 @@ def quantities_read(model: FlexibleModel) -> list[str]:
     Returns
     -------
     list of str
+
+    Examples
+    --------
+    >>> from casflex.model import ConstantProvider, FlexibleModel
+    >>> from casflex.modal.integrals import quantity_shapes
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> class Combined(ConstantProvider):   # a provider with a combined lookup
+    ...     def evaluate(self, q_shape, names=None):
+    ...         return {k: ca.SX(self.quantities[k].ravel()) for k in names}
+    >>> shapes = quantity_shapes(robot, 1)
+    >>> values = {k: np.full(s, 0.1) for k, s in shapes.items()}
+    >>> values["omega"] = np.array([30.0])
+    >>> quantities_read(FlexibleModel(robot, Combined(values), gravity=None))
+    ['C1', 'C2', 'end_theta', 'end_u', 'omega']
     """
     provider = _Probe(model.provider)
     probe = _rebuilt(model, provider)

@@ -67,6 +67,14 @@ def segmented(f: ca.Function, max_instructions: int = MAX_INSTRUCTIONS) -> ca.Fu
     ------
     casflex.errors.ModelError
         For ``max_instructions < 1``.
+
+    Examples
+    --------
+    >>> x = ca.SX.sym("x", 2)
+    >>> f = ca.Function("f", [x], [ca.sin(x[0]) * ca.cos(x[1]) + x[0] ** 2])
+    >>> g = segmented(f, 2)
+    >>> [p.name() for p in pieces(g)][:2], float(f([0.3, 0.4])) == float(g([0.3, 0.4]))
+    (['f_part0', 'f_part1'], True)
     """
     if int(max_instructions) != max_instructions or max_instructions < 1:
         raise ModelError(f"max_instructions must be an integer >= 1; got {max_instructions}")
@@ -187,6 +195,13 @@ def pieces(f: ca.Function) -> list[ca.Function]:
     Returns
     -------
     list of casadi.Function
+
+    Examples
+    --------
+    >>> x = ca.SX.sym("x")
+    >>> f = ca.Function("f", [x], [ca.exp(ca.sin(x) + 1)])
+    >>> [p.n_in() for p in pieces(segmented(f, 2))], pieces(f)
+    ([2, 2, 2], [])
     """
     if f.class_name() != "MXFunction":
         return []
