@@ -39,6 +39,8 @@ run in a subprocess, timed from outside (wall clock and the child's CPU time):
     ``cc -O2 -fPIC -c`` of each bundle's source (wall clock, the compiler's CPU time).
 
 ``--variants plain`` or ``--variants composite`` runs one of the two commands only.
+``--kinematics exact`` adds ``--kinematics exact`` to the command (the forward-dynamics
+bundle of the exact model, issue 19).
 
 Keys are prefixed ``composite_`` for the run with ``--controller composite``. ``--code DIR``
 puts ``DIR`` first on ``PYTHONPATH`` of the subprocess (old vs new side by side).
@@ -186,7 +188,7 @@ def _timed(cmd, env, cwd=None):
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def run_tour(controller, cold=True, code=None, cache=None):
+def run_tour(controller, cold=True, code=None, cache=None, kinematics="truncated"):
     """Time the tour command (cold, warm), the size and the -O2 compile of its C."""
     env = dict(os.environ)
     # the child runs in the checkout whose code it times: ``python -m`` puts the working
@@ -200,6 +202,8 @@ def run_tour(controller, cold=True, code=None, cache=None):
         cmd = [sys.executable, "-m", "casflex.cli", *TOUR, "--out", f"{work}/rt"]
         if controller:
             cmd += ["--controller", controller]
+        if kinematics != "truncated":
+            cmd += ["--kinematics", kinematics]
         if cold:
             shutil.rmtree(env["CASFLEX_CACHE"], ignore_errors=True)
             out["cold_s"], out["cold_cpu_s"] = _timed(cmd, env, cwd)
@@ -230,6 +234,8 @@ def main(argv=None):
     parser.add_argument("--variants", default="plain,composite",
                         help="--tour: comma-separated, of plain (no --controller) and "
                              "composite")
+    parser.add_argument("--kinematics", default="truncated", choices=("truncated", "exact"),
+                        help="--tour: the forward-dynamics bundle's kinematics")
     parser.add_argument("--cache", default=None,
                         help="--tour: a cache directory to use (warm runs only)")
     args = parser.parse_args(argv)
@@ -238,7 +244,7 @@ def main(argv=None):
         chosen = args.variants.split(",")
         for controller in [c for c in (None, "composite") if (c or "plain") in chosen]:
             got = run_tour(controller, cold=not args.no_cold and args.cache is None,
-                           code=args.code, cache=args.cache)
+                           code=args.code, cache=args.cache, kinematics=args.kinematics)
             prefix = f"{controller}_" if controller else ""
             res.update({prefix + k: v for k, v in got.items()})
         res["load_after"] = os.getloadavg()[0]

@@ -36,11 +36,17 @@ Estimator (:mod:`casflex.codegen.estimator`)
 --------------------------------------------
 ekf_bundle      the EKF bundle: ``ekf_step``, ``plant``, ``measurement``, ``rigid_signals``
 model_bundle    functions of the model (default its forward dynamics)
-split_forward   the model's forward dynamics as calls of its smaller functions (for C)
-exact_forward   the same for an exact-kinematics model (``split_forward`` hands over to it)
+split_forward   the model's forward dynamics as calls: ``M`` and ``h`` in pieces, a solve
+exact_forward   the same (its former name for an exact-kinematics model)
 ekf_units       units of the EKF functions' ports
 covariance_run  ``ekf_step`` for millions of steps in C, checking the covariance
 add_status_defines  the status bits of guarded steps appended to a bundle header
+
+Pieces and tables of the model bundle (:mod:`casflex.codegen.segments`,
+:mod:`casflex.codegen.model_reads`)
+--------------------------------------------------------------------------
+segmented       a long SX function as consecutive pieces of its algorithm (bit-identical)
+reading_model   a model whose combined table holds only what ``M`` and ``h`` read
 
 Real-time loop (:mod:`casflex.codegen.rtloop`)
 ----------------------------------------------

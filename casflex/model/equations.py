@@ -486,7 +486,7 @@ class FlexibleModel:
             placeholders.append(symbols[keep.tolist()] if keep.size else ca.SX(0, 1))
             if not size:
                 value = ca.SX(0, 1)
-            elif self.table_values is not None:
+            elif self.table_values is not None and name in self.table_values:
                 value = self.table_values[name]
             else:
                 value = ca.SX(f(self.q_shape))
