@@ -18,7 +18,8 @@ The step is that of the second-order plant (``tabulate_plant(order=2)``, Fourier
 coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_order"``,
 the sequential scalar updates (``update="auto"``: R is diagonal; standard form ``P − k
 bᵀ``, ``joseph=False``), the RK4 transition matrix in closed form and the sensor-entry
-tables of the measurement (``lean=True``, evaluated locally as the plant's table), the
+tables of the measurement (``lean=True``), the plant's table and the sensor entries with
+their rates in one lookup function (``shared=True``, :mod:`casflex.estimation.lookup`), the
 accelerometers by the recursive pass over their pose's factors (``recursive=True``),
 compiled with ``-O3 -march=native
 -ffp-contract=off`` (no FMA contraction: within 1e-10 of Python,
