@@ -18,7 +18,8 @@ The step is that of the second-order plant (``tabulate_plant(order=2)``, Fourier
 coefficients pruned with the default ``prune=1e-6``) with ``jacobians="first_order"``,
 the sequential scalar updates (``update="auto"``: R is diagonal; standard form ``P − k
 bᵀ``, ``joseph=False``), the RK4 transition matrix in closed form and the sensor-entry
-tables of the measurement (``lean=True``, evaluated locally as the plant's table), the
+tables of the measurement (``lean=True``), the plant's table and the sensor entries with
+their rates in one lookup function (``shared=True``, :mod:`casflex.estimation.lookup`), the
 accelerometers by the recursive pass over their pose's factors (``recursive=True``),
 compiled with ``-O3 -march=native
 -ffp-contract=off`` (no FMA contraction: within 1e-10 of Python,
@@ -29,7 +30,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
 [--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
-[--forms] [--recursive] [--peak]
+[--forms] [--recursive] [--shared] [--peak]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -60,6 +61,10 @@ per cycle at the nominal clock of /proc/cpuinfo).
 sensor pose (``recursive=False``, the step of session 9) and by the recursive pass over
 the pose's factors (the default, ``casflex.sensors.kinematic_measurement``): key
 ``recursive``.
+
+``--shared`` the same for the step's tables looked up one by one, the sensor entries'
+rates by differentiation (``shared=False``, the step of session 10) and in one lookup
+function (the default, :mod:`casflex.estimation.lookup`): key ``shared``.
 
 ``--guarded`` also times the guarded step (``casflex.estimation.Guard``: non-finite checks,
 innovation gate, covariance bounds) against the plain one, interleaved over ``--rounds``
@@ -524,6 +529,9 @@ def main(argv=None):
                         help="also time and count the step with the accelerometers as the "
                         "whole pose's time derivatives (before) and by the recursive pass "
                         "(now), interleaved over --rounds")
+    parser.add_argument("--shared", action="store_true",
+                        help="also time and count the step with a lookup per table (before) "
+                        "and with one lookup function (now), interleaved over --rounds")
     parser.add_argument("--rounds", type=int, default=3,
                         help="interleaved rounds over VARIANTS with --compare (median)")
     args = parser.parse_args(argv)
@@ -642,6 +650,12 @@ def main(argv=None):
             {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                                      update=args.update, recursive=form == "recursive")
              for form in ("pose", "recursive")}, "accelerometers ")
+    shared = {}
+    if args.shared:  # the tables: one lookup each vs one lookup function
+        shared = side_by_side(
+            {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
+                                     update=args.update, shared=form == "shared")
+             for form in ("separate", "shared")}, "tables ")
     guarded = {}
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
@@ -729,6 +743,8 @@ def main(argv=None):
         out["forms"] = forms
     if recursive:
         out["recursive"] = recursive
+    if shared:
+        out["shared"] = shared
     if guarded:
         out["guarded"] = guarded
     if variants:

@@ -85,6 +85,12 @@ from casflex.errors import ModelError, ProblemFileError
 from casflex.modal.integrals import RATE_KEYS
 from casflex.model.pose_factors import pose_factors
 from casflex.model.strain_kinematics import rod_nodes, rod_point
+from casflex.sensor_tables import (
+    entry_columns,
+    fill_entries,
+    lean_applicable,
+    placeholder_kinematics,
+)
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
@@ -98,6 +104,7 @@ __all__ = [
     "sensors_from_tables",
     "measurement_function",
     "kinematic_measurement",
+    "measurement_with_entries",
     "point_position_function",
     "default_strain_distance",
 ]
@@ -739,15 +746,17 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
 
     ``lean``: with a table provider, the table entries the signals need (and their
     derivatives along the shape joints) come from one small spline of just those entries
-    instead of the model's spline of every quantity (:func:`_lean_tables`); the same
-    expressions to rounding; ``lookup`` as :meth:`casflex.modal.tables.ModalTable.function`."""
+    instead of the model's spline of every quantity (:func:`casflex.sensor_tables.
+    fill_entries`); the same expressions to rounding; ``lookup`` as
+    :meth:`casflex.modal.tables.ModalTable.function`, or None: the entries are left as
+    symbols, returned as ``(outs, (V, V̇, V̈, their columns on the grid))``."""
     q, dq, ddq, d, dd = model.q, model.dq, model.ddq, model.delta, model.ddelta
     X, dX, ddX = ca.vertcat(q, d), ca.vertcat(dq, dd), ca.vertcat(ddq, acc)
-    lean = lean and _lean_applicable(model)
+    lean = lean and lean_applicable(model)
     if lean:
         # table entries as placeholders V(q_shape), with their rates as symbols: the time
         # derivatives below differentiate them as extra coordinates
-        body_model, data, V = _placeholder_kinematics(model, sensors)
+        body_model, data, V = placeholder_kinematics(model, _point_data(model, sensors))
         Vd, Vdd = ca.SX.sym("Vd", V.numel()), ca.SX.sym("Vdd", V.numel())
         X, dX, ddX = ca.vertcat(X, V), ca.vertcat(dX, Vd), ca.vertcat(ddX, Vdd)
     else:
@@ -776,9 +785,10 @@ def _kin_signals(model, sensors, acc, lean=False, lookup="interpolant", recursiv
         if not sen.rigid:
             y = y - _rigid_substitute(y, model, acc)
         outs.append(ca.vertcat(*[y[_AXES[c]] for c in sen.axes]))
-    if lean:
-        outs = _lean_tables(model, outs, V, Vd, Vdd, lookup)
-    return outs
+    if lean and lookup is None:
+        need, cols = entry_columns(model, outs, V, Vd, Vdd)
+        return outs, (V[need], Vd[need], Vdd[need], cols)
+    return fill_entries(model, outs, V, Vd, Vdd, lookup) if lean else outs
 
 
 def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g, lean):
@@ -814,81 +824,6 @@ def _recursive_acceleration(model, sensors, data, sen, X, dX, ddX, g, lean):
     for F in factors[k:]:
         a = F[:3, :3].T @ a
     return Rl.T @ a
-
-
-def _lean_applicable(model):
-    provider = getattr(model, "provider", None)
-    return (getattr(model, "table_values", None) is not None
-            and getattr(provider, "table", None) is not None
-            and hasattr(provider, "method") and hasattr(model, "rebuilt_kinematics")
-            and len(provider.shape_joints) > 0)
-
-
-def _placeholder_kinematics(model, sensors):
-    """The model's kinematics with its table quantities as symbols (not yet filled), the
-    sensor-point quantities as symbols, and the column of all those symbols."""
-    clone = model.rebuilt_kinematics()  # its own A, T, bodies; the model is left as it is
-    shared = _point_data(model, sensors)  # (also checks the provider's points)
-    data, syms = {}, []
-    for name in sorted(model.Q):
-        col = model.Q[name]
-        syms += [col[i] for i in range(col.numel()) if col[i].is_symbolic()]
-    for key in sorted(shared):
-        if key in model.Q:  # the shapes sampled inside the links: the model's placeholders
-            data[key] = model.Q[key]
-            continue
-        # entries vanishing over the whole grid stay constant zeros, as in the model
-        sym = ca.SX.sym(key, shared[key].numel())
-        zero = model.provider.zero_entries(key) if shared[key].numel() else []
-        data[key] = ca.vertcat(*[0 if z else sym[i] for i, z in enumerate(zero)]) \
-            if len(zero) else ca.SX(0, 1)
-        syms += [sym[i] for i, z in enumerate(zero) if not z]
-    return clone, data, ca.vertcat(*syms)
-
-
-def _lean_tables(model, outs, V, Vd, Vdd, lookup="interpolant"):
-    """Fill the placeholders ``V`` (and rates ``Vd``, ``Vdd``) of ``outs`` with one
-    B-spline of the entries the signals use (the model's grid, periodicity and method:
-    the same interpolant restricted to those entries) and its derivatives along the
-    shape joints: ``V̇ = J q̇_s``, ``V̈ = (∂(J q̇_s)/∂q_s) q̇_s + J q̈_s``."""
-    from casflex.modal.tables import ModalTable
-
-    table = model.provider.table
-    where = {}
-    for name, col in model.Q.items():
-        for i in range(col.numel()):
-            if col[i].is_symbolic():
-                where[col[i].element_hash()] = (name, i)
-    y = ca.vertcat(*outs)
-    used = set(e.element_hash() for e in ca.symvar(y))
-    need = [k for k in range(V.numel())
-            if {V[k].element_hash(), Vd[k].element_hash(), Vdd[k].element_hash()} & used]
-    if not need:
-        return outs
-    cols = []
-    for k in need:
-        name_i = where.get(V[k].element_hash())
-        if name_i is None:  # a sensor-point quantity: "<key>_<i>"
-            key, _, idx = V[k].name().rpartition("_")
-            name_i = (key, int(idx))
-        name, i = name_i
-        data = table.omega if name == "omega" and "omega" not in table.values \
-            else table.values[name]
-        data = np.asarray(data, dtype=float)
-        cols.append(data.reshape(table.shape + (-1,))[..., i])
-    sub = ModalTable(grid=table.grid, shape_joints=table.shape_joints,
-                     values={"sensor_entries": np.stack(cols, axis=-1)}, omega=table.omega,
-                     periodic=table.periodic).function("sensor_entries",
-                                                       method=model.provider.method,
-                                                       lookup=lookup)
-    qs, dqs = model.q_shape, ca.vertcat(*[model.dq[j] for j in model.provider.shape_joints])
-    ddqs = ca.vertcat(*[model.ddq[j] for j in model.provider.shape_joints])
-    val = ca.SX(sub(qs))
-    J = ca.jacobian(val, qs)
-    rate = J @ dqs
-    rate2 = ca.jtimes(rate, qs, dqs) + J @ ddqs
-    idx = list(need)
-    return ca.substitute(outs, [V[idx], Vd[idx], Vdd[idx]], [val, rate, rate2])
 
 
 def _wrap(model, sensors, outs, name):
@@ -963,3 +898,48 @@ def kinematic_measurement(model: FlexibleModel, sensors: SensorSet, name: str = 
         return ca.Function(name, [u], [ca.vertcat(*keep)], ["u"], ["y_rigid"])
     y = ca.vertcat(*_kin_signals(model, sensors, acc, lean, lookup, recursive))
     return ca.Function(name, [x, u, acc], [y], ["x", "u", "dddelta"], ["y"])
+
+
+def measurement_with_entries(model: FlexibleModel, sensors: SensorSet, name: str = "h_kin",
+                             recursive: bool = False) -> tuple[ca.Function, np.ndarray] | None:
+    """The lean measurement with its modal-table entries as inputs, for a caller that looks
+    them up itself (together with its own tables at the same point:
+    :mod:`casflex.estimation.lookup`).
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        With a table provider (:class:`casflex.model.TableProvider`).
+    sensors : SensorSet
+    name : str
+    recursive : bool
+        As :func:`kinematic_measurement`.
+
+    Returns
+    -------
+    (casadi.Function, numpy.ndarray) or None
+        ``(x, u, dddelta, v, v_dot, v_ddot) -> y``: :func:`kinematic_measurement` with
+        ``lean=True``, except that the ``k`` table entries the signals use come in as
+        ``v`` with their first and second time derivatives (along the shape joints'
+        motion in ``u``); and those entries' values on the table's grid, ``grid shape +
+        (k,)`` (interpolated as the model's table is, they give that measurement). None
+        for a model without a table over shape joints.
+
+    Examples
+    --------
+    >>> from casflex.robot import load
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> robot = load("problems/arm2link.toml")
+    >>> ss = SensorSet([Accelerometer(3, 1.0, name="tip")])
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1, ss.points))
+    >>> measurement_with_entries(model, ss) is None   # pointwise: no table
+    True
+    """
+    if not lean_applicable(model):
+        return None
+    acc = ca.SX.sym("dddelta", model.m)
+    outs, (v, vd, vdd, cols) = _kin_signals(model, sensors, acc, True, None, recursive)
+    x = ca.vertcat(model.delta, model.ddelta)
+    u = ca.vertcat(model.q, model.dq, model.ddq)
+    return ca.Function(name, [x, u, acc, v, vd, vdd], [ca.vertcat(*outs)],
+                       ["x", "u", "dddelta", "v", "v_dot", "v_ddot"], ["y"]), cols

@@ -33,7 +33,7 @@ RANK = {
     "modal": 3,
     "identification": 3.5,
     "model": 4,
-    "sensors": 5.0, "moves": 5.1, "shaping": 5.2, "control": 5.3,
+    "sensors": 5.0, "sensor_tables": 5.0, "moves": 5.1, "shaping": 5.2, "control": 5.3,
     "simulate": 6,
     "planning": 6.5,
     "estimation": 7,

@@ -67,8 +67,9 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import choice, fail, number, square_matrix
 from casflex.estimation import guard as gd
+from casflex.estimation.lookup import shared_lookup_function
 from casflex.estimation.plant import FlexiblePlant, tabulate_plant
-from casflex.sensors import SensorSet, kinematic_measurement
+from casflex.sensors import SensorSet, kinematic_measurement, measurement_with_entries
 from casflex.simulate.integrators import rk4_step
 
 if TYPE_CHECKING:
@@ -135,7 +136,8 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       linear_measurement: bool = False, prefilter: float | None = None,
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
                       update: str = "auto", lean: bool = True, joseph: bool = False,
-                      guard: gd.Guard | None = None, recursive: bool = True) -> ca.Function:
+                      guard: gd.Guard | None = None, recursive: bool = True,
+                      shared: bool = True) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
     Parameters
@@ -212,6 +214,13 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         (:func:`casflex.sensors.kinematic_measurement`, ``recursive``): the same signals to
         rounding on a smaller graph, so ``h`` and its Jacobian ``H`` take fewer operations;
         ``False``: the time derivatives of the whole pose (the step before).
+    shared : bool
+        With ``lean`` and the plant's local lookup over the model's one-axis grid: the
+        plant's spline table and the sensor entries with their time derivatives in one
+        lookup function (the entries and their rates from one knot search and one basis,
+        the plant's wide table by CasADi's B-spline node: :mod:`casflex.estimation.
+        lookup`), the same splines to rounding; ``False``: each table by its own lookup
+        and the entries' derivatives by differentiation (the step before).
     guard : casflex.estimation.Guard, optional
         Guarded step (:mod:`casflex.estimation.guard`: non-finite inputs, innovation
         gating, covariance bounds, status word; not with ``sqrt``). Adds the input
@@ -265,8 +274,6 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         raise fail("guard", "Guard(...)", "needs the plain form (sqrt=False)")
     if guard is not None and guard.P_reset.shape != (nx, nx):
         raise fail("guard.P_reset", guard.P_reset.shape, f"must be {nx} x {nx}")
-    hkin = kinematic_measurement(model, sensors, lean=lean, lookup=plant.lookup,
-                                 recursive=recursive)
     x = ca.SX.sym("x", nx)
     Pin = ca.SX.sym("S" if sqrt else "P", nx, nx)
     u = ca.SX.sym("u", 3 * n)
@@ -274,9 +281,12 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     mask = ca.SX.sym("mask", ny)
     filt = ca.SX.sym("f", 4 * ny)
     q, dq, ddq = u[:n], u[n:2 * n], u[2 * n:]
+    hkin, spline_values = _measurement_and_tables(plant, sensors, u, name, lean, recursive,
+                                                  shared)
     # placeholders: no derivative ever flows into the coefficient tables (AD through the
     # spline call nodes would evaluate their derivative splines for nothing)
-    coef = plant.coefficients(q, dq, ddq, coriolis, stiffness_scale, quadratic=True)
+    coef = plant.coefficients(q, dq, ddq, coriolis, stiffness_scale, quadratic=True,
+                              spline_values=spline_values)
     r0, Jd, Jv = ca.SX.sym("r0", m), ca.SX.sym("Jd", m, m), ca.SX.sym("Jv", m, m)
     W = ca.SX.sym("W", coef[3].shape)
     holders = ca.vertcat(r0, ca.vec(Jd), ca.vec(Jv), ca.vec(W))
@@ -432,6 +442,45 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         names_in.append("u_last")
         names_out += ["u_next", "status"]
     return ca.Function(name, ins, outs, names_in, names_out, {"cse": bool(cse)})
+
+
+def _measurement_and_tables(plant, sensors, u, name, lean, recursive, shared):
+    """The measurement ``(x, u, dddelta) -> y`` of the step and the plant's spline values
+    at ``u`` (None: :meth:`FlexiblePlant.coefficients` looks them up). With ``shared`` and
+    one common one-axis grid, both tables come from one :func:`shared_lookup_function`
+    call at the shape joint of ``u``; else the measurement looks its entries up itself."""
+    model, n = plant.model, plant.n
+    table, provider = plant.table, model.provider
+    common = (shared and lean and plant.lookup == "local" and table is not None
+              and len(plant.shape_joints) == 1
+              and getattr(provider, "method", None) == "bspline"
+              and tuple(getattr(provider, "shape_joints", ())) == plant.shape_joints
+              and getattr(provider, "table", None) is not None
+              and len(provider.table.grid) == 1
+              and np.array_equal(provider.table.grid[0], table.grid[0])
+              and tuple(provider.table.periodic) == tuple(table.periodic))
+    lean_h = measurement_with_entries(model, sensors, recursive=recursive) if common else None
+    if lean_h is None:
+        return kinematic_measurement(model, sensors, lean=lean, lookup=plant.lookup,
+                                     recursive=recursive), None
+    hfun, cols = lean_h
+    j = plant.shape_joints[0]
+    sym = hfun.sx_in()
+    rates = ca.depends_on(hfun.call(sym)[0], ca.vertcat(sym[4], sym[5]))  # accelerometers
+    tables = {"coef": (plant.spline_columns(), False)}
+    if cols.shape[-1]:
+        tables["sensor_entries"] = (cols, rates)
+    look = shared_lookup_function(f"{name}_tables", table.grid[0], bool(table.periodic[0]),
+                                  tables)
+    out = look(u[j], u[n + j], u[2 * n + j])
+    k = cols.shape[-1]
+    entries = (out[1:] if rates else [out[1], ca.SX.zeros(k), ca.SX.zeros(k)]) if k \
+        else [ca.SX(0, 1)] * 3
+
+    def hkin(xx, uu, acc):  # uu is u: the entries were looked up at it
+        return hfun(xx, uu, acc, *entries)
+
+    return hkin, out[0]
 
 
 def _guarded(outs, flags, guard, x, Pin, u, u_last, filt=None):

@@ -235,8 +235,8 @@ class FlexiblePlant:
 
     def coefficients(self, q: ArrayLike | ca.SX, dq: ArrayLike | ca.SX,
                      ddq: ArrayLike | ca.SX, coriolis: bool = True,
-                     stiffness_scale: float = 1.0,
-                     quadratic: bool = False) -> tuple[ca.SX, ...]:
+                     stiffness_scale: float = 1.0, quadratic: bool = False,
+                     spline_values: ca.SX | None = None) -> tuple[ca.SX, ...]:
         """SX coefficients ``(r0, Jd, Jv[, W])`` at ``(q, q̇, q̈)`` (SX or numbers).
 
         Parameters
@@ -252,6 +252,10 @@ class FlexiblePlant:
         quadratic : bool
             Also return ``W`` (m × len(:attr:`pairs`)), the coefficients of the products
             ``x_a x_b`` (zero columns for a first-order plant).
+        spline_values : casadi.SX, optional
+            The spline table at the shape joints of ``q``, looked up by the caller (the
+            entries of :meth:`spline_columns`, e.g. from one lookup shared with other
+            tables: :mod:`casflex.estimation.lookup`); default: looked up here.
 
         Returns
         -------
@@ -289,23 +293,21 @@ class FlexiblePlant:
         phi = ca.SX.ones(1)
         for j in self.fourier_joints:
             phi = ca.vec(ca.vertcat(*_fourier_basis(q[j], self.degree)) @ phi.T)
+        if spline_values is None and self.table is not None:
+            qs = ca.vertcat(*[q[j] for j in self.shape_joints])
+            spline_values = ca.SX(self.table.function(
+                "coef", method=method, lookup=self.lookup,
+                entries=None if self.keep is None else self._kept())(qs))
         if self.keep is None:
             if self.table is not None:
-                qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                vals = ca.SX(self.table.function("coef", method=method,
-                                                 lookup=self.lookup)(qs))
-                A = ca.reshape(vals, nnz, L)  # stored column-major: nnz fastest
+                A = ca.reshape(spline_values, nnz, L)  # stored column-major: nnz fastest
             else:
                 A = ca.SX(ca.DM(self.constant.T))
             entries = A @ phi if L > 1 else A[:, 0]
         else:  # only the kept Fourier coefficients (tabulate_plant, prune)
-            keep = np.asarray(self.keep, dtype=bool).reshape(L, nnz)
-            flat = np.flatnonzero(keep.ravel())  # index l * nnz + e of the stored layout
+            flat = self._kept()  # index l * nnz + e of the stored layout
             if self.table is not None:
-                qs = ca.vertcat(*[q[j] for j in self.shape_joints])
-                coef_fn = self.table.function("coef", method=method, entries=flat,
-                                              lookup=self.lookup)
-                vals = ca.SX(coef_fn(qs))
+                vals = spline_values
             else:
                 vals = ca.SX(ca.DM(np.asarray(self.constant, dtype=float).ravel()[flat]))
             terms = [[] for _ in range(nnz)]
@@ -335,6 +337,35 @@ class FlexiblePlant:
             W = C[:, 2 * m + 1:] if self.pairs else ca.SX(m, 0)
             return r0, Jd, Jv, W
         return r0, Jd, Jv
+
+    def _kept(self) -> np.ndarray:
+        """Indices ``l * nnz + e`` (stored layout) of the kept Fourier coefficients."""
+        return np.flatnonzero(np.asarray(self.keep, dtype=bool).ravel())
+
+    def spline_columns(self) -> np.ndarray | None:
+        """The entries of the spline table that :meth:`coefficients` looks up, on the grid.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            ``grid shape + (k,)``: the table's coefficient entries that
+            :meth:`coefficients` evaluates (the kept ones of a pruned plant, all of them
+            otherwise), in the order of its ``spline_values``; None without shape joints.
+
+        Examples
+        --------
+        >>> from casflex.robot import load
+        >>> from casflex.model import FlexibleModel, PointwiseProvider
+        >>> robot = load("problems/arm2link.toml")
+        >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], 1), gravity=None)
+        >>> tabulate_plant(model, cache_dir=False).spline_columns() is None   # no table
+        True
+        """
+        if self.table is None:
+            return None
+        data = np.asarray(self.table.values["coef"], dtype=float)
+        data = data.reshape(self.table.shape + (-1,))
+        return data if self.keep is None else data[..., self._kept()]
 
     def quadratic_terms(self, x: ArrayLike | ca.SX) -> ca.SX:
         """The products ``x_a x_b`` of :attr:`pairs` (SX column).

@@ -9,6 +9,7 @@ of the true vector.
 import dataclasses
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -172,6 +173,28 @@ def test_lean_steps_same_accuracy(study, kind, jacobians, move):
                              DT, jacobians=jacobians)
     r_delta, r_rate = _ratios(x, run_ekf(step, u, y, np.zeros(6), P0).x)
     assert r_delta > 100 and r_rate > 100, (r_delta, r_rate)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["acc", "sg"])
+def test_shared_lookup_same_filter(study, kind):
+    """The step with the plant's table and the sensor entries in one lookup
+    (``shared=True``, default) runs the filter of the step with a lookup per table and
+    the entries' rates by differentiation (``shared=False``) to rounding, and has one
+    table call where the other has four for the accelerometers (the plant's, the
+    entries', their two derivatives) and two for the strain gauges (no rates): a silent
+    fallback to the old form fails here."""
+    plant, sensors = study["plant"], study[kind]
+    u, y, _ = _split(study["data"]["move1"], kind)
+    R = R_ACC if kind == "acc" else R_SG
+    steps = {s: ekf_step_function(plant, sensors, Q, R, DT, jacobians="first_order",
+                                  shared=s) for s in (True, False)}
+    calls = {s: sum(f.instruction_id(k) == ca.OP_CALL for k in range(f.n_instructions()))
+             for s, f in steps.items()}
+    assert calls == {True: 1, False: 4 if kind == "acc" else 2}  # strain: no rates
+    new, old = (run_ekf(steps[s], u[:1500], y[:1500], np.zeros(6), P0) for s in (True, False))
+    assert np.abs(new.x - old.x).max() <= 1e-12 * np.abs(old.x).max()
+    assert np.abs(new.P - old.P).max() <= 1e-12 * np.abs(old.P).max()
 
 
 @pytest.mark.slow
