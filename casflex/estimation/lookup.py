@@ -122,6 +122,12 @@ def basis_derivatives(x, knots: list, p: int = DEGREE, n: int = 2) -> list[list]
     return ders
 
 
+#: the narrowest table (entries) read through CasADi's B-spline node; its generic routine
+#: costs ~700 instructions a call, more than the shared basis's sum on a narrow table
+#: (rt_step's 19-value plant table: 13 074 -> 13 616 instructions per step with the node)
+BSPLINE_NODE_MIN = 64
+
+
 def _acc(total, term):
     return term if total is None else total + term
 
@@ -214,13 +220,15 @@ def shared_lookup_function(name: str, axis: ArrayLike, periodic: bool,
         k = v.shape[1]
         start += k
         table = ca.MX(ca.DM(coef[:, start - k:start].ravel()))  # row-major: k per basis
-        if not rates:  # CasADi's node: one pass per row over the table (axpy), no copies
+        if not rates and k >= BSPLINE_NODE_MIN:
+            # CasADi's node: one pass per row over the table (axpy), no copies
             outs.append(ca.bspline(x, ca.DM(coef[:, start - k:start].ravel()), [list(knots)],
                                    [p], k, {"lookup_mode": ["binary"]}))
             names.append(key)
             continue
         rows = [table.get_nz(False, ca.Slice(0, k), (i - p + r) * k) for r in range(p + 1)]
-        for weights, suffix in ((value, ""), (rate1, "_dot"), (rate2, "_ddot")):
+        sums = ((value, ""), (rate1, "_dot"), (rate2, "_ddot")) if rates else ((value, ""),)
+        for weights, suffix in sums:
             out = weights[0] * rows[0]
             for r in range(1, p + 1):  # the order of local_bspline_function's sum
                 out = out + weights[r] * rows[r]
