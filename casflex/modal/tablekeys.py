@@ -100,8 +100,9 @@ def robot_fingerprint(robot: Robot) -> str:
 
 
 def tmm_digest() -> str:
-    """SHA-256 (hex) of the source of the TMM and of the robot model: part of the key of
-    cached raw modes, so that a change to the code that computes them invalidates them.
+    """SHA-256 (hex) of the source of the TMM (with its compiled kernels) and of the robot
+    model: part of the key of cached raw modes, so that a change to the code that computes
+    them invalidates them.
 
     Returns
     -------
@@ -116,11 +117,16 @@ def tmm_digest() -> str:
     import casflex.tmm.chain
     import casflex.tmm.conditioning
     import casflex.tmm.elements
+    import casflex.tmm.fast
     import casflex.tmm.kernels
+    import casflex.tmm.one_call
+    import casflex.tmm.shape_kernel
     import casflex.tmm.solve
 
+    # the compiled path (fast, one_call, shape_kernel) computes the tables' modes as well
     return source_digest(casflex.tmm.elements, casflex.tmm.chain, casflex.tmm.solve,
-                          casflex.tmm.kernels, casflex.tmm.conditioning, casflex.robot)
+                          casflex.tmm.kernels, casflex.tmm.conditioning, casflex.robot,
+                          casflex.tmm.fast, casflex.tmm.one_call, casflex.tmm.shape_kernel)
 
 
 def function_identity(func: Any) -> Any:

@@ -58,6 +58,22 @@ def test_spring_about_another_axis_makes_a_shape_joint(arm):
 # ------------------------------------------------------------------ cache and keys
 
 
+def test_the_cached_modes_key_covers_every_tmm_module(monkeypatch):
+    # every module of casflex/tmm computes modes on some path (numpy or the compiled
+    # kernels), so a change to any of them must invalidate the cached raw modes
+    import casflex.modal.tablekeys as tablekeys
+    import casflex.tmm
+
+    seen = []
+    monkeypatch.setattr(tablekeys, "source_digest",
+                        lambda *modules: seen.extend(m.__name__ for m in modules) or "x")
+    tablekeys.tmm_digest()
+    package = Path(casflex.tmm.__file__).parent
+    modules = {f"casflex.tmm.{p.stem}" for p in package.glob("*.py") if p.stem != "__init__"}
+    assert modules and modules <= set(seen), sorted(modules - set(seen))
+    assert "casflex.robot" in seen
+
+
 def test_changing_a_parameter_forces_a_rebuild(arm, tmp_path):
     grid = np.radians(np.arange(0.0, 50.0, 10.0))
     kw = dict(quantities=False, cache_dir=tmp_path, processes=1)
