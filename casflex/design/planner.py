@@ -15,8 +15,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from casflex.errors import SolverError
 
 if TYPE_CHECKING:
@@ -82,25 +80,17 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     """
     from casflex.planning import (
         PlanComparison,
-        frequency_shifted_model,
         plan_move,
         shaped_end,
         shaped_move_limits,
+        shaped_reference,
         verify_plan,
     )
-    from casflex.simulate import simulate_prescribed
 
     say = log or (lambda message: None)
     robust = float(settings["robust"])
     errors = [-robust, robust] if robust > 0.0 else []
-    shaped_check = {"residual": shaped_run.residual_tip_deflection,
-                    "torque_peak": shaped_run.torque_peak.tolist(),
-                    "velocity_peak": np.max(np.abs(shaped_run.dq), axis=0).tolist(),
-                    "errors": [], "run": shaped_run}
-    for r in errors:
-        run = simulate_prescribed(frequency_shifted_model(model, r), shaped, dt=dt,
-                                  t_end=shaped.t_end)
-        shaped_check["errors"].append({"error": r, "residual": run.residual_tip_deflection})
+    shaped_check = shaped_reference(model, shaped, errors, dt=dt, run=shaped_run)
     tau_lim, v_lim = shaped_move_limits(model, move, shaped, dt=dt)  # as casflex plan
     end = settings["end"]
     if end == "shaped":  # in each scenario, no more than the shaped move leaves there

@@ -75,6 +75,9 @@ PlanComparison
 limit_excess
     How far a plan's verified torque and velocity peaks exceed its limits (between the
     collocation points), per joint.
+shaped_reference
+    The shaped move a plan is compared with: its residual (nominal and at frequency
+    errors) and peaks.
 
 Models with shifted frequencies (:mod:`casflex.planning.scenarios`)
 -------------------------------------------------------------------
@@ -121,7 +124,13 @@ from casflex.planning.scenarios import (
     tip_jacobian,
 )
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
-from casflex.planning.verify import PlanComparison, limit_excess, plan_robot_move, verify_plan
+from casflex.planning.verify import (
+    PlanComparison,
+    limit_excess,
+    plan_robot_move,
+    shaped_reference,
+    verify_plan,
+)
 
 __all__ = [
     # planning
@@ -150,6 +159,7 @@ __all__ = [
     "plan_robot_move",
     "PlanComparison",
     "limit_excess",
+    "shaped_reference",
     # models with shifted frequencies
     "frequency_shifted_model",
     "ScaledFrequencyProvider",

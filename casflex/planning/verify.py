@@ -37,7 +37,8 @@ if TYPE_CHECKING:
     from casflex.moves import Move
     from casflex.robot import Robot
 
-__all__ = ["verify_plan", "plan_robot_move", "PlanComparison", "limit_excess"]
+__all__ = ["verify_plan", "plan_robot_move", "PlanComparison", "limit_excess",
+           "shaped_reference"]
 
 
 def _residual_after(t, deflection, t_from):
@@ -49,6 +50,63 @@ def _bound_excess(residual, end):
     if isinstance(end, str) or end is None:
         return None
     return max(0.0, float(residual) / float(end) - 1.0)
+
+
+def shaped_reference(model: FlexibleModel, shaped: Any, errors: Sequence[float] = (),
+                     dt: float = 1e-3, run: Any = None) -> dict:
+    """The shaped move a plan is compared with: its residual tip deflection, nominal and at
+    each frequency error, and its peaks, simulated with the joints on it.
+
+    One definition for ``casflex plan`` (:func:`plan_robot_move`) and the design job's
+    ``[planner]``: the residual is the largest tip deflection after the shaped move ends
+    (:attr:`~casflex.simulate.SimulationResult.residual_tip_deflection`), on the nominal
+    model and on :func:`~casflex.planning.frequency_shifted_model` at each error.
+
+    Parameters
+    ----------
+    model : FlexibleModel
+    shaped : casflex.moves.ShapedMove
+        The shaped move (or any move) to simulate.
+    errors : sequence of float
+        Relative frequency errors of the other scenarios (e.g. ``[-0.1, 0.1]``).
+    dt : float
+        Step of the prescribed-motion simulations [s].
+    run : SimulationResult, optional
+        The nominal simulation, when the caller has it already (not simulated again).
+
+    Returns
+    -------
+    dict
+        ``residual`` [m], ``torque_peak`` [N m] and ``velocity_peak`` [rad/s] per joint,
+        ``errors`` (a list of ``{"error", "residual"}``, in the order given) and ``run``
+        (the nominal :class:`~casflex.simulate.SimulationResult`): what
+        :func:`~casflex.planning.shaped_end` and :func:`verify_plan`'s callers read.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.moves import Move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> ref = shaped_reference(model, Move([0.0], [0.5], 1.0, settle=0.5), errors=[0.1])
+    >>> [e["error"] for e in ref["errors"]], ref["residual"] > 0.0
+    ([0.1], True)
+    """
+    from casflex.simulate import simulate_prescribed
+
+    if run is None:
+        run = simulate_prescribed(model, shaped, dt=dt, t_end=shaped.t_end)
+    out = {"residual": run.residual_tip_deflection,
+           "torque_peak": run.torque_peak.tolist(),
+           "velocity_peak": np.max(np.abs(run.dq), axis=0).tolist(),
+           "errors": [], "run": run}
+    for r in errors:
+        shifted = simulate_prescribed(frequency_shifted_model(model, r), shaped, dt=dt,
+                                      t_end=shaped.t_end)
+        out["errors"].append({"error": float(r),
+                              "residual": shifted.residual_tip_deflection})
+    return out
 
 
 def limit_excess(peak: Sequence[float], limit: Sequence[float]) -> list[float | None]:
@@ -370,7 +428,6 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     from casflex.model import PointwiseProvider, build_model
     from casflex.moves import ShapedMove
     from casflex.shaping import shaper_for_move
-    from casflex.simulate import simulate_prescribed
 
     if move.n_joints != robot.n_joints:
         raise fail("move", move.name, f"has {move.n_joints} joint(s) but robot "
@@ -417,20 +474,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     timings["shaper_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     errors = [-robust, robust] if robust > 0.0 else []
-    run = simulate_prescribed(model, shaped, dt=dt, t_end=shaped.t_end)
-    shaped_check = {
-        "residual": _residual_after(run.t, run.tip_deflection, shaped.duration),
-        "torque_peak": run.torque_peak.tolist(),
-        "velocity_peak": np.max(np.abs(run.dq), axis=0).tolist(),
-        "errors": [],
-        "run": run,
-    }
-    for r in errors:
-        rr = simulate_prescribed(frequency_shifted_model(model, r), shaped, dt=dt,
-                                 t_end=shaped.t_end)
-        shaped_check["errors"].append(
-            {"error": r, "residual": _residual_after(rr.t, rr.tip_deflection,
-                                                     shaped.duration)})
+    shaped_check = shaped_reference(model, shaped, errors, dt=dt)
     # the shaped move's peaks; a joint the move holds is not torque-limited (limits.py)
     tau_lim, v_lim = shaped_move_limits(model, move, shaped, dt=dt)
     limits = {"torque": plan_options.pop("torque_limit", tau_lim),
