@@ -31,7 +31,12 @@ Usage::
 
     nice -n 10 python benchmarks/bench_planning_moves.py [--moves move1 move2 move3]
         [--robust-moves move1] [--robust 0.1] [--dt 1e-4] [--onelink]
+        [--derivatives casadi|points [--compile-flags FLAGS]]
         [--out benchmarks/data/planning_moves.json] [--json]
+
+``--derivatives points`` builds the NLP's Jacobian and Hessian from the dynamics at one
+collocation point, compiled to C once per model (``--compile-flags``, default ``-O0``)
+and cached: the same plans to round-off at a third of the CPU (README_planning.md).
 """
 
 from __future__ import annotations
@@ -167,6 +172,19 @@ def store(path: Path, key: str, value) -> None:
     atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
+def derivative_options(args) -> dict:
+    """``plan_move``'s ``derivatives`` and ``compile_function`` of ``--derivatives`` and
+    ``--compile-flags`` (points: the point function's derivatives compiled, cached)."""
+    if args.derivatives != "points":
+        return {"derivatives": args.derivatives}
+    from casflex.codegen import compile_cached
+
+    def compile_points(functions):
+        lib, _ = compile_cached(functions, "plan_points", flags=tuple(args.compile_flags.split()))
+        return [lib[f.name()] for f in functions]
+    return {"derivatives": "points", "compile_function": compile_points}
+
+
 def run_move(name, args, study, out_path, robust_moves):
     """Shaped, nominal plan and (for ``robust_moves``) robust plan of one move."""
     from casflex.moves import load_move
@@ -180,7 +198,7 @@ def run_move(name, args, study, out_path, robust_moves):
     c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
-                        max_iter=args.max_iter, log=log)
+                        max_iter=args.max_iter, log=log, **derivative_options(args))
     log(f"{name}: planned {c.plan.duration:.4f} s ({c.plan.stats['status']}, "
         f"{c.plan.stats['iterations']} iterations, {c.plan.stats['solve_cpu_s']:.0f} s CPU);"
         f" shaped {c.shaped.duration:.4f} s; run CPU {time.process_time() - c0:.0f} s")
@@ -210,7 +228,8 @@ def run_move(name, args, study, out_path, robust_moves):
             "(the shaped move's at 0, -r, +r), warm from the nominal plan")
         robust = plan_move(model, move, end=end, robust=r, guess=c.plan,
                            torque_limit=limits["torque"], velocity_limit=limits["velocity"],
-                           max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0))
+                           max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0),
+                           **derivative_options(args))
         log(f"{name}: robust {robust.duration:.4f} s ({robust.stats['status']}, "
             f"{robust.stats['iterations']} iterations, {robust.stats['solve_cpu_s']:.0f} s "
             "CPU)")
@@ -283,6 +302,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--max-iter", type=int, default=500)
     parser.add_argument("--modes", type=int, default=3, help="modes of the model (study: 3)")
     parser.add_argument("--onelink", action="store_true")
+    parser.add_argument("--derivatives", default="casadi", choices=["casadi", "points"],
+                        help="the NLP's derivatives (points: compiled per model, cached)")
+    parser.add_argument("--compile-flags", default="-O0", metavar="FLAGS",
+                        help="compiler flags of --derivatives points (default -O0)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -295,7 +318,9 @@ def main(argv: list[str] | None = None) -> dict:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=ROOT).stdout.strip()
     meta = {"robust": args.robust, "dt": args.dt, "study": "arm2link_move1.toml",
-            "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT}
+            "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT,
+            "derivatives": args.derivatives + (f" {args.compile_flags}"
+                                               if args.derivatives == "points" else "")}
     if args.onelink:
         run_onelink(args, out_path)
         store(out_path, "meta", {**json.loads(out_path.read_text())["meta"],
