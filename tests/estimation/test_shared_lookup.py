@@ -79,3 +79,40 @@ def test_bad_tables():
         shared_lookup_function("t", grid[:3], False, {"a": (np.ones((3, 1)), False)})
     with pytest.raises(ModelError, match="table 'a'"):
         shared_lookup_function("t", grid, False, {"a": (np.ones((4, 1)), False)})
+
+
+@pytest.mark.needs_cc
+@pytest.mark.parametrize("periodic", [False, True])
+def test_c_kernel_equals_the_function_without_it_and_scipy(rng, tmp_path, periodic):
+    """``c_kernel=True``: the wide table's sum by the fused C loop, generated and compiled,
+    equals the CasADi function without it (the same operations: equal to the last bit
+    but for the C compiler's freedom, 1e-15 allowed) and scipy's spline (non-periodic
+    axis; 1e-12 as the other tests), at random points, the grid points and beyond the
+    ends; CasADi cannot evaluate it (the kernel is C source only)."""
+    from casflex import codegen
+    from casflex.estimation.lookup import KERNEL_MIN_ENTRIES
+
+    if periodic:
+        grid = np.radians(np.arange(-180.0, 180.0, 7.5))
+    else:
+        grid = np.sort(rng.uniform(-1.0, 2.0, 13))
+    wide = rng.normal(size=(grid.size, KERNEL_MIN_ENTRIES + 7))
+    narrow = rng.normal(size=(grid.size, 3))
+    tables = {"wide": (wide, False), "narrow": (narrow, True)}
+    plain = shared_lookup_function("plain", grid, periodic, tables)
+    kernel = shared_lookup_function("kern", grid, periodic, tables, c_kernel=True)
+    with pytest.raises(RuntimeError, match="eval"):
+        kernel(0.1, 0.0, 0.0)
+    bundle = codegen.generate([kernel], tmp_path, name="kern")
+    kernel_c = codegen.load(codegen.build(bundle, flags=("-O2", "-ffp-contract=off")), "kern")
+    spline = None if periodic else make_interp_spline(grid, wide, k=3)
+    span = (-7.0, 7.0) if periodic else (grid[0] - 0.5, grid[-1] + 0.5)
+    for q in np.r_[rng.uniform(*span, 25), grid]:
+        dq, ddq = rng.normal(size=2)
+        got = [np.asarray(o).ravel() for o in kernel_c(q, dq, ddq)]
+        want = [np.asarray(o).ravel() for o in plain(q, dq, ddq)]
+        for a, b in zip(got, want, strict=True):
+            assert np.max(np.abs(a - b)) <= 1e-15 * max(1.0, np.max(np.abs(b)))
+        if spline is not None:
+            ref = spline(np.clip(q, grid[0], grid[-1]))
+            assert np.max(np.abs(got[0] - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref)))
