@@ -20,9 +20,50 @@ from casflex._validate import identifier
 from casflex.codegen.compiler import find_compiler, run_compiler, shared_library_suffix
 from casflex.codegen.errors import BuildError, CodegenError
 
-__all__ = ["compile_cached"]
+__all__ = ["compile_cached", "jit_flags"]
 
 _COMPILER_IDENT: dict[tuple[str, ...], str] = {}
+
+
+def jit_flags(jit: bool | str | Sequence[str], default: Sequence[str]) -> tuple[str, ...]:
+    """The compiler flags a simulator's ``jit`` argument asks for.
+
+    Parameters
+    ----------
+    jit : True or str or sequence of str
+        ``True``: ``default``; a string: its whitespace-separated words; else each item.
+    default : sequence of str
+        The flags of ``jit=True``.
+
+    Returns
+    -------
+    tuple of str
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``jit`` none of these.
+
+    Examples
+    --------
+    >>> jit_flags(True, ("-O1",)), jit_flags("-O2 -march=native", ("-O1",))
+    (('-O1',), ('-O2', '-march=native'))
+    >>> jit_flags(3, ("-O1",))  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ModelError: jit must be True, False, a flags string or a sequence ...
+    """
+    from casflex.errors import ModelError
+
+    if jit is True:
+        return tuple(default)
+    if isinstance(jit, str):
+        return tuple(jit.split())
+    try:
+        return tuple(str(x) for x in jit)
+    except TypeError:
+        raise ModelError(f"jit must be True, False, a flags string or a sequence of "
+                         f"compiler flags; got {jit!r}") from None
 
 
 def _compiler_ident(cmd):

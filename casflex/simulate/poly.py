@@ -629,23 +629,14 @@ def _integrate(acc, z0, stage_rows, steps, m):
 
 def _compiled(model, F, acc, jit, cache_dir):
     """``F`` and the RK4 chunk ``acc`` compiled to C (cached per model and flags)."""
-    if jit is True:
-        flags = ("-O1",)
-    elif isinstance(jit, str):
-        flags = tuple(jit.split())
-    else:
-        try:
-            flags = tuple(str(x) for x in jit)
-        except TypeError:
-            raise ModelError(f"jit must be True, False, a flags string or a sequence of "
-                             f"compiler flags; got {jit!r}") from None
+    from casflex.codegen.jit import compile_cached, jit_flags
+
+    flags = jit_flags(jit, ("-O1",))
     memo = step_cache(model)
     key = ("poly_jit", flags, str(cache_dir))
     hit = memo.get(key)
     if hit is not None:
         return hit + ({"poly_jit_s": 0.0, "poly_jit_built": False},)
-    from casflex.codegen.jit import compile_cached
-
     funs_F, info_F = compile_cached([F], "casflex_poly_F", cache_dir=cache_dir, flags=flags)
     funs_a, info_a = compile_cached([acc], "casflex_poly_rk4", cache_dir=cache_dir,
                                     flags=flags)

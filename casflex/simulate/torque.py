@@ -796,18 +796,9 @@ def _estimator_sample_step(model, controller, ref, dt, substeps, ekf, h, ny, ddq
 def _compiled_sample_step(step, jit, cache_dir):
     """The sample step compiled to C (:func:`casflex.codegen.jit.compile_cached`: built
     once, then loaded from the on-disk cache); ``jit=True`` uses :data:`JIT_FLAGS`."""
-    if jit is True:
-        flags = JIT_FLAGS
-    elif isinstance(jit, str):
-        flags = tuple(jit.split())
-    else:
-        try:
-            flags = tuple(str(x) for x in jit)
-        except TypeError:
-            raise ModelError(f"jit must be True, False, a flags string or a sequence of "
-                             f"compiler flags; got {jit!r}") from None
-    from casflex.codegen.jit import compile_cached
+    from casflex.codegen.jit import compile_cached, jit_flags
 
+    flags = jit_flags(jit, JIT_FLAGS)
     funs, _ = compile_cached([step], step.name(), cache_dir=cache_dir, flags=flags)
     return funs[step.name()]
 
