@@ -30,7 +30,7 @@ configurations listed in ``VARIANTS`` (the step before these changes among them)
 Usage: ``python benchmarks/bench_ekf.py [--json] [--steps 2000] [--repeat 5] [--step-deg 7.5]
 [--runs 7] [--order 2] [--jacobians first_order] [--update auto]
 [--flags "-O3 -march=native -ffp-contract=off"] [--compare [--rounds 3]] [--guarded] [--lookups]
-[--forms] [--recursive] [--shared] [--kernel] [--no-c-kernel] [--peak]
+[--forms] [--recursive] [--shared] [--peak]
 [--callgrind [--callgrind-flags "-O3 -march=x86-64-v3 -ffp-contract=off"]]``
 
 ``--callgrind`` also counts the machine instructions of one step (valgrind's callgrind,
@@ -61,13 +61,6 @@ per cycle at the nominal clock of /proc/cpuinfo).
 sensor pose (``recursive=False``, the step of session 9) and by the recursive pass over
 the pose's factors (the default, ``casflex.sensors.kinematic_measurement``): key
 ``recursive``.
-
-The C step is the one :func:`casflex.codegen.ekf_bundle` generates: the plant's wide
-table summed by one fused C loop (``ekf_step_function(..., c_kernel=True)``,
-:func:`casflex.estimation.lookup.weighted_rows_kernel`); its estimates are compared with
-the CasADi step's (the same sums, elementwise; ``c_vs_python_max_rel_dev``).
-``--no-c-kernel`` times the elementwise sums' C instead; ``--kernel`` both, interleaved:
-key ``kernel`` (labels ``sums`` and ``kernel``).
 
 ``--shared`` the same for the step's tables looked up one by one, the sensor entries'
 rates by differentiation (``shared=False``, the step of session 10) and in one lookup
@@ -536,12 +529,6 @@ def main(argv=None):
                         help="also time and count the step with the accelerometers as the "
                         "whole pose's time derivatives (before) and by the recursive pass "
                         "(now), interleaved over --rounds")
-    parser.add_argument("--kernel", action="store_true",
-                        help="also compare the plant table's sums elementwise and by the "
-                             "fused C loop (key kernel)")
-    parser.add_argument("--no-c-kernel", action="store_true",
-                        help="time the step with the plant table's sums elementwise (the "
-                             "C of the CasADi step)")
     parser.add_argument("--shared", action="store_true",
                         help="also time and count the step with a lookup per table (before) "
                         "and with one lookup function (now), interleaved over --rounds")
@@ -572,9 +559,6 @@ def main(argv=None):
     Q, R, dt = 5e-6, (250e-6 * 9.8) ** 2, 1e-3
     step = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                              update=args.update)
-    # what casflex.codegen.ekf_bundle generates: the plant table by the fused C loop
-    c_step = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
-                               update=args.update, c_kernel=not args.no_c_kernel)
     move = load_move(str(ROOT / "problems/moves.toml") + ":move1")
     data = simulate_data(model, sensors, move, dt=dt, t_end=args.steps * dt - dt)
     N = data.u.shape[0]
@@ -584,10 +568,7 @@ def main(argv=None):
     run_medians = []
     instructions = []
 
-    def time_c(stp, flags, runs=1, python=None):
-        """Median C step [us], the estimates' largest relative difference from the
-        CasADi step ``python`` (default ``stp``; a ``c_kernel`` step has no CasADi
-        evaluation) and the work size."""
+    def time_c(stp, flags, runs=1):
         with tempfile.TemporaryDirectory() as tmp:
             bundle = codegen.generate([stp], tmp, name="bench_ekf")
             initial, feedback = {"x": x0, "P": P0}, {"x_next": "x", "P_next": "P"}
@@ -598,7 +579,7 @@ def main(argv=None):
                                       {"u": data.u, "y": data.y, "mask": mask},
                                       initial, feedback=feedback,
                                       repeat=args.repeat, flags=tuple(flags.split()))
-            ref = run_ekf(python or stp, data.u, data.y, x0, P0)
+            ref = run_ekf(stp, data.u, data.y, x0, P0)
             dev = float(np.max(np.abs(res.outputs["x_post"] - ref.x)) / np.max(np.abs(ref.x)))
             medians = [res.timing["median_step_ns"] / 1e3]
             # the same executable again: on a shared machine a whole run can land in a
@@ -633,16 +614,13 @@ def main(argv=None):
         flags_of = {label: flags for label, _, _, _, flags in VARIANTS}
         timed_rounds(variants, steps, args.rounds,
                      lambda label, st: time_c(st, flags_of[label]), log)
-    def side_by_side(steps, prefix, python=None):
+    def side_by_side(steps, prefix):
         """Interleaved timings (and counts) of two steps, and their estimates' largest
-        relative difference (of the CasADi steps ``python``, default ``steps``; with
-        ``python`` given, of the C runs, each against its CasADi step)."""
-        results, counted, devs = {}, {}, {}
+        relative difference."""
+        results, counted = {}, {}
 
         def timed(label, st):
-            ref = python[label] if python else None
-            out = time_c(st, args.flags, python=ref)
-            devs[label] = out[1]
+            out = time_c(st, args.flags)
             if instructions:  # the count of the build just timed
                 counted[label] = instructions[0]
             return out
@@ -650,9 +628,6 @@ def main(argv=None):
         timed_rounds(results, steps, args.rounds, timed, log, prefix)
         for label, ins in counted.items():
             results[label]["instructions_per_step"] = ins
-        if python:
-            results["max_rel_dev"] = max(devs.values())
-            return results
         ra, rb = (run_ekf(st, data.u, data.y, x0, P0).x for st in steps.values())
         results["max_rel_dev"] = float(np.max(np.abs(ra - rb)) / np.max(np.abs(ra)))
         return results
@@ -681,11 +656,6 @@ def main(argv=None):
             {form: ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
                                      update=args.update, shared=form == "shared")
              for form in ("separate", "shared")}, "tables ")
-    kernel = {}
-    if args.kernel:  # the plant's wide table: elementwise sums vs the fused C loop
-        kernel = side_by_side(
-            {"sums": step, "kernel": c_step}, "plant table ",
-            python={"sums": step, "kernel": step})
     guarded = {}
     if args.guarded:
         gstep = ekf_step_function(plant, sensors, Q, R, dt, jacobians=args.jacobians,
@@ -696,7 +666,7 @@ def main(argv=None):
         guarded["rounds_ratio"] = [g / p for g, p in zip(guarded["guarded"]["rounds_us"],
                                                          guarded["plain"]["rounds_us"],
                                                          strict=True)]
-    c_us, c_dev, sz_w = time_c(c_step, args.flags, runs=max(1, args.runs), python=step)
+    c_us, c_dev, sz_w = time_c(step, args.flags, runs=max(1, args.runs))
     c_runs = list(run_medians)
     ref = run_ekf(step, data.u, data.y, x0, P0)
 
@@ -743,7 +713,6 @@ def main(argv=None):
         "update": args.update,
         "flags": args.flags,
         "c_vs_python_max_rel_dev": c_dev,
-        "c_kernel": not args.no_c_kernel,
         "numpy_vs_casadi_max_rel_dev": dev,
         "steps": N,
         "repeat": args.repeat,
@@ -776,8 +745,6 @@ def main(argv=None):
         out["recursive"] = recursive
     if shared:
         out["shared"] = shared
-    if kernel:
-        out["kernel"] = kernel
     if guarded:
         out["guarded"] = guarded
     if variants:

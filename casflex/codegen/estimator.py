@@ -152,14 +152,13 @@ def ekf_bundle(model: FlexibleModel, sensors: SensorSet, out_dir: str | os.PathL
         plant = tabulate_plant(model)
     funcs = ekf_functions(model, sensors, Q, R, dt, plant=plant, sqrt=sqrt,
                           coriolis=coriolis, stiffness_scale=stiffness_scale, prefix=prefix,
-                          jacobians=jacobians, c_kernel=True)
+                          jacobians=jacobians)
     if prefilter is not None or guard is not None:
         funcs["ekf_step"] = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt,
                                               coriolis=coriolis,
                                               stiffness_scale=stiffness_scale,
                                               prefilter=prefilter, name=prefix + "ekf_step",
-                                              jacobians=jacobians, guard=guard,
-                                              c_kernel=True)
+                                              jacobians=jacobians, guard=guard)
     order = ["ekf_step", "plant", "measurement", "rigid_signals"]
     units = ekf_units(sensors, prefix)
     if sqrt:

@@ -137,7 +137,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
                       name: str = "ekf_step", jacobians: str = "exact", cse: bool = True,
                       update: str = "auto", lean: bool = True, joseph: bool = False,
                       guard: gd.Guard | None = None, recursive: bool = True,
-                      shared: bool = True, c_kernel: bool = False) -> ca.Function:
+                      shared: bool = True) -> ca.Function:
     """One EKF step as an SX ``casadi.Function`` (module docstring).
 
     Parameters
@@ -218,16 +218,9 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         With ``lean`` and the plant's local lookup over the model's one-axis grid: the
         plant's spline table and the sensor entries with their time derivatives in one
         lookup function (the entries and their rates from one knot search and one basis,
-        :mod:`casflex.estimation.lookup`), the same splines to rounding; ``False``: each
-        table by its own lookup and the entries' derivatives by differentiation (the step
-        before).
-    c_kernel : bool
-        For code generation only (``shared``): the plant's wide table summed by one fused
-        C loop (:func:`casflex.estimation.lookup.weighted_rows_kernel`, the same
-        operations; 13 308 → 11 681 machine instructions a step on the benchmark,
-        ``benchmarks/README_ekf.md``). The function can then be generated to C
-        (:func:`casflex.codegen.ekf_bundle` does) but not evaluated by CasADi: compare its
-        C with the step built without it.
+        the plant's wide table by CasADi's B-spline node: :mod:`casflex.estimation.
+        lookup`), the same splines to rounding; ``False``: each table by its own lookup
+        and the entries' derivatives by differentiation (the step before).
     guard : casflex.estimation.Guard, optional
         Guarded step (:mod:`casflex.estimation.guard`: non-finite inputs, innovation
         gating, covariance bounds, status word; not with ``sqrt``). Adds the input
@@ -289,7 +282,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     filt = ca.SX.sym("f", 4 * ny)
     q, dq, ddq = u[:n], u[n:2 * n], u[2 * n:]
     hkin, spline_values = _measurement_and_tables(plant, sensors, u, name, lean, recursive,
-                                                  shared, c_kernel)
+                                                  shared)
     # placeholders: no derivative ever flows into the coefficient tables (AD through the
     # spline call nodes would evaluate their derivative splines for nothing)
     coef = plant.coefficients(q, dq, ddq, coriolis, stiffness_scale, quadratic=True,
@@ -451,7 +444,7 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
     return ca.Function(name, ins, outs, names_in, names_out, {"cse": bool(cse)})
 
 
-def _measurement_and_tables(plant, sensors, u, name, lean, recursive, shared, c_kernel):
+def _measurement_and_tables(plant, sensors, u, name, lean, recursive, shared):
     """The measurement ``(x, u, dddelta) -> y`` of the step and the plant's spline values
     at ``u`` (None: :meth:`FlexiblePlant.coefficients` looks them up). With ``shared`` and
     one common one-axis grid, both tables come from one :func:`shared_lookup_function`
@@ -478,7 +471,7 @@ def _measurement_and_tables(plant, sensors, u, name, lean, recursive, shared, c_
     if cols.shape[-1]:
         tables["sensor_entries"] = (cols, rates)
     look = shared_lookup_function(f"{name}_tables", table.grid[0], bool(table.periodic[0]),
-                                  tables, c_kernel=c_kernel)
+                                  tables)
     out = look(u[j], u[n + j], u[2 * n + j])
     k = cols.shape[-1]
     entries = (out[1:] if rates else [out[1], ca.SX.zeros(k), ca.SX.zeros(k)]) if k \
@@ -753,7 +746,7 @@ def ekf_functions(model: FlexibleModel, sensors: SensorSet, Q: ArrayLike, R: Arr
                   dt: float, *, plant: FlexiblePlant | None = None, sqrt: bool = False,
                   coriolis: bool = True, stiffness_scale: float = 1.0,
                   rigid_removed: bool = False, prefix: str = "",
-                  jacobians: str = "exact", c_kernel: bool = False) -> dict[str, ca.Function]:
+                  jacobians: str = "exact") -> dict[str, ca.Function]:
     """The named functions of a real-time estimator, ready to combine or generate.
 
     Parameters
@@ -766,9 +759,9 @@ def ekf_functions(model: FlexibleModel, sensors: SensorSet, Q: ArrayLike, R: Arr
         (:func:`ekf_step_function`).
     plant : FlexiblePlant, optional
         Default :func:`tabulate_plant` of ``model``.
-    sqrt, coriolis, stiffness_scale, rigid_removed, jacobians, c_kernel
+    sqrt, coriolis, stiffness_scale, rigid_removed, jacobians
         Passed on to :func:`ekf_step_function` (``coriolis`` and ``stiffness_scale`` to
-        the ``plant`` function as well; with ``c_kernel`` the step is for C only).
+        the ``plant`` function as well).
     prefix : str
         Prepended to every function name (several estimators in one C bundle).
 
@@ -795,8 +788,7 @@ def ekf_functions(model: FlexibleModel, sensors: SensorSet, Q: ArrayLike, R: Arr
         plant = tabulate_plant(model)
     step = ekf_step_function(plant, sensors, Q, R, dt, sqrt=sqrt, coriolis=coriolis,
                              stiffness_scale=stiffness_scale, rigid_removed=rigid_removed,
-                             name=prefix + "ekf_step", jacobians=jacobians,
-                             c_kernel=c_kernel)
+                             name=prefix + "ekf_step", jacobians=jacobians)
 
     def rename(f, new):
         return ca.Function(new, f.sx_in(), f.call(f.sx_in()), f.name_in(), f.name_out())

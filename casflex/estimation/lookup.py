@@ -11,27 +11,23 @@ passes over the table's width plus a copy. :func:`shared_lookup_function` evalua
 same interpolating cubic B-spline of every table (the same padded grid and fit, so the
 same knots) in one function:
 
-the knot interval is located once (binary search), the four non-zero basis functions and
-their first two derivatives come from one triangle (Piegl & Tiller, *The NURBS Book*,
-algorithm A2.3; the values by the operations of :func:`casflex.modal.local_bspline_function`,
-so bit-identical to it), and for tables with rates the time derivatives are folded into
-the weights, ``V̇ = Σ (B'ᵣ q̇) cᵣ``, ``V̈ = Σ (B''ᵣ q̇² + B'ᵣ q̈) cᵣ``: three weighted sums
-of the same four rows, no differentiation of the lookup. Each sum is
-``((w₀c₀ + w₁c₁) + w₂c₂) + w₃c₃``, elementwise over the table's width.
-
-For code generation, ``c_kernel=True`` sums each wide table of values only (the EKF
-plant's 280 coefficients; at least :data:`KERNEL_MIN_ENTRIES` entries) by
-:func:`weighted_rows_kernel`: the same operations in the same order in one hand-written
-C loop, the four rows fused (the compiler vectorises it) instead of seven passes and four
-row copies — with ``-ffp-contract=off`` the same numbers as the CasADi function without
-it; the EKF step 13 308 → 11 681 machine instructions (CasADi's B-spline node, the path
-of session 11, 12 847: ``benchmarks/README_ekf.md``). CasADi cannot evaluate such a
-function (the kernel exists only as C source): tests compare its compiled C with the
-function built without it.
+1. tables with rates: the knot interval is located once (binary search), the four
+   non-zero basis functions and their first two derivatives come from one triangle
+   (Piegl & Tiller, *The NURBS Book*, algorithm A2.3; the values by the operations of
+   :func:`casflex.modal.local_bspline_function`, so bit-identical to it), and the time
+   derivatives are folded into the weights, ``V̇ = Σ (B'ᵣ q̇) cᵣ``,
+   ``V̈ = Σ (B''ᵣ q̇² + B'ᵣ q̈) cᵣ``: three weighted sums of the same four rows, no
+   differentiation of the lookup;
+2. tables of values only (the plant's 280 coefficients): CasADi's fixed-coefficient
+   B-spline node (:func:`casadi.bspline`, its C ``casadi_nd_boor_eval``), whose weighted
+   sum is one multiply-add pass per row over the table in the generated C — for a wide
+   table fewer instructions than the elementwise sums (measured: ``benchmarks/
+   README_ekf.md``); the same spline to rounding (de Boor's recursion instead of the
+   triangle, ≤ 1e-16 relative).
 
 (A dense product of the ``k × 4`` block of rows with the weights would be one pass, but
 CasADi's dense multiplication loops over the four rows innermost, which the C compiler
-does not vectorise.)
+does not vectorise: it is slower than either.)
 
 Periodic axes are padded and wrapped as :func:`casflex.modal.grid_function` does; beyond
 a non-periodic axis the value at its end is held (derivatives zero there).
@@ -50,7 +46,7 @@ from casflex.errors import ModelError
 from casflex.modal.fits import periodic_axis_kind
 from casflex.modal.table_functions import DEGREE
 
-__all__ = ["shared_lookup_function", "basis_derivatives", "weighted_rows_kernel"]
+__all__ = ["shared_lookup_function", "basis_derivatives"]
 
 
 def basis_derivatives(x, knots: list, p: int = DEGREE, n: int = 2) -> list[list]:
@@ -126,70 +122,10 @@ def basis_derivatives(x, knots: list, p: int = DEGREE, n: int = 2) -> list[list]
     return ders
 
 
-#: the narrowest table (entries) that ``c_kernel`` sums by :func:`weighted_rows_kernel`
-#: (its C copies the output once more; on a narrow table, as rt_step's 19-value plant
-#: table, the elementwise sums are as cheap)
-KERNEL_MIN_ENTRIES = 64
-
-
-def weighted_rows_kernel(name: str, coef: ArrayLike, rows: int = DEGREE + 1) -> ca.Function:
-    """``name(weights, first) -> values = Σᵣ weights[r] · coef[first + r, :]`` as one C loop,
-    for generated code only.
-
-    The table is a ``static const`` array of the function's C body (row-major, each
-    value written by ``repr``: it reads back to the same double) and the sum one loop over
-    its width with the rows fused, ``((w₀c₀ + w₁c₁) + w₂c₂) + w₃c₃`` per entry (the
-    order of :func:`casflex.modal.local_bspline_function`'s sum), which the C compiler
-    vectorises.
-
-    Parameters
-    ----------
-    name : str
-        Name of the function (and of its C function).
-    coef : array_like
-        ``(nb, k)`` coefficient rows (a B-spline's, one row per basis function).
-    rows : int
-        Rows summed (degree + 1).
-
-    Returns
-    -------
-    casadi.Function
-        Inputs ``weights`` (``rows × 1``) and ``first`` (the first row, an integer value
-        in ``0 … nb − rows``); output ``values`` (``k × 1``). A CasADi ``JitFunction``
-        without a compiled body: it can be generated to C (``casadi.CodeGenerator``) but
-        not called from Python.
-
-    Raises
-    ------
-    casflex.errors.ModelError
-        ``coef`` not a finite 2-D table of at least ``rows`` rows.
-
-    Examples
-    --------
-    >>> f = weighted_rows_kernel("rows", np.arange(12.0).reshape(4, 3))
-    >>> f.name_in(), f.name_out(), f.size_out(0)
-    (['weights', 'first'], ['values'], (3, 1))
-    """
-    c = np.asarray(coef, dtype=float)
-    if c.ndim != 2 or c.shape[0] < rows or not np.all(np.isfinite(c)):
-        raise ModelError(f"{name}: the table must be finite, 2-D with at least {rows} rows; "
-                         f"got shape {c.shape}")
-    nb, k = c.shape
-    values = [repr(float(v)) for v in c.ravel()]
-    table = ",\n    ".join(", ".join(values[i:i + 8]) for i in range(0, len(values), 8))
-    # C's + is left-associative: ((w0 c0 + w1 c1) + w2 c2) + w3 c3
-    total = " + ".join(f"weights[{r}] * c[{r * k} + j]" for r in range(rows))
-    # CasADi's C copies the inputs to, and the output from, the work vector under the
-    # ports' names (weights, first, values) around the body, in a block of its own
-    body = ("{\n"
-            f"  static const casadi_real table[{nb * k}] = {{\n    {table}}};\n"
-            f"  const casadi_real *c = table + {k} * (casadi_int) first[0];\n"
-            "  casadi_int j;\n"
-            f"  for (j = 0; j < {k}; ++j) values[j] = {total};\n"
-            "}\n")
-    return ca.Function.jit(name, body, ["weights", "first"], ["values"],
-                           [ca.Sparsity.dense(rows, 1), ca.Sparsity.dense(1, 1)],
-                           [ca.Sparsity.dense(k, 1)], {"jit": False})
+#: the narrowest table (entries) read through CasADi's B-spline node; its generic routine
+#: costs ~700 instructions a call, more than the shared basis's sum on a narrow table
+#: (rt_step's 19-value plant table: 13 074 -> 13 616 instructions per step with the node)
+BSPLINE_NODE_MIN = 64
 
 
 def _acc(total, term):
@@ -197,8 +133,7 @@ def _acc(total, term):
 
 
 def shared_lookup_function(name: str, axis: ArrayLike, periodic: bool,
-                           tables: Mapping[str, tuple[ArrayLike, bool]],
-                           c_kernel: bool = False) -> ca.Function:
+                           tables: Mapping[str, tuple[ArrayLike, bool]]) -> ca.Function:
     """Several tables over one grid axis, interpolated by cubic B-splines at one point in
     one function (module docstring).
 
@@ -215,10 +150,6 @@ def shared_lookup_function(name: str, axis: ArrayLike, periodic: bool,
     tables : mapping of str to (array_like, bool)
         ``{table name: (values, rates)}``: values ``(n, k)`` at the grid points; ``rates``:
         also the entries' first and second time derivatives along the joint.
-    c_kernel : bool
-        Tables of values only with at least :data:`KERNEL_MIN_ENTRIES` entries summed by
-        :func:`weighted_rows_kernel` (the same sum as one fused C loop): for code
-        generation only, the function cannot be evaluated by CasADi then.
 
     Returns
     -------
@@ -289,9 +220,10 @@ def shared_lookup_function(name: str, axis: ArrayLike, periodic: bool,
         k = v.shape[1]
         start += k
         table = ca.MX(ca.DM(coef[:, start - k:start].ravel()))  # row-major: k per basis
-        if c_kernel and not rates and k >= KERNEL_MIN_ENTRIES:
-            kernel = weighted_rows_kernel(f"{name}_{key}_rows", coef[:, start - k:start], p + 1)
-            outs.append(kernel(ca.vertcat(*value), i - p))
+        if not rates and k >= BSPLINE_NODE_MIN:
+            # CasADi's node: one pass per row over the table (axpy), no copies
+            outs.append(ca.bspline(x, ca.DM(coef[:, start - k:start].ravel()), [list(knots)],
+                                   [p], k, {"lookup_mode": ["binary"]}))
             names.append(key)
             continue
         rows = [table.get_nz(False, ca.Slice(0, k), (i - p + r) * k) for r in range(p + 1)]
