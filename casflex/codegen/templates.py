@@ -784,4 +784,22 @@ def fused_bspline_source(source_text: str) -> str:
     if found is None:  # the routine's definition is not where CasADi writes it
         return source_text
     text = source_text[:found.end()] + _BOOR_C + source_text[found.end():]
-    return _CLEARED_CALL.sub(r"casflex_boor_eval(\1,\4,\5\2,", text)
+    text = _CLEARED_CALL.sub(r"casflex_boor_eval(\1,\4,\5\2,", text)
+    return _DIRECT_OUTPUT.sub(_direct_output, text)
+
+
+#: the routine's result copied to an output right after the call (CasADi's ``casadi_copy``)
+_DIRECT_OUTPUT = re.compile(r"casflex_boor_eval\((\w+),(.*?\);\n(?:\s*/\*[^\n]*\*/\n)?)"
+                            r"(\s*)casadi_copy\(\1, (\d+), (res\[\d+\])\);\n")
+
+
+def _direct_output(match):
+    """The routine writes into the output ``res[k]`` itself (when given) if its work vector
+    is not read after the copy in the rest of the function: one pass over the table less."""
+    work, rest, indent, _, out = match.groups()
+    after = match.string[match.end():]
+    body = after[:after.find("\n}\n")]
+    if re.search(rf"\b{work}\b", body):
+        return match.group(0)
+    # res[k] null: the work vector is written as before and nothing is copied
+    return f"casflex_boor_eval({out} ? {out} : {work},{rest}"
