@@ -677,15 +677,44 @@ def status_header_text(bits: dict[str, int],
 #: starts from 0 here (no clearing pass). The values are CasADi's bit for bit
 #: (``tests/codegen/test_codegen_bspline.py``).
 _BOOR_C = """
-/* casflex: casadi_nd_boor_eval of a cleared output, the 1-D weighted sum in one pass */
+/* casflex: ret[j] (0 if first) + the degree + 1 (3 or 4) rows of c weighted by
+   weight*b[i], added in this order, in one pass over the m entries */
+static void casflex_boor_rows(casadi_real* ret, casadi_int first, const casadi_real* c,
+    casadi_int m, casadi_int degree, casadi_real weight, const casadi_real* b) {
+  casadi_int j;
+  const casadi_real *c0, *c1, *c2, *c3;
+  casadi_real w0, w1, w2, w3;
+  w0 = weight*b[0]; w1 = weight*b[1]; w2 = weight*b[2];
+  c0 = c; c1 = c + m; c2 = c + 2*m;
+  if (degree == 3) {
+    w3 = weight*b[3];
+    c3 = c + 3*m;
+    if (first) {  /* 0.0 + ...: as after casadi_clear (the sign of a zero) */
+      for (j = 0; j < m; ++j)
+        ret[j] = (((0.0 + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
+    } else {
+      for (j = 0; j < m; ++j)
+        ret[j] = (((ret[j] + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
+    }
+  } else if (first) {
+    for (j = 0; j < m; ++j)
+      ret[j] = ((0.0 + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
+  } else {
+    for (j = 0; j < m; ++j)
+      ret[j] = ((ret[j] + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
+  }
+}
+
+/* casflex: casadi_nd_boor_eval of a cleared output, for one or two axes the weighted sum
+   with the first axis's rows in one pass */
 static void casflex_boor_eval(casadi_real* ret, casadi_int n_dims,
     const casadi_real* all_knots, const casadi_int* offset, const casadi_int* all_degree,
     const casadi_int* strides, const casadi_real* c, casadi_int m, const casadi_real* all_x,
     const casadi_int* lookup_mode, casadi_int* iw, casadi_real* w) {
-  casadi_int j, k, degree, n_knots, n_b, L, start;
+  casadi_int i, k, n1, degree, n_knots, n_b, L, start;
   casadi_int *boor_offset, *starts;
-  const casadi_real *knots, *c0, *c1, *c2, *c3;
-  casadi_real x, w0, w1, w2, w3, *boor;
+  const casadi_real *knots, *c0;
+  casadi_real x, weight, *boor;
   boor_offset = iw; iw += n_dims + 1;
   starts = iw; iw += n_dims;
   boor_offset[0] = 0;
@@ -721,19 +750,14 @@ static void casflex_boor_eval(casadi_real* ret, casadi_int n_dims,
     }
     boor_offset[k + 1] = boor_offset[k] + degree + 1;
   }
-  if (n_dims == 1 && (degree == 3 || degree == 2)) {
-    /* casadi_tensor_ttv's sum, 0.0 + ... as after casadi_clear (the sign of a zero) */
-    c += starts[0]*m;
-    w0 = 1.0*w[0]; w1 = 1.0*w[1]; w2 = 1.0*w[2];
-    c0 = c; c1 = c + m; c2 = c + 2*m;
-    if (degree == 3) {
-      w3 = 1.0*w[3];
-      c3 = c + 3*m;
-      for (j = 0; j < m; ++j)
-        ret[j] = (((0.0 + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
-    } else {
-      for (j = 0; j < m; ++j)
-        ret[j] = ((0.0 + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
+  if ((all_degree[0] == 3 || all_degree[0] == 2) && n_dims <= 2) {
+    /* casadi_tensor_ttv's sum, its order kept: per row block of the second axis (one for
+       one axis), the rows of the first axis in one pass */
+    n1 = n_dims == 2 ? all_degree[1] + 1 : 1;
+    for (i = 0; i < n1; ++i) {
+      weight = n_dims == 2 ? 1.0*w[boor_offset[1] + i] : 1.0;
+      c0 = c + (n_dims == 2 ? (starts[1] + i)*strides[1] : 0) + starts[0]*m;
+      casflex_boor_rows(ret, i == 0, c0, m, all_degree[0], weight, w);
     }
   } else {
     casadi_clear(ret, m);

@@ -31,8 +31,11 @@ def _cases():
         for m in (1, 7, 280):
             t = _knots(degree, 12, rng)
             cases.append((f"d{degree}_m{m}", [t], [degree], rng.standard_normal(12 * m), m))
-    t1, t2 = _knots(3, 9, rng), _knots(3, 7, rng)
-    cases.append(("d3_2d", [t1, t2], [3, 3], rng.standard_normal(9 * 7 * 5), 5))
+    # two axes (the first axis's rows fused for degree 2 or 3), three (CasADi's sum)
+    for degrees, m in (((3, 3), 5), ((2, 3), 18), ((3, 1), 4), ((1, 3), 6), ((3, 3, 2), 4)):
+        knots = [_knots(d, 7, rng) for d in degrees]
+        cases.append(("d" + "x".join(map(str, degrees)), knots, list(degrees),
+                      rng.standard_normal(7 ** len(degrees) * m), m))
     return cases
 
 
