@@ -1,5 +1,7 @@
 """The text of every generated file that is not CasADi's: the bundle's README and
-Makefile, the C harness program and the C program of the long covariance run.
+Makefile, the C harness program and the C program of the long covariance run; and
+casflex's C routine for CasADi's B-spline nodes, put into the generated source
+(:func:`fused_bspline_source`).
 
 Each function returns the text; the modules that write the files
 (:mod:`casflex.codegen.bundle`, :mod:`casflex.codegen.replay`,
@@ -667,12 +669,13 @@ def status_header_text(bits: dict[str, int],
     return "\n".join(lines) + "\n"
 
 
-#: CasADi's ``casadi_nd_boor_eval`` (casadi 3.6–3.8, ``casadi/core/runtime/
+#: CasADi's ``casadi_nd_boor_eval`` (casadi 3.8, ``casadi/core/runtime/
 #: casadi_nd_boor_eval.hpp``) with two changes that keep every operation and its order:
 #: ``casadi_de_boor`` is called with the sizes of a quadratic or a cubic as constants (the
-#: compiler inlines and specialises it), and for one dimension ``casadi_tensor_ttv``'s
-#: weighted sum of the ``degree + 1`` coefficient rows (one ``ret[j] += w_i c_ij`` pass
-#: per row, each loading and storing ``ret``) is one pass over the ``m`` outputs. It
+#: compiler inlines and specialises it), and for one or two axes with a first axis of
+#: degree 2 or 3, ``casadi_tensor_ttv``'s weighted sum of the coefficient rows (one
+#: ``ret[j] += w_i c_ij`` pass per row, each loading and storing ``ret``) is one pass over
+#: the ``m`` outputs per block of the first axis's rows, the terms added in ttv's order. It
 #: replaces calls that CasADi precedes by ``casadi_clear`` of the output, so the sum
 #: starts from 0 here (no clearing pass). The values are CasADi's bit for bit
 #: (``tests/codegen/test_codegen_bspline.py``).
@@ -776,11 +779,13 @@ _BOOR_DEF = re.compile(r"^void casadi_nd_boor_eval\(.*?^}\n", re.MULTILINE | re.
 def fused_bspline_source(source_text: str) -> str:
     """Generated C with every call of CasADi's B-spline routine (``casadi.bspline`` nodes
     with constant coefficients, C ``casadi_nd_boor_eval``, after CasADi's clearing of the
-    output) replaced by a routine that, for one dimension and degree 2 or 3, makes one pass
-    over the table instead of one per coefficient row (:data:`_BOOR_C`): the same values
-    bit for bit, fewer instructions (for the EKF step's 280-wide plant table ~1 900 per lookup,
-    ``benchmarks/README_ekf.md``, session 13). Sources without such a call are returned
-    unchanged.
+    output) replaced by a routine that, where the first axis is of degree 2 or 3 (one or
+    two axes), makes one pass over the table per row block instead of one per coefficient
+    row (:data:`_BOOR_C`): the same values
+    bit for bit, fewer instructions (the EKF step of ``benchmarks/bench_ekf.py``: 12 847
+    -> 11 506 per step; ``benchmarks/README_ekf.md``, session 13). Where CasADi copies
+    the node's value to an output right after the call and reads it no more, the routine
+    writes into the output. Sources without such a call are returned unchanged.
 
     Parameters
     ----------
