@@ -686,22 +686,22 @@ static void casflex_boor_rows(casadi_real* ret, casadi_int first, const casadi_r
     casadi_int m, casadi_int degree, casadi_real weight, const casadi_real* b) {
   casadi_int j;
   const casadi_real *c0, *c1, *c2, *c3;
-  casadi_real w0, w1, w2, w3;
+  casadi_real w0, w1, w2, w3, zero = 0;  /* casadi_real: a float bundle adds in float */
   w0 = weight*b[0]; w1 = weight*b[1]; w2 = weight*b[2];
   c0 = c; c1 = c + m; c2 = c + 2*m;
   if (degree == 3) {
     w3 = weight*b[3];
     c3 = c + 3*m;
-    if (first) {  /* 0.0 + ...: as after casadi_clear (the sign of a zero) */
+    if (first) {  /* zero + ...: as after casadi_clear (the sign of a zero) */
       for (j = 0; j < m; ++j)
-        ret[j] = (((0.0 + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
+        ret[j] = (((zero + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
     } else {
       for (j = 0; j < m; ++j)
         ret[j] = (((ret[j] + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
     }
   } else if (first) {
     for (j = 0; j < m; ++j)
-      ret[j] = ((0.0 + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
+      ret[j] = ((zero + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
   } else {
     for (j = 0; j < m; ++j)
       ret[j] = ((ret[j] + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
