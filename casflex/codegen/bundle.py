@@ -23,7 +23,7 @@ import numpy as np
 from casflex._validate import identifier
 from casflex.codegen.compiler import shared_library_suffix
 from casflex.codegen.errors import CodegenError
-from casflex.codegen.templates import makefile_text, readme_text
+from casflex.codegen.templates import fused_bspline_source, makefile_text, readme_text
 
 __all__ = ["Port", "FunctionInfo", "Bundle", "generate", "densified"]
 
@@ -464,7 +464,7 @@ def generate(functions: ca.Function | Sequence[ca.Function], out_dir: str | os.P
 
     source = out_dir / f"{name}.c"
     header = out_dir / f"{name}.h" if with_header else None
-    source_text = _compact_tables(source.read_text())
+    source_text = fused_bspline_source(_compact_tables(source.read_text()))
     source.write_text(source_text)
     header_text = header.read_text() if header is not None else ""
     infos = []

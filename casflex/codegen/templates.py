@@ -1,5 +1,7 @@
 """The text of every generated file that is not CasADi's: the bundle's README and
-Makefile, the C harness program and the C program of the long covariance run.
+Makefile, the C harness program and the C program of the long covariance run; and
+casflex's C routine for CasADi's B-spline nodes, put into the generated source
+(:func:`fused_bspline_source`).
 
 Each function returns the text; the modules that write the files
 (:mod:`casflex.codegen.bundle`, :mod:`casflex.codegen.replay`,
@@ -8,6 +10,7 @@ Each function returns the text; the modules that write the files
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -24,6 +27,7 @@ __all__ = [
     "harness_source",
     "covariance_run_source",
     "status_header_text",
+    "fused_bspline_source",
 ]
 
 #: first token of a harness input file (format in :mod:`casflex.codegen`)
@@ -663,3 +667,168 @@ def status_header_text(bits: dict[str, int],
         lines += [f"#ifndef {macro}", f"#define {macro} {float(lim)!r} /* N m, clipped inside "
                   "rt_step */", "#endif"]
     return "\n".join(lines) + "\n"
+
+
+#: CasADi's ``casadi_nd_boor_eval`` (casadi 3.8, ``casadi/core/runtime/
+#: casadi_nd_boor_eval.hpp``) with two changes that keep every operation and its order:
+#: ``casadi_de_boor`` is called with the sizes of a quadratic or a cubic as constants (the
+#: compiler inlines and specialises it), and for one or two axes with a first axis of
+#: degree 2 or 3, ``casadi_tensor_ttv``'s weighted sum of the coefficient rows (one
+#: ``ret[j] += w_i c_ij`` pass per row, each loading and storing ``ret``) is one pass over
+#: the ``m`` outputs per block of the first axis's rows, the terms added in ttv's order. It
+#: replaces calls that CasADi precedes by ``casadi_clear`` of the output, so the sum
+#: starts from 0 here (no clearing pass). The values are CasADi's bit for bit
+#: (``tests/codegen/test_codegen_bspline.py``).
+_BOOR_C = """
+/* casflex: ret[j] (0 if first) + the degree + 1 (3 or 4) rows of c weighted by
+   weight*b[i], added in this order, in one pass over the m entries */
+static void casflex_boor_rows(casadi_real* ret, casadi_int first, const casadi_real* c,
+    casadi_int m, casadi_int degree, casadi_real weight, const casadi_real* b) {
+  casadi_int j;
+  const casadi_real *c0, *c1, *c2, *c3;
+  casadi_real w0, w1, w2, w3, zero = 0;  /* casadi_real: a float bundle adds in float */
+  w0 = weight*b[0]; w1 = weight*b[1]; w2 = weight*b[2];
+  c0 = c; c1 = c + m; c2 = c + 2*m;
+  if (degree == 3) {
+    w3 = weight*b[3];
+    c3 = c + 3*m;
+    if (first) {  /* zero + ...: as after casadi_clear (the sign of a zero) */
+      for (j = 0; j < m; ++j)
+        ret[j] = (((zero + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
+    } else {
+      for (j = 0; j < m; ++j)
+        ret[j] = (((ret[j] + w0*c0[j]) + w1*c1[j]) + w2*c2[j]) + w3*c3[j];
+    }
+  } else if (first) {
+    for (j = 0; j < m; ++j)
+      ret[j] = ((zero + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
+  } else {
+    for (j = 0; j < m; ++j)
+      ret[j] = ((ret[j] + w0*c0[j]) + w1*c1[j]) + w2*c2[j];
+  }
+}
+
+/* casflex: casadi_nd_boor_eval of a cleared output, for one or two axes the weighted sum
+   with the first axis's rows in one pass */
+static void casflex_boor_eval(casadi_real* ret, casadi_int n_dims,
+    const casadi_real* all_knots, const casadi_int* offset, const casadi_int* all_degree,
+    const casadi_int* strides, const casadi_real* c, casadi_int m, const casadi_real* all_x,
+    const casadi_int* lookup_mode, casadi_int* iw, casadi_real* w) {
+  casadi_int i, k, n1, degree, n_knots, n_b, L, start;
+  casadi_int *boor_offset, *starts;
+  const casadi_real *knots, *c0;
+  casadi_real x, weight, *boor;
+  boor_offset = iw; iw += n_dims + 1;
+  starts = iw; iw += n_dims;
+  boor_offset[0] = 0;
+  for (k = 0; k < n_dims; ++k) {
+    boor = w + boor_offset[k];
+    degree = all_degree[k];
+    knots = all_knots + offset[k];
+    n_knots = offset[k + 1] - offset[k];
+    n_b = n_knots - degree - 1;
+    x = all_x[k];
+    L = casadi_low(x, knots + degree, n_knots - 2*degree, lookup_mode[k]);
+    start = L;
+    if (start > n_b - degree - 1) start = n_b - degree - 1;
+    starts[k] = start;
+    casadi_clear(boor, 2*degree + 1);
+    if (x >= knots[0] && x <= knots[n_knots - 1]) {
+      if (x == knots[1]) {
+        casadi_fill(boor, degree + 1, 1.0);
+      } else if (x == knots[n_knots - 1]) {
+        boor[degree] = 1;
+      } else if (knots[L + degree] == x && knots[L + degree - 1] < x) {
+        boor[degree - 1] = 1;
+      } else {
+        boor[degree] = 1;
+      }
+    }
+    if (degree == 3) {
+      casadi_de_boor(x, knots + start, 8, 3, boor);
+    } else if (degree == 2) {
+      casadi_de_boor(x, knots + start, 6, 2, boor);
+    } else {
+      casadi_de_boor(x, knots + start, 2*degree + 2, degree, boor);
+    }
+    boor_offset[k + 1] = boor_offset[k] + degree + 1;
+  }
+  if ((all_degree[0] == 3 || all_degree[0] == 2) && n_dims <= 2) {
+    /* casadi_tensor_ttv's sum, its order kept: per row block of the second axis (one for
+       one axis), the rows of the first axis in one pass */
+    n1 = n_dims == 2 ? all_degree[1] + 1 : 1;
+    for (i = 0; i < n1; ++i) {
+      weight = n_dims == 2 ? 1.0*w[boor_offset[1] + i] : 1.0;
+      c0 = c + (n_dims == 2 ? (starts[1] + i)*strides[1] : 0) + starts[0]*m;
+      casflex_boor_rows(ret, i == 0, c0, m, all_degree[0], weight, w);
+    }
+  } else {
+    casadi_clear(ret, m);
+    casadi_tensor_ttv(ret, n_dims-1, n_dims, w, boor_offset, starts, strides, c, m, 1.0, 0);
+  }
+}
+"""
+
+_CALL = r"(?:CASADI_PREFIX\(nd_boor_eval\)|casadi_nd_boor_eval)\("
+#: CasADi clears the node's output just before the call: the routine starts from 0 itself
+_CLEARED_CALL = re.compile(r"casadi_clear\(([^,()]+), (\d+)\);\n(\s*)" + _CALL
+                           + r"\1,(\d+),((?:[^,()]+,){5})\2,")
+_BOOR_DEF = re.compile(r"^void casadi_nd_boor_eval\(.*?^}\n", re.MULTILINE | re.DOTALL)
+
+
+def fused_bspline_source(source_text: str) -> str:
+    """Generated C with every call of CasADi's B-spline routine (``casadi.bspline`` nodes
+    with constant coefficients, C ``casadi_nd_boor_eval``, after CasADi's clearing of the
+    output) replaced by a routine that, where the first axis is of degree 2 or 3 (one or
+    two axes), makes one pass over the table per row block instead of one per coefficient
+    row (:data:`_BOOR_C`): the same values
+    bit for bit, fewer instructions (the EKF step of ``benchmarks/bench_ekf.py``: 12 847
+    -> 11 506 per step; ``benchmarks/README_ekf.md``, session 13). Where CasADi copies
+    the node's value to an output right after the call and reads it no more, the routine
+    writes into the output. Sources without such a call are returned unchanged.
+
+    Parameters
+    ----------
+    source_text : str
+        A C source written by ``casadi.CodeGenerator``.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> import casadi as ca
+    >>> x = ca.MX.sym("x")
+    >>> knots = [0, 0, 0, 0, 1, 2, 3, 3, 3, 3]
+    >>> f = ca.Function("f", [x], [ca.bspline(x, ca.DM(range(12)), [knots], [3], 2, {})])
+    >>> cg = ca.CodeGenerator("f.c"); cg.add(f)
+    >>> src = fused_bspline_source(cg.dump())
+    >>> "casflex_boor_eval(" in src, fused_bspline_source("int x;") == "int x;"
+    (True, True)
+    """
+    if _CLEARED_CALL.search(source_text) is None:
+        return source_text
+    found = _BOOR_DEF.search(source_text)
+    if found is None:  # the routine's definition is not where CasADi writes it
+        return source_text
+    text = source_text[:found.end()] + _BOOR_C + source_text[found.end():]
+    text = _CLEARED_CALL.sub(r"casflex_boor_eval(\1,\4,\5\2,", text)
+    return _DIRECT_OUTPUT.sub(_direct_output, text)
+
+
+#: the routine's result copied to an output right after the call (CasADi's ``casadi_copy``)
+_DIRECT_OUTPUT = re.compile(r"casflex_boor_eval\((\w+),(.*?\);\n(?:\s*/\*[^\n]*\*/\n)?)"
+                            r"(\s*)casadi_copy\(\1, (\d+), (res\[\d+\])\);\n")
+
+
+def _direct_output(match):
+    """The routine writes into the output ``res[k]`` itself (when given) if its work vector
+    is not read after the copy in the rest of the function: one pass over the table less."""
+    work, rest, indent, _, out = match.groups()
+    after = match.string[match.end():]
+    body = after[:after.find("\n}\n")]
+    if re.search(rf"\b{work}\b", body):
+        return match.group(0)
+    # res[k] null: the work vector is written as before and nothing is copied
+    return f"casflex_boor_eval({out} ? {out} : {work},{rest}"

@@ -19,11 +19,13 @@ same knots) in one function:
    ``V̈ = Σ (B''ᵣ q̇² + B'ᵣ q̈) cᵣ``: three weighted sums of the same four rows, no
    differentiation of the lookup;
 2. tables of values only (the plant's 280 coefficients): CasADi's fixed-coefficient
-   B-spline node (:func:`casadi.bspline`, its C ``casadi_nd_boor_eval``), whose weighted
-   sum is one multiply-add pass per row over the table in the generated C — for a wide
-   table fewer instructions than the elementwise sums (measured: ``benchmarks/
-   README_ekf.md``); the same spline to rounding (de Boor's recursion instead of the
-   triangle, ≤ 1e-16 relative).
+   B-spline node (:func:`casadi.bspline`), the same spline to rounding (de Boor's
+   recursion instead of the triangle, ≤ 1e-16 relative). In generated C its call goes
+   through casflex's routine (:func:`casflex.codegen.templates.fused_bspline_source`):
+   the weighted sum of the four rows in one pass over the table, written into the output
+   — for a wide table far fewer instructions than the elementwise sums (measured:
+   ``benchmarks/README_ekf.md``, sessions 11 and 13); the same values as CasADi's own
+   routine, which the Python step evaluates, bit for bit.
 
 (A dense product of the ``k × 4`` block of rows with the weights would be one pass, but
 CasADi's dense multiplication loops over the four rows innermost, which the C compiler
@@ -122,9 +124,10 @@ def basis_derivatives(x, knots: list, p: int = DEGREE, n: int = 2) -> list[list]
     return ders
 
 
-#: the narrowest table (entries) read through CasADi's B-spline node; its generic routine
-#: costs ~700 instructions a call, more than the shared basis's sum on a narrow table
-#: (rt_step's 19-value plant table: 13 074 -> 13 616 instructions per step with the node)
+#: the narrowest table (entries) read through CasADi's B-spline node; the node's own knot
+#: search and basis cost more than the shared basis's sum on a narrow table (rt_step's
+#: 19-value plant table, session 11: 13 074 -> 13 616 instructions per step with the node
+#: and CasADi's generic routine)
 BSPLINE_NODE_MIN = 64
 
 
