@@ -19,6 +19,7 @@ from casflex._cache import cache_root, remove_stale_files, staged_directory, uns
 from casflex._validate import identifier
 from casflex.codegen.compiler import find_compiler, run_compiler, shared_library_suffix
 from casflex.codegen.errors import BuildError, CodegenError
+from casflex.codegen.templates import BOOR_ROUTINE_DIGEST, fused_bspline_source
 
 __all__ = ["compile_cached", "jit_flags"]
 
@@ -89,12 +90,16 @@ def _check_private(path):
 
 
 def _write_source(functions, name, directory):
-    """Generate ``<directory>/<name>.c`` (no header) from ``functions``; return its path."""
+    """Generate ``<directory>/<name>.c`` (no header) from ``functions``, B-spline node
+    calls through casflex's fused routine (bit for bit CasADi's values, as the bundles'
+    C: :func:`casflex.codegen.templates.fused_bspline_source`); return its path."""
     cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     for f in functions:
         cg.add(f)
     cg.generate(str(directory) + os.sep)
-    return Path(directory) / f"{name}.c"
+    path = Path(directory) / f"{name}.c"
+    path.write_text(fused_bspline_source(path.read_text()))
+    return path
 
 
 def _generated_source(functions, name, root):
@@ -185,9 +190,10 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
         raise BuildError(f"compile_cached: cannot create the library cache '{root}': "
                          f"{exc.strerror or exc}; pass another cache_dir") from exc
     _check_private(root)
-    # Hashed incrementally: the serialised graphs can be large.
+    # Hashed incrementally: the serialised graphs can be large. The graphs and CasADi's
+    # version fix CasADi's C; the digest of casflex's B-spline routine, what we make of it.
     h = hashlib.sha256(json.dumps([name, list(flags), _compiler_ident(cmd),
-                                   ca.__version__]).encode())
+                                   ca.__version__, BOOR_ROUTINE_DIGEST]).encode())
     try:  # the serialised graphs determine the generated C (and are quicker to get)
         for f in functions:
             h.update(f.serialize().encode())

@@ -10,8 +10,10 @@ Each function returns the text; the modules that write the files
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import casadi as ca
@@ -768,6 +770,10 @@ static void casflex_boor_eval(casadi_real* ret, casadi_int n_dims,
   }
 }
 """
+
+#: SHA-256 of this module, the routine and the rewrite (part of compile_cached's key: a
+#: changed rewrite never loads a library built with the old one)
+BOOR_ROUTINE_DIGEST = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 _CALL = r"(?:CASADI_PREFIX\(nd_boor_eval\)|casadi_nd_boor_eval)\("
 #: CasADi clears the node's output just before the call: the routine starts from 0 itself

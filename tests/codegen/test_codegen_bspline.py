@@ -117,3 +117,34 @@ def test_source_without_cleared_call_unchanged():
     # a call without CasADi's clearing of the output just before it is left alone
     odd = "casadi_clear(w1, 3);\n  casadi_nd_boor_eval(w1,1,a,b,c,d,e,4,x,l, iw, w);"
     assert fused_bspline_source(odd) == odd
+
+
+@pytest.mark.needs_cc
+def test_compile_cached_goes_through_the_routine_bit_for_bit(tmp_path, monkeypatch):
+    """The just-in-time libraries (:func:`casflex.codegen.jit.compile_cached`, the
+    simulators' and the planner's compiled functions) get the same rewrite as the bundles:
+    the same values as CasADi's bit for bit, and the routine's digest is in the cache key
+    (a changed rewrite builds anew instead of loading the old library)."""
+    from casflex.codegen import jit, templates
+
+    functions = [_function(*case) for case in CASES if case[-1] > 1][:4]
+    written = []
+    original = jit._write_source
+
+    def spy(funcs, name, directory):
+        path = original(funcs, name, directory)
+        written.append(path.read_text())
+        return path
+
+    monkeypatch.setattr(jit, "_write_source", spy)
+    loaded, info = jit.compile_cached(functions, "boor_jit", cache_dir=tmp_path)
+    assert info["built"] and "casflex_boor_eval(" in written[0]
+    rng = np.random.default_rng(9)
+    for f, case in zip(functions, [c for c in CASES if c[-1] > 1][:4], strict=True):
+        axes = [_points(t, rng) for t in case[1]]
+        n = max(a.size for a in axes)
+        for x in np.stack([np.resize(a, n) for a in axes]).T:
+            assert np.array_equal(np.asarray(loaded[f.name()](x)), np.asarray(f(x)))
+    assert not jit.compile_cached(functions, "boor_jit", cache_dir=tmp_path)[1]["built"]
+    monkeypatch.setattr(jit, "BOOR_ROUTINE_DIGEST", templates.BOOR_ROUTINE_DIGEST + "x")
+    assert jit.compile_cached(functions, "boor_jit", cache_dir=tmp_path)[1]["built"]
