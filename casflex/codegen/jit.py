@@ -21,7 +21,7 @@ from casflex.codegen.compiler import find_compiler, run_compiler, shared_library
 from casflex.codegen.errors import BuildError, CodegenError
 from casflex.codegen.templates import BOOR_ROUTINE_DIGEST, fused_bspline_source
 
-__all__ = ["compile_cached", "jit_flags"]
+__all__ = ["compile_cached", "jit_flags", "write_source"]
 
 _COMPILER_IDENT: dict[tuple[str, ...], str] = {}
 
@@ -89,10 +89,36 @@ def _check_private(path):
                          "cache_dir)")
 
 
-def _write_source(functions, name, directory):
-    """Generate ``<directory>/<name>.c`` (no header) from ``functions``, B-spline node
-    calls through casflex's fused routine (bit for bit CasADi's values, as the bundles'
-    C: :func:`casflex.codegen.templates.fused_bspline_source`); return its path."""
+def write_source(functions: Sequence[ca.Function], name: str,
+                 directory: str | os.PathLike) -> Path:
+    """Write the C that :func:`compile_cached` compiles: ``<directory>/<name>.c`` (no
+    header) generated from ``functions``, CasADi's B-spline node calls through casflex's
+    fused routine (bit for bit CasADi's values, as the bundles' C:
+    :func:`casflex.codegen.templates.fused_bspline_source`).
+
+    Parameters
+    ----------
+    functions : sequence of casadi.Function
+    name : str
+        Name of the C file (without ``.c``).
+    directory : str or os.PathLike
+        An existing directory.
+
+    Returns
+    -------
+    pathlib.Path
+        The source file.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.MX.sym("x")
+    >>> spline = ca.interpolant("s", "bspline", [[0.0, 1.0, 2.0, 3.0, 4.0]],
+    ...                         [0.0, 1.0, 4.0, 9.0, 16.0, 0.0, 1.0, 8.0, 27.0, 64.0])
+    >>> f = ca.Function("f", [x], [spline(x)])
+    >>> "casflex_boor_eval(" in write_source([f], "demo", tempfile.mkdtemp()).read_text()
+    True
+    """
     cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     for f in functions:
         cg.add(f)
@@ -105,7 +131,7 @@ def _write_source(functions, name, directory):
 def _generated_source(functions, name, root):
     """The C source CasADi generates for ``functions`` (bytes), via a scratch directory."""
     with tempfile.TemporaryDirectory(dir=root, prefix=".gen-") as tmp:
-        return _write_source(functions, name, tmp).read_bytes()
+        return write_source(functions, name, tmp).read_bytes()
 
 
 def compile_cached(functions: Sequence[ca.Function], name: str, *,
@@ -205,7 +231,7 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
     if not lib.is_file():
         remove_stale_files(root)
         with staged_directory(target) as staging:
-            source = _write_source(functions, name, staging)
+            source = write_source(functions, name, staging)
             run_compiler([*cmd, *flags, "-fPIC", "-shared", source.name, "-o", lib.name,
                           "-lm"], staging)
             source.unlink()  # 2-3x the library's size; regenerable
