@@ -723,7 +723,9 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
     F, stage_of, node_rows, torque_of = _form(model)
     acc, rhs = _rk4_chunk(model, float(dt), stage_of)
     info["poly_build_s"] = time.perf_counter() - start
-    info["poly_F_instructions"] = int(F.n_instructions())
+    info["poly_F_instructions"] = (exact_poly.instructions(model)
+                                   if getattr(model, "kinematics", "truncated") == "exact"
+                                   else int(F.n_instructions()))
     if jit is not False:
         F, acc, jinfo = _compiled(model, F, acc, jit, cache_dir)
         info.update(jinfo)
