@@ -38,11 +38,14 @@ one SX function of ``(q, q̇, S, u, w)`` gives ``∂E/∂δ · u`` and ``wᵀ �
 ``Function.map`` calls it on the ``m(m+1)/2`` pairs of unit vectors ``(e_j, e_k)``,
 ``j ≤ k``, per node: the build is linear in the rows' graph, the evaluation
 ``m(m+1)/2`` times the folded directional function. Measured on the Table 8 arm,
-frozen modes, gravity on (``benchmarks/README_fidelity.md``, session 13): 3 modes,
-build 4.7 s of CPU, 0.6 GB, one evaluation 9.6 M instructions; 5 modes 11 s, 1.0 GB,
-41 M; 8 modes 25 s, 2.0 GB, 223 M. :data:`GRAPH_BUDGET` bounds the directional
-function's graph before the fold (``ModelError`` beyond it, use ``method="rk4"``).
-``jit`` is refused with this form (graphs of millions of instructions).
+frozen modes, gravity off (``bench_exact_poly.py --build``, README_fidelity.md, session
+13): 3 modes, build 4.9 s of CPU, 0.54 GB peak, one evaluation 7.5 M instructions
+(session 11's nested Jacobians on the 1.5° table: 14 s, 1.7 GB, 2.6 M); 5 modes 11 s,
+0.91 GB, 40 M; 8 modes 28 s, 1.8 GB, 221 M. So it is no fast path: on Table 9 move 3
+(31 evaluations) it takes ~0.6× the CPU of RK4 on the exact rows at 3 modes and ~2× at
+5. :data:`GRAPH_BUDGET` bounds the directional function's graph before the fold
+(``ModelError`` beyond it, use ``method="rk4"``). ``jit`` is refused with this form
+(graphs of millions of instructions).
 
 Functions: :func:`configuration_function` (the coefficient arrays),
 :func:`node_rows` (the stage and torque rows at the interpolation nodes), :func:`stage`
@@ -69,7 +72,7 @@ __all__ = ["DEGREE", "GRAPH_BUDGET", "configuration_function", "instructions", "
 DEGREE = 2
 
 #: largest graph (SX nodes, projected) of the directional derivatives before their fold
-#: at δ = 0; ~125 bytes a node at peak (8 modes: 16 M nodes, 2.0 GB), so ~5 GB
+#: at δ = 0; ~110 bytes a node at peak (8 modes: 16 M nodes, 1.8 GB), so ~4–5 GB
 GRAPH_BUDGET = 4e7
 
 #: graph of the forward-over-forward directional derivatives / the rows' graph

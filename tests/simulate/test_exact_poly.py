@@ -133,7 +133,7 @@ def _nested_jacobians(model):
     return lambda x, dx: ca.Function("nested", [q, dq], [C])(x, dx).full()
 
 
-@pytest.mark.slow  # two 2-mode coefficient graphs: ~15 s of CPU
+@pytest.mark.slow  # two 2-mode coefficient graphs: ~45 s at load 8
 def test_the_directional_coefficients_equal_nested_jacobians(exact):
     """The coefficients from directional derivatives mapped over the pairs of unit
     vectors equal those of nested Jacobians of the assembled rows (the session-11 path,
@@ -149,7 +149,7 @@ def test_the_directional_coefficients_equal_nested_jacobians(exact):
     assert np.all(np.abs(new - ref).max(axis=0) <= 1e-14 * scale)
 
 
-@pytest.mark.slow  # 3 and 5 frozen modes, the degree-2 ray graph: ~40 s of CPU
+@pytest.mark.slow  # 3 and 5 frozen modes, the degree-2 ray graph: minutes at load 8
 @pytest.mark.parametrize("modes", [3, 5])
 def test_poly_equals_the_taylor_path_at_three_and_five_modes(arm, modes):
     """At the model's default count (5) and at 3 modes, poly on the exact model equals
@@ -157,9 +157,9 @@ def test_poly_equals_the_taylor_path_at_three_and_five_modes(arm, modes):
     the state at every stage) within 1e-9 of the peak, as at 2 modes."""
     model = FlexibleModel(arm, PointwiseProvider(arm, Q, count=modes), gravity=None,
                           kinematics="exact")
-    move = Move(Q, Q + np.array([-1.0, 0.5, 0.5]), 0.5, settle=0.2)
-    poly = simulate_prescribed(model, move, dt=1e-3, method="poly")
-    taylor = simulate_taylor(model, move, 2, dt=1e-3)
+    move = Move(Q, Q + np.array([-1.0, 0.5, 0.5]), 0.4, settle=0.1)
+    poly = simulate_prescribed(model, move, dt=2e-3, method="poly")
+    taylor = simulate_taylor(model, move, 2, dt=2e-3)
     peak = np.abs(taylor["tip_deflection"]).max()
-    assert peak > 1e-3
+    assert peak > 1e-2
     assert np.abs(poly.tip_deflection - taylor["tip_deflection"]).max() < 1e-9 * peak
