@@ -43,9 +43,9 @@ frozen modes, gravity off (``bench_exact_poly.py --build``, README_fidelity.md, 
 (session 11's nested Jacobians on the 1.5° table: 14 s, 1.7 GB, 2.6 M); 5 modes 11 s,
 0.91 GB, 40 M; 8 modes 28 s, 1.8 GB, 221 M. So it is no fast path: on Table 9 move 3
 (31 evaluations) it takes ~0.6× the CPU of RK4 on the exact rows at 3 modes and ~2× at
-5. :data:`GRAPH_BUDGET` bounds the directional function's graph before the fold
-(``ModelError`` beyond it, use ``method="rk4"``). ``jit`` is refused with this form
-(graphs of millions of instructions).
+5; on move 1 (491 evaluations) ~6× at 5. :data:`GRAPH_BUDGET` bounds the directional
+function's graph before the fold (``ModelError`` beyond it, use ``method="rk4"``).
+``jit`` is refused with this form (graphs of millions of instructions).
 
 Functions: :func:`configuration_function` (the coefficient arrays),
 :func:`node_rows` (the stage and torque rows at the interpolation nodes), :func:`stage`
