@@ -19,12 +19,20 @@
     and the build time of each; 5 modes frozen at one configuration
     (``PointwiseProvider``, so that no table lookup is counted).
 
+``--build`` (the coefficient function's build, session 13)
+    Per mode count of ``--modes-list`` (default 3,5,8), in a fresh subprocess each:
+    the exact model on frozen modes (``PointwiseProvider`` at q = (0.1, 0.3, -0.8),
+    gravity off, so that no table is built), SX instructions of its ``M`` and ``h``,
+    :func:`casflex.simulate.exact_poly.configuration_function`'s build (CPU s, peak RSS
+    of the process [GB], the baseline after the model's construction), the SX
+    instructions of one evaluation (:func:`casflex.simulate.exact_poly.instructions`) and
+    the CPU time of one evaluation (min of 3).
+
 ``--cost`` (``method="poly"`` on the exact model, against RK4 on it and poly on the
     truncated model)
     Table 9 move 1 (all joints −1 rad in 2 s, the default grid, 1 ms: the move of
     ``bench_model.py``) and Table 9 move 3 (the 1.5° grid, 5 ms, 3 s settle: the move of
-    ``--budget``), ``--modes`` modes (default 3: at 5 the coefficient function exceeds
-    the graph budget of :mod:`casflex.simulate.exact_poly`), gravity off. Per move: SX
+    ``--budget``), ``--modes`` modes (default 3), gravity off. Per move: SX
     instructions of poly's coefficient function (``exact_poly_G`` of
     :mod:`casflex.simulate.exact_poly`, ``truncated_F`` of
     :func:`casflex.simulate.poly.configuration_function`) and of the exact model's
@@ -38,7 +46,8 @@
 
 Usage::
 
-    python benchmarks/bench_exact_poly.py [--budget] [--coefficients] [--cost] [--json]
+    python benchmarks/bench_exact_poly.py [--budget] [--coefficients] [--build] [--cost]
+        [--modes-list M,M] [--json]
 """
 
 from __future__ import annotations
@@ -124,6 +133,53 @@ def coefficients(orders=(1, 2)):
     return out
 
 
+def build_one(modes):
+    """One mode count of ``--build`` (module docstring), in this process."""
+    import resource
+
+    from casflex.model import FlexibleModel, PointwiseProvider
+    from casflex.robot import load
+    from casflex.simulate import exact_poly
+
+    def rss_gb():
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # KB on Linux
+
+    robot = load(ROOT / "problems/arm2link.toml")
+    q = np.array([0.1, 0.3, -0.8])
+    model = FlexibleModel(robot, PointwiseProvider(robot, q, count=modes), gravity=None,
+                          kinematics="exact")
+    out = {"modes": modes, "rss_before_gb": rss_gb()}
+    out["model_M_h_instructions"] = int(ca.Function(
+        "rows", [model.q, model.dq, model.delta, model.ddelta],
+        [ca.vec(model.M), model.h]).n_instructions())
+    c = time.process_time()
+    G = exact_poly.configuration_function(model)
+    out["build_cpu_s"] = time.process_time() - c
+    out["peak_rss_gb"] = rss_gb()
+    out["evaluation_instructions"] = exact_poly.instructions(model)
+    dq = np.array([0.2, -0.1, 0.4])
+    times = []
+    for _ in range(3):
+        c = time.process_time()
+        G(q, dq)
+        times.append(time.process_time() - c)
+    out["evaluation_cpu_s"] = min(times)
+    return out
+
+
+def build(modes_list):
+    """``--build``: :func:`build_one` per mode count, each in a fresh process."""
+    import subprocess
+
+    out = {}
+    for m in modes_list:
+        run = subprocess.run([sys.executable, __file__, "--build-one", str(m)],
+                             capture_output=True, text=True, check=True)
+        out[f"build_m{m}"] = json.loads(run.stdout)
+        print(out[f"build_m{m}"], file=sys.stderr, flush=True)
+    return out
+
+
 def _timed(fn):
     w, c = time.perf_counter(), time.process_time()
     out = fn()
@@ -205,15 +261,25 @@ def main(argv=None):
                         help="moves of --cost, comma-separated from move1, move3, "
                              "elbow2_1s (default move1,move3)")
     parser.add_argument("--modes", type=int, default=3, metavar="M",
-                        help="modes of --cost (default 3: 5 exceed the graph budget of "
-                             "casflex.simulate.exact_poly)")
+                        help="modes of --cost (default 3)")
+    parser.add_argument("--build", action="store_true",
+                        help="build time, memory and evaluation cost of the coefficients")
+    parser.add_argument("--modes-list", default="3,5,8", metavar="M,M",
+                        help="mode counts of --build (default 3,5,8)")
+    parser.add_argument("--build-one", type=int, default=None, metavar="M",
+                        help=argparse.SUPPRESS)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
+    if args.build_one is not None:  # the subprocess of --build
+        print(json.dumps(build_one(args.build_one)))
+        return 0
     result = {"loadavg_start": list(os.getloadavg())}
     if args.coefficients:
         result.update(coefficients())
     if args.budget:
         result.update(budget())
+    if args.build:
+        result.update(build([int(x) for x in args.modes_list.split(",")]))
     if args.cost:
         result.update(cost(args.repeat, tuple(args.cases.split(",")), args.modes))
     result["loadavg_end"] = list(os.getloadavg())

@@ -159,10 +159,13 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
                "foreshortening": getattr(args, "foreshortening", False),
                "kinematics": getattr(args, "kinematics", "truncated")}
     if options["kinematics"] == "exact" and args.method == "poly":
-        raise ModelError("--kinematics exact: needs --method rk4, cvodes or idas (poly "
-                         "gives rk4's result only for a model polynomial in delta; the exact "
-                         "model's poly form is cut at degree 2 in delta: "
-                         "casflex.simulate.simulate_prescribed(method='poly'))")
+        # not a budget: --method poly promises rk4's result to rounding, and the exact
+        # model's poly form is its degree-2 truncation (and at 5 modes 2-6x rk4's CPU)
+        raise ModelError("--kinematics exact: needs --method rk4, cvodes or idas (--method "
+                         "poly gives rk4's result only for a model polynomial in delta; the "
+                         "exact model's poly form is its truncation at degree 2 in delta, "
+                         "0.1 % of the peak on Table 9 move 3, and slower than rk4 at 5 "
+                         "modes: casflex.simulate.simulate_prescribed(method='poly'))")
     cache_dir = cache_dir_of(args)
     if jit:  # the compiled library must live on disk: --no-cache gives a temporary one
         with disk_cache(cache_dir) as tmp:

@@ -25,20 +25,27 @@ Unlike the truncated kinematics' ``F(q)``, the coefficients here are functions o
 (without ``shape_rates`` they freeze the tables), and interpolating ``h``'s coefficients
 along ``(q(t), q̇(t))`` — as smooth as ``q(t)`` between the same breaks — spares the
 q-Jacobians of ``M`` that :func:`casflex.simulate.poly.rows` contracts with ``q̇``.
-The coefficients are CasADi derivatives of the model's ``M`` and ``h`` at δ = 0
-(first in δ̇, then the Jacobian and Hessian in δ), folded at δ = δ̇ = 0.
+The coefficients are CasADi derivatives of the model's ``M`` and ``h`` (first in δ̇,
+folded at δ̇ = 0), then in δ at δ = 0 by forward directional derivatives, evaluated
+numerically at each interpolation node.
 
-Cost and limit. Differentiating twice in δ multiplies the rows' graph by about
-``1 + m + m²`` before δ = 0 folds it (the parts depending on ``(q, q̇)`` only, the DH
-chain's trigonometry and the tables' B-spline calls, are extracted as symbols first).
-Measured on the Table 8 arm, 1.5° table, gravity off: 3 modes, 0.43 M nodes projected
-to 5.6 M, the coefficient function 2.6 M instructions (18× the exact ``dddelta``), built
-in 14 s of CPU at 1.7 GB peak; 5 modes, 0.91 M projected to 28 M: the build passed 6 GB
-and was stopped. :data:`GRAPH_BUDGET` refuses such builds up front (``ModelError``, use
-``method="rk4"``). Reaching 5 modes cheaply needs the coefficients from a structured
-expansion (truncated Taylor arithmetic through the rod walk and the DH chain,
-contracted with the point masses per configuration) instead of AD of the assembled
-``M`` and ``h``. ``jit`` is refused with this form (graphs of millions of instructions).
+Cost. The parts depending on ``(q, q̇)`` only (the DH chain's trigonometry, the tables'
+B-spline calls) are extracted as symbols ``S`` first. The δ-coefficients are then never
+one expanded graph for all terms (nested Jacobians in δ built ~``(1 + m + m²)`` times
+the rows' graph before δ = 0 folded it: 28 M nodes and > 6 GB at 5 modes, session 11):
+one SX function of ``(q, q̇, S, u, w)`` gives ``∂E/∂δ · u`` and ``wᵀ ∂²E/∂δ² u`` at
+δ = 0 (forward over forward, ~8× the rows' graph before the fold, whatever m), and
+``Function.map`` calls it on the ``m(m+1)/2`` pairs of unit vectors ``(e_j, e_k)``,
+``j ≤ k``, per node: the build is linear in the rows' graph, the evaluation
+``m(m+1)/2`` times the folded directional function. Measured on the Table 8 arm,
+frozen modes, gravity off (``bench_exact_poly.py --build``, README_fidelity.md, session
+13): 3 modes, build 4.9 s of CPU, 0.54 GB peak, one evaluation 7.5 M instructions
+(session 11's nested Jacobians on the 1.5° table: 14 s, 1.7 GB, 2.6 M); 5 modes 11 s,
+0.91 GB, 40 M; 8 modes 28 s, 1.8 GB, 221 M. So it is no fast path: on Table 9 move 3
+(31 evaluations) it takes ~0.6× the CPU of RK4 on the exact rows at 3 modes and ~2× at
+5; on move 1 (491 evaluations) ~6× at 5. :data:`GRAPH_BUDGET` bounds the directional
+function's graph before the fold (``ModelError`` beyond it, use ``method="rk4"``).
+``jit`` is refused with this form (graphs of millions of instructions).
 
 Functions: :func:`configuration_function` (the coefficient arrays),
 :func:`node_rows` (the stage and torque rows at the interpolation nodes), :func:`stage`
@@ -58,14 +65,19 @@ from casflex.simulate.integrators import step_cache
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
 
-__all__ = ["DEGREE", "GRAPH_BUDGET", "configuration_function", "node_rows", "stage", "torque",
-           "monomials"]
+__all__ = ["DEGREE", "GRAPH_BUDGET", "configuration_function", "instructions", "node_rows",
+           "stage", "torque", "monomials"]
 
 #: degree in δ of the truncated coefficients (the error budget: exact_taylor)
 DEGREE = 2
 
-#: largest graph (SX nodes, projected) the coefficients' derivatives may build
-GRAPH_BUDGET = 8e6
+#: largest graph (SX nodes, projected) of the directional derivatives before their fold
+#: at δ = 0; ~110 bytes a node at peak (8 modes: 16 M nodes, 1.8 GB), so ~4–5 GB
+GRAPH_BUDGET = 4e7
+
+#: graph of the forward-over-forward directional derivatives / the rows' graph
+#: (measured 8.3 at 2 modes to 8.1 at 8, Table 8 arm)
+_DIRECTIONAL_GROWTH = 8.5
 
 
 def monomials(d):
@@ -95,13 +107,26 @@ def monomials(d):
 def _second_order(E, x):
     """``(J, pairs)`` of the column ``E``: its Jacobian in ``x`` (R × m) and the
     coefficients of ``x_j x_k`` (j ≤ k, ``numpy.triu_indices`` order) of its quadratic
-    Taylor term, ``½ ∂²E/∂x_j²`` and ``∂²E/∂x_j∂x_k`` (R each), as expressions in x."""
+    Taylor term, ``½ ∂²E/∂x_j²`` and ``∂²E/∂x_j∂x_k`` (R each), as expressions in x.
+    For the δ̇ split only (``h`` is quadratic in δ̇, few rows)."""
     m, R = x.numel(), E.numel()
     J = ca.jacobian(E, x)
     H = ca.jacobian(ca.vec(J), x)                   # H[r + R j, k] = ∂²E_r/∂x_j∂x_k
     pairs = [H[int(j) * R:(int(j) + 1) * R, int(k)] * (0.5 if j == k else 1.0)
              for j, k in zip(*np.triu_indices(m), strict=True)]
     return J, pairs
+
+
+def _directional(E, args, d):
+    """``D(args, u, w) -> (∂E/∂δ · u, wᵀ ∂²E/∂δ² u)`` at δ = 0: two forward directional
+    derivatives (each ~2–3× E's graph, never m of them), folded at δ = 0."""
+    m = d.numel()
+    u, w = ca.SX.sym("u", m), ca.SX.sym("w", m)
+    e1 = ca.jtimes(E, d, u)
+    e2 = ca.jtimes(e1, d, w)
+    folded = ca.Function("directional", [*args, u, w, d], [e1, e2])(
+        *args, u, w, ca.DM.zeros(m))
+    return ca.Function("exact_poly_directional", [*args, u, w], folded)
 
 
 def configuration_function(model: FlexibleModel) -> ca.Function:
@@ -164,25 +189,64 @@ def configuration_function(model: FlexibleModel) -> ca.Function:
     at_rest = ca.Function("rates_at_zero", [q, dq, S, d, v],
                           [ca.vertcat(h, ca.vec(h1), *pairs)])(q, dq, S, d, ca.DM.zeros(m))
     E = ca.vertcat(upper, at_rest)
-    # the Jacobian and Hessian in δ take ~(1 + m + m²) times E's graph before δ = 0 folds
-    # it: beyond the budget the build takes many GB (module docstring), refused up front
-    size = ca.Function("rows_at_rest", [q, dq, S, d], [E]).n_instructions()
-    projected = size * (1 + m + m * m)
+    rows = ca.Function("rows", [q, dq, S, d], [E])
+    projected = rows.n_instructions() * _DIRECTIONAL_GROWTH
     if projected > GRAPH_BUDGET:
         raise ModelError(
-            f"method='poly' with kinematics='exact' and {m} modes: its degree-2 "
-            f"coefficients by automatic differentiation would take ~{projected:.3g} SX "
-            f"nodes before folding (the rows' graph, {size}, times 1 + m + m² = "
-            f"{1 + m + m * m}), over the budget of {GRAPH_BUDGET:.3g}; use method='rk4'")
-    J, quadratic = _second_order(E, d)               # the degree-2 Taylor polynomial
-    C = ca.horzcat(E, J, *quadratic)
-    C = ca.Function("delta_at_zero", [q, dq, S, d], [C])(q, dq, values, ca.DM.zeros(m))
+            f"method='poly' with kinematics='exact' and {m} modes: the directional "
+            f"derivatives of its rows would take ~{projected:.3g} SX nodes before folding "
+            f"(the rows' graph, {rows.n_instructions()}, times {_DIRECTIONAL_GROWTH}), over "
+            f"the budget of {GRAPH_BUDGET:.3g}; use method='rk4'")
+    rows = ca.Function("rows_at_rest", [q, dq, S], [rows(q, dq, S, ca.DM.zeros(m))])
+    directional = _directional(E, [q, dq, S], d)
+    # numerically per node: the values S, then the Jacobian's columns and the Hessian's
+    # upper triangle as P = m(m+1)/2 directional pairs (e_j, e_k), j ≤ k, by one map
+    j, k = np.triu_indices(m)
+    P = j.size
+    qm, dqm = ca.MX.sym("q", n), ca.MX.sym("dq", n)
+    Sm = ca.Function("configuration_values", [q, dq], [values])(qm, dqm)
+    eye = np.eye(m)
+    first, second = directional.map(P)(ca.repmat(qm, 1, P), ca.repmat(dqm, 1, P),
+                                       ca.repmat(Sm, 1, P), eye[:, j], eye[:, k])
+    diagonal = [int(np.flatnonzero((j == i) & (k == i))[0]) for i in range(m)]
+    C = ca.horzcat(rows(qm, dqm, Sm), first[:, diagonal],
+                   second @ ca.diag(ca.DM(np.where(j == k, 0.5, 1.0))))
     sizes = np.cumsum([0, iu[0].size, N, N * m, N * m * (m + 1) // 2])
     outs = [C[int(a):int(b), :] for a, b in zip(sizes[:-1], sizes[1:], strict=True)]
-    G = ca.Function("exact_poly_configuration", [q, dq], outs, ["q", "dq"],
+    G = ca.Function("exact_poly_configuration", [qm, dqm], outs, ["q", "dq"],
                     ["M", "h0", "h1", "h2"])
     memo["exact_poly_G"] = G
+    memo["exact_poly_G_instructions"] = int(
+        P * directional.n_instructions() + rows.n_instructions()
+        + ca.Function("values", [q, dq], [values]).n_instructions())
     return G
+
+
+def instructions(model: FlexibleModel) -> int:
+    """SX instructions of one call of :func:`configuration_function` (its MX graph
+    counts calls, not work): ``P`` directional pairs, the rows at δ = 0, the values.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        With ``kinematics="exact"`` and modes.
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/arm2link.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0, 0, 0], count=1),
+    ...                       gravity=None, kinematics="exact")
+    >>> instructions(model) > configuration_function(model).n_instructions()
+    True
+    """
+    configuration_function(model)
+    return step_cache(model)["exact_poly_G_instructions"]
 
 
 def _blocks(raw, n, m):

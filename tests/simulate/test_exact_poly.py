@@ -95,11 +95,71 @@ def test_jit_and_the_truncated_configuration_refuse_the_exact_model(exact):
 
 
 def test_a_graph_over_the_budget_is_refused(arm, monkeypatch):
-    """The coefficients' derivatives would build ~(1 + m + m²) times the rows' graph
-    (5 modes: ~28 M nodes, > 6 GB measured): over :data:`exact_poly.GRAPH_BUDGET` the
-    build is refused up front, naming the projection and the way out (here a 1-mode model
-    against a budget lowered below its ~0.37 M)."""
+    """The directional derivatives build ~8× the rows' graph before their fold at δ = 0:
+    over :data:`exact_poly.GRAPH_BUDGET` the build is refused up front, naming the
+    projection and the way out (here a 1-mode model, rows ~0.1 M nodes, against a budget
+    lowered to 1e5)."""
     model = FlexibleModel(arm, PointwiseProvider(arm, Q, count=1), kinematics="exact")
     monkeypatch.setattr(exact_poly, "GRAPH_BUDGET", 1e5)
-    with pytest.raises(ModelError, match=r"1 modes.*times 1 \+ m \+ m² = 3.*method='rk4'"):
+    with pytest.raises(ModelError, match=r"1 modes.*times 8\.5\), over the budget of "
+                                         r"1e\+05; use method='rk4'"):
         exact_poly.configuration_function(model)
+
+
+def _nested_jacobians(model):
+    """The coefficients as session 11 built them, written again here: nested CasADi
+    Jacobians of the assembled rows in δ̇ and δ, one expanded graph, folded at
+    δ = δ̇ = 0; returns the stacked (R × L) array of ``G``'s outputs at ``(Q, dq)``."""
+    import casadi as ca
+
+    m, N = model.m, model.n + model.m
+    q, dq, d, v = model.q, model.dq, model.delta, model.ddelta
+    iu = np.triu_indices(N)
+    pairs = np.triu_indices(m)
+
+    def taylor(E, x):
+        J = ca.jacobian(E, x)
+        H = [ca.jacobian(J[:, int(b)], x)[:, int(a)] * (0.5 if a == b else 1.0)
+             for a, b in zip(*pairs, strict=True)]
+        return J, H
+
+    h = model.h
+    hv, hvv = taylor(h, v)
+    E = ca.vertcat(*[model.M[int(i), int(k)] for i, k in zip(*iu, strict=True)], h,
+                   ca.vec(hv), *hvv)
+    E = ca.substitute(E, v, ca.DM.zeros(m))
+    Ed, Edd = taylor(E, d)
+    C = ca.substitute(ca.horzcat(E, Ed, *Edd), d, ca.DM.zeros(m))
+    return lambda x, dx: ca.Function("nested", [q, dq], [C])(x, dx).full()
+
+
+@pytest.mark.slow  # two 2-mode coefficient graphs: ~45 s at load 8
+def test_the_directional_coefficients_equal_nested_jacobians(exact):
+    """The coefficients from directional derivatives mapped over the pairs of unit
+    vectors equal those of nested Jacobians of the assembled rows (the session-11 path,
+    rewritten in the test) to round-off: 1e-14 of each column's largest entry (measured
+    3e-16 at 2 and 3 modes; the 3-mode figure in README_fidelity.md), the off-diagonal
+    pairs included (two modes)."""
+    dq = RNG.normal(0.0, 1.0, 3)
+    new = np.vstack([x.full() for x in exact_poly.configuration_function(exact)(Q, dq)])
+    ref = _nested_jacobians(exact)(Q, dq)
+    assert new.shape == ref.shape == (15 + 5 + 10 + 15, 6)  # N = 5 rows; L = 1 + 2 + 3
+    scale = np.abs(ref).max(axis=0)
+    assert np.all(scale > 0)
+    assert np.all(np.abs(new - ref).max(axis=0) <= 1e-14 * scale)
+
+
+@pytest.mark.slow  # 3 and 5 frozen modes, the degree-2 ray graph: minutes at load 8
+@pytest.mark.parametrize("modes", [3, 5])
+def test_poly_equals_the_taylor_path_at_three_and_five_modes(arm, modes):
+    """At the model's default count (5) and at 3 modes, poly on the exact model equals
+    :func:`simulate_taylor` at degree 2 (independent: derivatives along the ray through
+    the state at every stage) within 1e-9 of the peak, as at 2 modes."""
+    model = FlexibleModel(arm, PointwiseProvider(arm, Q, count=modes), gravity=None,
+                          kinematics="exact")
+    move = Move(Q, Q + np.array([-1.0, 0.5, 0.5]), 0.4, settle=0.1)
+    poly = simulate_prescribed(model, move, dt=2e-3, method="poly")
+    taylor = simulate_taylor(model, move, 2, dt=2e-3)
+    peak = np.abs(taylor["tip_deflection"]).max()
+    assert peak > 1e-2
+    assert np.abs(poly.tip_deflection - taylor["tip_deflection"]).max() < 1e-9 * peak
