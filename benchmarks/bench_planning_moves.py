@@ -46,7 +46,8 @@ Usage::
         [--robust-moves move1] [--robust 0.1] [--tradeoff-moves move1]
         [--tolerances 2 0.5 0.25] [--dt 1e-4] [--onelink]
         [--derivatives casadi|blocks|blocks-jacobian|points] [--compile-flags FLAGS]
-        [--restarts K] [--redo] [--out benchmarks/data/planning_moves.json] [--json]
+        [--guess shaped|rigid] [--restarts K] [--redo]
+        [--out benchmarks/data/planning_moves.json] [--json]
 """
 
 from __future__ import annotations
@@ -235,12 +236,14 @@ def run_move(name, args, study, out_path, robust_moves):
     r = args.robust
     errors = [-r, 0.0, r]
     options = derivative_options(args)
-    log(f"{name}: nominal plan (cold, from the SI-shaped move)")
+    log(f"{name}: nominal plan (cold, from the {args.guess} move)")
+    # the cold solve's guess only (the restarts and the robust plan start from a plan)
+    first = {"guess": "rigid"} if args.guess == "rigid" else {}
     c0 = time.process_time()
     c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
-                        max_iter=args.max_iter, log=log, **options)
+                        max_iter=args.max_iter, log=log, **options, **first)
     log(f"{name}: planned {c.plan.duration:.4f} s ({c.plan.stats['status']}, "
         f"{c.plan.stats['iterations']} iterations, {c.plan.stats['solve_cpu_s']:.0f} s CPU);"
         f" shaped {c.shaped.duration:.4f} s; run CPU {time.process_time() - c0:.0f} s")
@@ -278,10 +281,18 @@ def run_move(name, args, study, out_path, robust_moves):
                          "shaper": {"times": _sig(shaped.shaper.times, 10),
                                     "amplitudes": _sig(shaped.shaper.amplitudes, 10)},
                          **shaped_eval}}
+    # an earlier attempt at this move (another --guess, say) is kept in the record
+    previous = json.loads(out_path.read_text()).get(name, {}) if out_path.exists() else {}
+    record["attempts"] = previous.get("attempts", [])
+    if "planned" in previous:
+        old = previous["planned"]
+        record["attempts"].append({k: old.get(k) for k in (
+            "duration", "status", "iterations", "solve_cpu_s", "guess", "prescribed",
+            "torque", "errors")})
     log(f"{name}: evaluating the nominal plan at {errors}")
     ev, _ = evaluate(model, plan, plan.torque_law(), errors, args.dt)
     record["planned"] = plan_record(plan, limits, ev, model)
-    record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts,
+    record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts, guess=args.guess,
                              cold={"duration": c.plan.duration,
                                    "status": c.plan.stats["status"],
                                    "iterations": c.plan.stats["iterations"],
@@ -426,6 +437,9 @@ def main(argv: list[str] | None = None) -> dict:
                         default=[2.0, 0.5, 0.25],
                         help="end bounds of the trade-off curve, in units of the nominal "
                              "plan's bound")
+    parser.add_argument("--guess", default="shaped", choices=["shaped", "rigid"],
+                        help="initial guess of the cold solve: the SI-shaped move (what "
+                             "casflex plan does) or the rigid time-optimal move")
     parser.add_argument("--restarts", type=int, default=0, metavar="K",
                         help="solve the nominal plan again from where it stopped, up to K "
                              "times while it gets shorter")
@@ -446,7 +460,7 @@ def main(argv: list[str] | None = None) -> dict:
     meta = {"robust": args.robust, "dt": args.dt, "study": "arm2link_move1.toml",
             "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT,
             "derivatives": args.derivatives, "compile_flags": args.compile_flags,
-            "format": FORMAT, "restarts": args.restarts,
+            "format": FORMAT, "restarts": args.restarts, "guess": args.guess,
             "command": "python benchmarks/bench_planning_moves.py "
                        + " ".join(sys.argv[1:] if argv is None else argv)}
     if args.onelink and (args.redo or not (out_path.exists() and "onelink"
