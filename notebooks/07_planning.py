@@ -102,7 +102,7 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "9ffe07c1f34ecbab65e82f1c42536fefe8c67b1373130b390a13fc6360dd0848"
+DATA_SHA256 = "4a172b207b55484fb983f95f8104b7ba52605028d9ee2701dd0bbd8c270563ce"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
