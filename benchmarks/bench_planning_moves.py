@@ -18,10 +18,23 @@ modes, 3° grid, ``delta_order`` 0, no gravity):
    open loop (torque-driven; for the shaped move, the torques of its nominal
    prescribed-motion run). Residual = largest ‖tip deflection‖ after the move ends.
 
+4. for the moves of ``--tradeoff-moves``: the duration-vs-end-bound curve, nominal plans
+   at ``--tolerances`` times the nominal plan's bound, each warm from the previous one
+   and verified with the joints on it.
+
+The plans' derivatives are ``--derivatives`` (default ``points``: the dynamics' Jacobian
+and Hessian at one collocation point, compiled to C with ``--compile-flags``, default
+``-O0``, through :func:`casflex.codegen.compile_cached`: seconds to build, cached; ``-O1``
+solves faster but its first build costs ~170 s of CPU per model). A plan whose solve fails
+(:class:`casflex.errors.SolverError`) is stored with its message (``failed``), not dropped.
+
 Every finished step is written at once to ``--out`` (a JSON file, merged with what it
-holds: a run that is stopped keeps the moves it finished). The file's SHA-256 is printed
-at the end; ``notebooks/07_planning.py`` and ``tests/planning/test_plan_moves_data.py``
-read the stored ``benchmarks/data/planning_moves.json`` and check that hash.
+holds under a file lock: a run that is stopped keeps the moves it finished, and two runs
+may fill one file side by side). A move (or the one-link cases) the file already holds is
+skipped unless ``--redo``. Each run records in ``meta.runs`` the commit, the command, its
+CPU seconds, the load and the script's ``FORMAT``. The file's SHA-256 is printed at the
+end; ``notebooks/07_planning.py`` and ``tests/planning/test_plan_moves_data.py`` read the
+stored ``benchmarks/data/planning_moves.json`` and check that hash.
 
 ``--onelink`` adds the one-link arm's cases of the notebook (cheap, seconds): the robust
 and nominal plans of a 1 rad swing at ±10 % and the duration-vs-residual-tolerance
@@ -30,13 +43,11 @@ curve.
 Usage::
 
     nice -n 10 python benchmarks/bench_planning_moves.py [--moves move1 move2 move3]
-        [--robust-moves move1] [--robust 0.1] [--dt 1e-4] [--onelink]
-        [--derivatives casadi|points [--compile-flags FLAGS]]
+        [--robust-moves move1] [--robust 0.1] [--tradeoff-moves move1]
+        [--tolerances 2 0.5 0.25] [--dt 1e-4] [--onelink]
+        [--derivatives casadi|blocks|blocks-jacobian|points] [--compile-flags FLAGS]
+        [--guess shaped|rigid] [--restarts K] [--redo]
         [--out benchmarks/data/planning_moves.json] [--json]
-
-``--derivatives points`` builds the NLP's Jacobian and Hessian from the dynamics at one
-collocation point, compiled to C once per model (``--compile-flags``, default ``-O0``)
-and cached: the same plans to round-off at a third of the CPU (README_planning.md).
 """
 
 from __future__ import annotations
@@ -57,6 +68,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "benchmarks" / "data" / "planning_moves.json"
 #: sampling of the stored curves (joint motion, tip deflection) [s]
 CURVE_DT = 5e-3
+#: version of what the script stores (raised with every change of a record's meaning;
+#: each run writes it into ``meta.runs``, tests/planning/test_plan_moves_data.py compares)
+FORMAT = 2
 
 
 def log(message: str) -> None:
@@ -163,47 +177,99 @@ def plan_record(plan, limits, evaluation, model):
 
 def store(path: Path, key: str, value) -> None:
     """Merge ``{key: value}`` into the JSON file at ``path`` (atomically)."""
+    import fcntl
+
     from casflex._cache import atomic_write_text
 
-    data = json.loads(path.read_text()) if path.exists() else {}
-    data[key] = value
-    data.setdefault("meta", {})
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+    # two runs (e.g. move 1 and moves 2-3 on the two cores) may fill the same file: the
+    # read-merge-write is done under an exclusive lock so that neither loses the other's
+    with open(path.with_suffix(path.suffix + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        data = json.loads(path.read_text()) if path.exists() else {}
+        if key == "meta":
+            runs = {**data.get("meta", {}).get("runs", {}), **value.get("runs", {})}
+            value = {**data.get("meta", {}), **value, "runs": runs}
+        data[key] = value
+        data.setdefault("meta", {})
+        atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
-def derivative_options(args) -> dict:
-    """``plan_move``'s ``derivatives`` and ``compile_function`` of ``--derivatives`` and
-    ``--compile-flags`` (points: the point function's derivatives compiled, cached)."""
-    if args.derivatives != "points":
-        return {"derivatives": args.derivatives}
-    from casflex.codegen import compile_cached
+def derivative_options(args):
+    """``plan_move``'s ``derivatives`` (and ``compile_function``: the point functions in C
+    through :func:`casflex.codegen.compile_cached`, built once per model and flags)."""
+    options = {"derivatives": args.derivatives}
+    if args.derivatives in ("blocks", "points") and args.compile_flags != "none":
+        from casflex.codegen import compile_cached
 
-    def compile_points(functions):
-        lib, _ = compile_cached(functions, "plan_points", flags=tuple(args.compile_flags.split()))
-        return [lib[f.name()] for f in functions]
-    return {"derivatives": "points", "compile_function": compile_points}
+        def compile_function(functions):
+            lib, info = compile_cached(functions, f"plan_{args.derivatives}",
+                                       flags=tuple(args.compile_flags.split()))
+            log(f"  compiled ({args.compile_flags}): built {info['built']}, "
+                f"{info['seconds']:.1f} s")
+            return [lib[f.name()] for f in functions]
+
+        options["compile_function"] = compile_function
+    return options
+
+
+def _done(out_path, name, robust):
+    """Whether ``out_path`` already holds the move (with its robust plan if asked for)."""
+    if not out_path.exists():
+        return False
+    rec = json.loads(out_path.read_text()).get(name)
+    return bool(rec) and "planned" in rec and (not robust or "robust" in rec)
+
+
+def _failure(error, cpu):
+    """The stored record of a plan that failed: the error's message, never dropped."""
+    return {"failed": f"{type(error).__name__}: {error}", "case_cpu_s": cpu}
 
 
 def run_move(name, args, study, out_path, robust_moves):
     """Shaped, nominal plan and (for ``robust_moves``) robust plan of one move."""
+    from casflex.errors import SolverError
     from casflex.moves import load_move
     from casflex.planning import ProgressStop, plan_move, plan_robot_move
 
     move = load_move(f"problems/moves.toml:{name}")
     r = args.robust
     errors = [-r, 0.0, r]
-    log(f"{name}: nominal plan (cold, from the SI-shaped move)")
+    options = derivative_options(args)
+    log(f"{name}: nominal plan (cold, from the {args.guess} move)")
+    # the cold solve's guess only (the restarts and the robust plan start from a plan)
+    first = {"guess": "rigid"} if args.guess == "rigid" else {}
     c0 = time.process_time()
     c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
-                        max_iter=args.max_iter, log=log, **derivative_options(args))
+                        max_iter=args.max_iter, log=log, **options, **first)
     log(f"{name}: planned {c.plan.duration:.4f} s ({c.plan.stats['status']}, "
         f"{c.plan.stats['iterations']} iterations, {c.plan.stats['solve_cpu_s']:.0f} s CPU);"
         f" shaped {c.shaped.duration:.4f} s; run CPU {time.process_time() - c0:.0f} s")
     model, shaped = c.model, c.shaped
     limits = {k: np.asarray(v, dtype=float) for k, v in c.limits.items()}
+    plan, restarts = c.plan, []
+    for _ in range(args.restarts):
+        # the cold solve stops on the progress of T along a path-dependent descent
+        # (README_planning.md, sessions 9-11); the same problem solved again from where
+        # it stopped (its iterate and multipliers) may go further. Kept if shorter.
+        c1 = time.process_time()
+        again = plan_move(model, move, end=plan.stats["end"], guess=plan,
+                          torque_limit=limits["torque"], velocity_limit=limits["velocity"],
+                          max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0),
+                          **options)
+        restarts.append({"from": plan.duration, "duration": again.duration,
+                         "status": again.stats["status"],
+                         "iterations": again.stats["iterations"],
+                         "solve_cpu_s": again.stats["solve_cpu_s"],
+                         "cpu_s": time.process_time() - c1})
+        log(f"{name}: restart from {plan.duration:.4f} s: {again.duration:.4f} s "
+            f"({again.stats['status']}, {again.stats['iterations']} iterations)")
+        if again.duration >= plan.duration * (1.0 - 1e-3):
+            break
+        plan = again
+    nominal_cpu = time.process_time() - c0
     log(f"{name}: evaluating the shaped move at {errors}")
     shaped_run = c.shaped_verification["run"]
     shaped_eval, _ = evaluate(model, shaped, shaped_torque_law(model, shaped_run,
@@ -215,9 +281,22 @@ def run_move(name, args, study, out_path, robust_moves):
                          "shaper": {"times": _sig(shaped.shaper.times, 10),
                                     "amplitudes": _sig(shaped.shaper.amplitudes, 10)},
                          **shaped_eval}}
+    # an earlier attempt at this move (another --guess, say) is kept in the record
+    previous = json.loads(out_path.read_text()).get(name, {}) if out_path.exists() else {}
+    record["attempts"] = previous.get("attempts", [])
+    if "planned" in previous:
+        old = previous["planned"]
+        record["attempts"].append({k: old.get(k) for k in (
+            "duration", "status", "iterations", "solve_cpu_s", "guess", "prescribed",
+            "torque", "errors")})
     log(f"{name}: evaluating the nominal plan at {errors}")
-    ev, _ = evaluate(model, c.plan, c.plan.torque_law(), errors, args.dt)
-    record["planned"] = plan_record(c.plan, limits, ev, model)
+    ev, _ = evaluate(model, plan, plan.torque_law(), errors, args.dt)
+    record["planned"] = plan_record(plan, limits, ev, model)
+    record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts, guess=args.guess,
+                             cold={"duration": c.plan.duration,
+                                   "status": c.plan.stats["status"],
+                                   "iterations": c.plan.stats["iterations"],
+                                   "solve_cpu_s": c.plan.stats["solve_cpu_s"]})
     store(out_path, name, record)
     log(f"{name}: nominal stored")
     if name in robust_moves:
@@ -226,19 +305,64 @@ def run_move(name, args, study, out_path, robust_moves):
         end = [res[0.0], res[-r], res[r]]
         log(f"{name}: robust ±{r:g} plan, end bounds {[round(1e3 * b, 4) for b in end]} mm "
             "(the shaped move's at 0, -r, +r), warm from the nominal plan")
-        robust = plan_move(model, move, end=end, robust=r, guess=c.plan,
-                           torque_limit=limits["torque"], velocity_limit=limits["velocity"],
-                           max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0),
-                           **derivative_options(args))
-        log(f"{name}: robust {robust.duration:.4f} s ({robust.stats['status']}, "
-            f"{robust.stats['iterations']} iterations, {robust.stats['solve_cpu_s']:.0f} s "
-            "CPU)")
-        ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
-        record["robust"] = plan_record(robust, limits, ev, model)
-        record["robust"]["robust"] = r
+        c0 = time.process_time()
+        try:
+            robust = plan_move(model, move, end=end, robust=r, guess=plan,
+                               torque_limit=limits["torque"],
+                               velocity_limit=limits["velocity"], max_iter=args.max_iter,
+                               progress_stop=ProgressStop(leave=0.0), **options)
+        except SolverError as error:
+            record["robust"] = {**_failure(error, time.process_time() - c0), "robust": r,
+                                "end_bounds": end}
+            log(f"{name}: robust plan failed: {error}")
+        else:
+            cpu = time.process_time() - c0
+            log(f"{name}: robust {robust.duration:.4f} s ({robust.stats['status']}, "
+                f"{robust.stats['iterations']} iterations, "
+                f"{robust.stats['solve_cpu_s']:.0f} s CPU)")
+            ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
+            record["robust"] = plan_record(robust, limits, ev, model)
+            record["robust"].update(robust=r, case_cpu_s=cpu)
         store(out_path, name, record)
         log(f"{name}: robust stored")
+    if name in args.tradeoff_moves:
+        record["tradeoff"] = tradeoff(model, move, plan, limits, args, options)
+        store(out_path, name, record)
+        log(f"{name}: trade-off curve stored")
     return record
+
+
+def tradeoff(model, move, nominal, limits, args, options):
+    """Duration against the end bound: nominal plans at ``--tolerances`` (fractions of
+    the nominal plan's bound, each warm-started from the previous one), each verified
+    with the joints on it (prescribed motion, nominal model)."""
+    from casflex.errors import SolverError
+    from casflex.planning import ProgressStop, plan_move
+    from casflex.simulate import simulate_prescribed
+
+    base = float(nominal.stats["end"])
+    curve, previous = [], nominal
+    for f in sorted(args.tolerances, reverse=True):
+        c0 = time.process_time()
+        try:
+            p = plan_move(model, move, end=f * base, guess=previous,
+                          torque_limit=limits["torque"], velocity_limit=limits["velocity"],
+                          max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0),
+                          **options)
+        except SolverError as error:
+            curve.append({"fraction": f, "bound": f * base,
+                          **_failure(error, time.process_time() - c0)})
+            log(f"  trade-off {f:g}: failed: {error}")
+            continue
+        run = simulate_prescribed(model, p, dt=args.dt, t_end=p.t_end)
+        curve.append({"fraction": f, "bound": f * base, "duration": p.duration,
+                      "prescribed": residual_after(run.t, run.tip_deflection, p.duration),
+                      "status": p.stats["status"], "iterations": p.stats["iterations"],
+                      "case_cpu_s": time.process_time() - c0})
+        log(f"  trade-off {f:g}: {p.duration:.4f} s, residual "
+            f"{1e3 * curve[-1]['prescribed']:.4f} mm ({p.stats['status']})")
+        previous = p
+    return {"base_bound": base, "curve": curve}
 
 
 def run_onelink(args, out_path):
@@ -301,11 +425,27 @@ def main(argv: list[str] | None = None) -> dict:
                         help="step of the verification simulators [s]")
     parser.add_argument("--max-iter", type=int, default=500)
     parser.add_argument("--modes", type=int, default=3, help="modes of the model (study: 3)")
-    parser.add_argument("--onelink", action="store_true")
-    parser.add_argument("--derivatives", default="casadi", choices=["casadi", "points"],
-                        help="the NLP's derivatives (points: compiled per model, cached)")
+    parser.add_argument("--derivatives", default="points",
+                        choices=["casadi", "blocks", "blocks-jacobian", "points"],
+                        help="the NLP's derivatives (plan_move's derivatives)")
     parser.add_argument("--compile-flags", default="-O0", metavar="FLAGS",
-                        help="compiler flags of --derivatives points (default -O0)")
+                        help="compile the point functions with these flags ('none': "
+                             "interpreted)")
+    parser.add_argument("--tradeoff-moves", nargs="*", default=[],
+                        help="moves whose duration-vs-end-bound curve is stored")
+    parser.add_argument("--tolerances", nargs="*", type=float,
+                        default=[2.0, 0.5, 0.25],
+                        help="end bounds of the trade-off curve, in units of the nominal "
+                             "plan's bound")
+    parser.add_argument("--guess", default="shaped", choices=["shaped", "rigid"],
+                        help="initial guess of the cold solve: the SI-shaped move (what "
+                             "casflex plan does) or the rigid time-optimal move")
+    parser.add_argument("--restarts", type=int, default=0, metavar="K",
+                        help="solve the nominal plan again from where it stopped, up to K "
+                             "times while it gets shorter")
+    parser.add_argument("--redo", action="store_true",
+                        help="recompute moves the output file already holds")
+    parser.add_argument("--onelink", action="store_true")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -319,20 +459,25 @@ def main(argv: list[str] | None = None) -> dict:
                             text=True, cwd=ROOT).stdout.strip()
     meta = {"robust": args.robust, "dt": args.dt, "study": "arm2link_move1.toml",
             "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT,
-            "derivatives": args.derivatives + (f" {args.compile_flags}"
-                                               if args.derivatives == "points" else "")}
-    if args.onelink:
+            "derivatives": args.derivatives, "compile_flags": args.compile_flags,
+            "format": FORMAT, "restarts": args.restarts, "guess": args.guess,
+            "command": "python benchmarks/bench_planning_moves.py "
+                       + " ".join(sys.argv[1:] if argv is None else argv)}
+    if args.onelink and (args.redo or not (out_path.exists() and "onelink"
+                                           in json.loads(out_path.read_text()))):
         run_onelink(args, out_path)
-        store(out_path, "meta", {**json.loads(out_path.read_text())["meta"],
-                                 "dt": args.dt, "robust": args.robust})
+        store(out_path, "meta", {"dt": args.dt, "robust": args.robust,
+                                 "runs": {"onelink": {**meta, "date": time.strftime(
+                                     "%Y-%m-%d %H:%M UTC", time.gmtime())}}})
     for name in args.moves:
+        if not args.redo and _done(out_path, name, name in args.robust_moves):
+            log(f"{name}: already in {out_path.name}, skipped (--redo to recompute)")
+            continue
+        c0 = time.process_time()
         run_move(name, args, study, out_path, set(args.robust_moves))
-        data = json.loads(out_path.read_text())
-        data["meta"].update({"dt": args.dt, "robust": args.robust})
-        data["meta"].setdefault("runs", {})[name] = {
+        store(out_path, "meta", {"dt": args.dt, "robust": args.robust, "runs": {name: {
             **meta, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "load": os.getloadavg()[0]}
-        store(out_path, "meta", data["meta"])
+            "load": os.getloadavg()[0], "cpu_s": time.process_time() - c0}}})
     data = json.loads(out_path.read_text())
     log(f"{out_path}: sha256 {hashlib.sha256(out_path.read_bytes()).hexdigest()}")
     if args.json:

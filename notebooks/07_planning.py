@@ -87,21 +87,22 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 # %% [markdown]
 # ## 7.2 Stored results: the two-link arm's moves 1–3 and the one-link cases
 #
-# A solve of one of the design study's moves costs minutes of CPU (move 1: ~150 Ipopt
-# iterations at ~2 s each, `benchmarks/README_planning.md`), far too long for a notebook.
+# A solve of one of the design study's moves costs minutes of CPU (move 1: 60–300 Ipopt
+# iterations at ~1 s each, `benchmarks/README_planning.md`), far too long for a notebook.
 # The rest of this chapter reads the results of
 # `benchmarks/bench_planning_moves.py` (`benchmarks/data/planning_moves.json`),
 # checked against its SHA-256 so that what is shown is what the benchmark stored. For
 # every move: the SI-shaped move (±20 %, Vtol 5 %, as the design study shapes it), the
 # minimum-time plan at its peak torques and velocities with its residual as the end
-# bound, and — for the moves marked robust — the robust plan at ±10 %; each simulated
-# by the verification simulators at 0.1 ms with the joints on it (prescribed motion) and
-# under its torques open loop (torque-driven), on the nominal model and with every
-# natural frequency 10 % lower and higher.
+# bound (what `casflex plan` solves; on move 1 solved again from where the cold solve
+# stopped, while that shortened it), and — for move 1 — the robust plan at ±10 %; each
+# simulated by the verification simulators (step in the file's `meta`) with the joints on
+# it (prescribed motion) and under its torques open loop (torque-driven), on the nominal
+# model and with every natural frequency 10 % lower and higher.
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "707a51397997d54c6e1e34b2e999eb2d65367e81d6a33e0933d58fde157a007b"
+DATA_SHA256 = "4a172b207b55484fb983f95f8104b7ba52605028d9ee2701dd0bbd8c270563ce"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
@@ -119,6 +120,11 @@ for name in moves:
           f"{1e3 * sh['prescribed'][k]:9.3f} / {1e3 * pl['prescribed'][k]:6.3f}   "
           f"({1e3 * sh['torque'][k]:.3f} / {1e3 * pl['torque'][k]:.3f})        "
           f"{pl['status']}, {pl['iterations']} it., {pl['solve_cpu_s']:.0f} s CPU")
+    for k, again in enumerate(pl.get("restarts", [])):
+        print(f"{'':6s} cold solve {pl['cold']['duration']:.3f} s, " if k == 0 else f"{'':6s} ",
+              end="")
+        print(f"solved again from {again['from']:.3f} s: {again['duration']:.3f} s "
+              f"({again['status']}, {again['iterations']} it.)")
 
 # %%
 fig, axes = plt.subplots(2, len(moves), figsize=(4.2 * len(moves), 5.5), squeeze=False,
@@ -127,7 +133,7 @@ for col, name in enumerate(moves):
     rec = stored[name]
     moving = [j for j in range(len(rec["q0"])) if rec["q0"][j] != rec["qf"][j]]
     for key, style in (("shaped", "-"), ("planned", "--"), ("robust", ":")):
-        if key not in rec:
+        if "curves" not in rec.get(key, {}):
             continue
         c = rec[key]["curves"]
         t = np.asarray(c["t"])
@@ -144,19 +150,27 @@ for col, name in enumerate(moves):
 plt.show()
 
 # %% [markdown]
-# Move 1 (all three joints 0 → −1 rad): the plan stored here was solved cold from the
-# shaped move at its peaks and ended on the progress of T (`Stopped_On_Progress`, 79
-# Ipopt iterations, 147 s of CPU) at 2.766 s, **13.8 % shorter** than the shaped 3.208 s,
-# with a residual of 9.38 mm against the shaped move's 10.98 mm (joints on the move,
-# 0.1 ms; open loop 7.37 against 9.47 mm). Its torque peaks pass the limits by at most
-# 0.09 % between the collocation points. That is short of the issue's 20 %: earlier
-# solves of the same problem reached 2.135–2.407 s (25–33 % shorter) along other Ipopt
-# paths, and the cold solve's path is not reliable yet (session 9: T wandered up to
-# 8.3 s); the progress rule stopped this one where T stalled at 2.77 s.
+# Move 1 (all three joints 0 → −1 rad): the cold solve from the shaped move stopped on
+# the progress of T at 2.918 s (9 % shorter, 63 Ipopt iterations); solved again from
+# where it stopped (its iterate and multipliers) Ipopt converged at **2.133 s, 33.5 %
+# shorter** than the shaped 3.208 s (`Solve_Succeeded`, 55 iterations; a second restart
+# moved it by 3e-10 s), with a residual of 9.89 mm against the shaped move's 10.97 mm
+# (joints on the move, 1 ms). The plan is bang-bang-like at the shaped move's torque
+# peaks; between the collocation points the verified torques pass them by 2.7–4.1 %
+# (the velocities by ≤ 0.15 %), reported next to the limits, not constrained
+# (`limit_excess`).
 #
-# Moves 2 and 3 have no stored result yet (benchmarks/README_planning.md: move 2 was
-# planned at 1.900 s against 2.807 s shaped in session 8, residual 4.30 against 4.16 mm at
-# 0.1 ms; move 3 has never been solved).
+# Move 2 (the planar move): 1.898 s against 2.807 s shaped (32.4 % shorter),
+# `Solve_Succeeded` in 86 iterations from the shaped move, residual 3.22 against 4.16 mm;
+# torques over the limits by 7.8–8.3 % between the collocation points.
+#
+# Move 3 (the base joint 0 → −π): the cold solve from the shaped move ended in
+# `Solved_To_Acceptable_Level` at **5.960 s, twice as long** as the shaped 2.867 s, far
+# below both limits (torque 0.33 of 0.47 N m, velocity 0.65 of 2.41 rad/s): a poor local
+# optimum, not a minimum time; its verified residual (11.67 mm at 1 ms) is also above the
+# shaped move's 11.34 mm, though the optimiser's own (11.24 mm) meets the bound. A second
+# attempt from the rigid time-optimal move (`--guess rigid`) did not finish within the
+# session (benchmarks/README_planning.md).
 
 # %% [markdown]
 # ## 7.3 The robust option
@@ -182,8 +196,9 @@ for label, p in one["plans"].items():
 # arm's minimum time of 1.288 s.
 #
 # Then move 1 of the design study: the SI-shaped move, the nominal plan and the robust
-# plan (`--robust 0.1`: its end bound is the shaped move's largest residual over −10 %,
-# 0, +10 %, the rule of `casflex plan --robust`), each at the three frequency errors.
+# plan (`--robust 0.1`: in each scenario the end bound is the shaped move's residual at
+# that frequency error, the rule of `casflex plan --robust`; warm-started from the
+# nominal plan), each at the three frequency errors.
 
 # %%
 for name in moves:
@@ -193,6 +208,9 @@ for name in moves:
           + "  ".join(f"{100 * e:+.0f} %" for e in errs))
     for key in [k for k in ("shaped", "planned", "robust") if k in rec]:
         r = rec[key]
+        if "failed" in r:
+            print(f"  {key:8s} no plan: {r['failed']}")
+            continue
         pres = "  ".join(f"{1e3 * x:6.3f}" for x in r["prescribed"])
         torq = "  ".join(f"{1e3 * x:6.3f}" for x in r["torque"])
         print(f"  {key:8s} {r['duration']:.3f} s  joints on the move: {pres}   "
@@ -206,35 +224,31 @@ fig, axes = plt.subplots(1, len(moves), figsize=(6 * len(moves), 3.8), squeeze=F
 for ax, name in zip(axes[0], moves, strict=True):
     rec = stored[name]
     errs = np.asarray(rec["shaped"]["errors"])
-    for k, key in enumerate(k for k in ("shaped", "planned", "robust") if k in rec):
+    keys = [k for k in ("shaped", "planned", "robust") if "prescribed" in rec.get(k, {})]
+    for k, key in enumerate(keys):
         ax.bar(100 * errs + (k - 1) * 2.5, 1e3 * np.asarray(rec[key]["prescribed"]),
                width=2.4, label=f"{key} ({rec[key]['duration']:.3f} s)")
-    if "robust" in rec:
-        ax.axhline(1e3 * rec["robust"]["end_bound"], color="k", lw=0.8, ls="--",
-                   label="robust plan's end bound")
     ax.set_xticks(100 * errs)
     ax.set_xlabel("frequency error [%]")
     ax.set_ylabel("residual tip deflection [mm]")
-    ax.set_title(f"{name}: joints on the move, 0.1 ms")
+    ax.set_title(f"{name}: joints on the move, {1e3 * stored['meta']['dt']:g} ms")
     ax.legend(fontsize="small")
 plt.show()
 
 # %% [markdown]
-# On move 1 the nominal plan is shorter and leaves less than the shaped move at −10 %
-# (17.2 against 20.1 mm) and on the nominal model (9.4 against 11.0 mm), but at +10 % it
-# leaves 16.2 mm against the shaped move's 6.7 mm, 2.4 times as much: the SI shaper's
-# residual falls as the frequencies rise, while the plan met its end bound on the nominal
-# model only. Open loop (each move's torques, no feedback) the three are closer
-# (10.3 / 7.4 / 7.4 against 12.3 / 9.5 / 7.4 mm).
+# The nominal plans meet their bound on the nominal model only. Move 1's 2.133 s plan
+# leaves 9.9 mm there (shaped 11.0 mm) but 85 mm at −10 % and 33 mm at +10 %, where the
+# SI-shaped move leaves 20.1 and 6.7 mm: 4.2 and 5.0 times as much. Move 2's plan: 9.9
+# and 11.9 mm against 6.1 and 2.3 mm. A minimum-time plan ends its motion exactly
+# where the modes it excited cancel at the nominal frequencies; the SI shaper spends its
+# extra 1.2 s on insensitivity. Open loop (each move's torques, no feedback) the
+# sensitivity is the same or worse (87 / 2.0 / 83 mm on move 1).
 #
-# The robust plan of move 1 (`--robust 0.1`) has no stored result yet: its solve, warm
-# from the nominal plan on the three scenario models, did not finish within the session
-# (benchmarks/README_planning.md). Note also what `casflex plan --robust` asks of it: one
-# end bound for all three models, the shaped move's *largest* residual over the errors
-# (20.1 mm, at −10 %). A plan that meets it may leave more than the shaped move on the
-# nominal model (11.0 mm) and at +10 % (6.7 mm); "no more than the shaped move at every
-# error" needs a bound per scenario (the shaped move's residual there), which
-# `plan_move` does not offer yet.
+# The robust plan of move 1 (`--robust 0.1`, one bound per scenario: the shaped move's
+# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %, warm-started node by node from the 2.133 s
+# plan) has no stored result: its solve did not finish within the session
+# (benchmarks/README_planning.md gives the CPU it had). The one-link arm above shows what
+# the option does when it converges.
 
 # %% [markdown]
 # ## 7.4 Duration vs residual tolerance
@@ -254,7 +268,11 @@ print(f"free end: {trade['free']:.4f} s (residual {1e3 * trade['free_residual']:
       f"modes at rest: {trade['rest']:.4f} s; rigid minimum time {trade['rigid_minimum']:.4f} s")
 
 # %%
-fig, ax = plt.subplots(figsize=(7, 4), layout="constrained")
+rec = stored["move1"]
+panels = 2 if "tradeoff" in rec else 1
+fig, axes = plt.subplots(1, panels, figsize=(6 * panels, 4), layout="constrained",
+                         squeeze=False)
+ax = axes[0, 0]
 b, d, r = (np.array([row[k] for row in trade["curve"]])
            for k in ("bound", "duration", "prescribed"))
 ax.semilogx(1e3 * b, d, "o-", label="planned (bound on the residual)")
@@ -266,10 +284,47 @@ ax.set_ylabel("duration [s]")
 ax.set_title("one-link arm, 1 rad at 0.1 N m: duration vs residual tolerance")
 ax.grid(True, which="both", alpha=0.3)
 ax.legend(fontsize="small")
-plt.show()
+if "tradeoff" not in rec:
+    print("move 1: no trade-off curve stored (benchmarks/README_planning.md)")
+    plt.show()
+else:
+    # move 1: nominal plans at multiples of its end bound (the shaped move's residual),
+    # each warm from the previous one
+    ax1 = axes[0, 1]
+    planned = rec["planned"]
+    rows = [row for row in rec["tradeoff"]["curve"] if "duration" in row]
+    rows.append({"bound": planned["end_bound"], "duration": planned["duration"],
+                 "prescribed": planned["prescribed"][planned["errors"].index(0.0)]})
+    rows.sort(key=lambda row: row["bound"])
+    print("move 1:  bound [mm]  duration [s]  verified residual [mm]")
+    for row in rows:
+        print(f"        {1e3 * row['bound']:10.3f}  {row['duration']:12.4f}  "
+              f"{1e3 * row['prescribed']:10.3f}")
+    for row in rec["tradeoff"]["curve"]:
+        if "failed" in row:
+            print(f"        {1e3 * row['bound']:10.3f}  no plan: {row['failed']}")
+    b1, d1, r1 = (np.array([row[k] for row in rows])
+                  for k in ("bound", "duration", "prescribed"))
+    k0 = rec["shaped"]["errors"].index(0.0)
+    ax1.semilogx(1e3 * b1, d1, "o-", label="planned (bound on the residual)")
+    ax1.semilogx(1e3 * r1, d1, "x", color="C1",
+                 label="verified residual (joints on the plan)")
+    ax1.plot(1e3 * rec["shaped"]["prescribed"][k0], rec["shaped"]["duration"], "s",
+             color="C3", label="SI-shaped move")
+    ax1.set_xlabel("residual tip deflection [mm]")
+    ax1.set_ylabel("duration [s]")
+    ax1.set_title("move 1 (3 modes): duration vs residual tolerance")
+    ax1.grid(True, which="both", alpha=0.3)
+    ax1.legend(fontsize="small")
+    plt.show()
 
 # %% [markdown]
 # Tightening the bound from 50 mm to 0.2 mm costs a quarter of a second, most of it
 # between 50 and 5 mm; below 1 mm the plan is within 0.5 % of the rigid minimum
 # time. The verified residuals lie on the bounds (the crosses on the circles) down to the
 # tenths of a millimetre, where the optimiser's discretisation error becomes visible.
+#
+# The same curve for move 1 (nominal plans at 2, 0.5 and 0.25 times the shaped move's
+# residual, each warm from the previous one: `--tradeoff-moves move1`) is drawn beside it
+# when the stored file holds it; this session's run did not reach it (the robust plan
+# before it did not finish).
