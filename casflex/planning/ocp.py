@@ -54,11 +54,12 @@ from casflex.planning.derivatives import implicit_collocation_function, static_l
 from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
+from casflex.planning.staged import fatrop_options, stage_order, stage_variables
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
-           "DYNAMICS", "DERIVATIVES", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
+           "DYNAMICS", "DERIVATIVES", "SOLVERS", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
 
 #: the objectives of :func:`plan_move`
 OBJECTIVES = ("time", "energy", "weighted")
@@ -74,6 +75,10 @@ DYNAMICS = ("implicit", "explicit")
 #: constraint Jacobian from blocks and the Hessian CasADi's, or both from the blocks of
 #: one collocation point (:mod:`casflex.planning.derivatives`)
 DERIVATIVES = ("casadi", "blocks", "blocks-jacobian", "points")
+
+#: the NLP solvers of :func:`plan_move`: Ipopt (MUMPS) on the NLP as posed, or Fatrop on
+#: the stage-ordered NLP (:mod:`casflex.planning.staged`)
+SOLVERS = ("ipopt", "fatrop")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -367,7 +372,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               name: str | None = None,
               progress_stop: ProgressStop | bool = True,
               derivatives: str = "casadi",
-              compile_function: Callable[[list], list] | None = None) -> PlannedMove:
+              compile_function: Callable[[list], list] | None = None,
+              solver: str = "ipopt") -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -525,6 +531,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     implicit = transcription == "collocation" and dynamics == "implicit"
     derivatives = choice(derivatives, "derivatives", DERIVATIVES)
     blocks = derivatives != "casadi"
+    solver = choice(solver, "solver", SOLVERS)
+    fatrop = solver == "fatrop"
+    if fatrop and not implicit:
+        raise fail("solver", solver, "needs transcription 'collocation' with dynamics "
+                   "'implicit' (the stage-ordered OCP)")
+    if fatrop and blocks:  # CasADi's Fatrop takes no jac_g / hess_lag option
+        raise fail("derivatives", derivatives, "must be 'casadi' with solver 'fatrop' "
+                   "(Fatrop differentiates the NLP itself)")
     if blocks and not implicit:
         raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
                    "dynamics 'implicit'")
@@ -617,36 +631,45 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
 
     ode = _augmented_ode(model, shifted)
     opti = ca.Opti()
-    X = opti.variable(nxa, N + 1)
-    U = opti.variable(n, N)
     # the modal states are orders of magnitude smaller than the joints': every state row,
     # the torques and T are scaled by their magnitude in the guess, and the dynamics
     # constraints of a row by the row's scale
     sx = _row_scales(augmented(X_guess), n, m)
-    opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
     su = np.where(np.isfinite(tau_max), tau_max,
                   np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
-    opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
-    if duration is None:
-        T = opti.variable()
-        opti.set_linear_scale(T, T_guess)
-        opti.subject_to(opti.bounded(1e-3, T, max_duration))
-        opti.set_initial(T, T_guess)
+    sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1) if implicit else None
+    if fatrop:  # stage order, T a state (casflex.planning.staged)
+        (X, *Tk), (U, Xc, Ac), stages = stage_variables(
+            opti, N, [sx] + ([np.array([T_guess])] if duration is None else []),
+            [(su, 1), (sx, degree), (sa, degree)])
+        T = Tk[0][0] if duration is None else duration
+        h = Tk[0][:N] / N if duration is None else duration / N
     else:
-        T = duration
-    Xc = None
+        X = opti.variable(nxa, N + 1)
+        U = opti.variable(n, N)
+        opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
+        opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
+        T = opti.variable() if duration is None else duration
+        if duration is None:
+            opti.set_linear_scale(T, T_guess)
+        h = T / N
+    if duration is None:
+        opti.subject_to(opti.bounded(1e-3, T, max_duration))
+        opti.set_initial(Tk[0] if fatrop else T, T_guess * np.ones((1, N + 1))
+                         if fatrop else T_guess)
     if transcription == "collocation":
-        Xc = opti.variable(nxa, N * degree)
-        opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
+        if not fatrop:
+            Xc = opti.variable(nxa, N * degree)
+            opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         if implicit:
             G, split = implicit_collocation_function(*(static_lookup(model, errors) if
                                                        compile_function and derivatives ==
                                                        "points" else (model, shifted)), degree)
-            Ac = opti.variable(n, N * degree)
-            sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1)
-            opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
+            if not fatrop:
+                Ac = opti.variable(n, N * degree)
+                opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
             opti.set_initial(Ac, Ac_guess.T)
-            block_args = [X[:, :N], Xc, Ac, U, T / N]
+            block_args = [X[:, :N], Xc, Ac, U, h]
             defects, torque_defects, Xf = G.map(N)(*block_args)
             if blocks:
                 # the interval's end state is linear in its states: outside G, so that
@@ -659,16 +682,20 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             opti.subject_to(ca.vec(torque_defects / torque_scale) == 0)
         else:
             G, _ = _collocation_function(ode, nxa, n, degree)
-            defects, Xf = G.map(N)(X[:, :N], Xc, U, T / N)
+            defects, Xf = G.map(N)(X[:, :N], Xc, U, h)
         defect_scale = np.repeat(sx[:, None], N * degree, axis=1)
         if implicit:
             block_rows.insert(0, opti.ng)
         opti.subject_to(ca.vec(defects / defect_scale) == 0)
         opti.set_initial(Xc, augmented(Xc_guess))
     else:
+        Xc = None
         F = _interval_function(ode, nxa, n, substeps)
         Xf, _ = F.map(N)(X[:, :N], U, T / (N * substeps))
+    # the gaps: with fatrop the identity on x_{k+1}, the scale being the variable's
     opti.subject_to((X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0)
+    if fatrop and duration is None:
+        opti.subject_to((Tk[0][1:] - Tk[0][:N]) / T_guess == 0)
     opti.subject_to(X[:, 0] == xa0)
     opti.subject_to(X[:n, N] == qf)
     opti.subject_to(X[n + m:2 * n + m, N] == 0)
@@ -730,7 +757,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     options = {"max_iter": max_iter, "print_level": 0, "sb": "yes", "tol": 1e-8,
                "acceptable_tol": 1e-2, "acceptable_iter": _ACCEPTABLE_ITER,
                "acceptable_constr_viol_tol": 1e-6, "mu_strategy": "adaptive"}
-    duals = _warm_duals(opti, guess) if warm else None
+    duals = _warm_duals(opti, guess, solver) if warm else None
     if duals is not None:
         # a neighbouring problem of the same shape: start from the guess's iterate with
         # its multipliers, and keep Ipopt near it (a barrier restarted at 0.1 and the
@@ -743,6 +770,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # optimum: the objective need not leave it before the rule may stop
     rule = (ProgressStop(leave=0.0 if duals is not None else ProgressStop.leave)
             if progress_stop is True else progress_stop) or None
+    if fatrop:  # CasADi's Fatrop calls no iteration_callback: Fatrop's own tests only
+        rule = None
     if rule is not None:
         if not isinstance(rule, ProgressStop):
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
@@ -759,7 +788,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         compile_function=compile_function,
                                         hessian=derivatives != "blocks-jacobian",
                                         point=split if derivatives == "points" else None))
-    opti.solver("ipopt", plugin, options)
+    if fatrop:
+        stage_order(opti, stages)
+        opti.solver("fatrop", {**plugin, "structure_detection": "auto",
+                               "fatrop": fatrop_options(options)})
+    else:
+        opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
         sol = opti.solve()
@@ -778,6 +812,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
     status = str(stats.get("return_status", "unknown"))
+    if fatrop:  # Fatrop's return code (0: converged)
+        status = "Solve_Succeeded" if stats.get("success") else f"Fatrop_Return_{status}"
     if rule is not None and rule.stopped:
         status = PROGRESS_STATUS
     Tv = float(values(T)) if duration is None else float(T)
@@ -816,7 +852,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "ocp_residual": ocp_residual,
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
-        "derivatives": derivatives,
+        "derivatives": derivatives, "solver": solver,
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
@@ -850,7 +886,7 @@ def _violation(opti, values):
     return float(np.max(excess[np.isfinite(excess)]))
 
 
-def _warm_duals(opti, guess):
+def _warm_duals(opti, guess, solver):
     """The guess's NLP iterate and multipliers when its OCP has this one's shape (same
     variables and constraints: e.g. another end bound or other limits), else ``None``.
 
@@ -860,7 +896,8 @@ def _warm_duals(opti, guess):
     solution = getattr(guess, "solution", None)
     if not solution:
         return None
-    if solution["x"].size != opti.nx or solution["lam_g"].size != opti.ng:
+    if solution["x"].size != opti.nx or solution["lam_g"].size != opti.ng or \
+            guess.stats.get("solver", "ipopt") != solver:  # another variable order
         return None
     return solution
 
