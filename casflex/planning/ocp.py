@@ -789,8 +789,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         hessian=derivatives != "blocks-jacobian",
                                         point=split if derivatives == "points" else None))
     if fatrop:
-        stage_order(opti, stages)
-        opti.solver("fatrop", {**plugin, "structure_detection": "auto",
+        equality = stage_order(opti, stages)
+        opti.solver("fatrop", {**plugin, "structure_detection": "auto", "equality": equality,
                                "fatrop": fatrop_options(options)})
     else:
         opti.solver("ipopt", plugin, options)

@@ -77,13 +77,14 @@ def stage_variables(opti: ca.Opti, N: int, states: Sequence[np.ndarray],
     return [ca.horzcat(*b) for b in xs], [ca.horzcat(*b) for b in us], stages
 
 
-def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> None:
+def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> list[bool]:
     """Pose ``opti``'s constraints again, in stage order: per stage its gap constraint (the
     rows that reach into the next stage) then its other rows, the last stage's at the end.
 
     A row belongs to the first stage whose variables it reads; within that order the rows
-    keep the order in which they were posed. Equalities stay equalities (Fatrop tells gaps
-    from them), the other rows become bounded rows.
+    keep the order in which they were posed. The rows are posed again as one bounded
+    constraint; which of them are equalities is returned, for Fatrop's option
+    ``"equality"`` (it tells the gaps by them).
 
     Parameters
     ----------
@@ -91,6 +92,11 @@ def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> None:
         With the variables of :func:`stage_variables` and its constraints posed.
     stages : sequence of casadi.MX
         The NLP variables of every stage (:func:`stage_variables`).
+
+    Returns
+    -------
+    list of bool
+        Per row (in the new order) whether it is an equality.
 
     Raises
     ------
@@ -106,6 +112,7 @@ def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> None:
     >>> opti.subject_to(X[:, 1:] == X[:, :2] + U)
     >>> opti.subject_to(X[:, 0] == 0)
     >>> stage_order(opti, stages)
+    [True, True, True, True]
     >>> g = ca.Function("g", [opti.x], [opti.g])  # rows at (x0, u0, x1, u1, x2) = 0..4
     >>> g(np.arange(5.0)).full().ravel().tolist()  # gap 0, x0, gap 1, x2 (bound 1)
     [1.0, 0.0, -1.0, 4.0]
@@ -131,17 +138,10 @@ def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> None:
                    "of two neighbouring ones (stage structure)")
     order = np.lexsort((np.arange(g.shape[0]), last == first, first))
     opti.subject_to()
-    equal = lbg == ubg
-    start = 0
-    while start < order.size:  # one constraint per run of rows of one kind
-        stop = start + 1
-        while stop < order.size and equal[order[stop]] == equal[order[start]]:
-            stop += 1
-        k = order[start:stop]
-        rows = g[k.tolist()]
-        opti.subject_to(rows == lbg[k] if equal[k[0]] else
-                        opti.bounded(lbg[k], rows, ubg[k]))
-        start = stop
+    # one constraint (Opti's cost per constraint grows with the problem); which rows are
+    # equalities is Fatrop's option "equality"
+    opti.subject_to(opti.bounded(lbg[order], g[order.tolist()], ubg[order]))
+    return (lbg == ubg)[order].tolist()
 
 
 #: the planner's Ipopt options that Fatrop has under the same name and meaning

@@ -93,7 +93,8 @@ def test_stage_order_sorts_rows_by_stage():
     opti.subject_to(opti.bounded(-1, U, 1))             # stages 0..2
     opti.subject_to(X[:, 1:] == X[:, :3] + U)           # gaps 0..2
     opti.subject_to(X[:, 0] == 0)                       # stage 0
-    stage_order(opti, stages)
+    equality = stage_order(opti, stages)
+    assert equality == [True, False, True, True, False, True, False, True]
     # at (x0, u0, x1, u1, x2, u2, x3) = (0, 1, ..., 6): gap 0, u0, x0, gap 1, u1, gap 2,
     # u2, terminal
     g = ca.Function("g", [opti.x], [opti.g])(np.arange(7.0)).full().ravel()
