@@ -54,7 +54,7 @@ from casflex.planning.derivatives import implicit_collocation_function, static_l
 from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
-from casflex.planning.staged import fatrop_options, stage_order, stage_variables
+from casflex.planning.staged import fatrop_options, power_of_two, stage_order, stage_variables
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
@@ -639,8 +639,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                   np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
     sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1) if implicit else None
     if fatrop:  # stage order, T a state (casflex.planning.staged)
+        sx, sT = power_of_two(sx), power_of_two(T_guess)
         (X, *Tk), (U, Xc, Ac), stages = stage_variables(
-            opti, N, [sx] + ([np.array([T_guess])] if duration is None else []),
+            opti, N, [sx] + ([np.array([sT])] if duration is None else []),
             [(su, 1), (sx, degree), (sa, degree)])
         T = Tk[0][0] if duration is None else duration
         h = Tk[0][:N] / N if duration is None else duration / N
@@ -695,7 +696,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # the gaps: with fatrop the identity on x_{k+1}, the scale being the variable's
     opti.subject_to((X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0)
     if fatrop and duration is None:
-        opti.subject_to((Tk[0][1:] - Tk[0][:N]) / T_guess == 0)
+        opti.subject_to((Tk[0][1:] - Tk[0][:N]) / sT == 0)
     opti.subject_to(X[:, 0] == xa0)
     opti.subject_to(X[:n, N] == qf)
     opti.subject_to(X[n + m:2 * n + m, N] == 0)
@@ -757,6 +758,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     options = {"max_iter": max_iter, "print_level": 0, "sb": "yes", "tol": 1e-8,
                "acceptable_tol": 1e-2, "acceptable_iter": _ACCEPTABLE_ITER,
                "acceptable_constr_viol_tol": 1e-6, "mu_strategy": "adaptive"}
+    # Fatrop: the rows in stage order, before any multiplier is set
+    equality = stage_order(opti, stages) if fatrop else None
     duals = _warm_duals(opti, guess, solver) if warm else None
     if duals is not None:
         # a neighbouring problem of the same shape: start from the guess's iterate with
@@ -789,7 +792,6 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         hessian=derivatives != "blocks-jacobian",
                                         point=split if derivatives == "points" else None))
     if fatrop:
-        equality = stage_order(opti, stages)
         opti.solver("fatrop", {**plugin, "structure_detection": "auto", "equality": equality,
                                "fatrop": fatrop_options(options)})
     else:
@@ -821,9 +823,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
     info_violation = _violation(opti, values)
     if not ok:
-        raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
-                                    n, m, N, duration) + f" (largest constraint violation "
-                          f"of the last iterate {info_violation:.1e})")
+        raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max, n, m,
+                                    N, duration, solver.capitalize()) + " (largest constraint "
+                          f"violation of the last iterate {info_violation:.1e})")
     # the dense trajectory: the substeps of every interval
     # the dense trajectory: ``substeps`` samples per interval, from the interval's own
     # discretisation (the RK4 substeps, or the collocation polynomial)
@@ -894,7 +896,10 @@ def _warm_duals(opti, guess, solver):
     robust error, limits moved from one joint to another) gets a poor start, never a
     wrong plan: the start only changes where Ipopt begins, not what it accepts."""
     solution = getattr(guess, "solution", None)
-    if not solution:
+    if not solution or solver != "ipopt":
+        # CasADi 3.8's Fatrop has no warm_start_init_point: from a neighbouring solution
+        # with its multipliers it took 133 iterations on the one-link arm (80 intervals,
+        # end bound 5 % tighter), from the iterate alone 33, cold 34
         return None
     if solution["x"].size != opti.nx or solution["lam_g"].size != opti.ng or \
             guess.stats.get("solver", "ipopt") != solver:  # another variable order
@@ -968,8 +973,9 @@ def _omega_max(model, q0, qf):
     return top
 
 
-def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
-    """One line on why Ipopt failed: the status and the limits active at its last iterate."""
+def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration,
+              solver="Ipopt"):
+    """One line on why the solver failed: the status and the limits active at its last iterate."""
     active = []
     for j in range(n):
         if np.isfinite(tau_max[j]):
@@ -988,4 +994,4 @@ def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
         " (no limit is active at the last iterate)"
     why = (" - the limits are too low to reach the goal"
            + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
-    return f"plan_move: Ipopt found no plan ({status}){where}{why}"
+    return f"plan_move: {solver} found no plan ({status}){where}{why}"

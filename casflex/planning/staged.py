@@ -28,7 +28,7 @@ import numpy as np
 
 from casflex._validate import fail
 
-__all__ = ["stage_variables", "stage_order", "fatrop_options"]
+__all__ = ["stage_variables", "stage_order", "fatrop_options", "power_of_two"]
 
 
 def stage_variables(opti: ca.Opti, N: int, states: Sequence[np.ndarray],
@@ -142,6 +142,22 @@ def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> list[bool]:
     # equalities is Fatrop's option "equality"
     opti.subject_to(opti.bounded(lbg[order], g[order.tolist()], ubg[order]))
     return (lbg == ubg)[order].tolist()
+
+
+def power_of_two(scale: np.ndarray) -> np.ndarray:
+    """The nearest powers of two of positive scales.
+
+    Fatrop checks at every iteration that a gap row's Jacobian on ``x_{k+1}`` is the
+    identity, exactly; with the state ``s x̃`` and the row divided by ``s`` the entry is
+    ``s (1 / s)``, which is 1 in floating point for every power of two (and not for
+    ``s = 49``: 0.9999999999999999).
+
+    Examples
+    --------
+    >>> power_of_two(np.array([0.1, 3.0, 49.0])).tolist()
+    [0.125, 4.0, 64.0]
+    """
+    return 2.0 ** np.round(np.log2(np.asarray(scale, dtype=float)))
 
 
 #: the planner's Ipopt options that Fatrop has under the same name and meaning

@@ -66,12 +66,16 @@ def test_fatrop_plan_is_rest_to_rest_within_the_limits(flexible, plans):
     assert p.duration >= 1.0 / V_MAX + V_MAX * J / TAU_MAX * (1.0 - 1e-9)
 
 
-def test_ipopt_multipliers_are_not_fatrop_warm_start(flexible, plans):
-    # the same sizes, another variable order: the Ipopt plan's iterate is no Fatrop start
-    p = plan_move(flexible, [0.0], [1.0], torque_limit=TAU_MAX, velocity_limit=V_MAX,
-                  guess=plans["ipopt"], solver="fatrop")
-    assert p.stats["warm_start"] and not p.stats["warm_start_duals"]
-    assert p.duration == pytest.approx(plans["ipopt"].duration, rel=RTOL)
+def test_multipliers_pass_only_from_ipopt_to_ipopt(flexible, plans):
+    # a Fatrop plan has the sizes of an Ipopt one in another variable order: no start for
+    # Ipopt's iterate; Fatrop takes no multipliers (none of this CasADi's warm-start options)
+    kw = {"torque_limit": TAU_MAX, "velocity_limit": V_MAX}
+    for guess, solver in (("fatrop", "ipopt"), ("fatrop", "fatrop"), ("ipopt", "fatrop")):
+        p = plan_move(flexible, [0.0], [1.0], guess=plans[guess], solver=solver, **kw)
+        assert p.stats["warm_start"] and not p.stats["warm_start_duals"]
+        assert p.duration == pytest.approx(plans["ipopt"].duration, rel=RTOL)
+    p = plan_move(flexible, [0.0], [1.0], guess=plans["ipopt"], solver="ipopt", **kw)
+    assert p.stats["warm_start_duals"]
 
 
 @pytest.mark.parametrize("kw, field", [
