@@ -19,7 +19,7 @@ derivatives) for every ``--intervals`` and both solvers, alternated. Per run:
 Usage::
 
     python benchmarks/bench_planning_solvers.py [--json] [--intervals N [N ...]]
-        [--repeat K]
+        [--repeat K] [--solver-timing]
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
                         metavar="N")
     parser.add_argument("--repeat", type=int, default=2, metavar="K",
                         help="runs of every case, the solvers alternated")
+    parser.add_argument("--solver-timing", action="store_true",
+                        help="the solvers print their own timing tables (Ipopt's "
+                        "print_timing_statistics, Fatrop's at print_level 10)")
     args = parser.parse_args(argv)
 
     from casflex.model import FlexibleModel, PointwiseProvider
@@ -53,8 +56,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     for N in args.intervals:
         for repeat in range(args.repeat):
             for solver in ("ipopt", "fatrop"):
+                options = {}
+                if args.solver_timing:
+                    options = {"print_level": 10} if solver == "fatrop" else \
+                        {"print_level": 5, "print_timing_statistics": "yes"}
                 p = plan_move(model, [0.0], [1.0], torque_limit=0.1, velocity_limit=1.0,
-                              intervals=N, solver=solver, progress_stop=False)
+                              intervals=N, solver=solver, progress_stop=False,
+                              ipopt_options=options)
                 t = p.stats["timings"]
                 functions = sum(v for k, v in t.items() if k.startswith("t_proc_nlp_"))
                 it = max(p.stats["iterations"], 1)

@@ -167,14 +167,13 @@ _SHARED = ("max_iter", "tol", "mu_init", "bound_push", "bound_frac", "print_leve
 
 def fatrop_options(options: dict) -> dict:
     """Fatrop's options from the planner's Ipopt options: those Fatrop shares (same name
-    and meaning), printing off; the others (MUMPS, the adaptive barrier, the acceptable
+    and meaning: the iteration limit, the tolerance, the barrier's start, the print level
+    (at 10 Fatrop prints its timing table)); the others (MUMPS, the adaptive barrier, the acceptable
     test, the warm-start pushes) have no Fatrop counterpart and are dropped.
 
     Examples
     --------
-    >>> fatrop_options({"tol": 1e-8, "mu_strategy": "adaptive", "sb": "yes"})
+    >>> fatrop_options({"tol": 1e-8, "mu_strategy": "adaptive", "print_level": 0})
     {'tol': 1e-08, 'print_level': 0}
     """
-    out = {k: v for k, v in options.items() if k in _SHARED}
-    out["print_level"] = 0
-    return out
+    return {k: v for k, v in options.items() if k in _SHARED}
