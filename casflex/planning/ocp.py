@@ -51,7 +51,7 @@ from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
-from casflex.planning.limits import end_bounds
+from casflex.planning.limits import _position_limits, end_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.staged import fatrop_options, power_of_two, stage_order, stage_variables
@@ -470,6 +470,16 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         not import: the caller passes it); with ``"points"`` the OCP's dynamics then read
         the tables through static local B-splines
         (:func:`casflex.planning.derivatives.static_lookup`). Default: interpreted.
+    solver : {"ipopt", "fatrop"}
+        Ipopt (MUMPS) on the NLP as posed, or Fatrop, an interior point whose Newton step
+        is a Riccati recursion over the intervals (cost per iteration linear in N), on the
+        same OCP in stage order (:mod:`casflex.planning.staged`: node state and T per
+        stage, torque and collocation variables its controls). Fatrop needs implicit
+        collocation and ``derivatives="casadi"`` (it takes no ``jac_g`` / ``hess_lag``);
+        of ``ipopt_options`` it takes ``max_iter``, ``tol``, ``mu_init``, ``bound_push``,
+        ``bound_frac``, ``print_level``; no ``progress_stop`` (no iteration callback)
+        and no multipliers from ``guess``. The same plan to the solvers' tolerance (one-link
+        arm: T to 1e-7 relative); cost: benchmarks/README_planning.md, "Session 13".
 
     Returns
     -------
@@ -905,42 +915,6 @@ def _warm_duals(opti, guess, solver):
             guess.stats.get("solver", "ipopt") != solver:  # another variable order
         return None
     return solution
-
-
-def _position_limits(model, position_limits, q0, qf):
-    """Lower and upper joint bounds [rad] (``±inf`` where a joint is free): the given ones,
-    or the robot's joint limits; the start and the goal must lie within them."""
-    n = model.n
-    if position_limits is None:
-        source = f"the joint limits of robot '{model.robot.name}'"
-        limits = model.robot.joint_limits or (None,) * n
-        lo = np.array([-np.inf if lim is None else lim[0] for lim in limits], dtype=float)
-        hi = np.array([np.inf if lim is None else lim[1] for lim in limits], dtype=float)
-    else:
-        source = "position_limits"
-        if len(position_limits) != 2:
-            raise fail("position_limits", position_limits, "must be (lower, upper) [rad]")
-        bounds = []
-        for k, (side, inf) in enumerate((("lower", -np.inf), ("upper", np.inf))):
-            field = f"position_limits[{k}]"
-            value = np.broadcast_to(np.asarray(position_limits[k], dtype=float), (n,)) \
-                if np.ndim(position_limits[k]) == 0 else np.asarray(position_limits[k],
-                                                                    dtype=float).ravel()
-            if value.size != n or np.any(np.isnan(value)) or np.any(value == -inf):
-                raise fail(field, position_limits[k], f"must be {n} {side} bounds [rad] "
-                           f"(or {'+' if inf > 0 else '-'}inf for none)")
-            bounds.append(value.copy())
-        lo, hi = bounds
-        if np.any(lo >= hi):
-            raise fail("position_limits", [lo.tolist(), hi.tolist()],
-                       "every lower bound must be < its upper bound [rad]")
-    for label, q in (("start", q0), ("goal", qf)):
-        outside = np.flatnonzero((q < lo) | (q > hi))
-        if outside.size:
-            j = int(outside[0])
-            raise fail(label, q.tolist(), f"joint {j + 1} ({q[j]:.6g} rad) lies outside "
-                       f"{source}: [{lo[j]:.6g}, {hi[j]:.6g}] rad")
-    return lo, hi
 
 
 def _time_scaled(reference, duration, samples=4001):

@@ -116,3 +116,15 @@ def test_stage_order_refuses_rows_across_stages():
     opti.subject_to(ca.vertcat(U.T, X[:, 1]) == 0)
     with pytest.raises(ModelError, match="two neighbouring"):
         stage_order(opti, stages)
+
+
+def test_plan_cli_bad_solver_exits_2(tmp_path, capsys):
+    from casflex.cli import main
+
+    moves = tmp_path / "moves.toml"
+    moves.write_text('[swing]\nduration = 2.0\nq0 = [0.0]\nqf = [1.0]\nsettle = 1.0\n')
+    code = main(["plan", "problems/onelink.toml", "--move", f"{moves}:swing",
+                 "--solver", "snopt"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--solver" in err and "snopt" in err and "fatrop" in err
