@@ -66,6 +66,21 @@ def test_fatrop_plan_is_rest_to_rest_within_the_limits(flexible, plans):
     assert p.duration >= 1.0 / V_MAX + V_MAX * J / TAU_MAX * (1.0 - 1e-9)
 
 
+def test_robust_plan_with_an_end_bound(flexible):
+    # the augmented state (the modal rows at 1 ± r) and the end-bound rows in stage order
+    kw = {"torque_limit": TAU_MAX, "intervals": 20, "end": 2e-3, "robust": 0.1,
+          "progress_stop": False}
+    ip, fa = (plan_move(flexible, [0.0], [1.0], solver=s, **kw) for s in ("ipopt", "fatrop"))
+    assert fa.stats["converged"]
+    assert fa.duration == pytest.approx(ip.duration, rel=RTOL)
+    # the torques off their bounds (a singular arc, fixed only through the end-bound rows)
+    # are the worst-conditioned part of the KKT system: 1e-5 of the limit (measured
+    # 1.3e-6 of it on interval 10; 3e-7 at the bounds)
+    np.testing.assert_allclose(fa.node_tau, ip.node_tau, rtol=0, atol=1e-5 * TAU_MAX)
+    # every scenario's residual bound met to the solvers' tolerance on the rows [m]
+    assert max(fa.stats["residual_bound"]) <= 2e-3 + 1e-8
+
+
 def test_multipliers_pass_only_from_ipopt_to_ipopt(flexible, plans):
     # a Fatrop plan has the sizes of an Ipopt one in another variable order: no start for
     # Ipopt's iterate; Fatrop takes no multipliers (none of this CasADi's warm-start options)
