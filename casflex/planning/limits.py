@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end"]
+__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end", "joint_bounds"]
 
 
 def shaped_end(shaped_check: dict) -> float | list[float]:
@@ -194,9 +194,39 @@ def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
     return run.torque_peak, np.max(np.abs(run.dq), axis=0)
 
 
-def _position_limits(model, position_limits, q0, qf):
+def joint_bounds(model: FlexibleModel, position_limits: Any, q0: np.ndarray,
+                 qf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper joint bounds [rad] (``±inf`` where a joint is free): the given ones,
-    or the robot's joint limits; the start and the goal must lie within them."""
+    or the robot's joint limits; the start and the goal must lie within them.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    position_limits : (array_like, array_like) or None
+        Lower and upper bounds [rad], one value or one per joint; ``None``: the robot's
+        joint limits.
+    q0, qf : numpy.ndarray
+        Start and goal [rad].
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        Lower and upper bounds [rad].
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        Malformed bounds, or the start or the goal outside them.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> joint_bounds(model, (-1.0, 2.0), np.zeros(1), np.ones(1))
+    (array([-1.]), array([2.]))
+    """
     n = model.n
     if position_limits is None:
         source = f"the joint limits of robot '{model.robot.name}'"

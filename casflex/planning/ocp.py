@@ -51,7 +51,7 @@ from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
-from casflex.planning.limits import _position_limits, end_bounds
+from casflex.planning.limits import end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.staged import fatrop_options, power_of_two, stage_order, stage_variables
@@ -564,7 +564,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         (3.0 if settle is None else number(settle, "settle", low=0.0))
     if name is None:
         name = f"{move.name}+planned" if move is not None else "planned"
-    lo, hi = _position_limits(model, position_limits, q0, qf)
+    lo, hi = joint_bounds(model, position_limits, q0, qf)
 
     f = model.functions()
     d0, df = static_deflection(model, q0), static_deflection(model, qf)

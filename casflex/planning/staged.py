@@ -152,6 +152,15 @@ def power_of_two(scale: np.ndarray) -> np.ndarray:
     ``s (1 / s)``, which is 1 in floating point for every power of two (and not for
     ``s = 49``: 0.9999999999999999).
 
+    Parameters
+    ----------
+    scale : numpy.ndarray
+        Scales > 0 [the unit of what they scale].
+
+    Returns
+    -------
+    numpy.ndarray
+
     Examples
     --------
     >>> power_of_two(np.array([0.1, 3.0, 49.0])).tolist()
@@ -170,6 +179,15 @@ def fatrop_options(options: dict) -> dict:
     and meaning: the iteration limit, the tolerance, the barrier's start, the print level
     (at 10 Fatrop prints its timing table)); the others (MUMPS, the adaptive barrier, the acceptable
     test, the warm-start pushes) have no Fatrop counterpart and are dropped.
+
+    Parameters
+    ----------
+    options : dict
+        Ipopt options.
+
+    Returns
+    -------
+    dict
 
     Examples
     --------
