@@ -26,7 +26,7 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
 ``ocp_fit``, ``ocp_modes``, ``trace`` (T and the constraint violation at every Ipopt
 iterate of the cold solve), ``derivatives``, ``compiled`` (seconds of each
-``compile_cached`` call and whether it built), ``timings`` / ``timings_warm`` (CasADi's
+``compile_cached`` call and whether it built), ``solver``, ``timings`` / ``timings_warm`` (CasADi's
 CPU seconds and calls per NLP function: ``t_proc_nlp_jac_g``, ``t_proc_nlp_hess_l``...).
 
 Usage::
@@ -35,7 +35,7 @@ Usage::
         [--transcription collocation|shooting] [--dynamics implicit|explicit]
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
-        [--compile [--compile-flags FLAGS]]
+        [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop]
 """
 
 from __future__ import annotations
@@ -93,6 +93,8 @@ def main(argv: list[str] | None = None) -> dict:
                         default="casadi",
                         help="the NLP's derivatives: CasADi's sweeps (default) or "
                              "per-interval blocks (casflex.planning.block_derivatives)")
+    parser.add_argument("--solver", choices=("ipopt", "fatrop"), default="ipopt",
+                        help="the NLP solver (fatrop: the stage-ordered OCP)")
     parser.add_argument("--compile-flags", default="-O1", metavar="FLAGS",
                         help="compiler flags of --compile (default -O1)")
     parser.add_argument("--compile", action="store_true",
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict:
     kw = {"intervals": args.intervals, "ipopt_options": options,
           "transcription": args.transcription, "max_iter": args.max_iter,
           "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop,
-          "derivatives": args.derivatives}
+          "derivatives": args.derivatives, "solver": args.solver}
     compiled = {}
     if args.compile:
         from casflex.codegen import compile_cached
@@ -165,6 +167,7 @@ def main(argv: list[str] | None = None) -> dict:
            "dt": args.dt, "progress_stop": not args.no_progress_stop,
            "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3,
            "derivatives": args.derivatives, "compiled": compiled or None,
+           "solver": args.solver,
            "timings": plan.stats.get("timings"),
            "timings_warm": warm.stats.get("timings"),
            "trace": [[round(f, 5), float(f"{v:.1e}")]

@@ -100,6 +100,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "scattered per interval: ~40 %% cheaper per call on move 1) or "
                         "blocks (its Hessian too) or points (both from one collocation "
                         "point's, compiled to C once and cached)")
+    parser.add_argument("--solver", default="ipopt", metavar="SOLVER",
+                        help="the NLP solver: ipopt (MUMPS, the default) or fatrop (Riccati "
+                        "over the stages; collocation with implicit dynamics, derivatives "
+                        "casadi)")
     parser.add_argument("--end", default=None, metavar="rest|free|TOL",
                         help="end condition of the modes: at rest, free, or a residual tip "
                         "deflection bound in m (default the shaped move's residual)")
@@ -191,7 +195,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ModelError
     """
     from casflex.moves import load_move
-    from casflex.planning import DERIVATIVES, plan_robot_move
+    from casflex.planning import DERIVATIVES, SOLVERS, plan_robot_move
     from casflex.robot import load
 
     robust = number(float(getattr(args, "robust", 0.0)), "--robust", low=0.0, high=1.0,
@@ -207,6 +211,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         duration = number(float(duration), "--duration", low=0.0, low_open=True)
     end = _end(getattr(args, "end", None))
     derivatives = choice(getattr(args, "derivatives", "casadi"), "--derivatives", DERIVATIVES)
+    solver = choice(getattr(args, "solver", "ipopt"), "--solver", SOLVERS)
     out = getattr(args, "out", None)
     out = output_directory(out, "--out") if out else None
     plot = plot_path(getattr(args, "plot", None))
@@ -226,7 +231,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         processes=getattr(args, "processes", None), progress=True, log=log,
         max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
         derivatives=derivatives, compile_function=_compiler(derivatives, cache_dir_of(args)),
-        **options)
+        solver=solver, **options)
     summary = comparison.summary()
     log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "
         f"({100 * summary['shortening']:.1f} % shorter); residual tip deflection planned "

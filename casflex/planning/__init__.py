@@ -30,6 +30,10 @@ DERIVATIVES
     How :func:`plan_move` builds the NLP's derivatives (CasADi's, per-interval blocks, or
     per-point blocks).
 
+SOLVERS
+    The NLP solvers of :func:`plan_move`: Ipopt, or Fatrop on the stage-ordered OCP
+    (:mod:`casflex.planning.staged`).
+
 Derivatives from per-interval blocks (:mod:`casflex.planning.assembly`)
 -----------------------------------------------------------------------
 block_derivatives
@@ -111,6 +115,7 @@ from casflex.planning.ocp import (
     DYNAMICS,
     LIMIT_STATUSES,
     OBJECTIVES,
+    SOLVERS,
     TRANSCRIPTIONS,
     WARM_START_OPTIONS,
     plan_move,
@@ -143,6 +148,7 @@ __all__ = [
     "WARM_START_OPTIONS",
     "LIMIT_STATUSES",
     "DERIVATIVES",
+    "SOLVERS",
     # derivatives from blocks
     "block_derivatives",
     # stopping

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end"]
+__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end", "joint_bounds"]
 
 
 def shaped_end(shaped_check: dict) -> float | list[float]:
@@ -193,3 +193,68 @@ def plan_limits(model: FlexibleModel, reference: Any, dt: float = 1e-3
     run = simulate_prescribed(model, reference, dt=dt, t_end=float(reference.duration))
     return run.torque_peak, np.max(np.abs(run.dq), axis=0)
 
+
+def joint_bounds(model: FlexibleModel, position_limits: Any, q0: np.ndarray,
+                 qf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper joint bounds [rad] (``±inf`` where a joint is free): the given ones,
+    or the robot's joint limits; the start and the goal must lie within them.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+    position_limits : (array_like, array_like) or None
+        Lower and upper bounds [rad], one value or one per joint; ``None``: the robot's
+        joint limits.
+    q0, qf : numpy.ndarray
+        Start and goal [rad].
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        Lower and upper bounds [rad].
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        Malformed bounds, or the start or the goal outside them.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> joint_bounds(model, (-1.0, 2.0), np.zeros(1), np.ones(1))
+    (array([-1.]), array([2.]))
+    """
+    n = model.n
+    if position_limits is None:
+        source = f"the joint limits of robot '{model.robot.name}'"
+        limits = model.robot.joint_limits or (None,) * n
+        lo = np.array([-np.inf if lim is None else lim[0] for lim in limits], dtype=float)
+        hi = np.array([np.inf if lim is None else lim[1] for lim in limits], dtype=float)
+    else:
+        source = "position_limits"
+        if len(position_limits) != 2:
+            raise fail("position_limits", position_limits, "must be (lower, upper) [rad]")
+        bounds = []
+        for k, (side, inf) in enumerate((("lower", -np.inf), ("upper", np.inf))):
+            field = f"position_limits[{k}]"
+            value = np.broadcast_to(np.asarray(position_limits[k], dtype=float), (n,)) \
+                if np.ndim(position_limits[k]) == 0 else np.asarray(position_limits[k],
+                                                                    dtype=float).ravel()
+            if value.size != n or np.any(np.isnan(value)) or np.any(value == -inf):
+                raise fail(field, position_limits[k], f"must be {n} {side} bounds [rad] "
+                           f"(or {'+' if inf > 0 else '-'}inf for none)")
+            bounds.append(value.copy())
+        lo, hi = bounds
+        if np.any(lo >= hi):
+            raise fail("position_limits", [lo.tolist(), hi.tolist()],
+                       "every lower bound must be < its upper bound [rad]")
+    for label, q in (("start", q0), ("goal", qf)):
+        outside = np.flatnonzero((q < lo) | (q > hi))
+        if outside.size:
+            j = int(outside[0])
+            raise fail(label, q.tolist(), f"joint {j + 1} ({q[j]:.6g} rad) lies outside "
+                       f"{source}: [{lo[j]:.6g}, {hi[j]:.6g}] rad")
+    return lo, hi

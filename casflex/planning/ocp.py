@@ -51,14 +51,15 @@ from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
-from casflex.planning.limits import end_bounds
+from casflex.planning.limits import end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
+from casflex.planning.staged import fatrop_options, power_of_two, stage_order, stage_variables
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
-           "DYNAMICS", "DERIVATIVES", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
+           "DYNAMICS", "DERIVATIVES", "SOLVERS", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
 
 #: the objectives of :func:`plan_move`
 OBJECTIVES = ("time", "energy", "weighted")
@@ -74,6 +75,10 @@ DYNAMICS = ("implicit", "explicit")
 #: constraint Jacobian from blocks and the Hessian CasADi's, or both from the blocks of
 #: one collocation point (:mod:`casflex.planning.derivatives`)
 DERIVATIVES = ("casadi", "blocks", "blocks-jacobian", "points")
+
+#: the NLP solvers of :func:`plan_move`: Ipopt (MUMPS) on the NLP as posed, or Fatrop on
+#: the stage-ordered NLP (:mod:`casflex.planning.staged`)
+SOLVERS = ("ipopt", "fatrop")
 
 #: largest ω h of one RK4 substep (RK4 phase error per step ~ (ω h)^5 / 120 ≈ 8e-6 at 0.25)
 _OMEGA_H = 0.25
@@ -367,7 +372,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               name: str | None = None,
               progress_stop: ProgressStop | bool = True,
               derivatives: str = "casadi",
-              compile_function: Callable[[list], list] | None = None) -> PlannedMove:
+              compile_function: Callable[[list], list] | None = None,
+              solver: str = "ipopt") -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -464,6 +470,16 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         not import: the caller passes it); with ``"points"`` the OCP's dynamics then read
         the tables through static local B-splines
         (:func:`casflex.planning.derivatives.static_lookup`). Default: interpreted.
+    solver : {"ipopt", "fatrop"}
+        Ipopt (MUMPS) on the NLP as posed, or Fatrop, an interior point whose Newton step
+        is a Riccati recursion over the intervals (cost per iteration linear in N), on the
+        same OCP in stage order (:mod:`casflex.planning.staged`: node state and T per
+        stage, torque and collocation variables its controls). Fatrop needs implicit
+        collocation and ``derivatives="casadi"`` (it takes no ``jac_g`` / ``hess_lag``);
+        of ``ipopt_options`` it takes ``max_iter``, ``tol``, ``mu_init``, ``bound_push``,
+        ``bound_frac``, ``print_level``; no ``progress_stop`` (no iteration callback)
+        and no multipliers from ``guess``. The same plan to the solvers' tolerance (one-link
+        arm: T to 1e-7 relative); cost: benchmarks/README_planning.md, "Session 13".
 
     Returns
     -------
@@ -525,6 +541,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     implicit = transcription == "collocation" and dynamics == "implicit"
     derivatives = choice(derivatives, "derivatives", DERIVATIVES)
     blocks = derivatives != "casadi"
+    solver = choice(solver, "solver", SOLVERS)
+    fatrop = solver == "fatrop"
+    if fatrop and not implicit:
+        raise fail("solver", solver, "needs transcription 'collocation' with dynamics "
+                   "'implicit' (the stage-ordered OCP)")
+    if fatrop and blocks:  # CasADi's Fatrop takes no jac_g / hess_lag option
+        raise fail("derivatives", derivatives, "must be 'casadi' with solver 'fatrop' "
+                   "(Fatrop differentiates the NLP itself)")
     if blocks and not implicit:
         raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
                    "dynamics 'implicit'")
@@ -540,7 +564,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         (3.0 if settle is None else number(settle, "settle", low=0.0))
     if name is None:
         name = f"{move.name}+planned" if move is not None else "planned"
-    lo, hi = _position_limits(model, position_limits, q0, qf)
+    lo, hi = joint_bounds(model, position_limits, q0, qf)
 
     f = model.functions()
     d0, df = static_deflection(model, q0), static_deflection(model, qf)
@@ -617,36 +641,46 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
 
     ode = _augmented_ode(model, shifted)
     opti = ca.Opti()
-    X = opti.variable(nxa, N + 1)
-    U = opti.variable(n, N)
     # the modal states are orders of magnitude smaller than the joints': every state row,
     # the torques and T are scaled by their magnitude in the guess, and the dynamics
     # constraints of a row by the row's scale
     sx = _row_scales(augmented(X_guess), n, m)
-    opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
     su = np.where(np.isfinite(tau_max), tau_max,
                   np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
-    opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
-    if duration is None:
-        T = opti.variable()
-        opti.set_linear_scale(T, T_guess)
-        opti.subject_to(opti.bounded(1e-3, T, max_duration))
-        opti.set_initial(T, T_guess)
+    sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1) if implicit else None
+    if fatrop:  # stage order, T a state (casflex.planning.staged)
+        sx, sT = power_of_two(sx), power_of_two(T_guess)
+        (X, *Tk), (U, Xc, Ac), stages = stage_variables(
+            opti, N, [sx] + ([np.array([sT])] if duration is None else []),
+            [(su, 1), (sx, degree), (sa, degree)])
+        T = Tk[0][0] if duration is None else duration
+        h = Tk[0][:N] / N if duration is None else duration / N
     else:
-        T = duration
-    Xc = None
+        X = opti.variable(nxa, N + 1)
+        U = opti.variable(n, N)
+        opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
+        opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
+        T = opti.variable() if duration is None else duration
+        if duration is None:
+            opti.set_linear_scale(T, T_guess)
+        h = T / N
+    if duration is None:
+        opti.subject_to(opti.bounded(1e-3, T, max_duration))
+        opti.set_initial(Tk[0] if fatrop else T, T_guess * np.ones((1, N + 1))
+                         if fatrop else T_guess)
     if transcription == "collocation":
-        Xc = opti.variable(nxa, N * degree)
-        opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
+        if not fatrop:
+            Xc = opti.variable(nxa, N * degree)
+            opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         if implicit:
             G, split = implicit_collocation_function(*(static_lookup(model, errors) if
                                                        compile_function and derivatives ==
                                                        "points" else (model, shifted)), degree)
-            Ac = opti.variable(n, N * degree)
-            sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1)
-            opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
+            if not fatrop:
+                Ac = opti.variable(n, N * degree)
+                opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
             opti.set_initial(Ac, Ac_guess.T)
-            block_args = [X[:, :N], Xc, Ac, U, T / N]
+            block_args = [X[:, :N], Xc, Ac, U, h]
             defects, torque_defects, Xf = G.map(N)(*block_args)
             if blocks:
                 # the interval's end state is linear in its states: outside G, so that
@@ -659,16 +693,20 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             opti.subject_to(ca.vec(torque_defects / torque_scale) == 0)
         else:
             G, _ = _collocation_function(ode, nxa, n, degree)
-            defects, Xf = G.map(N)(X[:, :N], Xc, U, T / N)
+            defects, Xf = G.map(N)(X[:, :N], Xc, U, h)
         defect_scale = np.repeat(sx[:, None], N * degree, axis=1)
         if implicit:
             block_rows.insert(0, opti.ng)
         opti.subject_to(ca.vec(defects / defect_scale) == 0)
         opti.set_initial(Xc, augmented(Xc_guess))
     else:
+        Xc = None
         F = _interval_function(ode, nxa, n, substeps)
         Xf, _ = F.map(N)(X[:, :N], U, T / (N * substeps))
+    # the gaps: with fatrop the identity on x_{k+1}, the scale being the variable's
     opti.subject_to((X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0)
+    if fatrop and duration is None:
+        opti.subject_to((Tk[0][1:] - Tk[0][:N]) / sT == 0)
     opti.subject_to(X[:, 0] == xa0)
     opti.subject_to(X[:n, N] == qf)
     opti.subject_to(X[n + m:2 * n + m, N] == 0)
@@ -730,7 +768,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     options = {"max_iter": max_iter, "print_level": 0, "sb": "yes", "tol": 1e-8,
                "acceptable_tol": 1e-2, "acceptable_iter": _ACCEPTABLE_ITER,
                "acceptable_constr_viol_tol": 1e-6, "mu_strategy": "adaptive"}
-    duals = _warm_duals(opti, guess) if warm else None
+    # Fatrop: the rows in stage order, before any multiplier is set
+    equality = stage_order(opti, stages) if fatrop else None
+    duals = _warm_duals(opti, guess, solver) if warm else None
     if duals is not None:
         # a neighbouring problem of the same shape: start from the guess's iterate with
         # its multipliers, and keep Ipopt near it (a barrier restarted at 0.1 and the
@@ -743,6 +783,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # optimum: the objective need not leave it before the rule may stop
     rule = (ProgressStop(leave=0.0 if duals is not None else ProgressStop.leave)
             if progress_stop is True else progress_stop) or None
+    if fatrop:  # CasADi's Fatrop calls no iteration_callback: Fatrop's own tests only
+        rule = None
     if rule is not None:
         if not isinstance(rule, ProgressStop):
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
@@ -759,7 +801,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         compile_function=compile_function,
                                         hessian=derivatives != "blocks-jacobian",
                                         point=split if derivatives == "points" else None))
-    opti.solver("ipopt", plugin, options)
+    if fatrop:
+        opti.solver("fatrop", {**plugin, "structure_detection": "auto", "equality": equality,
+                               "fatrop": fatrop_options(options)})
+    else:
+        opti.solver("ipopt", plugin, options)
     t_start, c_start = time.perf_counter(), time.process_time()
     try:
         sol = opti.solve()
@@ -778,6 +824,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
     status = str(stats.get("return_status", "unknown"))
+    if fatrop:  # Fatrop's return code (0: converged)
+        status = "Solve_Succeeded" if stats.get("success") else f"Fatrop_Return_{status}"
     if rule is not None and rule.stopped:
         status = PROGRESS_STATUS
     Tv = float(values(T)) if duration is None else float(T)
@@ -785,9 +833,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
     info_violation = _violation(opti, values)
     if not ok:
-        raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
-                                    n, m, N, duration) + f" (largest constraint violation "
-                          f"of the last iterate {info_violation:.1e})")
+        raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max, n, m,
+                                    N, duration, solver.capitalize()) + " (largest constraint "
+                          f"violation of the last iterate {info_violation:.1e})")
     # the dense trajectory: the substeps of every interval
     # the dense trajectory: ``substeps`` samples per interval, from the interval's own
     # discretisation (the RK4 substeps, or the collocation polynomial)
@@ -816,7 +864,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "ocp_residual": ocp_residual,
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
-        "derivatives": derivatives,
+        "derivatives": derivatives, "solver": solver,
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
@@ -850,7 +898,7 @@ def _violation(opti, values):
     return float(np.max(excess[np.isfinite(excess)]))
 
 
-def _warm_duals(opti, guess):
+def _warm_duals(opti, guess, solver):
     """The guess's NLP iterate and multipliers when its OCP has this one's shape (same
     variables and constraints: e.g. another end bound or other limits), else ``None``.
 
@@ -858,47 +906,15 @@ def _warm_duals(opti, guess):
     robust error, limits moved from one joint to another) gets a poor start, never a
     wrong plan: the start only changes where Ipopt begins, not what it accepts."""
     solution = getattr(guess, "solution", None)
-    if not solution:
+    if not solution or solver != "ipopt":
+        # CasADi 3.8's Fatrop has no warm_start_init_point: from a neighbouring solution
+        # with its multipliers it took 133 iterations on the one-link arm (80 intervals,
+        # end bound 5 % tighter), from the iterate alone 33, cold 34
         return None
-    if solution["x"].size != opti.nx or solution["lam_g"].size != opti.ng:
+    if solution["x"].size != opti.nx or solution["lam_g"].size != opti.ng or \
+            guess.stats.get("solver", "ipopt") != solver:  # another variable order
         return None
     return solution
-
-
-def _position_limits(model, position_limits, q0, qf):
-    """Lower and upper joint bounds [rad] (``±inf`` where a joint is free): the given ones,
-    or the robot's joint limits; the start and the goal must lie within them."""
-    n = model.n
-    if position_limits is None:
-        source = f"the joint limits of robot '{model.robot.name}'"
-        limits = model.robot.joint_limits or (None,) * n
-        lo = np.array([-np.inf if lim is None else lim[0] for lim in limits], dtype=float)
-        hi = np.array([np.inf if lim is None else lim[1] for lim in limits], dtype=float)
-    else:
-        source = "position_limits"
-        if len(position_limits) != 2:
-            raise fail("position_limits", position_limits, "must be (lower, upper) [rad]")
-        bounds = []
-        for k, (side, inf) in enumerate((("lower", -np.inf), ("upper", np.inf))):
-            field = f"position_limits[{k}]"
-            value = np.broadcast_to(np.asarray(position_limits[k], dtype=float), (n,)) \
-                if np.ndim(position_limits[k]) == 0 else np.asarray(position_limits[k],
-                                                                    dtype=float).ravel()
-            if value.size != n or np.any(np.isnan(value)) or np.any(value == -inf):
-                raise fail(field, position_limits[k], f"must be {n} {side} bounds [rad] "
-                           f"(or {'+' if inf > 0 else '-'}inf for none)")
-            bounds.append(value.copy())
-        lo, hi = bounds
-        if np.any(lo >= hi):
-            raise fail("position_limits", [lo.tolist(), hi.tolist()],
-                       "every lower bound must be < its upper bound [rad]")
-    for label, q in (("start", q0), ("goal", qf)):
-        outside = np.flatnonzero((q < lo) | (q > hi))
-        if outside.size:
-            j = int(outside[0])
-            raise fail(label, q.tolist(), f"joint {j + 1} ({q[j]:.6g} rad) lies outside "
-                       f"{source}: [{lo[j]:.6g}, {hi[j]:.6g}] rad")
-    return lo, hi
 
 
 def _time_scaled(reference, duration, samples=4001):
@@ -931,8 +947,9 @@ def _omega_max(model, q0, qf):
     return top
 
 
-def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
-    """One line on why Ipopt failed: the status and the limits active at its last iterate."""
+def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration,
+              solver="Ipopt"):
+    """One line on why the solver failed: the status and the limits active at its last iterate."""
     active = []
     for j in range(n):
         if np.isfinite(tau_max[j]):
@@ -951,4 +968,4 @@ def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration):
         " (no limit is active at the last iterate)"
     why = (" - the limits are too low to reach the goal"
            + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
-    return f"plan_move: Ipopt found no plan ({status}){where}{why}"
+    return f"plan_move: {solver} found no plan ({status}){where}{why}"

@@ -1,0 +1,197 @@
+"""Stage-ordered decision variables of the planner's OCP, for structure-exploiting solvers.
+
+Fatrop (CasADi's ``nlpsol("fatrop")`` with ``structure_detection="auto"``) solves the
+Newton systems of an interior point by a Riccati recursion over the stages of an optimal
+control problem, at a cost linear in the number of intervals. It reads the stage structure
+from the NLP itself, so the NLP must have it:
+
+* the variables in stage order: per stage ``k`` the state ``x_k`` then the controls
+  ``u_k``, the last stage a state only;
+* the dynamics as gap constraints ``x_{k+1} = F_k(x_k, u_k)`` with the identity on
+  ``x_{k+1}`` (no scaling of those rows nor of the state: Fatrop eliminates ``x_{k+1}``
+  with that identity), before the other constraints.
+
+The planner's collocation maps onto that as rockit does: the state of stage ``k`` is the
+node state and the free final time (``T_{k+1} = T_k``, so that every stage sees its own
+copy), the controls the interval's torque, collocation states and joint accelerations.
+The scaling by magnitudes of :func:`casflex.planning.plan_move` (``opti.set_linear_scale``
+there) is done here by hand: the NLP variables are the scaled ones and the physical
+quantities linear expressions of them, so that the gap rows keep the identity.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import casadi as ca
+import numpy as np
+
+from casflex._validate import fail
+
+__all__ = ["stage_variables", "stage_order", "fatrop_options", "power_of_two"]
+
+
+def stage_variables(opti: ca.Opti, N: int, states: Sequence[np.ndarray],
+                    controls: Sequence[tuple[np.ndarray, int]]) -> tuple[list, list, list]:
+    """Declare the variables of ``N`` intervals in stage order; return the physical ones.
+
+    Parameters
+    ----------
+    opti : casadi.Opti
+        The problem, no variables declared yet.
+    N : int
+        Intervals (``N + 1`` stages).
+    states : sequence of array
+        Per state block the scale [its unit] of each of its rows (one column per stage).
+    controls : sequence of (array, int)
+        Per control block the scale of each of its rows and the block's columns per
+        interval (the collocation points: ``degree``).
+
+    Returns
+    -------
+    (list of casadi.MX, list of casadi.MX, list of casadi.MX)
+        The state blocks ``(rows, N + 1)`` and the control blocks ``(rows, N columns)``,
+        physical (scale times the NLP variable), and the NLP variables of every stage
+        (for :func:`stage_order`).
+
+    Examples
+    --------
+    >>> opti = ca.Opti()
+    >>> (X,), (U,), stages = stage_variables(opti, 2, [np.ones(2)], [(np.full(1, 5.0), 1)])
+    >>> X.shape, U.shape, [v.numel() for v in stages]
+    ((2, 3), (1, 2), [3, 3, 2])
+    """
+    xs = [[] for _ in states]
+    us = [[] for _ in controls]
+    stages = []
+    for k in range(N + 1):
+        raw = []
+        for block, scale in zip(xs, states, strict=True):
+            raw.append(opti.variable(len(scale)))
+            block.append(np.asarray(scale, dtype=float)[:, None] * raw[-1])
+        if k < N:
+            for block, (scale, cols) in zip(us, controls, strict=True):
+                raw.append(opti.variable(len(scale), cols))
+                block.append(np.asarray(scale, dtype=float)[:, None] * raw[-1])
+        stages.append(ca.vertcat(*[ca.vec(v) for v in raw]))
+    return [ca.horzcat(*b) for b in xs], [ca.horzcat(*b) for b in us], stages
+
+
+def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> list[bool]:
+    """Pose ``opti``'s constraints again, in stage order: per stage its gap constraint (the
+    rows that reach into the next stage) then its other rows, the last stage's at the end.
+
+    A row belongs to the first stage whose variables it reads; within that order the rows
+    keep the order in which they were posed. The rows are posed again as one bounded
+    constraint; which of them are equalities is returned, for Fatrop's option
+    ``"equality"`` (it tells the gaps by them).
+
+    Parameters
+    ----------
+    opti : casadi.Opti
+        With the variables of :func:`stage_variables` and its constraints posed.
+    stages : sequence of casadi.MX
+        The NLP variables of every stage (:func:`stage_variables`).
+
+    Returns
+    -------
+    list of bool
+        Per row (in the new order) whether it is an equality.
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        A row reads the variables of stages more than one apart, or a variable of a stage
+        is in no constraint nor the objective (no stage structure).
+
+    Examples
+    --------
+    >>> opti = ca.Opti()
+    >>> (X,), (U,), stages = stage_variables(opti, 2, [np.ones(1)], [(np.ones(1), 1)])
+    >>> opti.subject_to(X[:, 2] == 1)
+    >>> opti.subject_to(X[:, 1:] == X[:, :2] + U)
+    >>> opti.subject_to(X[:, 0] == 0)
+    >>> stage_order(opti, stages)
+    [True, True, True, True]
+    >>> g = ca.Function("g", [opti.x], [opti.g])  # rows at (x0, u0, x1, u1, x2) = 0..4
+    >>> g(np.arange(5.0)).full().ravel().tolist()  # gap 0, x0, gap 1, x2 (bound 1)
+    [1.0, 0.0, -1.0, 4.0]
+    """
+    g = opti.g
+    lbg = np.asarray(opti.value(opti.lbg, opti.initial()), dtype=float).ravel()
+    ubg = np.asarray(opti.value(opti.ubg, opti.initial()), dtype=float).ravel()
+    every = ca.vertcat(*stages)
+    if opti.nx != every.numel():  # Opti leaves out the variables that nothing reads
+        raise fail("variables", f"{every.numel() - opti.nx} of {every.numel()}",
+                   "must all appear in a constraint or the objective (stage structure)")
+    of = np.repeat(np.arange(len(stages)), [v.numel() for v in stages])
+    stage = of[np.asarray(ca.jacobian_sparsity(opti.x, every).get_col())]
+    sp = ca.jacobian_sparsity(g, opti.x)
+    cols, rows = np.asarray(sp.get_col()), np.asarray(sp.row())
+    first = np.full(g.shape[0], stage[-1])
+    last = np.zeros(g.shape[0], dtype=int)
+    np.minimum.at(first, rows, stage[cols])
+    np.maximum.at(last, rows, stage[cols])
+    if np.any(last - first > 1):
+        bad = int(np.flatnonzero(last - first > 1)[0])
+        raise fail("constraints", f"row {bad}", "must read the variables of one stage or "
+                   "of two neighbouring ones (stage structure)")
+    order = np.lexsort((np.arange(g.shape[0]), last == first, first))
+    opti.subject_to()
+    # one constraint (Opti's cost per constraint grows with the problem); which rows are
+    # equalities is Fatrop's option "equality"
+    opti.subject_to(opti.bounded(lbg[order], g[order.tolist()], ubg[order]))
+    return (lbg == ubg)[order].tolist()
+
+
+def power_of_two(scale: np.ndarray) -> np.ndarray:
+    """The nearest powers of two of positive scales.
+
+    Fatrop checks at every iteration that a gap row's Jacobian on ``x_{k+1}`` is the
+    identity, exactly; with the state ``s x̃`` and the row divided by ``s`` the entry is
+    ``s (1 / s)``, which is 1 in floating point for every power of two (and not for
+    ``s = 49``: 0.9999999999999999).
+
+    Parameters
+    ----------
+    scale : numpy.ndarray
+        Scales > 0 [the unit of what they scale].
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Examples
+    --------
+    >>> power_of_two(np.array([0.1, 3.0, 49.0])).tolist()
+    [0.125, 4.0, 64.0]
+    """
+    return 2.0 ** np.round(np.log2(np.asarray(scale, dtype=float)))
+
+
+#: the planner's Ipopt options that Fatrop has under the same name and meaning
+#: (CasADi 3.8's Fatrop has no acceptable_tol, warm_start_init_point, mu_strategy)
+_SHARED = ("max_iter", "tol", "mu_init", "bound_push", "bound_frac", "print_level")
+
+
+def fatrop_options(options: dict) -> dict:
+    """Fatrop's options from the planner's Ipopt options: those Fatrop shares (same name
+    and meaning: the iteration limit, the tolerance, the barrier's start, the print level
+    (at 10 Fatrop prints its timing table)); the others (MUMPS, the adaptive barrier, the acceptable
+    test, the warm-start pushes) have no Fatrop counterpart and are dropped.
+
+    Parameters
+    ----------
+    options : dict
+        Ipopt options.
+
+    Returns
+    -------
+    dict
+
+    Examples
+    --------
+    >>> fatrop_options({"tol": 1e-8, "mu_strategy": "adaptive", "print_level": 0})
+    {'tol': 1e-08, 'print_level': 0}
+    """
+    return {k: v for k, v in options.items() if k in _SHARED}
