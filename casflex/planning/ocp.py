@@ -479,7 +479,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         of ``ipopt_options`` it takes ``max_iter``, ``tol``, ``mu_init``, ``bound_push``,
         ``bound_frac``, ``print_level``; no ``progress_stop`` (no iteration callback)
         and no multipliers from ``guess``. The same plan to the solvers' tolerance (one-link
-        arm: T to 1e-7 relative); cost: benchmarks/README_planning.md, "Session 13".
+        arm: T to 1e-7 relative); not yet a faster route on the design study: on its move 1
+        Fatrop's cold solve ended infeasible (benchmarks/README_planning.md, "Session 13:
+        fatrop"), and CasADi's derivative sweeps it needs cost ~1 s per iteration there.
 
     Returns
     -------
