@@ -117,12 +117,6 @@ DASK_CONFIG = {
     "distributed.worker.memory.monitor-interval": "1s",
     "distributed.scheduler.work-stealing": False,
     "distributed.scheduler.active-memory-manager.start": False,
-    # session 13: the client's own timers, in the client's process with the scheduler:
-    # its scheduler-info refresh (2 s), its heartbeat to the scheduler (5 s) and the
-    # event loops' tick statistics (1 s); the build neither reads nor needs them
-    "distributed.client.scheduler-info-interval": "10s",
-    "distributed.client.heartbeat": "10s",
-    "distributed.admin.tick.cycle": "10s",
 }
 ARM3 = ROOT / "problems/arm3_spatial.toml"
 #: the 3-link arm's projected grid: 12 points per shape joint over its limits
