@@ -183,3 +183,27 @@ def test_kept_parts_stay_until_used_once_and_a_missing_part_is_none():
         drop_kept(client, "abandoned")
         assert dict(map_kept(_use_kept, [("x", (1,))], client, "abandoned", {})) == {
             "x": (None, 1)}
+
+
+def test_the_benchmarks_dask_settings_are_keys_of_the_installed_distributed():
+    """A misspelt or retired key in ``bench_tables.DASK_CONFIG`` would be set and ignored
+    silently: every key must exist in distributed's own defaults, with a value of the
+    same kind."""
+    import importlib.util
+
+    import dask
+    import distributed  # noqa: F401  (registers its defaults)
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_tables.py"
+    spec = importlib.util.spec_from_file_location("bench_tables_for_test", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    defaults = dask.config.merge(*dask.config.defaults)
+    for key, value in bench.DASK_CONFIG.items():
+        node = defaults
+        for part in key.split("."):
+            assert isinstance(node, dict), f"{key}: {part!r} is below a leaf"
+            found = [k for k in node if k.replace("_", "-") == part.replace("_", "-")]
+            assert found, f"{key}: no {part!r} in distributed's defaults"
+            node = node[found[0]]
+        assert isinstance(value, bool) == isinstance(node, bool), (key, value, node)
