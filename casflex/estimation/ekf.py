@@ -27,9 +27,11 @@ inputs ``u_k`` and the signals ``y_k`` and
 ``Q`` is the continuous-time process-noise intensity of eq. 179 (``Ṗ = AP + PAᵀ + Q``),
 applied as ``Q·dt`` per step; ``R`` is the covariance of one sample of the signals (eq.
 185–186). Sensor dropouts: the ``mask`` input (1 valid, 0 missing) zeroes that channel's
-row of ``H`` and its innovation (NaN-safe: the masked ``y`` is never used in arithmetic)
-and replaces its variance by 1 with no correlation, so the gain column of that channel is
-exactly zero — the update of that channel is skipped without branches, in Python and in C.
+innovation (NaN-safe: the masked ``y`` is never used in arithmetic) and its gain: the
+sequential update gates the channel's ``1 / (h b + r)`` by the mask (``gate / (h b + r + 1 −
+gate)``), the batch and square-root updates zero its row of ``H`` and replace its variance
+by 1 with no correlation. Either way the gain column of that channel is exactly zero — the
+update of that channel is skipped without branches, in Python and in C.
 
 Bad samples: with ``guard=Guard(P0)`` (:mod:`casflex.estimation.guard`) the step skips
 non-finite samples and samples that fail a per-channel innovation gate (as dropouts),
