@@ -26,7 +26,7 @@ build, ``-O3 -march=x86-64-v3 -ffp-contract=off`` unless ``--callgrind-flags``):
 
 Usage: ``python benchmarks/bench_rt.py [--json] [--steps 3000] [--repeat 5] [--step-deg 7.5]
 [--controller composite|inversion] [--guarded] [--rounds 2] [--callgrind]
-[--jacobians exact|first_order|linearized]``
+[--callgrind-flags FLAGS] [--flags FLAGS] [--jacobians exact|first_order|linearized]``
 
 ``--jacobians`` chooses the EKF's Jacobians (:func:`casflex.estimation.ekf_step_function`;
 default ``exact``, the step ``casflex codegen`` builds; ``first_order`` is the EKF
