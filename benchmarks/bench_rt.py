@@ -16,6 +16,9 @@ timed inside C (``clock_gettime``); ``rt_step_us`` is the median over all calls.
 limits) on the same samples, alternating plain and guarded builds (``--rounds`` each) in
 one run: ``rt_step_guarded_us`` and ``guard_cost_ratio`` (median guarded / median plain).
 
+``rt_step_us`` is of the build a user gets from the bundle's Makefile (``--flags``,
+default ``-O3 -ffp-contract=off``; ``-O2`` before session 14).
+
 ``--callgrind`` also counts the machine instructions of one ``rt_step`` (valgrind's
 callgrind over one pass of the recorded samples, as ``bench_ekf.py --callgrind``: an AVX2
 build, ``-O3 -march=x86-64-v3 -ffp-contract=off`` unless ``--callgrind-flags``):
@@ -23,7 +26,7 @@ build, ``-O3 -march=x86-64-v3 -ffp-contract=off`` unless ``--callgrind-flags``):
 
 Usage: ``python benchmarks/bench_rt.py [--json] [--steps 3000] [--repeat 5] [--step-deg 7.5]
 [--controller composite|inversion] [--guarded] [--rounds 2] [--callgrind]
-[--jacobians exact|first_order|linearized]``
+[--callgrind-flags FLAGS] [--flags FLAGS] [--jacobians exact|first_order|linearized]``
 
 ``--jacobians`` chooses the EKF's Jacobians (:func:`casflex.estimation.ekf_step_function`;
 default ``exact``, the step ``casflex codegen`` builds; ``first_order`` is the EKF
@@ -42,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from casflex.codegen.templates import BUNDLE_CFLAGS
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -54,7 +59,9 @@ def main(argv=None):
                         help="grid step of the modal tables, deg")
     parser.add_argument("--controller", choices=("composite", "inversion"),
                         default="composite")
-    parser.add_argument("--flags", default="-O2", help="C compiler flags of the timed step")
+    parser.add_argument("--flags", default=BUNDLE_CFLAGS,
+                        help="C compiler flags of the timed step (default: the bundle "
+                        "Makefile's, casflex.codegen.templates.BUNDLE_CFLAGS)")
     parser.add_argument("--guarded", action="store_true",
                         help="also time the guarded rt_step, alternating with the plain one")
     parser.add_argument("--rounds", type=int, default=2,

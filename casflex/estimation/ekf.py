@@ -27,9 +27,11 @@ inputs ``u_k`` and the signals ``y_k`` and
 ``Q`` is the continuous-time process-noise intensity of eq. 179 (``Ṗ = AP + PAᵀ + Q``),
 applied as ``Q·dt`` per step; ``R`` is the covariance of one sample of the signals (eq.
 185–186). Sensor dropouts: the ``mask`` input (1 valid, 0 missing) zeroes that channel's
-row of ``H`` and its innovation (NaN-safe: the masked ``y`` is never used in arithmetic)
-and replaces its variance by 1 with no correlation, so the gain column of that channel is
-exactly zero — the update of that channel is skipped without branches, in Python and in C.
+innovation (NaN-safe: the masked ``y`` is never used in arithmetic) and its gain: the
+sequential update gates the channel's ``1 / (h b + r)`` by the mask (``gate / (h b + r + 1 −
+gate)``), the batch and square-root updates zero its row of ``H`` and replace its variance
+by 1 with no correlation. Either way the gain column of that channel is exactly zero — the
+update of that channel is skipped without branches, in Python and in C.
 
 Bad samples: with ``guard=Guard(P0)`` (:mod:`casflex.estimation.guard`) the step skips
 non-finite samples and samples that fail a per-channel innovation gate (as dropouts),
@@ -371,25 +373,29 @@ def ekf_step_function(plant: FlexiblePlant, sensors: SensorSet, Q: ArrayLike, R:
         flags["sample_rejected"] = gd.any_of(reject)
         valid = ca.vertcat(*[ca.logic_and(valid[i], 1 - reject[i]) for i in range(ny)])
         e, f_next = innovation(valid)
-    Mv = ca.diag(valid)
-    Hm = Mv @ H
-    Rm = Mv @ ca.DM(Rm_) @ Mv + ca.diag(1 - valid)
     diagonal_r = not np.any(Rm_ - np.diag(np.diag(Rm_)))
     choice(update, "update", ("auto", "batch", "sequential"))
     if update == "sequential" and (sqrt or not diagonal_r):
         raise fail("update", update, "needs a diagonal R and sqrt=False")
     sequential = update == "sequential" or (update == "auto" and diagonal_r and not sqrt)
+    if not sequential:  # a masked channel has the row 0 and the variance 1: no gain
+        Mv = ca.diag(valid)
+        Hm = Mv @ H
+        Rm = Mv @ ca.DM(Rm_) @ Mv + ca.diag(1 - valid)
     I = ca.SX.eye(nx)
     if sequential:
         # one scalar update per channel (diagonal R: the same update as the batch
-        # one, H linearised at the prior); a masked channel has h_j = 0, r_j = 1: k = 0
+        # one, H linearised at the prior); a masked channel gets the gain k = 0 (its
+        # valid flag gates 1 / (h b + r): no masked copy of H and R to form)
+        # The correction dx = x_post - x is summed on its own (its first term is k e, not
+        # x + k e - x): the innovations of the linearised model need it, not x_post
         P = 0.5 * (Pin + Pin.T)
-        xp = x
+        dx = ca.SX.zeros(nx)
         for j in range(ny):
-            hj = Hm[j, :]
-            ej = e[j] - hj @ (xp - x)  # innovation of the linearised model at the prior
-            xp, P = _scalar_update(P, xp, hj, ej, Rm[j, j], joseph)
-        Pp = P
+            hj = H[j, :]
+            ej = e[j] - hj @ dx  # innovation of the linearised model at the prior
+            dx, P = _scalar_update(P, dx, hj, ej, float(Rm_[j, j]), joseph, valid[j])
+        xp, Pp = x + dx, P
     elif not sqrt:
         P = 0.5 * (Pin + Pin.T)
         PHt = P @ Hm.T
@@ -534,10 +540,11 @@ def _rk4_transition(Jd, Jv, dt):
     return Phi
 
 
-def _scalar_update(P, x, h, e, r, joseph=True):
+def _scalar_update(P, x, h, e, r, joseph=True, gate=1.0):
     """Update of ``(x, P)`` (P symmetric) with one scalar measurement: row ``h``,
     innovation ``e``, variance ``r``; its lower triangle evaluated and mirrored (exactly
-    symmetric).
+    symmetric). ``gate`` (1 or 0, SX) replaces ``1 / (h b + r)`` by ``gate / (h b + r + 1 −
+    gate)``: 0 gives ``k = 0``, no update (a masked channel); 1 the same values.
 
     ``joseph``: Joseph form ``(I − k h) P (I − k h)ᵀ + k r kᵀ`` in closed form for the
     rank-one ``k h`` (valid for any gain ``k``): with ``b = P hᵀ``, ``(I − k h) P = P − k
@@ -547,7 +554,11 @@ def _scalar_update(P, x, h, e, r, joseph=True):
     nx = P.shape[0]
     b = P @ h.T
     hb = ca.dot(h.T, b)
-    inv = 1.0 / (hb + r)
+    if isinstance(gate, float) and gate == 1.0:
+        inv = 1.0 / (hb + r)
+    else:  # 1 - gate keeps the denominator >= 1 where gate = 0 (also for r = 0, h = 0);
+        # (if_else nodes would spread through every product with k in CasADi's graph)
+        inv = gate / ((hb + r) + (1 - gate))
     k = b * inv
     if joseph:
         c = b - k * hb

@@ -87,3 +87,31 @@ def test_standard_form_equals_joseph(small):
         assert np.abs(std.x - ref.x).max() <= 1e-10 * np.abs(ref.x).max(), other
         assert np.abs(std.P - ref.P).max() <= 1e-10 * np.abs(ref.P).max(), other
     assert np.all(std.P == np.swapaxes(std.P, 1, 2))  # exactly symmetric
+
+
+def test_masked_channel_is_left_out(small):
+    """A masked channel changes nothing: the sequential update equals, exactly, that of a
+    sensor set without the channel (its own H and R: an independent build), whatever the
+    masked channel's sample and variance (0 here: the mask gates the gain through
+    ``gate / (h b + r + 1 − gate)``, whose denominator stays ≥ 1), over a run of steps
+    with the other channels' innovations fed back through x and P."""
+    plant, ss = small
+    tip, elbow = ss
+    fewer = SensorSet([dataclasses.replace(tip, axes="xz"), elbow])  # tip's y left out
+    r = np.full(6, 1e-4)
+    r[1] = 0.0
+    full = ekf_step_function(plant, ss, Q, np.diag(r), DT)
+    ref = ekf_step_function(plant, fewer, Q, np.diag(np.delete(r, 1)), DT)
+    rng = np.random.default_rng(5)
+    x, P = np.zeros(4), 1e-6 * np.eye(4)
+    xr, Pr = x, P
+    mask = np.ones(6)
+    mask[1] = 0.0
+    for _ in range(20):
+        u = np.r_[0.0, rng.uniform(-1, 1, 2), rng.normal(size=6)]
+        y = rng.normal(scale=0.05, size=6)
+        y[1] = 1e300  # never used
+        x, P, xp = (np.asarray(v) for v in full(x, P, u, y, mask))
+        xr, Pr, xpr = (np.asarray(v) for v in ref(xr, Pr, u, np.delete(y, 1), np.ones(5)))
+        assert np.array_equal(xp, xpr) and np.array_equal(x, xr) and np.array_equal(P, Pr)
+    assert np.abs(xp).max() > 0  # the other channels did update
