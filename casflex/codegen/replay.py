@@ -119,7 +119,8 @@ def harness(bundle: Bundle, function_name: str,
     -------
     pathlib.Path
         The C file. Compile it with the bundle's source:
-        ``cc -O2 -o harness_<f> harness_<f>.c <name>.c -lm`` (or ``make harness_<f>``).
+        ``cc -O3 -ffp-contract=off -o harness_<f> harness_<f>.c <name>.c -lm`` (the
+        bundle's ``BUNDLE_CFLAGS``; or ``make harness_<f>``).
 
     Raises
     ------
