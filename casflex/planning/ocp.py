@@ -48,7 +48,7 @@ from casflex._validate import choice, fail, number, vector
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
-from casflex.planning.assembly import block_derivatives
+from casflex.planning.assembly import block_derivatives, point_values
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
 from casflex.planning.limits import end_bounds, joint_bounds
@@ -684,6 +684,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             opti.set_initial(Ac, Ac_guess.T)
             block_args = [X[:, :N], Xc, Ac, U, h]
             defects, torque_defects, Xf = G.map(N)(*block_args)
+            if derivatives == "points" and compile_function:  # g through the compiled φ
+                defects, torque_defects = point_values(G, split, block_args, N,
+                                                       compile_function)
             if blocks:
                 # the interval's end state is linear in its states: outside G, so that
                 # only the defects need G's derivatives
@@ -803,6 +806,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         compile_function=compile_function,
                                         hessian=derivatives != "blocks-jacobian",
                                         point=split if derivatives == "points" else None))
+        if derivatives == "points" and compile_function:  # g has no derivatives of its own
+            plugin.update(no_nlp_grad=True)
     if fatrop:
         opti.solver("fatrop", {**plugin, "structure_detection": "auto", "equality": equality,
                                "fatrop": fatrop_options(options)})
