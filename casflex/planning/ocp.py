@@ -53,6 +53,7 @@ from casflex.planning.derivatives import collocation_matrices as _collocation_ma
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
 from casflex.planning.limits import end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove
+from casflex.planning.restarts import check_restarts, solve_with_restarts
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
 from casflex.planning.staged import fatrop_options, power_of_two, stage_order, stage_variables
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
@@ -373,7 +374,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               progress_stop: ProgressStop | bool = True,
               derivatives: str = "casadi",
               compile_function: Callable[[list], list] | None = None,
-              solver: str = "ipopt") -> PlannedMove:
+              solver: str = "ipopt", restarts: int = 0,
+              restart_rtol: float = 1e-3) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -482,6 +484,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         arm: T to 1e-7 relative); not yet a faster route on the design study: on its move 1
         Fatrop's cold solve ended infeasible (benchmarks/README_planning.md, "Session 13:
         fatrop"), and CasADi's derivative sweeps it needs cost ~1 s per iteration there.
+    restarts, restart_rtol : int, float
+        Warm re-solves from the plan at most, stopped when the objective improves by less
+        than ``restart_rtol`` of it (:mod:`casflex.planning.restarts`: ``stats["passes"]``).
 
     Returns
     -------
@@ -512,6 +517,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     >>> p.stats["success"], round(p.duration, 2)
     (True, 1.29)
     """
+    if check_restarts(restarts, restart_rtol)[0]:
+        return solve_with_restarts(plan_move, {**locals()}, restarts, restart_rtol)
     n, m = model.n, model.m
     _refuse_full_stiffness(model)
     move = start if isinstance(start, Move) or hasattr(start, "casadi_reference") else None

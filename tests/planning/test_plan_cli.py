@@ -132,6 +132,11 @@ def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err
     assert "--derivatives" in err and "sparse" in err and "blocks-jacobian" in err
+    code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small",
+                 "--restarts", "-1"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--restarts" in err and "-1" in err
 
 
 def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
