@@ -344,9 +344,9 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     g_rest, f = rest.call([xu, p])
     g_all, g_rest, f = g_all / gs, g_rest / gs, f / fs
     Z = _stacked_inputs(G, margs, n)
-    jac_rest = ca.jacobian(g_rest, xt)
-    hess_rest = ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g * keep, g_rest), xt)[0]) \
-        if hessian else None
+    jac_rest = _expanded("nlp_jac_rest", [xt, p], ca.jacobian(g_rest, xt))
+    hess_rest = _expanded("nlp_hess_rest", [xt, p, lam_f, lam_g], ca.triu(ca.hessian(
+        lam_f * f + ca.dot(lam_g * keep, g_rest), xt)[0])) if hessian else None
     jac_dyn = ca.MX(jac_dyn_sp, ca.mtimes(jac_map, ca.vec(jd["evaluate"](Z, n))))
     if hessian:
         muk = ca.reshape(lam_g[mu_rows] * mu_scale, ny, n)
@@ -358,6 +358,16 @@ def block_derivatives(opti: Any, G: ca.Function, args: Sequence[Any], mapped: Se
     hess_lag = ca.Function("nlp_hess_l", [xt, p, lam_f, lam_g], [hess_rest + hess_dyn],
                            ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
     return {"jac_g": jac_g, "hess_lag": hess_lag}
+
+
+def _expanded(name, inputs, expr):
+    """``expr`` evaluated through an SX function of ``inputs`` (CasADi's ``expand``): the
+    rest of the NLP is scalar operations on a few entries each, which SX evaluates
+    without MX's per-node overhead; where it cannot be expanded, the MX expression."""
+    try:
+        return ca.Function(name, inputs, [expr]).expand().call(inputs)[0]
+    except RuntimeError:
+        return expr
 
 
 def _interval_entries(G, outputs, hessian, compile_function):
