@@ -274,7 +274,9 @@ class PlanComparison:
             (verified: prescribed-motion run, m), ``residual_torque_driven``,
             ``residual_ocp``, ``robust`` (residuals at the frequency errors), ``shaped``
             {``duration``, ``residual_tip_deflection``, ``torque_peak``, ...},
-            ``solve_s``, ``status``, ``iterations``, ``intervals``, ``substeps``,
+            ``solve_s`` and ``iterations`` (totals over the restarts), ``passes`` (each
+            pass's, :mod:`casflex.planning.restarts`; ``None`` without restarts),
+            ``status`` (of the plan's pass), ``intervals``, ``substeps``,
             ``limits``, ``shortening`` (1 − planned / shaped duration), ``limit_excess``
             (``torque`` and ``velocity``: per joint, how far the verified peak exceeds the
             limit the plan was given, relative, 0 when within it; ``None`` for no limit:
@@ -331,9 +333,10 @@ class PlanComparison:
             "limit_excess": {k: limit_excess(v[f"{k}_peak"], self.limits[k])
                              for k in ("torque", "velocity") if k in self.limits},
             "end_bound_excess": _bound_excess(v["prescribed"], p.stats.get("end")),
-            "solve_s": p.stats.get("solve_s"),
+            "solve_s": p.stats.get("solve_s_total", p.stats.get("solve_s")),
             "status": p.stats.get("status"),
-            "iterations": p.stats.get("iterations"),
+            "iterations": p.stats.get("iterations_total", p.stats.get("iterations")),
+            "passes": p.stats.get("passes"),
             "intervals": p.stats.get("intervals"),
             "substeps": p.stats.get("substeps"),
             "objective": p.stats.get("objective"),

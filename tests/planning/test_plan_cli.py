@@ -83,6 +83,11 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
     # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
     # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
     assert result["duration"] < result["shaped"]["duration"]
+    # up to 2 warm restarts by default: the plan is the shortest pass, the figures totals
+    passes = result["passes"]
+    assert 1 <= len(passes) <= 3
+    assert result["duration"] == min(p["duration"] for p in passes)
+    assert result["iterations"] == sum(p["iterations"] for p in passes)
     assert result["residual_ocp"] <= tol * (1 + 1e-6)
     assert result["residual_tip_deflection"] <= 1.03 * tol
     # the velocity limit holds at the nodes and collocation points; in between the
