@@ -36,7 +36,7 @@ Usage::
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
         [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop] [--restarts K]
-        [--ipopt-option KEY=VALUE ...]
+        [--ipopt-option KEY=VALUE ...] [--degree K]
 
 With ``--restarts K`` the cold plan is re-solved warm from itself up to ``K`` times
 (:func:`casflex.planning.plan_move`'s ``restarts``): ``solve_s``, ``solve_cpu_s`` and
@@ -107,6 +107,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--compile", action="store_true",
                         help="with --derivatives blocks: the interval blocks in C "
                              "(casflex.codegen.compile_cached; built once, cached)")
+    parser.add_argument("--degree", type=int, default=3, metavar="K",
+                        help="collocation points per interval (default 3)")
     parser.add_argument("--restarts", type=int, default=0, metavar="K",
                         help="warm re-solves of the cold plan (plan_move's restarts; "
                              "default 0: one solve)")
@@ -129,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict:
     kw = {"intervals": args.intervals, "ipopt_options": options,
           "transcription": args.transcription, "max_iter": args.max_iter,
           "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop,
-          "derivatives": args.derivatives, "solver": args.solver}
+          "derivatives": args.derivatives, "solver": args.solver, "degree": args.degree}
     compiled = {}
     if args.compile:
         from casflex.codegen import compile_cached
@@ -164,7 +166,7 @@ def main(argv: list[str] | None = None) -> dict:
            "duration": plan.duration, "shaped_duration": s["shaped"]["duration"],
            "residual": s["residual_tip_deflection"],
            "shaped_residual": s["shaped"]["residual_tip_deflection"],
-           "intervals": plan.stats["intervals"],
+           "intervals": plan.stats["intervals"], "degree": args.degree,
            "solve_cpu_s": plan.stats["solve_cpu_s_total"] if passes
            else plan.stats["solve_cpu_s"],
            "solve_warm_cpu_s": warm.stats["solve_cpu_s"],
