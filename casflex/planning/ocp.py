@@ -54,8 +54,19 @@ from casflex.planning.derivatives import implicit_collocation_function, static_l
 from casflex.planning.limits import end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove
 from casflex.planning.restarts import check_restarts, solve_with_restarts
-from casflex.planning.scenarios import frequency_shifted_model, static_deflection, tip_jacobian
-from casflex.planning.staged import fatrop_options, power_of_two, stage_order, stage_variables
+from casflex.planning.scenarios import (
+    frequency_shifted_model,
+    modal_guess,
+    static_deflection,
+    tip_jacobian,
+)
+from casflex.planning.staged import (
+    fatrop_options,
+    power_of_two,
+    stage_order,
+    stage_variables,
+    state_scales,
+)
 from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
 from casflex.simulate.integrators import rk4_step
 
@@ -248,17 +259,6 @@ def _propagator(model, node_x, node_tau, h, substeps, tc=None, Xc=None):
         xdot = mapped("ode", ode, k.size)(xt.T, node_tau[k].T)
         return xt.T, xdot.full()
     return propagate
-
-
-def _row_scales(states, n, m):
-    """Magnitude of every state row of the guess (rows x samples): joint rows at least
-    0.1 (rad, rad/s), modal rows at least 1e-6 of the largest modal row."""
-    scale = np.max(np.abs(states), axis=1)
-    rows = np.arange(states.shape[0])
-    joint = (rows < n) | ((rows >= n + m) & (rows < 2 * n + m))
-    modal_top = np.max(scale[~joint]) if np.any(~joint) else 1.0
-    floor = np.where(joint, 0.1, 1e-6 * max(modal_top, 1e-9))
-    return np.maximum(scale, floor)
 
 
 def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
@@ -644,16 +644,20 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         X_guess, U_guess, Xc_guess, Ac_guess = _guess_trajectory(model, reference, T_guess,
                                                                  N, substeps, x0, tc)
 
-    def augmented(states):
-        modal = np.hstack([states[:, n:n + m], states[:, 2 * n + m:]])
-        return np.hstack([states, *[modal for _ in shifted]]).T
+    # each shifted model's modal rows from its own simulation of the guess's joint motion
+    times = ((np.arange(N)[:, None] + tc[None, :]) * (T_guess / N)).ravel()
+    scenario_guess = [modal_guess(s, reference, T_guess, N * substeps,
+                                  np.arange(N + 1) * substeps, times) for s in shifted]
+
+    def augmented(states, points=False):
+        return np.hstack([states, *[g[int(points)] for g in scenario_guess]]).T
 
     ode = _augmented_ode(model, shifted)
     opti = ca.Opti()
     # the modal states are orders of magnitude smaller than the joints': every state row,
     # the torques and T are scaled by their magnitude in the guess, and the dynamics
     # constraints of a row by the row's scale
-    sx = _row_scales(augmented(X_guess), n, m)
+    sx = state_scales(augmented(X_guess), n, m)
     su = np.where(np.isfinite(tau_max), tau_max,
                   np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
     sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1) if implicit else None
@@ -710,7 +714,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         if implicit:
             block_rows.insert(0, opti.ng)
         opti.subject_to(ca.vec(defects / defect_scale) == 0)
-        opti.set_initial(Xc, augmented(Xc_guess))
+        opti.set_initial(Xc, augmented(Xc_guess, points=True))
     else:
         Xc = None
         F = _interval_function(ode, nxa, n, substeps)

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike
 from casflex._validate import number
 from casflex.model import FlexibleModel
 
-__all__ = ["ScaledFrequencyProvider", "frequency_shifted_model", "static_deflection",
+__all__ = ["ScaledFrequencyProvider", "frequency_shifted_model", "modal_guess", "static_deflection",
            "tip_jacobian", "with_provider"]
 
 
@@ -247,3 +247,61 @@ def tip_jacobian(model: FlexibleModel, q: ArrayLike) -> np.ndarray:
     tip = model.functions()["tip"](np.asarray(q, dtype=float).ravel(), d)
     J = ca.Function("J", [d], [ca.jacobian(tip, d)])(np.zeros(model.m))
     return np.asarray(J.full(), dtype=float).reshape(3, model.m)
+
+
+def modal_guess(model: FlexibleModel, reference: Any, T: float, steps: int,
+                node_steps: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Modal states ``[δ, δ̇]`` of ``model`` driven by the joint motion of ``reference``
+    from static equilibrium at its start: the initial guess of a scenario's modal rows.
+
+    Each frequency-shifted model of a robust plan gets its own guess this way; a copy of
+    the nominal model's modal states would start Ipopt from states that violate the
+    shifted model's dynamics by the whole frequency error.
+
+    Parameters
+    ----------
+    model : casflex.model.FlexibleModel
+        The scenario's model (e.g. from :func:`frequency_shifted_model`).
+    reference : move-like
+        Joint motion with ``duration`` and ``sample`` (a ``Move``, ``ShapedMove`` or
+        ``PlannedMove``).
+    T : float
+        Time simulated [s].
+    steps : int
+        RK4 steps over ``T`` of the prescribed-motion simulator.
+    node_steps : ndarray of int
+        Step indices of the nodes.
+    times : ndarray
+        Further times [s] (collocation points), interpolated linearly between steps.
+
+    Returns
+    -------
+    nodes : ndarray, shape (len(node_steps), 2 m)
+        ``[δ, δ̇]`` [√kg m, √kg m/s] at the nodes.
+    points : ndarray, shape (len(times), 2 m)
+        The same at ``times``.
+
+    Examples
+    --------
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.moves import Move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> stiff = frequency_shifted_model(model, 0.1)
+    >>> move = Move([0.0], [0.5], 0.4, settle=0.0)
+    >>> nodes, points = modal_guess(stiff, move, 0.4, 400, np.arange(0, 401, 100),
+    ...                             np.array([0.05, 0.15]))
+    >>> nodes.shape, points.shape
+    ((5, 2), (2, 2))
+    """
+    from casflex.simulate import simulate_prescribed
+
+    q0 = np.asarray(reference.sample(0.0)[0], dtype=float).ravel()
+    run = simulate_prescribed(model, reference, dt=T / steps, t_end=T,
+                              delta0=static_deflection(model, q0))
+    modal = np.hstack([run.delta, run.ddelta])
+    nodes = modal[np.minimum(node_steps, run.t.size - 1)]
+    points = np.stack([np.interp(times, run.t, col) for col in modal.T], axis=1) \
+        if len(times) else np.zeros((0, modal.shape[1]))
+    return nodes, points
