@@ -35,7 +35,14 @@ Usage::
         [--transcription collocation|shooting] [--dynamics implicit|explicit]
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
-        [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop]
+        [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop] [--restarts K]
+        [--ipopt-option KEY=VALUE ...] [--degree K]
+
+With ``--restarts K`` the cold plan is re-solved warm from itself up to ``K`` times
+(:func:`casflex.planning.plan_move`'s ``restarts``): ``solve_s``, ``solve_cpu_s`` and
+``iterations`` are then the totals over the passes, ``passes`` each pass's duration,
+iterations, status and times, ``restarts`` the restarts made; ``converged`` /
+``converged_warm``: Ipopt's own convergence (False at a limit or the progress rule).
 """
 
 from __future__ import annotations
@@ -100,6 +107,13 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--compile", action="store_true",
                         help="with --derivatives blocks: the interval blocks in C "
                              "(casflex.codegen.compile_cached; built once, cached)")
+    parser.add_argument("--degree", type=int, default=3, metavar="K",
+                        help="collocation points per interval (default 3)")
+    parser.add_argument("--restarts", type=int, default=0, metavar="K",
+                        help="warm re-solves of the cold plan (plan_move's restarts; "
+                             "default 0: one solve)")
+    parser.add_argument("--ipopt-option", action="append", default=[],
+                        metavar="KEY=VALUE", help="an Ipopt option (repeatable)")
     args = parser.parse_args(argv)
 
     from casflex.design.study import load_study
@@ -111,13 +125,13 @@ def main(argv: list[str] | None = None) -> dict:
     move = load_move(f"problems/moves.toml:{args.move}")
     # plan_move's own stopping rule (session 7's copy of it here, with 3 acceptable
     # iterates, overrode the fix of the acceptable stop)
-    options = {}
+    options = dict(_ipopt_option(o) for o in args.ipopt_option)
     if args.lbfgs:
         options["hessian_approximation"] = "limited-memory"
     kw = {"intervals": args.intervals, "ipopt_options": options,
           "transcription": args.transcription, "max_iter": args.max_iter,
           "dynamics": args.dynamics, "progress_stop": not args.no_progress_stop,
-          "derivatives": args.derivatives, "solver": args.solver}
+          "derivatives": args.derivatives, "solver": args.solver, "degree": args.degree}
     compiled = {}
     if args.compile:
         from casflex.codegen import compile_cached
@@ -136,7 +150,7 @@ def main(argv: list[str] | None = None) -> dict:
     c = plan_robot_move(study.robot, move, 3, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1,
                         robust=args.robust, dt=args.dt, ocp_fit=args.ocp_fit,
-                        ocp_modes=args.ocp_modes, **kw)
+                        ocp_modes=args.ocp_modes, restarts=args.restarts, **kw)
     after = resource.getrusage(resource.RUSAGE_SELF)
     plan, s = c.plan, c.summary()
     end = plan.stats["end"]
@@ -144,12 +158,17 @@ def main(argv: list[str] | None = None) -> dict:
     warm = plan_move(c.ocp_model or c.model, move, end=0.95 * end, guess=plan, robust=args.robust,
                      torque_limit=c.limits["torque"], velocity_limit=c.limits["velocity"],
                      **kw)
-    out = {"solve_s": plan.stats["solve_s"], "solve_warm_s": warm.stats["solve_s"],
+    passes = plan.stats.get("passes")
+    out = {"solve_s": plan.stats["solve_s_total"] if passes else plan.stats["solve_s"],
+           "solve_warm_s": warm.stats["solve_s"],
+           "restarts": plan.stats.get("restarts", 0), "passes": passes,
+           "converged": plan.stats["converged"], "converged_warm": warm.stats["converged"],
            "duration": plan.duration, "shaped_duration": s["shaped"]["duration"],
            "residual": s["residual_tip_deflection"],
            "shaped_residual": s["shaped"]["residual_tip_deflection"],
-           "intervals": plan.stats["intervals"],
-           "solve_cpu_s": plan.stats["solve_cpu_s"],
+           "intervals": plan.stats["intervals"], "degree": args.degree,
+           "solve_cpu_s": plan.stats["solve_cpu_s_total"] if passes
+           else plan.stats["solve_cpu_s"],
            "solve_warm_cpu_s": warm.stats["solve_cpu_s"],
            "residual_torque_driven": s["residual_torque_driven"],
            "residual_ocp": s["residual_ocp"], "robust": s["robust"],
@@ -158,7 +177,8 @@ def main(argv: list[str] | None = None) -> dict:
            "duration_warm": warm.duration, "transcription": args.transcription,
            "dynamics": args.dynamics, "move": args.move,
            "hessian": "limited-memory" if args.lbfgs else "exact",
-           "iterations": plan.stats["iterations"],
+           "iterations": plan.stats["iterations_total"] if passes
+           else plan.stats["iterations"],
            "iterations_warm": warm.stats["iterations"], "status": plan.stats["status"],
            "warm_start_duals": warm.stats.get("warm_start_duals"),
            "status_warm": warm.stats["status"],
@@ -178,6 +198,19 @@ def main(argv: list[str] | None = None) -> dict:
         for key, value in out.items():
             print(f"{key:>18}: {value}", file=sys.stdout)
     return out
+
+
+def _ipopt_option(text):
+    """``KEY=VALUE`` as ``(key, value)``, the value an int, a float or a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise SystemExit(f"--ipopt-option {text!r}: must be KEY=VALUE")
+    for kind in (int, float):
+        try:
+            return key, kind(value)
+        except ValueError:
+            pass
+    return key, value
 
 
 if __name__ == "__main__":

@@ -122,6 +122,7 @@ from casflex.planning.ocp import (
     predicted_residual,
 )
 from casflex.planning.planned import PlannedMove
+from casflex.planning.restarts import solve_with_restarts
 from casflex.planning.scenarios import (
     ScaledFrequencyProvider,
     frequency_shifted_model,
@@ -156,6 +157,7 @@ __all__ = [
     "PROGRESS_STATUS",
     # the result
     "PlannedMove",
+    "solve_with_restarts",
     # limits
     "shaped_move_limits",
     "end_bounds",

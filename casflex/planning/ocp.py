@@ -48,11 +48,12 @@ from casflex._validate import choice, fail, number, vector
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel
 from casflex.moves import Move
-from casflex.planning.assembly import block_derivatives
+from casflex.planning.assembly import block_derivatives, point_values
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
 from casflex.planning.limits import end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove
+from casflex.planning.restarts import check_restarts, solve_with_restarts
 from casflex.planning.scenarios import (
     frequency_shifted_model,
     modal_guess,
@@ -373,7 +374,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               progress_stop: ProgressStop | bool = True,
               derivatives: str = "casadi",
               compile_function: Callable[[list], list] | None = None,
-              solver: str = "ipopt") -> PlannedMove:
+              solver: str = "ipopt", restarts: int = 0,
+              restart_rtol: float = 1e-3) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -482,6 +484,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         arm: T to 1e-7 relative); not yet a faster route on the design study: on its move 1
         Fatrop's cold solve ended infeasible (benchmarks/README_planning.md, "Session 13:
         fatrop"), and CasADi's derivative sweeps it needs cost ~1 s per iteration there.
+    restarts, restart_rtol : int, float
+        Warm re-solves from the plan at most, stopped when the objective improves by less
+        than ``restart_rtol`` of it (:mod:`casflex.planning.restarts`: ``stats["passes"]``).
 
     Returns
     -------
@@ -512,6 +517,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     >>> p.stats["success"], round(p.duration, 2)
     (True, 1.29)
     """
+    if check_restarts(restarts, restart_rtol)[0]:
+        return solve_with_restarts(plan_move, {**locals()}, restarts, restart_rtol)
     n, m = model.n, model.m
     _refuse_full_stiffness(model)
     move = start if isinstance(start, Move) or hasattr(start, "casadi_reference") else None
@@ -688,6 +695,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             opti.set_initial(Ac, Ac_guess.T)
             block_args = [X[:, :N], Xc, Ac, U, h]
             defects, torque_defects, Xf = G.map(N)(*block_args)
+            if derivatives == "points" and compile_function:  # g through the compiled φ
+                defects, torque_defects = point_values(G, split, block_args, N,
+                                                       compile_function)
             if blocks:
                 # the interval's end state is linear in its states: outside G, so that
                 # only the defects need G's derivatives
@@ -807,6 +817,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         compile_function=compile_function,
                                         hessian=derivatives != "blocks-jacobian",
                                         point=split if derivatives == "points" else None))
+        if derivatives == "points" and compile_function:  # g has no derivatives of its own
+            plugin.update(no_nlp_grad=True)
     if fatrop:
         opti.solver("fatrop", {**plugin, "structure_detection": "auto", "equality": equality,
                                "fatrop": fatrop_options(options)})

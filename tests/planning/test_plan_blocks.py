@@ -171,10 +171,31 @@ def test_compiled_point_derivatives_give_casadi_s_plan(onelink, tmp_path):
     a = plan_move(onelink, move, **common)
     b = plan_move(onelink, move, derivatives="points", compile_function=compile_points,
                   **common)
-    assert built == [["implicit_point_hess", "implicit_point_jac"]]
+    # the point function itself (the constraint values, casflex.planning.assembly.
+    # point_values), then its derivatives
+    assert built == [["implicit_point"], ["implicit_point_hess", "implicit_point_jac"]]
     assert a.stats["status"] == b.stats["status"] == "Solve_Succeeded"
     assert b.duration == pytest.approx(a.duration, rel=1e-9)
     np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
+
+
+def test_point_values_equal_the_mapped_interval_function(onelink):
+    # the constraint values from the point split (compiled or not) against the interval
+    # function's own, at random arguments
+    from casflex.planning.assembly import point_values
+    from casflex.planning.derivatives import implicit_collocation_function
+
+    G, split = implicit_collocation_function(onelink, [], 3)
+    N = 4
+    rng = np.random.default_rng(1)
+    args = [ca.DM(rng.normal(size=(G.size1_in(i), G.size2_in(i) * (N if i < 4 else 1))))
+            for i in range(5)]
+    ref = G.map(N)(*args)
+    got = point_values(G, split, [ca.MX(a) for a in args], N)
+    for j, out in zip(split.outputs, got, strict=True):
+        assert out.shape == ref[j].shape
+        np.testing.assert_allclose(np.asarray(ca.evalf(out)), np.asarray(ref[j]),
+                                   rtol=1e-12, atol=1e-12)
 
 
 def test_block_derivatives_need_implicit_collocation(onelink):

@@ -83,6 +83,11 @@ def test_plan_cli_robot_without_shape_joint(tmp_path, capsys):
     # at the shaped move's limits the plan is shorter; its residual verified at 1 ms meets
     # the end bound within the 1 ms simulator's ~3 % (test_plan_onelink.py)
     assert result["duration"] < result["shaped"]["duration"]
+    # up to 2 warm restarts by default: the plan is the shortest pass, the figures totals
+    passes = result["passes"]
+    assert 1 <= len(passes) <= 3
+    assert result["duration"] == min(p["duration"] for p in passes)
+    assert result["iterations"] == sum(p["iterations"] for p in passes)
     assert result["residual_ocp"] <= tol * (1 + 1e-6)
     assert result["residual_tip_deflection"] <= 1.03 * tol
     # the velocity limit holds at the nodes and collocation points; in between the
@@ -132,6 +137,11 @@ def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err
     assert "--derivatives" in err and "sparse" in err and "blocks-jacobian" in err
+    code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small",
+                 "--restarts", "-1"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--restarts" in err and "-1" in err
 
 
 def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
