@@ -238,13 +238,14 @@ def run_move(name, args, study, out_path, robust_moves):
     errors = [-r, 0.0, r]
     options = derivative_options(args)
     log(f"{name}: nominal plan (cold, from the {args.guess} move)")
-    # the cold solve's guess only (the restarts and the robust plan start from a plan)
+    # the cold solve's guess only (the restarts and the robust plan start from a plan);
+    # one cold pass (restarts=0): this script's own loop below records every restart
     first = {"guess": "rigid"} if args.guess == "rigid" else {}
     c0 = time.process_time()
     c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
-                        max_iter=args.max_iter, log=log, **options, **first)
+                        max_iter=args.max_iter, log=log, restarts=0, **options, **first)
     log(f"{name}: planned {c.plan.duration:.4f} s ({c.plan.stats['status']}, "
         f"{c.plan.stats['iterations']} iterations, {c.plan.stats['solve_cpu_s']:.0f} s CPU);"
         f" shaped {c.shaped.duration:.4f} s; run CPU {time.process_time() - c0:.0f} s")
