@@ -37,6 +37,8 @@ Units are SI: times in s, frequencies in rad/s.
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -71,6 +73,27 @@ _INF = highspy.kHighsInf
 _OPTIMAL = highspy.HighsModelStatus.kOptimal
 
 
+def _silent_highs() -> highspy.Highs:
+    """A ``highspy.Highs`` with no output, its banner included.
+
+    HiGHS >= 1.7 prints its copyright banner from C++ to file descriptor 1 when the model
+    is constructed, before ``output_flag`` can be set: it would land in the middle of a
+    command's ``--json`` output. The descriptor is pointed at the null device for the
+    constructor only.
+    """
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            highs = highspy.Highs()
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+    highs.setOptionValue("output_flag", False)
+    return highs
+
+
 class _GridLP:
     """The minimax LP of the module docstring over grid columns added on demand."""
 
@@ -80,8 +103,7 @@ class _GridLP:
         self.wd = omega * np.sqrt(1.0 - zeta**2)
         self.solves = 0
         self.iterations = 0
-        h = self.highs = highspy.Highs()
-        h.setOptionValue("output_flag", False)
+        h = self.highs = _silent_highs()
         h.setOptionValue("threads", 1)
         h.setOptionValue("presolve", "off")  # keeps the warm start between solves
         # column 0 is r (cost 1), row 0 is Σ A = 1

@@ -102,3 +102,18 @@ def test_cli_robot_form_errors(argv, message, capsys):
     captured = capsys.readouterr()
     assert captured.out == ""
     assert message in captured.err
+
+
+def test_cli_json_is_the_only_output_in_a_fresh_process(tmp_path):
+    """HiGHS prints a banner to file descriptor 1 when its first model is built; in a
+    fresh process (the banner comes once per process) with an empty cache, so that the LP
+    runs, ``--json`` must still print nothing but the object."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, CASFLEX_CACHE=str(tmp_path / "cache"))
+    main = "import sys; from casflex import cli; sys.exit(cli.main(sys.argv[1:]))"
+    run = subprocess.run([sys.executable, "-c", main, "shaper", THREE_RANGES, "--json"],
+                         capture_output=True, text=True, env=env, timeout=300, check=True)
+    assert json.loads(run.stdout)["duration"] <= 0.3192
