@@ -148,12 +148,16 @@ def stage_order(opti: ca.Opti, stages: Sequence[ca.MX]) -> list[bool]:
 def state_scales(states: np.ndarray, n: int, m: int) -> np.ndarray:
     """Scale of every state row of the OCP from its magnitude in the initial guess.
 
-    Joint rows are at least 0.1 [rad, rad/s]; modal rows at least 1e-2 of the largest
-    modal row. The modal floor is deliberately high: a joint the move holds (move 3 of the
-    design study holds joints 2 and 3) leaves modal rows of the guess near zero, and a
-    scale of ~1e-9 for them left Ipopt's scaled problem ill-conditioned (move 3 then
-    stopped at an acceptable point of 5.96 s, twice the shaped move's 2.87 s; with the
-    floor at 1e-2: 2.06 s).
+    Joint rows are at least 0.1 [rad, rad/s]. A modal row the guess leaves at round-off
+    (below 1e-6 of the largest modal row: a mode the move does not excite, e.g. move 3 of
+    the design study holds joints 2 and 3 and leaves the second mode at 1e-18) takes the
+    smallest scale of the modal rows the guess does excite; every other modal row keeps its
+    own magnitude. Measured on the design study (benchmarks/README_planning.md, session
+    17): with a floor of 1e-6 or 1e-4 of the largest modal row move 3 stopped at 5.96 s or
+    2.81 s (shaped 2.87 s), with 1e-3 at 2.063 s after 405 iterations, with 1e-2 at 2.063 s
+    after 109, and with this rule at 2.063 s after 86; a floor as high as 1e-2 also raised
+    the small third-mode rows of move 1 and with them its warm re-solve from 59 to 151
+    iterations, which this rule leaves as they were.
 
     Parameters
     ----------
@@ -172,14 +176,19 @@ def state_scales(states: np.ndarray, n: int, m: int) -> np.ndarray:
     --------
     >>> states = np.array([[0.0, 2.0], [1e-3, -2e-3], [0.5, 0.0], [0.0, 0.0]])
     >>> state_scales(states, 1, 1).tolist()
-    [2.0, 0.002, 0.5, 2e-05]
+    [2.0, 0.002, 0.5, 0.002]
     """
     scale = np.max(np.abs(states), axis=1)
     rows = np.arange(states.shape[0])
     joint = (rows < n) | ((rows >= n + m) & (rows < 2 * n + m))
-    modal_top = np.max(scale[~joint]) if np.any(~joint) else 1.0
-    floor = np.where(joint, 0.1, 1e-2 * max(modal_top, 1e-9))
-    return np.maximum(scale, floor)
+    scale = np.where(joint, np.maximum(scale, 0.1), scale)
+    modal = ~joint
+    excited = modal & (scale > 1e-6 * np.max(scale[modal], initial=0.0))
+    if np.any(excited):
+        scale[modal & ~excited] = np.min(scale[excited])
+    else:  # a guess with no vibration at all: modal coordinates of order one
+        scale[modal] = 1.0
+    return scale
 
 
 def power_of_two(scale: np.ndarray) -> np.ndarray:
