@@ -661,8 +661,15 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     su = np.where(np.isfinite(tau_max), tau_max,
                   np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
     sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1) if implicit else None
+    sT = T_guess
+    kept = _warm_scales(guess, solver, nxa, n, implicit) if warm else None
+    if kept is not None:
+        # the multipliers of a warm start belong to the guess's rows divided by the
+        # guess's scales: with the same scales a restart is the same scaled NLP (scales
+        # from the new guess's magnitudes would rescale every multiplier of a row)
+        sx, su, sa, sT = kept
     if fatrop:  # stage order, T a state (casflex.planning.staged)
-        sx, sT = power_of_two(sx), power_of_two(T_guess)
+        sx, sT = power_of_two(sx), power_of_two(sT)
         (X, *Tk), (U, Xc, Ac), stages = stage_variables(
             opti, N, [sx] + ([np.array([sT])] if duration is None else []),
             [(su, 1), (sx, degree), (sa, degree)])
@@ -675,7 +682,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
         T = opti.variable() if duration is None else duration
         if duration is None:
-            opti.set_linear_scale(T, T_guess)
+            opti.set_linear_scale(T, sT)
         h = T / N
     if duration is None:
         opti.subject_to(opti.bounded(1e-3, T, max_duration))
@@ -895,7 +902,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if residual_cons:
         info["residual_bound"] = [float(values(e)) for e in residual_cons]
     solution = {"x": np.asarray(values(opti.x), dtype=float).ravel(),
-                "lam_g": np.asarray(values(opti.lam_g), dtype=float).ravel()}
+                "lam_g": np.asarray(values(opti.lam_g), dtype=float).ravel(),
+                "scales": {"x": np.asarray(sx, dtype=float), "tau": np.asarray(su, dtype=float),
+                           "ddq": None if sa is None else np.asarray(sa, dtype=float),
+                           "T": float(sT)}}
     return PlannedMove(
         t=t_dense, q=dense[:, :n], dq=dense[:, n + m:2 * n + m], ddq=ddq, tau=tau_dense,
         delta=dense[:, n:n + m], ddelta=dense[:, 2 * n + m:], node_t=np.linspace(0, Tv, N + 1),
@@ -914,6 +924,20 @@ def _violation(opti, values):
     ubg = np.asarray(values(opti.ubg), dtype=float).ravel()
     excess = np.r_[lbg - g, g - ubg, 0.0]
     return float(np.max(excess[np.isfinite(excess)]))
+
+
+def _warm_scales(guess, solver, rows, n, implicit):
+    """The scales ``(states, torques, accelerations, T)`` of the NLP the guess was solved
+    in, when its multipliers can warm-start this one (Ipopt, same row counts), else
+    ``None``."""
+    solution = getattr(guess, "solution", None)
+    scales = solution.get("scales") if solution else None
+    if scales is None or solver != "ipopt" or guess.stats.get("solver", "ipopt") != solver:
+        return None
+    if scales["x"].size != rows or scales["tau"].size != n or \
+            (scales["ddq"] is None) == implicit:
+        return None
+    return scales["x"], scales["tau"], scales["ddq"], scales["T"]
 
 
 def _warm_duals(opti, guess, solver):

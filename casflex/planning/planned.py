@@ -67,9 +67,11 @@ class PlannedMove:
         one the torques produce, acceleration jumps at the nodes included; without it
         the dense samples are interpolated.
     solution : dict, optional
-        The OCP's last iterate: ``x`` (all NLP variables) and ``lam_g`` (the constraints'
-        multipliers), for a warm start of a neighbouring problem
-        (:func:`casflex.planning.plan_move` with this plan as ``guess``).
+        The OCP's last iterate: ``x`` (all NLP variables), ``lam_g`` (the constraints'
+        multipliers) and ``scales`` (the scales of the NLP's rows: ``x`` states, ``tau``
+        torques [N m], ``ddq`` collocated accelerations or ``None``, ``T`` [s]), for a
+        warm start of a neighbouring problem (:func:`casflex.planning.plan_move` with
+        this plan as ``guess``, which solves it in the same scales).
 
     Examples
     --------

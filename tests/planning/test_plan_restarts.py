@@ -61,3 +61,54 @@ def test_no_restarts_is_the_single_solve(onelink):
 def test_bad_restarts_are_refused(onelink, kw, field):
     with pytest.raises(ModelError, match=field):
         plan_move(onelink, MOVE, **COMMON, **kw)
+
+
+def test_a_restart_solves_the_same_scaled_problem(onelink):
+    # the multipliers of a warm start belong to the rows divided by the previous pass's
+    # scales: a restart keeps those scales
+    a = plan_move(onelink, MOVE, **COMMON, end=2e-3)
+    b = plan_move(onelink, MOVE, **COMMON, end=2e-3, guess=a)
+    assert b.stats["warm_start_duals"]
+    for key in ("x", "tau"):
+        np.testing.assert_array_equal(b.solution["scales"][key], a.solution["scales"][key])
+    assert b.solution["scales"]["T"] == a.solution["scales"]["T"]
+    # from its own optimum in its own scales Ipopt has nothing left to do
+    assert b.stats["iterations"] <= 3
+    assert b.duration == pytest.approx(a.duration, rel=1e-6)
+    # another number of intervals: no multipliers to reuse, scales from the guess
+    c = plan_move(onelink, MOVE, **{**COMMON, "intervals": 30}, end=2e-3, guess=a)
+    assert not c.stats["warm_start_duals"]
+    assert c.solution["scales"]["T"] == pytest.approx(a.duration, rel=1e-12)
+
+
+def test_a_failed_restart_is_tried_again_without_the_multipliers():
+    # the control flow of solve_with_restarts with a stand-in solver: from a plan with
+    # multipliers it fails, from the iterate alone it shortens the plan by 10 %
+    import dataclasses
+
+    from casflex.errors import SolverError
+    from casflex.planning.restarts import solve_with_restarts
+
+    @dataclasses.dataclass
+    class Plan:
+        duration: float
+        solution: dict | None = None
+        stats: dict = dataclasses.field(default_factory=dict)
+
+    calls = []
+
+    def solve(guess, restarts):
+        calls.append(guess)
+        if isinstance(guess, Plan) and guess.solution is not None:
+            raise SolverError("plan_move: Ipopt found no plan (Maximum_Iterations_Exceeded)")
+        d = 3.0 if guess == "cold" else 0.9 * guess.duration
+        return Plan(d, {"x": None}, {"objective_value": d, "iterations": 5, "status": "ok",
+                                     "solve_s": 1.0, "solve_cpu_s": 1.0})
+
+    best = solve_with_restarts(solve, {"guess": "cold"}, restarts=1, restart_rtol=1e-3)
+    statuses = [p["status"] for p in best.stats["passes"]]
+    assert statuses[0] == "ok" and statuses[1].startswith("SolverError") and statuses[2] == "ok"
+    assert best.duration == pytest.approx(2.7) and best.stats["best_pass"] == 2
+    # the retry had the same iterate, without its multipliers
+    assert calls[2].duration == calls[1].duration == 3.0 and calls[2].solution is None
+    assert best.stats["iterations_total"] == 10 and best.stats["solve_s_total"] == 2.0
