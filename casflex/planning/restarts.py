@@ -7,11 +7,15 @@ study one restart took the plan from 2.918 s to 2.133 s (session 15). A restart 
 same problem warm-started from the previous pass (``guess=plan``: its iterate and
 multipliers, :data:`casflex.planning.WARM_START_OPTIONS`); the passes stop when the
 objective improves by less than ``restart_rtol`` of its value, when a pass fails or
-lengthens the plan (the better plan is kept), or after ``restarts`` restarts.
+lengthens the plan (the better plan is kept), or after ``restarts`` restarts. A restart
+that fails from the previous iterate and multipliers is tried once more from the iterate
+alone (the multipliers of an iterate where Ipopt was stopped early can mislead it); both
+attempts are passes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -112,7 +116,16 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
             plan = solve(**{**arguments, "guess": best})
         except SolverError as exc:
             passes.append({**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}"})
-            break
+            if getattr(best, "solution", None) is None:
+                break
+            # the multipliers of an iterate where Ipopt was stopped early can lead it
+            # astray (move 1 of the design study from 2.952 s: no feasible point in 500
+            # iterations); the iterate alone, with fresh multipliers, went on to 2.745 s
+            try:
+                plan = solve(**{**arguments, "guess": dataclasses.replace(best, solution=None)})
+            except SolverError as exc2:
+                passes.append({**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc2}"})
+                break
         passes.append(_pass(plan))
         old, new = float(best.stats["objective_value"]), float(plan.stats["objective_value"])
         if new < old:
