@@ -238,39 +238,35 @@ def run_move(name, args, study, out_path, robust_moves):
     errors = [-r, 0.0, r]
     options = derivative_options(args)
     log(f"{name}: nominal plan (cold, from the {args.guess} move)")
-    # the cold solve's guess only (the restarts and the robust plan start from a plan);
-    # one cold pass (restarts=0): this script's own loop below records every restart
+    # the cold solve's guess only (the restarts and the robust plan start from a plan).
+    # The cold solve stops on the progress of T along a path-dependent descent
+    # (README_planning.md, sessions 9-11); plan_move's restarts solve the same problem
+    # again from where it stopped (iterate and multipliers) and keep the shortest pass.
     first = {"guess": "rigid"} if args.guess == "rigid" else {}
     c0 = time.process_time()
     c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
-                        max_iter=args.max_iter, log=log, restarts=0, **options, **first)
-    log(f"{name}: planned {c.plan.duration:.4f} s ({c.plan.stats['status']}, "
-        f"{c.plan.stats['iterations']} iterations, {c.plan.stats['solve_cpu_s']:.0f} s CPU);"
-        f" shaped {c.shaped.duration:.4f} s; run CPU {time.process_time() - c0:.0f} s")
-    model, shaped = c.model, c.shaped
+                        max_iter=args.max_iter, log=log, restarts=args.restarts, **options,
+                        **first)
+    model, shaped, plan = c.model, c.shaped, c.plan
     limits = {k: np.asarray(v, dtype=float) for k, v in c.limits.items()}
-    plan, restarts = c.plan, []
-    for _ in range(args.restarts):
-        # the cold solve stops on the progress of T along a path-dependent descent
-        # (README_planning.md, sessions 9-11); the same problem solved again from where
-        # it stopped (its iterate and multipliers) may go further. Kept if shorter.
-        c1 = time.process_time()
-        again = plan_move(model, move, end=plan.stats["end"], guess=plan,
-                          torque_limit=limits["torque"], velocity_limit=limits["velocity"],
-                          max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0),
-                          **options)
-        restarts.append({"from": plan.duration, "duration": again.duration,
-                         "status": again.stats["status"],
-                         "iterations": again.stats["iterations"],
-                         "solve_cpu_s": again.stats["solve_cpu_s"],
-                         "cpu_s": time.process_time() - c1})
-        log(f"{name}: restart from {plan.duration:.4f} s: {again.duration:.4f} s "
-            f"({again.stats['status']}, {again.stats['iterations']} iterations)")
-        if again.duration >= plan.duration * (1.0 - 1e-3):
-            break
-        plan = again
+    passes = plan.stats.get("passes") or [{"duration": plan.duration,
+                                           "status": plan.stats["status"],
+                                           "iterations": plan.stats["iterations"],
+                                           "solve_cpu_s": plan.stats["solve_cpu_s"]}]
+    restarts, best = [], passes[0]["duration"]
+    for again in passes[1:]:
+        restarts.append({"from": best, **{k: again[k] for k in (
+            "duration", "status", "iterations", "solve_cpu_s")}})
+        if again["duration"] is not None:
+            best = min(best, again["duration"])
+    for k, again in enumerate(passes):
+        log(f"{name}: pass {k}: " + (f"{again['duration']:.4f} s ({again['status']}, "
+                                     f"{again['iterations']} iterations)"
+                                     if again["duration"] is not None else again["status"]))
+    log(f"{name}: planned {plan.duration:.4f} s; shaped {shaped.duration:.4f} s; "
+        f"run CPU {time.process_time() - c0:.0f} s")
     nominal_cpu = time.process_time() - c0
     log(f"{name}: evaluating the shaped move at {errors}")
     shaped_run = c.shaped_verification["run"]
@@ -295,10 +291,8 @@ def run_move(name, args, study, out_path, robust_moves):
     ev, _ = evaluate(model, plan, plan.torque_law(), errors, args.dt)
     record["planned"] = plan_record(plan, limits, ev, model)
     record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts, guess=args.guess,
-                             cold={"duration": c.plan.duration,
-                                   "status": c.plan.stats["status"],
-                                   "iterations": c.plan.stats["iterations"],
-                                   "solve_cpu_s": c.plan.stats["solve_cpu_s"]})
+                             cold={k: passes[0][k] for k in (
+                                 "duration", "status", "iterations", "solve_cpu_s")})
     store(out_path, name, record)
     log(f"{name}: nominal stored")
     if name in robust_moves:

@@ -79,7 +79,7 @@ def test_plans_were_given_the_shaped_peaks_as_limits(stored):
         moving = [a != b for a, b in zip(rec["q0"], rec["qf"], strict=True)]
         # the limits come from plan_robot_move's shaped run and the peaks from this file's
         # own run of the same shaped move at the same step: equal to round-off
-        for key in [k for k in ("planned", "robust") if k in rec]:
+        for key in [k for k in ("planned", "robust") if "failed" not in rec.get(k, {"failed"})]:
             limits = rec[key]["limits"]
             for j, moves_j in enumerate(moving):
                 if moves_j:
@@ -101,11 +101,12 @@ def test_end_bounds_are_the_shaped_residuals(stored):
         assert math.isclose(rec["planned"]["end_bound"], shaped["prescribed"][k],
                             rel_tol=1e-9)
         if "robust" in rec:
-            assert rec["robust"]["scenarios"] == [0.0, -rec["robust"]["robust"],
-                                                  rec["robust"]["robust"]]
+            r = rec["robust"]["robust"]
+            # a failed robust plan keeps its bounds but has no scenarios' results
+            assert rec["robust"].get("scenarios", [0.0, -r, r]) == [0.0, -r, r]
             # one bound per scenario (0, -r, +r): the shaped residual at that error
             bounds = rec["robust"]["end_bounds"]
-            for e, b in zip(rec["robust"]["scenarios"], bounds, strict=True):
+            for e, b in zip([0.0, -r, r], bounds, strict=True):
                 k = shaped["errors"].index(e)
                 assert math.isclose(b, shaped["prescribed"][k], rel_tol=1e-12)
 
@@ -128,6 +129,9 @@ def test_move_1_robust_plan_leaves_no_more_than_the_shaped_move_at_every_error(s
     if "robust" not in rec:
         pytest.skip("no robust plan of move 1 stored (benchmarks/README_planning.md)")
     robust, shaped = rec["robust"], rec["shaped"]
+    if "failed" in robust:
+        # stored as it ended (benchmarks/README_planning.md): the claim is not reached
+        pytest.xfail(f"the robust plan of move 1 failed: {robust['failed']}")
     r = robust["robust"]
     assert robust["errors"] == shaped["errors"] == [-r, 0.0, r] and r == 0.1
     for e in shaped["errors"]:
