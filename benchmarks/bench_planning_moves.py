@@ -333,26 +333,29 @@ def tradeoff(model, move, nominal, limits, args, options):
     """Duration against the end bound: nominal plans at ``--tolerances`` (fractions of
     the nominal plan's bound, each warm-started from the previous one), each verified
     with the joints on it (prescribed motion, nominal model)."""
-    from casflex.errors import SolverError
     from casflex.planning import ProgressStop, plan_move
+    from casflex.planning.restarts import solve_from_plan
     from casflex.simulate import simulate_prescribed
 
     base = float(nominal.stats["end"])
     curve, previous = [], nominal
     for f in sorted(args.tolerances, reverse=True):
         c0 = time.process_time()
-        try:
-            p = plan_move(model, move, end=f * base, guess=previous,
-                          torque_limit=limits["torque"], velocity_limit=limits["velocity"],
-                          max_iter=args.max_iter, progress_stop=ProgressStop(leave=0.0),
-                          **options)
-        except SolverError as error:
-            curve.append({"fraction": f, "bound": f * base,
-                          **_failure(error, time.process_time() - c0)})
+        # from the previous plan (its iterate and multipliers, or its iterate alone if
+        # the multipliers lead Ipopt astray)
+        p, failures = solve_from_plan(plan_move, dict(
+            model=model, start=move, end=f * base, torque_limit=limits["torque"],
+            velocity_limit=limits["velocity"], max_iter=args.max_iter,
+            progress_stop=ProgressStop(leave=0.0), **options), previous)
+        for error in failures:
             log(f"  trade-off {f:g}: failed: {error}")
+        if p is None:
+            curve.append({"fraction": f, "bound": f * base,
+                          **_failure(failures[-1], time.process_time() - c0)})
             continue
         run = simulate_prescribed(model, p, dt=args.dt, t_end=p.t_end)
         curve.append({"fraction": f, "bound": f * base, "duration": p.duration,
+                      "failed_first": [f"SolverError: {e}" for e in failures],
                       "prescribed": residual_after(run.t, run.tip_deflection, p.duration),
                       "status": p.stats["status"], "iterations": p.stats["iterations"],
                       "case_cpu_s": time.process_time() - c0})

@@ -22,7 +22,7 @@ from typing import Any
 from casflex._validate import number
 from casflex.errors import SolverError
 
-__all__ = ["check_restarts", "solve_with_restarts"]
+__all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts"]
 
 #: what every pass records in ``stats["passes"]``
 PASS_KEYS = ("duration", "objective_value", "iterations", "status", "solve_s", "solve_cpu_s")
@@ -62,6 +62,42 @@ def _pass(plan) -> dict:
     return {"duration": float(plan.duration), "objective_value": s.get("objective_value"),
             "iterations": s.get("iterations"), "status": s.get("status"),
             "solve_s": s.get("solve_s"), "solve_cpu_s": s.get("solve_cpu_s")}
+
+
+def solve_from_plan(solve: Callable[..., Any], arguments: dict,
+                    plan: Any) -> tuple[Any, list[SolverError]]:
+    """``solve(**arguments)`` warm-started from ``plan``; if that fails and the plan carries
+    its multipliers, once more from its iterate alone.
+
+    The multipliers of an iterate where Ipopt was stopped early can lead it astray: from
+    move 1's 2.952 s iterate (stopped on progress) the restart with multipliers found no
+    feasible point in 500 iterations, from the iterate alone it went on to 2.745 s and
+    the next restart to 2.133 s (benchmarks/README_planning.md, session 17).
+
+    Parameters
+    ----------
+    solve : callable
+        :func:`casflex.planning.plan_move`.
+    arguments : dict
+        Its keyword arguments (``guess`` is replaced by ``plan``).
+    plan : PlannedMove
+        The start.
+
+    Returns
+    -------
+    (PlannedMove or None, list of SolverError)
+        The plan (``None`` if both attempts failed) and the failures met on the way.
+    """
+    failures = []
+    guesses = [plan]
+    if getattr(plan, "solution", None) is not None:
+        guesses.append(dataclasses.replace(plan, solution=None))
+    for guess in guesses:
+        try:
+            return solve(**{**arguments, "guess": guess}), failures
+        except SolverError as exc:
+            failures.append(exc)
+    return None, failures
 
 
 def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: int,
@@ -112,20 +148,11 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
     passes = [_pass(best)]
     best_pass = 0
     for _ in range(restarts):
-        try:
-            plan = solve(**{**arguments, "guess": best})
-        except SolverError as exc:
-            passes.append({**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}"})
-            if getattr(best, "solution", None) is None:
-                break
-            # the multipliers of an iterate where Ipopt was stopped early can lead it
-            # astray (move 1 of the design study from 2.952 s: no feasible point in 500
-            # iterations); the iterate alone, with fresh multipliers, went on to 2.745 s
-            try:
-                plan = solve(**{**arguments, "guess": dataclasses.replace(best, solution=None)})
-            except SolverError as exc2:
-                passes.append({**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc2}"})
-                break
+        plan, failures = solve_from_plan(solve, arguments, best)
+        passes += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}"}
+                   for exc in failures]
+        if plan is None:
+            break
         passes.append(_pass(plan))
         old, new = float(best.stats["objective_value"]), float(plan.stats["objective_value"])
         if new < old:
