@@ -62,6 +62,7 @@ from casflex.planning.scenarios import (
 )
 from casflex.planning.staged import (
     fatrop_options,
+    kept_scales,
     power_of_two,
     stage_order,
     stage_variables,
@@ -662,12 +663,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                   np.maximum(np.max(np.abs(U_guess), axis=0), 1e-3))
     sa = np.maximum(np.max(np.abs(Ac_guess), axis=0), 0.1) if implicit else None
     sT = T_guess
-    kept = _warm_scales(guess, solver, nxa, n, implicit) if warm else None
-    if kept is not None:
-        # the multipliers of a warm start belong to the guess's rows divided by the
-        # guess's scales: with the same scales a restart is the same scaled NLP (scales
-        # from the new guess's magnitudes would rescale every multiplier of a row)
-        sx, su, sa, sT = kept
+    # a warm start with the guess's multipliers solves in the guess's scales (kept_scales)
+    kept = kept_scales(guess.solution, nxa, n, implicit) if warm and solver == "ipopt" and \
+        guess.stats.get("solver", "ipopt") == "ipopt" else None
+    sx, su, sa, sT = kept or (sx, su, sa, sT)
     if fatrop:  # stage order, T a state (casflex.planning.staged)
         sx, sT = power_of_two(sx), power_of_two(sT)
         (X, *Tk), (U, Xc, Ac), stages = stage_variables(
@@ -924,20 +923,6 @@ def _violation(opti, values):
     ubg = np.asarray(values(opti.ubg), dtype=float).ravel()
     excess = np.r_[lbg - g, g - ubg, 0.0]
     return float(np.max(excess[np.isfinite(excess)]))
-
-
-def _warm_scales(guess, solver, rows, n, implicit):
-    """The scales ``(states, torques, accelerations, T)`` of the NLP the guess was solved
-    in, when its multipliers can warm-start this one (Ipopt, same row counts), else
-    ``None``."""
-    solution = getattr(guess, "solution", None)
-    scales = solution.get("scales") if solution else None
-    if scales is None or solver != "ipopt" or guess.stats.get("solver", "ipopt") != solver:
-        return None
-    if scales["x"].size != rows or scales["tau"].size != n or \
-            (scales["ddq"] is None) == implicit:
-        return None
-    return scales["x"], scales["tau"], scales["ddq"], scales["T"]
 
 
 def _warm_duals(opti, guess, solver):

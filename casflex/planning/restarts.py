@@ -87,6 +87,19 @@ def solve_from_plan(solve: Callable[..., Any], arguments: dict,
     -------
     (PlannedMove or None, list of SolverError)
         The plan (``None`` if both attempts failed) and the failures met on the way.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.planning import plan_move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> p = plan_move(model, [0.0], [1.0], torque_limit=0.1, intervals=20)
+    >>> q, failures = solve_from_plan(plan_move, {"model": model, "start": [0.0],
+    ...                               "goal": [1.0], "torque_limit": 0.08, "intervals": 20}, p)
+    >>> failures, q.duration > p.duration
+    ([], True)
     """
     failures = []
     guesses = [plan]

@@ -29,7 +29,8 @@ import numpy as np
 
 from casflex._validate import fail
 
-__all__ = ["stage_variables", "stage_order", "fatrop_options", "power_of_two", "state_scales"]
+__all__ = ["stage_variables", "stage_order", "fatrop_options", "power_of_two", "state_scales",
+           "kept_scales"]
 
 
 def stage_variables(opti: ca.Opti, N: int, states: Sequence[np.ndarray],
@@ -189,6 +190,45 @@ def state_scales(states: np.ndarray, n: int, m: int) -> np.ndarray:
     else:  # a guess with no vibration at all: modal coordinates of order one
         scale[modal] = 1.0
     return scale
+
+
+def kept_scales(solution: dict | None, rows: int, n: int,
+                implicit: bool) -> tuple | None:
+    """The scales of the NLP a plan's multipliers belong to, for a warm start with them.
+
+    The dynamics rows are divided by the state scales, so a multiplier means something
+    only in the scales it was found in: a warm start from a plan's iterate and multipliers
+    solves in that plan's scales (``PlannedMove.solution["scales"]``), not in scales from
+    the plan's own magnitudes.
+
+    Parameters
+    ----------
+    solution : dict or None
+        ``PlannedMove.solution``.
+    rows, n : int
+        State rows of the new NLP (scenarios included) and joints.
+    implicit : bool
+        Whether the new NLP has collocated accelerations (and so their scales).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray or None, float) or None
+        The scales of the states, torques [N m], accelerations and T [s]; ``None`` when
+        there are none or their sizes do not fit the new NLP.
+
+    Examples
+    --------
+    >>> scales = {"x": np.ones(4), "tau": np.ones(1), "ddq": np.ones(1), "T": 2.0}
+    >>> kept_scales({"scales": scales}, 4, 1, True)[3]
+    2.0
+    >>> kept_scales({"scales": scales}, 6, 1, True) is None
+    True
+    """
+    scales = (solution or {}).get("scales")
+    if scales is None or scales["x"].size != rows or scales["tau"].size != n or \
+            (scales["ddq"] is None) == implicit:
+        return None
+    return scales["x"], scales["tau"], scales["ddq"], scales["T"]
 
 
 def power_of_two(scale: np.ndarray) -> np.ndarray:
