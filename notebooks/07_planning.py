@@ -102,7 +102,7 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "4a172b207b55484fb983f95f8104b7ba52605028d9ee2701dd0bbd8c270563ce"
+DATA_SHA256 = "388ce592b325f2b14cf9f1afb5309990fb50411bad82107e2c2ce6e6f4c8c198"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
@@ -111,7 +111,7 @@ stored = json.loads(raw)
 moves = [k for k in ("move1", "move2", "move3") if k in stored]
 print(f"{DATA.name}: moves {moves}, verification step {stored['meta']['dt']} s")
 print("move   shaped [s]  planned [s]  shorter  residual [mm] shaped / planned "
-      "(joints on the move; open loop)  Ipopt")
+      "(joints on the move; open loop)  Ipopt's cold solve")
 for name in moves:
     sh, pl = stored[name]["shaped"], stored[name]["planned"]
     k = sh["errors"].index(0.0)
@@ -119,12 +119,16 @@ for name in moves:
           f"{100 * (1 - pl['duration'] / sh['duration']):7.1f} % "
           f"{1e3 * sh['prescribed'][k]:9.3f} / {1e3 * pl['prescribed'][k]:6.3f}   "
           f"({1e3 * sh['torque'][k]:.3f} / {1e3 * pl['torque'][k]:.3f})        "
-          f"{pl['status']}, {pl['iterations']} it., {pl['solve_cpu_s']:.0f} s CPU")
+          f"{pl['cold']['status']}, {pl['cold']['iterations']} it., "
+          f"{pl['cold']['solve_cpu_s']:.0f} s CPU")
     for k, again in enumerate(pl.get("restarts", [])):
         print(f"{'':6s} cold solve {pl['cold']['duration']:.3f} s, " if k == 0 else f"{'':6s} ",
               end="")
-        print(f"solved again from {again['from']:.3f} s: {again['duration']:.3f} s "
-              f"({again['status']}, {again['iterations']} it.)")
+        if again["duration"] is None:  # a failed restart: the plan before it is kept
+            print(f"solved again from {again['from']:.3f} s: {again['status']}")
+        else:
+            print(f"solved again from {again['from']:.3f} s: {again['duration']:.3f} s "
+                  f"({again['status']}, {again['iterations']} it.)")
 
 # %%
 fig, axes = plt.subplots(2, len(moves), figsize=(4.2 * len(moves), 5.5), squeeze=False,
@@ -151,26 +155,31 @@ plt.show()
 
 # %% [markdown]
 # Move 1 (all three joints 0 → −1 rad): the cold solve from the shaped move stopped on
-# the progress of T at 2.918 s (9 % shorter, 63 Ipopt iterations); solved again from
-# where it stopped (its iterate and multipliers) Ipopt converged at **2.133 s, 33.5 %
-# shorter** than the shaped 3.208 s (`Solve_Succeeded`, 55 iterations; a second restart
-# moved it by 3e-10 s), with a residual of 9.89 mm against the shaped move's 10.97 mm
+# the progress of T at 2.952 s (8 % shorter, 68 Ipopt iterations). Solved again from that
+# iterate and its multipliers Ipopt found no feasible point in 500 iterations; from the
+# iterate alone (`casflex.planning.restarts.solve_from_plan`) it stopped at 2.745 s, and
+# the next restart converged at **2.133 s, 33.5 % shorter** than the shaped 3.208 s
+# (`Solve_Succeeded`, 45 iterations; a further restart did not move it), with a residual
+# of 9.89 mm against the shaped move's 10.97 mm
 # (joints on the move, 1 ms). The plan is bang-bang-like at the shaped move's torque
-# peaks; between the collocation points the verified torques pass them by 2.7–4.1 %
+# peaks; between the collocation points the verified torques pass them by a few per cent
 # (the velocities by ≤ 0.15 %), reported next to the limits, not constrained
 # (`limit_excess`).
 #
-# Move 2 (the planar move): 1.898 s against 2.807 s shaped (32.4 % shorter),
-# `Solve_Succeeded` in 86 iterations from the shaped move, residual 3.22 against 4.16 mm;
-# torques over the limits by 7.8–8.3 % between the collocation points.
+# Move 2 (the planar move): 1.898 s against 2.807 s shaped (32.4 % shorter); the cold
+# solve stopped on the progress of T after 32 iterations, a restart converged 0.4 ms
+# shorter (`Solve_Succeeded`, 21 iterations); residual 3.22 against 4.16 mm; torques over
+# the limits by 7.8–8.3 % between the collocation points.
 #
-# Move 3 (the base joint 0 → −π): the cold solve from the shaped move ended in
-# `Solved_To_Acceptable_Level` at **5.960 s, twice as long** as the shaped 2.867 s, far
-# below both limits (torque 0.33 of 0.47 N m, velocity 0.65 of 2.41 rad/s): a poor local
-# optimum, not a minimum time; its verified residual (11.67 mm at 1 ms) is also above the
-# shaped move's 11.34 mm, though the optimiser's own (11.24 mm) meets the bound. A second
-# attempt from the rigid time-optimal move (`--guess rigid`) did not finish within the
-# session (benchmarks/README_planning.md).
+# Move 3 (the base joint 0 → −π, joints 2 and 3 held): **2.063 s against 2.867 s shaped
+# (28.0 % shorter)**, residual 9.61 against 11.34 mm, at the base joint's torque limit
+# (passed by 2.5 % between the points). Until the planner's scaling was fixed this move
+# ended at a poor local optimum of 5.96 s: the held joints leave the second mode's rows of
+# the guess at round-off (1e-18), and scaling those rows by their magnitude in the guess
+# (floor 1e-6 of the largest modal row) left Ipopt's scaled problem ill-conditioned. Such
+# rows now take the smallest scale of the rows the guess excites
+# (`casflex.planning.staged.state_scales`; benchmarks/README_planning.md, session 17, has
+# the floors that were tried).
 
 # %% [markdown]
 # ## 7.3 The robust option
@@ -239,16 +248,20 @@ plt.show()
 # The nominal plans meet their bound on the nominal model only. Move 1's 2.133 s plan
 # leaves 9.9 mm there (shaped 11.0 mm) but 85 mm at −10 % and 33 mm at +10 %, where the
 # SI-shaped move leaves 20.1 and 6.7 mm: 4.2 and 5.0 times as much. Move 2's plan: 9.9
-# and 11.9 mm against 6.1 and 2.3 mm. A minimum-time plan ends its motion exactly
+# and 11.9 mm against 6.1 and 2.3 mm; move 3's: 29.8 and 69.6 mm against 3.1 and 8.1 mm.
+# A minimum-time plan ends its motion exactly
 # where the modes it excited cancel at the nominal frequencies; the SI shaper spends its
 # extra 1.2 s on insensitivity. Open loop (each move's torques, no feedback) the
 # sensitivity is the same or worse (87 / 2.0 / 83 mm on move 1).
 #
 # The robust plan of move 1 (`--robust 0.1`, one bound per scenario: the shaped move's
-# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %, warm-started node by node from the 2.133 s
-# plan) has no stored result: its solve did not finish within the session
-# (benchmarks/README_planning.md gives the CPU it had). The one-link arm above shows what
-# the option does when it converges.
+# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %) has no stored result. Warm-started from the
+# 2.133 s nominal plan it ended at Ipopt's 500-iteration limit with its last iterate
+# infeasible (violation 0.2; 873 s of CPU, session 16); started from the shaped move,
+# which meets all three bounds and both limits, it had not finished after 50 minutes of
+# CPU (1000 iterations allowed) when the session ended. benchmarks/README_planning.md has
+# both attempts. The one-link arm above shows what the option does when it converges;
+# for move 1 it is the open part of issue 15.
 
 # %% [markdown]
 # ## 7.4 Duration vs residual tolerance
@@ -324,7 +337,9 @@ else:
 # time. The verified residuals lie on the bounds (the crosses on the circles) down to the
 # tenths of a millimetre, where the optimiser's discretisation error becomes visible.
 #
-# The same curve for move 1 (nominal plans at 2, 0.5 and 0.25 times the shaped move's
-# residual, each warm from the previous one: `--tradeoff-moves move1`) is drawn beside it
-# when the stored file holds it; this session's run did not reach it (the robust plan
-# before it did not finish).
+# The same curve for move 1 (right; nominal plans at 2, 1, 0.5 and 0.25 times the shaped
+# move's residual, each warm from the previous one: `--tradeoff-moves move1`) is much
+# flatter: from 16.3 to 2.4 mm the plan lengthens from 2.120 to 2.161 s, 2 %, and even
+# the tightest bound leaves a plan 33 % shorter than the SI-shaped move with less than a quarter of
+# its residual. On this arm the plan's time goes to the torque and velocity limits; the
+# vibration at the end costs little once the motion is free to shape it.
