@@ -66,6 +66,18 @@ shaped_end
 plan_limits
     Peak torques and velocities of a reference with the joints on it (the default limits).
 
+Restarts and continuation (:mod:`casflex.planning.restarts`)
+-------------------------------------------------------------
+solve_with_restarts
+    Re-solve a plan warm from itself while it gets shorter (``plan_move``'s ``restarts``).
+solve_from_plan
+    One warm start from a plan: from its iterate and multipliers, else its iterate alone.
+solve_by_continuation
+    A robust plan through a path of problems from the nominal one (``plan_move``'s
+    ``robust_steps``).
+continuation_steps
+    The frequency errors and end bounds of that path.
+
 Verification (:mod:`casflex.planning.verify`)
 ---------------------------------------------
 verify_plan
@@ -122,7 +134,12 @@ from casflex.planning.ocp import (
     predicted_residual,
 )
 from casflex.planning.planned import PlannedMove
-from casflex.planning.restarts import solve_with_restarts
+from casflex.planning.restarts import (
+    continuation_steps,
+    solve_by_continuation,
+    solve_from_plan,
+    solve_with_restarts,
+)
 from casflex.planning.scenarios import (
     ScaledFrequencyProvider,
     frequency_shifted_model,
@@ -157,7 +174,11 @@ __all__ = [
     "PROGRESS_STATUS",
     # the result
     "PlannedMove",
+    # restarts and continuation
     "solve_with_restarts",
+    "solve_from_plan",
+    "solve_by_continuation",
+    "continuation_steps",
     # limits
     "shaped_move_limits",
     "end_bounds",

@@ -4,7 +4,8 @@ end condition per scenario.
 :func:`shaped_move_limits` is the rule ``casflex plan`` and the design job's ``[planner]``
 share: the peak torques and velocities of the shaped move with the joints on it
 (:func:`casflex.planning.plan_limits`), except for the joints the move holds.
-:func:`end_bounds` reads :func:`casflex.planning.plan_move`'s ``end``.
+:func:`end_bounds` reads :func:`casflex.planning.plan_move`'s ``end``;
+:func:`diagnose_failure` names the limits active where a solve failed.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
     from casflex.moves import Move, ShapedMove
 
-__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end", "joint_bounds"]
+__all__ = ["shaped_move_limits", "plan_limits", "end_bounds", "shaped_end", "joint_bounds",
+           "diagnose_failure"]
 
 
 def shaped_end(shaped_check: dict) -> float | list[float]:
@@ -258,3 +260,66 @@ def joint_bounds(model: FlexibleModel, position_limits: Any, q0: np.ndarray,
             raise fail(label, q.tolist(), f"joint {j + 1} ({q[j]:.6g} rad) lies outside "
                        f"{source}: [{lo[j]:.6g}, {hi[j]:.6g}] rad")
     return lo, hi
+
+
+def diagnose_failure(status: str, T: float, max_duration: float, U: np.ndarray,
+                     X: np.ndarray, tau_max: np.ndarray, v_max: np.ndarray, n: int, m: int,
+                     N: int, duration: float | None, solver: str = "Ipopt") -> str:
+    """One line on why the solver failed: its status and the limits active at its last
+    iterate (a torque limit on at least half the intervals, a velocity limit at 30 % of
+    the nodes, the duration at its upper bound).
+
+    Parameters
+    ----------
+    status : str
+        The solver's return status.
+    T : float
+        The last iterate's duration [s].
+    max_duration : float
+        Its upper bound [s].
+    U : ndarray, shape (n, N)
+        The last iterate's torques [N m].
+    X : ndarray, shape (2 (n + m), N + 1)
+        Its states (joints, modes, their rates) [rad, 1, rad/s, 1/s].
+    tau_max, v_max : ndarray, shape (n,)
+        Torque [N m] and velocity [rad/s] limits (``inf``: none).
+    n, m, N : int
+        Joints, modes, intervals.
+    duration : float or None
+        The fixed duration of an energy plan [s] (None: free).
+    solver : str
+        Named in the message.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> U = np.full((1, 4), 0.1)
+    >>> X = np.zeros((2, 5))
+    >>> diagnose_failure("Infeasible_Problem_Detected", 2.0, 40.0, U, X, np.array([0.1]),
+    ...                  np.array([np.inf]), 1, 0, 4, None)  # doctest: +NORMALIZE_WHITESPACE
+    'plan_move: Ipopt found no plan (Infeasible_Problem_Detected); active at the last
+    iterate: the torque limit of joint 1 (0.1 N m) on 100 % of the intervals - the limits
+    are too low to reach the goal'
+    """
+    active = []
+    for j in range(n):
+        if np.isfinite(tau_max[j]):
+            share = float(np.mean(np.abs(U[j]) >= tau_max[j] * (1.0 - 1e-3)))
+            if share >= 0.5:
+                active.append(f"the torque limit of joint {j + 1} ({tau_max[j]:.6g} N m) "
+                              f"on {100 * share:.0f} % of the intervals")
+        if np.isfinite(v_max[j]):
+            share = float(np.mean(np.abs(X[n + m + j]) >= v_max[j] * (1.0 - 1e-3)))
+            if share >= 0.3:
+                active.append(f"the velocity limit of joint {j + 1} ({v_max[j]:.6g} rad/s) "
+                              f"at {100 * share:.0f} % of the nodes")
+    if duration is None and T >= max_duration * (1.0 - 1e-3):
+        active.append(f"the duration at its upper bound max_duration = {max_duration:.6g} s")
+    where = "; active at the last iterate: " + ", ".join(active) if active else \
+        " (no limit is active at the last iterate)"
+    why = (" - the limits are too low to reach the goal"
+           + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
+    return f"plan_move: {solver} found no plan ({status}){where}{why}"

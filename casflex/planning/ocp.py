@@ -51,9 +51,9 @@ from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives, point_values
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
-from casflex.planning.limits import end_bounds, joint_bounds
+from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove
-from casflex.planning.restarts import check_restarts, solve_with_restarts
+from casflex.planning.restarts import check_restarts, solve_by_continuation, solve_with_restarts
 from casflex.planning.scenarios import (
     frequency_shifted_model,
     modal_guess,
@@ -376,7 +376,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               derivatives: str = "casadi",
               compile_function: Callable[[list], list] | None = None,
               solver: str = "ipopt", restarts: int = 0,
-              restart_rtol: float = 1e-3) -> PlannedMove:
+              restart_rtol: float = 1e-3, robust_steps: int = 1) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -488,6 +488,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     restarts, restart_rtol : int, float
         Warm re-solves from the plan at most, stopped when the objective improves by less
         than ``restart_rtol`` of it (:mod:`casflex.planning.restarts`: ``stats["passes"]``).
+    robust_steps : int
+        With ``robust``: reach the robust problem by a continuation of this many problems
+        from the nominal one (r and the scenarios' bounds moved together, each warm from
+        the plan before; :func:`casflex.planning.solve_by_continuation`,
+        ``stats["continuation"]``). Default 1: the robust problem directly.
 
     Returns
     -------
@@ -518,6 +523,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     >>> p.stats["success"], round(p.duration, 2)
     (True, 1.29)
     """
+    if robust_steps != 1 and number(robust, "robust", low=0.0) > 0.0:
+        return solve_by_continuation(plan_move, {**locals()}, robust_steps)
     if check_restarts(restarts, restart_rtol)[0]:
         return solve_with_restarts(plan_move, {**locals()}, restarts, restart_rtol)
     n, m = model.n, model.m
@@ -857,7 +864,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
     info_violation = _violation(opti, values)
     if not ok:
-        raise SolverError(_diagnose(status, Tv, max_duration, Uv, Xv, tau_max, v_max, n, m,
+        raise SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max, v_max, n, m,
                                     N, duration, solver.capitalize()) + " (largest constraint "
                           f"violation of the last iterate {info_violation:.1e})")
     # the dense trajectory: the substeps of every interval
@@ -972,27 +979,3 @@ def _omega_max(model, q0, qf):
         eig = np.linalg.eigvals(A(np.r_[q, d, np.zeros(n + m)], hold).full())
         top = max(top, float(np.max(np.abs(eig.imag))))
     return top
-
-
-def _diagnose(status, T, max_duration, U, X, tau_max, v_max, n, m, N, duration,
-              solver="Ipopt"):
-    """One line on why the solver failed: the status and the limits active at its last iterate."""
-    active = []
-    for j in range(n):
-        if np.isfinite(tau_max[j]):
-            share = float(np.mean(np.abs(U[j]) >= tau_max[j] * (1.0 - 1e-3)))
-            if share >= 0.5:
-                active.append(f"the torque limit of joint {j + 1} ({tau_max[j]:.6g} N m) "
-                              f"on {100 * share:.0f} % of the intervals")
-        if np.isfinite(v_max[j]):
-            share = float(np.mean(np.abs(X[n + m + j]) >= v_max[j] * (1.0 - 1e-3)))
-            if share >= 0.3:
-                active.append(f"the velocity limit of joint {j + 1} ({v_max[j]:.6g} rad/s) "
-                              f"at {100 * share:.0f} % of the nodes")
-    if duration is None and T >= max_duration * (1.0 - 1e-3):
-        active.append(f"the duration at its upper bound max_duration = {max_duration:.6g} s")
-    where = "; active at the last iterate: " + ", ".join(active) if active else \
-        " (no limit is active at the last iterate)"
-    why = (" - the limits are too low to reach the goal"
-           + (f" in {duration:.6g} s" if duration is not None else "")) if active else ""
-    return f"plan_move: {solver} found no plan ({status}){where}{why}"

@@ -11,6 +11,10 @@ lengthens the plan (the better plan is kept), or after ``restarts`` restarts. A 
 that fails from the previous iterate and multipliers is tried once more from the iterate
 alone (the multipliers of an iterate where Ipopt was stopped early can mislead it); both
 attempts are passes.
+
+A robust plan can be found by continuation (:func:`solve_by_continuation`, ``plan_move``'s
+``robust_steps``): a path of robust problems from the nominal one to the one asked for,
+each warm-started from the plan of the one before.
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from typing import Any
 from casflex._validate import number
 from casflex.errors import SolverError
 
-__all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts"]
+__all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
+           "solve_by_continuation"]
 
 #: what every pass records in ``stats["passes"]``
 PASS_KEYS = ("duration", "objective_value", "iterations", "status", "solve_s", "solve_cpu_s")
@@ -182,3 +187,139 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
     stats["iterations_total"] = int(sum(p["iterations"] for p in done))
     return best
 
+
+
+def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float, Any]]:
+    """The problems of a continuation in the frequency error: ``(r_k, end_k)``, k = 1..K.
+
+    Step k is the robust problem at ``r_k = robust k / K`` with every scenario's end bound
+    moved from the nominal bound by the fraction k / K towards its own: the path starts at
+    the nominal problem (k = 0: every scenario the nominal model, bounded as it) and ends
+    at the problem asked for. Fixed bounds would not do: with the bounds of ``±robust``
+    (e.g. the shaped move's residuals there, one of them below the nominal one) at a
+    smaller error, the near-nominal scenarios must meet the tighter bound, a harder
+    problem than the last (move 1 of the design study at r = 0.025: 3.97 s against
+    2.13 s nominal; benchmarks/README_planning.md, session 18).
+
+    Parameters
+    ----------
+    robust : float
+        The frequency error r of the last problem (0 < r < 1).
+    end : "rest" or "free" or float or sequence of float
+        Its end condition, as :func:`casflex.planning.plan_move` takes it (one bound per
+        scenario: nominal, −r, +r) [m].
+    steps : int
+        K >= 1.
+
+    Returns
+    -------
+    list of (float, end)
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        ``robust`` not in (0, 1), ``steps`` not an integer >= 1, a malformed ``end``.
+
+    Examples
+    --------
+    >>> [(r, [round(b, 4) for b in e]) for r, e in continuation_steps(0.1, [0.01, 0.02, 0.006], 2)]
+    [(0.05, [0.01, 0.015, 0.008]), (0.1, [0.01, 0.02, 0.006])]
+    >>> continuation_steps(0.1, "rest", 2)
+    [(0.05, 'rest'), (0.1, 'rest')]
+    """
+    from casflex.planning.limits import end_bounds
+
+    robust = number(robust, "robust", low=0.0, high=1.0, low_open=True, high_open=True)
+    steps = int(number(steps, "robust_steps", low=1, integer=True))
+    nominal, bounds = end_bounds(end, 3)
+    path = []
+    for k in range(1, steps + 1):
+        f = k / steps
+        end_k = end if bounds is None or k == steps else \
+            [nominal + f * (b - nominal) for b in bounds]
+        path.append((robust * f, end_k))
+    return path
+
+
+def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int) -> Any:
+    """The robust plan of ``arguments`` by a continuation of ``steps`` problems.
+
+    The problems of :func:`continuation_steps`, the first from ``arguments["guess"]``,
+    every other warm-started from the plan before (:func:`solve_from_plan`: its iterate and
+    multipliers, or its iterate alone); ``restarts`` apply to the last problem only.
+
+    Parameters
+    ----------
+    solve : callable
+        :func:`casflex.planning.plan_move` (called with ``robust_steps=1``).
+    arguments : dict
+        Its keyword arguments (``robust`` > 0, ``end``, ``guess``, ``restarts``...).
+    steps : int
+        Problems on the path (>= 1; 1: the robust problem alone).
+
+    Returns
+    -------
+    PlannedMove
+        The last problem's plan; ``stats["continuation"]`` holds one dict per problem:
+        ``robust``, ``end_bounds`` [m] and the pass keys (``duration`` [s], ``status``,
+        ``iterations``, ``solve_s``, ``solve_cpu_s``...; a failed attempt from the
+        multipliers is its own entry, ``duration`` None), and ``continuation_solve_s`` /
+        ``continuation_solve_cpu_s`` / ``continuation_iterations`` their totals.
+
+    Raises
+    ------
+    casflex.errors.SolverError
+        A problem of the path found no plan: the message names it (its ``r`` and bounds)
+        and the error met there.
+
+    Examples
+    --------
+    The one-link arm: the robust plan by a path of two problems is the robust plan
+    solved directly (benchmarks/README_planning.md, session 18: 1.2879228904 s either way).
+
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.planning import plan_move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> kw = {"torque_limit": 0.1, "intervals": 40, "end": 2e-3, "robust": 0.1}
+    >>> p = solve_by_continuation(plan_move, {"model": model, "start": [0.0], "goal": [1.0],
+    ...                                       **kw}, 2)
+    >>> [c["robust"] for c in p.stats["continuation"]]
+    [0.05, 0.1]
+    >>> direct = plan_move(model, [0.0], [1.0], **kw)
+    >>> abs(p.duration - direct.duration) < 1e-6
+    True
+    """
+    from casflex.planning.limits import end_bounds
+
+    arguments = {**arguments, "robust_steps": 1}
+    restarts = arguments.get("restarts", 0)
+    path = continuation_steps(arguments["robust"], arguments.get("end", "rest"), steps)
+    plan, record = None, []
+    for k, (r, end) in enumerate(path):
+        step = {**arguments, "robust": r, "end": end,
+                "restarts": restarts if k == len(path) - 1 else 0}
+        if plan is None:
+            failures = []
+            try:
+                new = solve(**step)
+            except SolverError as exc:
+                new, failures = None, [exc]
+        else:
+            new, failures = solve_from_plan(solve, step, plan)
+        bounds = end_bounds(end, 3)[1] or end  # one per scenario, or "rest" / "free"
+        record += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}",
+                    "robust": r, "end_bounds": bounds} for exc in failures]
+        if new is None:
+            raise SolverError(f"plan_move: the continuation found no plan at step {k + 1} of "
+                              f"{len(path)} (robust = {r:.6g}, end = {end}): {failures[-1]}")
+        plan = new
+        record.append({**_pass(plan), "robust": r, "end_bounds": bounds})
+    done = [p for p in record if p["solve_s"] is not None]
+    stats = plan.stats
+    stats["continuation"] = record
+    stats["continuation_solve_s"] = float(sum(p["solve_s"] for p in done))
+    stats["continuation_solve_cpu_s"] = float(sum(p["solve_cpu_s"] for p in done))
+    stats["continuation_iterations"] = int(sum(p["iterations"] for p in done))
+    return plan

@@ -1,0 +1,81 @@
+"""Robust plans by continuation (casflex.planning.restarts.solve_by_continuation) on the
+one-link arm: the path's last plan is the robust plan solved directly."""
+
+from __future__ import annotations
+
+import pytest
+
+from casflex.errors import ModelError, SolverError
+from casflex.model import FlexibleModel, PointwiseProvider
+from casflex.moves import Move
+from casflex.planning import continuation_steps, plan_move, verify_plan
+from casflex.robot import load
+
+MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
+COMMON = {"torque_limit": 0.1, "intervals": 40}
+
+
+@pytest.fixture(scope="module")
+def onelink():
+    robot = load("problems/onelink.toml")
+    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+
+
+@pytest.mark.parametrize("end", [2e-3, [2e-3, 3e-3, 1.5e-3]])
+def test_the_path_ends_at_the_direct_robust_plan(onelink, end):
+    direct = plan_move(onelink, MOVE, **COMMON, end=end, robust=0.1)
+    path = plan_move(onelink, MOVE, **COMMON, end=end, robust=0.1, robust_steps=3)
+    assert direct.stats["success"] and path.stats["success"]
+    # two routes to one optimum: the same duration to the solver's tolerance
+    assert path.duration == pytest.approx(direct.duration, rel=1e-7)
+    steps = path.stats["continuation"]
+    assert [s["robust"] for s in steps] == pytest.approx([0.1 / 3, 0.2 / 3, 0.1])
+    # the nominal problem's bound at every step (scalar end), or each scenario's moved
+    # from the nominal 2 mm a third of the way per step
+    expected = [[2e-3] * 3] * 3 if isinstance(end, float) else \
+        [[2e-3, 2e-3 + k * 1e-3 / 3, 2e-3 - k * 0.5e-3 / 3] for k in (1, 2, 3)]
+    for s, bounds in zip(steps, expected, strict=True):
+        assert s["end_bounds"] == pytest.approx(bounds, rel=1e-12)
+    assert all(s["status"] == "Solve_Succeeded" for s in steps)
+    assert path.stats["continuation_iterations"] == sum(s["iterations"] for s in steps)
+    # and the plan meets its bounds when simulated at the frequency errors
+    v = verify_plan(onelink, path, dt=1e-4, errors=[-0.1, 0.1], torque=False)
+    bounds = [end] * 3 if isinstance(end, float) else end
+    residuals = [v["prescribed"], v["errors"][0]["prescribed"], v["errors"][1]["prescribed"]]
+    assert all(r <= 1.05 * b for r, b in zip(residuals, bounds, strict=True))
+
+
+def test_one_step_is_the_robust_problem_alone(onelink):
+    a = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1)
+    b = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=1)
+    assert "continuation" not in b.stats and b.duration == a.duration
+
+
+def test_no_robust_error_no_path(onelink):
+    p = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust_steps=4)
+    assert "continuation" not in p.stats
+
+
+def test_a_step_without_plan_names_the_step(onelink):
+    # 0.1 N m cannot move the arm 1 rad in 1 s (the rigid minimum is 1.29 s)
+    with pytest.raises(SolverError, match=r"continuation found no plan at step 1 of 2 "
+                                          r"\(robust = 0\.05"):
+        plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
+                  objective="energy", duration=1.0, max_iter=100)
+
+
+@pytest.mark.parametrize("kw, field", [
+    ({"robust_steps": 0}, "robust_steps"), ({"robust_steps": 1.5}, "robust_steps"),
+    ({"robust_steps": "2"}, "robust_steps"),
+])
+def test_bad_steps_are_refused(onelink, kw, field):
+    with pytest.raises(ModelError, match=field):
+        plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, **kw)
+
+
+def test_steps_of_rest_and_of_bad_input():
+    assert continuation_steps(0.2, "rest", 4)[-1] == (0.2, "rest")
+    with pytest.raises(ModelError, match="robust"):
+        continuation_steps(0.0, 2e-3, 2)
+    with pytest.raises(ModelError, match="end"):
+        continuation_steps(0.1, [2e-3, 1e-3], 2)
