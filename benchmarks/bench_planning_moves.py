@@ -13,6 +13,8 @@ modes, 3° grid, ``delta_order`` 0, no gravity):
    the shaped move's residual at that error, as ``casflex plan --robust`` takes it),
    warm-started node by node from the nominal plan, or (``--robust-guess shaped``) cold
    from the SI-shaped move, which meets every scenario's bound and the limits already;
+   with ``--robust-steps K`` through K problems from the nominal one (r and the
+   scenarios' bounds moved together, :func:`casflex.planning.solve_by_continuation`);
 3. each of them evaluated at the frequency errors −r, 0, +r
    (:func:`casflex.planning.frequency_shifted_model`) by the verification simulators at
    ``--dt`` (0.1 ms): the joints on the move (prescribed motion) and the move's torques
@@ -47,7 +49,8 @@ Usage::
         [--robust-moves move1] [--robust 0.1] [--tradeoff-moves move1]
         [--tolerances 2 0.5 0.25] [--dt 1e-4] [--onelink]
         [--derivatives casadi|blocks|blocks-jacobian|points] [--compile-flags FLAGS]
-        [--guess shaped|rigid] [--robust-guess nominal|shaped] [--restarts K] [--redo]
+        [--guess shaped|rigid] [--robust-guess nominal|shaped] [--robust-steps K]
+        [--restarts K] [--redo]
         [--out benchmarks/data/planning_moves.json] [--json]
 """
 
@@ -305,12 +308,14 @@ def run_move(name, args, study, out_path, robust_moves):
         c0 = time.process_time()
         try:
             robust = plan_move(model, move, end=end, robust=r, guess=start,
+                               robust_steps=args.robust_steps,
                                torque_limit=limits["torque"],
                                velocity_limit=limits["velocity"], max_iter=args.max_iter,
                                progress_stop=ProgressStop(leave=0.0), **options)
         except SolverError as error:
             record["robust"] = {**_failure(error, time.process_time() - c0), "robust": r,
-                                "end_bounds": end, "guess": args.robust_guess}
+                                "end_bounds": end, "guess": args.robust_guess,
+                                "robust_steps": args.robust_steps}
             log(f"{name}: robust plan failed: {error}")
         else:
             cpu = time.process_time() - c0
@@ -319,7 +324,9 @@ def run_move(name, args, study, out_path, robust_moves):
                 f"{robust.stats['solve_cpu_s']:.0f} s CPU)")
             ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
             record["robust"] = plan_record(robust, limits, ev, model)
-            record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess)
+            record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
+                                    robust_steps=args.robust_steps,
+                                    continuation=robust.stats.get("continuation"))
         store(out_path, name, record)
         log(f"{name}: robust stored")
     if name in args.tradeoff_moves:
@@ -443,6 +450,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--robust-guess", default="nominal", choices=["nominal", "shaped"],
                         help="start of the robust plan: warm from the nominal plan, or "
                              "cold from the SI-shaped move")
+    parser.add_argument("--robust-steps", type=int, default=1, metavar="K",
+                        help="reach the robust plan by a continuation of K problems from "
+                             "the nominal one (plan_move's robust_steps)")
     parser.add_argument("--restarts", type=int, default=0, metavar="K",
                         help="solve the nominal plan again from where it stopped, up to K "
                              "times while it gets shorter")
@@ -464,7 +474,7 @@ def main(argv: list[str] | None = None) -> dict:
             "modes": args.modes, "commit": commit, "curve_dt": CURVE_DT,
             "derivatives": args.derivatives, "compile_flags": args.compile_flags,
             "format": FORMAT, "restarts": args.restarts, "guess": args.guess,
-            "robust_guess": args.robust_guess,
+            "robust_guess": args.robust_guess, "robust_steps": args.robust_steps,
             "command": "python benchmarks/bench_planning_moves.py "
                        + " ".join(sys.argv[1:] if argv is None else argv)}
     if args.onelink and (args.redo or not (out_path.exists() and "onelink"
