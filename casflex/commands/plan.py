@@ -1,7 +1,7 @@
 """``casflex plan``: optimal point-to-point motion of a robot on its flexible model.
 
 ``casflex plan ROBOT.toml --move FILE:NAME [--objective time|energy] [--duration T]
-[--robust R] [--modes N] [--intervals N] [--transcription collocation|shooting]
+[--robust R [--robust-steps K]] [--modes N] [--intervals N] [--transcription collocation|shooting]
 [--end rest|free|TOL] [--dt S] [--out DIR]
 [--plot FILE.png] [--json]``
 
@@ -17,7 +17,8 @@ joint motion with the prescribed-motion simulator and the planned torques with t
 torque-driven simulator.
 ``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too
 (by default each scenario's bound is the shaped move's residual at that frequency error),
-and evaluates both moves there.
+and evaluates both moves there; the robust plan is reached from the nominal plan through
+``--robust-steps`` problems (4 by default: ``casflex.planning.solve_by_continuation``).
 
 JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_peak``
 (rad/s), ``residual_tip_deflection`` (verified with the joints on the plan, m),
@@ -86,6 +87,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robust", type=float, default=0.0, metavar="R",
                         help="relative frequency error the end condition must withstand "
                         "(e.g. 0.1 = ±10 %%; default 0)")
+    # the default is casflex.planning.ROBUST_STEPS, read when the command runs (the
+    # parser does not import the planner); tests/planning/test_plan_cli.py checks the help
+    parser.add_argument("--robust-steps", type=int, default=None, metavar="K",
+                        help="with --robust: reach the robust plan from the nominal plan "
+                        "through K problems, R and the bounds moved together (default 4; "
+                        "1: the robust problem directly from the shaped move)")
     add_modes_argument(parser, 3, help="number of modes of the model (default 3)")
     parser.add_argument("--intervals", type=int, default=None, metavar="N",
                         help="intervals of the OCP (default 40 for shooting; for "
@@ -198,7 +205,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ModelError
     """
     from casflex.moves import load_move
-    from casflex.planning import DERIVATIVES, SOLVERS, plan_robot_move
+    from casflex.planning import DERIVATIVES, ROBUST_STEPS, SOLVERS, plan_robot_move
     from casflex.robot import load
 
     robust = number(float(getattr(args, "robust", 0.0)), "--robust", low=0.0, high=1.0,
@@ -210,6 +217,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     dt = number(float(getattr(args, "dt", DEFAULT_DT)), "--dt", low=0.0, low_open=True, high=0.1)
     max_iter = number(getattr(args, "max_iter", 500), "--max-iter", low=1, integer=True)
     restarts = number(getattr(args, "restarts", 2), "--restarts", low=0, integer=True)
+    robust_steps = getattr(args, "robust_steps", None)
+    robust_steps = ROBUST_STEPS if robust_steps is None else \
+        number(robust_steps, "--robust-steps", low=1, integer=True)
     duration = getattr(args, "duration", None)
     if duration is not None:
         duration = number(float(duration), "--duration", low=0.0, low_open=True)
@@ -235,7 +245,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         processes=getattr(args, "processes", None), progress=True, log=log,
         max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
         derivatives=derivatives, compile_function=_compiler(derivatives, cache_dir_of(args)),
-        solver=solver, restarts=restarts, **options)
+        solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
     summary = comparison.summary()
     log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "
         f"({100 * summary['shortening']:.1f} % shorter); residual tip deflection planned "

@@ -41,7 +41,9 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         ``shaped`` simulated on ``model`` with the joints on it, to ``shaped.t_end``.
     settings : dict
         The study's ``[planner]`` settings (:attr:`casflex.design.Study.planner`):
-        ``objective``, ``duration`` [s], ``weight``, ``robust``, ``end`` (``"shaped"``:
+        ``objective``, ``duration`` [s], ``weight``, ``robust``, ``robust_steps`` (the
+        robust plan through that many problems from the nominal one, default
+        :data:`casflex.planning.ROBUST_STEPS`), ``end`` (``"shaped"``:
         the shaped move's residual, in each robust scenario its residual there;
         ``"rest"``, ``"free"`` or a bound [m]),
         ``intervals``, ``transcription``, ``max_iter``, ``verify_dt`` (step of the
@@ -79,6 +81,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     True
     """
     from casflex.planning import (
+        ROBUST_STEPS,
         PlanComparison,
         plan_move,
         shaped_end,
@@ -106,6 +109,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                          weight=settings["weight"], intervals=settings["intervals"],
                          torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
                          guess=shaped, transcription=settings["transcription"],
+                         robust_steps=settings.get("robust_steps", ROBUST_STEPS),
                          max_iter=settings["max_iter"])
     except SolverError as exc:
         say(f"the planner found no plan: {exc}")

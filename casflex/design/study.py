@@ -49,7 +49,7 @@ _SECTIONS = {
                   "plant_region": "limits"},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
     "planner": {"enabled": True, "objective": "time", "duration": None, "weight": 0.0,
-                "robust": 0.0, "end": "shaped", "intervals": None,
+                "robust": 0.0, "robust_steps": None, "end": "shaped", "intervals": None,
                 "transcription": "collocation", "modes": None, "max_iter": 500,
                 "verify_dt": 1e-4},
 }
@@ -281,7 +281,7 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
 
 def _check_planner(path, p, n_modes):
     """The ``[planner]`` section: checked in place; ``None`` when it is switched off."""
-    from casflex.planning import OBJECTIVES, TRANSCRIPTIONS
+    from casflex.planning import OBJECTIVES, ROBUST_STEPS, TRANSCRIPTIONS
 
     if not _flag(path, "planner.enabled", p["enabled"]):
         return None
@@ -297,6 +297,8 @@ def _check_planner(path, p, n_modes):
         raise fail("planner.weight", 0.0, "must be > 0 with objective = 'weighted' "
                    "[1/(N^2 m^2)]", path=path)
     p["robust"] = number(p["robust"], "planner.robust", low=0.0, high=0.5, path=path)
+    p["robust_steps"] = ROBUST_STEPS if p["robust_steps"] is None else number(
+        p["robust_steps"], "planner.robust_steps", low=1, high=100, integer=True, path=path)
     end = p["end"]
     if isinstance(end, str):
         p["end"] = choice(end, "planner.end", ("shaped", "rest", "free"), path=path)

@@ -77,6 +77,8 @@ solve_by_continuation
     ``robust_steps``).
 continuation_steps
     The frequency errors and end bounds of that path.
+ROBUST_STEPS
+    The problems on that path in ``casflex plan --robust`` and the design job by default.
 
 Verification (:mod:`casflex.planning.verify`)
 ---------------------------------------------
@@ -135,6 +137,7 @@ from casflex.planning.ocp import (
 )
 from casflex.planning.planned import PlannedMove
 from casflex.planning.restarts import (
+    ROBUST_STEPS,
     continuation_steps,
     solve_by_continuation,
     solve_from_plan,
@@ -179,6 +182,7 @@ __all__ = [
     "solve_from_plan",
     "solve_by_continuation",
     "continuation_steps",
+    "ROBUST_STEPS",
     # limits
     "shaped_move_limits",
     "end_bounds",

@@ -491,8 +491,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     robust_steps : int
         With ``robust``: reach the robust problem by a continuation of this many problems
         from the nominal one (r and the scenarios' bounds moved together, each warm from
-        the plan before; :func:`casflex.planning.solve_by_continuation`,
-        ``stats["continuation"]``). Default 1: the robust problem directly.
+        the plan before; the nominal problem solved first unless ``guess`` is a plan;
+        :func:`casflex.planning.solve_by_continuation`, ``stats["continuation"]``).
+        Default 1: the robust problem directly.
 
     Returns
     -------

@@ -27,7 +27,13 @@ from casflex._validate import number
 from casflex.errors import SolverError
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
-           "solve_by_continuation"]
+           "solve_by_continuation", "ROBUST_STEPS"]
+
+#: robust problems on the continuation path of ``casflex plan --robust`` and of the design
+#: job's robust planner by default: move 1 of the design study at r = 0.1 went through
+#: 4 (benchmarks/README_planning.md, session 18); solved directly from the shaped move,
+#: it had no result after an hour of CPU (session 17)
+ROBUST_STEPS = 4
 
 #: what every pass records in ``stats["passes"]``
 PASS_KEYS = ("duration", "objective_value", "iterations", "status", "solve_s", "solve_cpu_s")
@@ -244,9 +250,12 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
 def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int) -> Any:
     """The robust plan of ``arguments`` by a continuation of ``steps`` problems.
 
-    The problems of :func:`continuation_steps`, the first from ``arguments["guess"]``,
-    every other warm-started from the plan before (:func:`solve_from_plan`: its iterate and
-    multipliers, or its iterate alone); ``restarts`` apply to the last problem only.
+    The path starts at the nominal problem (k = 0: ``robust = 0``, the nominal bound),
+    solved from ``arguments["guess"]`` unless that is already a plan (a
+    :class:`casflex.planning.PlannedMove`, e.g. the nominal plan), then goes through the
+    problems of :func:`continuation_steps`, each warm-started from the plan before
+    (:func:`solve_from_plan`: its iterate and multipliers, or its iterate alone).
+    ``restarts`` apply to the nominal problem and to the last one.
 
     Parameters
     ----------
@@ -255,27 +264,28 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     arguments : dict
         Its keyword arguments (``robust`` > 0, ``end``, ``guess``, ``restarts``...).
     steps : int
-        Problems on the path (>= 1; 1: the robust problem alone).
+        Robust problems on the path (>= 1; 1: the robust problem from the nominal plan).
 
     Returns
     -------
     PlannedMove
-        The last problem's plan; ``stats["continuation"]`` holds one dict per problem:
-        ``robust``, ``end_bounds`` [m] and the pass keys (``duration`` [s], ``status``,
-        ``iterations``, ``solve_s``, ``solve_cpu_s``...; a failed attempt from the
-        multipliers is its own entry, ``duration`` None), and ``continuation_solve_s`` /
+        The last problem's plan; ``stats["continuation"]`` holds one dict per problem
+        solved: ``robust``, ``end_bounds`` (one per scenario [m], or ``"rest"`` /
+        ``"free"``) and the pass keys (``duration`` [s], ``status``, ``iterations``,
+        ``solve_s``, ``solve_cpu_s``: over the problem's restarts...; a failed attempt
+        from the multipliers is its own entry, ``duration`` None), and ``continuation_solve_s`` /
         ``continuation_solve_cpu_s`` / ``continuation_iterations`` their totals.
 
     Raises
     ------
     casflex.errors.SolverError
-        A problem of the path found no plan: the message names it (its ``r`` and bounds)
-        and the error met there.
+        A problem of the path found no plan: the message names it (its step, ``r`` and
+        bounds) and the error met there.
 
     Examples
     --------
     The one-link arm: the robust plan by a path of two problems is the robust plan
-    solved directly (benchmarks/README_planning.md, session 18: 1.2879228904 s either way).
+    solved directly (1.2879228904 s either way, benchmarks/README_planning.md, session 18).
 
     >>> from casflex.model import FlexibleModel, PointwiseProvider
     >>> from casflex.planning import plan_move
@@ -286,36 +296,44 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     >>> p = solve_by_continuation(plan_move, {"model": model, "start": [0.0], "goal": [1.0],
     ...                                       **kw}, 2)
     >>> [c["robust"] for c in p.stats["continuation"]]
-    [0.05, 0.1]
+    [0.0, 0.05, 0.1]
     >>> direct = plan_move(model, [0.0], [1.0], **kw)
     >>> abs(p.duration - direct.duration) < 1e-6
     True
     """
     from casflex.planning.limits import end_bounds
+    from casflex.planning.planned import PlannedMove
 
     arguments = {**arguments, "robust_steps": 1}
     restarts = arguments.get("restarts", 0)
-    path = continuation_steps(arguments["robust"], arguments.get("end", "rest"), steps)
-    plan, record = None, []
-    for k, (r, end) in enumerate(path):
-        step = {**arguments, "robust": r, "end": end,
-                "restarts": restarts if k == len(path) - 1 else 0}
-        if plan is None:
-            failures = []
+    end = arguments.get("end", "rest")
+    path = continuation_steps(arguments["robust"], end, steps)
+    nominal = end_bounds(end, 3)[0]
+    plan, record, first = arguments.get("guess"), [], 1
+    if not isinstance(plan, PlannedMove):  # k = 0: the nominal problem from the guess
+        path.insert(0, (0.0, nominal))
+        first = 0
+    for k, (r, end_k) in enumerate(path, start=first):
+        step = {**arguments, "robust": r, "end": end_k,
+                "restarts": restarts if k in (0, steps) else 0}
+        bounds = end_bounds(end_k, 3 if r > 0.0 else 1)[1] or end_k
+        if isinstance(plan, PlannedMove):
+            new, failures = solve_from_plan(solve, step, plan)
+        else:
             try:
-                new = solve(**step)
+                new, failures = solve(**step), []
             except SolverError as exc:
                 new, failures = None, [exc]
-        else:
-            new, failures = solve_from_plan(solve, step, plan)
-        bounds = end_bounds(end, 3)[1] or end  # one per scenario, or "rest" / "free"
         record += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}",
                     "robust": r, "end_bounds": bounds} for exc in failures]
         if new is None:
-            raise SolverError(f"plan_move: the continuation found no plan at step {k + 1} of "
-                              f"{len(path)} (robust = {r:.6g}, end = {end}): {failures[-1]}")
+            raise SolverError(f"plan_move: the continuation found no plan at step {k} of "
+                              f"{steps} (robust = {r:.6g}, end = {end_k}): {failures[-1]}")
         plan = new
-        record.append({**_pass(plan), "robust": r, "end_bounds": bounds})
+        done = _pass(plan)  # with restarts: their totals
+        done.update({k: plan.stats.get(f"{k}_total", done[k])
+                     for k in ("solve_s", "solve_cpu_s", "iterations")})
+        record.append({**done, "robust": r, "end_bounds": bounds})
     done = [p for p in record if p["solve_s"] is not None]
     stats = plan.stats
     stats["continuation"] = record

@@ -31,6 +31,7 @@ from casflex.model import FlexibleModel
 from casflex.planning.limits import shaped_end, shaped_move_limits
 from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
+from casflex.planning.restarts import ROBUST_STEPS
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection
 
 if TYPE_CHECKING:
@@ -274,8 +275,10 @@ class PlanComparison:
             (verified: prescribed-motion run, m), ``residual_torque_driven``,
             ``residual_ocp``, ``robust`` (residuals at the frequency errors), ``shaped``
             {``duration``, ``residual_tip_deflection``, ``torque_peak``, ...},
-            ``solve_s`` and ``iterations`` (totals over the restarts), ``passes`` (each
-            pass's, :mod:`casflex.planning.restarts`; ``None`` without restarts),
+            ``solve_s`` and ``iterations`` (totals over the restarts and a robust plan's
+            continuation), ``passes`` (each pass's, :mod:`casflex.planning.restarts`;
+            ``None`` without restarts), ``continuation`` (each problem's on a robust
+            plan's path; ``None`` without one),
             ``status`` (of the plan's pass), ``intervals``, ``substeps``,
             ``limits``, ``shortening`` (1 − planned / shaped duration), ``limit_excess``
             (``torque`` and ``velocity``: per joint, how far the verified peak exceeds the
@@ -333,10 +336,13 @@ class PlanComparison:
             "limit_excess": {k: limit_excess(v[f"{k}_peak"], self.limits[k])
                              for k in ("torque", "velocity") if k in self.limits},
             "end_bound_excess": _bound_excess(v["prescribed"], p.stats.get("end")),
-            "solve_s": p.stats.get("solve_s_total", p.stats.get("solve_s")),
+            "solve_s": p.stats.get("continuation_solve_s", p.stats.get(
+                "solve_s_total", p.stats.get("solve_s"))),
             "status": p.stats.get("status"),
-            "iterations": p.stats.get("iterations_total", p.stats.get("iterations")),
+            "iterations": p.stats.get("continuation_iterations", p.stats.get(
+                "iterations_total", p.stats.get("iterations"))),
             "passes": p.stats.get("passes"),
+            "continuation": p.stats.get("continuation"),
             "intervals": p.stats.get("intervals"),
             "substeps": p.stats.get("substeps"),
             "objective": p.stats.get("objective"),
@@ -353,7 +359,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                     processes: int | None = None, progress: bool = False,
                     log: Callable[[str], None] | None = None,
                     ocp_modes: int | None = None, ocp_fit: str | None = None,
-                    restarts: int = 2, **plan_options: Any) -> PlanComparison:
+                    restarts: int = 2, robust_steps: int = ROBUST_STEPS,
+                    **plan_options: Any) -> PlanComparison:
     """Plan a move of a robot at the limits of its SI-shaped version and verify both.
 
     The model is :func:`casflex.model.build_model` without gravity (as the shaper's,
@@ -407,6 +414,10 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         Warm re-solves from the plan at most (:func:`casflex.planning.plan_move`'s
         ``restarts``; on move 1 of the design study one restart shortened the plan from
         2.918 to 2.133 s).
+    robust_steps : int
+        With ``robust``: the robust plan through this many problems from the nominal plan
+        (:func:`casflex.planning.plan_move`'s ``robust_steps``; 1: solved directly from the
+        shaped move).
     **plan_options
         More keywords of :func:`casflex.planning.plan_move` (``torque_limit``... override
         the shaped move's).
@@ -496,7 +507,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     say(f"planning {move.name}: objective {objective}, {intervals or 'default'} intervals, limits "
         f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
         f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"
-        + (f", robust ±{robust:g}" if robust else ""))
+        + (f", robust ±{robust:g}" + (f" through {robust_steps} problems from the nominal"
+                                     if robust_steps > 1 else "") if robust else ""))
     if objective == "energy" and duration is None:
         duration = float(shaped.duration)
     t0 = time.perf_counter()
@@ -504,7 +516,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                      intervals=intervals, torque_limit=limits["torque"],
                      velocity_limit=limits["velocity"], end=end, robust=robust,
                      guess=plan_options.pop("guess", shaped), restarts=restarts,
-                     **plan_options)
+                     robust_steps=robust_steps, **plan_options)
     timings["plan_s"] = time.perf_counter() - t0
     say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s), Ipopt "
         f"{plan.stats['status']} in {plan.stats['iterations']} iterations, "

@@ -29,11 +29,12 @@ def test_the_path_ends_at_the_direct_robust_plan(onelink, end):
     # two routes to one optimum: the same duration to the solver's tolerance
     assert path.duration == pytest.approx(direct.duration, rel=1e-7)
     steps = path.stats["continuation"]
-    assert [s["robust"] for s in steps] == pytest.approx([0.1 / 3, 0.2 / 3, 0.1])
+    # the nominal problem first (no plan given), then three robust problems
+    assert [s["robust"] for s in steps] == pytest.approx([0.0, 0.1 / 3, 0.2 / 3, 0.1])
     # the nominal problem's bound at every step (scalar end), or each scenario's moved
     # from the nominal 2 mm a third of the way per step
-    expected = [[2e-3] * 3] * 3 if isinstance(end, float) else \
-        [[2e-3, 2e-3 + k * 1e-3 / 3, 2e-3 - k * 0.5e-3 / 3] for k in (1, 2, 3)]
+    expected = [[2e-3]] + ([[2e-3] * 3] * 3 if isinstance(end, float) else
+                           [[2e-3, 2e-3 + k * 1e-3 / 3, 2e-3 - k * 0.5e-3 / 3] for k in (1, 2, 3)])
     for s, bounds in zip(steps, expected, strict=True):
         assert s["end_bounds"] == pytest.approx(bounds, rel=1e-12)
     assert all(s["status"] == "Solve_Succeeded" for s in steps)
@@ -43,6 +44,23 @@ def test_the_path_ends_at_the_direct_robust_plan(onelink, end):
     bounds = [end] * 3 if isinstance(end, float) else end
     residuals = [v["prescribed"], v["errors"][0]["prescribed"], v["errors"][1]["prescribed"]]
     assert all(r <= 1.05 * b for r, b in zip(residuals, bounds, strict=True))
+
+
+def test_from_a_plan_the_path_starts_there(onelink):
+    nominal = plan_move(onelink, MOVE, **COMMON, end=2e-3)
+    path = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
+                     guess=nominal)
+    assert [s["robust"] for s in path.stats["continuation"]] == [0.05, 0.1]
+    direct = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1)
+    assert path.duration == pytest.approx(direct.duration, rel=1e-7)
+
+
+def test_restarts_on_the_nominal_and_the_last_problem(onelink):
+    p = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
+                  restarts=1, restart_rtol=0.0)
+    steps = p.stats["continuation"]
+    assert [s["robust"] for s in steps] == [0.0, 0.05, 0.1]
+    assert "passes" in p.stats and len(p.stats["passes"]) == 2  # the last problem's
 
 
 def test_one_step_is_the_robust_problem_alone(onelink):
@@ -58,8 +76,8 @@ def test_no_robust_error_no_path(onelink):
 
 def test_a_step_without_plan_names_the_step(onelink):
     # 0.1 N m cannot move the arm 1 rad in 1 s (the rigid minimum is 1.29 s)
-    with pytest.raises(SolverError, match=r"continuation found no plan at step 1 of 2 "
-                                          r"\(robust = 0\.05"):
+    with pytest.raises(SolverError, match=r"continuation found no plan at step 0 of 2 "
+                                          r"\(robust = 0,"):
         plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
                   objective="energy", duration=1.0, max_iter=100)
 
