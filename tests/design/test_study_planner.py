@@ -31,6 +31,9 @@ def test_planner_is_off_unless_given():
     p = design.load_study(ONELINK).planner
     assert p["objective"] == "time" and p["end"] == "shaped" and p["robust"] == 0.0
     assert p["transcription"] == "collocation" and p["intervals"] is None
+    from casflex.planning import ROBUST_STEPS
+
+    assert p["robust_steps"] == ROBUST_STEPS
 
 
 def test_planner_switched_off(tmp_path):
@@ -40,9 +43,11 @@ def test_planner_switched_off(tmp_path):
 def test_planner_values(tmp_path):
     p = design.load_study(_study(tmp_path, "[planner]\nobjective = 'energy'\nduration = 2.5\n"
                                  "robust = 0.1\nend = 0.002\nintervals = 40\n"
-                                 "transcription = 'shooting'\nmodes = 1\n")).planner
+                                 "transcription = 'shooting'\nmodes = 1\n"
+                                 "robust_steps = 2\n")).planner
     assert (p["objective"], p["duration"], p["robust"], p["end"], p["intervals"],
-            p["transcription"], p["modes"]) == ("energy", 2.5, 0.1, 0.002, 40, "shooting", 1)
+            p["transcription"], p["modes"], p["robust_steps"]) == (
+        "energy", 2.5, 0.1, 0.002, 40, "shooting", 1, 2)
 
 
 @pytest.mark.parametrize("lines, field, value, rule", [
@@ -51,6 +56,8 @@ def test_planner_values(tmp_path):
     ("objective = 'energy'\nduration = -1.0", "planner.duration", "-1.0", "must be"),
     ("objective = 'weighted'", "planner.weight", "0.0", "must be > 0"),
     ("robust = 0.7", "planner.robust", "0.7", "must be"),
+    ("robust_steps = 0", "planner.robust_steps", "0", "must be"),
+    ("robust_steps = 2.5", "planner.robust_steps", "2.5", "whole number"),
     ("end = 'still'", "planner.end", "still", "must be one of"),
     ("end = 0.0", "planner.end", "0.0", "must be"),
     ("intervals = 2", "planner.intervals", "2", "must be"),
