@@ -315,7 +315,8 @@ def run_move(name, args, study, out_path, robust_moves):
         except SolverError as error:
             record["robust"] = {**_failure(error, time.process_time() - c0), "robust": r,
                                 "end_bounds": end, "guess": args.robust_guess,
-                                "robust_steps": args.robust_steps}
+                                "robust_steps": args.robust_steps,
+                                "continuation": getattr(error, "continuation", None)}
             log(f"{name}: robust plan failed: {error}")
         else:
             cpu = time.process_time() - c0

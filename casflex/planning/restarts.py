@@ -280,7 +280,9 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     ------
     casflex.errors.SolverError
         A problem of the path found no plan: the message names it (its step, ``r`` and
-        bounds) and the error met there.
+        bounds) and the error met there; the error's ``plan`` is the last plan the path
+        reached (``None`` at the first problem) and its ``continuation`` the records so
+        far.
 
     Examples
     --------
@@ -327,8 +329,10 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
         record += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}",
                     "robust": r, "end_bounds": bounds} for exc in failures]
         if new is None:
-            raise SolverError(f"plan_move: the continuation found no plan at step {k} of "
-                              f"{steps} (robust = {r:.6g}, end = {end_k}): {failures[-1]}")
+            error = SolverError(f"plan_move: the continuation found no plan at step {k} of "
+                                f"{steps} (robust = {r:.6g}, end = {end_k}): {failures[-1]}")
+            error.plan, error.continuation = plan, record  # what the path had reached
+            raise error
         plan = new
         done = _pass(plan)  # with restarts: their totals
         done.update({k: plan.stats.get(f"{k}_total", done[k])

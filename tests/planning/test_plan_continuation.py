@@ -82,6 +82,18 @@ def test_a_step_without_plan_names_the_step(onelink):
                   objective="energy", duration=1.0, max_iter=100)
 
 
+def test_a_failed_path_keeps_what_it_reached(onelink):
+    # from the nominal plan at 0.1 N m, a robust plan whose -r scenario must stop dead
+    # (bound 1e-9 m) at the same 0.1 N m within max_iter = 3: step 1 fails
+    nominal = plan_move(onelink, MOVE, **COMMON, end=2e-3)
+    with pytest.raises(SolverError) as err:
+        plan_move(onelink, MOVE, **COMMON, end=[2e-3, 1e-9, 2e-3], robust=0.1,
+                  robust_steps=2, guess=nominal, max_iter=3)
+    assert "at step 1 of 2" in str(err.value)
+    assert err.value.plan is nominal
+    assert [c["duration"] for c in err.value.continuation] == [None, None]
+
+
 @pytest.mark.parametrize("kw, field", [
     ({"robust_steps": 0}, "robust_steps"), ({"robust_steps": 1.5}, "robust_steps"),
     ({"robust_steps": "2"}, "robust_steps"),
