@@ -308,7 +308,7 @@ def run_move(name, args, study, out_path, robust_moves):
         c0 = time.process_time()
         try:
             robust = plan_move(model, move, end=end, robust=r, guess=start,
-                               robust_steps=args.robust_steps,
+                               robust_steps=args.robust_steps, log=log,
                                torque_limit=limits["torque"],
                                velocity_limit=limits["velocity"], max_iter=args.max_iter,
                                progress_stop=ProgressStop(leave=0.0), **options)
@@ -326,7 +326,7 @@ def run_move(name, args, study, out_path, robust_moves):
             ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
             record["robust"] = plan_record(robust, limits, ev, model)
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
-                                    robust_steps=args.robust_steps,
+                                    robust_steps=args.robust_steps, log=log,
                                     continuation=robust.stats.get("continuation"))
         store(out_path, name, record)
         log(f"{name}: robust stored")

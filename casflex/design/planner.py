@@ -109,7 +109,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                          weight=settings["weight"], intervals=settings["intervals"],
                          torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
                          guess=shaped, transcription=settings["transcription"],
-                         robust_steps=settings.get("robust_steps", ROBUST_STEPS),
+                         robust_steps=settings.get("robust_steps", ROBUST_STEPS), log=log,
                          max_iter=settings["max_iter"])
     except SolverError as exc:
         say(f"the planner found no plan: {exc}")

@@ -376,7 +376,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               derivatives: str = "casadi",
               compile_function: Callable[[list], list] | None = None,
               solver: str = "ipopt", restarts: int = 0,
-              restart_rtol: float = 1e-3, robust_steps: int = 1) -> PlannedMove:
+              restart_rtol: float = 1e-3, robust_steps: int = 1,
+              log: Callable[[str], None] | None = None) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -494,6 +495,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         the plan before; the nominal problem solved first unless ``guess`` is a plan;
         :func:`casflex.planning.solve_by_continuation`, ``stats["continuation"]``).
         Default 1: the robust problem directly.
+    log : callable, optional
+        ``log(message)``: one line per restart and per problem of a continuation.
 
     Returns
     -------

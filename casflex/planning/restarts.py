@@ -168,16 +168,23 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
     """
     restarts, restart_rtol = check_restarts(restarts, restart_rtol)
     arguments = {**arguments, "restarts": 0}
+    say = arguments.get("log") or (lambda message: None)
     best = solve(**arguments)
     passes = [_pass(best)]
     best_pass = 0
-    for _ in range(restarts):
+    say(f"  pass 0: {best.duration:.6g} s ({best.stats.get('status')}, "
+        f"{best.stats.get('iterations')} iterations)")
+    for k in range(restarts):
         plan, failures = solve_from_plan(solve, arguments, best)
         passes += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}"}
                    for exc in failures]
+        for exc in failures:
+            say(f"  restart {k + 1}: {exc}")
         if plan is None:
             break
         passes.append(_pass(plan))
+        say(f"  restart {k + 1}: {plan.duration:.6g} s ({plan.stats.get('status')}, "
+            f"{plan.stats.get('iterations')} iterations)")
         old, new = float(best.stats["objective_value"]), float(plan.stats["objective_value"])
         if new < old:
             best, best_pass = plan, len(passes) - 1
@@ -315,10 +322,14 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     if not isinstance(plan, PlannedMove):  # k = 0: the nominal problem from the guess
         path.insert(0, (0.0, nominal))
         first = 0
+    say = arguments.get("log") or (lambda message: None)
     for k, (r, end_k) in enumerate(path, start=first):
         step = {**arguments, "robust": r, "end": end_k,
                 "restarts": restarts if k in (0, steps) else 0}
         bounds = end_bounds(end_k, 3 if r > 0.0 else 1)[1] or end_k
+        say(f"continuation, problem {k} of {steps}: robust {r:.6g}, end "
+            + (end_k if isinstance(end_k, str) else
+               f"{[float(f'{1e3 * b:.4g}') for b in bounds]} mm"))
         if isinstance(plan, PlannedMove):
             new, failures = solve_from_plan(solve, step, plan)
         else:
@@ -337,6 +348,7 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
         done = _pass(plan)  # with restarts: their totals
         done.update({k: plan.stats.get(f"{k}_total", done[k])
                      for k in ("solve_s", "solve_cpu_s", "iterations")})
+        say(f"  {plan.duration:.6g} s ({done['status']}, {done['iterations']} iterations)")
         record.append({**done, "robust": r, "end_bounds": bounds})
     done = [p for p in record if p["solve_s"] is not None]
     stats = plan.stats

@@ -516,7 +516,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                      intervals=intervals, torque_limit=limits["torque"],
                      velocity_limit=limits["velocity"], end=end, robust=robust,
                      guess=plan_options.pop("guess", shaped), restarts=restarts,
-                     robust_steps=robust_steps, **plan_options)
+                     robust_steps=robust_steps, log=log, **plan_options)
     timings["plan_s"] = time.perf_counter() - t0
     say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s), Ipopt "
         f"{plan.stats['status']} in {plan.stats['iterations']} iterations, "

@@ -56,8 +56,14 @@ def test_from_a_plan_the_path_starts_there(onelink):
 
 
 def test_restarts_on_the_nominal_and_the_last_problem(onelink):
+    lines = []
     p = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
-                  restarts=1, restart_rtol=0.0)
+                  restarts=1, restart_rtol=0.0, log=lines.append)
+    # one line per problem and its result, one per pass of the restarted ones
+    assert [line.split(":")[0] for line in lines if line.startswith("continuation")] == [
+        f"continuation, problem {k} of 2" for k in (0, 1, 2)]
+    assert sum(line.startswith("  restart 1") for line in lines) == 2
+    assert lines[-4] == "continuation, problem 2 of 2: robust 0.1, end [2.0, 2.0, 2.0] mm"
     steps = p.stats["continuation"]
     assert [s["robust"] for s in steps] == [0.0, 0.05, 0.1]
     assert "passes" in p.stats and len(p.stats["passes"]) == 2  # the last problem's
