@@ -27,13 +27,17 @@ from casflex._validate import number
 from casflex.errors import SolverError
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
-           "solve_by_continuation", "ROBUST_STEPS"]
+           "solve_by_continuation", "ROBUST_STEPS", "CONTINUATION_HALVINGS"]
 
 #: robust problems on the continuation path of ``casflex plan --robust`` and of the design
 #: job's robust planner by default: move 1 of the design study at r = 0.1 went through
 #: 4 (benchmarks/README_planning.md, session 18); solved directly from the shaped move,
 #: it had no result after an hour of CPU (session 17)
 ROBUST_STEPS = 4
+
+#: shorter steps a continuation may take in all: a problem of the path that finds no plan
+#: from the last plan reached is retried after the problem half-way between them
+CONTINUATION_HALVINGS = 3
 
 #: what every pass records in ``stats["passes"]``
 PASS_KEYS = ("duration", "objective_value", "iterations", "status", "solve_s", "solve_cpu_s")
@@ -244,14 +248,20 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
 
     robust = number(robust, "robust", low=0.0, high=1.0, low_open=True, high_open=True)
     steps = int(number(steps, "robust_steps", low=1, integer=True))
+    end_bounds(end, 3)  # checked
+    return [_on_path(robust, end, k / steps) for k in range(1, steps + 1)]
+
+
+def _on_path(robust, end, f):
+    """The problem at fraction ``f`` of the path: ``(f robust, end moved by f)``."""
+    from casflex.planning.limits import end_bounds
+
     nominal, bounds = end_bounds(end, 3)
-    path = []
-    for k in range(1, steps + 1):
-        f = k / steps
-        end_k = end if bounds is None or k == steps else \
-            [nominal + f * (b - nominal) for b in bounds]
-        path.append((robust * f, end_k))
-    return path
+    if f == 0.0:
+        return 0.0, nominal
+    if bounds is None or f == 1.0:
+        return robust * f, end
+    return robust * f, [nominal + f * (b - nominal) for b in bounds]
 
 
 def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int) -> Any:
@@ -261,8 +271,13 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     solved from ``arguments["guess"]`` unless that is already a plan (a
     :class:`casflex.planning.PlannedMove`, e.g. the nominal plan), then goes through the
     problems of :func:`continuation_steps`, each warm-started from the plan before
-    (:func:`solve_from_plan`: its iterate and multipliers, or its iterate alone).
-    ``restarts`` apply to the nominal problem and to the last one.
+    (:func:`solve_from_plan`: its iterate and multipliers, or its iterate alone). A
+    problem that finds no plan from the last plan reached is retried after the problem
+    half-way between them, :data:`CONTINUATION_HALVINGS` times in all (on move 1 of the
+    design study the same four-step path reached r = 0.1 in one run and failed at its last
+    step in another: Ipopt's path through these problems is that sensitive,
+    benchmarks/README_planning.md, session 18). ``restarts`` apply to the nominal problem
+    and to the last one.
 
     Parameters
     ----------
@@ -286,10 +301,10 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     Raises
     ------
     casflex.errors.SolverError
-        A problem of the path found no plan: the message names it (its step, ``r`` and
-        bounds) and the error met there; the error's ``plan`` is the last plan the path
-        reached (``None`` at the first problem) and its ``continuation`` the records so
-        far.
+        A problem of the path found no plan after the halvings: the message names it (its
+        place on the path, ``r`` and bounds) and the error met there; the error's ``plan``
+        is the last plan the path reached (``None`` at the first problem) and its
+        ``continuation`` the records so far.
 
     Examples
     --------
@@ -316,18 +331,23 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     arguments = {**arguments, "robust_steps": 1}
     restarts = arguments.get("restarts", 0)
     end = arguments.get("end", "rest")
-    path = continuation_steps(arguments["robust"], end, steps)
-    nominal = end_bounds(end, 3)[0]
-    plan, record, first = arguments.get("guess"), [], 1
-    if not isinstance(plan, PlannedMove):  # k = 0: the nominal problem from the guess
-        path.insert(0, (0.0, nominal))
-        first = 0
+    robust = arguments["robust"]
+    continuation_steps(robust, end, steps)  # the arguments checked
+    fractions = [k / steps for k in range(1, steps + 1)]
+    plan, record, reached = arguments.get("guess"), [], 0.0  # a plan given: the nominal's
+    if not isinstance(plan, PlannedMove):  # the nominal problem from the guess first
+        fractions.insert(0, 0.0)
+        reached = None
+    halvings = 0
     say = arguments.get("log") or (lambda message: None)
-    for k, (r, end_k) in enumerate(path, start=first):
+    i = 0
+    while i < len(fractions):
+        f = fractions[i]
+        r, end_k = _on_path(robust, end, f)
         step = {**arguments, "robust": r, "end": end_k,
-                "restarts": restarts if k in (0, steps) else 0}
+                "restarts": restarts if f in (0.0, 1.0) else 0}
         bounds = end_bounds(end_k, 3 if r > 0.0 else 1)[1] or end_k
-        say(f"continuation, problem {k} of {steps}: robust {r:.6g}, end "
+        say(f"continuation, problem at {f:.4g} of the path: robust {r:.6g}, end "
             + (end_k if isinstance(end_k, str) else
                f"{[float(f'{1e3 * b:.4g}') for b in bounds]} mm"))
         if isinstance(plan, PlannedMove):
@@ -339,17 +359,25 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
                 new, failures = None, [exc]
         record += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}",
                     "robust": r, "end_bounds": bounds} for exc in failures]
+        if new is None and reached is not None and halvings < CONTINUATION_HALVINGS:
+            # a shorter step from the last plan reached
+            fractions.insert(i, 0.5 * (reached + f))
+            halvings += 1
+            say(f"  no plan: {failures[-1]}; halving the step")
+            continue
         if new is None:
-            error = SolverError(f"plan_move: the continuation found no plan at step {k} of "
-                                f"{steps} (robust = {r:.6g}, end = {end_k}): {failures[-1]}")
+            error = SolverError(f"plan_move: the continuation found no plan at {f:.4g} of "
+                                f"its path (robust = {r:.6g}, end = {end_k}, after "
+                                f"{halvings} halving(s)): {failures[-1]}")
             error.plan, error.continuation = plan, record  # what the path had reached
             raise error
-        plan = new
+        plan, reached = new, f
         done = _pass(plan)  # with restarts: their totals
         done.update({k: plan.stats.get(f"{k}_total", done[k])
                      for k in ("solve_s", "solve_cpu_s", "iterations")})
         say(f"  {plan.duration:.6g} s ({done['status']}, {done['iterations']} iterations)")
         record.append({**done, "robust": r, "end_bounds": bounds})
+        i += 1
     done = [p for p in record if p["solve_s"] is not None]
     stats = plan.stats
     stats["continuation"] = record

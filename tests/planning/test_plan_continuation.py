@@ -61,9 +61,10 @@ def test_restarts_on_the_nominal_and_the_last_problem(onelink):
                   restarts=1, restart_rtol=0.0, log=lines.append)
     # one line per problem and its result, one per pass of the restarted ones
     assert [line.split(":")[0] for line in lines if line.startswith("continuation")] == [
-        f"continuation, problem {k} of 2" for k in (0, 1, 2)]
+        f"continuation, problem at {f} of the path" for f in ("0", "0.5", "1")]
     assert sum(line.startswith("  restart 1") for line in lines) == 2
-    assert lines[-4] == "continuation, problem 2 of 2: robust 0.1, end [2.0, 2.0, 2.0] mm"
+    assert lines[-4] == ("continuation, problem at 1 of the path: robust 0.1, end "
+                         "[2.0, 2.0, 2.0] mm")
     steps = p.stats["continuation"]
     assert [s["robust"] for s in steps] == [0.0, 0.05, 0.1]
     assert "passes" in p.stats and len(p.stats["passes"]) == 2  # the last problem's
@@ -82,7 +83,7 @@ def test_no_robust_error_no_path(onelink):
 
 def test_a_step_without_plan_names_the_step(onelink):
     # 0.1 N m cannot move the arm 1 rad in 1 s (the rigid minimum is 1.29 s)
-    with pytest.raises(SolverError, match=r"continuation found no plan at step 0 of 2 "
+    with pytest.raises(SolverError, match=r"continuation found no plan at 0 of its path "
                                           r"\(robust = 0,"):
         plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
                   objective="energy", duration=1.0, max_iter=100)
@@ -95,9 +96,12 @@ def test_a_failed_path_keeps_what_it_reached(onelink):
     with pytest.raises(SolverError) as err:
         plan_move(onelink, MOVE, **COMMON, end=[2e-3, 1e-9, 2e-3], robust=0.1,
                   robust_steps=2, guess=nominal, max_iter=3)
-    assert "at step 1 of 2" in str(err.value)
+    # the first problem, then three halvings: 0.25, 0.125, 0.0625 of the path
+    assert "at 0.0625 of its path" in str(err.value) and "3 halving(s)" in str(err.value)
     assert err.value.plan is nominal
-    assert [c["duration"] for c in err.value.continuation] == [None, None]
+    assert [c["robust"] for c in err.value.continuation] == [
+        0.05, 0.05, 0.025, 0.025, 0.0125, 0.0125, 0.00625, 0.00625]
+    assert all(c["duration"] is None for c in err.value.continuation)
 
 
 @pytest.mark.parametrize("kw, field", [
@@ -115,3 +119,40 @@ def test_steps_of_rest_and_of_bad_input():
         continuation_steps(0.0, 2e-3, 2)
     with pytest.raises(ModelError, match="end"):
         continuation_steps(0.1, [2e-3, 1e-3], 2)
+
+
+def _plan(robust, duration):
+    """A stand-in plan that knows the error it was solved at."""
+    import numpy as np
+
+    from casflex.planning import PlannedMove
+
+    t = np.array([0.0, duration])
+    return PlannedMove(t=t, q=np.zeros((2, 1)), dq=np.zeros((2, 1)), ddq=np.zeros((2, 1)),
+                       tau=np.zeros((2, 1)), delta=np.zeros((2, 0)),
+                       ddelta=np.zeros((2, 0)), node_t=t, node_x=np.zeros((2, 2)),
+                       node_tau=np.zeros((1, 1)), hold_torque=np.zeros(1),
+                       stats={"status": "Solve_Succeeded", "iterations": 1,
+                              "objective_value": duration, "solve_s": 0.0,
+                              "solve_cpu_s": 0.0, "robust": robust})
+
+
+def test_a_step_too_long_is_halved():
+    # a solver that reaches a problem only from a plan within 0.03 of its error: the
+    # path 0 -> 0.05 -> 0.1 needs both steps halved (0.025, then 0.075)
+    def solve(robust, guess, **kw):
+        if abs(robust - guess.stats["robust"]) > 0.03 + 1e-12:
+            raise SolverError(f"too far: {guess.stats['robust']} -> {robust}")
+        return _plan(robust, 1.0 + robust)
+
+    from casflex.planning import solve_by_continuation
+
+    lines = []
+    p = solve_by_continuation(solve, {"robust": 0.1, "end": 2e-3, "guess": _plan(0.0, 1.0),
+                                      "log": lines.append}, 2)
+    steps = p.stats["continuation"]
+    assert [(round(s["robust"], 6), s["duration"] is None) for s in steps] == [
+        (0.05, True), (0.025, False), (0.05, False), (0.1, True), (0.075, False),
+        (0.1, False)]
+    assert p.stats["robust"] == 0.1
+    assert sum("halving the step" in line for line in lines) == 2
