@@ -309,6 +309,7 @@ def run_move(name, args, study, out_path, robust_moves):
         try:
             robust = plan_move(model, move, end=end, robust=r, guess=start,
                                robust_steps=args.robust_steps, log=log,
+                               restarts=args.restarts,
                                torque_limit=limits["torque"],
                                velocity_limit=limits["velocity"], max_iter=args.max_iter,
                                progress_stop=ProgressStop(leave=0.0), **options)
@@ -327,6 +328,7 @@ def run_move(name, args, study, out_path, robust_moves):
             record["robust"] = plan_record(robust, limits, ev, model)
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
                                     robust_steps=args.robust_steps, log=log,
+                               restarts=args.restarts,
                                     continuation=robust.stats.get("continuation"))
         store(out_path, name, record)
         log(f"{name}: robust stored")
