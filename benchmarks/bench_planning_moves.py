@@ -327,9 +327,9 @@ def run_move(name, args, study, out_path, robust_moves):
             ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
             record["robust"] = plan_record(robust, limits, ev, model)
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
-                                    robust_steps=args.robust_steps, log=log,
-                               restarts=args.restarts,
-                                    continuation=robust.stats.get("continuation"))
+                                    robust_steps=args.robust_steps,
+                                    continuation=robust.stats.get("continuation"),
+                                    passes=robust.stats.get("passes"))
         store(out_path, name, record)
         log(f"{name}: robust stored")
     if name in args.tradeoff_moves:
