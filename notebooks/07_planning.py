@@ -102,7 +102,7 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "388ce592b325f2b14cf9f1afb5309990fb50411bad82107e2c2ce6e6f4c8c198"
+DATA_SHA256 = "07cf7e3fea45a3bd08cf6b536175680b8d3693ef22bc0d00872605fd5e04b974"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
@@ -255,13 +255,17 @@ plt.show()
 # sensitivity is the same or worse (87 / 2.0 / 83 mm on move 1).
 #
 # The robust plan of move 1 (`--robust 0.1`, one bound per scenario: the shaped move's
-# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %) has no stored result. Warm-started from the
-# 2.133 s nominal plan it ended at Ipopt's 500-iteration limit with its last iterate
-# infeasible (violation 0.2; 873 s of CPU, session 16); started from the shaped move,
-# which meets all three bounds and both limits, it had not finished after 50 minutes of
-# CPU (1000 iterations allowed) when the session ended. benchmarks/README_planning.md has
-# both attempts. The one-link arm above shows what the option does when it converges;
-# for move 1 it is the open part of issue 15.
+# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %) has no stored result. Solved directly it did
+# not converge (warm from the 2.133 s nominal plan: Ipopt's 500-iteration limit with its
+# last iterate infeasible; from the shaped move: no result after 50 minutes of CPU).
+# Reached by continuation from the nominal plan (`robust_steps`, the default of
+# `casflex plan --robust` now: r and the scenarios' bounds moved together, each problem
+# warm from the last) the outcome depended on the path: four steps gave a 2.39 s plan in
+# one run (25 % shorter than the shaped move; not simulated) and no plan at the last step
+# in another, eight steps a 3.74 s plan that leaves 19.6 / 8.6 / 5.2 mm (less than the
+# shaped move at every error) but lasts 16 % longer than it. benchmarks/README_planning.md
+# (session 18) has the runs. The one-link arm above shows what the option does when it
+# converges; for move 1 it is the open part of issue 15.
 
 # %% [markdown]
 # ## 7.4 Duration vs residual tolerance

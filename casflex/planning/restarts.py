@@ -30,9 +30,10 @@ __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continua
            "solve_by_continuation", "ROBUST_STEPS", "CONTINUATION_HALVINGS"]
 
 #: robust problems on the continuation path of ``casflex plan --robust`` and of the design
-#: job's robust planner by default: move 1 of the design study at r = 0.1 went through
-#: 4 (benchmarks/README_planning.md, session 18); solved directly from the shaped move,
-#: it had no result after an hour of CPU (session 17)
+#: job's robust planner by default. Move 1 of the design study at r = 0.1: solved directly
+#: from the shaped move, no result after an hour of CPU (session 17); through 4 problems
+#: from the nominal plan, 2.39 s in one run and no plan at the last problem in another;
+#: through 8, a 3.74 s plan (benchmarks/README_planning.md, session 18)
 ROBUST_STEPS = 4
 
 #: shorter steps a continuation may take in all: a problem of the path that finds no plan
