@@ -25,6 +25,8 @@ from typing import Any
 
 from casflex._validate import number
 from casflex.errors import SolverError
+from casflex.planning.limits import end_bounds
+from casflex.planning.planned import PlannedMove
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
            "solve_by_continuation", "ROBUST_STEPS", "CONTINUATION_HALVINGS"]
@@ -245,8 +247,6 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
     >>> continuation_steps(0.1, "rest", 2)
     [(0.05, 'rest'), (0.1, 'rest')]
     """
-    from casflex.planning.limits import end_bounds
-
     robust = number(robust, "robust", low=0.0, high=1.0, low_open=True, high_open=True)
     steps = int(number(steps, "robust_steps", low=1, integer=True))
     end_bounds(end, 3)  # checked
@@ -255,8 +255,6 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
 
 def _on_path(robust, end, f):
     """The problem at fraction ``f`` of the path: ``(f robust, end moved by f)``."""
-    from casflex.planning.limits import end_bounds
-
     nominal, bounds = end_bounds(end, 3)
     if f == 0.0:
         return 0.0, nominal
@@ -326,9 +324,6 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     >>> abs(p.duration - direct.duration) < 1e-6
     True
     """
-    from casflex.planning.limits import end_bounds
-    from casflex.planning.planned import PlannedMove
-
     arguments = {**arguments, "robust_steps": 1}
     restarts = arguments.get("restarts", 0)
     end = arguments.get("end", "rest")
