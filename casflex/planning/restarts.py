@@ -82,6 +82,22 @@ def _pass(plan) -> dict:
             "solve_s": s.get("solve_s"), "solve_cpu_s": s.get("solve_cpu_s")}
 
 
+def _failed(exc: SolverError, **extra: Any) -> dict:
+    """The record of an attempt that found no plan (``duration`` None)."""
+    return {**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}", **extra}
+
+
+def _line(duration: float, status: Any, iterations: Any) -> str:
+    return f"{duration:.6g} s ({status}, {iterations} iterations)"
+
+
+def _totals(records: list[dict]) -> tuple[float, float, int]:
+    """Wall and CPU seconds and iterations summed over the attempts that ran."""
+    done = [p for p in records if p["solve_s"] is not None]
+    return (float(sum(p["solve_s"] for p in done)), float(sum(p["solve_cpu_s"] for p in done)),
+            int(sum(p["iterations"] for p in done)))
+
+
 def solve_from_plan(solve: Callable[..., Any], arguments: dict,
                     plan: Any) -> tuple[Any, list[SolverError]]:
     """``solve(**arguments)`` warm-started from ``plan``; if that fails and the plan carries
@@ -179,19 +195,18 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
     best = solve(**arguments)
     passes = [_pass(best)]
     best_pass = 0
-    say(f"  pass 0: {best.duration:.6g} s ({best.stats.get('status')}, "
-        f"{best.stats.get('iterations')} iterations)")
+    say("  pass 0: " + _line(best.duration, best.stats.get("status"),
+                              best.stats.get("iterations")))
     for k in range(restarts):
         plan, failures = solve_from_plan(solve, arguments, best)
-        passes += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}"}
-                   for exc in failures]
+        passes += [_failed(exc) for exc in failures]
         for exc in failures:
             say(f"  restart {k + 1}: {exc}")
         if plan is None:
             break
         passes.append(_pass(plan))
-        say(f"  restart {k + 1}: {plan.duration:.6g} s ({plan.stats.get('status')}, "
-            f"{plan.stats.get('iterations')} iterations)")
+        say(f"  restart {k + 1}: " + _line(plan.duration, plan.stats.get("status"),
+                                           plan.stats.get("iterations")))
         old, new = float(best.stats["objective_value"]), float(plan.stats["objective_value"])
         if new < old:
             best, best_pass = plan, len(passes) - 1
@@ -201,10 +216,8 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
     stats["passes"] = passes
     stats["restarts"] = len(passes) - 1
     stats["best_pass"] = best_pass
-    done = [p for p in passes if p["solve_s"] is not None]
-    stats["solve_s_total"] = float(sum(p["solve_s"] for p in done))
-    stats["solve_cpu_s_total"] = float(sum(p["solve_cpu_s"] for p in done))
-    stats["iterations_total"] = int(sum(p["iterations"] for p in done))
+    stats["solve_s_total"], stats["solve_cpu_s_total"], stats["iterations_total"] = \
+        _totals(passes)
     return best
 
 
@@ -348,13 +361,12 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
                f"{[float(f'{1e3 * b:.4g}') for b in bounds]} mm"))
         if isinstance(plan, PlannedMove):
             new, failures = solve_from_plan(solve, step, plan)
-        else:
+        else:  # the nominal problem from the caller's guess (or solve's default)
             try:
                 new, failures = solve(**step), []
             except SolverError as exc:
                 new, failures = None, [exc]
-        record += [{**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}",
-                    "robust": r, "end_bounds": bounds} for exc in failures]
+        record += [_failed(exc, robust=r, end_bounds=bounds) for exc in failures]
         if new is None and reached is not None and halvings < CONTINUATION_HALVINGS:
             # a shorter step from the last plan reached
             fractions.insert(i, 0.5 * (reached + f))
@@ -371,13 +383,11 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
         done = _pass(plan)  # with restarts: their totals
         done.update({k: plan.stats.get(f"{k}_total", done[k])
                      for k in ("solve_s", "solve_cpu_s", "iterations")})
-        say(f"  {plan.duration:.6g} s ({done['status']}, {done['iterations']} iterations)")
+        say("  " + _line(plan.duration, done["status"], done["iterations"]))
         record.append({**done, "robust": r, "end_bounds": bounds})
         i += 1
-    done = [p for p in record if p["solve_s"] is not None]
     stats = plan.stats
     stats["continuation"] = record
-    stats["continuation_solve_s"] = float(sum(p["solve_s"] for p in done))
-    stats["continuation_solve_cpu_s"] = float(sum(p["solve_cpu_s"] for p in done))
-    stats["continuation_iterations"] = int(sum(p["iterations"] for p in done))
+    stats["continuation_solve_s"], stats["continuation_solve_cpu_s"], \
+        stats["continuation_iterations"] = _totals(record)
     return plan
