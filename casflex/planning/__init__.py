@@ -53,7 +53,10 @@ PROGRESS_STATUS
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
 PlannedMove
-    Dense trajectory, node values, torques, solver statistics; sampling, torque law, CSV.
+    Dense trajectory, node values, torques, solver statistics; sampling, torque law, CSV;
+    pickles (a plan saved and reused, e.g. as the warm start of a later run).
+Propagator
+    The OCP's own discretisation of an interval: the state after a node, for sampling.
 
 Limits (:mod:`casflex.planning.limits`)
 ---------------------------------------
@@ -135,7 +138,7 @@ from casflex.planning.ocp import (
     plan_move,
     predicted_residual,
 )
-from casflex.planning.planned import PlannedMove
+from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.restarts import (
     ROBUST_STEPS,
     continuation_steps,
@@ -177,6 +180,7 @@ __all__ = [
     "PROGRESS_STATUS",
     # the result
     "PlannedMove",
+    "Propagator",
     # restarts and continuation
     "solve_with_restarts",
     "solve_from_plan",

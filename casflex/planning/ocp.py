@@ -52,7 +52,7 @@ from casflex.planning.assembly import block_derivatives, point_values
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
 from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
-from casflex.planning.planned import PlannedMove
+from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.restarts import check_restarts, solve_by_continuation, solve_with_restarts
 from casflex.planning.scenarios import (
     frequency_shifted_model,
@@ -206,60 +206,6 @@ def _collocation_function(ode, nxa, n, degree):
     except RuntimeError:
         pass
     return G, tau_c[1:]
-
-
-def _propagator(model, node_x, node_tau, h, substeps, tc=None, Xc=None):
-    """``propagate(k, s) -> (x, ẋ)``: the nominal state a time ``s`` after node ``k``
-    (arrays, one column per sample) and its derivative under the interval's torque.
-
-    Shooting (``Xc`` None): ``substeps`` RK4 steps of ``s / substeps`` from the node (the
-    OCP's interval at ``s = h``). Collocation: the interval's collocation polynomial
-    through the node and the states ``Xc`` (``N degree`` rows) at the points ``tc``."""
-    ode = model.functions()["ode"]
-    nx = node_x.shape[1]
-    cache = {}
-
-    def mapped(key, fn, k):
-        if (key, k) not in cache:
-            cache[key, k] = fn.map(k)
-        return cache[key, k]
-
-    if Xc is None:
-        x = ca.SX.sym("x", nx)
-        u = ca.SX.sym("tau", model.n)
-        s = ca.SX.sym("s")
-        xs = x
-        for _ in range(substeps):
-            xs = rk4_step(lambda y, v: ode(y, v), xs, s / substeps, u)
-        G = ca.Function("propagate", [x, u, s], [xs, ode(xs, u)])
-
-        def propagate(k, s):
-            k = np.asarray(k, dtype=int).ravel()
-            xt, xdot = mapped("rk4", G, k.size)(node_x[k].T, node_tau[k].T,
-                                                 np.asarray(s, dtype=float).reshape(1, -1))
-            return xt.full(), xdot.full()
-        return propagate
-
-    degree = tc.size
-    points = np.r_[0.0, tc]
-    basis = []
-    for r in range(degree + 1):
-        coeff = np.array([1.0])
-        for j in range(degree + 1):
-            if j != r:
-                coeff = np.convolve(coeff, [1.0, -points[j]]) / (points[r] - points[j])
-        basis.append(coeff)
-
-    def propagate(k, s):
-        k = np.asarray(k, dtype=int).ravel()
-        r = np.asarray(s, dtype=float).ravel() / h
-        w = np.array([np.polyval(c, r) for c in basis])  # (degree + 1, K)
-        xt = w[0][:, None] * node_x[k]
-        for j in range(degree):
-            xt = xt + w[j + 1][:, None] * Xc[k * degree + j]
-        xdot = mapped("ode", ode, k.size)(xt.T, node_tau[k].T)
-        return xt.T, xdot.full()
-    return propagate
 
 
 def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
@@ -876,9 +822,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # discretisation (the RK4 substeps, or the collocation polynomial)
     hv = Tv / N
     node_x, node_tau = Xv[:nx].T.copy(), Uv.T.copy()
-    propagate = _propagator(model, node_x, node_tau, hv, substeps, tc if Xc is not None
-                            else None, values(Xc)[:nx].T.reshape(-1, nx) if Xc is not None
-                            else None)
+    propagate = Propagator(model.functions()["ode"], node_x, node_tau, hv, substeps,
+                           tc if Xc is not None else None,
+                           values(Xc)[:nx].T.reshape(-1, nx) if Xc is not None else None)
     k = np.r_[np.repeat(np.arange(N), substeps), N - 1]
     s_in = np.r_[np.tile(np.arange(substeps) * (hv / substeps), N), hv]
     dense, xdot = (a.T for a in propagate(k, s_in))

@@ -25,7 +25,100 @@ from numpy.typing import ArrayLike
 from casflex._validate import output_file
 from casflex.moves import reference_sampler
 
-__all__ = ["PlannedMove"]
+__all__ = ["PlannedMove", "Propagator"]
+
+
+class Propagator:
+    """The state of the planner's model a time ``s`` after node ``k``, by the OCP's own
+    discretisation of the interval (:attr:`PlannedMove.propagator`).
+
+    Shooting (``Xc`` None): ``substeps`` RK4 steps of ``s / substeps`` from the node under
+    the interval's torque (the OCP's interval at ``s = h``). Collocation: the interval's
+    collocation polynomial through the node and the states ``Xc`` at the points ``tc``.
+    A plain object of arrays and CasADi functions, so a :class:`PlannedMove` pickles with
+    it (the mapped copies of the functions are rebuilt on demand, not stored).
+
+    Parameters
+    ----------
+    ode : casadi.Function
+        ``ode(x, tau) -> ẋ`` of the model, ``x = [q; δ; q̇; δ̇]``.
+    node_x : numpy.ndarray, shape (N + 1, nx)
+        States at the nodes.
+    node_tau : numpy.ndarray, shape (N, n)
+        Torque of every interval [N m].
+    h : float
+        Interval length [s].
+    substeps : int
+        RK4 steps per interval (shooting).
+    tc : numpy.ndarray, optional
+        Collocation points as fractions of an interval (collocation).
+    Xc : numpy.ndarray, shape (N degree, nx), optional
+        States at the collocation points, interval by interval (collocation).
+
+    Examples
+    --------
+    A double integrator, ``ẋ = [v; τ]``, under a unit torque from rest: ``q = s² / 2``.
+
+    >>> x, tau = ca.SX.sym("x", 2), ca.SX.sym("tau")
+    >>> ode = ca.Function("ode", [x, tau], [ca.vertcat(x[1], tau)])
+    >>> p = Propagator(ode, np.zeros((2, 2)), np.ones((1, 1)), 1.0, 4)
+    >>> xs, xdot = p([0], [0.5])
+    >>> [round(float(v), 12) for v in xs[:, 0]]
+    [0.125, 0.5]
+    """
+
+    def __init__(self, ode: ca.Function, node_x: np.ndarray, node_tau: np.ndarray,
+                 h: float, substeps: int, tc: np.ndarray | None = None,
+                 Xc: np.ndarray | None = None) -> None:
+        self.ode, self.node_x, self.node_tau = ode, node_x, node_tau
+        self.h, self.Xc = float(h), Xc
+        self._mapped: dict = {}
+        if Xc is None:
+            from casflex.simulate.integrators import rk4_step
+
+            x = ca.SX.sym("x", node_x.shape[1])
+            u = ca.SX.sym("tau", node_tau.shape[1])
+            s = ca.SX.sym("s")
+            xs = x
+            for _ in range(substeps):
+                xs = rk4_step(lambda y, v: ode(y, v), xs, s / substeps, u)
+            self.step = ca.Function("propagate", [x, u, s], [xs, ode(xs, u)])
+            return
+        # Lagrange basis on [0, tc]: one polynomial in the fraction of the interval per
+        # point (the node first)
+        points = np.r_[0.0, tc]
+        self.basis = []
+        for r in range(points.size):
+            coeff = np.array([1.0])
+            for j in range(points.size):
+                if j != r:
+                    coeff = np.convolve(coeff, [1.0, -points[j]]) / (points[r] - points[j])
+            self.basis.append(coeff)
+
+    def _map(self, fn: ca.Function, count: int) -> ca.Function:
+        key = (fn.name(), count)
+        if key not in self._mapped:
+            self._mapped[key] = fn.map(count)
+        return self._mapped[key]
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_mapped": {}}
+
+    def __call__(self, k: ArrayLike, s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, ẋ)``, one column per sample, ``s`` [s] after the nodes ``k``."""
+        k = np.asarray(k, dtype=int).ravel()
+        s = np.asarray(s, dtype=float).ravel()
+        if self.Xc is None:
+            xt, xdot = self._map(self.step, k.size)(self.node_x[k].T, self.node_tau[k].T,
+                                                    s.reshape(1, -1))
+            return xt.full(), xdot.full()
+        degree = len(self.basis) - 1
+        w = np.array([np.polyval(c, s / self.h) for c in self.basis])  # (degree + 1, K)
+        xt = w[0][:, None] * self.node_x[k]
+        for j in range(degree):
+            xt = xt + w[j + 1][:, None] * self.Xc[k * degree + j]
+        xdot = self._map(self.ode, k.size)(xt.T, self.node_tau[k].T)
+        return xt.T, xdot.full()
 
 
 @dataclass
@@ -65,7 +158,10 @@ class PlannedMove:
         scaled to ``s``, or the collocation polynomial). With it, :meth:`sample`
         integrates from the node before every sample time, so the joint motion is the
         one the torques produce, acceleration jumps at the nodes included; without it
-        the dense samples are interpolated.
+        the dense samples are interpolated. :func:`casflex.planning.plan_move` sets a
+        :class:`Propagator`, which pickles: so does the plan (``pickle.dumps(plan)``,
+        a few MB with the model's ODE; the copy samples, simulates and warm-starts a
+        neighbouring problem as the plan does).
     solution : dict, optional
         The OCP's last iterate: ``x`` (all NLP variables), ``lam_g`` (the constraints'
         multipliers) and ``scales`` (the scales of the NLP's rows: ``x`` states, ``tau``
