@@ -89,6 +89,28 @@ class ProgressStop:
         self.leave = number(self.leave, "leave", low=0.0)
         self.feasibility = number(self.feasibility, "feasibility", low=0.0)
 
+    @classmethod
+    def near_solution(cls) -> ProgressStop:
+        """The rule for a warm start from a converged neighbouring plan (its iterate and
+        multipliers): 3 feasible iterates in a row within 1e-5 of each other, no
+        decrease needed (what :func:`casflex.planning.plan_move` takes there with
+        ``progress_stop=True``).
+
+        From there Ipopt takes Newton steps to the neighbour's optimum: on move 1 of the
+        design study, with the end bound 5 % tighter, T settles within 4 iterates of the
+        first feasible one (2.1348156, 2.1348149, 2.1348150 s) and Ipopt spends 30 more
+        on its optimality test (the iterates leave feasibility and return) to end at
+        2.1348019 s, 6e-6 below (benchmarks/README_planning.md, session 19). The default
+        window (10 feasible in a row) is broken by those excursions.
+
+        Examples
+        --------
+        >>> rule = ProgressStop.near_solution()
+        >>> (rule.window, rule.rtol, rule.leave)
+        (3, 1e-05, 0.0)
+        """
+        return cls(window=3, rtol=1e-5, leave=0.0)
+
     def update(self, objective: float, violation: float) -> bool:
         """Take one iterate; ``True`` when the solve should stop there.
 

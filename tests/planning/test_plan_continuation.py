@@ -8,7 +8,7 @@ import pytest
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
-from casflex.planning import continuation_steps, plan_move, verify_plan
+from casflex.planning import PROGRESS_STATUS, continuation_steps, plan_move, verify_plan
 from casflex.robot import load
 
 MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
@@ -37,7 +37,10 @@ def test_the_path_ends_at_the_direct_robust_plan(onelink, end):
                            [[2e-3, 2e-3 + k * 1e-3 / 3, 2e-3 - k * 0.5e-3 / 3] for k in (1, 2, 3)])
     for s, bounds in zip(steps, expected, strict=True):
         assert s["end_bounds"] == pytest.approx(bounds, rel=1e-12)
-    assert all(s["status"] == "Solve_Succeeded" for s in steps)
+    # every step solved: by Ipopt's tests, or (a step warm from a converged plan) by the
+    # progress rule of ProgressStop.near_solution, the duration equal either way (above)
+    assert all(s["status"] in ("Solve_Succeeded", PROGRESS_STATUS) for s in steps)
+    assert steps[0]["status"] == "Solve_Succeeded"
     assert path.stats["continuation_iterations"] == sum(s["iterations"] for s in steps)
     # and the plan meets its bounds when simulated at the frequency errors
     v = verify_plan(onelink, path, dt=1e-4, errors=[-0.1, 0.1], torque=False)
