@@ -24,8 +24,8 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``hessian``, ``dynamics``, ``residual_torque_driven``, ``residual_ocp``, ``robust``,
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
-``ocp_fit``, ``ocp_modes``, ``trace`` (T and the constraint violation at every Ipopt
-iterate of the cold solve), ``derivatives``, ``compiled`` (seconds of each
+``ocp_fit``, ``ocp_modes``, ``trace`` / ``trace_warm`` (T and the constraint violation
+at every Ipopt iterate of the cold and the warm solve), ``derivatives``, ``compiled`` (seconds of each
 ``compile_cached`` call and whether it built), ``solver``, ``timings`` / ``timings_warm`` (CasADi's
 CPU seconds and calls per NLP function: ``t_proc_nlp_jac_g``, ``t_proc_nlp_hess_l``...).
 
@@ -191,7 +191,9 @@ def main(argv: list[str] | None = None) -> dict:
            "timings": plan.stats.get("timings"),
            "timings_warm": warm.stats.get("timings"),
            "trace": [[round(f, 5), float(f"{v:.1e}")]
-                     for f, v in plan.stats.get("objective_trace", [])]}
+                     for f, v in plan.stats.get("objective_trace", [])],
+           "trace_warm": [[round(f, 7), float(f"{v:.1e}")]
+                          for f, v in warm.stats.get("objective_trace", [])]}
     if args.json:
         print(json.dumps(out))
     else:

@@ -2,7 +2,7 @@
 
 ``casflex plan ROBOT.toml --move FILE:NAME [--objective time|energy] [--duration T]
 [--robust R [--robust-steps K]] [--modes N] [--intervals N] [--transcription collocation|shooting]
-[--end rest|free|TOL] [--dt S] [--out DIR]
+[--end rest|free|TOL] [--dt S] [--guess PLAN.npz] [--out DIR]
 [--plot FILE.png] [--json]``
 
 runs :func:`casflex.planning.plan_robot_move`: the gravity-free modal model of the robot
@@ -19,6 +19,10 @@ torque-driven simulator.
 (by default each scenario's bound is the shaped move's residual at that frequency error),
 and evaluates both moves there; the robust plan is reached from the nominal plan through
 ``--robust-steps`` problems (4 by default: ``casflex.planning.solve_by_continuation``).
+``--guess PLAN.npz`` starts from a plan an earlier run wrote (``--out``): a warm start
+from its iterate and multipliers, and with ``--robust`` the continuation starts there
+instead of solving the nominal problem again (the nominal plan of move 1 of the design
+study takes minutes; its robust path starts at once).
 
 JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_peak``
 (rad/s), ``residual_tip_deflection`` (verified with the joints on the plan, m),
@@ -29,7 +33,8 @@ JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_pe
 limits between the OCP's points, relative), ``end_bound_excess`` (how far the verified
 residual passes the end bound, relative),
 ``solve_s``, ``status``, ``iterations``, ``intervals``, ``substeps``, ``objective``,
-``timings``. ``--out DIR`` writes ``trajectory.csv`` (t, q, q̇, q̈, τ) and
+``timings``. ``--out DIR`` writes ``trajectory.csv`` (t, q, q̇, q̈, τ), ``plan.npz``
+(the whole plan, :meth:`casflex.planning.PlannedMove.save`, for ``--guess``) and
 ``plan.png``; ``--plot FILE.png`` the same figure.
 """
 
@@ -133,8 +138,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--restarts", type=int, default=2, metavar="K",
                         help="warm re-solves from the plan at most, while each shortens it "
                         "by at least 0.1 %% (default 2; 0: one solve)")
+    parser.add_argument("--guess", default=None, metavar="PLAN.npz",
+                        help="start from this plan of an earlier run (its --out's "
+                        "plan.npz; the same move): a warm start, and with --robust the "
+                        "continuation starts there")
     parser.add_argument("--out", default=None, metavar="DIR",
-                        help="write trajectory.csv and plan.png to DIR")
+                        help="write trajectory.csv, plan.npz and plan.png to DIR")
     parser.add_argument("--plot", default=None, metavar="FILE.png",
                         help="figure: shaped vs planned joint motion, torques and tip "
                         "deflection")
@@ -177,6 +186,22 @@ def _limit(values, n, option):
         number(v, option, low=0.0, low_open=True)
     return {"torque_limit" if "torque" in option else "velocity_limit":
             values * n if len(values) == 1 else list(values)}
+
+
+def _saved_plan(path, move):
+    """The plan of ``--guess``: a file of ``PlannedMove.save`` for the move's end points."""
+    import numpy as np
+
+    from casflex._validate import fail
+    from casflex.planning import PlannedMove
+
+    plan = PlannedMove.load(path)
+    for name, ours, theirs in (("start", plan.q0, move.q0), ("goal", plan.qf, move.qf)):
+        if ours.shape != np.shape(theirs) or not np.allclose(ours, theirs, rtol=0.0,
+                                                             atol=1e-9):
+            raise fail("--guess", str(path), f"its {name} {np.round(ours, 6).tolist()} rad "
+                       f"is not the move's {np.round(theirs, 6).tolist()} rad")
+    return plan
 
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
@@ -237,6 +262,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
                **_limit(getattr(args, "velocity_limit", None), robot.n_joints,
                         "--velocity-limit")}
     objective = getattr(args, "objective", "time")
+    guess = getattr(args, "guess", None)
+    if guess is not None:
+        options["guess"] = _saved_plan(guess, move)
     comparison = plan_robot_move(
         robot, move, modes, objective=objective, duration=duration, robust=robust,
         intervals=intervals, end=end, step=step,
@@ -274,8 +302,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if out:
         out.mkdir(parents=True, exist_ok=True)
         comparison.plan.to_csv(out / "trajectory.csv")
+        comparison.plan.save(out / "plan.npz")
         figure.savefig(out / "plan.png", dpi=120)
-        log(f"wrote {out / 'trajectory.csv'} and {out / 'plan.png'}")
+        log(f"wrote {out / 'trajectory.csv'}, {out / 'plan.npz'} and {out / 'plan.png'}")
     if plot:
         figure.savefig(plot, dpi=120)
         log(f"wrote {plot}")

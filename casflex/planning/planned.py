@@ -13,7 +13,9 @@ torques are a torque law for :func:`casflex.simulate.simulate_torque`
 from __future__ import annotations
 
 import csv
+import json
 import os
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,10 +24,19 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from casflex._json import jsonable
 from casflex._validate import output_file
+from casflex.errors import ProblemFileError
 from casflex.moves import reference_sampler
 
-__all__ = ["PlannedMove", "Propagator"]
+__all__ = ["PlannedMove", "Propagator", "PLAN_FORMAT"]
+
+#: format version of :meth:`PlannedMove.save`'s files
+PLAN_FORMAT = 1
+
+#: the arrays of a :class:`PlannedMove`, as :meth:`PlannedMove.save` stores them
+_PLAN_ARRAYS = ("t", "q", "dq", "ddq", "tau", "delta", "ddelta", "node_t", "node_x",
+                "node_tau", "hold_torque")
 
 
 class Propagator:
@@ -71,7 +82,8 @@ class Propagator:
                  h: float, substeps: int, tc: np.ndarray | None = None,
                  Xc: np.ndarray | None = None) -> None:
         self.ode, self.node_x, self.node_tau = ode, node_x, node_tau
-        self.h, self.Xc = float(h), Xc
+        self.h, self.substeps, self.Xc = float(h), int(substeps), Xc
+        self.tc = None if tc is None else np.asarray(tc, dtype=float)
         self._mapped: dict = {}
         if Xc is None:
             from casflex.simulate.integrators import rk4_step
@@ -103,6 +115,16 @@ class Propagator:
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_mapped": {}}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """What :meth:`PlannedMove.save` stores of it besides the node values: the ODE
+        in CasADi's own serialisation (a string, not a pickle), ``h``, ``substeps``,
+        and ``tc`` and ``Xc`` of a collocation."""
+        out = {"ode": np.array(self.ode.serialize()), "h": np.array(self.h),
+               "substeps": np.array(self.substeps)}
+        if self.Xc is not None:
+            out.update(tc=self.tc, Xc=self.Xc)
+        return out
 
     def __call__(self, k: ArrayLike, s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """``(x, ẋ)``, one column per sample, ``s`` [s] after the nodes ``k``."""
@@ -411,6 +433,136 @@ class PlannedMove:
             return taus[min(max(k, 0), taus.shape[0] - 1)]
 
         return law
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the plan to a NumPy ``.npz`` file that :meth:`load` reads back.
+
+        Everything a later run needs is kept: the dense and node values, the statistics
+        (as JSON: a non-finite number becomes ``None``), the OCP's last iterate and
+        multipliers (a warm start of a neighbouring problem, e.g. the robust plan from a
+        saved nominal one: ``casflex plan --guess``) and the propagator (its ODE in
+        CasADi's serialisation). No pickle: loading runs no code from the file.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Output file (checked before writing; written as given, no suffix added).
+
+        Returns
+        -------
+        pathlib.Path
+
+        Examples
+        --------
+        >>> import tempfile
+        >>> t = np.array([0.0, 1.0])
+        >>> p = PlannedMove(t=t, q=np.c_[[0.0, 1.0]], dq=np.zeros((2, 1)),
+        ...                 ddq=np.zeros((2, 1)), tau=np.zeros((2, 1)),
+        ...                 delta=np.zeros((2, 0)), ddelta=np.zeros((2, 0)), node_t=t,
+        ...                 node_x=np.zeros((2, 2)), node_tau=np.zeros((1, 1)),
+        ...                 hold_torque=np.zeros(1), name="swing")
+        >>> back = PlannedMove.load(p.save(Path(tempfile.mkdtemp()) / "plan.npz"))
+        >>> back.name, back.duration, back.propagator is None
+        ('swing', 1.0, True)
+        """
+        out = output_file(path, "path")
+        arrays = {k: np.asarray(getattr(self, k), dtype=float) for k in _PLAN_ARRAYS}
+        meta = {"format": PLAN_FORMAT, "settle": self.settle, "name": self.name,
+                "description": self.description, "stats": jsonable(self.stats)}
+        arrays["meta"] = np.array(json.dumps(meta, default=repr))
+        if self.solution:
+            scales = self.solution["scales"]
+            arrays.update({"solution_x": self.solution["x"],
+                           "solution_lam_g": self.solution["lam_g"],
+                           "scales_x": scales["x"], "scales_tau": scales["tau"],
+                           "scales_T": np.array(scales["T"])})
+            if scales.get("ddq") is not None:
+                arrays["scales_ddq"] = scales["ddq"]
+        if isinstance(self.propagator, Propagator):
+            arrays.update({f"propagator_{k}": v for k, v in self.propagator.arrays().items()})
+        with open(out, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        return out
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> PlannedMove:
+        """The plan :meth:`save` wrote to ``path``.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A ``.npz`` file of :meth:`save`.
+
+        Returns
+        -------
+        PlannedMove
+
+        Raises
+        ------
+        casflex.errors.ProblemFileError
+            The file is missing or unreadable, not such a file, of another format
+            version, or its arrays do not fit together (the message names the array).
+
+        Examples
+        --------
+        >>> PlannedMove.load("no/such/plan.npz")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+            ...
+        casflex.errors.ProblemFileError: no/such/plan.npz: field '<file>' = ...: cannot be read: ...
+        """
+        path = Path(path)
+
+        def bad(field, value, rule):
+            return ProblemFileError(path, field, value, rule)
+
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise bad("<file>", str(path), f"cannot be read: {exc}") from exc
+        if "meta" not in arrays:
+            raise bad("meta", None, "missing: not a plan written by PlannedMove.save")
+        try:
+            meta = json.loads(str(arrays.pop("meta")))
+        except json.JSONDecodeError as exc:
+            raise bad("meta", "...", f"is not JSON: {exc}") from exc
+        if meta.get("format") != PLAN_FORMAT:
+            raise bad("meta.format", meta.get("format"),
+                      f"this casflex reads plans of format {PLAN_FORMAT}")
+        for k in _PLAN_ARRAYS:
+            if k not in arrays:
+                raise bad(k, None, "missing")
+        K, N = arrays["t"].size, arrays["node_tau"].shape[0]
+        n = arrays["q"].shape[1] if arrays["q"].ndim == 2 else -1
+        nx = arrays["node_x"].shape[1] if arrays["node_x"].ndim == 2 else -1
+        m = nx // 2 - n
+        shapes = {"q": (K, n), "dq": (K, n), "ddq": (K, n), "tau": (K, n), "delta": (K, m),
+                  "ddelta": (K, m), "node_t": (N + 1,), "node_x": (N + 1, 2 * (n + m)),
+                  "node_tau": (N, n), "hold_torque": (n,)}
+        for k, shape in shapes.items():
+            if n < 1 or m < 0 or arrays[k].shape != shape:
+                raise bad(f"{k}.shape", arrays[k].shape, f"must be {shape} (t has {K} "
+                          f"samples, node_tau {N} intervals, q {n} joints)")
+        solution = None
+        if "solution_x" in arrays:
+            solution = {"x": arrays["solution_x"], "lam_g": arrays["solution_lam_g"],
+                        "scales": {"x": arrays["scales_x"], "tau": arrays["scales_tau"],
+                                   "ddq": arrays.get("scales_ddq"),
+                                   "T": float(arrays["scales_T"])}}
+        propagator = None
+        if "propagator_ode" in arrays:
+            try:
+                ode = ca.Function.deserialize(str(arrays["propagator_ode"]))
+            except RuntimeError as exc:
+                raise bad("propagator_ode", "...", f"is not a CasADi function: {exc}") from exc
+            propagator = Propagator(ode, arrays["node_x"], arrays["node_tau"],
+                                    float(arrays["propagator_h"]),
+                                    int(arrays["propagator_substeps"]),
+                                    arrays.get("propagator_tc"), arrays.get("propagator_Xc"))
+        return cls(**{k: arrays[k] for k in _PLAN_ARRAYS}, stats=meta["stats"],
+                   settle=float(meta["settle"]), name=str(meta["name"]),
+                   description=str(meta["description"]), propagator=propagator,
+                   solution=solution)
 
     def to_csv(self, path: str | os.PathLike) -> Path:
         """Write the dense trajectory: columns ``t, q1.., dq1.., ddq1.., tau1..``.

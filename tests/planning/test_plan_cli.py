@@ -124,6 +124,51 @@ def test_plan_cli_robust_leaves_no_more_than_shaped_at_each_error(tmp_path, caps
     assert result["duration"] < result["shaped"]["duration"]
 
 
+@pytest.mark.slow
+def test_plan_cli_robust_from_a_saved_nominal_plan(tmp_path, capsys):
+    # the nominal run's --out plan.npz as --guess of the robust run: the continuation
+    # starts there (no nominal problem on its path) and ends at the plan the robust run
+    # reaches from scratch, whose own first problem is that nominal problem
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    common = ["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
+              "--json", "--dt", "1e-3"]
+    assert main([*common, "--out", str(tmp_path / "nominal")]) == 0
+    nominal = json.loads(capsys.readouterr().out)
+    saved = tmp_path / "nominal" / "plan.npz"
+    assert saved.stat().st_size > 0
+    assert main([*common, "--robust", "0.1", "--guess", str(saved)]) == 0
+    warm = json.loads(capsys.readouterr().out)
+    assert main([*common, "--robust", "0.1"]) == 0
+    cold = json.loads(capsys.readouterr().out)
+    assert [round(c["robust"], 6) for c in warm["continuation"]] == [0.025, 0.05, 0.075, 0.1]
+    assert [round(c["robust"], 6) for c in cold["continuation"]] == [0.0, 0.025, 0.05,
+                                                                     0.075, 0.1]
+    assert cold["continuation"][0]["duration"] == pytest.approx(nominal["duration"],
+                                                                rel=1e-12)
+    assert warm["duration"] == pytest.approx(cold["duration"], rel=1e-9)
+
+
+def test_plan_cli_bad_guess_exits_2(tmp_path, capsys):
+    from casflex.planning import PlannedMove
+
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    args = ["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1"]
+    assert main([*args, "--guess", str(tmp_path / "none.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "none.npz" in err and "cannot be read" in err
+    t = np.array([0.0, 1.0])  # a plan of another move: 0 -> 0.5 rad
+    other = PlannedMove(t=t, q=np.c_[[0.0, 0.5]], dq=np.zeros((2, 1)), ddq=np.zeros((2, 1)),
+                        tau=np.zeros((2, 1)), delta=np.zeros((2, 1)),
+                        ddelta=np.zeros((2, 1)), node_t=t, node_x=np.zeros((2, 4)),
+                        node_tau=np.zeros((1, 1)), hold_torque=np.zeros(1))
+    path = other.save(tmp_path / "other.npz")
+    assert main([*args, "--guess", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "--guess" in err and "goal [0.5] rad is not the move's [1.0] rad" in err
+
+
 def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
     moves = tmp_path / "moves.toml"
     moves.write_text(MOVE)
