@@ -96,8 +96,10 @@ def run_design(study: Study | str | os.PathLike, out_dir: str | os.PathLike, *,
         figures ``frequencies.png``, ``prv.png``, ``tip_deflection.png``,
         ``estimation.png``, ``accessibility.png``, ``joint_tracking.png`` and the C
         bundle under ``c/``; with a ``[planner]`` section also ``planned.png``,
-        ``planned_trajectory.csv`` and the plan's C reference table
-        (:func:`casflex.codegen.plan_table_bundle`) under ``c/``.
+        ``planned_trajectory.csv``, ``planned.npz`` (the whole plan,
+        :meth:`casflex.planning.PlannedMove.load` reads it; e.g. ``casflex plan --guess``)
+        and the plan's C reference table (:func:`casflex.codegen.plan_table_bundle`) under
+        ``c/``.
     progress : bool
         Progress bar of the tabulation on stderr.
     log : callable, optional
@@ -392,6 +394,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
                                    out / "c")
         extra += [plan_c["header"].name, plan_c["source"].name]
         comparison.plan.to_csv(out / "planned_trajectory.csv")
+        comparison.plan.save(out / "planned.npz")
     c_bundle = (sorted({*c_bundle[0], *extra}), *c_bundle[1:])
     timings["codegen_s"] = time.perf_counter() - t0
 
@@ -430,10 +433,12 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
         if comparison.plan is not None:
             summary["planner"]["figure"] = "planned.png"
             summary["planner"]["trajectory_csv"] = "planned_trajectory.csv"
+            summary["planner"]["plan_file"] = "planned.npz"
             summary["planner"]["c_table"] = {
                 "header": f"{study.codegen['name']}_plan.h",
                 "source": f"{study.codegen['name']}_plan.c"}
-            figures.append(out / "planned_trajectory.csv")  # a file written, not drawn
+            # files written, not drawn
+            figures += [out / "planned_trajectory.csv", out / "planned.npz"]
     c_files = c_bundle[0]
     files = [*write_report(out, study, summary), *figures] + [out / "c" / f for f in c_files]
     return DesignResult(summary=jsonable(summary), out_dir=out, files=files)

@@ -372,7 +372,9 @@ def _planner_lines(p):
         lines += [f"| {100 * r['error']:+.0f} % | {_mm(r['residual_tip_deflection'])} | "
                   f"{_mm(r['shaped_residual_tip_deflection'])} |" for r in p["robust"]]
         lines.append("")
-    lines += [f"Trajectory: `{p['trajectory_csv']}`; C reference table: "
+    saved = (f"; the whole plan: `{p['plan_file']}` (`casflex.planning.PlannedMove.load`, "
+             "`casflex plan --guess`)") if p.get("plan_file") else ""
+    lines += [f"Trajectory: `{p['trajectory_csv']}`{saved}; C reference table: "
               f"`c/{p['c_table']['header']}`, `c/{p['c_table']['source']}`.", "",
               "![planned vs shaped](planned.png)", ""]
     return lines

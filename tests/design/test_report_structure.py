@@ -13,6 +13,7 @@ import pytest
 
 from casflex import design
 from casflex.design.report import write_report
+from casflex.planning import PlannedMove
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDY = ROOT / "problems" / "studies" / "arm2link_move1.toml"
@@ -224,6 +225,11 @@ def test_report_of_the_onelink_study_with_its_planned_move(tmp_path):
     assert np.abs(csv[:, 4]).max() <= p["limits"]["torque"][0] * (1 + 1e-6)
     assert csv[-1, 0] == pytest.approx(p["duration"], rel=1e-12)
     assert csv[-1, 1] == pytest.approx(1.0, abs=1e-8) and abs(csv[-1, 2]) < 1e-8
+    # the whole plan, read back: the same motion as the CSV's
+    saved = PlannedMove.load(out / p["plan_file"])
+    assert saved.duration == p["duration"]
+    np.testing.assert_array_equal(saved.q[:, 0], csv[:, 1])
+    assert f"`{p['plan_file']}`" in (out / "report.md").read_text()
     header = (out / "c" / p["c_table"]["header"]).read_text()
     samples = int(re.search(r"ONELINK_PLAN_N_SAMPLES (\d+)", header).group(1))
     assert samples == int(np.ceil(p["duration"] / 1e-3 - 1e-9)) + 1
