@@ -119,7 +119,19 @@ class Propagator:
     def arrays(self) -> dict[str, np.ndarray]:
         """What :meth:`PlannedMove.save` stores of it besides the node values: the ODE
         in CasADi's own serialisation (a string, not a pickle), ``h``, ``substeps``,
-        and ``tc`` and ``Xc`` of a collocation."""
+        and ``tc`` and ``Xc`` of a collocation.
+
+        Returns
+        -------
+        dict of str to numpy.ndarray
+
+        Examples
+        --------
+        >>> x, tau = ca.SX.sym("x", 2), ca.SX.sym("tau")
+        >>> ode = ca.Function("ode", [x, tau], [ca.vertcat(x[1], tau)])
+        >>> sorted(Propagator(ode, np.zeros((2, 2)), np.ones((1, 1)), 1.0, 4).arrays())
+        ['h', 'ode', 'substeps']
+        """
         out = {"ode": np.array(self.ode.serialize()), "h": np.array(self.h),
                "substeps": np.array(self.substeps)}
         if self.Xc is not None:
