@@ -39,6 +39,11 @@ CPU seconds, the load and the script's ``FORMAT``. The file's SHA-256 is printed
 end; ``notebooks/07_planning.py`` and ``tests/planning/test_plan_moves_data.py`` read the
 stored ``benchmarks/data/planning_moves.json`` and check that hash.
 
+``--plans DIR`` keeps the plans themselves (:meth:`casflex.planning.PlannedMove.save`):
+``<move>_nominal.npz`` and ``<move>_robust.npz``. A nominal plan already in DIR is the
+guess of the nominal solve (a warm re-solve, no restarts), so a robust run skips the
+minutes of the nominal one.
+
 ``--onelink`` adds the one-link arm's cases of the notebook (cheap, seconds): the robust
 and nominal plans of a 1 rad swing at ±10 % and the duration-vs-residual-tolerance
 curve.
@@ -50,7 +55,7 @@ Usage::
         [--tolerances 2 0.5 0.25] [--dt 1e-4] [--onelink]
         [--derivatives casadi|blocks|blocks-jacobian|points] [--compile-flags FLAGS]
         [--guess shaped|rigid] [--robust-guess nominal|shaped] [--robust-steps K]
-        [--restarts K] [--redo]
+        [--restarts K] [--plans DIR] [--redo]
         [--out benchmarks/data/planning_moves.json] [--json]
 """
 
@@ -246,13 +251,23 @@ def run_move(name, args, study, out_path, robust_moves):
     # (README_planning.md, sessions 9-11); plan_move's restarts solve the same problem
     # again from where it stopped (iterate and multipliers) and keep the shortest pass.
     first = {"guess": "rigid"} if args.guess == "rigid" else {}
+    restarts = args.restarts
+    saved = args.plans / f"{name}_nominal.npz" if args.plans else None
+    if saved is not None and saved.exists():
+        from casflex.planning import PlannedMove
+
+        first, restarts = {"guess": PlannedMove.load(saved)}, 0
+        log(f"{name}: the nominal plan of {saved} as the guess (no restarts)")
     c0 = time.process_time()
     c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
-                        max_iter=args.max_iter, log=log, restarts=args.restarts, **options,
+                        max_iter=args.max_iter, log=log, restarts=restarts, **options,
                         **first)
     model, shaped, plan = c.model, c.shaped, c.plan
+    if saved is not None and not saved.exists():
+        args.plans.mkdir(parents=True, exist_ok=True)
+        plan.save(saved)
     limits = {k: np.asarray(v, dtype=float) for k, v in c.limits.items()}
     passes = plan.stats.get("passes") or [{"duration": plan.duration,
                                            "status": plan.stats["status"],
@@ -324,6 +339,8 @@ def run_move(name, args, study, out_path, robust_moves):
             log(f"{name}: robust {robust.duration:.4f} s ({robust.stats['status']}, "
                 f"{robust.stats['iterations']} iterations, "
                 f"{robust.stats['solve_cpu_s']:.0f} s CPU)")
+            if args.plans:
+                robust.save(args.plans / f"{name}_robust.npz")
             ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
             record["robust"] = plan_record(robust, limits, ev, model)
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
@@ -459,6 +476,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--restarts", type=int, default=0, metavar="K",
                         help="solve the nominal plan again from where it stopped, up to K "
                              "times while it gets shorter")
+    parser.add_argument("--plans", type=Path, default=None, metavar="DIR",
+                        help="save every plan to DIR (<move>_nominal.npz, "
+                        "<move>_robust.npz); a nominal plan already there is the guess "
+                        "of the nominal solve (a warm re-solve of it, no restarts)")
     parser.add_argument("--redo", action="store_true",
                         help="recompute moves the output file already holds")
     parser.add_argument("--onelink", action="store_true")
