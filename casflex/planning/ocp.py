@@ -397,9 +397,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Name of the result (default the move's name with ``+planned``).
     progress_stop : ProgressStop or bool
         Also stop when the objective has stopped moving at feasible iterates
-        (:class:`casflex.planning.ProgressStop`; ``True``: its defaults, with ``leave =
-        0`` for a warm start with multipliers, :meth:`ProgressStop.near_solution` for
-        one from a converged plan; ``False``: only Ipopt's own tests). Such
+        (:class:`casflex.planning.ProgressStop`; ``True``: its defaults, or
+        :meth:`ProgressStop.near_solution` for a warm start with multipliers; ``False``:
+        only Ipopt's own tests). Such
         a plan has ``stats["status"] == "Stopped_On_Progress"``; the simulations of
         :func:`casflex.planning.verify_plan` judge it. ``stats["objective_trace"]``
         holds the objective and the constraint violation of every iterate.
@@ -760,18 +760,18 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         options.update(WARM_START_OPTIONS)
     options.update(ipopt_options or {})
     # from a neighbouring solution's iterate and multipliers the start is near the
-    # optimum: the objective need not leave it before the rule may stop; from a converged
-    # one it settles within a few Newton steps (ProgressStop.near_solution)
+    # optimum: the objective need not leave it before the rule may stop, and it settles
+    # within a few Newton steps (ProgressStop.near_solution)
     rule = progress_stop or None
     if progress_stop is True:
-        rule = (ProgressStop() if duals is None else ProgressStop.near_solution()
-                if guess.stats.get("converged") else ProgressStop(leave=0.0))
+        rule = ProgressStop() if duals is None else ProgressStop.near_solution()
     if fatrop:  # CasADi's Fatrop calls no iteration_callback: Fatrop's own tests only
         rule = None
     if rule is not None:
         if not isinstance(rule, ProgressStop):
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
-        rule = ProgressStop(rule.window, rule.rtol, rule.leave, rule.feasibility)  # fresh
+        rule = ProgressStop(rule.window, rule.rtol, rule.leave, rule.feasibility,
+                            rule.settle, rule.settle_rtol)  # fresh
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
         callback = rule.callback(*bounds, opti.nx)

@@ -14,8 +14,11 @@ On the flexible arm Ipopt's own tests serve a minimum-time solve badly at both e
 feasible (every constraint to ``feasibility``), the objective (T for a minimum-time
 plan) must have fallen below its value at the first iterate (the guess) by ``leave``
 (relative), and over the last ``window`` feasible iterates in a row it must have moved
-by less than ``rtol`` (relative). The plan is then judged by the simulations of
-:func:`casflex.planning.verify_plan`, not by Ipopt's optimality measure.
+by less than ``rtol`` (relative). Optionally (``settle``, what a warm start from a
+neighbouring plan uses: :meth:`ProgressStop.near_solution`) it also stops when the last
+``settle`` feasible iterates in a row agree to ``settle_rtol``. The plan is then judged by
+the simulations of :func:`casflex.planning.verify_plan`, not by Ipopt's optimality
+measure.
 
 :meth:`ProgressStop.callback` makes it an Ipopt iteration callback (CasADi's
 ``iteration_callback``): Ipopt then ends with ``User_Requested_Stop`` and
@@ -58,6 +61,11 @@ class ProgressStop:
     feasibility : float
         Largest constraint violation of a feasible iterate (as the constraints are posed:
         the planner's rows are scaled by their magnitudes).
+    settle : int, optional
+        Also stop when this many feasible iterates in a row (>= 2) agree to
+        ``settle_rtol`` (after ``leave``). Default: no such test.
+    settle_rtol : float
+        Largest relative spread of the objective over the ``settle`` iterates [-].
 
     Attributes
     ----------
@@ -78,6 +86,8 @@ class ProgressStop:
     rtol: float = 1e-3
     leave: float = 2e-2
     feasibility: float = 1e-6
+    settle: int | None = None
+    settle_rtol: float = 1e-5
     start: float | None = field(default=None, init=False)
     history: list[float] = field(default_factory=list, init=False)
     trace: list[tuple[float, float]] = field(default_factory=list, init=False)
@@ -88,28 +98,34 @@ class ProgressStop:
         self.rtol = number(self.rtol, "rtol", low=0.0)
         self.leave = number(self.leave, "leave", low=0.0)
         self.feasibility = number(self.feasibility, "feasibility", low=0.0)
+        if self.settle is not None:
+            self.settle = number(self.settle, "settle", low=2, integer=True)
+        self.settle_rtol = number(self.settle_rtol, "settle_rtol", low=0.0)
 
     @classmethod
     def near_solution(cls) -> ProgressStop:
-        """The rule for a warm start from a converged neighbouring plan (its iterate and
-        multipliers): 3 feasible iterates in a row within 1e-5 of each other, no
-        decrease needed (what :func:`casflex.planning.plan_move` takes there with
-        ``progress_stop=True``).
+        """The rule for a warm start from a neighbouring plan (its iterate and
+        multipliers), what :func:`casflex.planning.plan_move` takes there with
+        ``progress_stop=True``: no decrease needed (``leave = 0``), and besides the
+        default window a stop once 3 feasible iterates in a row agree to 1e-5.
 
-        From there Ipopt takes Newton steps to the neighbour's optimum: on move 1 of the
-        design study, with the end bound 5 % tighter, T settles within 4 iterates of the
-        first feasible one (2.1348156, 2.1348149, 2.1348150 s) and Ipopt spends 30 more
-        on its optimality test (the iterates leave feasibility and return) to end at
-        2.1348019 s, 6e-6 below (benchmarks/README_planning.md, session 19). The default
-        window (10 feasible in a row) is broken by those excursions.
+        From a neighbour's solution Ipopt takes Newton steps to this problem's optimum:
+        on move 1 of the design study, with the end bound 5 % tighter, T settles within
+        3 iterates of the first feasible one (2.1348156, 2.1348149, 2.1348150 s) and
+        Ipopt spends 30 more on its optimality test (the iterates leave feasibility and
+        come back) to end at 2.1348019 s, 6e-6 below (benchmarks/README_planning.md,
+        session 19). The default window (10 feasible iterates in a row) is broken by
+        those excursions. A solve that creeps (a restart from a plan the rule stopped)
+        still ends on the default window: 3 iterates agree to 1e-5 only when T moves by
+        less than 5e-6 an iterate, where 10 agree to 1e-3 already.
 
         Examples
         --------
         >>> rule = ProgressStop.near_solution()
-        >>> (rule.window, rule.rtol, rule.leave)
-        (3, 1e-05, 0.0)
+        >>> (rule.window, rule.rtol, rule.leave, rule.settle, rule.settle_rtol)
+        (10, 0.001, 0.0, 3, 1e-05)
         """
-        return cls(window=3, rtol=1e-5, leave=0.0)
+        return cls(leave=0.0, settle=3)
 
     def update(self, objective: float, violation: float) -> bool:
         """Take one iterate; ``True`` when the solve should stop there.
@@ -141,14 +157,17 @@ class ProgressStop:
             self.history.clear()
             return False
         self.history.append(f)
-        if len(self.history) < self.window:
-            return False
-        last = self.history[-self.window:]
         scale = max(abs(f), 1e-12)
+
+        def agree(count, rtol):  # the last `count` feasible iterates within rtol
+            last = self.history[-count:]
+            return len(last) == count and (max(last) - min(last)) <= rtol * scale
+
         # progress is a decrease: a solve that wanders above its start (move 1 of the
         # design study, cold: T up to 8.3 s from the shaped 3.2 s) is not stopped there
         left = self.leave == 0.0 or self.start - f >= self.leave * abs(self.start)
-        self.stopped = left and (max(last) - min(last)) <= self.rtol * scale
+        self.stopped = left and (agree(self.window, self.rtol) or (
+            self.settle is not None and agree(self.settle, self.settle_rtol)))
         return self.stopped
 
     def callback(self, lbg: ArrayLike, ubg: ArrayLike, nx: int) -> Any:

@@ -85,12 +85,18 @@ def test_near_solution_rule_stops_once_the_warm_solve_has_settled():
     rule = ProgressStop.near_solution()
     assert not any(rule.update(t, v) for t, v in [(1.0, 0.0), (1.0, 1e-3), (1.0, 0.0),
                                                     (1.0001, 0.0), (1.0, 0.0)])
+    # a creep of 1e-4 an iterate (a restart from a plan the rule stopped) never settles
+    # to 1e-5: it ends on the default window, at the 10th feasible iterate, as the
+    # default rule without the decrease does
+    creep = [(2.4 - 1e-4 * k, 0.0) for k in range(20)]
+    for rule in (ProgressStop.near_solution(), ProgressStop(leave=0.0)):
+        assert [rule.update(t, v) for t, v in creep].index(True) == 9
 
 
 def test_a_warm_start_from_a_converged_plan_ends_at_its_optimum(onelink):
-    """plan_move's default rule from a converged neighbour (ProgressStop.near_solution):
+    """plan_move's default rule from a neighbour's solution (ProgressStop.near_solution):
     the optimum Ipopt converges to from there, within the rule's 1e-5, in no more
-    iterations; from a plan the rule stopped, the default window (leave 0)."""
+    iterations."""
     model, move, shaped, kw = onelink
     base = plan_move(model, move, guess=shaped, end=2e-3, progress_stop=False, **kw)
     assert base.stats["converged"]
@@ -113,6 +119,10 @@ def test_rule_checks_its_arguments():
         ProgressStop(window=1)
     with pytest.raises(ModelError, match="rtol"):
         ProgressStop(rtol=-1.0)
+    with pytest.raises(ModelError, match="settle = 1"):
+        ProgressStop(settle=1)
+    with pytest.raises(ModelError, match="settle_rtol"):
+        ProgressStop(settle=3, settle_rtol=-1e-5)
 
 
 @pytest.fixture(scope="module")
