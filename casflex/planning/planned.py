@@ -118,7 +118,7 @@ class Propagator:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """What :meth:`PlannedMove.save` stores of it besides the node values: the ODE
-        in CasADi's own serialisation (a string, not a pickle), ``h``, ``substeps``,
+        in CasADi's own serialisation (UTF-8 bytes, not a pickle), ``h``, ``substeps``,
         and ``tc`` and ``Xc`` of a collocation.
 
         Returns
@@ -132,7 +132,9 @@ class Propagator:
         >>> sorted(Propagator(ode, np.zeros((2, 2)), np.ones((1, 1)), 1.0, 4).arrays())
         ['h', 'ode', 'substeps']
         """
-        out = {"ode": np.array(self.ode.serialize()), "h": np.array(self.h),
+        # UTF-8 bytes: a numpy string array would hold 4 bytes a character
+        out = {"ode": np.frombuffer(self.ode.serialize().encode(), dtype=np.uint8),
+               "h": np.array(self.h),
                "substeps": np.array(self.substeps)}
         if self.Xc is not None:
             out.update(tc=self.tc, Xc=self.Xc)
@@ -193,9 +195,10 @@ class PlannedMove:
         integrates from the node before every sample time, so the joint motion is the
         one the torques produce, acceleration jumps at the nodes included; without it
         the dense samples are interpolated. :func:`casflex.planning.plan_move` sets a
-        :class:`Propagator`, which pickles: so does the plan (``pickle.dumps(plan)``,
-        a few MB with the model's ODE; the copy samples, simulates and warm-starts a
-        neighbouring problem as the plan does).
+        :class:`Propagator`, which pickles: so does the plan (``pickle.dumps(plan)``;
+        the copy samples, simulates and warm-starts a neighbouring problem as the plan
+        does). Its size is mostly the model's ODE with its tables: 33 MB for move 1 of
+        the design study (:meth:`save`, compressed), 50 kB for the one-link arm.
     solution : dict, optional
         The OCP's last iterate: ``x`` (all NLP variables), ``lam_g`` (the constraints'
         multipliers) and ``scales`` (the scales of the NLP's rows: ``x`` states, ``tau``
@@ -453,7 +456,8 @@ class PlannedMove:
         (as JSON: a non-finite number becomes ``None``), the OCP's last iterate and
         multipliers (a warm start of a neighbouring problem, e.g. the robust plan from a
         saved nominal one: ``casflex plan --guess``) and the propagator (its ODE in
-        CasADi's serialisation). No pickle: loading runs no code from the file.
+        CasADi's serialisation, with the model's tables: most of the file, 33 MB for move
+        1 of the design study). No pickle: loading runs no code from the file.
 
         Parameters
         ----------
@@ -564,8 +568,8 @@ class PlannedMove:
         propagator = None
         if "propagator_ode" in arrays:
             try:
-                ode = ca.Function.deserialize(str(arrays["propagator_ode"]))
-            except RuntimeError as exc:
+                ode = ca.Function.deserialize(arrays["propagator_ode"].tobytes().decode())
+            except (RuntimeError, UnicodeDecodeError) as exc:
                 raise bad("propagator_ode", "...", f"is not a CasADi function: {exc}") from exc
             propagator = Propagator(ode, arrays["node_x"], arrays["node_tau"],
                                     float(arrays["propagator_h"]),
