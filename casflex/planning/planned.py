@@ -197,7 +197,7 @@ class PlannedMove:
         the dense samples are interpolated. :func:`casflex.planning.plan_move` sets a
         :class:`Propagator`, which pickles: so does the plan (``pickle.dumps(plan)``;
         the copy samples, simulates and warm-starts a neighbouring problem as the plan
-        does). Its size is mostly the model's ODE with its tables: 33 MB for move 1 of
+        does). Its size is mostly the model's ODE with its tables: 25 MB for move 1 of
         the design study (:meth:`save`, compressed), 50 kB for the one-link arm.
     solution : dict, optional
         The OCP's last iterate: ``x`` (all NLP variables), ``lam_g`` (the constraints'
@@ -456,7 +456,7 @@ class PlannedMove:
         (as JSON: a non-finite number becomes ``None``), the OCP's last iterate and
         multipliers (a warm start of a neighbouring problem, e.g. the robust plan from a
         saved nominal one: ``casflex plan --guess``) and the propagator (its ODE in
-        CasADi's serialisation, with the model's tables: most of the file, 33 MB for move
+        CasADi's serialisation, with the model's tables: most of the file, 25 MB for move
         1 of the design study). No pickle: loading runs no code from the file.
 
         Parameters
