@@ -102,7 +102,7 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "07cf7e3fea45a3bd08cf6b536175680b8d3693ef22bc0d00872605fd5e04b974"
+DATA_SHA256 = "c079b72df68960b406e77a03eacdd5a8a6371f28ea8a9346c5e01871d6b1adf5"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
@@ -206,8 +206,8 @@ for label, p in one["plans"].items():
 #
 # Then move 1 of the design study: the SI-shaped move, the nominal plan and the robust
 # plan (`--robust 0.1`: in each scenario the end bound is the shaped move's residual at
-# that frequency error, the rule of `casflex plan --robust`; warm-started from the
-# nominal plan), each at the three frequency errors.
+# that frequency error, the rule of `casflex plan --robust`; reached from the nominal plan
+# through four problems), each at the three frequency errors.
 
 # %%
 for name in moves:
@@ -255,17 +255,22 @@ plt.show()
 # sensitivity is the same or worse (87 / 2.0 / 83 mm on move 1).
 #
 # The robust plan of move 1 (`--robust 0.1`, one bound per scenario: the shaped move's
-# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %) has no stored result. Solved directly it did
-# not converge (warm from the 2.133 s nominal plan: Ipopt's 500-iteration limit with its
-# last iterate infeasible; from the shaped move: no result after 50 minutes of CPU).
-# Reached by continuation from the nominal plan (`robust_steps`, the default of
-# `casflex plan --robust` now: r and the scenarios' bounds moved together, each problem
-# warm from the last) the outcome depended on the path: four steps gave a 2.39 s plan in
-# one run (25 % shorter than the shaped move; not simulated) and no plan at the last step
-# in another, eight steps a 3.74 s plan that leaves 19.6 / 8.6 / 5.2 mm (less than the
-# shaped move at every error) but lasts 16 % longer than it. benchmarks/README_planning.md
-# (session 18) has the runs. The one-link arm above shows what the option does when it
-# converges; for move 1 it is the open part of issue 15.
+# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %) lasts 2.508 s, 22 % less than the shaped
+# move's 3.208 s, and leaves 16.5 / 6.5 / 4.1 mm with the joints on it (15.5 / 8.0 / 4.3
+# mm at 0.1 ms): less than the shaped move at every error. It costs 0.38 s over the
+# nominal plan. Open loop its torques are another matter (77 / 5 / 16 mm): at −10 % the
+# joints themselves end 0.13 rad off, since the torques were planned for the nominal
+# model; on the arm a joint controller tracks the planned motion, which is what the
+# "joints on the move" columns simulate.
+#
+# It was reached by continuation from the nominal plan (`robust_steps`, the default of
+# `casflex plan --robust`: r and the scenarios' bounds moved together in four problems,
+# each warm from the last: 2.314, 2.326, 2.388, then 2.508 s at r = 0.1; 36 minutes of CPU
+# on the shared machine). Solved directly it did not converge, and the path is sensitive:
+# in session 18 the same four problems gave 2.39 s once and no plan at the last step
+# twice, eight steps a 3.74 s plan; this run's problems end on the progress rule for warm
+# starts of session 19 (`ProgressStop.near_solution`). benchmarks/README_planning.md
+# (sessions 18 and 19) has the runs.
 
 # %% [markdown]
 # ## 7.4 Duration vs residual tolerance
