@@ -25,9 +25,10 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
 ``ocp_fit``, ``ocp_modes``, ``trace`` / ``trace_warm`` (T and the constraint violation
-at every Ipopt iterate of the cold and the warm solve), ``derivatives``, ``compiled`` (seconds of each
-``compile_cached`` call and whether it built), ``solver``, ``timings`` / ``timings_warm`` (CasADi's
-CPU seconds and calls per NLP function: ``t_proc_nlp_jac_g``, ``t_proc_nlp_hess_l``...).
+at every Ipopt iterate of the cold and the warm solve), ``derivatives``, ``compiled``
+(seconds of each ``compile_cached`` call and whether it built), ``solver``, ``timings`` /
+``timings_warm`` (CasADi's CPU seconds and calls per NLP function: ``t_proc_nlp_jac_g``,
+``t_proc_nlp_hess_l``...).
 
 Usage::
 
