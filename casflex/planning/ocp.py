@@ -35,6 +35,7 @@ vibration from above, so it is the constraint; the OCP's own prediction of the r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -770,8 +771,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if rule is not None:
         if not isinstance(rule, ProgressStop):
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
-        rule = ProgressStop(rule.window, rule.rtol, rule.leave, rule.feasibility,
-                            rule.settle, rule.settle_rtol)  # fresh
+        rule = dataclasses.replace(rule)  # a fresh copy: no trace or history of a solve
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
         callback = rule.callback(*bounds, opti.nx)
