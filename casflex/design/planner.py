@@ -27,7 +27,8 @@ __all__ = ["plan_next_to_shaped", "planner_summary"]
 
 def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                         shaped_run: SimulationResult, settings: dict, *, dt: float,
-                        log: Callable[[str], None] | None = None) -> Any:
+                        log: Callable[[str], None] | None = None,
+                        progress: bool = False) -> Any:
     """Plan ``move`` at the limits of its shaped version and verify both.
 
     Parameters
@@ -54,6 +55,9 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         Step of the shaped move's runs at ``±robust`` and of the limits [s].
     log : callable, optional
         ``log(message)``: one line per step.
+    progress : bool
+        A counter of Ipopt's iterates on stderr while the plan is solved
+        (:func:`casflex.planning.plan_move`'s ``progress``).
 
     Returns
     -------
@@ -110,7 +114,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                          torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
                          guess=shaped, transcription=settings["transcription"],
                          robust_steps=settings.get("robust_steps", ROBUST_STEPS), log=log,
-                         max_iter=settings["max_iter"])
+                         max_iter=settings["max_iter"], progress=progress)
     except SolverError as exc:
         say(f"the planner found no plan: {exc}")
         return PlanComparison(model=model, move=move, shaped=shaped, plan=None,

@@ -49,6 +49,11 @@ ProgressStop
     iteration callback).
 PROGRESS_STATUS
     The status of a plan that :class:`ProgressStop` ended.
+iteration_callback
+    Ipopt's iteration callback that hands every iterate's objective and constraint
+    violation to listeners (the stop, the display).
+SolveProgress
+    The live counter of a solve's iterates on stderr (``plan_move(progress=True)``).
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -139,6 +144,7 @@ from casflex.planning.ocp import (
     predicted_residual,
 )
 from casflex.planning.planned import PlannedMove, Propagator
+from casflex.planning.progress import SolveProgress
 from casflex.planning.restarts import (
     ROBUST_STEPS,
     continuation_steps,
@@ -152,7 +158,7 @@ from casflex.planning.scenarios import (
     static_deflection,
     tip_jacobian,
 )
-from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
+from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop, iteration_callback
 from casflex.planning.verify import (
     PlanComparison,
     limit_excess,
@@ -178,6 +184,8 @@ __all__ = [
     # stopping
     "ProgressStop",
     "PROGRESS_STATUS",
+    "iteration_callback",
+    "SolveProgress",
     # the result
     "PlannedMove",
     "Propagator",

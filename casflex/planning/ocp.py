@@ -54,6 +54,7 @@ from casflex.planning.derivatives import collocation_matrices as _collocation_ma
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
 from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove, Propagator
+from casflex.planning.progress import check_progress, progress_listener
 from casflex.planning.restarts import check_restarts, solve_by_continuation, solve_with_restarts
 from casflex.planning.scenarios import (
     frequency_shifted_model,
@@ -69,7 +70,7 @@ from casflex.planning.staged import (
     stage_variables,
     state_scales,
 )
-from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop
+from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop, iteration_callback
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
@@ -324,7 +325,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               compile_function: Callable[[list], list] | None = None,
               solver: str = "ipopt", restarts: int = 0,
               restart_rtol: float = 1e-3, robust_steps: int = 1,
-              log: Callable[[str], None] | None = None) -> PlannedMove:
+              log: Callable[[str], None] | None = None,
+              progress: bool | Callable[[int, float, float], Any] = False) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
 
     Parameters
@@ -445,6 +447,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Default 1: the robust problem directly.
     log : callable, optional
         ``log(message)``: one line per restart and per problem of a continuation.
+    progress : bool or callable
+        ``True``: a counter of Ipopt's iterates on stderr, with the objective and the
+        largest constraint violation of the last one (one per solve:
+        :class:`casflex.planning.progress.SolveProgress`); a callable:
+        ``progress(iteration, objective, violation)`` at every iterate (0: the guess).
+        Not with ``solver="fatrop"`` (no iteration callback).
 
     Returns
     -------
@@ -529,6 +537,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         deflection_bound = number(deflection_bound, "deflection_bound", low=0.0,
                                   low_open=True)
     max_iter = number(max_iter, "max_iter", low=1, integer=True)
+    check_progress(progress)
     settle = float(move.settle) if settle is None and move is not None else \
         (3.0 if settle is None else number(settle, "settle", low=0.0))
     if name is None:
@@ -768,16 +777,22 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         rule = ProgressStop() if duals is None else ProgressStop.near_solution()
     if fatrop:  # CasADi's Fatrop calls no iteration_callback: Fatrop's own tests only
         rule = None
+    listeners = []
     if rule is not None:
         if not isinstance(rule, ProgressStop):
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
         rule = dataclasses.replace(rule)  # a fresh copy: no trace or history of a solve
+        listeners.append(rule.update)
+    display, close_display = progress_listener(False if fatrop else progress,
+                                               f"Ipopt {name}", objective)
+    if display is not None:
+        listeners.append(display)
+    plugin = {"print_time": False}
+    if listeners:
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
-        callback = rule.callback(*bounds, opti.nx)
-        plugin = {"print_time": False, "iteration_callback": callback}
-    else:
-        plugin = {"print_time": False}
+        callback = iteration_callback(*bounds, opti.nx, listeners)
+        plugin["iteration_callback"] = callback
     if blocks:
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
                                         [0, 1], block_rows, [defect_scale, torque_scale], N,
@@ -805,6 +820,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         # move); an infeasible last iterate is no plan
         ok = (rule is not None and rule.stopped) or (
             status in LIMIT_STATUSES and _violation(opti, values) <= _FEASIBLE)
+    finally:
+        close_display()
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()

@@ -27,6 +27,7 @@ measure.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,7 +36,7 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import number
 
-__all__ = ["ProgressStop", "PROGRESS_STATUS"]
+__all__ = ["ProgressStop", "PROGRESS_STATUS", "iteration_callback"]
 
 #: ``stats["status"]`` of a plan that :class:`ProgressStop` ended
 PROGRESS_STATUS = "Stopped_On_Progress"
@@ -183,7 +184,8 @@ class ProgressStop:
         Returns
         -------
         casadi.Callback
-            Keep a reference to it for as long as the solver lives.
+            Keep a reference to it for as long as the solver lives
+            (:func:`iteration_callback` with this rule's :meth:`update`).
 
         Examples
         --------
@@ -197,44 +199,83 @@ class ProgressStop:
         >>> float(solver(x0=3.0, lbg=1.0, ubg=np.inf)["x"]) < 3.0
         True
         """
-        import casadi as ca
+        return iteration_callback(lbg, ubg, nx, [self.update])
 
-        lower = np.asarray(lbg, dtype=float).ravel()
-        upper = np.asarray(ubg, dtype=float).ravel()
-        rule = self
 
-        class _Callback(ca.Callback):
-            def __init__(self) -> None:
-                ca.Callback.__init__(self)
-                self.construct("progress_stop", {})
+def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
+                       listeners: list[Callable[[float, float], bool | None]]) -> Any:
+    """CasADi's ``iteration_callback`` of an ``nlpsol`` (Ipopt) that hands every iterate's
+    objective and largest constraint violation to ``listeners``.
 
-            def get_n_in(self) -> int:
-                return ca.nlpsol_n_out()
+    Parameters
+    ----------
+    lbg, ubg : array_like
+        Bounds of the NLP's constraints (``ng`` values each).
+    nx : int
+        Number of the NLP's variables.
+    listeners : list of callable
+        ``listener(objective, violation)``, called in order at every iterate (all of them,
+        also after one asked to stop); Ipopt stops (``User_Requested_Stop``) when one
+        returns ``True``. The violation is ``max(lbg − g, g − ubg, 0)`` over the finite
+        bounds, as the constraints are posed.
 
-            def get_n_out(self) -> int:
-                return 1
+    Returns
+    -------
+    casadi.Callback
+        Keep a reference to it for as long as the solver lives.
 
-            def get_name_in(self, i: int) -> str:
-                return ca.nlpsol_out(i)
+    Examples
+    --------
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> seen = []
+    >>> cb = iteration_callback([1.0], [np.inf], 1, [lambda f, v: seen.append((f, v))])
+    >>> solver = ca.nlpsol("s", "ipopt", {"x": x, "f": x**2, "g": x},
+    ...                    {"iteration_callback": cb, "print_time": False,
+    ...                     "ipopt": {"print_level": 0, "sb": "yes"}})
+    >>> round(float(solver(x0=3.0, lbg=1.0, ubg=np.inf)["x"]), 6), seen[0]
+    (1.0, (9.0, 0.0))
+    """
+    import casadi as ca
 
-            def get_name_out(self, i: int) -> str:
-                return "stop"
+    lower = np.asarray(lbg, dtype=float).ravel()
+    upper = np.asarray(ubg, dtype=float).ravel()
+    calls = list(listeners)
+    names = ca.nlpsol_out()
 
-            def get_sparsity_in(self, i: int) -> Any:
-                name = ca.nlpsol_out(i)
-                if name == "f":
-                    return ca.Sparsity.scalar()
-                if name in ("x", "lam_x"):
-                    return ca.Sparsity.dense(nx)
-                if name in ("g", "lam_g"):
-                    return ca.Sparsity.dense(lower.size)
-                return ca.Sparsity(0, 0)
+    class _Callback(ca.Callback):
+        def __init__(self) -> None:
+            ca.Callback.__init__(self)
+            self.construct("iteration_callback", {})
 
-            def eval(self, arg: list) -> list:
-                g = np.asarray(arg[ca.nlpsol_out().index("g")], dtype=float).ravel()
-                excess = np.r_[lower - g, g - upper, 0.0]
-                violation = float(np.max(excess[np.isfinite(excess)]))
-                f = float(arg[ca.nlpsol_out().index("f")])
-                return [1 if rule.update(f, violation) else 0]
+        def get_n_in(self) -> int:
+            return ca.nlpsol_n_out()
 
-        return _Callback()
+        def get_n_out(self) -> int:
+            return 1
+
+        def get_name_in(self, i: int) -> str:
+            return ca.nlpsol_out(i)
+
+        def get_name_out(self, i: int) -> str:
+            return "stop"
+
+        def get_sparsity_in(self, i: int) -> Any:
+            name = ca.nlpsol_out(i)
+            if name == "f":
+                return ca.Sparsity.scalar()
+            if name in ("x", "lam_x"):
+                return ca.Sparsity.dense(nx)
+            if name in ("g", "lam_g"):
+                return ca.Sparsity.dense(lower.size)
+            return ca.Sparsity(0, 0)
+
+        def eval(self, arg: list) -> list:
+            g = np.asarray(arg[names.index("g")], dtype=float).ravel()
+            excess = np.r_[lower - g, g - upper, 0.0]
+            violation = float(np.max(excess[np.isfinite(excess)]))
+            f = float(arg[names.index("f")])
+            stop = [bool(call(f, violation)) for call in calls]
+            return [1 if any(stop) else 0]
+
+    return _Callback()

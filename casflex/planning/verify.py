@@ -398,8 +398,10 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         Of the shaper (:func:`casflex.shaping.shaper_for_move`).
     dt : float
         Simulation step of the verification [s].
-    cache_dir, processes, progress
+    cache_dir, processes
         For the modal tables (:func:`casflex.model.build_model`).
+    progress : bool
+        Progress bars of the modal tables and a counter of Ipopt's iterates (on stderr).
     log : callable, optional
         ``log(message)``: one line per step.
     ocp_modes : int, optional
@@ -516,7 +518,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                      intervals=intervals, torque_limit=limits["torque"],
                      velocity_limit=limits["velocity"], end=end, robust=robust,
                      guess=plan_options.pop("guess", shaped), restarts=restarts,
-                     robust_steps=robust_steps, log=log, **plan_options)
+                     robust_steps=robust_steps, log=log, progress=progress,
+                     **plan_options)
     timings["plan_s"] = time.perf_counter() - t0
     say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s), Ipopt "
         f"{plan.stats['status']} in {plan.stats['iterations']} iterations, "

@@ -1,0 +1,83 @@
+"""The live display of a planner's solve (``plan_move(progress=...)``) and the iteration
+callback it shares with the progress rule (casflex.planning.iteration_callback)."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from casflex.errors import ModelError
+from casflex.model import FlexibleModel, PointwiseProvider
+from casflex.planning import iteration_callback, plan_move
+from casflex.robot import load
+
+
+@pytest.fixture(scope="module")
+def onelink():
+    robot = load("problems/onelink.toml")
+    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+
+
+def test_progress_callable_sees_every_iterate_and_ends_on_the_plan(onelink):
+    seen = []
+    plan = plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20,
+                     progress_stop=False, progress=lambda *a: seen.append(a))
+    # Ipopt's iterates 0 (the guess) to iter_count, numbered in order
+    assert [s[0] for s in seen] == list(range(plan.stats["iterations"] + 1))
+    # the last iterate is the plan: its T and its constraint violation as plan_move
+    # measures them after the solve
+    assert seen[-1][1] == pytest.approx(plan.duration, rel=1e-12)
+    assert seen[-1][2] == pytest.approx(plan.stats["constraint_violation"], abs=1e-12)
+    # the guess (the rigid bang-bang move stretched by 1.3) is not at the optimum
+    assert seen[0][1] > 1.2 * plan.duration
+
+
+def test_progress_and_the_rule_see_the_same_iterates(onelink):
+    # both listen to one callback: the rule's trace is what the display was given, up to
+    # the iterate where the rule stopped the solve
+    seen = []
+    plan = plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20,
+                     progress=lambda i, f, v: seen.append((f, v)))
+    assert seen == [tuple(p) for p in plan.stats["objective_trace"]]
+
+
+def test_progress_counter_on_stderr_is_closed(onelink, capsys):
+    from tqdm import tqdm
+
+    plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, progress=True,
+              name="swing")
+    err = capsys.readouterr().err
+    assert "Ipopt swing" in err
+    assert not [bar for bar in tqdm._instances if "Ipopt" in str(bar.desc)]
+
+
+def test_progress_rejects_other_values_before_solving(onelink):
+    with pytest.raises(ModelError, match="progress = 'yes'.*bool or a callable"):
+        plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, progress="yes")
+
+
+def test_a_listener_that_returns_true_stops_ipopt_there():
+    # min (x - 2)^2 + (y - 1)^2 s.t. x + y >= 4 (optimum x = 2.5, y = 1.5): the second
+    # listener asks to stop at the third iterate; both are called at every iterate
+    x = ca.SX.sym("x", 2)
+    calls = {"a": [], "b": []}
+
+    def a(f, v):
+        calls["a"].append((f, v))
+
+    def b(f, v):
+        calls["b"].append((f, v))
+        return len(calls["b"]) == 3
+
+    cb = iteration_callback([4.0], [np.inf], 2, [a, b])
+    solver = ca.nlpsol("s", "ipopt", {"x": x, "f": (x[0] - 2) ** 2 + (x[1] - 1) ** 2,
+                                      "g": x[0] + x[1]},
+                       {"iteration_callback": cb, "print_time": False,
+                        "ipopt": {"print_level": 0, "sb": "yes"}})
+    solver(x0=[0.0, 0.0], lbg=4.0, ubg=np.inf)
+    assert solver.stats()["return_status"] == "User_Requested_Stop"
+    assert solver.stats()["iter_count"] == 2
+    assert calls["a"] == calls["b"] and len(calls["a"]) == 3
+    # the violation is the posed bound's: x + y = 0 against >= 4 at the start
+    assert calls["a"][0] == (5.0, 4.0)
