@@ -58,13 +58,35 @@ class SolveProgress:
         return False
 
     def close(self) -> None:
-        """Remove the counter from the terminal."""
+        """Remove the counter from the terminal.
+
+        Examples
+        --------
+        >>> p = SolveProgress("move1", "energy", enabled=False)
+        >>> p(0.31, 0.0)
+        False
+        >>> p.close(); p.postfix
+        'objective 0.31000, violation 0.0e+00'
+        """
         self._bar.close()
 
 
 def check_progress(progress: Any) -> bool:
-    """Whether ``plan_move(progress=...)`` asks for a display; raises
-    :class:`casflex.errors.ModelError` for a value that is neither a bool nor a callable.
+    """Whether ``plan_move(progress=...)`` asks for a display.
+
+    Parameters
+    ----------
+    progress : object
+        ``plan_move``'s ``progress``.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        For a value that is neither a bool (or None) nor a callable.
 
     Examples
     --------
