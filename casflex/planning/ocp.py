@@ -788,6 +788,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if display is not None:
         listeners.append(display)
     plugin = {"print_time": False}
+    callback = None
     if listeners:
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
@@ -822,6 +823,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             status in LIMIT_STATUSES and _violation(opti, values) <= _FEASIBLE)
     finally:
         close_display()
+    if callback is not None and callback.error is not None:
+        # a Ctrl-C (or a listener's error) stopped Ipopt: not a failure of the plan
+        raise callback.error
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()

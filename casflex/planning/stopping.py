@@ -222,7 +222,12 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
     Returns
     -------
     casadi.Callback
-        Keep a reference to it for as long as the solver lives.
+        Keep a reference to it for as long as the solver lives. An exception raised by a
+        listener (``KeyboardInterrupt`` included: a Ctrl-C while Ipopt runs arrives at the
+        next iterate's callback) stops Ipopt at that iterate and is kept as the
+        callback's ``error`` (None otherwise); CasADi would otherwise turn it into a
+        ``User_Requested_Stop``, so the caller re-raises it after the solve
+        (:func:`casflex.planning.plan_move` does).
 
     Examples
     --------
@@ -246,6 +251,7 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
     class _Callback(ca.Callback):
         def __init__(self) -> None:
             ca.Callback.__init__(self)
+            self.error: BaseException | None = None
             self.construct("iteration_callback", {})
 
         def get_n_in(self) -> int:
@@ -275,7 +281,11 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
             excess = np.r_[lower - g, g - upper, 0.0]
             violation = float(np.max(excess[np.isfinite(excess)]))
             f = float(arg[names.index("f")])
-            stop = [bool(call(f, violation)) for call in calls]
+            try:
+                stop = [bool(call(f, violation)) for call in calls]
+            except BaseException as exc:  # noqa: BLE001  (kept and re-raised by the caller)
+                self.error = exc
+                return [1]
             return [1 if any(stop) else 0]
 
     return _Callback()

@@ -81,3 +81,35 @@ def test_a_listener_that_returns_true_stops_ipopt_there():
     assert calls["a"] == calls["b"] and len(calls["a"]) == 3
     # the violation is the posed bound's: x + y = 0 against >= 4 at the start
     assert calls["a"][0] == (5.0, 4.0)
+
+
+def test_ctrl_c_during_a_solve_interrupts_the_plan(onelink):
+    # a SIGINT while Ipopt runs reaches Python at the next iterate's callback; CasADi
+    # would turn the KeyboardInterrupt into User_Requested_Stop, so that plan_move
+    # reported "no plan" and the restarts went on with their next pass: it must
+    # interrupt instead, from any pass
+    import os
+    import signal
+
+    for restarts, passes, at in ((0, 1, 3), (2, 2, 1)):
+        # interrupt at iterate `at` of pass `passes` (each pass numbers from 0)
+        seen = []
+
+        def interrupt(i, f, v, seen=seen, passes=passes, at=at):
+            seen.append(i)
+            if seen.count(0) == passes and i == at:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        with pytest.raises(KeyboardInterrupt):
+            plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20,
+                      restarts=restarts, progress=interrupt)
+        # no iterate after the interrupt, no further pass
+        assert seen.count(0) == passes and seen[-1] == at
+
+
+def test_an_error_in_the_progress_callable_is_raised_as_itself(onelink):
+    def broken(i, f, v):
+        raise ValueError("display broke")
+
+    with pytest.raises(ValueError, match="display broke"):
+        plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, progress=broken)
