@@ -35,7 +35,10 @@ residual passes the end bound, relative),
 ``solve_s``, ``status``, ``iterations``, ``intervals``, ``substeps``, ``objective``,
 ``timings``. ``--out DIR`` writes ``trajectory.csv`` (t, q, q̇, q̈, τ), ``plan.npz``
 (the whole plan, :meth:`casflex.planning.PlannedMove.save`, for ``--guess``) and
-``plan.png``; ``--plot FILE.png`` the same figure.
+``plan.png``; ``--plot FILE.png`` the same figure. Interrupted (Ctrl-C) with ``--out``, it
+writes the plan reached so far to ``DIR/plan.npz`` (the solve's last feasible iterate, the
+best finished pass or the last finished problem of the robust path), and ``--guess
+DIR/plan.npz`` continues from there.
 """
 
 from __future__ import annotations
@@ -143,7 +146,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "plan.npz; the same move): a warm start, and with --robust the "
                         "continuation starts there")
     parser.add_argument("--out", default=None, metavar="DIR",
-                        help="write trajectory.csv, plan.npz and plan.png to DIR")
+                        help="write trajectory.csv, plan.npz and plan.png to DIR (on "
+                        "Ctrl-C, plan.npz: the plan reached so far)")
     parser.add_argument("--plot", default=None, metavar="FILE.png",
                         help="figure: shaped vs planned joint motion, torques and tip "
                         "deflection")
@@ -204,6 +208,21 @@ def _saved_plan(path, move):
     return plan
 
 
+def _keep_interrupted(exc, out, log):
+    """Ctrl-C during the plan: write the plan it had reached to ``out/plan.npz``."""
+    if exc.plan is None:
+        log("interrupted before a feasible plan was reached: nothing to keep")
+        return
+    reached = f"{exc.plan.duration:.4f} s plan reached ({exc.note})"
+    if out is None:
+        log(f"interrupted: a {reached} is lost; with --out DIR it is kept for --guess")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    exc.plan.save(out / "plan.npz")
+    log(f"interrupted: the {reached} is in {out / 'plan.npz'}; --guess {out / 'plan.npz'} "
+        "continues from it")
+
+
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Plan ``args.move`` for ``args.robot``; return the comparison with the shaped move.
 
@@ -230,7 +249,13 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     ModelError
     """
     from casflex.moves import load_move
-    from casflex.planning import DERIVATIVES, ROBUST_STEPS, SOLVERS, plan_robot_move
+    from casflex.planning import (
+        DERIVATIVES,
+        ROBUST_STEPS,
+        SOLVERS,
+        PlanInterrupted,
+        plan_robot_move,
+    )
     from casflex.robot import load
 
     robust = number(float(getattr(args, "robust", 0.0)), "--robust", low=0.0, high=1.0,
@@ -265,15 +290,19 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     guess = getattr(args, "guess", None)
     if guess is not None:
         options["guess"] = _saved_plan(guess, move)
-    comparison = plan_robot_move(
-        robot, move, modes, objective=objective, duration=duration, robust=robust,
-        intervals=intervals, end=end, step=step,
-        delta_order=getattr(args, "delta_order", 1), dt=dt,
-        cache_dir=cache_dir_of(args),
-        processes=getattr(args, "processes", None), progress=True, log=log,
-        max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
-        derivatives=derivatives, compile_function=_compiler(derivatives, cache_dir_of(args)),
-        solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
+    try:
+        comparison = plan_robot_move(
+            robot, move, modes, objective=objective, duration=duration, robust=robust,
+            intervals=intervals, end=end, step=step,
+            delta_order=getattr(args, "delta_order", 1), dt=dt,
+            cache_dir=cache_dir_of(args),
+            processes=getattr(args, "processes", None), progress=True, log=log,
+            max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
+            derivatives=derivatives, compile_function=_compiler(derivatives, cache_dir_of(args)),
+            solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
+    except PlanInterrupted as exc:  # keep what the solve had reached, for --guess
+        _keep_interrupted(exc, out, log)
+        raise
     summary = comparison.summary()
     log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "
         f"({100 * summary['shortening']:.1f} % shorter); residual tip deflection planned "

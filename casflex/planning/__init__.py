@@ -54,6 +54,10 @@ iteration_callback
     violation to listeners (the stop, the display).
 SolveProgress
     The live counter of a solve's iterates on stderr (``plan_move(progress=True)``).
+PlanInterrupted
+    Ctrl-C during a plan (a ``KeyboardInterrupt``), with the best plan reached by then.
+INTERRUPTED_STATUS
+    The status of that plan when it is the interrupted solve's last iterate.
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -158,7 +162,13 @@ from casflex.planning.scenarios import (
     static_deflection,
     tip_jacobian,
 )
-from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop, iteration_callback
+from casflex.planning.stopping import (
+    INTERRUPTED_STATUS,
+    PROGRESS_STATUS,
+    PlanInterrupted,
+    ProgressStop,
+    iteration_callback,
+)
 from casflex.planning.verify import (
     PlanComparison,
     limit_excess,
@@ -186,6 +196,8 @@ __all__ = [
     "PROGRESS_STATUS",
     "iteration_callback",
     "SolveProgress",
+    "PlanInterrupted",
+    "INTERRUPTED_STATUS",
     # the result
     "PlannedMove",
     "Propagator",

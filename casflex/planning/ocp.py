@@ -70,7 +70,13 @@ from casflex.planning.staged import (
     stage_variables,
     state_scales,
 )
-from casflex.planning.stopping import PROGRESS_STATUS, ProgressStop, iteration_callback
+from casflex.planning.stopping import (
+    INTERRUPTED_STATUS,
+    PROGRESS_STATUS,
+    PlanInterrupted,
+    ProgressStop,
+    iteration_callback,
+)
 from casflex.simulate.integrators import rk4_step
 
 __all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
@@ -460,6 +466,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
 
     Raises
     ------
+    casflex.planning.PlanInterrupted
+        Ctrl-C while Ipopt ran (a ``KeyboardInterrupt``); its ``plan`` is the best plan
+        reached by then (the interrupted solve's last iterate if feasible, else the best
+        finished pass or continuation problem; None if none), a ``guess`` that continues
+        the work.
     casflex.errors.ModelError
         Malformed arguments (one line naming the argument).
     casflex.errors.SolverError
@@ -823,9 +834,17 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             status in LIMIT_STATUSES and _violation(opti, values) <= _FEASIBLE)
     finally:
         close_display()
-    if callback is not None and callback.error is not None:
-        # a Ctrl-C (or a listener's error) stopped Ipopt: not a failure of the plan
-        raise callback.error
+    # a Ctrl-C (or a listener's error) stopped Ipopt: not a failure of the plan. An
+    # interrupt keeps the last iterate when it is feasible (PlanInterrupted.plan)
+    error = callback.error if callback is not None else None
+    interrupted = isinstance(error, KeyboardInterrupt)
+    if error is not None and not interrupted:
+        raise error
+    if interrupted:
+        if not _violation(opti, values) <= _FEASIBLE:
+            raise PlanInterrupted(None, "the interrupted solve's last iterate is not "
+                                  "feasible") from error
+        ok = True
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
@@ -834,6 +853,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         status = "Solve_Succeeded" if stats.get("success") else f"Fatrop_Return_{status}"
     if rule is not None and rule.stopped:
         status = PROGRESS_STATUS
+    if interrupted:
+        status = INTERRUPTED_STATUS
     Tv = float(values(T)) if duration is None else float(T)
     Xv = np.asarray(values(X), dtype=float).reshape(nxa, N + 1)
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
@@ -887,13 +908,17 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                 "scales": {"x": np.asarray(sx, dtype=float), "tau": np.asarray(su, dtype=float),
                            "ddq": None if sa is None else np.asarray(sa, dtype=float),
                            "T": float(sT)}}
-    return PlannedMove(
+    plan = PlannedMove(
         t=t_dense, q=dense[:, :n], dq=dense[:, n + m:2 * n + m], ddq=ddq, tau=tau_dense,
         delta=dense[:, n:n + m], ddelta=dense[:, 2 * n + m:], node_t=np.linspace(0, Tv, N + 1),
         node_x=node_x, node_tau=node_tau, hold_torque=holdf, stats=info,
         settle=settle, name=name, propagator=propagate, solution=solution,
         description=f"{objective}-optimal plan, {N} intervals ({transcription}), end {end!r}"
                     + (f", robust ±{robust:g}" if errors else ""))
+    if interrupted:
+        raise PlanInterrupted(plan, f"the interrupted solve's last iterate (feasible, "
+                              f"{objective} {info['objective_value']:.6g})") from error
+    return plan
 
 
 def _violation(opti, values):

@@ -27,6 +27,7 @@ from casflex._validate import number
 from casflex.errors import SolverError
 from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
+from casflex.planning.stopping import PlanInterrupted
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
            "solve_by_continuation", "ROBUST_STEPS", "CONTINUATION_HALVINGS"]
@@ -198,7 +199,14 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
     say("  pass 0: " + _line(best.duration, best.stats.get("status"),
                               best.stats.get("iterations")))
     for k in range(restarts):
-        plan, failures = solve_from_plan(solve, arguments, best)
+        try:
+            plan, failures = solve_from_plan(solve, arguments, best)
+        except PlanInterrupted as exc:  # the better of the finished passes and the iterate
+            if exc.plan is not None and \
+                    exc.plan.stats["objective_value"] < best.stats["objective_value"]:
+                raise
+            raise PlanInterrupted(best, f"the best of {len(passes)} finished pass(es), "
+                                  f"{best.stats['status']}") from exc
         passes += [_failed(exc) for exc in failures]
         for exc in failures:
             say(f"  restart {k + 1}: {exc}")
@@ -359,13 +367,19 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
         say(f"continuation, problem at {f:.4g} of the path: robust {r:.6g}, end "
             + (end_k if isinstance(end_k, str) else
                f"{[float(f'{1e3 * b:.4g}') for b in bounds]} mm"))
-        if isinstance(plan, PlannedMove):
-            new, failures = solve_from_plan(solve, step, plan)
-        else:  # the nominal problem from the caller's guess (or solve's default)
-            try:
-                new, failures = solve(**step), []
-            except SolverError as exc:
-                new, failures = None, [exc]
+        try:
+            if isinstance(plan, PlannedMove):
+                new, failures = solve_from_plan(solve, step, plan)
+            else:  # the nominal problem from the caller's guess (or solve's default)
+                try:
+                    new, failures = solve(**step), []
+                except SolverError as exc:
+                    new, failures = None, [exc]
+        except PlanInterrupted as exc:  # the interrupted problem's iterate, else the last
+            if exc.plan is not None or reached is None:  # problem finished (if any)
+                raise
+            raise PlanInterrupted(plan, f"the plan of the last problem finished, at "
+                                  f"{reached:.4g} of the path") from exc
         record += [_failed(exc, robust=r, end_bounds=bounds) for exc in failures]
         if new is None and reached is not None and halvings < CONTINUATION_HALVINGS:
             # a shorter step from the last plan reached

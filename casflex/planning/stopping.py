@@ -36,10 +36,45 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import number
 
-__all__ = ["ProgressStop", "PROGRESS_STATUS", "iteration_callback"]
+__all__ = ["ProgressStop", "PROGRESS_STATUS", "INTERRUPTED_STATUS", "PlanInterrupted",
+           "iteration_callback"]
 
 #: ``stats["status"]`` of a plan that :class:`ProgressStop` ended
 PROGRESS_STATUS = "Stopped_On_Progress"
+
+#: ``stats["status"]`` of the feasible last iterate of a solve that Ctrl-C ended
+INTERRUPTED_STATUS = "Interrupted_By_User"
+
+
+class PlanInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a plan, with what the plan had reached (a ``KeyboardInterrupt``: code
+    that knows nothing of it stops as on any interrupt).
+
+    Parameters
+    ----------
+    plan : PlannedMove or None
+        The best plan reached before the interrupt: the interrupted solve's last iterate
+        if it was feasible (``stats["status"]`` :data:`INTERRUPTED_STATUS`), else the best
+        pass a :func:`casflex.planning.plan_move` with ``restarts`` had finished, or the
+        last problem a robust continuation had finished (``plan.stats["scenarios"]`` says
+        at which frequency error); None if there was none. As a ``guess`` of a later
+        ``plan_move`` it continues the work (``casflex plan --guess``).
+    note : str
+        Where ``plan`` comes from, in words.
+
+    Examples
+    --------
+    >>> try:
+    ...     raise PlanInterrupted(None, "nothing reached")
+    ... except KeyboardInterrupt as exc:
+    ...     print(exc.plan, exc.note)
+    None nothing reached
+    """
+
+    def __init__(self, plan: Any = None, note: str = "") -> None:
+        super().__init__(note)
+        self.plan = plan
+        self.note = note
 
 
 @dataclass

@@ -224,3 +224,41 @@ def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "move 'far' goal qf" in err and "joint limits" in err
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").iterdir())
+
+
+def test_plan_cli_interrupted_keeps_the_plan_reached_and_guess_continues(tmp_path, capsys,
+                                                                       monkeypatch):
+    # Ctrl-C in the second pass (the first restart): exit 130, the first pass's plan in
+    # DIR/plan.npz; --guess DIR/plan.npz then ends where the uninterrupted run does
+    import os
+    import signal
+
+    from casflex.planning import progress
+
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    argv = ["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
+            "--end", "2e-3", "--intervals", "30", "--json", "--dt", "1e-3"]
+    assert main(argv) == 0
+    full = json.loads(capsys.readouterr().out)
+    assert len(full["passes"]) >= 2  # there is a restart to interrupt
+
+    counted = progress.SolveProgress.__call__
+    state = {"solves": 0}
+
+    def interrupting(self, f, v):
+        if self.iterations == 0:
+            state["solves"] += 1
+            if state["solves"] == 2:
+                os.kill(os.getpid(), signal.SIGINT)
+        return counted(self, f, v)
+
+    monkeypatch.setattr(progress.SolveProgress, "__call__", interrupting)
+    out = tmp_path / "out"
+    assert main([*argv, "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "plan.npz" in err and "finished pass" in err
+    monkeypatch.setattr(progress.SolveProgress, "__call__", counted)
+    assert main([*argv, "--guess", str(out / "plan.npz")]) == 0
+    resumed = json.loads(capsys.readouterr().out)
+    assert resumed["duration"] == pytest.approx(full["duration"], rel=1e-6)

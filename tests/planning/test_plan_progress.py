@@ -113,3 +113,55 @@ def test_an_error_in_the_progress_callable_is_raised_as_itself(onelink):
 
     with pytest.raises(ValueError, match="display broke"):
         plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, progress=broken)
+
+
+def _interrupt_at(test):
+    """A progress callable that sends SIGINT at the first iterate where ``test(seen, i,
+    f, v)`` holds; ``seen`` lists the ``(i, f, v)`` it was given."""
+    import os
+    import signal
+
+    seen = []
+
+    def call(i, f, v):
+        seen.append((i, f, v))
+        if test(seen, i, f, v):
+            os.kill(os.getpid(), signal.SIGINT)
+    return call, seen
+
+
+def test_interrupt_keeps_the_last_feasible_iterate(onelink):
+    from casflex.planning import INTERRUPTED_STATUS, PlanInterrupted
+
+    kw = {"torque_limit": 0.1, "intervals": 20, "progress_stop": False}
+    # the first feasible iterate after the guess: the plan is that iterate
+    call, seen = _interrupt_at(lambda s, i, f, v: i > 0 and v <= 1e-6)
+    with pytest.raises(PlanInterrupted) as info:
+        plan_move(onelink, [0.0], [1.0], progress=call, **kw)
+    plan = info.value.plan
+    assert plan.stats["status"] == INTERRUPTED_STATUS and not plan.stats["converged"]
+    assert plan.duration == pytest.approx(seen[-1][1], rel=1e-12)
+    assert plan.stats["constraint_violation"] <= 1e-6
+    # as a guess it continues to the plan of an uninterrupted solve
+    full = plan_move(onelink, [0.0], [1.0], **kw)
+    resumed = plan_move(onelink, [0.0], [1.0], guess=plan, **kw)
+    assert resumed.duration == pytest.approx(full.duration, rel=1e-6)
+    # an infeasible iterate is no plan
+    call, seen = _interrupt_at(lambda s, i, f, v: v > 1e-6)
+    with pytest.raises(PlanInterrupted) as info:
+        plan_move(onelink, [0.0], [1.0], progress=call, **kw)
+    assert info.value.plan is None and "not feasible" in info.value.note
+
+
+def test_interrupt_in_a_restart_keeps_the_best_finished_pass(onelink):
+    from casflex.planning import PlanInterrupted
+
+    kw = {"torque_limit": 0.08, "intervals": 20, "restarts": 2}
+    first = plan_move(onelink, [0.0], [1.0], **{**kw, "restarts": 0})
+    # at the second pass's guess (iterate 0 again: the first pass's plan)
+    call, seen = _interrupt_at(lambda s, i, f, v: i == 0 and len(s) > 1)
+    with pytest.raises(PlanInterrupted) as info:
+        plan_move(onelink, [0.0], [1.0], progress=call, **kw)
+    plan = info.value.plan
+    assert "finished pass" in info.value.note
+    assert plan.duration == first.duration and plan.stats["status"] == first.stats["status"]
