@@ -310,6 +310,11 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         f"{1e3 * summary['residual_torque_driven']:.3f} mm, OCP "
         f"{1e3 * summary['residual_ocp']:.3f} mm), shaped "
         f"{1e3 * summary['shaped']['residual_tip_deflection']:.3f} mm")
+    if objective == "time" and summary["shortening"] <= 0.0:
+        # Ipopt may end near its start (an acceptable plateau) or on a longer path
+        log(f"warning: the plan is not shorter than the shaped move ({summary['duration']:.4f}"
+            f" s against {summary['shaped']['duration']:.4f} s, Ipopt status "
+            f"{summary['status']}): the shaped move is the better motion at these limits")
     over = {k: max((e for e in excess if e is not None), default=0.0)
             for k, excess in summary["limit_excess"].items()}
     if any(e > 0.0 for e in over.values()):

@@ -262,3 +262,25 @@ def test_plan_cli_interrupted_keeps_the_plan_reached_and_guess_continues(tmp_pat
     assert main([*argv, "--guess", str(out / "plan.npz")]) == 0
     resumed = json.loads(capsys.readouterr().out)
     assert resumed["duration"] == pytest.approx(full["duration"], rel=1e-6)
+
+
+def test_plan_cli_warns_when_the_plan_is_not_shorter(tmp_path, capsys, monkeypatch):
+    # a cold solve of move 1 ended at Ipopt's acceptable level at 3.3408 s against the
+    # shaped 3.2082 s (benchmarks/README_planning.md, session 20): the CLI must say so
+    from types import SimpleNamespace
+
+    import casflex.planning
+
+    summary = {"duration": 3.3408, "shortening": 1 - 3.3408 / 3.2082,
+               "shaped": {"duration": 3.2082, "residual_tip_deflection": 0.011},
+               "residual_tip_deflection": 0.0105, "residual_torque_driven": 0.01,
+               "residual_ocp": 0.0109, "limit_excess": {"torque": [0.0]},
+               "end_bound_excess": 0.0, "robust": [], "status": "Solved_To_Acceptable_Level"}
+    monkeypatch.setattr(casflex.planning, "plan_robot_move",
+                        lambda *a, **k: SimpleNamespace(summary=lambda: summary))
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    assert main(["plan", "problems/onelink.toml", "--move", f"{moves}:swing"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the plan is not shorter than the shaped move (3.3408 s against " \
+        "3.2082 s, Ipopt status Solved_To_Acceptable_Level)" in err
