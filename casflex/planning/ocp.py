@@ -479,7 +479,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         iterate. A solve that ends at an iteration or time limit
         (:data:`LIMIT_STATUSES`) with its last iterate feasible (constraints to 1e-6) is
         not a failure: that iterate is returned with its status
-        (``stats["converged"]`` False) for the simulations to judge.
+        (``stats["converged"]`` False) for the simulations to judge. The error's ``solve`` holds
+        that solve's ``iterations``, ``solve_s`` and ``solve_cpu_s`` [s].
 
     Examples
     --------
@@ -860,9 +861,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
     info_violation = _violation(opti, values)
     if not ok:
-        raise SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max, v_max, n, m,
-                                    N, duration, solver.capitalize()) + " (largest constraint "
-                          f"violation of the last iterate {info_violation:.1e})")
+        error = SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
+                                             n, m, N, duration, solver.capitalize())
+                            + f" (largest constraint violation of the last iterate "
+                              f"{info_violation:.1e})")
+        # what the failed solve cost (the restarts' and the continuation's totals count it)
+        error.solve = {"iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
+                       "solve_cpu_s": solve_cpu_s}
+        raise error
     # the dense trajectory: the substeps of every interval
     # the dense trajectory: ``substeps`` samples per interval, from the interval's own
     # discretisation (the RK4 substeps, or the collocation polynomial)

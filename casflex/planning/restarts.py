@@ -84,8 +84,13 @@ def _pass(plan) -> dict:
 
 
 def _failed(exc: SolverError, **extra: Any) -> dict:
-    """The record of an attempt that found no plan (``duration`` None)."""
-    return {**dict.fromkeys(PASS_KEYS), "status": f"SolverError: {exc}", **extra}
+    """The record of an attempt that found no plan (``duration`` None; its solve's time
+    and iterations when the error carries them, ``exc.solve``: a failed pass of 500
+    iterations is most of a run's time)."""
+    spent = getattr(exc, "solve", None) or {}
+    return {**dict.fromkeys(PASS_KEYS), **{k: spent.get(k) for k in
+                                           ("iterations", "solve_s", "solve_cpu_s")},
+            "status": f"SolverError: {exc}", **extra}
 
 
 def _line(duration: float, status: Any, iterations: Any) -> str:

@@ -112,3 +112,43 @@ def test_a_failed_restart_is_tried_again_without_the_multipliers():
     # the retry had the same iterate, without its multipliers
     assert calls[2].duration == calls[1].duration == 3.0 and calls[2].solution is None
     assert best.stats["iterations_total"] == 10 and best.stats["solve_s_total"] == 2.0
+
+
+def test_a_failed_pass_counts_in_the_totals():
+    # a failed restart of 500 iterations was most of a run's time, but the totals left it
+    # out ("4 restart(s): 89 s in all" for a run of 25 minutes): the error carries what
+    # its solve cost, and the pass records and totals count it
+    import dataclasses
+
+    from casflex.errors import SolverError
+    from casflex.planning.restarts import solve_with_restarts
+
+    @dataclasses.dataclass
+    class Plan:
+        duration: float
+        solution: dict | None = None
+        stats: dict = dataclasses.field(default_factory=dict)
+
+    def solve(guess, restarts):
+        if isinstance(guess, Plan) and guess.solution is not None:
+            error = SolverError("plan_move: Ipopt found no plan (Maximum_Iterations_Exceeded)")
+            error.solve = {"iterations": 500, "solve_s": 60.0, "solve_cpu_s": 55.0}
+            raise error
+        d = 3.0 if guess == "cold" else 0.9 * guess.duration
+        return Plan(d, {"x": None}, {"objective_value": d, "iterations": 5, "status": "ok",
+                                     "solve_s": 1.0, "solve_cpu_s": 1.0})
+
+    best = solve_with_restarts(solve, {"guess": "cold"}, restarts=1, restart_rtol=1e-3)
+    failed = best.stats["passes"][1]
+    assert failed["duration"] is None and failed["iterations"] == 500
+    assert best.stats["iterations_total"] == 510
+    assert best.stats["solve_s_total"] == 62.0 and best.stats["solve_cpu_s_total"] == 57.0
+
+
+def test_plan_move_failure_says_what_its_solve_cost(onelink):
+    from casflex.errors import SolverError
+
+    with pytest.raises(SolverError) as info:
+        plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, max_iter=1)
+    spent = info.value.solve
+    assert spent["iterations"] == 1 and spent["solve_s"] > 0.0 and spent["solve_cpu_s"] > 0.0
