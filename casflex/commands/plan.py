@@ -109,12 +109,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default="collocation",
                         help="Gauss-Legendre collocation, 3 points per interval (default), "
                         "or multiple shooting with RK4 substeps")
-    parser.add_argument("--derivatives", default="casadi", metavar="KIND",
-                        help="the NLP's derivatives: casadi (CasADi's sweeps, the default), "
-                        "or with collocation blocks-jacobian (the interval's own Jacobian "
-                        "scattered per interval: ~40 %% cheaper per call on move 1) or "
-                        "blocks (its Hessian too) or points (both from one collocation "
-                        "point's, compiled to C once and cached)")
+    parser.add_argument("--derivatives", default=None, metavar="KIND",
+                        help="the NLP's derivatives: points (both from one collocation "
+                        "point's, compiled to C once and cached; the default with "
+                        "collocation and Ipopt), casadi (CasADi's sweeps; the default "
+                        "otherwise), or with collocation blocks-jacobian (the interval's "
+                        "own Jacobian scattered per interval) or blocks (its Hessian too)")
     parser.add_argument("--solver", default="ipopt", metavar="SOLVER",
                         help="the NLP solver: ipopt (MUMPS, the default) or fatrop (Riccati "
                         "over the stages; collocation with implicit dynamics, derivatives "
@@ -155,13 +155,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_cache_arguments(parser)
 
 
-def _compiler(derivatives, cache_dir):
+def _compiler(derivatives, cache_dir, log):
     """``compile_function`` of :func:`casflex.planning.plan_move` for ``"points"``: the
     point function's Jacobian and Hessian compiled once (-O0: seconds; the cached
-    library is reused), ``None`` (interpreted) otherwise or without a cache."""
+    library is reused), ``None`` (interpreted) otherwise, without a cache or without a C
+    compiler (said in the log)."""
     if derivatives != "points" or cache_dir is False:
         return None
-    from casflex.codegen import compile_cached
+    from casflex.codegen import BuildError, compile_cached, find_compiler
+
+    try:
+        find_compiler()
+    except BuildError as exc:
+        log(f"{exc}: the planner's derivatives are evaluated by CasADi's virtual machine "
+            "(slower)")
+        return None
 
     def compile_points(functions):
         lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir, flags=("-O0",))
@@ -274,8 +282,13 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if duration is not None:
         duration = number(float(duration), "--duration", low=0.0, low_open=True)
     end = _end(getattr(args, "end", None))
-    derivatives = choice(getattr(args, "derivatives", "casadi"), "--derivatives", DERIVATIVES)
     solver = choice(getattr(args, "solver", "ipopt"), "--solver", SOLVERS)
+    transcription = getattr(args, "transcription", "collocation")
+    derivatives = getattr(args, "derivatives", None)
+    if derivatives is None:  # the fastest that the transcription and the solver take
+        derivatives = "points" if transcription == "collocation" and solver == "ipopt" \
+            else "casadi"
+    derivatives = choice(derivatives, "--derivatives", DERIVATIVES)
     out = getattr(args, "out", None)
     out = output_directory(out, "--out") if out else None
     plot = plot_path(getattr(args, "plot", None))
@@ -297,8 +310,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
             delta_order=getattr(args, "delta_order", 1), dt=dt,
             cache_dir=cache_dir_of(args),
             processes=getattr(args, "processes", None), progress=True, log=log,
-            max_iter=max_iter, transcription=getattr(args, "transcription", "collocation"),
-            derivatives=derivatives, compile_function=_compiler(derivatives, cache_dir_of(args)),
+            max_iter=max_iter, transcription=transcription, derivatives=derivatives,
+            compile_function=_compiler(derivatives, cache_dir_of(args), log),
             solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
     except PlanInterrupted as exc:  # keep what the solve had reached, for --guess
         _keep_interrupted(exc, out, log)
