@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from casflex.errors import ModelError
+from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
 from casflex.planning import plan_move
+from casflex.planning.restarts import solve_with_restarts
 from casflex.robot import load
 
 MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
@@ -81,31 +84,37 @@ def test_a_restart_solves_the_same_scaled_problem(onelink):
     assert c.solution["scales"]["T"] == pytest.approx(a.duration, rel=1e-12)
 
 
-def test_a_failed_restart_is_tried_again_without_the_multipliers():
-    # the control flow of solve_with_restarts with a stand-in solver: from a plan with
-    # multipliers it fails, from the iterate alone it shortens the plan by 10 %
-    import dataclasses
+@dataclasses.dataclass
+class _Plan:
+    """A stand-in plan: what solve_with_restarts reads of one."""
 
-    from casflex.errors import SolverError
-    from casflex.planning.restarts import solve_with_restarts
+    duration: float
+    solution: dict | None = None
+    stats: dict = dataclasses.field(default_factory=dict)
 
-    @dataclasses.dataclass
-    class Plan:
-        duration: float
-        solution: dict | None = None
-        stats: dict = dataclasses.field(default_factory=dict)
 
-    calls = []
-
+def _stand_in_solver(calls, cost=None):
+    """A stand-in for plan_move: from a plan with multipliers it fails (the error carrying
+    ``cost`` as its solve's), from the iterate alone it shortens the plan by 10 %; a cold
+    solve gives 3 s. Every guess is appended to ``calls``."""
     def solve(guess, restarts):
         calls.append(guess)
-        if isinstance(guess, Plan) and guess.solution is not None:
-            raise SolverError("plan_move: Ipopt found no plan (Maximum_Iterations_Exceeded)")
+        if isinstance(guess, _Plan) and guess.solution is not None:
+            error = SolverError("plan_move: Ipopt found no plan (Maximum_Iterations_Exceeded)")
+            if cost is not None:
+                error.solve = cost
+            raise error
         d = 3.0 if guess == "cold" else 0.9 * guess.duration
-        return Plan(d, {"x": None}, {"objective_value": d, "iterations": 5, "status": "ok",
-                                     "solve_s": 1.0, "solve_cpu_s": 1.0})
+        return _Plan(d, {"x": None}, {"objective_value": d, "iterations": 5, "status": "ok",
+                                      "solve_s": 1.0, "solve_cpu_s": 1.0})
+    return solve
 
-    best = solve_with_restarts(solve, {"guess": "cold"}, restarts=1, restart_rtol=1e-3)
+
+def test_a_failed_restart_is_tried_again_without_the_multipliers():
+    # the control flow of solve_with_restarts with the stand-in solver
+    calls = []
+    best = solve_with_restarts(_stand_in_solver(calls), {"guess": "cold"}, restarts=1,
+                               restart_rtol=1e-3)
     statuses = [p["status"] for p in best.stats["passes"]]
     assert statuses[0] == "ok" and statuses[1].startswith("SolverError") and statuses[2] == "ok"
     assert best.duration == pytest.approx(2.7) and best.stats["best_pass"] == 2
@@ -118,27 +127,9 @@ def test_a_failed_pass_counts_in_the_totals():
     # a failed restart of 500 iterations was most of a run's time, but the totals left it
     # out ("4 restart(s): 89 s in all" for a run of 25 minutes): the error carries what
     # its solve cost, and the pass records and totals count it
-    import dataclasses
-
-    from casflex.errors import SolverError
-    from casflex.planning.restarts import solve_with_restarts
-
-    @dataclasses.dataclass
-    class Plan:
-        duration: float
-        solution: dict | None = None
-        stats: dict = dataclasses.field(default_factory=dict)
-
-    def solve(guess, restarts):
-        if isinstance(guess, Plan) and guess.solution is not None:
-            error = SolverError("plan_move: Ipopt found no plan (Maximum_Iterations_Exceeded)")
-            error.solve = {"iterations": 500, "solve_s": 60.0, "solve_cpu_s": 55.0}
-            raise error
-        d = 3.0 if guess == "cold" else 0.9 * guess.duration
-        return Plan(d, {"x": None}, {"objective_value": d, "iterations": 5, "status": "ok",
-                                     "solve_s": 1.0, "solve_cpu_s": 1.0})
-
-    best = solve_with_restarts(solve, {"guess": "cold"}, restarts=1, restart_rtol=1e-3)
+    cost = {"iterations": 500, "solve_s": 60.0, "solve_cpu_s": 55.0}
+    best = solve_with_restarts(_stand_in_solver([], cost), {"guess": "cold"}, restarts=1,
+                               restart_rtol=1e-3)
     failed = best.stats["passes"][1]
     assert failed["duration"] is None and failed["iterations"] == 500
     assert best.stats["iterations_total"] == 510
@@ -146,8 +137,6 @@ def test_a_failed_pass_counts_in_the_totals():
 
 
 def test_plan_move_failure_says_what_its_solve_cost(onelink):
-    from casflex.errors import SolverError
-
     with pytest.raises(SolverError) as info:
         plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, max_iter=1)
     spent = info.value.solve
