@@ -869,7 +869,6 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         error.solve = {"iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
                        "solve_cpu_s": solve_cpu_s}
         raise error
-    # the dense trajectory: the substeps of every interval
     # the dense trajectory: ``substeps`` samples per interval, from the interval's own
     # discretisation (the RK4 substeps, or the collocation polynomial)
     hv = Tv / N
