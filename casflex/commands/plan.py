@@ -155,28 +155,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_cache_arguments(parser)
 
 
-def _compiler(derivatives, cache_dir, log):
-    """``compile_function`` of :func:`casflex.planning.plan_move` for ``"points"``: the
-    point function's Jacobian and Hessian compiled once (-O0: seconds; the cached
-    library is reused), ``None`` (interpreted) otherwise, without a cache or without a C
-    compiler (said in the log)."""
-    if derivatives != "points" or cache_dir is False:
-        return None
-    from casflex.codegen import BuildError, compile_cached, find_compiler
-
-    try:
-        find_compiler()
-    except BuildError as exc:
-        log(f"{exc}: the planner's derivatives are evaluated by CasADi's virtual machine "
-            "(slower)")
-        return None
-
-    def compile_points(functions):
-        lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir, flags=("-O0",))
-        return [lib[f.name()] for f in functions]
-    return compile_points
-
-
 def _end(text):
     if text is None or text in ("rest", "free"):
         return text
@@ -262,7 +240,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
         ROBUST_STEPS,
         SOLVERS,
         PlanInterrupted,
+        default_derivatives,
         plan_robot_move,
+        point_compiler,
     )
     from casflex.robot import load
 
@@ -286,8 +266,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     transcription = getattr(args, "transcription", "collocation")
     derivatives = getattr(args, "derivatives", None)
     if derivatives is None:  # the fastest that the transcription and the solver take
-        derivatives = "points" if transcription == "collocation" and solver == "ipopt" \
-            else "casadi"
+        derivatives = default_derivatives(transcription, solver)
     derivatives = choice(derivatives, "--derivatives", DERIVATIVES)
     out = getattr(args, "out", None)
     out = output_directory(out, "--out") if out else None
@@ -311,7 +290,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
             cache_dir=cache_dir_of(args),
             processes=getattr(args, "processes", None), progress=True, log=log,
             max_iter=max_iter, transcription=transcription, derivatives=derivatives,
-            compile_function=_compiler(derivatives, cache_dir_of(args), log),
+            compile_function=point_compiler(derivatives, cache_dir_of(args), log),
             solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
     except PlanInterrupted as exc:  # keep what the solve had reached, for --guess
         _keep_interrupted(exc, out, log)

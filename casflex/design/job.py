@@ -311,7 +311,7 @@ def _run_design(study, out_dir, progress, log, cache_dir, processes, figure_pool
                                       n_modes=study.planner["modes"])
             p_run = simulate_prescribed(p_model, shaped, dt=dt, t_end=t_end, method=sim_method)
         comparison = plan_next_to_shaped(p_model, move, shaped, p_run, study.planner, dt=dt,
-                                         log=say, progress=progress)
+                                         log=say, progress=progress, cache_dir=cache_dir)
         timings["planner_s"] = time.perf_counter() - t0
 
     if started is None:  # the workers start after the planner's tables (forked while this

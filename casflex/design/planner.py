@@ -12,6 +12,7 @@ the ``planner`` object of ``summary.json`` and :func:`casflex.plotting.plot_plan
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -28,7 +29,8 @@ __all__ = ["plan_next_to_shaped", "planner_summary"]
 def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                         shaped_run: SimulationResult, settings: dict, *, dt: float,
                         log: Callable[[str], None] | None = None,
-                        progress: bool = False) -> Any:
+                        progress: bool = False,
+                        cache_dir: str | os.PathLike | bool | None = None) -> Any:
     """Plan ``move`` at the limits of its shaped version and verify both.
 
     Parameters
@@ -47,7 +49,9 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         :data:`casflex.planning.ROBUST_STEPS`), ``end`` (``"shaped"``:
         the shaped move's residual, in each robust scenario its residual there;
         ``"rest"``, ``"free"`` or a bound [m]),
-        ``intervals``, ``transcription``, ``max_iter``, ``verify_dt`` (step of the
+        ``intervals``, ``transcription``, ``derivatives`` (default ``"casadi"``;
+        ``"points"`` compiled through ``cache_dir``: :func:`casflex.planning.point_compiler`),
+        ``max_iter``, ``verify_dt`` (step of the
         verification by simulation [s]; a step that straddles a torque switch integrates
         the jump of q̈ with an error of up to half a step, so the residual of a plan is
         verified finer than the job's step).
@@ -58,6 +62,9 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     progress : bool
         A counter of Ipopt's iterates on stderr while the plan is solved
         (:func:`casflex.planning.plan_move`'s ``progress``).
+    cache_dir : str, pathlib.Path, None or False
+        Cache of the compiled derivatives (``None``: the default cache; ``False``: none,
+        the derivatives interpreted).
 
     Returns
     -------
@@ -88,6 +95,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         ROBUST_STEPS,
         PlanComparison,
         plan_move,
+        point_compiler,
         shaped_end,
         shaped_move_limits,
         shaped_reference,
@@ -108,13 +116,16 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     say(f"planning {move.name} ({settings['objective']}, end {end}"
         + (f", robust ±{robust:g}" if robust else "") + ") at the shaped move's limits ...")
     limits = {"torque": tau_lim, "velocity": v_lim}
+    derivatives = settings.get("derivatives", "casadi")
     try:
         plan = plan_move(model, move, objective=settings["objective"], duration=duration,
                          weight=settings["weight"], intervals=settings["intervals"],
                          torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
                          guess=shaped, transcription=settings["transcription"],
                          robust_steps=settings.get("robust_steps", ROBUST_STEPS), log=log,
-                         max_iter=settings["max_iter"], progress=progress)
+                         max_iter=settings["max_iter"], progress=progress,
+                         derivatives=derivatives,
+                         compile_function=point_compiler(derivatives, cache_dir, say))
     except SolverError as exc:
         say(f"the planner found no plan: {exc}")
         return PlanComparison(model=model, move=move, shaped=shaped, plan=None,

@@ -50,8 +50,8 @@ _SECTIONS = {
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
     "planner": {"enabled": True, "objective": "time", "duration": None, "weight": 0.0,
                 "robust": 0.0, "robust_steps": None, "end": "shaped", "intervals": None,
-                "transcription": "collocation", "modes": None, "max_iter": 500,
-                "verify_dt": 1e-4},
+                "transcription": "collocation", "derivatives": None, "modes": None,
+                "max_iter": 500, "verify_dt": 1e-4},
 }
 # sections that are off when the study file does not have them
 _OPTIONAL = ("planner",)
@@ -281,7 +281,13 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
 
 def _check_planner(path, p, n_modes):
     """The ``[planner]`` section: checked in place; ``None`` when it is switched off."""
-    from casflex.planning import OBJECTIVES, ROBUST_STEPS, TRANSCRIPTIONS
+    from casflex.planning import (
+        DERIVATIVES,
+        OBJECTIVES,
+        ROBUST_STEPS,
+        TRANSCRIPTIONS,
+        default_derivatives,
+    )
 
     if not _flag(path, "planner.enabled", p["enabled"]):
         return None
@@ -309,6 +315,13 @@ def _check_planner(path, p, n_modes):
                                 integer=True, path=path)
     p["transcription"] = choice(p["transcription"], "planner.transcription",
                                 TRANSCRIPTIONS, path=path)
+    if p["derivatives"] is None:  # as casflex plan: the fastest the transcription takes
+        p["derivatives"] = default_derivatives(p["transcription"])
+    p["derivatives"] = choice(p["derivatives"], "planner.derivatives", DERIVATIVES, path=path)
+    if p["derivatives"] != "casadi" and p["transcription"] != "collocation":
+        raise fail("planner.derivatives", p["derivatives"], "needs transcription = "
+                   "'collocation' (per-interval blocks); use 'casadi' with "
+                   f"'{p['transcription']}'", path=path)
     if p["modes"] is not None:
         p["modes"] = number(p["modes"], "planner.modes", low=1, high=n_modes, integer=True,
                             path=path)

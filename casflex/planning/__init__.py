@@ -41,6 +41,12 @@ block_derivatives
     interval function's own derivatives (Ipopt's ``jac_g`` and ``hess_lag``), or from
     those of one point function (``point``: :func:`casflex.planning.assembly.point_split`,
     the implicit collocation's in :mod:`casflex.planning.derivatives`).
+default_derivatives
+    The fastest derivatives for a transcription and a solver (``"points"`` with
+    collocation and Ipopt): what ``casflex plan`` and the design job use when not told.
+point_compiler
+    ``plan_move``'s ``compile_function`` for ``"points"``: the point function's
+    derivatives compiled once and cached, or ``None`` without a C compiler.
 
 Stopping (:mod:`casflex.planning.stopping`)
 --------------------------------------------
@@ -135,6 +141,7 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.assembly import block_derivatives
+from casflex.planning.derivatives import default_derivatives, point_compiler
 from casflex.planning.limits import end_bounds, plan_limits, shaped_end, shaped_move_limits
 from casflex.planning.ocp import (
     DERIVATIVES,
@@ -191,6 +198,8 @@ __all__ = [
     "SOLVERS",
     # derivatives from blocks
     "block_derivatives",
+    "default_derivatives",
+    "point_compiler",
     # stopping
     "ProgressStop",
     "PROGRESS_STATUS",

@@ -13,6 +13,9 @@ study: 103 MB of C, not compiled in 5 min).
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+
 import casadi as ca
 import numpy as np
 
@@ -20,8 +23,65 @@ from casflex.model import FlexibleModel, TableProvider
 from casflex.planning.assembly import PointSplit, point_split
 from casflex.planning.scenarios import frequency_shifted_model, with_provider
 
-__all__ = ["implicit_point_function", "implicit_collocation_function",
+__all__ = ["default_derivatives", "point_compiler", "implicit_point_function",
+           "implicit_collocation_function",
            "collocation_matrices", "static_lookup"]
+
+
+def default_derivatives(transcription: str = "collocation", solver: str = "ipopt") -> str:
+    """The fastest derivatives of :func:`casflex.planning.plan_move` that ``transcription``
+    and ``solver`` take: ``"points"`` with collocation and Ipopt, ``"casadi"`` otherwise.
+
+    What ``casflex plan`` and the design job's ``[planner]`` use when not told
+    (``plan_move``'s own default stays ``"casadi"``, which needs no C compiler). On move 1
+    of the design study the whole ``casflex plan`` took 84 s with ``"points"`` where
+    ``"casadi"`` had not finished in 17 min (``benchmarks/README_planning.md``, session 20).
+
+    >>> default_derivatives("collocation", "ipopt"), default_derivatives("shooting")
+    ('points', 'casadi')
+    """
+    return "points" if transcription == "collocation" and solver == "ipopt" else "casadi"
+
+
+def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None = None,
+                   log: Callable[[str], None] | None = None
+                   ) -> Callable[[list], list] | None:
+    """``compile_function`` of :func:`casflex.planning.plan_move` for ``derivatives``.
+
+    For ``"points"``: the point function's Jacobian and Hessian compiled to C once
+    (``-O0``, seconds) and cached (:func:`casflex.codegen.compile_cached`; a later plan
+    of the same model reuses the library). ``None`` — the functions are evaluated by
+    CasADi's virtual machine — for other derivatives, without a cache
+    (``cache_dir=False``) or without a C compiler (then ``log`` says so).
+
+    Parameters
+    ----------
+    derivatives : str
+        The plan's derivatives (:data:`casflex.planning.DERIVATIVES`).
+    cache_dir : str, pathlib.Path, None or False
+        Cache root (``None``: the default cache; ``False``: no cache, nothing compiled).
+    log : callable, optional
+        ``log(message)``: told when there is no C compiler.
+
+    >>> point_compiler("casadi") is None, point_compiler("points", cache_dir=False) is None
+    (True, True)
+    """
+    if derivatives != "points" or cache_dir is False:
+        return None
+    from casflex.codegen import BuildError, compile_cached, find_compiler
+
+    try:
+        find_compiler()
+    except BuildError as exc:
+        if log is not None:
+            log(f"{exc}: the planner's derivatives are evaluated by CasADi's virtual "
+                "machine (slower)")
+        return None
+
+    def compile_points(functions):
+        lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir, flags=("-O0",))
+        return [lib[f.name()] for f in functions]
+    return compile_points
 
 
 def static_lookup(model: FlexibleModel, errors: list) -> tuple[FlexibleModel, list]:

@@ -53,3 +53,24 @@ def test_no_plan_is_reported(case):
     s = planner_summary(c, "shaped")
     assert s["success"] is False and "Maximum" in s["error"]
     assert s["shaped"]["duration"] == shaped.duration
+
+
+def test_point_derivatives_compiled_in_the_cache_give_casadi_s_plan(case, tmp_path):
+    # the study's default with collocation ("points", compiled once into the job's cache)
+    # against CasADi's own derivatives: the same NLP, so the same plan to Ipopt's tolerance
+    model, move, shaped, run = case
+    ref = plan_next_to_shaped(model, move, shaped, run, dict(SETTINGS, derivatives="casadi"),
+                              dt=1e-3, cache_dir=tmp_path)
+    assert not (tmp_path / "jit").exists()  # nothing compiled for CasADi's derivatives
+    c = plan_next_to_shaped(model, move, shaped, run, dict(SETTINGS, derivatives="points"),
+                            dt=1e-3, cache_dir=tmp_path)
+    assert c.plan.stats["derivatives"] == "points"
+    libraries = sorted((tmp_path / "jit").glob("plan_points-*"))
+    assert libraries  # the point function's derivatives and values, compiled
+    assert c.plan.duration == pytest.approx(ref.plan.duration, rel=1e-6)
+    assert ref.plan.duration < shaped.duration
+    # a second job reuses the cached libraries: nothing new built, the same plan
+    again = plan_next_to_shaped(model, move, shaped, run, dict(SETTINGS, derivatives="points"),
+                                dt=1e-3, cache_dir=tmp_path)
+    assert sorted((tmp_path / "jit").glob("plan_points-*")) == libraries
+    assert again.plan.duration == c.plan.duration

@@ -50,6 +50,17 @@ def test_planner_values(tmp_path):
         "energy", 2.5, 0.1, 0.002, 40, "shooting", 1, 2)
 
 
+@pytest.mark.parametrize("lines, derivatives", [
+    ("", "points"),  # as casflex plan: compiled point derivatives with collocation
+    ("transcription = 'shooting'\n", "casadi"),
+    ("derivatives = 'casadi'\n", "casadi"),
+    ("derivatives = 'blocks'\n", "blocks"),
+])
+def test_planner_derivatives(tmp_path, lines, derivatives):
+    p = design.load_study(_study(tmp_path, "[planner]\n" + lines)).planner
+    assert p["derivatives"] == derivatives
+
+
 @pytest.mark.parametrize("lines, field, value, rule", [
     ("objective = 'fastest'", "planner.objective", "fastest", "must be one of"),
     ("duration = 2.0", "planner.duration", "2.0", "'time' plan finds its own"),
@@ -64,6 +75,9 @@ def test_planner_values(tmp_path):
     ("intervals = 10.5", "planner.intervals", "10.5", "whole number"),
     ("transcription = 'pseudospectral'", "planner.transcription", "pseudospectral",
      "must be one of"),
+    ("derivatives = 'sparse'", "planner.derivatives", "sparse", "must be one of"),
+    ("transcription = 'shooting'\nderivatives = 'points'", "planner.derivatives", "points",
+     "needs transcription = 'collocation'"),
     ("modes = 2", "planner.modes", "2", "must be"),  # the study's model has 1 mode
     ("verify_dt = 0.5", "planner.verify_dt", "0.5", "must be"),
     ("enabled = 1", "planner.enabled", "1", "true or false"),
