@@ -600,13 +600,23 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         max_duration = 20.0 * T_guess
     max_duration = number(max_duration, "max_duration", low=0.0, low_open=True)
     omega_max = _omega_max(model, q0, qf) * (1.0 + robust)
-    if intervals is None:
+    chosen = intervals is None
+    if chosen:
         intervals = 40 if transcription == "shooting" else \
             max(20, math.ceil(omega_max * T_guess / _OMEGA_H_COLLOCATION))
     N = number(intervals, "intervals", low=2, integer=True)
     if substeps is None:
         substeps = max(1, math.ceil(omega_max * 1.5 * T_guess / (N * _OMEGA_H)))
     substeps = number(substeps, "substeps", low=1, integer=True)
+    if log is not None and not warm:
+        # the size decides the cost: an arm whose free joints let its modes vibrate fast
+        # (a light hub) needs many intervals, and each Ipopt iteration costs in proportion
+        log(f"{name}: {N} {transcription} intervals"
+            + (f" ({degree} points each)" if transcription == "collocation" else
+               f" ({substeps} RK4 substeps each)")
+            + (f", from ω_max h <= {_OMEGA_H_COLLOCATION:g} at the guess's {T_guess:.4g} s "
+               f"(ω_max {omega_max:.1f} rad/s with the joints free)"
+               if chosen and transcription == "collocation" else ""))
     tc = np.r_[ca.collocation_points(degree, "legendre")] \
         if transcription == "collocation" else np.zeros(0)
     if warm:

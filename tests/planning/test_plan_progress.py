@@ -52,6 +52,26 @@ def test_progress_counter_on_stderr_is_closed(onelink, capsys):
     assert not [bar for bar in tqdm._instances if "Ipopt" in str(bar.desc)]
 
 
+def test_log_names_the_problem_size_before_a_cold_solve(onelink):
+    # the size decides how long a solve takes: the log says it before Ipopt starts, with
+    # the rule that chose it
+    lines = []
+    plan = plan_move(onelink, [0.0], [1.0], torque_limit=0.1, velocity_limit=1.0,
+                     log=lines.append, restarts=1)
+    size = [line for line in lines if "intervals" in line]
+    N = plan.node_tau.shape[0]
+    assert len(size) == 1  # the restart is warm: no second line
+    assert size[0].startswith(f"planned: {N} collocation intervals (3 points each), from "
+                              "ω_max h <= 1 at the guess's")
+    omega = float(size[0].split("ω_max ")[-1].split(" rad/s")[0])
+    T_guess = float(size[0].split("guess's ")[1].split(" s")[0])
+    assert omega * T_guess == pytest.approx(N, rel=0.01)  # the figures as printed, rounded
+    lines.clear()
+    plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=12, log=lines.append,
+              transcription="shooting")
+    assert lines[0].startswith("planned: 12 shooting intervals (")
+
+
 def test_progress_rejects_other_values_before_solving(onelink):
     with pytest.raises(ModelError, match="progress = 'yes'.*bool or a callable"):
         plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, progress="yes")
