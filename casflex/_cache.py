@@ -480,7 +480,7 @@ def remove_stale_files(directory: str | os.PathLike, max_age: float = STALE_AGE)
         writer = _WRITER_PATTERN.search(name)
         orphan = (writer is not None and writer.group(1) == _HOST
                   and int(writer.group(2)) != os.getpid()
-                  and not _pid_alive(int(writer.group(2))))
+                  and not pid_alive(int(writer.group(2))))
         try:
             if entry.stat(follow_symlinks=False).st_mtime >= limit and not orphan:
                 continue
@@ -527,7 +527,7 @@ def unsafe_reason(path: str | os.PathLike) -> str | None:
     return None
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     """Whether process ``pid`` of this host may still be running (``True`` when that
     cannot be checked)."""
     if sys.platform == "win32":
@@ -547,7 +547,7 @@ def _claim_owner_alive(text: str) -> bool:
     host, _, pid = text.strip().rpartition(" ")
     if host != socket.gethostname() or not pid.isdigit():
         return True
-    return _pid_alive(int(pid))
+    return pid_alive(int(pid))
 
 
 def _try_claim(claim: Path, timeout: float) -> bool:

@@ -31,6 +31,8 @@ HarnessResult   its outputs, timing and executable
 Compiled-library cache (:mod:`casflex.codegen.jit`)
 ---------------------------------------------------
 compile_cached  compile functions once, keep the library on disk, load them back
+cached_library  the library compile_cached built, if it is in the cache (never compiles)
+compile_in_background  start compile_cached's build in a detached process, return at once
 
 Estimator (:mod:`casflex.codegen.estimator`)
 --------------------------------------------
@@ -141,7 +143,7 @@ from casflex.codegen.estimator import (
     model_bundle,
     split_forward,
 )
-from casflex.codegen.jit import compile_cached
+from casflex.codegen.jit import cached_library, compile_cached, compile_in_background
 from casflex.codegen.plan_table import plan_table_bundle
 from casflex.codegen.replay import HarnessResult, harness, run_harness
 from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
@@ -173,7 +175,9 @@ __all__ = [
     "run_harness",
     "HarnessResult",
     # compiled-library cache
+    "cached_library",
     "compile_cached",
+    "compile_in_background",
     # estimator
     "ekf_bundle",
     "model_bundle",

@@ -7,7 +7,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -15,13 +17,20 @@ from pathlib import Path
 
 import casadi as ca
 
-from casflex._cache import cache_root, remove_stale_files, staged_directory, unsafe_reason
+from casflex._cache import (
+    cache_root,
+    pid_alive,
+    remove_stale_files,
+    staged_directory,
+    unsafe_reason,
+)
 from casflex._validate import identifier
 from casflex.codegen.compiler import find_compiler, run_compiler, shared_library_suffix
 from casflex.codegen.errors import BuildError, CodegenError
 from casflex.codegen.templates import BOOR_ROUTINE_DIGEST, fused_bspline_source
 
-__all__ = ["compile_cached", "jit_flags", "write_source"]
+__all__ = ["cached_library", "compile_cached", "compile_in_background", "jit_flags",
+           "write_source"]
 
 _COMPILER_IDENT: dict[tuple[str, ...], str] = {}
 
@@ -134,6 +143,55 @@ def _generated_source(functions, name, root):
         return write_source(functions, name, tmp).read_bytes()
 
 
+def _library_target(functions, name, cache_dir, flags, compiler):
+    """The compiler command and the cache directory of the library of ``functions``
+    built with ``flags`` (created private if missing; the library may not exist yet)."""
+    identifier(name, "library name", error=CodegenError)
+    cmd = find_compiler(compiler)
+    base = cache_root(cache_dir)
+    if base is None:
+        raise CodegenError("compile_cached: cache_dir=False; the compiled library must live "
+                           "in a directory (give a path, or None for the default cache)")
+    root = base / "jit"
+    try:
+        root.parent.mkdir(parents=True, exist_ok=True)
+        root.mkdir(mode=0o700, exist_ok=True)
+    except OSError as exc:
+        raise BuildError(f"compile_cached: cannot create the library cache '{root}': "
+                         f"{exc.strerror or exc}; pass another cache_dir") from exc
+    _check_private(root)
+    # Hashed incrementally: the serialised graphs can be large. The graphs and CasADi's
+    # version fix CasADi's C; the digest of casflex's B-spline routine, what we make of it.
+    h = hashlib.sha256(json.dumps([name, list(flags), _compiler_ident(cmd),
+                                   ca.__version__, BOOR_ROUTINE_DIGEST]).encode())
+    try:  # the serialised graphs determine the generated C (and are quicker to get)
+        for f in functions:
+            h.update(f.serialize().encode())
+    except RuntimeError:  # not serialisable: hash the generated source instead
+        h.update(_generated_source(functions, name, root))
+    return cmd, root / f"{name}-{h.hexdigest()[:24]}"
+
+
+def _build_library(functions, name, target, cmd, flags):
+    """Generate and compile ``functions`` into ``target`` (renamed into place when
+    complete: a concurrent or interrupted build never leaves a broken library)."""
+    lib = f"lib{name}{shared_library_suffix()}"
+    remove_stale_files(target.parent)
+    with staged_directory(target) as staging:
+        source = write_source(functions, name, staging)
+        run_compiler([*cmd, *flags, "-fPIC", "-shared", source.name, "-o", lib, "-lm"],
+                     staging)
+        source.unlink()  # 2-3x the library's size; regenerable
+        built_lib = staging / lib  # private whatever the umask
+        os.chmod(built_lib, os.stat(built_lib).st_mode & ~0o022)
+
+
+def _load(functions, target, lib):
+    _check_private(target)
+    _check_private(lib)
+    return {f.name(): ca.external(f.name(), str(lib)) for f in functions}
+
+
 def compile_cached(functions: Sequence[ca.Function], name: str, *,
                    cache_dir: str | os.PathLike | None = None,
                    flags: Sequence[str] = ("-O1",),
@@ -201,45 +259,125 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
     >>> compile_cached([f], "demo_jit", cache_dir=cache)[1]["built"]   # from the cache
     False
     """
-    identifier(name, "library name", error=CodegenError)
     start = time.perf_counter()
-    cmd = find_compiler(compiler)
-    base = cache_root(cache_dir)
-    if base is None:
-        raise CodegenError("compile_cached: cache_dir=False; the compiled library must live "
-                           "in a directory (give a path, or None for the default cache)")
-    root = base / "jit"
-    try:
-        root.parent.mkdir(parents=True, exist_ok=True)
-        root.mkdir(mode=0o700, exist_ok=True)
-    except OSError as exc:
-        raise BuildError(f"compile_cached: cannot create the library cache '{root}': "
-                         f"{exc.strerror or exc}; pass another cache_dir") from exc
-    _check_private(root)
-    # Hashed incrementally: the serialised graphs can be large. The graphs and CasADi's
-    # version fix CasADi's C; the digest of casflex's B-spline routine, what we make of it.
-    h = hashlib.sha256(json.dumps([name, list(flags), _compiler_ident(cmd),
-                                   ca.__version__, BOOR_ROUTINE_DIGEST]).encode())
-    try:  # the serialised graphs determine the generated C (and are quicker to get)
-        for f in functions:
-            h.update(f.serialize().encode())
-    except RuntimeError:  # not serialisable: hash the generated source instead
-        h.update(_generated_source(functions, name, root))
-    target = root / f"{name}-{h.hexdigest()[:24]}"
+    cmd, target = _library_target(functions, name, cache_dir, flags, compiler)
     lib = target / f"lib{name}{shared_library_suffix()}"
     built = False
     if not lib.is_file():
-        remove_stale_files(root)
-        with staged_directory(target) as staging:
-            source = write_source(functions, name, staging)
-            run_compiler([*cmd, *flags, "-fPIC", "-shared", source.name, "-o", lib.name,
-                          "-lm"], staging)
-            source.unlink()  # 2-3x the library's size; regenerable
-            built_lib = staging / lib.name  # private whatever the umask
-            os.chmod(built_lib, os.stat(built_lib).st_mode & ~0o022)
+        _build_library(functions, name, target, cmd, flags)
         built = True
-    _check_private(target)
-    _check_private(lib)
-    loaded = {f.name(): ca.external(f.name(), str(lib)) for f in functions}
+    loaded = _load(functions, target, lib)
     return loaded, {"library": str(lib), "built": built,
                     "seconds": time.perf_counter() - start}
+
+
+def cached_library(functions: Sequence[ca.Function], name: str, *,
+                   cache_dir: str | os.PathLike | None = None,
+                   flags: Sequence[str] = ("-O1",),
+                   compiler: str | Sequence[str] | None = None
+                   ) -> dict[str, ca.Function] | None:
+    """The compiled ``functions`` if :func:`compile_cached` (or
+    :func:`compile_in_background`) already built them with ``flags``, else ``None``;
+    never compiles.
+
+    Parameters and errors as :func:`compile_cached`.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> f = ca.Function("square", [x], [x**2])
+    >>> cache = tempfile.mkdtemp()
+    >>> cached_library([f], "demo_lookup", cache_dir=cache) is None
+    True
+    >>> _ = compile_cached([f], "demo_lookup", cache_dir=cache)
+    >>> float(cached_library([f], "demo_lookup", cache_dir=cache)["square"](3.0))
+    9.0
+    """
+    _, target = _library_target(functions, name, cache_dir, flags, compiler)
+    lib = target / f"lib{name}{shared_library_suffix()}"
+    return _load(functions, target, lib) if lib.is_file() else None
+
+
+#: prefix of the job directory of a background build, after ``.gen-<library directory>``
+_BACKGROUND = "-bg-"
+
+
+def compile_in_background(functions: Sequence[ca.Function], name: str, *,
+                          cache_dir: str | os.PathLike | None = None,
+                          flags: Sequence[str] = ("-O2",),
+                          compiler: str | Sequence[str] | None = None) -> Path | None:
+    """Start building the library :func:`compile_cached` would build, in a detached
+    process, and return at once.
+
+    For code that is worth optimising but slow to compile: a caller runs a quickly
+    compiled build now and picks up this one with :func:`cached_library` when it is
+    there — later in the same run or in a later process. The functions are saved
+    (CasADi's serialisation) into a private job directory in the cache; a separate
+    Python process, in its own session (so neither Ctrl-C nor the caller's exit stops
+    it), compiles them into the cache entry of ``compile_cached(functions, name,
+    flags=flags)``, renamed into place when complete, and removes the job directory. A
+    failed build leaves nothing but the missing library (the caller keeps its quick
+    build).
+
+    Parameters
+    ----------
+    functions, name, cache_dir, flags, compiler
+        As :func:`compile_cached`.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The library that will appear; ``None`` if nothing was started: it is already
+        built, a live process is building it, or the functions cannot be serialised.
+
+    Raises
+    ------
+    casflex.codegen.BuildError, casflex.codegen.CodegenError
+        As :func:`compile_cached` (no compiler, an unusable cache).
+    """
+    cmd, target = _library_target(functions, name, cache_dir, flags, compiler)
+    lib = target / f"lib{name}{shared_library_suffix()}"
+    if lib.is_file() or _background_build_running(target):
+        return None
+    job = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".gen-{target.name}{_BACKGROUND}"))
+    try:
+        for i, f in enumerate(functions):
+            f.save(str(job / f"{i}.casadi"))
+    except RuntimeError:  # not serialisable (e.g. an external): no background build
+        shutil.rmtree(job, ignore_errors=True)
+        return None
+    (job / "job.json").write_text(json.dumps({
+        "name": name, "target": str(target), "cmd": list(cmd), "flags": list(flags),
+        "functions": len(functions)}))
+    # an intermediate process starts the builder and exits: the builder is nobody's child
+    # here (no zombie, no ResourceWarning for a Popen still running at exit)
+    subprocess.run([sys.executable, "-c", _DETACH, sys.executable, "-m",
+                    "casflex.codegen._background", str(job)],
+                   stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL, check=False, timeout=60)
+    return lib
+
+
+#: the intermediate process: start ``argv[1:]`` in a new session, output nowhere, and exit
+_DETACH = ("import subprocess, sys; subprocess.Popen(sys.argv[1:], stdin=subprocess.DEVNULL, "
+           "stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)")
+
+
+def _background_build_running(target: Path) -> bool:
+    """Whether a live process is building ``target`` in the background (its job
+    directory names the builder's pid once it has started; a job directory younger than
+    a minute without one is being set up)."""
+    for job in target.parent.glob(f".gen-{target.name}{_BACKGROUND}*"):
+        try:
+            pid = int((job / "pid").read_text())
+        except (OSError, ValueError):
+            try:
+                if time.time() - job.stat().st_mtime < 60.0:
+                    return True
+            except OSError:
+                pass
+            continue
+        if pid_alive(pid):
+            return True
+    return False

@@ -46,7 +46,10 @@ default_derivatives
     collocation and Ipopt): what ``casflex plan`` and the design job use when not told.
 point_compiler
     ``plan_move``'s ``compile_function`` for ``"points"``: the point function's
-    derivatives compiled once and cached, or ``None`` without a C compiler.
+    derivatives compiled and cached — a quick build at once, an optimised one in the
+    background for the next solves — or ``None`` without a C compiler.
+QUICK_FLAGS, OPTIMISED_FLAGS
+    The compiler flags of those two builds.
 
 Stopping (:mod:`casflex.planning.stopping`)
 --------------------------------------------
@@ -141,7 +144,12 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.assembly import block_derivatives
-from casflex.planning.derivatives import default_derivatives, point_compiler
+from casflex.planning.derivatives import (
+    OPTIMISED_FLAGS,
+    QUICK_FLAGS,
+    default_derivatives,
+    point_compiler,
+)
 from casflex.planning.limits import end_bounds, plan_limits, shaped_end, shaped_move_limits
 from casflex.planning.ocp import (
     DERIVATIVES,
@@ -200,6 +208,8 @@ __all__ = [
     "block_derivatives",
     "default_derivatives",
     "point_compiler",
+    "QUICK_FLAGS",
+    "OPTIMISED_FLAGS",
     # stopping
     "ProgressStop",
     "PROGRESS_STATUS",

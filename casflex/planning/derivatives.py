@@ -23,8 +23,8 @@ from casflex.model import FlexibleModel, TableProvider
 from casflex.planning.assembly import PointSplit, point_split
 from casflex.planning.scenarios import frequency_shifted_model, with_provider
 
-__all__ = ["default_derivatives", "point_compiler", "implicit_point_function",
-           "implicit_collocation_function",
+__all__ = ["default_derivatives", "point_compiler", "QUICK_FLAGS", "OPTIMISED_FLAGS",
+           "implicit_point_function", "implicit_collocation_function",
            "collocation_matrices", "static_lookup"]
 
 
@@ -43,16 +43,33 @@ def default_derivatives(transcription: str = "collocation", solver: str = "ipopt
     return "points" if transcription == "collocation" and solver == "ipopt" else "casadi"
 
 
+#: compiler flags of the point function's quick build (move 1 of the design study: 6 s of
+#: ``cc``) and of its optimised build (85 s of ``cc``; the Jacobian and Hessian 3x faster,
+#: 124 and 125 against 384 and 326 us per point; ``benchmarks/README_planning.md``,
+#: session 21)
+QUICK_FLAGS = ("-O0",)
+OPTIMISED_FLAGS = ("-Os",)
+
+
 def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None = None,
-                   log: Callable[[str], None] | None = None
+                   log: Callable[[str], None] | None = None, *, background: bool = True
                    ) -> Callable[[list], list] | None:
     """``compile_function`` of :func:`casflex.planning.plan_move` for ``derivatives``.
 
-    For ``"points"``: the point function's Jacobian and Hessian compiled to C once
-    (``-O0``, seconds) and cached (:func:`casflex.codegen.compile_cached`; a later plan
-    of the same model reuses the library). ``None`` — the functions are evaluated by
-    CasADi's virtual machine — for other derivatives, without a cache
-    (``cache_dir=False``) or without a C compiler (then ``log`` says so).
+    For ``"points"``: the point function's Jacobian and Hessian compiled to C and cached
+    (:func:`casflex.codegen.compile_cached`). The optimised build (:data:`OPTIMISED_FLAGS`)
+    makes every Ipopt iteration cheaper but takes a minute or two of the compiler on a
+    large model, the quick one (:data:`QUICK_FLAGS`) seconds; so when the optimised
+    library is not in the cache yet, the quick one is used and, with ``background``, the
+    optimised one is built by a detached process
+    (:func:`casflex.codegen.compile_in_background`). Every later NLP that the function
+    compiles for — a restart, a continuation's next problem, a later run — takes the
+    optimised library once it is there. The returned function's ``builds`` list records
+    the flags each call used.
+
+    ``None`` — the functions are evaluated by CasADi's virtual machine — for other
+    derivatives, without a cache (``cache_dir=False``) or without a C compiler (then
+    ``log`` says so).
 
     Parameters
     ----------
@@ -61,26 +78,51 @@ def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None 
     cache_dir : str, pathlib.Path, None or False
         Cache root (``None``: the default cache; ``False``: no cache, nothing compiled).
     log : callable, optional
-        ``log(message)``: told when there is no C compiler.
+        ``log(message)``: told when there is no C compiler and when an optimised build
+        starts in the background.
+    background : bool
+        Build the optimised library in the background when it is missing (else: the
+        quick build only, until something else puts the optimised one in the cache).
 
     >>> point_compiler("casadi") is None, point_compiler("points", cache_dir=False) is None
     (True, True)
     """
     if derivatives != "points" or cache_dir is False:
         return None
-    from casflex.codegen import BuildError, compile_cached, find_compiler
+    from casflex.codegen import (
+        BuildError,
+        cached_library,
+        compile_cached,
+        compile_in_background,
+        find_compiler,
+    )
 
+    say = log or (lambda message: None)
     try:
         find_compiler()
     except BuildError as exc:
-        if log is not None:
-            log(f"{exc}: the planner's derivatives are evaluated by CasADi's virtual "
-                "machine (slower)")
+        say(f"{exc}: the planner's derivatives are evaluated by CasADi's virtual machine "
+            "(slower)")
         return None
 
     def compile_points(functions):
-        lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir, flags=("-O0",))
+        lib = cached_library(functions, "plan_points", cache_dir=cache_dir,
+                             flags=OPTIMISED_FLAGS)
+        flags = OPTIMISED_FLAGS
+        if lib is None:
+            flags = QUICK_FLAGS
+            lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir,
+                                    flags=QUICK_FLAGS)
+            if background and compile_in_background(functions, "plan_points",
+                                                     cache_dir=cache_dir,
+                                                     flags=OPTIMISED_FLAGS):
+                say(f"planner: derivatives compiled with {' '.join(QUICK_FLAGS)}; a faster "
+                    f"build ({' '.join(OPTIMISED_FLAGS)}) is compiling in the background "
+                    "for the next solves")
+        compile_points.builds.append(flags)
         return [lib[f.name()] for f in functions]
+
+    compile_points.builds = []
     return compile_points
 
 

@@ -179,6 +179,44 @@ def test_compiled_point_derivatives_give_casadi_s_plan(onelink, tmp_path):
     np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
 
 
+def test_point_compiler_quick_now_optimised_in_the_background(onelink, tmp_path):
+    # casflex plan's and the design job's compile_function: the quick build at once, the
+    # optimised one from a detached process, used by the next NLP that compiles; the
+    # plans equal CasADi's to Ipopt's tolerance whichever build runs
+    import time
+
+    from casflex.planning import OPTIMISED_FLAGS, QUICK_FLAGS, point_compiler
+
+    move = Move([0.0], [1.0], 2.0, settle=1.0)
+    common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, "end": 2e-3,
+              "derivatives": "points"}
+    reference = plan_move(onelink, move, **{**common, "derivatives": "casadi"})
+    lines = []
+    compile_points = point_compiler("points", tmp_path, lines.append)
+    first = plan_move(onelink, move, compile_function=compile_points, **common)
+    # values and derivatives each: the quick build, the optimised one started
+    assert compile_points.builds == [QUICK_FLAGS, QUICK_FLAGS]
+    assert sum("in the background" in line for line in lines) == 2
+    jit = tmp_path / "jit"
+    end = time.monotonic() + 120.0
+    while list(jit.glob(".gen-*")) and time.monotonic() < end:
+        time.sleep(0.1)
+    assert not list(jit.glob(".gen-*")), "the background builds did not finish in 2 min"
+    second = plan_move(onelink, move, compile_function=compile_points, **common)
+    assert compile_points.builds[2:] == [OPTIMISED_FLAGS, OPTIMISED_FLAGS]
+    for plan in (first, second):
+        assert plan.stats["status"] == "Solve_Succeeded"
+        assert plan.duration == pytest.approx(reference.duration, rel=1e-9)
+    # without the background build: the quick one only, and nothing started
+    lines.clear()
+    other = tmp_path / "other"
+    quick_only = point_compiler("points", other, lines.append, background=False)
+    plan_move(onelink, move, compile_function=quick_only, **common)
+    assert quick_only.builds == [QUICK_FLAGS, QUICK_FLAGS] and not lines
+    assert not list((other / "jit").glob(".gen-*"))
+    assert len(list((other / "jit").glob("plan_points-*"))) == 2
+
+
 def test_point_values_equal_the_mapped_interval_function(onelink):
     # the constraint values from the point split (compiled or not) against the interval
     # function's own, at random arguments

@@ -1,0 +1,42 @@
+"""The builder process of :func:`casflex.codegen.jit.compile_in_background`.
+
+``python -m casflex.codegen._background JOB`` (started in a new session, its output going
+nowhere) loads the functions saved in the job directory ``JOB``, compiles them into the
+cache entry named in ``JOB/job.json`` and removes ``JOB``: a failed build only leaves the
+library missing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+from pathlib import Path
+
+
+def _build(job: Path) -> int:
+    import json
+
+    import casadi as ca
+
+    from casflex.codegen.jit import _build_library
+
+    try:
+        (job / "pid").write_text(str(os.getpid()))
+        spec = json.loads((job / "job.json").read_text())
+        functions = [ca.Function.load(str(job / f"{i}.casadi"))
+                     for i in range(spec["functions"])]
+        target = Path(spec["target"])
+        if not target.is_dir():  # put in place complete, or not at all
+            _build_library(functions, spec["name"], target, spec["cmd"], spec["flags"])
+        return 0
+    finally:
+        shutil.rmtree(job, ignore_errors=True)
+
+
+def main(argv: list[str]) -> int:
+    return _build(Path(argv[0]))
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
