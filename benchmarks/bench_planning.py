@@ -103,8 +103,10 @@ def main(argv: list[str] | None = None) -> dict:
                              "per-interval blocks (casflex.planning.block_derivatives)")
     parser.add_argument("--solver", choices=("ipopt", "fatrop"), default="ipopt",
                         help="the NLP solver (fatrop: the stage-ordered OCP)")
-    parser.add_argument("--compile-flags", default="-O1", metavar="FLAGS",
-                        help="compiler flags of --compile (default -O1)")
+    parser.add_argument("--compile-flags", default="-Os", metavar="FLAGS",
+                        help="compiler flags of --compile (default -Os: the optimised "
+                             "build casflex plan uses once it is cached; sessions 15-20 "
+                             "measured with -O1)")
     parser.add_argument("--compile", action="store_true",
                         help="with --derivatives blocks: the interval blocks in C "
                              "(casflex.codegen.compile_cached; built once, cached)")
