@@ -33,6 +33,7 @@ Compiled-library cache (:mod:`casflex.codegen.jit`)
 compile_cached  compile functions once, keep the library on disk, load them back
 cached_library  the library compile_cached built, if it is in the cache (never compiles)
 compile_in_background  start compile_cached's build in a detached process, return at once
+tiered_compiler  a quick build now, the optimised one from the background when it is there
 
 Estimator (:mod:`casflex.codegen.estimator`)
 --------------------------------------------
@@ -143,7 +144,12 @@ from casflex.codegen.estimator import (
     model_bundle,
     split_forward,
 )
-from casflex.codegen.jit import cached_library, compile_cached, compile_in_background
+from casflex.codegen.jit import (
+    cached_library,
+    compile_cached,
+    compile_in_background,
+    tiered_compiler,
+)
 from casflex.codegen.plan_table import plan_table_bundle
 from casflex.codegen.replay import HarnessResult, harness, run_harness
 from casflex.codegen.robot_bundles import realtime_bundles, rt_functions
@@ -178,6 +184,7 @@ __all__ = [
     "cached_library",
     "compile_cached",
     "compile_in_background",
+    "tiered_compiler",
     # estimator
     "ekf_bundle",
     "model_bundle",

@@ -19,7 +19,7 @@ def _build(job: Path) -> int:
 
     import casadi as ca
 
-    from casflex.codegen.jit import _build_library
+    from casflex.codegen.jit import build_library
 
     try:
         (job / "pid").write_text(str(os.getpid()))
@@ -28,7 +28,7 @@ def _build(job: Path) -> int:
                      for i in range(spec["functions"])]
         target = Path(spec["target"])
         if not target.is_dir():  # put in place complete, or not at all
-            _build_library(functions, spec["name"], target, spec["cmd"], spec["flags"])
+            build_library(functions, spec["name"], target, spec["cmd"], spec["flags"])
         return 0
     finally:
         shutil.rmtree(job, ignore_errors=True)

@@ -12,7 +12,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import casadi as ca
@@ -30,7 +30,7 @@ from casflex.codegen.errors import BuildError, CodegenError
 from casflex.codegen.templates import BOOR_ROUTINE_DIGEST, fused_bspline_source
 
 __all__ = ["cached_library", "compile_cached", "compile_in_background", "jit_flags",
-           "write_source"]
+           "tiered_compiler", "write_source"]
 
 _COMPILER_IDENT: dict[tuple[str, ...], str] = {}
 
@@ -172,9 +172,10 @@ def _library_target(functions, name, cache_dir, flags, compiler):
     return cmd, root / f"{name}-{h.hexdigest()[:24]}"
 
 
-def _build_library(functions, name, target, cmd, flags):
-    """Generate and compile ``functions`` into ``target`` (renamed into place when
-    complete: a concurrent or interrupted build never leaves a broken library)."""
+def build_library(functions, name, target, cmd, flags):
+    """Generate and compile ``functions`` into the cache entry ``target`` (renamed into
+    place when complete: a concurrent or interrupted build never leaves a broken library).
+    The builder of :func:`compile_in_background` calls it too."""
     lib = f"lib{name}{shared_library_suffix()}"
     remove_stale_files(target.parent)
     with staged_directory(target) as staging:
@@ -264,7 +265,7 @@ def compile_cached(functions: Sequence[ca.Function], name: str, *,
     lib = target / f"lib{name}{shared_library_suffix()}"
     built = False
     if not lib.is_file():
-        _build_library(functions, name, target, cmd, flags)
+        build_library(functions, name, target, cmd, flags)
         built = True
     loaded = _load(functions, target, lib)
     return loaded, {"library": str(lib), "built": built,
@@ -381,3 +382,73 @@ def _background_build_running(target: Path) -> bool:
         if pid_alive(pid):
             return True
     return False
+
+
+def tiered_compiler(name: str, *, quick_flags: Sequence[str], optimised_flags: Sequence[str],
+                    cache_dir: str | os.PathLike | None = None,
+                    log: Callable[[str], None] | None = None, background: bool = True,
+                    what: str = "the functions"
+                    ) -> Callable[[Sequence[ca.Function]], list[ca.Function]] | None:
+    """A ``compile_function(functions) -> compiled functions`` that never waits long for
+    the compiler: the optimised library when it is in the cache, else the quick one at
+    once (:func:`compile_cached`) and, with ``background``, the optimised one started in
+    a detached process (:func:`compile_in_background`) for the next call, in this or a
+    later process, to find.
+
+    Parameters
+    ----------
+    name : str
+        Library name (a C identifier).
+    quick_flags, optimised_flags : sequence of str
+        Compiler flags of the two builds.
+    cache_dir : str or pathlib.Path, optional
+        Cache root (default: casflex's cache).
+    log : callable, optional
+        ``log(message)``: told when there is no C compiler and when an optimised build
+        starts.
+    background : bool
+        Start the optimised build when it is missing.
+    what : str
+        What is compiled, for the messages.
+
+    Returns
+    -------
+    callable or None
+        ``None`` when there is no C compiler (``log`` says so); else the function, whose
+        ``builds`` list records the flags each call used.
+
+    Examples
+    --------
+    >>> import tempfile, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> compile_function = tiered_compiler("demo_tiers", quick_flags=("-O0",),
+    ...                                    optimised_flags=("-O1",),
+    ...                                    cache_dir=tempfile.mkdtemp(), background=False)
+    >>> [f] = compile_function([ca.Function("twice", [x], [2 * x])])
+    >>> float(f(1.5)), compile_function.builds
+    (3.0, [('-O0',)])
+    """
+    say = log or (lambda message: None)
+    try:
+        find_compiler()
+    except BuildError as exc:
+        say(f"{exc}: {what} are evaluated by CasADi's virtual machine (slower)")
+        return None
+    quick, optimised = tuple(quick_flags), tuple(optimised_flags)
+
+    def compile_function(functions):
+        lib = cached_library(functions, name, cache_dir=cache_dir, flags=optimised)
+        flags = optimised
+        if lib is None:
+            flags = quick
+            lib, _ = compile_cached(functions, name, cache_dir=cache_dir, flags=quick)
+            if background and compile_in_background(functions, name, cache_dir=cache_dir,
+                                                     flags=optimised):
+                say(f"{what}: compiled with {' '.join(quick)}; a faster build "
+                    f"({' '.join(optimised)}) is compiling in the background for the next "
+                    "solves")
+        compile_function.builds.append(flags)
+        return [lib[f.name()] for f in functions]
+
+    compile_function.builds = []
+    return compile_function

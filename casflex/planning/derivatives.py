@@ -62,7 +62,8 @@ def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None 
     large model, the quick one (:data:`QUICK_FLAGS`) seconds; so when the optimised
     library is not in the cache yet, the quick one is used and, with ``background``, the
     optimised one is built by a detached process
-    (:func:`casflex.codegen.compile_in_background`). Every later NLP that the function
+    (:func:`casflex.codegen.tiered_compiler`, :func:`casflex.codegen.compile_in_background`).
+    Every later NLP that the function
     compiles for — a restart, a continuation's next problem, a later run — takes the
     optimised library once it is there. The returned function's ``builds`` list records
     the flags each call used.
@@ -89,41 +90,11 @@ def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None 
     """
     if derivatives != "points" or cache_dir is False:
         return None
-    from casflex.codegen import (
-        BuildError,
-        cached_library,
-        compile_cached,
-        compile_in_background,
-        find_compiler,
-    )
+    from casflex.codegen.jit import tiered_compiler
 
-    say = log or (lambda message: None)
-    try:
-        find_compiler()
-    except BuildError as exc:
-        say(f"{exc}: the planner's derivatives are evaluated by CasADi's virtual machine "
-            "(slower)")
-        return None
-
-    def compile_points(functions):
-        lib = cached_library(functions, "plan_points", cache_dir=cache_dir,
-                             flags=OPTIMISED_FLAGS)
-        flags = OPTIMISED_FLAGS
-        if lib is None:
-            flags = QUICK_FLAGS
-            lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir,
-                                    flags=QUICK_FLAGS)
-            if background and compile_in_background(functions, "plan_points",
-                                                     cache_dir=cache_dir,
-                                                     flags=OPTIMISED_FLAGS):
-                say(f"planner: derivatives compiled with {' '.join(QUICK_FLAGS)}; a faster "
-                    f"build ({' '.join(OPTIMISED_FLAGS)}) is compiling in the background "
-                    "for the next solves")
-        compile_points.builds.append(flags)
-        return [lib[f.name()] for f in functions]
-
-    compile_points.builds = []
-    return compile_points
+    return tiered_compiler("plan_points", quick_flags=QUICK_FLAGS,
+                           optimised_flags=OPTIMISED_FLAGS, cache_dir=cache_dir, log=log,
+                           background=background, what="the planner's derivatives")
 
 
 def static_lookup(model: FlexibleModel, errors: list) -> tuple[FlexibleModel, list]:
