@@ -35,6 +35,25 @@ def _build(job: Path) -> int:
 
 
 def main(argv: list[str]) -> int:
+    """Build the job whose directory is ``argv[0]``; return the exit status.
+
+    Parameters
+    ----------
+    argv : list of str
+        The job directory written by :func:`casflex.codegen.compile_in_background`.
+
+    Returns
+    -------
+    int
+        0 when the library was built (or was already there); a failed build raises.
+
+    Examples
+    --------
+    Run by :func:`casflex.codegen.compile_in_background`, not by hand:
+
+    >>> main  # doctest: +ELLIPSIS
+    <function main at ...>
+    """
     return _build(Path(argv[0]))
 
 

@@ -281,7 +281,20 @@ def cached_library(functions: Sequence[ca.Function], name: str, *,
     :func:`compile_in_background`) already built them with ``flags``, else ``None``;
     never compiles.
 
-    Parameters and errors as :func:`compile_cached`.
+    Parameters
+    ----------
+    functions, name, cache_dir, flags, compiler
+        As :func:`compile_cached`.
+
+    Returns
+    -------
+    dict or None
+        ``name -> casadi.Function`` evaluating the cached library, or ``None``.
+
+    Raises
+    ------
+    casflex.codegen.BuildError, casflex.codegen.CodegenError
+        As :func:`compile_cached`.
 
     Examples
     --------
@@ -336,6 +349,22 @@ def compile_in_background(functions: Sequence[ca.Function], name: str, *,
     ------
     casflex.codegen.BuildError, casflex.codegen.CodegenError
         As :func:`compile_cached` (no compiler, an unusable cache).
+
+    Examples
+    --------
+    >>> import tempfile, time, casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> f = ca.Function("halve", [x], [x / 2])
+    >>> cache = tempfile.mkdtemp()
+    >>> lib = compile_in_background([f], "demo_bg", cache_dir=cache, flags=("-O2",))
+    >>> for _ in range(600):  # the caller goes on; here we wait for the library
+    ...     if cached_library([f], "demo_bg", cache_dir=cache, flags=("-O2",)):
+    ...         break
+    ...     time.sleep(0.1)
+    >>> float(cached_library([f], "demo_bg", cache_dir=cache, flags=("-O2",))["halve"](3.0))
+    1.5
+    >>> compile_in_background([f], "demo_bg", cache_dir=cache, flags=("-O2",)) is None
+    True
     """
     cmd, target = _library_target(functions, name, cache_dir, flags, compiler)
     lib = target / f"lib{name}{shared_library_suffix()}"

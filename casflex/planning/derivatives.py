@@ -37,6 +37,20 @@ def default_derivatives(transcription: str = "collocation", solver: str = "ipopt
     of the design study the whole ``casflex plan`` took 84 s with ``"points"`` where
     ``"casadi"`` had not finished in 17 min (``benchmarks/README_planning.md``, session 20).
 
+    Parameters
+    ----------
+    transcription : str
+        :data:`casflex.planning.TRANSCRIPTIONS`.
+    solver : str
+        :data:`casflex.planning.SOLVERS`.
+
+    Returns
+    -------
+    str
+        One of :data:`casflex.planning.DERIVATIVES`.
+
+    Examples
+    --------
     >>> default_derivatives("collocation", "ipopt"), default_derivatives("shooting")
     ('points', 'casadi')
     """
@@ -85,6 +99,12 @@ def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None 
         Build the optimised library in the background when it is missing (else: the
         quick build only, until something else puts the optimised one in the cache).
 
+    Returns
+    -------
+    callable or None
+
+    Examples
+    --------
     >>> point_compiler("casadi") is None, point_compiler("points", cache_dir=False) is None
     (True, True)
     """
