@@ -42,6 +42,11 @@ import os
 # one, on the 2-core machine). A value the user set is kept.
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
+# No optimised builds of the planner's derivatives in the background (casflex.codegen.
+# tiered_compiler): a test's plan is done before one would be used, and each costs up to
+# a minute of the compiler on the cores the suite runs on. The tests of that mechanism ask
+# for it explicitly (background=True).
+os.environ.setdefault("CASFLEX_BACKGROUND_BUILDS", "0")
 
 import shutil  # noqa: E402
 import sys  # noqa: E402

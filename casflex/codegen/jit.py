@@ -29,8 +29,8 @@ from casflex.codegen.compiler import find_compiler, run_compiler, shared_library
 from casflex.codegen.errors import BuildError, CodegenError
 from casflex.codegen.templates import BOOR_ROUTINE_DIGEST, fused_bspline_source
 
-__all__ = ["cached_library", "compile_cached", "compile_in_background", "jit_flags",
-           "tiered_compiler", "write_source"]
+__all__ = ["BACKGROUND_BUILDS_ENV", "cached_library", "compile_cached",
+           "compile_in_background", "jit_flags", "tiered_compiler", "write_source"]
 
 _COMPILER_IDENT: dict[tuple[str, ...], str] = {}
 
@@ -413,10 +413,15 @@ def _background_build_running(target: Path) -> bool:
     return False
 
 
+#: environment variable that switches the background builds of :func:`tiered_compiler`
+#: off when ``"0"`` (a shared batch machine, a test suite); other values leave them on
+BACKGROUND_BUILDS_ENV = "CASFLEX_BACKGROUND_BUILDS"
+
+
 def tiered_compiler(name: str, *, quick_flags: Sequence[str], optimised_flags: Sequence[str],
                     cache_dir: str | os.PathLike | None = None,
-                    log: Callable[[str], None] | None = None, background: bool = True,
-                    what: str = "the functions"
+                    log: Callable[[str], None] | None = None,
+                    background: bool | None = None, what: str = "the functions"
                     ) -> Callable[[Sequence[ca.Function]], list[ca.Function]] | None:
     """A ``compile_function(functions) -> compiled functions`` that never waits long for
     the compiler: the optimised library when it is in the cache, else the quick one at
@@ -435,8 +440,10 @@ def tiered_compiler(name: str, *, quick_flags: Sequence[str], optimised_flags: S
     log : callable, optional
         ``log(message)``: told when there is no C compiler and when an optimised build
         starts.
-    background : bool
-        Start the optimised build when it is missing.
+    background : bool, optional
+        Start the optimised build when it is missing; default: yes, unless the
+        environment variable ``CASFLEX_BACKGROUND_BUILDS`` is ``"0"``
+        (:data:`BACKGROUND_BUILDS_ENV`).
     what : str
         What is compiled, for the messages.
 
@@ -464,6 +471,8 @@ def tiered_compiler(name: str, *, quick_flags: Sequence[str], optimised_flags: S
         say(f"{exc}: {what} are evaluated by CasADi's virtual machine (slower)")
         return None
     quick, optimised = tuple(quick_flags), tuple(optimised_flags)
+    if background is None:
+        background = os.environ.get(BACKGROUND_BUILDS_ENV, "1").strip() != "0"
 
     def compile_function(functions):
         lib = cached_library(functions, name, cache_dir=cache_dir, flags=optimised)

@@ -66,8 +66,8 @@ OPTIMISED_FLAGS = ("-Os",)
 
 
 def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None = None,
-                   log: Callable[[str], None] | None = None, *, background: bool = True
-                   ) -> Callable[[list], list] | None:
+                   log: Callable[[str], None] | None = None, *,
+                   background: bool | None = None) -> Callable[[list], list] | None:
     """``compile_function`` of :func:`casflex.planning.plan_move` for ``derivatives``.
 
     For ``"points"``: the point function's Jacobian and Hessian compiled to C and cached
@@ -95,9 +95,10 @@ def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None 
     log : callable, optional
         ``log(message)``: told when there is no C compiler and when an optimised build
         starts in the background.
-    background : bool
+    background : bool, optional
         Build the optimised library in the background when it is missing (else: the
-        quick build only, until something else puts the optimised one in the cache).
+        quick build only, until something else puts the optimised one in the cache);
+        default: yes unless ``$CASFLEX_BACKGROUND_BUILDS`` is ``"0"``.
 
     Returns
     -------

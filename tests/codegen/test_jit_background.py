@@ -95,3 +95,26 @@ def test_unknown_library_name_is_refused_before_anything_starts(tmp_path):
     with pytest.raises(CodegenError):
         compile_in_background([_cube()], "not a name", cache_dir=tmp_path)
     assert not _jobs(tmp_path)
+
+
+def test_tiered_compiler_follows_the_environment_unless_told(tmp_path, monkeypatch):
+    from casflex.codegen import tiered_compiler
+
+    f = _cube()
+    monkeypatch.setenv("CASFLEX_BACKGROUND_BUILDS", "0")
+    lines = []
+    off = tiered_compiler("bg_tiers", quick_flags=("-O0",), optimised_flags=("-O2",),
+                          cache_dir=tmp_path / "off", log=lines.append)
+    x = [0.3, -1.7]
+    assert float(ca.norm_inf(off([f])[0](x) - f(x))) == 0.0
+    assert off.builds == [("-O0",)] and not lines and not _jobs(tmp_path / "off")
+    told = tiered_compiler("bg_tiers", quick_flags=("-O0",), optimised_flags=("-O2",),
+                           cache_dir=tmp_path / "on", log=lines.append, background=True)
+    told([f])
+    assert told.builds == [("-O0",)] and len(lines) == 1 and "-O2" in lines[0]
+    optimised = Path(tmp_path, "on", "jit")
+    assert _wait(lambda: not _jobs(tmp_path / "on")
+                 and cached_library([f], "bg_tiers", cache_dir=tmp_path / "on",
+                                    flags=("-O2",)) is not None)
+    told([f])
+    assert told.builds == [("-O0",), ("-O2",)] and optimised.is_dir()

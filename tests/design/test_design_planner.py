@@ -57,9 +57,11 @@ def test_no_plan_is_reported(case):
     assert s["shaped"]["duration"] == shaped.duration
 
 
-def test_point_derivatives_compiled_in_the_cache_give_casadi_s_plan(case, tmp_path):
+def test_point_derivatives_compiled_in_the_cache_give_casadi_s_plan(case, tmp_path,
+                                                                     monkeypatch):
     # the study's default with collocation ("points", compiled once into the job's cache)
     # against CasADi's own derivatives: the same NLP, so the same plan to Ipopt's tolerance
+    monkeypatch.setenv("CASFLEX_BACKGROUND_BUILDS", "1")  # a user's default (conftest: off)
     model, move, shaped, run = case
     ref = plan_next_to_shaped(model, move, shaped, run, dict(SETTINGS, derivatives="casadi"),
                               dt=1e-3, cache_dir=tmp_path)
@@ -77,6 +79,7 @@ def test_point_derivatives_compiled_in_the_cache_give_casadi_s_plan(case, tmp_pa
     while list(jit.glob(".gen-*")) and time.monotonic() < end:
         time.sleep(0.1)
     libraries = sorted(jit.glob("plan_points-*"))
+    assert len(libraries) == 4  # values and derivatives, each quick and optimised
     again = plan_next_to_shaped(model, move, shaped, run, dict(SETTINGS, derivatives="points"),
                                 dt=1e-3, cache_dir=tmp_path)
     assert sorted(jit.glob("plan_points-*")) == libraries

@@ -192,7 +192,7 @@ def test_point_compiler_quick_now_optimised_in_the_background(onelink, tmp_path)
               "derivatives": "points"}
     reference = plan_move(onelink, move, **{**common, "derivatives": "casadi"})
     lines = []
-    compile_points = point_compiler("points", tmp_path, lines.append)
+    compile_points = point_compiler("points", tmp_path, lines.append, background=True)
     first = plan_move(onelink, move, compile_function=compile_points, **common)
     # values and derivatives each: the quick build, the optimised one started
     assert compile_points.builds == [QUICK_FLAGS, QUICK_FLAGS]
