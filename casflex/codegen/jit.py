@@ -315,6 +315,9 @@ def cached_library(functions: Sequence[ca.Function], name: str, *,
 
 #: prefix of the job directory of a background build, after ``.gen-<library directory>``
 _BACKGROUND = "-bg-"
+#: the intermediate process: start ``argv[1:]`` in a new session, output nowhere, and exit
+_DETACH = ("import subprocess, sys; subprocess.Popen(sys.argv[1:], stdin=subprocess.DEVNULL, "
+           "stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)")
 
 
 def compile_in_background(functions: Sequence[ca.Function], name: str, *,
@@ -367,6 +370,11 @@ def compile_in_background(functions: Sequence[ca.Function], name: str, *,
     True
     """
     cmd, target = _library_target(functions, name, cache_dir, flags, compiler)
+    return _start_background(functions, name, flags, cmd, target)
+
+
+def _start_background(functions, name, flags, cmd, target):
+    """:func:`compile_in_background` for the cache entry ``target`` already found."""
     lib = target / f"lib{name}{shared_library_suffix()}"
     if lib.is_file() or _background_build_running(target):
         return None
@@ -387,11 +395,6 @@ def compile_in_background(functions: Sequence[ca.Function], name: str, *,
                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                    stderr=subprocess.DEVNULL, check=False, timeout=60)
     return lib
-
-
-#: the intermediate process: start ``argv[1:]`` in a new session, output nowhere, and exit
-_DETACH = ("import subprocess, sys; subprocess.Popen(sys.argv[1:], stdin=subprocess.DEVNULL, "
-           "stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)")
 
 
 def _background_build_running(target: Path) -> bool:
@@ -475,13 +478,16 @@ def tiered_compiler(name: str, *, quick_flags: Sequence[str], optimised_flags: S
         background = os.environ.get(BACKGROUND_BUILDS_ENV, "1").strip() != "0"
 
     def compile_function(functions):
-        lib = cached_library(functions, name, cache_dir=cache_dir, flags=optimised)
+        # the optimised entry found once: looked up, else built from the background
+        cmd, target = _library_target(functions, name, cache_dir, optimised, None)
+        library = target / f"lib{name}{shared_library_suffix()}"
         flags = optimised
-        if lib is None:
+        if library.is_file():
+            lib = _load(functions, target, library)
+        else:
             flags = quick
             lib, _ = compile_cached(functions, name, cache_dir=cache_dir, flags=quick)
-            if background and compile_in_background(functions, name, cache_dir=cache_dir,
-                                                     flags=optimised):
+            if background and _start_background(functions, name, optimised, cmd, target):
                 say(f"{what}: compiled with {' '.join(quick)}; a faster build "
                     f"({' '.join(optimised)}) is compiling in the background for the next "
                     "solves")
