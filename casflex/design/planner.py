@@ -94,6 +94,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     from casflex.planning import (
         ROBUST_STEPS,
         PlanComparison,
+        continuation_ceiling,
         plan_move,
         point_compiler,
         shaped_end,
@@ -117,12 +118,15 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         + (f", robust ±{robust:g}" if robust else "") + ") at the shaped move's limits ...")
     limits = {"torque": tau_lim, "velocity": v_lim}
     derivatives = settings.get("derivatives", "casadi")
+    steps = settings.get("robust_steps", ROBUST_STEPS)
     try:
         plan = plan_move(model, move, objective=settings["objective"], duration=duration,
                          weight=settings["weight"], intervals=settings["intervals"],
                          torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
                          guess=shaped, transcription=settings["transcription"],
-                         robust_steps=settings.get("robust_steps", ROBUST_STEPS), log=log,
+                         robust_steps=steps, log=log,
+                         duration_ceiling=continuation_ceiling(
+                             settings["objective"], robust, steps, shaped.duration),
                          max_iter=settings["max_iter"], progress=progress,
                          derivatives=derivatives,
                          compile_function=point_compiler(derivatives, cache_dir, say))

@@ -67,6 +67,11 @@ PlanInterrupted
     Ctrl-C during a plan (a ``KeyboardInterrupt``), with the best plan reached by then.
 INTERRUPTED_STATUS
     The status of that plan when it is the interrupted solve's last iterate.
+DurationCeiling
+    Gives a minimum-time solve up once its duration rises above a ceiling
+    (``plan_move``'s ``duration_ceiling``).
+CEILING_STATUS
+    The status in the ``SolverError`` of a solve given up so.
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -98,6 +103,9 @@ solve_by_continuation
     ``robust_steps``).
 continuation_steps
     The frequency errors and end bounds of that path.
+continuation_ceiling
+    The duration above which a robust problem of that path counts as no plan (the
+    shaped move's, by default, for a minimum-time plan).
 ROBUST_STEPS
     The problems on that path in ``casflex plan --robust`` and the design job by default.
 
@@ -166,6 +174,7 @@ from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import SolveProgress
 from casflex.planning.restarts import (
     ROBUST_STEPS,
+    continuation_ceiling,
     continuation_steps,
     solve_by_continuation,
     solve_from_plan,
@@ -178,8 +187,10 @@ from casflex.planning.scenarios import (
     tip_jacobian,
 )
 from casflex.planning.stopping import (
+    CEILING_STATUS,
     INTERRUPTED_STATUS,
     PROGRESS_STATUS,
+    DurationCeiling,
     PlanInterrupted,
     ProgressStop,
     iteration_callback,
@@ -217,6 +228,8 @@ __all__ = [
     "SolveProgress",
     "PlanInterrupted",
     "INTERRUPTED_STATUS",
+    "DurationCeiling",
+    "CEILING_STATUS",
     # the result
     "PlannedMove",
     "Propagator",
@@ -225,6 +238,7 @@ __all__ = [
     "solve_from_plan",
     "solve_by_continuation",
     "continuation_steps",
+    "continuation_ceiling",
     "ROBUST_STEPS",
     # limits
     "shaped_move_limits",

@@ -52,6 +52,12 @@ from casflex.moves import Move
 from casflex.planning.assembly import block_derivatives, point_values
 from casflex.planning.derivatives import collocation_matrices as _collocation_matrices
 from casflex.planning.derivatives import implicit_collocation_function, static_lookup
+from casflex.planning.guess import (
+    guess_on_grid,
+    highest_free_frequency,
+    rigid_bang_bang_duration,
+    time_scaled,
+)
 from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import check_progress, progress_listener
@@ -71,8 +77,10 @@ from casflex.planning.staged import (
     state_scales,
 )
 from casflex.planning.stopping import (
+    CEILING_STATUS,
     INTERRUPTED_STATUS,
     PROGRESS_STATUS,
+    DurationCeiling,
     PlanInterrupted,
     ProgressStop,
     iteration_callback,
@@ -216,43 +224,6 @@ def _collocation_function(ode, nxa, n, degree):
     return G, tau_c[1:]
 
 
-def _rigid_guess_duration(model, q0, qf, tau_max, v_max):
-    """Duration of a bang-bang move within the limits on the diagonal inertia."""
-    M = model.functions()["mass"](q0, np.zeros(model.m)).full()
-    d = np.abs(qf - q0)
-    T = 1e-3
-    for j in range(model.n):
-        if d[j] == 0.0:
-            continue
-        J = M[j, j]
-        if np.isfinite(tau_max[j]):
-            T = max(T, 2.0 * math.sqrt(d[j] * J / tau_max[j]))
-        if np.isfinite(v_max[j]):
-            T = max(T, 2.0 * d[j] / v_max[j])
-    return T
-
-
-def _guess_trajectory(model, reference, T, N, substeps, x0, tc):
-    """States and torques of ``reference`` on the node grid (joints on the reference), and
-    the states and joint accelerations at the collocation points ``tc`` (fractions of an
-    interval) of every interval, interpolated linearly between the simulation steps."""
-    from casflex.simulate import simulate_prescribed
-
-    dt = T / (N * substeps)
-    m = model.m
-    run = simulate_prescribed(model, reference, dt=dt, t_end=T,
-                              delta0=x0[model.n:model.n + m] if m else None)
-    idx = np.arange(N + 1) * substeps
-    idx = np.minimum(idx, run.t.size - 1)
-    X = np.hstack([run.q[idx], run.delta[idx], run.dq[idx], run.ddelta[idx]])
-    U = np.array([run.tau[k * substeps:(k + 1) * substeps].mean(axis=0) for k in range(N)])
-    full = np.hstack([run.q, run.delta, run.dq, run.ddelta, run.ddq])
-    times = ((np.arange(N)[:, None] + np.asarray(tc)[None, :]) * (T / N)).ravel()
-    Xc = np.stack([np.interp(times, run.t, col) for col in full.T], axis=1)
-    nx = 2 * (model.n + m)
-    return X, U, Xc[:, :nx], Xc[:, nx:]
-
-
 def _residual_terms(v_norm, omega, d, dd, d_static, eps):
     """Σ_j ‖v_j‖ A_j with the free-vibration amplitude A_j (smoothed by ``eps``)."""
     total = 0
@@ -323,8 +294,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               robust: float = 0.0, guess: str | Any = "rigid",
               transcription: str = "collocation", degree: int = 3,
               dynamics: str = "implicit",
-              max_duration: float | None = None, max_iter: int = 500,
-              ipopt_options: dict | None = None, settle: float | None = None,
+              max_duration: float | None = None, duration_ceiling: float | None = None,
+              max_iter: int = 500, ipopt_options: dict | None = None, settle: float | None = None,
               name: str | None = None,
               progress_stop: ProgressStop | bool = True,
               derivatives: str = "casadi",
@@ -396,6 +367,15 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         with :data:`WARM_START_OPTIONS`).
     max_duration : float, optional
         Upper bound on T [s] (default 20 times the guess's duration).
+    duration_ceiling : float, optional
+        Give the solve up (``SolverError``, status
+        :data:`casflex.planning.CEILING_STATUS`) at the first iterate whose duration is
+        above this [s] (:class:`casflex.planning.DurationCeiling`; ``objective="time"``
+        only). Unlike ``max_duration`` it is no constraint: Ipopt's path is the same until
+        it leaves. For a solve that starts below the ceiling and where a longer plan is
+        worth nothing (the robust problems of a continuation: the shaped move meets
+        their constraints at its own duration). With ``robust_steps > 1`` it applies to
+        the robust problems of the path, not to the nominal one solved first.
     max_iter : int
         Ipopt iteration limit.
     ipopt_options : dict, optional
@@ -514,6 +494,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             raise fail("goal", None, "is required when start is not a move")
         qf = vector(goal, n, "goal", unit="rad")
     objective = choice(objective, "objective", OBJECTIVES)
+    if duration_ceiling is not None and objective != "time":
+        raise fail("duration_ceiling", duration_ceiling, "needs objective='time' (the "
+                   "ceiling is on the objective, the duration)")
+    ceiling = None if duration_ceiling is None else DurationCeiling(duration_ceiling)
     if objective == "energy":
         if duration is None and move is not None:
             duration = float(move.duration)
@@ -541,6 +525,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if blocks and not implicit:
         raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
                    "dynamics 'implicit'")
+    if fatrop and ceiling is not None:
+        raise fail("duration_ceiling", duration_ceiling, "needs solver 'ipopt' (CasADi's "
+                   "Fatrop calls no iteration callback)")
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
@@ -589,7 +576,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         # the rigid bang-bang stretched by 30 %: a start that the flexible end conditions
         # leave feasible (at the rigid bound itself Ipopt may stall in restoration)
         T_guess = duration if duration is not None else \
-            1.3 * _rigid_guess_duration(model, q0, qf, tau_max, v_max)
+            1.3 * rigid_bang_bang_duration(model, q0, qf, tau_max, v_max)
         reference = Move(q0, qf, T_guess, settle=0.0)
     else:
         if not hasattr(guess, "sample") or not hasattr(guess, "duration"):
@@ -599,7 +586,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if max_duration is None:
         max_duration = 20.0 * T_guess
     max_duration = number(max_duration, "max_duration", low=0.0, low_open=True)
-    omega_max = _omega_max(model, q0, qf) * (1.0 + robust)
+    omega_max = highest_free_frequency(model, q0, qf) * (1.0 + robust)
     chosen = intervals is None
     if chosen:
         intervals = 40 if transcription == "shooting" else \
@@ -631,9 +618,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             Ac_guess = np.asarray(xcdot).T[:, n + m:2 * n + m]
     else:
         if not isinstance(guess, str) and T_guess != float(guess.duration):
-            reference = _time_scaled(guess, T_guess)
-        X_guess, U_guess, Xc_guess, Ac_guess = _guess_trajectory(model, reference, T_guess,
-                                                                 N, substeps, x0, tc)
+            reference = time_scaled(guess, T_guess)
+        X_guess, U_guess, Xc_guess, Ac_guess = guess_on_grid(model, reference, T_guess, N,
+                                                             substeps, x0, tc)
 
     # each shifted model's modal rows from its own simulation of the guess's joint motion
     times = ((np.arange(N)[:, None] + tc[None, :]) * (T_guess / N)).ravel()
@@ -805,6 +792,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
         rule = dataclasses.replace(rule)  # a fresh copy: no trace or history of a solve
         listeners.append(rule.update)
+    if ceiling is not None:
+        listeners.append(ceiling.update)
     display, close_display = progress_listener(False if fatrop else progress,
                                                f"Ipopt {name}", objective)
     if display is not None:
@@ -856,6 +845,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             raise PlanInterrupted(None, "the interrupted solve's last iterate is not "
                                   "feasible") from error
         ok = True
+    # above the ceiling is no plan, even at a feasible iterate (a Ctrl-C wins)
+    escaped = ceiling is not None and ceiling.exceeded is not None and not interrupted
+    ok = ok and not escaped
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
@@ -866,15 +858,24 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         status = PROGRESS_STATUS
     if interrupted:
         status = INTERRUPTED_STATUS
+    if escaped:
+        status = CEILING_STATUS
     Tv = float(values(T)) if duration is None else float(T)
     Xv = np.asarray(values(X), dtype=float).reshape(nxa, N + 1)
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
     info_violation = _violation(opti, values)
     if not ok:
-        error = SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max, v_max,
-                                             n, m, N, duration, solver.capitalize())
-                            + f" (largest constraint violation of the last iterate "
-                              f"{info_violation:.1e})")
+        if escaped:
+            at, above = ceiling.exceeded
+            error = SolverError(f"plan_move: {solver.capitalize()} found no plan ({status}): "
+                                f"the duration rose to {above:.6g} s at iterate {at}, above "
+                                f"duration_ceiling = {ceiling.ceiling:.6g} s")
+        else:
+            error = SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max,
+                                                 v_max, n, m, N, duration,
+                                                 solver.capitalize())
+                                + f" (largest constraint violation of the last iterate "
+                                  f"{info_violation:.1e})")
         # what the failed solve cost (the restarts' and the continuation's totals count it)
         error.solve = {"iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
                        "solve_cpu_s": solve_cpu_s}
@@ -964,33 +965,3 @@ def _warm_duals(opti, guess, solver):
             guess.stats.get("solver", "ipopt") != solver:  # another variable order
         return None
     return solution
-
-
-def _time_scaled(reference, duration, samples=4001):
-    """``reference`` run at another speed so that it lasts ``duration``: sampled
-    ``(t, q, q̇, q̈)`` for :func:`casflex.simulate.simulate_prescribed`."""
-    s = float(reference.duration) / duration
-    t = np.linspace(0.0, duration, samples)
-    q, dq, ddq = reference.sample(t * s)
-    return t, q, dq * s, ddq * s**2
-
-
-def _omega_max(model, q0, qf):
-    """Highest frequency of the torque-driven arm linearised at rest along the straight
-    path [rad/s]: with the joints free the modes vibrate faster than with them locked
-    (``Ω``), by up to ``√(J / J_res)`` on a light hub."""
-    if not model.m:
-        return 0.0
-    f = model.functions()
-    n, m = model.n, model.m
-    x = ca.SX.sym("x", 2 * (n + m))
-    u = ca.SX.sym("tau", n)
-    A = ca.Function("A", [x, u], [ca.jacobian(f["ode"](x, u), x)])
-    top = 0.0
-    for a in np.linspace(0.0, 1.0, 9):
-        q = q0 + a * (qf - q0)
-        d = static_deflection(model, q)
-        hold = f["potential_forces"](q, d).full().ravel()[:n]
-        eig = np.linalg.eigvals(A(np.r_[q, d, np.zeros(n + m)], hold).full())
-        top = max(top, float(np.max(np.abs(eig.imag))))
-    return top

@@ -30,7 +30,8 @@ from casflex.planning.planned import PlannedMove
 from casflex.planning.stopping import PlanInterrupted
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
-           "solve_by_continuation", "ROBUST_STEPS", "CONTINUATION_HALVINGS"]
+           "solve_by_continuation", "continuation_ceiling", "ROBUST_STEPS",
+           "CONTINUATION_HALVINGS"]
 
 #: robust problems on the continuation path of ``casflex plan --robust`` and of the design
 #: job's robust planner by default. Move 1 of the design study at r = 0.1: solved directly
@@ -279,6 +280,46 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
     return [_on_path(robust, end, k / steps) for k in range(1, steps + 1)]
 
 
+def continuation_ceiling(objective: str, robust: float, robust_steps: int,
+                         reference_duration: float) -> float | None:
+    """The ``duration_ceiling`` of a robust plan reached by continuation from a reference
+    move that meets every problem's constraints (the shaped move: the planner's limits are
+    its peaks and its end bounds its residuals): that move's duration, for a minimum-time
+    plan through more than one problem; else None (no ceiling).
+
+    What ``casflex plan --robust`` (:func:`casflex.planning.plan_robot_move`) and the
+    design job's robust planner use: a robust problem whose solve rises above the shaped
+    move's duration has lost its way, and the continuation takes a shorter step
+    (:func:`solve_by_continuation`).
+
+    Parameters
+    ----------
+    objective : str
+        The plan's objective (:data:`casflex.planning.OBJECTIVES`).
+    robust : float
+        Its frequency error r.
+    robust_steps : int
+        Problems on the path (1: the robust problem directly from the reference, which
+        starts at the ceiling: none).
+    reference_duration : float
+        The reference move's duration [s].
+
+    Returns
+    -------
+    float or None
+
+    Examples
+    --------
+    >>> continuation_ceiling("time", 0.1, 4, 3.2), continuation_ceiling("time", 0.1, 1, 3.2)
+    (3.2, None)
+    >>> continuation_ceiling("energy", 0.1, 4, 3.2) is None
+    True
+    """
+    if objective != "time" or not robust or robust_steps <= 1:
+        return None
+    return float(reference_duration)
+
+
 def _on_path(robust, end, f):
     """The problem at fraction ``f`` of the path: ``(f robust, end moved by f)``."""
     nominal, bounds = end_bounds(end, 3)
@@ -302,7 +343,11 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     design study the same four-step path reached r = 0.1 in one run and failed at its last
     step in another: Ipopt's path through these problems is that sensitive,
     benchmarks/README_planning.md, session 18). ``restarts`` apply to the nominal problem
-    and to the last one.
+    and to the last one. ``duration_ceiling`` (:class:`casflex.planning.DurationCeiling`)
+    applies to every problem but the nominal one: a robust problem whose solve rises
+    above it counts as finding no plan, so the path takes a shorter step instead of
+    following Ipopt to long plans (move 1 of the design study: 5.37 s from one nominal
+    plan where another led to 2.31 s, session 19).
 
     Parameters
     ----------
@@ -354,6 +399,8 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     restarts = arguments.get("restarts", 0)
     end = arguments.get("end", "rest")
     robust = arguments["robust"]
+    # the nominal problem starts from the caller's guess (the shaped move: at the ceiling)
+    ceiling = arguments.get("duration_ceiling")
     continuation_steps(robust, end, steps)  # the arguments checked
     fractions = [k / steps for k in range(1, steps + 1)]
     plan, record, reached = arguments.get("guess"), [], 0.0  # a plan given: the nominal's
@@ -367,7 +414,8 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
         f = fractions[i]
         r, end_k = _on_path(robust, end, f)
         step = {**arguments, "robust": r, "end": end_k,
-                "restarts": restarts if f in (0.0, 1.0) else 0}
+                "restarts": restarts if f in (0.0, 1.0) else 0,
+                "duration_ceiling": ceiling if f > 0.0 else None}
         bounds = end_bounds(end_k, 3 if r > 0.0 else 1)[1] or end_k
         say(f"continuation, problem at {f:.4g} of the path: robust {r:.6g}, end "
             + (end_k if isinstance(end_k, str) else

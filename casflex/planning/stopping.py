@@ -36,14 +36,17 @@ from numpy.typing import ArrayLike
 
 from casflex._validate import number
 
-__all__ = ["ProgressStop", "PROGRESS_STATUS", "INTERRUPTED_STATUS", "PlanInterrupted",
-           "iteration_callback"]
+__all__ = ["ProgressStop", "PROGRESS_STATUS", "INTERRUPTED_STATUS", "CEILING_STATUS",
+           "DurationCeiling", "PlanInterrupted", "iteration_callback"]
 
 #: ``stats["status"]`` of a plan that :class:`ProgressStop` ended
 PROGRESS_STATUS = "Stopped_On_Progress"
 
 #: ``stats["status"]`` of the feasible last iterate of a solve that Ctrl-C ended
 INTERRUPTED_STATUS = "Interrupted_By_User"
+
+#: the status in the ``SolverError`` of a solve that :class:`DurationCeiling` gave up
+CEILING_STATUS = "Duration_Above_Ceiling"
 
 
 class PlanInterrupted(KeyboardInterrupt):
@@ -235,6 +238,73 @@ class ProgressStop:
         (True, True)
         """
         return iteration_callback(lbg, ubg, nx, [self.update])
+
+
+@dataclass
+class DurationCeiling:
+    """Give a minimum-time solve up once an iterate's duration rises above ``ceiling``.
+
+    Where a plan longer than some reference is worth nothing — the robust problems of a
+    continuation, whose every constraint the shaped move already meets at its own
+    duration — an Ipopt path that has left for long durations is a failure, and usually
+    a long one: on move 1 of the design study the first robust problem went from the
+    2.133 s nominal plan to a 5.37 s plan in 372 iterations (665 s of CPU) in one run,
+    and to 2.31 s in 35 in another (benchmarks/README_planning.md, session 19). A hard
+    bound on T does not serve: held at it, Ipopt spent 500 iterations without a plan
+    (session 21). This listener (:func:`iteration_callback`; ``plan_move``'s
+    ``duration_ceiling``) stops Ipopt at the first iterate above the ceiling, feasible or
+    not, and :func:`casflex.planning.plan_move` raises a ``SolverError``
+    (:data:`CEILING_STATUS`), which a continuation answers with a shorter step.
+
+    Parameters
+    ----------
+    ceiling : float
+        Largest duration an iterate may have [s] (> 0).
+
+    Attributes
+    ----------
+    exceeded : tuple of (int, float) or None
+        The iterate (0: the start) and its duration [s] that rose above the ceiling.
+
+    Examples
+    --------
+    >>> rule = DurationCeiling(3.2)
+    >>> [rule.update(t, 1.0) for t in (2.1, 2.6, 3.3, 3.1)], rule.exceeded
+    ([False, False, True, True], (2, 3.3))
+    """
+
+    ceiling: float
+    exceeded: tuple[int, float] | None = field(default=None, init=False)
+    seen: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        self.ceiling = number(self.ceiling, "duration_ceiling", low=0.0, low_open=True)
+
+    def update(self, objective: float, violation: float) -> bool:
+        """Take one iterate (objective: its duration [s]); ``True`` once any iterate so
+        far has been above the ceiling.
+
+        Parameters
+        ----------
+        objective : float
+            The iterate's objective, T [s] for a minimum-time plan.
+        violation : float
+            Its largest constraint violation (not used: an escape is one at any iterate).
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> DurationCeiling(1.0).update(1.0, 0.0)   # at the ceiling is not above it
+        False
+        """
+        f = float(objective)
+        if self.exceeded is None and f > self.ceiling:
+            self.exceeded = (self.seen, f)
+        self.seen += 1
+        return self.exceeded is not None
 
 
 def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,

@@ -31,7 +31,7 @@ from casflex.model import FlexibleModel
 from casflex.planning.limits import shaped_end, shaped_move_limits
 from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
-from casflex.planning.restarts import ROBUST_STEPS
+from casflex.planning.restarts import ROBUST_STEPS, continuation_ceiling
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection
 
 if TYPE_CHECKING:
@@ -419,7 +419,9 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     robust_steps : int
         With ``robust``: the robust plan through this many problems from the nominal plan
         (:func:`casflex.planning.plan_move`'s ``robust_steps``; 1: solved directly from the
-        shaped move).
+        shaped move). A minimum-time robust problem of that path whose solve rises above
+        the shaped move's duration counts as no plan (``duration_ceiling``, unless given
+        in ``plan_options``): the continuation takes a shorter step.
     **plan_options
         More keywords of :func:`casflex.planning.plan_move` (``torque_limit``... override
         the shaped move's).
@@ -513,6 +515,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                                      if robust_steps > 1 else "") if robust else ""))
     if objective == "energy" and duration is None:
         duration = float(shaped.duration)
+    plan_options.setdefault("duration_ceiling", continuation_ceiling(
+        objective, robust, robust_steps, shaped.duration))
     t0 = time.perf_counter()
     plan = plan_move(ocp_model, move, objective=objective, duration=duration,
                      intervals=intervals, torque_limit=limits["torque"],
