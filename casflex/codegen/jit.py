@@ -488,7 +488,8 @@ def tiered_compiler(name: str, *, quick_flags: Sequence[str], optimised_flags: S
             flags = quick
             lib, _ = compile_cached(functions, name, cache_dir=cache_dir, flags=quick)
             if background and _start_background(functions, name, optimised, cmd, target):
-                say(f"{what}: compiled with {' '.join(quick)}; a faster build "
+                names = ", ".join(f.name() for f in functions)
+                say(f"{what} ({names}): compiled with {' '.join(quick)}; a faster build "
                     f"({' '.join(optimised)}) is compiling in the background for the next "
                     "solves")
         compile_function.builds.append(flags)

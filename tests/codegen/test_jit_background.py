@@ -112,6 +112,7 @@ def test_tiered_compiler_follows_the_environment_unless_told(tmp_path, monkeypat
                            cache_dir=tmp_path / "on", log=lines.append, background=True)
     told([f])
     assert told.builds == [("-O0",)] and len(lines) == 1 and "-O2" in lines[0]
+    assert f"({f.name()})" in lines[0]  # which functions: a solve compiles two sets
     optimised = Path(tmp_path, "on", "jit")
     assert _wait(lambda: not _jobs(tmp_path / "on")
                  and cached_library([f], "bg_tiers", cache_dir=tmp_path / "on",
