@@ -19,9 +19,10 @@ from collections.abc import Callable
 import casadi as ca
 import numpy as np
 
+from casflex._validate import number
 from casflex.model import FlexibleModel, TableProvider
 from casflex.planning.assembly import PointSplit, point_split
-from casflex.planning.scenarios import frequency_shifted_model, with_provider
+from casflex.planning.scenarios import with_provider
 
 __all__ = ["default_derivatives", "point_compiler", "QUICK_FLAGS", "OPTIMISED_FLAGS",
            "implicit_point_function", "implicit_collocation_function",
@@ -118,10 +119,10 @@ def point_compiler(derivatives: str, cache_dir: str | os.PathLike | bool | None 
                            background=background, what="the planner's derivatives")
 
 
-def static_lookup(model: FlexibleModel, errors: list) -> tuple[FlexibleModel, list]:
+def static_lookup(model: FlexibleModel) -> FlexibleModel:
     """``model`` with its tables read by local B-splines whose coefficients are static
     data (:class:`casflex.model.TableProvider` ``lookup="static"``, what the model's C
-    bundle uses), and its frequency-shifted scenarios at ``errors``.
+    bundle uses).
 
     The same spline to the rounding of its fit (≈ 1e-14 of the values). Compiled, the
     ``casadi.interpolant`` lookups put the coefficient tables in the C of every
@@ -132,12 +133,10 @@ def static_lookup(model: FlexibleModel, errors: list) -> tuple[FlexibleModel, li
     Parameters
     ----------
     model : casflex.model.FlexibleModel
-    errors : list of float
-        Relative frequency errors of the scenarios.
 
     Returns
     -------
-    (casflex.model.FlexibleModel, list of casflex.model.FlexibleModel)
+    casflex.model.FlexibleModel
 
     Examples
     --------
@@ -145,13 +144,13 @@ def static_lookup(model: FlexibleModel, errors: list) -> tuple[FlexibleModel, li
     >>> from casflex.robot import load
     >>> robot = load("problems/onelink.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
-    >>> static_lookup(model, [])[0] is model
+    >>> static_lookup(model) is model
     True
     """
     p = model.provider
     if isinstance(p, TableProvider) and p.lookup == "interpolant":
         model = with_provider(model, TableProvider(p.table, p.method, lookup="static"))
-    return model, [frequency_shifted_model(model, r) for r in errors]
+    return model
 
 
 def collocation_matrices(degree: int) -> tuple[np.ndarray, np.ndarray]:
@@ -187,26 +186,31 @@ def collocation_matrices(degree: int) -> tuple[np.ndarray, np.ndarray]:
     return C, D
 
 
-def implicit_point_function(model: FlexibleModel, shifted: list) -> ca.Function:
-    """``φ(w) = [h ẋa; τ]`` at one collocation point, ``w = [xa; q̈; h]``.
+def implicit_point_function(model: FlexibleModel, scenarios: int = 0) -> ca.Function:
+    """``φ(w) = [h ẋa; τ]`` at one collocation point, ``w = [xa; q̈; h; s]``.
 
-    ``xa`` is the nominal state ``[q; δ; q̇; δ̇]`` and the modal state of every model of
-    ``shifted``; the modal accelerations come from the model's prescribed-motion form
-    (``prescribed``: ``δ̈`` from the modal rows of ``M Ẍ + h = [τ; 0]`` given ``q̈``, then
-    ``τ`` from the joint rows), the shifted models' from their modal rows under the same
-    joint motion.
+    ``xa`` is the nominal state ``[q; δ; q̇; δ̇]`` and the modal state ``[δ_k; δ̇_k]`` of
+    each of ``scenarios`` frequency-shifted models; ``s`` their frequency factors
+    ``1 + r_k``, an input rather than constants, so that the robust problems of a
+    continuation (other ``r``, the same function) share one compiled library. The modal
+    accelerations come from the model's prescribed-motion form (``prescribed``: ``δ̈``
+    from the modal rows of ``M Ẍ + h = [τ; 0]`` given ``q̈``, then ``τ`` from the joint
+    rows); a scenario's from the same rows with its stiffness ``s² K`` and damping
+    ``s D`` (:func:`casflex.planning.frequency_shifted_model`, where only ``K`` and ``D``
+    depend on the frequencies):
+    ``δ̈_k = dddelta(q, q̇, q̈, δ_k, δ̇_k) − M_δδ(q, δ_k)⁻¹ ((s² − 1) K δ_k + (s − 1) D δ̇_k)``.
 
     Parameters
     ----------
     model : casflex.model.FlexibleModel
-    shifted : list of casflex.model.FlexibleModel
-        The frequency-shifted scenarios (:func:`casflex.planning.frequency_shifted_model`).
+    scenarios : int
+        Frequency-shifted scenarios (0: the nominal model alone).
 
     Returns
     -------
     casadi.Function
-        SX; ``w`` of ``nxa + n + 1`` entries [SI units of the states, rad/s², s],
-        output ``nxa + n`` entries (``h ẋa`` in state units, ``τ`` in N m).
+        SX; ``w`` of ``nxa + n + 1 + scenarios`` entries [SI units of the states, rad/s²,
+        s, -], output ``nxa + n`` entries (``h ẋa`` in state units, ``τ`` in N m).
 
     Examples
     --------
@@ -214,29 +218,40 @@ def implicit_point_function(model: FlexibleModel, shifted: list) -> ca.Function:
     >>> from casflex.robot import load
     >>> robot = load("problems/onelink.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
-    >>> phi = implicit_point_function(model, [])
+    >>> phi = implicit_point_function(model)
     >>> phi.size1_in(0), phi.size1_out(0)
     (6, 5)
+    >>> implicit_point_function(model, 2).size1_in(0)   # two modal states, two factors
+    12
     """
     n, m = model.n, model.m
     nx = 2 * (n + m)
-    nxa = nx + 2 * m * len(shifted)
-    pres = model.functions()["prescribed"]
-    rows = [s.functions()["dddelta"] for s in shifted]
-    w = ca.SX.sym("w", nxa + n + 1)
+    k_scen = int(number(scenarios, "scenarios", low=0, integer=True))
+    if k_scen and not m:
+        raise ValueError("implicit_point_function: scenarios need modes")
+    nxa = nx + 2 * m * k_scen
+    f = model.functions()
+    pres = f["prescribed"]
+    w = ca.SX.sym("w", nxa + n + 1 + k_scen)
     xj, a, h = w[:nxa], w[nxa:nxa + n], w[nxa + n]
+    factors = w[nxa + n + 1:]
     q, d, dq, dd = xj[:n], xj[n:n + m], xj[n + m:2 * n + m], xj[2 * n + m:nx]
     tau, ddd = pres(q, dq, a, d, dd)
     xdot = [dq, dd, a, ddd]
-    for k, row in enumerate(rows):
+    if k_scen:
+        K, D = f["stiffness"](q), f["damping"](q)
+    for k in range(k_scen):
         z = xj[nx + 2 * m * k:nx + 2 * m * (k + 1)]
-        xdot += [z[m:], row(q, dq, a, z[:m], z[m:])]
+        s = factors[k]
+        Mdd = f["mass"](q, z[:m])[n:, n:]
+        shift = (s * s - 1.0) * (K @ z[:m]) + (s - 1.0) * (D @ z[m:])
+        xdot += [z[m:], f["dddelta"](q, dq, a, z[:m], z[m:]) - ca.solve(Mdd, shift)]
     return ca.Function("implicit_point", [w], [ca.vertcat(h * ca.vertcat(*xdot), tau)])
 
 
-def implicit_collocation_function(model: FlexibleModel, shifted: list, degree: int
+def implicit_collocation_function(model: FlexibleModel, scenarios: int, degree: int
                                   ) -> tuple[ca.Function, PointSplit]:
-    """``G(x, Xc, Ac, τ, h) -> (defects, torque_defects, x_end)``: Gauss–Legendre
+    """``G(x, Xc, Ac, τ, h, s) -> (defects, torque_defects, x_end)``: Gauss–Legendre
     collocation of ``degree`` points on one interval of length ``h`` (torque ``τ``
     constant) with implicit dynamics, and its split into calls of
     :func:`implicit_point_function`.
@@ -245,13 +260,15 @@ def implicit_collocation_function(model: FlexibleModel, shifted: list, degree: i
     collocation points; the joint accelerations ``Ac`` there are variables.
     ``defects = h ẋ(t_j) − p'(t_j)``, ``torque_defects = τ(x_j, q̈_j) − τ`` at the points,
     ``x_end`` the polynomial at the end of the interval. No ``(n + m)`` square system is
-    solved symbolically, so the derivatives are a fraction of the explicit form's.
+    solved symbolically, so the derivatives are a fraction of the explicit form's. ``s``
+    holds the frequency factors ``1 + r_k`` of the scenarios (a column of ``scenarios``
+    entries, the same for every interval).
 
     Parameters
     ----------
     model : casflex.model.FlexibleModel
-    shifted : list of casflex.model.FlexibleModel
-        The frequency-shifted scenarios, whose modal rows take the same ``q̈``.
+    scenarios : int
+        Frequency-shifted scenarios, whose modal rows take the same ``q̈``.
     degree : int
         Collocation points per interval.
 
@@ -266,28 +283,29 @@ def implicit_collocation_function(model: FlexibleModel, shifted: list, degree: i
     >>> from casflex.robot import load
     >>> robot = load("problems/onelink.toml")
     >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
-    >>> G, split = implicit_collocation_function(model, [], 3)
-    >>> G.name_out(), split.inputs.shape
-    (['defects', 'torque', 'xf'], (3, 6))
+    >>> G, split = implicit_collocation_function(model, 0, 3)
+    >>> G.name_out(), G.name_in()[-1], split.inputs.shape
+    (['defects', 'torque', 'xf'], 's', (3, 6))
     """
     n = model.n
-    phi = implicit_point_function(model, shifted)
-    nxa = phi.size1_in(0) - n - 1
+    phi = implicit_point_function(model, scenarios)
+    nxa = phi.size1_in(0) - n - 1 - scenarios
     C, D = collocation_matrices(degree)
     x = ca.SX.sym("x", nxa)
     Xc = ca.SX.sym("Xc", nxa, degree)
     Ac = ca.SX.sym("Ac", n, degree)
     u = ca.SX.sym("tau", n)
     h = ca.SX.sym("h")
+    factors = ca.SX.sym("s", scenarios)
     Y = ca.SX.sym("Y", nxa + n, degree)  # φ at the points
     P = ca.horzcat(x, Xc)
     defects = ca.horzcat(*[Y[:nxa, j - 1] - P @ C[:, j] for j in range(1, degree + 1)])
     torque = Y[nxa:, :] - ca.repmat(u, 1, degree)
-    points = [ca.vertcat(Xc[:, j], Ac[:, j], h) for j in range(degree)]
-    G, split = point_split("implicit_collocation", [x, Xc, Ac, u, h], points, phi, Y,
-                           [defects, torque, P @ D], [0, 1])
-    G = ca.Function(G.name(), G.sx_in(), G.call(G.sx_in()), ["x", "Xc", "Ac", "tau", "h"],
-                    ["defects", "torque", "xf"])
+    points = [ca.vertcat(Xc[:, j], Ac[:, j], h, factors) for j in range(degree)]
+    G, split = point_split("implicit_collocation", [x, Xc, Ac, u, h, factors], points, phi,
+                           Y, [defects, torque, P @ D], [0, 1])
+    G = ca.Function(G.name(), G.sx_in(), G.call(G.sx_in()),
+                    ["x", "Xc", "Ac", "tau", "h", "s"], ["defects", "torque", "xf"])
     try:
         G = G.expand()
     except RuntimeError:

@@ -669,14 +669,16 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             Xc = opti.variable(nxa, N * degree)
             opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         if implicit:
-            G, split = implicit_collocation_function(*(static_lookup(model, errors) if
-                                                       compile_function and derivatives ==
-                                                       "points" else (model, shifted)), degree)
+            G, split = implicit_collocation_function(
+                static_lookup(model) if compile_function and derivatives == "points"
+                else model, len(errors), degree)
             if not fatrop:
                 Ac = opti.variable(n, N * degree)
                 opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
             opti.set_initial(Ac, Ac_guess.T)
-            block_args = [X[:, :N], Xc, Ac, U, h]
+            # the scenarios' frequency factors: an input of G, so that every problem of a
+            # robust continuation compiles to the same library
+            block_args = [X[:, :N], Xc, Ac, U, h, ca.DM([1.0 + r for r in errors])]
             defects, torque_defects, Xf = G.map(N)(*block_args)
             if derivatives == "points" and compile_function:  # g through the compiled φ
                 defects, torque_defects = point_values(G, split, block_args, N,

@@ -93,11 +93,9 @@ def test_point_split_derivatives_equal_casadi_s_own(onelink):
     # scenarios), every variable scaled with an offset, the rows scaled: the derivatives
     # from the point blocks (casflex.planning.derivatives) against CasADi's of the whole
     # scaled NLP
-    from casflex.planning import frequency_shifted_model
     from casflex.planning.derivatives import implicit_collocation_function
 
-    shifted = [frequency_shifted_model(onelink, r) for r in (-0.1, 0.1)]
-    G, split = implicit_collocation_function(onelink, shifted, 3)
+    G, split = implicit_collocation_function(onelink, 2, 3)
     nxa, n, K, N = G.size1_in(0), onelink.n, 3, 4
     rng = np.random.default_rng(3)
     opti = ca.Opti()
@@ -106,7 +104,7 @@ def test_point_split_derivatives_equal_casadi_s_own(onelink):
     for v in (X, Xc, Ac, U):
         opti.set_linear_scale(v, rng.uniform(0.1, 2.0, v.shape), rng.normal(size=v.shape))
     opti.set_linear_scale(T, 1.7, 0.3)
-    args = [X[:, :N], Xc, Ac, U, T / N]
+    args = [X[:, :N], Xc, Ac, U, T / N, ca.DM([0.9, 1.1])]
     defects, torque, xf = G.map(N)(*args)
     sd, st = rng.uniform(0.5, 3.0, defects.shape), rng.uniform(0.5, 3.0, torque.shape)
     rows = [opti.ng]
@@ -223,11 +221,11 @@ def test_point_values_equal_the_mapped_interval_function(onelink):
     from casflex.planning.assembly import point_values
     from casflex.planning.derivatives import implicit_collocation_function
 
-    G, split = implicit_collocation_function(onelink, [], 3)
+    G, split = implicit_collocation_function(onelink, 2, 3)
     N = 4
     rng = np.random.default_rng(1)
     args = [ca.DM(rng.normal(size=(G.size1_in(i), G.size2_in(i) * (N if i < 4 else 1))))
-            for i in range(5)]
+            for i in range(6)]
     ref = G.map(N)(*args)
     got = point_values(G, split, [ca.MX(a) for a in args], N)
     for j, out in zip(split.outputs, got, strict=True):
@@ -242,3 +240,38 @@ def test_block_derivatives_need_implicit_collocation(onelink):
                   derivatives="blocks")
     with pytest.raises(ModelError, match="derivatives"):
         plan_move(onelink, [0.0], [1.0], torque_limit=0.05, derivatives="exact")
+
+
+def test_point_function_scenarios_are_the_frequency_shifted_models():
+    # the point function's scenario rows (the nominal modal rows with s² K and s D, the
+    # factors an input) against the models of casflex.planning.frequency_shifted_model
+    # (their frequencies scaled in the provider): the two-link arm with gravity, two modes
+    from casflex.planning import frequency_shifted_model
+    from casflex.planning.derivatives import implicit_point_function
+
+    robot = load("problems/arm2link.toml")
+    model = FlexibleModel(robot, PointwiseProvider(robot, [0.3, -0.4, 0.2], count=2))
+    n, m = model.n, model.m
+    errors = [-0.1, 0.07]
+    phi = implicit_point_function(model, len(errors))
+    rows = [frequency_shifted_model(model, r).functions()["dddelta"] for r in errors]
+    rng = np.random.default_rng(7)
+    nx = 2 * (n + m)
+    for _ in range(5):
+        xa = rng.normal(size=nx + 2 * m * len(errors)) * 0.3
+        a, h = rng.normal(size=n), 0.013
+        y = phi(np.r_[xa, a, h, [1.0 + r for r in errors]]).full().ravel()
+        q, dq = xa[:n], xa[n + m:2 * n + m]
+        for k, row in enumerate(rows):
+            z = xa[nx + 2 * m * k:nx + 2 * m * (k + 1)]
+            got = y[nx + 2 * m * k + m:nx + 2 * m * (k + 1)] / h
+            ref = row(q, dq, a, z[:m], z[m:]).full().ravel()
+            np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+            np.testing.assert_array_equal(y[nx + 2 * m * k:nx + 2 * m * k + m], h * z[m:])
+    # a factor of 1 is the nominal model's rows
+    xa = rng.normal(size=nx + 2 * m) * 0.3
+    one = implicit_point_function(model, 1)
+    y = one(np.r_[xa, a, h, 1.0]).full().ravel()
+    nominal = model.functions()["dddelta"](xa[:n], xa[n + m:2 * n + m], a, xa[nx:nx + m],
+                                           xa[nx + m:]).full().ravel()
+    np.testing.assert_allclose(y[nx + m:nx + 2 * m] / h, nominal, rtol=1e-13, atol=1e-15)

@@ -159,3 +159,20 @@ def test_a_step_too_long_is_halved():
         (0.1, False)]
     assert p.stats["robust"] == 0.1
     assert sum("halving the step" in line for line in lines) == 2
+
+
+def test_the_robust_problems_of_a_path_share_one_compiled_library(onelink, tmp_path):
+    # the scenarios' frequency factors are an input of the compiled point function: the
+    # nominal problem builds its libraries (values; Jacobian and Hessian), the robust
+    # problems at r = 0.05 and 0.1 one pair between them; the path ends where the
+    # interpreted one does
+    from casflex.planning import point_compiler
+
+    kw = {**COMMON, "end": 2e-3, "robust": 0.1, "robust_steps": 2, "derivatives": "points"}
+    compiled = point_compiler("points", tmp_path, background=False)
+    path = plan_move(onelink, MOVE, **kw, compile_function=compiled)
+    assert [s["robust"] for s in path.stats["continuation"]] == [0.0, 0.05, 0.1]
+    assert len(compiled.builds) == 6  # two sets per problem, each found or built
+    assert len(list((tmp_path / "jit").glob("plan_points-*"))) == 4
+    interpreted = plan_move(onelink, MOVE, **kw)
+    assert path.duration == pytest.approx(interpreted.duration, rel=1e-7)
