@@ -38,7 +38,9 @@ residual passes the end bound, relative),
 ``plan.png``; ``--plot FILE.png`` the same figure. Interrupted (Ctrl-C) with ``--out``, it
 writes the plan reached so far to ``DIR/plan.npz`` (the solve's last feasible iterate, the
 best finished pass or the last finished problem of the robust path), and ``--guess
-DIR/plan.npz`` continues from there.
+DIR/plan.npz`` continues from there. A robust path that finds no plan at some problem
+writes its last plan there too; from a robust plan at ``±r`` the path resumes after
+``r`` (:func:`casflex.planning.plan_robustness`).
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ from casflex.commands.common import (
     parse_angle,
     plot_path,
 )
+from casflex.errors import SolverError
 
 #: default step of the verification [s]. A plan's joint acceleration jumps at every one
 #: of its ~150 interval boundaries, and a 1 ms step that straddles a jump integrates it
@@ -209,6 +212,27 @@ def _keep_interrupted(exc, out, log):
         "continues from it")
 
 
+def _keep_reached(exc, out, log):
+    """A robust path that found no plan at some problem: write the last plan it reached
+    (``exc.plan``, its frequency error in its scenarios) to ``out/plan.npz``, from which
+    ``--guess`` resumes the path."""
+    from casflex.planning import plan_robustness
+
+    plan = getattr(exc, "plan", None)
+    if plan is None or getattr(exc, "continuation", None) is None:
+        return
+    reached = (f"{plan.duration:.4f} s plan of the last problem the path finished "
+               f"(frequency error ±{plan_robustness(plan):g})")
+    if out is None:
+        log(f"no robust plan: the {reached} is lost; with --out DIR it is kept for --guess")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    plan.save(out / "plan.npz")
+    log(f"no robust plan: the {reached} is in {out / 'plan.npz'}; --guess "
+        f"{out / 'plan.npz'} resumes the path there (more --robust-steps make its steps "
+        "shorter)")
+
+
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """Plan ``args.move`` for ``args.robot``; return the comparison with the shaped move.
 
@@ -294,6 +318,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
             solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
     except PlanInterrupted as exc:  # keep what the solve had reached, for --guess
         _keep_interrupted(exc, out, log)
+        raise
+    except SolverError as exc:  # a robust path's last plan, for --guess
+        _keep_reached(exc, out, log)
         raise
     summary = comparison.summary()
     log(f"planned {summary['duration']:.4f} s vs shaped {summary['shaped']['duration']:.4f} s "

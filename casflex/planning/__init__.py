@@ -103,6 +103,8 @@ solve_by_continuation
     ``robust_steps``).
 continuation_steps
     The frequency errors and end bounds of that path.
+plan_robustness
+    The frequency error a plan was solved for (where a resumed path starts).
 continuation_ceiling
     The duration above which a robust problem of that path counts as no plan (the
     shaped move's, by default, for a minimum-time plan).
@@ -176,6 +178,7 @@ from casflex.planning.restarts import (
     ROBUST_STEPS,
     continuation_ceiling,
     continuation_steps,
+    plan_robustness,
     solve_by_continuation,
     solve_from_plan,
     solve_with_restarts,
@@ -239,6 +242,7 @@ __all__ = [
     "solve_by_continuation",
     "continuation_steps",
     "continuation_ceiling",
+    "plan_robustness",
     "ROBUST_STEPS",
     # limits
     "shaped_move_limits",

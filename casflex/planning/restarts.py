@@ -30,7 +30,8 @@ from casflex.planning.planned import PlannedMove
 from casflex.planning.stopping import PlanInterrupted
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "continuation_steps",
-           "solve_by_continuation", "continuation_ceiling", "ROBUST_STEPS",
+           "solve_by_continuation", "continuation_ceiling", "plan_robustness",
+           "ROBUST_STEPS",
            "CONTINUATION_HALVINGS"]
 
 #: robust problems on the continuation path of ``casflex plan --robust`` and of the design
@@ -320,6 +321,32 @@ def continuation_ceiling(objective: str, robust: float, robust_steps: int,
     return float(reference_duration)
 
 
+def plan_robustness(plan: PlannedMove) -> float:
+    """The frequency error r a plan was solved for (its scenarios at ``±r``; 0: nominal).
+
+    Parameters
+    ----------
+    plan : PlannedMove
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.planning import plan_move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> p = plan_move(model, [0.0], [1.0], torque_limit=0.1, intervals=20, end=2e-3,
+    ...               robust=0.05)
+    >>> plan_robustness(p)
+    0.05
+    """
+    return float(max((abs(r) for r in plan.stats.get("scenarios", ())), default=0.0))
+
+
 def _on_path(robust, end, f):
     """The problem at fraction ``f`` of the path: ``(f robust, end moved by f)``."""
     nominal, bounds = end_bounds(end, 3)
@@ -335,7 +362,9 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
 
     The path starts at the nominal problem (k = 0: ``robust = 0``, the nominal bound),
     solved from ``arguments["guess"]`` unless that is already a plan (a
-    :class:`casflex.planning.PlannedMove`, e.g. the nominal plan), then goes through the
+    :class:`casflex.planning.PlannedMove`: the nominal plan, or a robust one at some
+    ``r' < robust`` — the last plan of a path that failed or was interrupted — after
+    which the path resumes, :func:`plan_robustness`), then goes through the
     problems of :func:`continuation_steps`, each warm-started from the plan before
     (:func:`solve_from_plan`: its iterate and multipliers, or its iterate alone). A
     problem that finds no plan from the last plan reached is retried after the problem
@@ -403,8 +432,13 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     ceiling = arguments.get("duration_ceiling")
     continuation_steps(robust, end, steps)  # the arguments checked
     fractions = [k / steps for k in range(1, steps + 1)]
-    plan, record, reached = arguments.get("guess"), [], 0.0  # a plan given: the nominal's
-    if not isinstance(plan, PlannedMove):  # the nominal problem from the guess first
+    plan, record, reached = arguments.get("guess"), [], 0.0
+    if isinstance(plan, PlannedMove):
+        # a plan given: the nominal one, or the last plan of a path that failed or was
+        # interrupted further on (its frequency error in its scenarios): resume after it
+        reached = min(1.0, plan_robustness(plan) / robust)
+        fractions = [f for f in fractions if f > reached] or [1.0]
+    else:  # the nominal problem from the guess first
         fractions.insert(0, 0.0)
         reached = None
     halvings = 0

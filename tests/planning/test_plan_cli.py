@@ -284,3 +284,43 @@ def test_plan_cli_warns_when_the_plan_is_not_shorter(tmp_path, capsys, monkeypat
     err = capsys.readouterr().err
     assert "warning: the plan is not shorter than the shaped move (3.3408 s against " \
         "3.2082 s, Ipopt status Solved_To_Acceptable_Level)" in err
+
+
+def test_plan_cli_failed_robust_path_keeps_its_last_plan_and_guess_resumes(
+        tmp_path, capsys, monkeypatch):
+    # a robust path that found no plan at some problem: exit 2, its last plan (here one
+    # at r = 0.05) in DIR/plan.npz; --guess DIR/plan.npz --robust 0.1 resumes the path
+    # after r = 0.05 (problems 0.075 and 0.1 of the default four) and ends at the plan of
+    # the whole path
+    import casflex.planning
+    from casflex.errors import SolverError
+
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    common = ["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
+              "--end", "2e-3", "--intervals", "30", "--json", "--dt", "1e-3"]
+    assert main([*common, "--robust", "0.05", "--robust-steps", "2",
+                 "--out", str(tmp_path / "half")]) == 0
+    capsys.readouterr()
+    half = casflex.planning.PlannedMove.load(tmp_path / "half" / "plan.npz")
+    assert casflex.planning.plan_robustness(half) == 0.05
+
+    def failing(*args, **kwargs):
+        error = SolverError("plan_move: the continuation found no plan at 0.75 of its path")
+        error.plan, error.continuation = half, [{"robust": 0.075, "duration": None}]
+        raise error
+
+    real = casflex.planning.plan_robot_move
+    monkeypatch.setattr(casflex.planning, "plan_robot_move", failing)
+    out = tmp_path / "out"
+    assert main([*common, "--robust", "0.1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "no robust plan" in err and "(frequency error ±0.05)" in err and \
+        f"--guess {out / 'plan.npz'} resumes the path" in err
+    monkeypatch.setattr(casflex.planning, "plan_robot_move", real)
+    assert main([*common, "--robust", "0.1", "--guess", str(out / "plan.npz")]) == 0
+    resumed = json.loads(capsys.readouterr().out)
+    assert [round(c["robust"], 6) for c in resumed["continuation"]] == [0.075, 0.1]
+    assert main([*common, "--robust", "0.1"]) == 0
+    whole = json.loads(capsys.readouterr().out)
+    assert resumed["duration"] == pytest.approx(whole["duration"], rel=1e-6)

@@ -176,3 +176,22 @@ def test_the_robust_problems_of_a_path_share_one_compiled_library(onelink, tmp_p
     assert len(list((tmp_path / "jit").glob("plan_points-*"))) == 4
     interpreted = plan_move(onelink, MOVE, **kw)
     assert path.duration == pytest.approx(interpreted.duration, rel=1e-7)
+
+
+@pytest.mark.parametrize("given, expected", [
+    (0.0, [0.025, 0.05, 0.075, 0.1]),   # the nominal plan: the whole path
+    (0.05, [0.075, 0.1]),               # half-way: the rest of it
+    (0.06, [0.075, 0.1]),               # between two problems: from the next one
+    (0.1, [0.1]),                       # at the end: the last problem again
+    (0.2, [0.1]),                       # beyond: the last problem from it
+])
+def test_a_path_resumes_after_the_robust_plan_given(given, expected):
+    from casflex.planning import solve_by_continuation
+
+    def solve(robust, guess, **kw):
+        return _plan(robust, 2.0 + robust)
+
+    start = _plan(given, 2.0)
+    start.stats["scenarios"] = [0.0, -given, given] if given else [0.0]
+    p = solve_by_continuation(solve, {"robust": 0.1, "end": 2e-3, "guess": start}, 4)
+    assert [round(s["robust"], 6) for s in p.stats["continuation"]] == expected
