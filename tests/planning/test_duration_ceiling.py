@@ -1,5 +1,6 @@
 """The duration ceiling of a minimum-time solve (casflex.planning.DurationCeiling,
-``plan_move(duration_ceiling=...)``) and of the robust problems of a continuation."""
+``plan_move(duration_ceiling=...)``) and the defaults of casflex plan and the design job
+(a continuation's answer to an escape: tests/planning/test_plan_continuation.py)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,7 @@ import pytest
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
-from casflex.planning import (
-    CEILING_STATUS,
-    PlannedMove,
-    continuation_ceiling,
-    plan_move,
-    solve_by_continuation,
-)
+from casflex.planning import CEILING_STATUS, continuation_ceiling, plan_move
 from casflex.robot import load
 
 # from a 1.1 s guess Ipopt's duration rises to 1.371 s at iterate 3 and comes back to
@@ -76,73 +71,30 @@ def test_bad_ceilings_are_refused(onelink, kw, rule):
         plan_move(onelink, [0.0], [1.0], torque_limit=0.1, intervals=20, **kw)
 
 
-def _plan(robust, duration):
-    """A stand-in plan that knows the error it was solved at."""
-    t = np.array([0.0, duration])
-    return PlannedMove(t=t, q=np.zeros((2, 1)), dq=np.zeros((2, 1)), ddq=np.zeros((2, 1)),
-                       tau=np.zeros((2, 1)), delta=np.zeros((2, 0)),
-                       ddelta=np.zeros((2, 0)), node_t=t, node_x=np.zeros((2, 2)),
-                       node_tau=np.zeros((1, 1)), hold_torque=np.zeros(1),
-                       stats={"status": "Solve_Succeeded", "iterations": 1,
-                              "objective_value": duration, "solve_s": 0.0,
-                              "solve_cpu_s": 0.0, "robust": robust})
+class _Stop(Exception):
+    """Raised by :func:`_capture` once it has the arguments."""
 
 
-def _escaping_solver(calls):
-    """A solver whose path, from a plan more than 0.03 of the error away, leaves for a
-    5 s plan (what Ipopt did on move 1 of the design study, session 19), and which stops
-    on its way up at the ceiling it is given; near steps end at 2 s + the error."""
-    def solve(robust, guess, duration_ceiling=None, **kw):
-        calls.append((robust, duration_ceiling))
-        start = 1.0 if not isinstance(guess, PlannedMove) else guess.stats["robust"]
-        duration = 2.0 + robust if abs(robust - start) <= 0.03 + 1e-12 or robust == 0.0 \
-            else 5.0
-        if duration_ceiling is not None and duration > duration_ceiling:
-            raise SolverError(f"plan_move: Ipopt found no plan ({CEILING_STATUS})")
-        return _plan(robust, duration)
-    return solve
+def _capture(seen):
+    """A stand-in of plan_move that records its keyword arguments in ``seen``."""
+    def capture(model, move, **kw):
+        seen.update(kw)
+        raise _Stop
+    return capture
 
 
-def test_without_a_ceiling_the_path_follows_the_escape():
-    p = solve_by_continuation(_escaping_solver([]), {"robust": 0.1, "end": 2e-3,
-                                                     "guess": "shaped"}, 2)
-    assert p.duration == 5.0
-
-
-def test_with_a_ceiling_an_escape_is_a_step_too_long():
-    calls = []
-    p = solve_by_continuation(_escaping_solver(calls), {
-        "robust": 0.1, "end": 2e-3, "guess": "shaped", "duration_ceiling": 3.2}, 2)
-    steps = p.stats["continuation"]
-    # the nominal problem, then 0.05 escapes: halved to 0.025, then 0.05, then 0.1
-    # escapes: halved to 0.075, then 0.1
-    assert [(round(s["robust"], 6), s["duration"]) for s in steps] == [
-        (0.0, 2.0), (0.05, None), (0.025, 2.025), (0.05, 2.05), (0.1, None),
-        (0.075, 2.075), (0.1, 2.1)]
-    # the nominal problem starts from the caller's guess, at the ceiling: none there
-    assert calls[0] == (0.0, None)
-    assert all(ceiling == 3.2 for r, ceiling in calls[1:])
-
-
-def test_the_default_ceiling_of_casflex_plan_and_the_design_job(monkeypatch):
-    # plan_robot_move hands plan_move the shaped move's duration for a robust path
+def test_the_default_ceiling_of_plan_robot_move(monkeypatch):
+    # plan_robot_move (casflex plan) hands plan_move the shaped move's duration for a
+    # robust path
     import casflex.planning.verify as verify
 
     seen = {}
-
-    class Stop(Exception):
-        pass
-
-    def capture(model, move, **kw):
-        seen.update(kw)
-        raise Stop
-
-    monkeypatch.setattr(verify, "plan_move", capture)
+    monkeypatch.setattr(verify, "plan_move", _capture(seen))
     robot = load("problems/onelink.toml")
     move = Move([0.0], [1.0], 2.0, settle=1.0)
     for robust, steps, expected in ((0.1, 3, True), (0.1, 1, False), (0.0, 3, False)):
         seen.clear()
-        with pytest.raises(Stop):
+        with pytest.raises(_Stop):
             verify.plan_robot_move(robot, move, 1, robust=robust, robust_steps=steps,
                                    intervals=20)
         shaped = seen["guess"].duration
@@ -158,21 +110,13 @@ def test_the_design_jobs_robust_planner_has_the_same_ceiling(onelink, monkeypatc
     from casflex.simulate import simulate_prescribed
 
     seen = {}
-
-    class Stop(Exception):
-        pass
-
-    def capture(model, move, **kw):
-        seen.update(kw)
-        raise Stop
-
-    monkeypatch.setattr(casflex.planning, "plan_move", capture)
+    monkeypatch.setattr(casflex.planning, "plan_move", _capture(seen))
     move = Move([0.0], [0.5], 1.0, settle=0.5)
     shaped = ShapedMove(move, zv(25.7))
     run = simulate_prescribed(onelink, shaped, dt=1e-3)
     settings = {"objective": "time", "duration": None, "weight": 0.0, "robust": 0.1,
                 "robust_steps": 3, "end": "rest", "intervals": 12,
                 "transcription": "collocation", "max_iter": 200}
-    with pytest.raises(Stop):
+    with pytest.raises(_Stop):
         plan_next_to_shaped(onelink, move, shaped, run, settings, dt=1e-3, cache_dir=False)
     assert seen["duration_ceiling"] == pytest.approx(float(shaped.duration))

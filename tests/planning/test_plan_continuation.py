@@ -8,7 +8,15 @@ import pytest
 from casflex.errors import ModelError, SolverError
 from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
-from casflex.planning import PROGRESS_STATUS, continuation_steps, plan_move, verify_plan
+from casflex.planning import (
+    CEILING_STATUS,
+    PROGRESS_STATUS,
+    PlannedMove,
+    continuation_steps,
+    plan_move,
+    solve_by_continuation,
+    verify_plan,
+)
 from casflex.robot import load
 
 MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
@@ -195,3 +203,39 @@ def test_a_path_resumes_after_the_robust_plan_given(given, expected):
     start.stats["scenarios"] = [0.0, -given, given] if given else [0.0]
     p = solve_by_continuation(solve, {"robust": 0.1, "end": 2e-3, "guess": start}, 4)
     assert [round(s["robust"], 6) for s in p.stats["continuation"]] == expected
+
+
+def _escaping_solver(calls):
+    """A solver whose path, from a plan more than 0.03 of the error away, leaves for a
+    5 s plan (what Ipopt did on move 1 of the design study, session 19), and which stops
+    on its way up at the ceiling it is given; near steps end at 2 s + the error."""
+    def solve(robust, guess, duration_ceiling=None, **kw):
+        calls.append((robust, duration_ceiling))
+        start = 1.0 if not isinstance(guess, PlannedMove) else guess.stats["robust"]
+        duration = 2.0 + robust if abs(robust - start) <= 0.03 + 1e-12 or robust == 0.0 \
+            else 5.0
+        if duration_ceiling is not None and duration > duration_ceiling:
+            raise SolverError(f"plan_move: Ipopt found no plan ({CEILING_STATUS})")
+        return _plan(robust, duration)
+    return solve
+
+
+def test_without_a_ceiling_the_path_follows_the_escape():
+    p = solve_by_continuation(_escaping_solver([]), {"robust": 0.1, "end": 2e-3,
+                                                     "guess": "shaped"}, 2)
+    assert p.duration == 5.0
+
+
+def test_with_a_ceiling_an_escape_is_a_step_too_long():
+    calls = []
+    p = solve_by_continuation(_escaping_solver(calls), {
+        "robust": 0.1, "end": 2e-3, "guess": "shaped", "duration_ceiling": 3.2}, 2)
+    steps = p.stats["continuation"]
+    # the nominal problem, then 0.05 escapes: halved to 0.025, then 0.05, then 0.1
+    # escapes: halved to 0.075, then 0.1
+    assert [(round(s["robust"], 6), s["duration"]) for s in steps] == [
+        (0.0, 2.0), (0.05, None), (0.025, 2.025), (0.05, 2.05), (0.1, None),
+        (0.075, 2.075), (0.1, 2.1)]
+    # the nominal problem starts from the caller's guess, at the ceiling: none there
+    assert calls[0] == (0.0, None)
+    assert all(ceiling == 3.2 for r, ceiling in calls[1:])
