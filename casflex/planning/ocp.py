@@ -370,12 +370,13 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     duration_ceiling : float, optional
         Give the solve up (``SolverError``, status
         :data:`casflex.planning.CEILING_STATUS`) at the first iterate whose duration is
-        above this [s] (:class:`casflex.planning.DurationCeiling`; ``objective="time"``
-        only). Unlike ``max_duration`` it is no constraint: Ipopt's path is the same until
-        it leaves. For a solve that starts below the ceiling and where a longer plan is
-        worth nothing (the robust problems of a continuation: the shaped move meets
-        their constraints at its own duration). With ``robust_steps > 1`` it applies to
-        the robust problems of the path, not to the nominal one solved first.
+        above this [s], or not positive (:class:`casflex.planning.DurationCeiling`;
+        ``objective="time"`` only). Unlike ``max_duration`` it is no constraint: Ipopt's
+        path is the same until it leaves. For a solve that starts below the ceiling and
+        where a longer plan is worth nothing (the robust problems of a continuation: the
+        shaped move meets their constraints at its own duration). With ``robust_steps >
+        1`` it applies to the robust problems of the path, not to the nominal one solved
+        first.
     max_iter : int
         Ipopt iteration limit.
     ipopt_options : dict, optional
@@ -868,10 +869,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     info_violation = _violation(opti, values)
     if not ok:
         if escaped:
-            at, above = ceiling.exceeded
+            at, T_out = ceiling.exceeded
+            where = (f"rose to {T_out:.6g} s at iterate {at}, above duration_ceiling = "
+                     f"{ceiling.ceiling:.6g} s" if T_out > 0.0 else
+                     f"fell to {T_out:.6g} s at iterate {at}, not a duration")
             error = SolverError(f"plan_move: {solver.capitalize()} found no plan ({status}): "
-                                f"the duration rose to {above:.6g} s at iterate {at}, above "
-                                f"duration_ceiling = {ceiling.ceiling:.6g} s")
+                                f"the duration {where}")
         else:
             error = SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max,
                                                  v_max, n, m, N, duration,

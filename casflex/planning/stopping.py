@@ -46,7 +46,7 @@ PROGRESS_STATUS = "Stopped_On_Progress"
 INTERRUPTED_STATUS = "Interrupted_By_User"
 
 #: the status in the ``SolverError`` of a solve that :class:`DurationCeiling` gave up
-CEILING_STATUS = "Duration_Above_Ceiling"
+CEILING_STATUS = "Duration_Out_Of_Range"
 
 
 class PlanInterrupted(KeyboardInterrupt):
@@ -256,6 +256,12 @@ class DurationCeiling:
     not, and :func:`casflex.planning.plan_move` raises a ``SolverError``
     (:data:`CEILING_STATUS`), which a continuation answers with a shorter step.
 
+    An iterate whose duration is zero or negative has left the problem as well (the
+    duration's lower bound is a constraint, which Ipopt's iterates may violate): on move 1
+    one robust problem jumped from T = 2.10 s to −98.9 s at iterate 70 and was still at
+    −18 s, violation 18, 170 iterations later (benchmarks/README_planning.md,
+    session 22). The listener gives up there too.
+
     Parameters
     ----------
     ceiling : float
@@ -264,13 +270,17 @@ class DurationCeiling:
     Attributes
     ----------
     exceeded : tuple of (int, float) or None
-        The iterate (0: the start) and its duration [s] that rose above the ceiling.
+        The first iterate (0: the start) whose duration [s] left ``(0, ceiling]``, and
+        that duration.
 
     Examples
     --------
     >>> rule = DurationCeiling(3.2)
     >>> [rule.update(t, 1.0) for t in (2.1, 2.6, 3.3, 3.1)], rule.exceeded
     ([False, False, True, True], (2, 3.3))
+    >>> rule = DurationCeiling(3.2)
+    >>> [rule.update(t, 1.0) for t in (2.1, -98.9, 2.0)], rule.exceeded
+    ([False, True, True], (1, -98.9))
     """
 
     ceiling: float
@@ -282,7 +292,7 @@ class DurationCeiling:
 
     def update(self, objective: float, violation: float) -> bool:
         """Take one iterate (objective: its duration [s]); ``True`` once any iterate so
-        far has been above the ceiling.
+        far has been above the ceiling or not positive.
 
         Parameters
         ----------
@@ -301,7 +311,7 @@ class DurationCeiling:
         False
         """
         f = float(objective)
-        if self.exceeded is None and f > self.ceiling:
+        if self.exceeded is None and (f > self.ceiling or f <= 0.0):
             self.exceeded = (self.seen, f)
         self.seen += 1
         return self.exceeded is not None

@@ -120,3 +120,28 @@ def test_the_design_jobs_robust_planner_has_the_same_ceiling(onelink, monkeypatc
     with pytest.raises(_Stop):
         plan_next_to_shaped(onelink, move, shaped, run, settings, dt=1e-3, cache_dir=False)
     assert seen["duration_ceiling"] == pytest.approx(float(shaped.duration))
+
+
+def test_a_duration_that_is_not_positive_ends_the_solve(onelink, monkeypatch):
+    # an iterate at T <= 0 (its lower bound is a constraint, which Ipopt may violate) has
+    # left the problem: given up as an escape above the ceiling is. Ipopt is made to
+    # show one by a listener that reports the third iterate's objective negated
+    import casflex.planning.ocp as ocp
+
+    real = ocp.iteration_callback
+
+    def flipping(lbg, ubg, nx, listeners):
+        count = {"n": 0}
+
+        def flip(call):
+            return lambda f, v: call(-f if count["n"] == 2 else f, v)
+
+        def counter(f, v):
+            count["n"] += 1
+
+        return real(lbg, ubg, nx, [flip(c) for c in listeners] + [counter])
+
+    monkeypatch.setattr(ocp, "iteration_callback", flipping)
+    with pytest.raises(SolverError, match=r"the duration fell to -[0-9.]+ s at iterate 2, "
+                                          r"not a duration"):
+        _trace(onelink, duration_ceiling=2.0)
