@@ -468,7 +468,8 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
             raise PlanInterrupted(plan, f"the plan of the last problem finished, at "
                                   f"{reached:.4g} of the path") from exc
         record += [_failed(exc, robust=r, end_bounds=bounds) for exc in failures]
-        if new is None and reached is not None and halvings < CONTINUATION_HALVINGS:
+        if new is None and reached is not None and reached < f \
+                and halvings < CONTINUATION_HALVINGS:
             # a shorter step from the last plan reached
             fractions.insert(i, 0.5 * (reached + f))
             halvings += 1

@@ -239,3 +239,19 @@ def test_with_a_ceiling_an_escape_is_a_step_too_long():
     # the nominal problem starts from the caller's guess, at the ceiling: none there
     assert calls[0] == (0.0, None)
     assert all(ceiling == 3.2 for r, ceiling in calls[1:])
+
+
+def test_from_a_plan_at_the_end_of_the_path_a_failure_is_not_halved():
+    # a plan already at the path's error (or beyond): the last problem from it, and no
+    # "shorter step" to take when it fails
+    calls = []
+
+    def solve(robust, guess, **kw):
+        calls.append(robust)
+        raise SolverError("no plan")
+
+    start = _plan(0.1, 2.0)
+    start.stats["scenarios"] = [0.0, -0.1, 0.1]
+    with pytest.raises(SolverError, match="after 0 halving"):
+        solve_by_continuation(solve, {"robust": 0.1, "end": 2e-3, "guess": start}, 4)
+    assert calls == [0.1]  # the stand-in carries no multipliers: one attempt
