@@ -163,6 +163,20 @@ def pytest_unconfigure(config):
 
 
 @pytest.fixture
+def ctrl_c():
+    """Python's own SIGINT handler (a KeyboardInterrupt in the main thread) for the test,
+    the one a user's terminal session has. pytest-xdist's workers ignore SIGINT, and a
+    test that runs a notebook's kernel puts the default handler back for the rest of its
+    worker, so a test that sends itself SIGINT passed or failed with the order of the
+    files on the workers (three planner tests failed in a CI rehearsal of session 22)."""
+    import signal
+
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+@pytest.fixture
 def rng(request):
     """A numpy Generator seeded from the test's node id: the same numbers in the full run
     and with ``-k``, different streams for different tests."""

@@ -226,7 +226,7 @@ def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").iterdir())
 
 
-def test_plan_cli_interrupted_keeps_the_plan_reached_and_guess_continues(tmp_path, capsys,
+def test_plan_cli_interrupted_keeps_the_plan_reached_and_guess_continues(tmp_path, capsys, ctrl_c,
                                                                        monkeypatch):
     # Ctrl-C in the second pass (the first restart): exit 130, the first pass's plan in
     # DIR/plan.npz; --guess DIR/plan.npz then ends where the uninterrupted run does

@@ -103,7 +103,7 @@ def test_a_listener_that_returns_true_stops_ipopt_there():
     assert calls["a"][0] == (5.0, 4.0)
 
 
-def test_ctrl_c_during_a_solve_interrupts_the_plan(onelink):
+def test_ctrl_c_during_a_solve_interrupts_the_plan(onelink, ctrl_c):
     # a SIGINT while Ipopt runs reaches Python at the next iterate's callback; CasADi
     # would turn the KeyboardInterrupt into User_Requested_Stop, so that plan_move
     # reported "no plan" and the restarts went on with their next pass: it must
@@ -150,7 +150,7 @@ def _interrupt_at(test):
     return call, seen
 
 
-def test_interrupt_keeps_the_last_feasible_iterate(onelink):
+def test_interrupt_keeps_the_last_feasible_iterate(onelink, ctrl_c):
     from casflex.planning import INTERRUPTED_STATUS, PlanInterrupted
 
     kw = {"torque_limit": 0.1, "intervals": 20, "progress_stop": False}
@@ -173,7 +173,7 @@ def test_interrupt_keeps_the_last_feasible_iterate(onelink):
     assert info.value.plan is None and "not feasible" in info.value.note
 
 
-def test_interrupt_in_a_restart_keeps_the_best_finished_pass(onelink):
+def test_interrupt_in_a_restart_keeps_the_best_finished_pass(onelink, ctrl_c):
     from casflex.planning import PlanInterrupted
 
     kw = {"torque_limit": 0.08, "intervals": 20, "restarts": 2}
