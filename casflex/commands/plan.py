@@ -197,19 +197,24 @@ def _saved_plan(path, move):
     return plan
 
 
+def _keep(plan, why, reached, then, out, log):
+    """Write ``plan``, what a run stopped by ``why`` had reached, to ``out/plan.npz`` for
+    ``--guess`` (``then``: what ``--guess`` does with it), and say so."""
+    if out is None:
+        log(f"{why}: the {reached} is lost; with --out DIR it is kept for --guess")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    plan.save(out / "plan.npz")
+    log(f"{why}: the {reached} is in {out / 'plan.npz'}; --guess {out / 'plan.npz'} {then}")
+
+
 def _keep_interrupted(exc, out, log):
     """Ctrl-C during the plan: write the plan it had reached to ``out/plan.npz``."""
     if exc.plan is None:
         log("interrupted before a feasible plan was reached: nothing to keep")
         return
-    reached = f"{exc.plan.duration:.4f} s plan reached ({exc.note})"
-    if out is None:
-        log(f"interrupted: a {reached} is lost; with --out DIR it is kept for --guess")
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    exc.plan.save(out / "plan.npz")
-    log(f"interrupted: the {reached} is in {out / 'plan.npz'}; --guess {out / 'plan.npz'} "
-        "continues from it")
+    _keep(exc.plan, "interrupted", f"{exc.plan.duration:.4f} s plan reached ({exc.note})",
+          "continues from it", out, log)
 
 
 def _keep_reached(exc, out, log):
@@ -221,16 +226,9 @@ def _keep_reached(exc, out, log):
     plan = getattr(exc, "plan", None)
     if plan is None or getattr(exc, "continuation", None) is None:
         return
-    reached = (f"{plan.duration:.4f} s plan of the last problem the path finished "
-               f"(frequency error ±{plan_robustness(plan):g})")
-    if out is None:
-        log(f"no robust plan: the {reached} is lost; with --out DIR it is kept for --guess")
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    plan.save(out / "plan.npz")
-    log(f"no robust plan: the {reached} is in {out / 'plan.npz'}; --guess "
-        f"{out / 'plan.npz'} resumes the path there (more --robust-steps make its steps "
-        "shorter)")
+    _keep(plan, "no robust plan", f"{plan.duration:.4f} s plan of the last problem the path "
+          f"finished (frequency error ±{plan_robustness(plan):g})",
+          "resumes the path there (more --robust-steps make its steps shorter)", out, log)
 
 
 def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
