@@ -1,8 +1,11 @@
-"""The one reader of casflex problem files (TOML): robots, moves, sensors, shapers, studies.
+"""The one reader of casflex problem files (TOML): robots, moves, sensors, shapers, studies;
+and of the NumPy archives users give (saved plans, measurement logs).
 
 :func:`read_toml` and :func:`parse_toml` turn a file or a text into a dict, with a
 :class:`~casflex.errors.ProblemFileError` for an unreadable file or invalid TOML;
-:class:`TableReader` checks one table of it (known keys, types, finiteness, angle units).
+:class:`TableReader` checks one table of it (known keys, types, finiteness, angle units);
+:func:`read_npz` reads a ``.npz`` archive's arrays, with the same error for a file that is
+not one.
 """
 
 from __future__ import annotations
@@ -10,13 +13,16 @@ from __future__ import annotations
 import math
 import os
 import tomllib
+import zipfile
 from collections.abc import Collection, Sequence
 from pathlib import Path
+
+import numpy as np
 
 from casflex._validate import BOUNDS, to_float
 from casflex.errors import ProblemFileError
 
-__all__ = ["ANGLE_UNITS", "TableReader", "parse_toml", "read_toml"]
+__all__ = ["ANGLE_UNITS", "TableReader", "parse_toml", "read_npz", "read_toml"]
 
 #: angle units a problem file may name, and their factor to radians
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
@@ -70,6 +76,50 @@ def read_toml(path: str | os.PathLike) -> dict:
     except (OSError, UnicodeDecodeError) as exc:
         raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
     return parse_toml(text, path)
+
+
+def read_npz(path: str | os.PathLike, what: str) -> dict:
+    """The arrays of the NumPy archive at ``path`` (``numpy.savez``), never unpickling;
+    a missing file, another kind of file, a damaged archive or an array of Python objects
+    is a :class:`ProblemFileError` naming the file.
+
+    (numpy itself takes any file that is not an archive for a pickle and suggests
+    ``allow_pickle=True``, and a damaged archive raises ``zipfile.BadZipFile``.)
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.npz`` file.
+    what : str
+        What the archive should be, for the error (e.g. "a plan is the plan.npz that
+        PlannedMove.save writes").
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     path = Path(d) / "a.npz"
+    ...     np.savez(path, x=[1.0, 2.0])
+    ...     read_npz(path, "test")["x"].tolist()
+    [1.0, 2.0]
+    >>> read_npz("README.md", "a log")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+        ...
+    casflex.errors.ProblemFileError: README.md: field '<file>' = ...: is not a NumPy .npz ...
+    """
+    path = Path(path)
+    if path.is_file() and not zipfile.is_zipfile(path):
+        raise ProblemFileError(path, "<file>", str(path),
+                               f"is not a NumPy .npz archive ({what})")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
 
 
 class TableReader:

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from casflex._problemfile import read_npz
 from casflex.errors import ProblemFileError
 
 __all__ = ["VibrationLog", "read_log", "uniform_sample_rate", "split_configurations"]
@@ -134,11 +135,7 @@ def uniform_sample_rate(t: ArrayLike, source: str | os.PathLike | None = None) -
 
 def _read_columns(path):
     if path.suffix.lower() == ".npz":
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                return {k: np.asarray(data[k]) for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise ProblemFileError(path, "<file>", str(path), f"cannot be read: {exc}") from exc
+        return read_npz(path, "a log is a CSV file or an archive of numpy.savez")
     try:
         lines = [ln for ln in path.read_text(encoding="utf-8").splitlines()
                  if ln.strip() and not ln.lstrip().startswith("#")]

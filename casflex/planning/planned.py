@@ -15,7 +15,6 @@ from __future__ import annotations
 import csv
 import json
 import os
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from casflex._json import jsonable
+from casflex._problemfile import read_npz
 from casflex._validate import output_file
 from casflex.errors import ProblemFileError
 from casflex.moves import reference_sampler
@@ -531,11 +531,8 @@ class PlannedMove:
         def bad(field, value, rule):
             return ProblemFileError(path, field, value, rule)
 
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise bad("<file>", str(path), f"cannot be read: {exc}") from exc
+        arrays = read_npz(path, "a plan is the plan.npz that PlannedMove.save "
+                                "(casflex plan --out) writes")
         if "meta" not in arrays:
             raise bad("meta", None, "missing: not a plan written by PlannedMove.save")
         try:

@@ -111,3 +111,26 @@ def test_calibrate_from_one_campaign_log(tmp_path):
     # frequencies by ~1e-5 relative, far inside them
     assert result["parameters"]["link2.material.E"] == pytest.approx(E_TRUE, rel=5e-3)
     assert result["parameters"]["link2.tip.mass"] == pytest.approx(MASS_TRUE, rel=2e-2)
+
+
+def test_a_log_that_is_no_archive_or_a_damaged_one_names_the_file(tmp_path):
+    t, q, y = campaign(np.array([[0.0]]), [[3.0]], hold=2.0)
+    good = tmp_path / "good.npz"
+    np.savez(good, t=t, q1=q[:, 0], acc_x=y[:, 0])
+    assert read_log(good).t.size == t.size
+    text = tmp_path / "text.npz"  # a CSV named .npz: numpy took it for a pickle
+    text.write_text("t,a\n0,1\n")
+    with pytest.raises(ProblemFileError, match=r"text.npz: field '<file>'.*is not a NumPy "
+                       r"\.npz archive \(a log is a CSV file") as err:
+        read_log(text)
+    assert "pickle" not in str(err.value)
+    damaged = bytearray(good.read_bytes())  # a damaged member: zipfile.BadZipFile before
+    damaged[300:340] = bytes(b ^ 0xFF for b in damaged[300:340])
+    (tmp_path / "damaged.npz").write_bytes(damaged)
+    with pytest.raises(ProblemFileError, match=r"damaged.npz: field '<file>'.*cannot be read: "
+                       r"Bad CRC-32"):
+        read_log(tmp_path / "damaged.npz")
+    objects = tmp_path / "objects.npz"  # arrays of Python objects are never unpickled
+    np.savez(objects, t=np.array([0.0, {"x": 1}], dtype=object))
+    with pytest.raises(ProblemFileError, match=r"objects.npz: field '<file>'.*cannot be read"):
+        read_log(objects)

@@ -81,10 +81,15 @@ def test_propagator_reaches_the_next_node(plans):
 def test_bad_plan_files_name_the_file_and_the_field(plan, tmp_path):
     with pytest.raises(ProblemFileError, match="cannot be read"):
         PlannedMove.load(tmp_path / "missing.npz")
-    text = tmp_path / "text.npz"
-    text.write_text("not a plan")
-    with pytest.raises(ProblemFileError, match=r"text.npz: field '<file>'.*cannot be read"):
-        PlannedMove.load(text)
+    # any file but a zip archive: named as such (numpy's own message took it for a pickle
+    # and suggested loading it unsafely), e.g. the trajectory.csv that --out writes beside
+    for name in ("text.npz", "trajectory.csv"):
+        text = tmp_path / name
+        text.write_text("t,q1\n0,0\n")
+        with pytest.raises(ProblemFileError, match=fr"{name}: field '<file>'.*is not a NumPy "
+                           r"\.npz archive \(a plan is the plan.npz") as err:
+            PlannedMove.load(text)
+        assert "pickle" not in str(err.value)
     other = tmp_path / "other.npz"
     np.savez(other, t=np.zeros(3))
     with pytest.raises(ProblemFileError, match="'meta'.*not a plan written by"):
