@@ -436,7 +436,9 @@ def _gather_batches(client, futures):
         for batch in as_completed(futures).batches():
             yield from zip(batch, client.gather(batch), strict=True)
     finally:
-        client.cancel([f for f in futures if not f.done()])
+        pending = [f for f in futures if not f.done()]
+        if pending:  # a cancel is a message to the scheduler even when empty
+            client.cancel(pending)
 
 
 # ------------------------------------------------------------------ results kept on workers

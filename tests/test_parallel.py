@@ -140,12 +140,19 @@ def test_dask_path_returns_every_tag_with_its_result_and_raises_a_task_error(mon
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
+        cancelled = []
+        cancel = client.cancel
+        monkeypatch.setattr(client, "cancel", lambda futures, **kw: (
+            cancelled.append(len(futures)), cancel(futures, **kw)))
         jobs = [(f"t{i}", (i,)) for i in range(11)]
         got = list(parallel_map(abs, [(t, (-i,)) for t, (i,) in jobs], client=client,
                                 chunksize=2))
         assert sorted(got) == sorted((t, i) for t, (i,) in jobs)
+        # every task done: no cancel message (one per map cost the client's CPU)
+        assert cancelled == []
         with pytest.raises(ValueError, match="three"):
             list(parallel_map(_fails_on_three, jobs, client=client, chunksize=1))
+        assert all(cancelled)  # what had not finished, and nothing else
     # the workers were threads of this very process: its BLAS threads (and the variables
     # that set them) are the user's business, left alone
     assert not any(name in os.environ for name in THREAD_VARIABLES)
