@@ -883,7 +883,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                   f"{info_violation:.1e})")
         # what the failed solve cost (the restarts' and the continuation's totals count it)
         error.solve = {"iterations": int(stats.get("iter_count", -1)), "solve_s": solve_s,
-                       "solve_cpu_s": solve_cpu_s}
+                       "solve_cpu_s": solve_cpu_s,
+                       # whether the guess's multipliers or scales shaped this solve (if
+                       # not, a retry from its iterate alone is the same solve again)
+                       "used_guess_solution": duals is not None or kept is not None}
         raise error
     # the dense trajectory: ``substeps`` samples per interval, from the interval's own
     # discretisation (the RK4 substeps, or the collocation polynomial)

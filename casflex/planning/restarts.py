@@ -108,13 +108,16 @@ def _totals(records: list[dict]) -> tuple[float, float, int]:
 
 def solve_from_plan(solve: Callable[..., Any], arguments: dict,
                     plan: Any) -> tuple[Any, list[SolverError]]:
-    """``solve(**arguments)`` warm-started from ``plan``; if that fails and the plan carries
-    its multipliers, once more from its iterate alone.
+    """``solve(**arguments)`` warm-started from ``plan``; if that fails and the solve used
+    the plan's multipliers (or the scales they belong to), once more from its iterate alone.
 
     The multipliers of an iterate where Ipopt was stopped early can lead it astray: from
     move 1's 2.952 s iterate (stopped on progress) the restart with multipliers found no
     feasible point in 500 iterations, from the iterate alone it went on to 2.745 s and
-    the next restart to 2.133 s (benchmarks/README_planning.md, session 17).
+    the next restart to 2.133 s (benchmarks/README_planning.md, session 17). Where the
+    solve could not use them (the nominal plan as the start of a robust problem: other
+    variables and constraints) the retry would repeat it to the last digit (a minute of
+    move 1's robust path, twice, in session 22): it is left out.
 
     Parameters
     ----------
@@ -152,6 +155,8 @@ def solve_from_plan(solve: Callable[..., Any], arguments: dict,
             return solve(**{**arguments, "guess": guess}), failures
         except SolverError as exc:
             failures.append(exc)
+            if not (getattr(exc, "solve", None) or {}).get("used_guess_solution", True):
+                break
     return None, failures
 
 

@@ -107,12 +107,40 @@ def test_a_failed_path_keeps_what_it_reached(onelink):
     with pytest.raises(SolverError) as err:
         plan_move(onelink, MOVE, **COMMON, end=[2e-3, 1e-9, 2e-3], robust=0.1,
                   robust_steps=2, guess=nominal, max_iter=3)
-    # the first problem, then three halvings: 0.25, 0.125, 0.0625 of the path
+    # the first problem, then three halvings: 0.25, 0.125, 0.0625 of the path; one
+    # attempt each (the nominal plan's multipliers do not fit a robust problem, so there
+    # is no second attempt from its iterate alone: it would be the same solve)
     assert "at 0.0625 of its path" in str(err.value) and "3 halving(s)" in str(err.value)
     assert err.value.plan is nominal
-    assert [c["robust"] for c in err.value.continuation] == [
-        0.05, 0.05, 0.025, 0.025, 0.0125, 0.0125, 0.00625, 0.00625]
+    assert [c["robust"] for c in err.value.continuation] == [0.05, 0.025, 0.0125, 0.00625]
     assert all(c["duration"] is None for c in err.value.continuation)
+
+
+def test_a_failure_is_tried_again_from_the_iterate_alone_only_if_the_multipliers_were_used(
+        onelink):
+    from casflex.planning import solve_from_plan
+
+    nominal = plan_move(onelink, MOVE, **COMMON, end=2e-3)
+    robust = plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.05, guess=nominal)
+    hopeless = {"model": onelink, "start": MOVE, **COMMON, "end": [2e-3, 1e-9, 2e-3],
+                "robust": 0.05, "max_iter": 3}
+    starts = []
+
+    def solve(**kw):
+        starts.append(kw["guess"].solution is not None)
+        return plan_move(**kw)
+
+    # from the robust plan (the same variables and constraints): with its multipliers,
+    # then from its iterate alone
+    plan, failures = solve_from_plan(solve, hopeless, robust)
+    assert plan is None and starts == [True, False]
+    assert failures[0].solve["used_guess_solution"]
+    assert not failures[1].solve["used_guess_solution"]
+    # from the nominal plan: its multipliers and scales do not fit, one attempt
+    starts.clear()
+    plan, failures = solve_from_plan(solve, hopeless, nominal)
+    assert plan is None and starts == [True] and len(failures) == 1
+    assert not failures[0].solve["used_guess_solution"]
 
 
 @pytest.mark.parametrize("kw, field", [
