@@ -246,12 +246,7 @@ def implicit_point_function(model: FlexibleModel, scenarios: int = 0) -> ca.Func
         Mdd = f["mass"](q, z[:m])[n:, n:]
         shift = (s * s - 1.0) * (K @ z[:m]) + (s - 1.0) * (D @ z[m:])
         xdot += [z[m:], f["dddelta"](q, dq, a, z[:m], z[m:]) - ca.solve(Mdd, shift)]
-    # common subexpressions eliminated: each scenario's rows look the tables up at q
-    # again, and the derivatives taken from the lean graph are lean (move 1, two
-    # scenarios: φ 11 831 → 5 575 SX instructions, the Hessian of its Lagrangian 161 838 →
-    # 93 118; the same values, the derivatives to round-off)
-    return ca.Function("implicit_point", [w], [ca.vertcat(h * ca.vertcat(*xdot), tau)],
-                       {"cse": True})
+    return ca.Function("implicit_point", [w], [ca.vertcat(h * ca.vertcat(*xdot), tau)])
 
 
 def implicit_collocation_function(model: FlexibleModel, scenarios: int, degree: int
