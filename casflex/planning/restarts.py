@@ -131,7 +131,7 @@ def solve_from_plan(solve: Callable[..., Any], arguments: dict,
     Returns
     -------
     (PlannedMove or None, list of SolverError)
-        The plan (``None`` if both attempts failed) and the failures met on the way.
+        The plan (``None`` if every attempt failed) and the failures met on the way.
 
     Examples
     --------
