@@ -449,6 +449,50 @@ class PlannedMove:
 
         return law
 
+    def torque_function(self) -> ca.Function:
+        """:meth:`torque_law` as a ``casadi.Function`` ``(t, x) -> τ``: the same torques,
+        with which :func:`casflex.simulate.simulate_torque` runs the whole simulation in
+        one ``mapaccum`` call instead of a Python loop over its steps (move 1's
+        verification at 0.1 ms: 51 000 steps).
+
+        Returns
+        -------
+        casadi.Function
+            Inputs ``t`` [s] and ``x`` (the state, unused: the law is open loop), output
+            ``τ`` of shape (n,) [N m].
+
+        Examples
+        --------
+        >>> t = np.array([0.0, 0.5, 1.0])
+        >>> p = PlannedMove(t=t, q=np.zeros((3, 1)), dq=np.zeros((3, 1)),
+        ...                 ddq=np.zeros((3, 1)), tau=np.zeros((3, 1)),
+        ...                 delta=np.zeros((3, 0)), ddelta=np.zeros((3, 0)), node_t=t,
+        ...                 node_x=np.zeros((3, 2)), node_tau=np.c_[[1.0, -1.0]],
+        ...                 hold_torque=np.zeros(1))
+        >>> u = p.torque_function()
+        >>> [float(u(s, np.zeros(2))) for s in (-0.1, 0.1, 0.6, 1.2)]
+        [1.0, 1.0, -1.0, 0.0]
+        """
+        node_t = np.asarray(self.node_t, dtype=float)
+        taus = np.asarray(self.node_tau, dtype=float)
+        n = taus.shape[1]
+        T = float(node_t[-1])
+        eps = 1e-9 * max(T, 1.0)  # as in torque_law
+        t = ca.MX.sym("t")
+        x = ca.MX.sym("x", self.node_x.shape[1])
+        # the interval holding t + eps (CasADi's low: clamped to the first and the last),
+        # its torques read off a table at that integer index (exact: weight 0 on the next)
+        k = ca.low(ca.DM(node_t[:taus.shape[0] + 1]), t + eps)
+        if taus.shape[0] > 1:
+            table = ca.interpolant("planned_torques", "linear",
+                                   [np.arange(taus.shape[0], dtype=float)],
+                                   taus.ravel().tolist())
+            tau = table(k)
+        else:
+            tau = ca.MX(ca.DM(taus[0]))
+        tau = ca.if_else(t >= T - eps, ca.DM(self.hold_torque).reshape((n, 1)), tau)
+        return ca.Function("planned_torque", [t, x], [tau], ["t", "x"], ["tau"])
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the plan to a NumPy ``.npz`` file that :meth:`load` reads back.
 

@@ -196,7 +196,8 @@ def verify_plan(model: FlexibleModel, plan: PlannedMove, *, dt: float = 1e-3,
                "torque": None, "run": pres, "torque_run": None}
         if torque:
             x0 = np.r_[plan.q0, d0, np.zeros(n + m)]
-            tr = simulate_torque(mod, plan.torque_law(), x0, t_end=t_end, dt=dt)
+            # the law as a casadi.Function: one mapaccum, not a Python loop over the steps
+            tr = simulate_torque(mod, plan.torque_function(), x0, t_end=t_end, dt=dt)
             out["torque"] = _residual_after(tr.t, tr.tip_deflection, T)
             out["torque_run"] = tr
         return out

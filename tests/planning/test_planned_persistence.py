@@ -55,6 +55,21 @@ def test_round_trip_samples_bit_for_bit(plans):
     np.testing.assert_array_equal(copy.solution["lam_g"], plan.solution["lam_g"])
 
 
+def test_the_torque_function_is_the_torque_law(plan):
+    # the CasADi form (CasADi's low and a table) against the numpy one (searchsorted),
+    # exactly: at random times, at every node, a hair (the law's 1e-9 s) on either side of
+    # it, before the start and after the end, and on a simulator's grid of sums of dt
+    law, fun = plan.torque_law(), plan.torque_function()
+    x = np.zeros(fun.size1_in(1))
+    nodes = np.asarray(plan.node_t)
+    t = np.r_[np.random.default_rng(0).uniform(-0.3, plan.duration + 0.3, 200), nodes,
+              nodes - 2e-9, nodes - 5e-10, nodes + 5e-10, nodes + 2e-9,
+              np.cumsum(np.full(int(plan.duration / 1e-3) + 50, 1e-3))]
+    got = np.asarray(fun.map(t.size)(t[None, :], np.zeros((x.size, t.size)))).T
+    want = np.array([law(float(s), x) for s in t])
+    np.testing.assert_array_equal(got, want)
+
+
 def test_warm_start_from_the_copy_is_the_warm_start_from_the_plan(model, plans):
     plan, copy = plans
     kw = {**KW, "end": 0.9 * KW["end"], "transcription": plan.stats["transcription"]}
