@@ -306,7 +306,7 @@ def run_move(name, args, study, out_path, robust_moves):
             "duration", "status", "iterations", "solve_cpu_s", "guess", "prescribed",
             "torque", "errors")})
     log(f"{name}: evaluating the nominal plan at {errors}")
-    ev, _ = evaluate(model, plan, plan.torque_law(), errors, args.dt)
+    ev, _ = evaluate(model, plan, plan.torque_function(), errors, args.dt)
     record["planned"] = plan_record(plan, limits, ev, model)
     record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts, guess=args.guess,
                              cold={k: passes[0][k] for k in (
@@ -341,7 +341,7 @@ def run_move(name, args, study, out_path, robust_moves):
                 f"{robust.stats['solve_cpu_s']:.0f} s CPU)")
             if args.plans:
                 robust.save(args.plans / f"{name}_robust.npz")
-            ev, _ = evaluate(model, robust, robust.torque_law(), errors, args.dt)
+            ev, _ = evaluate(model, robust, robust.torque_function(), errors, args.dt)
             record["robust"] = plan_record(robust, limits, ev, model)
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
                                     robust_steps=args.robust_steps,
