@@ -140,8 +140,9 @@ def main(argv: list[str] | None = None) -> dict:
         from casflex.codegen import compile_cached
 
         def compile_blocks(functions):
+            # cse: as casflex plan's builds (casflex.planning.point_compiler)
             lib, info = compile_cached(functions, "plan_blocks",
-                                       flags=tuple(args.compile_flags.split()))
+                                       flags=tuple(args.compile_flags.split()), cse=True)
             compiled.setdefault("compile_s", []).append(info["seconds"])
             compiled.setdefault("built", []).append(info["built"])
             return [lib[f.name()] for f in functions]

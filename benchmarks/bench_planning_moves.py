@@ -213,7 +213,7 @@ def derivative_options(args):
 
         def compile_function(functions):
             lib, info = compile_cached(functions, f"plan_{args.derivatives}",
-                                       flags=tuple(args.compile_flags.split()))
+                                       flags=tuple(args.compile_flags.split()), cse=True)
             log(f"  compiled ({args.compile_flags}): built {info['built']}, "
                 f"{info['seconds']:.1f} s")
             return [lib[f.name()] for f in functions]

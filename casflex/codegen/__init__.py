@@ -34,6 +34,7 @@ compile_cached  compile functions once, keep the library on disk, load them back
 cached_library  the library compile_cached built, if it is in the cache (never compiles)
 compile_in_background  start compile_cached's build in a detached process, return at once
 tiered_compiler  a quick build now, the optimised one from the background when it is there
+without_repeats  SX functions without repeated subexpressions (the same values, fewer instructions)
 
 Estimator (:mod:`casflex.codegen.estimator`)
 --------------------------------------------
@@ -149,6 +150,7 @@ from casflex.codegen.jit import (
     compile_cached,
     compile_in_background,
     tiered_compiler,
+    without_repeats,
 )
 from casflex.codegen.plan_table import plan_table_bundle
 from casflex.codegen.replay import HarnessResult, harness, run_harness
@@ -185,6 +187,7 @@ __all__ = [
     "compile_cached",
     "compile_in_background",
     "tiered_compiler",
+    "without_repeats",
     # estimator
     "ekf_bundle",
     "model_bundle",

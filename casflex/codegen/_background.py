@@ -28,7 +28,8 @@ def _build(job: Path) -> int:
                      for i in range(spec["functions"])]
         target = Path(spec["target"])
         if not target.is_dir():  # put in place complete, or not at all
-            build_library(functions, spec["name"], target, spec["cmd"], spec["flags"])
+            build_library(functions, spec["name"], target, spec["cmd"], spec["flags"],
+                          spec.get("cse", False))
         return 0
     finally:
         shutil.rmtree(job, ignore_errors=True)

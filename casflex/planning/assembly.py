@@ -387,17 +387,12 @@ def _interval_entries(G, outputs, hessian, compile_function):
 def _derivative_functions(name, z, y, hessian, compile_function):
     """Sparsities of ``∂y/∂z`` and of the upper triangle of ``∂²(μᵀy)/∂z²``, and the SX
     functions of their nonzeros, ``name_jac(z)`` and ``name_hess(z, μ)`` (compiled by
-    ``compile_function`` when given).
-
-    The functions eliminate common subexpressions (CasADi's ``cse``): the same operations
-    on the same operands, so the same values to the last bit, in fewer instructions
-    (move 1's point Jacobian 74 387 → 33 067 instructions, its ``-Os`` build 2.5× faster; the
-    Hessian 118 094 → 98 596; benchmarks/README_planning.md, session 23)."""
+    ``compile_function`` when given)."""
     mu = ca.SX.sym("mu", y.shape[0])
     Jz = ca.jacobian(y, z)
     Hz = ca.triu(ca.hessian(ca.dot(mu, y), z)[0]) if hessian else ca.SX(z.shape[0], z.shape[0])
-    jac_f = ca.Function(f"{name}_jac", [z], [ca.vertcat(*Jz.nonzeros())], {"cse": True})
-    hess_f = ca.Function(f"{name}_hess", [z, mu], [ca.vertcat(*Hz.nonzeros())], {"cse": True})
+    jac_f = ca.Function(f"{name}_jac", [z], [ca.vertcat(*Jz.nonzeros())])
+    hess_f = ca.Function(f"{name}_hess", [z, mu], [ca.vertcat(*Hz.nonzeros())])
     if compile_function is not None:
         jac_f, hess_f = compile_function([jac_f, hess_f] if hessian else [jac_f]) + \
             ([] if hessian else [hess_f])

@@ -119,3 +119,37 @@ def test_tiered_compiler_follows_the_environment_unless_told(tmp_path, monkeypat
                                     flags=("-O2",)) is not None)
     told([f])
     assert told.builds == [("-O0",), ("-O2",)] and optimised.is_dir()
+
+
+def _with_repeats():
+    """A Jacobian, where automatic differentiation repeats work (as the planner's)."""
+    x = ca.SX.sym("x", 3)
+    y = ca.vertcat(ca.sin(x[0] * x[1]) * ca.exp(x[2]), ca.cos(x[0] * x[1]) / (1 + x[2] ** 2))
+    return ca.Function("jac_demo", [x], [ca.vec(ca.jacobian(y, x))])
+
+
+def test_a_build_without_repeats_is_its_own_entry_with_the_same_values(tmp_path):
+    from casflex.codegen import tiered_compiler, without_repeats
+
+    f = _with_repeats()
+    assert without_repeats([f])[0].n_instructions() < f.n_instructions()
+    plain, info_plain = compile_cached([f], "jac_demo", cache_dir=tmp_path, flags=("-O1",))
+    lean, info_lean = compile_cached([f], "jac_demo", cache_dir=tmp_path, flags=("-O1",),
+                                     cse=True)
+    assert info_plain["built"] and info_lean["built"]
+    assert info_plain["library"] != info_lean["library"]  # cse is part of the key
+    for x in ([0.3, -1.7, 0.2], [2.0, 0.5, -3.0]):
+        assert (lean["jac_demo"](x).full() == plain["jac_demo"](x).full()).all()
+        assert (lean["jac_demo"](x).full() == f(x).full()).all()
+    # the background builder eliminates them too: its library is compile_cached's
+    lib = compile_in_background([f], "jac_demo", cache_dir=tmp_path, flags=("-O2",),
+                                cse=True)
+    assert _wait(lambda: lib.is_file() and not _jobs(tmp_path))
+    assert compile_cached([f], "jac_demo", cache_dir=tmp_path, flags=("-O2",),
+                          cse=True)[1]["built"] is False
+    compile_function = tiered_compiler("jac_demo", quick_flags=("-O1",),
+                                       optimised_flags=("-O2",), cache_dir=tmp_path,
+                                       background=False, cse=True)
+    [g] = compile_function([f])
+    assert compile_function.builds == [("-O2",)]  # the background's library
+    assert (g([0.3, -1.7, 0.2]).full() == f([0.3, -1.7, 0.2]).full()).all()
