@@ -327,7 +327,7 @@ def cached_library(functions: Sequence[ca.Function], name: str, *,
 
     Parameters
     ----------
-    functions, name, cache_dir, flags, compiler
+    functions, name, cache_dir, flags, compiler, cse
         As :func:`compile_cached`.
 
     Returns
