@@ -433,13 +433,7 @@ class PlannedMove:
         >>> [float(u(s, None)[0]) for s in (0.1, 0.6, 1.2)]
         [1.0, -1.0, 0.0]
         """
-        node_t = np.asarray(self.node_t, dtype=float)
-        taus = np.asarray(self.node_tau, dtype=float)
-        hold = np.asarray(self.hold_torque, dtype=float)
-        T = float(node_t[-1])
-        # a step that starts a hair before a node belongs to the interval after it: the
-        # simulator's step times are sums of dt and carry round-off
-        eps = 1e-9 * max(T, 1.0)
+        node_t, taus, hold, T, eps = self._torque_schedule()
 
         def law(t: float, x: object) -> np.ndarray:
             if t >= T - eps:
@@ -473,11 +467,8 @@ class PlannedMove:
         >>> [float(u(s, np.zeros(2))) for s in (-0.1, 0.1, 0.6, 1.2)]
         [1.0, 1.0, -1.0, 0.0]
         """
-        node_t = np.asarray(self.node_t, dtype=float)
-        taus = np.asarray(self.node_tau, dtype=float)
+        node_t, taus, hold, T, eps = self._torque_schedule()
         n = taus.shape[1]
-        T = float(node_t[-1])
-        eps = 1e-9 * max(T, 1.0)  # as in torque_law
         t = ca.MX.sym("t")
         x = ca.MX.sym("x", self.node_x.shape[1])
         # the interval holding t + eps (CasADi's low: clamped to the first and the last),
@@ -490,8 +481,18 @@ class PlannedMove:
             tau = table(k)
         else:
             tau = ca.MX(ca.DM(taus[0]))
-        tau = ca.if_else(t >= T - eps, ca.DM(self.hold_torque).reshape((n, 1)), tau)
+        tau = ca.if_else(t >= T - eps, ca.DM(hold).reshape((n, 1)), tau)
         return ca.Function("planned_torque", [t, x], [tau], ["t", "x"], ["tau"])
+
+    def _torque_schedule(self):
+        """The torque laws' data: nodes [s], torques per interval and at rest [N m], the
+        end T [s] and the tolerance on the times [s] (a step that starts a hair before a
+        node belongs to the interval after it: the simulator's step times are sums of dt
+        and carry round-off)."""
+        node_t = np.asarray(self.node_t, dtype=float)
+        T = float(node_t[-1])
+        return (node_t, np.asarray(self.node_tau, dtype=float),
+                np.asarray(self.hold_torque, dtype=float), T, 1e-9 * max(T, 1.0))
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the plan to a NumPy ``.npz`` file that :meth:`load` reads back.
