@@ -15,8 +15,9 @@
 ``dask_overhead_cpu_fraction``
     CPU of the client process (the Dask client, the scheduler and the nannies of a
     ``LocalCluster`` all run in it: building the tasks, pickling and unpickling their
-    data, the tracking of the grid's base plane (:mod:`casflex.modal.gridlines`), the
-    scheduler's bookkeeping, the cluster's background work) over the CPU of the workers,
+    data, the scheduler's bookkeeping, the cluster's background work; since session 24
+    the tracking of the grid's base plane is a worker's task, :mod:`casflex.modal.gridlines`)
+    over the CPU of the workers,
     in the 2-worker runs (one value per run): the issue's metric, gross.
     ``dask_client_cpu_s`` splits the client's CPU into its main thread (build_table's
     own work) and the others (scheduler, comms, nannies), ``dask_workers_cpu_s`` the
@@ -301,13 +302,16 @@ def projection(workers, n_points, worker_s_per_point, client_s_per_point, task_s
 
 
 def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point, task_s):
-    """:func:`projection` for the path by grid lines (``"lines"``, session 10).
+    """:func:`projection` for the path by grid lines (``"lines"``, session 10; one graph
+    since session 24).
 
     The L lines along the last axis (n points each) go in B(W) = min(L, k W) blocks
     (:func:`casflex.modal.line_blocks`, k = ``BLOCKS_PER_WORKER``, more for blocks of at
-    most ``MAX_BLOCK_POINTS`` points), two tasks each; the
-    worker with the most lines (blocks dealt in turn) sets the pace:
-    Wall(W) = N c + 2 B(W) o + (its lines) n w. Past W = L the workers beyond L idle."""
+    most ``MAX_BLOCK_POINTS`` points), two tasks each and one for the base plane's
+    tracking; the worker with the most lines (blocks dealt in turn) sets the pace:
+    Wall(W) = N c + (2 B(W) + 1) o + (its lines) n w. Past W = L the workers beyond L
+    idle. The base plane's tracking (one point per line, between the two stages on one
+    worker) is counted in w as if it were spread: ~1 ms of the testbed grid's ~0.45 s."""
     from casflex.modal import line_blocks
 
     n_lines, n_last = int(np.prod(grid_shape[:-1])), int(grid_shape[-1])
@@ -316,7 +320,7 @@ def projection_lines(workers, grid_shape, worker_s_per_point, client_s_per_point
     def wall(w):
         blocks = line_blocks(n_lines, w, line_points=n_last)
         most = max(sum(b.size for b in blocks[i::w]) for i in range(min(w, len(blocks))))
-        return (n_points * client_s_per_point + 2 * len(blocks) * task_s
+        return (n_points * client_s_per_point + (2 * len(blocks) + 1) * task_s
                 + most * n_last * worker_s_per_point)
 
     return {str(w): wall(1) / wall(w) for w in workers}

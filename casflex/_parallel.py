@@ -10,7 +10,9 @@ one buffer.
 
 On Dask, :func:`map_keep` leaves a part of each result on the worker that made it, for
 :func:`map_kept` to use there (a table build's raw mode shapes: only the tracking's data
-travels to the client, of each point, or by grid lines of each line's first point:
+of each point travels to the client). :func:`map_keep_reduce_use` does both and a
+reduction of the summaries between them as one graph, which the client submits once and
+whose summaries never reach it (a table build by grid lines:
 :mod:`casflex.modal.gridlines`).
 
 Every worker process (local pool or Dask) runs its BLAS on one thread
@@ -24,6 +26,7 @@ kept.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import threading
@@ -40,7 +43,7 @@ if TYPE_CHECKING:
 
 __all__ = ["parallel_map", "progress_bar", "worker_pool", "WorkerPool", "blas_threads",
            "single_threaded_blas", "end_with_parent", "THREAD_VARIABLES", "map_keep",
-           "map_kept", "drop_kept"]
+           "map_kept", "drop_kept", "map_keep_reduce_use"]
 
 #: the environment variables through which a user sets the BLAS and OpenMP threads
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
@@ -622,6 +625,180 @@ def map_kept(func: Callable, jobs: Iterable, client: Client, token: str,
             results = pickle.loads(packed)
             bar.update(len(results))
             yield from zip(by_key[fut.key], results, strict=True)
+
+
+def _keep_one(func, packed_args, token, tag, client_pid):
+    """Worker side of :func:`map_keep_reduce_use`'s first stage: ``func(*args) ->
+    (summary, kept)``; the kept part stays in this process, the summary is the task's
+    result (for the reduction, on whichever worker runs it)."""
+    import pickle
+
+    if os.getpid() != client_pid:
+        single_threaded_blas()
+    summary, kept = func(*pickle.loads(packed_args))
+    with _KEPT_LOCK:
+        _KEPT.setdefault(token, {})[tag] = kept
+        _KEPT.move_to_end(token)
+        while len(_KEPT) > _KEPT_TOKENS:
+            _KEPT.popitem(last=False)
+    return summary
+
+
+def _reduce_summaries(func, tags, *summaries):
+    """Worker side of the reduction: ``func({tag: summary})``."""
+    return func(dict(zip(tags, summaries, strict=True)))
+
+
+def _use_one(func, packed_args, token, tag, client_pid, reduced):
+    """Worker side of :func:`map_keep_reduce_use`'s last stage: ``func(kept, reduced,
+    *args)``, the kept part taken out of this worker's store (None when it is not here);
+    the result pickled into one buffer."""
+    import pickle
+
+    if os.getpid() != client_pid:
+        single_threaded_blas()
+    with _KEPT_LOCK:
+        store = _KEPT.get(token, {})
+        kept = store.pop(tag, None)
+        if not store:
+            _KEPT.pop(token, None)
+    return pickle.dumps(func(kept, reduced, *pickle.loads(packed_args)),
+                        protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def map_keep_reduce_use(keep: Callable, reduce: Callable, use: Callable, jobs: Iterable,
+                        client: Client, token: str, *, nthreads: dict | None = None,
+                        progress: bool = False, descs: tuple[str, str] = ("", ""),
+                        stage_times: dict | None = None) -> Iterator[tuple]:
+    """Per ``(tag, keep_args, use_args)`` job, ``keep(*keep_args) -> (summary, kept)``;
+    then ``reduced = reduce({tag: summary})`` once; then ``use(kept, reduced, *use_args)``
+    on the worker keeping that ``kept``: :func:`map_keep` and :func:`map_kept` with the
+    reduction between them, as one Dask graph.
+
+    The client submits the graph once and gathers only the last stage's results: the
+    summaries go from worker to worker to the reduction's task, ``reduced`` from there
+    to the last stage's, and the client neither waits between the stages nor unpickles
+    the summaries (a table build by grid lines: two round trips and a third of the
+    client's CPU less, ``benchmarks/README_tables.md``). Each job's two tasks are bound
+    to one worker (``allow_other_workers``: where that worker has left, they run
+    elsewhere and ``use`` gets ``kept = None``, so it must be able to recompute it).
+
+    Parameters
+    ----------
+    keep : callable
+        A picklable (module-level) function returning ``(summary, kept)``.
+    reduce : callable
+        A picklable function of the dict ``{tag: summary}``.
+    use : callable
+        A picklable function ``use(kept or None, reduced, *use_args)``.
+    jobs : iterable of (hashable, tuple, tuple)
+        A tag (unique), the arguments of ``keep`` and the further arguments of ``use``.
+    client : dask.distributed.Client
+    token : str
+        Names the kept parts on the workers (unique per use); :func:`drop_kept` frees
+        what is left after an error.
+    nthreads : dict, optional
+        ``client.nthreads()`` when the caller has it (one round trip less).
+    progress : bool
+        Progress bars on stderr, one per stage (jobs done).
+    descs : (str, str)
+        Their labels.
+    stage_times : dict, optional
+        Filled with ``"keep"`` and ``"reduce"``: ``time.perf_counter()`` [s] when the
+        client learnt that the first stage and the reduction had finished.
+
+    Yields
+    ------
+    (tag, result)
+        The results of ``use``, in completion order. An exception in any stage is raised
+        here; what has not finished is cancelled.
+
+    Examples
+    --------
+    On a cluster ``c`` (see ``tests/test_parallel.py``), with ``divmod(i, 2)`` as
+    ``(summary, kept)``, the summaries summed, and ``use(kept, total, x) = (kept, total,
+    x)``::
+
+        sorted(map_keep_reduce_use(divmod, lambda s: sum(s.values()), use,
+                                   [(i, (i, 2), (10 * i,)) for i in range(3)], c, "doc"))
+        # [(0, (0, 1, 0)), (1, (1, 1, 10)), (2, (0, 1, 20))]
+
+    >>> list(map_keep_reduce_use(divmod, sum, abs, [], None, "nothing"))   # no cluster
+    []
+    """
+    import pickle
+    import time
+
+    from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
+    from distributed import as_completed
+
+    jobs = list(jobs)
+    if not jobs:
+        return
+    if nthreads is None:
+        nthreads = client.nthreads()
+    # each job's tasks on one worker thread, the threads taken in turn
+    slots = [w for w, n in sorted(nthreads.items()) for _ in range(max(1, n))]
+    pid = os.getpid()
+    # a plain graph in layers, one of each stage per worker bound there
+    # (``allow_other_workers``): no collection machinery to build and optimise
+    tags = [job[0] for job in jobs]
+    keep_keys = [f"casflex-keep-{token}-{i}" for i in range(len(jobs))]
+    use_keys = [f"casflex-use-{token}-{i}" for i in range(len(jobs))]
+    reduce_key = f"casflex-reduce-{token}"
+    stage = {}  # (stage, worker) -> {key: task}
+    for i, (tag, keep_args, use_args) in enumerate(jobs):
+        worker = slots[i % len(slots)]
+        stage.setdefault(("keep", worker), {})[keep_keys[i]] = (
+            _keep_one, keep, pickle.dumps(keep_args, protocol=pickle.HIGHEST_PROTOCOL),
+            token, tag, pid)
+        stage.setdefault(("use", worker), {})[use_keys[i]] = (
+            _use_one, use, pickle.dumps(use_args, protocol=pickle.HIGHEST_PROTOCOL),
+            token, tag, pid, reduce_key)
+    # the tags inside a partial: a list in a task would be searched for keys
+    layers = {reduce_key: MaterializedLayer(
+        {reduce_key: (functools.partial(_reduce_summaries, reduce, tags), *keep_keys)})}
+    dependencies = {reduce_key: set()}
+    for (name, worker), tasks in stage.items():
+        layer = f"casflex-{name}-{token}-{worker}"
+        layers[layer] = MaterializedLayer(
+            tasks, annotations={"workers": [worker], "allow_other_workers": True})
+        dependencies[layer] = {reduce_key} if name == "use" else set()
+        if name == "keep":
+            dependencies[reduce_key].add(layer)
+    # the first stage's and the reduction's futures too, for the first bar and the
+    # stage times (their results are not gathered)
+    wanted = [*keep_keys, reduce_key, *use_keys]
+    futures = client.get(HighLevelGraph(layers, dependencies), wanted, sync=False)
+    first, last = futures[:len(jobs) + 1], futures[len(jobs) + 1:]
+    tag_of = {f.key: t for f, t in zip(last, tags, strict=True)}
+    first_keys = {f.key for f in first}
+    times = {} if stage_times is None else stage_times
+    left = len(jobs)
+    with progress_bar(len(jobs), descs[0], progress) as bar_keep, \
+            progress_bar(len(jobs), descs[1], progress) as bar_use:
+        try:
+            for batch in as_completed(futures).batches():
+                done_first = [f for f in batch if f.key in first_keys]
+                for f in done_first:
+                    if f.status == "error":
+                        f.result()  # raises the task's exception
+                    if f.key == reduce_key:
+                        times["reduce"] = time.perf_counter()
+                    else:
+                        left -= 1
+                        bar_keep.update(1)
+                if not left and "keep" not in times:
+                    times["keep"] = time.perf_counter()
+                finished = [f for f in batch if f.key not in first_keys]
+                if finished:
+                    for fut, packed in zip(finished, client.gather(finished), strict=True):
+                        bar_use.update(1)
+                        yield tag_of[fut.key], pickle.loads(packed)
+        finally:
+            pending = [f for f in futures if not f.done()]
+            if pending:
+                client.cancel(pending)
 
 
 def drop_kept(client: Client, token: str) -> None:

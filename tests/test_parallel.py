@@ -192,6 +192,61 @@ def test_kept_parts_stay_until_used_once_and_a_missing_part_is_none():
             "x": (None, 1)}
 
 
+def _where_split(x):
+    """For map_keep_reduce_use: summary -x; kept: x and the worker that made it."""
+    from distributed import get_worker
+
+    return -x, (x, get_worker().address)
+
+
+def _total(summaries):
+    return sum(summaries.values())
+
+
+def _use_where(kept, total, y):
+    from distributed import get_worker
+
+    return kept, total, y, get_worker().address
+
+
+def _fails_on_three_split(x):
+    if x == 3:
+        raise ValueError("three")
+    return -x, x
+
+
+def test_keep_reduce_use_runs_each_job_where_its_part_is_kept():
+    distributed = pytest.importorskip("distributed")
+    from casflex._parallel import map_keep_reduce_use, map_kept
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        jobs = [(f"t{i}", (i,), (10 * i,)) for i in range(5)]
+        times = {}
+        got = dict(map_keep_reduce_use(_where_split, _total, _use_where, jobs, client,
+                                       "tok", stage_times=times))
+        assert sorted(got) == sorted(tag for tag, _, _ in jobs)
+        workers = set()
+        for i in range(5):
+            (x, made_on), total, y, used_on = got[f"t{i}"]
+            assert (x, total, y) == (i, -sum(range(5)), 10 * i)
+            assert used_on == made_on  # the part was used where it was kept
+            workers.add(made_on)
+        assert len(workers) == 2  # the jobs went to both workers in turn
+        assert times["keep"] <= times["reduce"]
+        # each part is given up when used: asked again, it is gone
+        assert dict(map_kept(_use_kept, [("t0", (0,))], client, "tok", {})) == {
+            "t0": (None, 0)}
+        with pytest.raises(ValueError, match="three"):
+            list(map_keep_reduce_use(_fails_on_three_split, _total, _use_kept_last,
+                                     [(i, (i,), ()) for i in range(5)], client, "bad"))
+
+
+def _use_kept_last(kept, total):
+    return kept, total
+
+
 def test_the_benchmarks_dask_settings_are_keys_of_the_installed_distributed():
     """A misspelt or retired key in ``bench_tables.DASK_CONFIG`` would be set and ignored
     silently: every key must exist in distributed's own defaults, with a value of the

@@ -3,34 +3,36 @@
 :func:`casflex.modal.build_table` without a cache on a Dask cluster, for a grid of two or
 more shape joints. :func:`casflex.modal.track_grid`'s spanning tree is a comb: the base
 plane (every point whose last index is 0) is tracked first, then every line along the
-last axis from its base point, each line on its own. So here:
+last axis from its base point, each line on its own. So, as one graph
+(:func:`casflex._parallel.map_keep_reduce_use`):
 
 1. each task takes a block of whole lines (consecutive in the grid's C order), computes
-   the raw modes of their points and keeps them on its worker
-   (:func:`casflex._parallel.map_keep`); only the tracking data of the lines' base points
-   come to the client (one point per line);
-2. the client tracks the base plane (:func:`casflex.modal.track_grid_features` on it);
-3. each block goes back to the worker holding it with its base points' transforms
-   (:func:`casflex._parallel.map_kept`); the worker tracks its lines
-   (:func:`casflex.modal.track_path_features`), makes the tracked modes and the
-   quantities, and the edge correlations between neighbours it holds
-   (:func:`casflex.modal.tracked_unit_features`). Only the unit feature rows of lines
-   that meet a line of another block come to the client, for the edges between blocks.
+   the raw modes of their points and keeps them on its worker; only the tracking data of
+   the lines' base points (one point per line) leave it, for
+2. one task that tracks the base plane (:func:`casflex.modal.track_grid_features` on
+   it), whose result goes to
+3. each block's second task, on the worker holding the block: it tracks its lines from
+   their base transforms (:func:`casflex.modal.track_path_features`), makes the tracked
+   modes and the quantities, and the edge correlations between neighbours it holds
+   (:func:`casflex.modal.tracked_unit_features`). Only these results come to the client,
+   and the unit feature rows of lines that meet a line of another block, for the edges
+   between blocks.
 
 Every number is made by the same calls on the same inputs as :func:`track_grid` and the
 per-point quantities: the table is bit for bit the serial one. Per point, the client
 receives the quantities and a few numbers (transform, MAC, edges), not the 20–30 kB of
-MAC features; a build is two tasks per block, ``2 × blocks`` in all.
+MAC features; a build is two tasks per block and one more, submitted at once.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from casflex._parallel import map_keep, map_kept
+from casflex._parallel import map_keep_reduce_use
 from casflex.errors import ModelError
 from casflex.modal import tracking as trk
 
@@ -89,12 +91,19 @@ def line_blocks(n_lines: int, workers: int, per_worker: int | None = None,
 
 def _block_modes(point_kept, args):
     """Stage 1 of a block: every point's raw modes and tracking data, kept here; the
-    base points' tracking data (one per line) and every point's shift go back."""
+    base points' tracking data (one per line) go on to the base plane's tracking."""
     kept = [point_kept(*a) for a in args["points"]]
-    n_last = args["n_last"]
-    summary = {"base": [kept[i][0] for i in range(0, len(kept), n_last)],
-               "shifted": [bool(np.any(data["shift"] != 0.0)) for data, _ in kept]}
-    return summary, kept
+    return [kept[i][0] for i in range(0, len(kept), args["n_last"])], kept
+
+
+def _track_base(summaries, blocks, line_shape):
+    """Stage 2, one task: the base plane tracked from the blocks' base points."""
+    base = np.empty(line_shape, dtype=object)
+    flat = base.reshape(-1)  # a view: C order, as the lines are numbered
+    for b, data in summaries.items():
+        for line, point in zip(blocks[b], data, strict=True):
+            flat[int(line)] = point
+    return trk.track_grid_features(base)
 
 
 def _edge(u_prev, u_cur):
@@ -102,35 +111,43 @@ def _edge(u_prev, u_cur):
     return np.sum(u_prev * u_cur, axis=1)
 
 
-def _block_tables(kept, point_kept, tracked_point, args, base_transforms, send_unit):
+def _block_tables(kept, base, point_kept, tracked_point, args, send_unit):
     """Stage 3 of a block on the worker keeping its modes (recomputed where they are
-    gone): track its lines from their base transforms, the edges inside the block, the
-    tracked modes' quantities."""
+    gone): track its lines from their base transforms (``base``: the base plane's
+    :class:`casflex.modal.GridTracking`), the edges inside the block, the tracked modes'
+    quantities."""
     redone = kept is None
     if redone:
         kept = _block_modes(point_kept, args)[1]
     n_last, lines, strides = args["n_last"], args["lines"], args["line_strides"]
     n_points = len(kept)
+    ndim, m = len(strides) + 1, base.order.shape[-1]
     T = [None] * n_points
     mac = [None] * n_points
     degenerate = [None] * n_points
-    for j, base in enumerate(base_transforms):
+    # the base plane's results at this block's lines (the base plane's flat index of a
+    # point is its line's)
+    rows = np.asarray(lines, dtype=int)
+    base_T = base.transform.reshape(-1)[rows]
+    base_mac = base.mac.reshape(-1, m)[rows]
+    base_degenerate = base.degenerate.reshape(-1)[rows]
+    base_edges = base.edge_correlation.reshape(-1, ndim - 1, m)[rows]
+    edges = np.full((n_points, ndim, m), np.nan)  # NaN: no neighbour
+    for j in range(len(rows)):
         first = j * n_last
-        T[first] = base
+        T[first], mac[first], degenerate[first] = base_T[j], base_mac[j], base_degenerate[j]
+        edges[first, :ndim - 1] = base_edges[j]
         if n_last > 1:
             path = [kept[first + i][0] for i in range(1, n_last)]
-            tr = trk.track_path_features(path, base @ kept[first][0]["features"])
+            tr = trk.track_path_features(path, T[first] @ kept[first][0]["features"])
             for i in range(1, n_last):
                 T[first + i] = tr.transform[i - 1]
                 mac[first + i], degenerate[first + i] = tr.mac[i - 1], tr.degenerate[i - 1]
     unit = [trk.tracked_unit_features(t, data["features"])
             for t, (data, _) in zip(T, kept, strict=True)]
     position = {int(line): j for j, line in enumerate(lines)}
-    ndim, m = len(strides) + 1, T[0].shape[0]
     # the block's results stacked per field: a few arrays for the client to unpickle,
     # not a dict per point
-    edges = np.full((n_points, ndim, m), np.nan)
-    has_edge = np.zeros((n_points, ndim), dtype=bool)
     order = np.argmax(np.abs(np.array(T)), axis=2)
     sign = np.empty((n_points, m))
     values, features = [], {}
@@ -140,12 +157,11 @@ def _block_tables(kept, point_kept, tracked_point, args, base_transforms, send_u
         s[s == 0] = 1.0
         sign[p] = s
         if i > 0:  # along the last axis, inside the line; the others: across lines
-            edges[p, ndim - 1], has_edge[p, ndim - 1] = _edge(unit[p - 1], unit[p]), True
+            edges[p, ndim - 1] = _edge(unit[p - 1], unit[p])
             for axis, (stride, at_start) in enumerate(strides):
                 prev = position.get(int(lines[j]) - stride)
                 if not at_start[j] and prev is not None:
                     edges[p, axis] = _edge(unit[prev * n_last + i], unit[p])
-                    has_edge[p, axis] = True
         got, tracked, _ = tracked_point(
             arrays, args["func"], args["robot"], args["points"][p][1], t, order[p],
             args["n_modes"], args["boundary"][p], args["weighting"], None)
@@ -156,7 +172,8 @@ def _block_tables(kept, point_kept, tracked_point, args, base_transforms, send_u
     block = {"transform": np.array(T), "order": order, "sign": sign,
              "mac": np.array([blank if q is None else q for q in mac]),
              "degenerate": np.array([bool(d) for d in degenerate]), "edges": edges,
-             "has_edge": has_edge, "values": _stack_values(values),
+             "shifted": np.array([bool(np.any(data["shift"] != 0.0)) for data, _ in kept]),
+             "values": _stack_values(values),
              "omega": np.array([data["omega"][o][:args["n_modes"]]
                                 for (data, _), o in zip(kept, order, strict=True)]),
              "features": features}
@@ -240,13 +257,11 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
     >>> [b.tolist() for b in line_blocks(10, 2, per_worker=2)]
     [[0, 1, 2], [3, 4, 5], [6, 7], [8, 9]]
     """
-    import time
-
     n_last, ndim = gshape[-1], len(gshape)
     line_shape = gshape[:-1]
     n_lines = int(np.prod(line_shape))
-    workers = max(1, sum(client.nthreads().values()))
-    blocks = line_blocks(n_lines, workers, per_worker, n_last)
+    nthreads = client.nthreads()
+    blocks = line_blocks(n_lines, max(1, sum(nthreads.values())), per_worker, n_last)
     block_of = np.empty(n_lines, dtype=int)
     for b, lines in enumerate(blocks):
         block_of[lines] = b
@@ -267,20 +282,6 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
                                  for a, s in enumerate(line_strides)]}
 
     args = [block_args(lines) for lines in blocks]
-    base = np.empty(line_shape, dtype=object)
-    shifted = np.zeros(gshape, dtype=bool)
-    where = {}
-    for b, summary, worker in map_keep(
-            _block_modes, [(b, (point_kept, a)) for b, a in enumerate(args)], client,
-            token, progress=progress, desc="TMM (blocks of grid lines)", chunksize=1):
-        where[b] = worker
-        for j, (line, data) in enumerate(zip(blocks[b], summary["base"], strict=True)):
-            base[line_index[int(line)]] = data
-            shifted[line_index[int(line)]] = summary["shifted"][j * n_last:(j + 1) * n_last]
-    t_modes = time.perf_counter()
-    gb = trk.track_grid_features(base)
-    t_tracking = time.perf_counter()
-
     # lines whose neighbour along an axis but the last lies in another block: their
     # unit feature rows come here for the edges between blocks
     cross = []
@@ -290,55 +291,52 @@ def tabulate_by_lines(client: Client, token: str, gshape: tuple[int, ...],
                 cross.append((a, line - s, line))
     need = {line for _, prev, line in cross} | {prev for _, prev, _ in cross}
 
-    m, n_total = gb.order.shape[-1], int(np.prod(gshape))
-    # the grid's arrays, and flat views of them in C order: a block's points are one
-    # contiguous range
-    transform = np.empty(n_total, dtype=object)
-    order = np.empty((n_total, m), dtype=int)
-    sign = np.empty((n_total, m))
-    mac = np.full((n_total, m), np.nan)
-    degenerate = np.zeros(n_total, dtype=bool)
-    edge = np.full((n_total, ndim, m), np.nan)
-    omega = np.empty((n_total, int(n_modes)))
-    tracked = np.empty(n_total, dtype=object)
-    base_flat = np.arange(n_lines) * n_last
-    mac[base_flat] = gb.mac.reshape(n_lines, m)  # the base plane: tracked here
-    degenerate[base_flat] = gb.degenerate.reshape(n_lines)
-    edge[base_flat, :ndim - 1] = gb.edge_correlation.reshape(n_lines, ndim - 1, m)
-    values, units, redone = [None] * len(blocks), {}, False
-    jobs = [(b, (point_kept, tracked_point, a,
-                 [gb.transform[line_index[int(line)]] for line in a["lines"]],
-                 [int(line) in need for line in a["lines"]])) for b, a in enumerate(args)]
-    for b, (block, got_units, again) in map_kept(
-            _block_tables, jobs, client, token, where, progress=progress,
-            desc="quantities (blocks of grid lines)", chunksize=1):
+    results, units, redone, times = [None] * len(blocks), {}, False, {}
+    jobs = [(b, (point_kept, a), (point_kept, tracked_point, a,
+                                  [int(line) in need for line in a["lines"]]))
+            for b, a in enumerate(args)]
+    for b, (block, got_units, again) in map_keep_reduce_use(
+            _block_modes, functools.partial(_track_base, blocks=blocks,
+                                            line_shape=line_shape),
+            _block_tables, jobs, client, token, nthreads=nthreads, progress=progress,
+            descs=("TMM (blocks of grid lines)", "quantities (blocks of grid lines)"),
+            stage_times=times):
+        results[b] = block
         units.update(got_units)
         redone = redone or again
-        at = slice(int(blocks[b][0]) * n_last, (int(blocks[b][-1]) + 1) * n_last)
-        for k, t in enumerate(block["transform"]):
-            transform[at.start + k] = t
-        order[at], sign[at], omega[at] = block["order"], block["sign"], block["omega"]
-        rest = np.arange(at.start, at.stop) % n_last > 0  # the base plane's are set
-        mac[at][rest], degenerate[at][rest] = block["mac"][rest], block["degenerate"][rest]
-        edge[at][block["has_edge"]] = block["edges"][block["has_edge"]]
-        for p, features in block["features"].items():
-            tracked[at.start + p] = features
-        values[b] = block["values"]
+
+    # the blocks are consecutive ranges of the grid in C order: joined in block order,
+    # their rows are the grid's
+    def joined(field):
+        return np.concatenate([r[field] for r in results])
+
+    edge = joined("edges")
     for a, prev, line in cross:
         for i in range(1, n_last):
             edge[line * n_last + i, a] = _edge(units[prev][i], units[line][i])
     stacked = {}
-    for name in values[0]:
-        parts = [v.get(name) for v in values]
+    for name in results[0]["values"]:
+        parts = [r["values"].get(name) for r in results]
         if any(v is None or v.shape[1:] != parts[0].shape[1:] for v in parts):
             raise ModelError(f"quantity {name!r} changes shape across the grid")
         stacked[name] = np.concatenate(parts).reshape(gshape + parts[0].shape[1:])
+    transform = np.empty(int(np.prod(gshape)), dtype=object)
+    for k, t in enumerate(joined("transform")):
+        transform[k] = t
     transform = transform.reshape(gshape)
+    tracked = np.empty(transform.size, dtype=object)
+    start = 0
+    for r in results:
+        for p, features in r["features"].items():
+            tracked[start + p] = features
+        start += len(r["order"])
+    m = results[0]["order"].shape[1]
     result = trk.GridTracking(
-        transform=transform, order=order.reshape(gshape + (m,)),
-        sign=sign.reshape(gshape + (m,)), mac=mac.reshape(gshape + (m,)),
-        degenerate=degenerate.reshape(gshape), edge_correlation=edge.reshape(
-            gshape + (ndim, m)))
-    return {"tracking": result, "omega": omega.reshape(gshape + (int(n_modes),)),
-            "shifted": shifted, "values": stacked, "tracked": tracked.reshape(gshape),
-            "redone": redone, "modes_done": t_modes, "tracking_done": t_tracking}
+        transform=transform, order=joined("order").reshape(gshape + (m,)),
+        sign=joined("sign").reshape(gshape + (m,)), mac=joined("mac").reshape(gshape + (m,)),
+        degenerate=joined("degenerate").reshape(gshape),
+        edge_correlation=edge.reshape(gshape + (ndim, m)))
+    return {"tracking": result, "omega": joined("omega").reshape(gshape + (int(n_modes),)),
+            "shifted": joined("shifted").reshape(gshape), "values": stacked,
+            "tracked": tracked.reshape(gshape), "redone": redone,
+            "modes_done": times["keep"], "tracking_done": times["reduce"]}

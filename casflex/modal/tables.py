@@ -145,6 +145,10 @@ def _collinear(p1, a1, p2, a2, tol=1e-9):
     return np.linalg.norm(d - np.dot(d, a1) * a1) <= tol * max(1.0, np.linalg.norm(d))
 
 
+#: shape_joints' answers by (robot fingerprint, samples)
+_SHAPE_JOINTS: dict = {}
+
+
 def shape_joints(robot: Robot, samples: int = 3) -> tuple[int, ...]:
     """Indices (0-based) of the joints that change the shape of the structure.
 
@@ -180,6 +184,11 @@ def shape_joints(robot: Robot, samples: int = 3) -> tuple[int, ...]:
     """
     from casflex.tmm.chain import build_chain
 
+    # the answer depends on the links alone: kept per fingerprint (a table build asks
+    # for it every time, ~1 ms of a Dask build's client CPU)
+    key = (robot_fingerprint(robot), int(samples))
+    if key in _SHAPE_JOINTS:
+        return _SHAPE_JOINTS[key]
     rng = np.random.default_rng(12345)
     configs = [np.zeros(robot.n_joints)]
     configs += [rng.uniform(-math.pi, math.pi, robot.n_joints) for _ in range(samples)]
@@ -200,7 +209,10 @@ def shape_joints(robot: Robot, samples: int = 3) -> tuple[int, ...]:
                     continue
                 out.add(k)
                 break
-    return tuple(sorted(out))
+    if len(_SHAPE_JOINTS) >= 64:
+        _SHAPE_JOINTS.clear()
+    _SHAPE_JOINTS[key] = tuple(sorted(out))
+    return _SHAPE_JOINTS[key]
 
 
 # ------------------------------------------------------------------ per-point work

@@ -79,13 +79,17 @@ def _shape_quantities(robot, q, shapes, axis):
     return {"x": np.zeros(1 if q[axis] > 0 else 2)}
 
 
-def _drop_then_map_kept(real):
-    """map_kept after the kept raw modes were freed: every block must recompute them."""
-    def call(func, jobs, client, token, where, **kw):
-        from casflex._parallel import drop_kept
+def _keep_nothing(keep, *args):
+    summary, _ = keep(*args)
+    return summary, None
 
-        drop_kept(client, token)
-        return real(func, jobs, client, token, where, **kw)
+
+def _forgetting(real):
+    """map_keep_reduce_use whose kept raw modes are gone by the last stage (a worker
+    left): every block must recompute them."""
+    def call(keep, reduce, use, jobs, client, token, **kw):
+        return real(functools.partial(_keep_nothing, keep), reduce, use, jobs, client,
+                    token, **kw)
     return call
 
 
@@ -123,6 +127,7 @@ def test_tables_by_lines_equal_the_serial_build_bit_for_bit(testbed, monkeypatch
                 build_table(robot, grid, 2, cache_dir=False, client=client,
                             quantities=functools.partial(_shape_quantities, axis=axis))
         # raw modes gone from the workers (a worker left): recomputed, still identical
-        monkeypatch.setattr(gridlines, "map_kept", _drop_then_map_kept(gridlines.map_kept))
+        monkeypatch.setattr(gridlines, "map_keep_reduce_use",
+                            _forgetting(gridlines.map_keep_reduce_use))
         robot, grid, n = cases[0]
         _same_table(build_table(robot, grid, n, cache_dir=False, client=client), serial[0])
