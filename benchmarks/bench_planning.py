@@ -21,7 +21,7 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
     the process's CPU time of the two solves (the machine is shared: the CPU time is the
     figure that does not depend on the load);
 ``iterations`` / ``iterations_warm``, ``status`` / ``status_warm``, ``transcription``,
-``hessian``, ``dynamics``, ``residual_torque_driven``, ``residual_ocp``, ``robust``,
+``hessian`` / ``hessian_warm`` (exact or limited-memory, of each solve), ``dynamics``, ``residual_torque_driven``, ``residual_ocp``, ``robust``,
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
 ``ocp_fit``, ``ocp_modes``, ``trace`` / ``trace_warm`` (T and the constraint violation
@@ -33,7 +33,7 @@ at every Ipopt iterate of the cold and the warm solve), ``derivatives``, ``compi
 Usage::
 
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
-        [--transcription collocation|shooting] [--dynamics implicit|explicit]
+        [--warm-hessian exact|limited-memory] [--transcription collocation|shooting] [--dynamics implicit|explicit]
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
         [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop] [--restarts K]
@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--max-iter", type=int, default=500)
     parser.add_argument("--lbfgs", action="store_true",
                         help="limited-memory Hessian in Ipopt (default: exact)")
+    parser.add_argument("--warm-hessian", choices=("exact", "limited-memory"),
+                        default=None,
+                        help="Hessian of the warm solve (default: as the cold solve's)")
     parser.add_argument("--dynamics", choices=("implicit", "explicit"), default="implicit",
                         help="form of the collocated dynamics (default implicit)")
     parser.add_argument("--move", default="move1", help="move of problems/moves.toml")
@@ -159,9 +162,12 @@ def main(argv: list[str] | None = None) -> dict:
     plan, s = c.plan, c.summary()
     end = plan.stats["end"]
     # a neighbouring problem: the end bound 5 % tighter, warm-started from the plan
+    kw_warm = dict(kw)
+    if args.warm_hessian is not None:
+        kw_warm["ipopt_options"] = {**options, "hessian_approximation": args.warm_hessian}
     warm = plan_move(c.ocp_model or c.model, move, end=0.95 * end, guess=plan, robust=args.robust,
                      torque_limit=c.limits["torque"], velocity_limit=c.limits["velocity"],
-                     **kw)
+                     **kw_warm)
     passes = plan.stats.get("passes")
     out = {"solve_s": plan.stats["solve_s_total"] if passes else plan.stats["solve_s"],
            "solve_warm_s": warm.stats["solve_s"],
@@ -180,7 +186,7 @@ def main(argv: list[str] | None = None) -> dict:
            "shaped_torque_peak": s["shaped"]["torque_peak"], "limits": s["limits"],
            "duration_warm": warm.duration, "transcription": args.transcription,
            "dynamics": args.dynamics, "move": args.move,
-           "hessian": "limited-memory" if args.lbfgs else "exact",
+           "hessian": plan.stats["hessian"], "hessian_warm": warm.stats["hessian"],
            "iterations": plan.stats["iterations_total"] if passes
            else plan.stats["iterations"],
            "iterations_warm": warm.stats["iterations"], "status": plan.stats["status"],

@@ -122,6 +122,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the NLP solver: ipopt (MUMPS, the default) or fatrop (Riccati "
                         "over the stages; collocation with implicit dynamics, derivatives "
                         "casadi)")
+    parser.add_argument("--hessian", choices=("exact", "limited-memory"), default="exact",
+                        help="second derivatives of the Ipopt solves: exact (default) or "
+                        "limited-memory (Ipopt's quasi-Newton L-BFGS: no Hessian to build or "
+                        "compile)")
     parser.add_argument("--end", default=None, metavar="rest|free|TOL",
                         help="end condition of the modes: at rest, free, or a residual tip "
                         "deflection bound in m (default the shaped move's residual)")
@@ -304,6 +308,10 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     guess = getattr(args, "guess", None)
     if guess is not None:
         options["guess"] = _saved_plan(guess, move)
+    hessian = choice(getattr(args, "hessian", "exact"), "--hessian",
+                     ("exact", "limited-memory"))
+    if hessian != "exact":
+        options["ipopt_options"] = {"hessian_approximation": hessian}
     try:
         comparison = plan_robot_move(
             robot, move, modes, objective=objective, duration=duration, robust=robust,

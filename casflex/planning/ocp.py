@@ -380,7 +380,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     max_iter : int
         Ipopt iteration limit.
     ipopt_options : dict, optional
-        Extra Ipopt options (``{"tol": 1e-8}``...).
+        Extra Ipopt options (``{"tol": 1e-8}``...). With ``{"hessian_approximation":
+        "limited-memory"}`` (quasi-Newton: no second derivatives, no inertia
+        correction) the block derivatives build and compile no Hessian.
     settle : float, optional
         ``settle`` of the result [s] (default the move's, or 3).
     name : str, optional
@@ -812,7 +814,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
                                         [0, 1], block_rows, [defect_scale, torque_scale], N,
                                         compile_function=compile_function,
-                                        hessian=derivatives != "blocks-jacobian",
+                                        hessian=derivatives != "blocks-jacobian"
+                                        and options.get("hessian_approximation")
+                                        != "limited-memory",
                                         point=split if derivatives == "points" else None))
         if derivatives == "points" and compile_function:  # g has no derivatives of its own
             plugin.update(no_nlp_grad=True)
@@ -916,6 +920,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
         "derivatives": derivatives, "solver": solver,
+        "hessian": "limited-memory" if options.get("hessian_approximation")
+        == "limited-memory" else "exact",
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None

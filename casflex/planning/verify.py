@@ -340,6 +340,7 @@ class PlanComparison:
             "solve_s": p.stats.get("continuation_solve_s", p.stats.get(
                 "solve_s_total", p.stats.get("solve_s"))),
             "status": p.stats.get("status"),
+            "hessian": p.stats.get("hessian"),
             "iterations": p.stats.get("continuation_iterations", p.stats.get(
                 "iterations_total", p.stats.get("iterations"))),
             "passes": p.stats.get("passes"),

@@ -177,6 +177,33 @@ def test_compiled_point_derivatives_give_casadi_s_plan(onelink, tmp_path):
     np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
 
 
+def test_a_limited_memory_hessian_compiles_no_hessian_and_finds_the_same_plan(onelink,
+                                                                              tmp_path):
+    # Ipopt's quasi-Newton Hessian (casflex plan --hessian limited-memory): only the
+    # point function and its Jacobian are compiled, and the plan is the exact-Hessian
+    # one (measured 5e-11 apart in T: 28 iterations against 16)
+    from casflex.codegen import compile_cached
+
+    built = []
+
+    def compile_points(functions):
+        lib, info = compile_cached(functions, "plan_points", cache_dir=tmp_path,
+                                   flags=("-O0",))
+        built.append(sorted(lib))
+        return [lib[f.name()] for f in functions]
+
+    move = Move([0.0], [1.0], 2.0, settle=1.0)
+    common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, "end": 2e-3,
+              "derivatives": "points"}
+    exact = plan_move(onelink, move, **common)
+    quasi = plan_move(onelink, move, compile_function=compile_points,
+                      ipopt_options={"hessian_approximation": "limited-memory"}, **common)
+    assert built == [["implicit_point"], ["implicit_point_jac"]]
+    assert not quasi.stats["timings"].get("n_call_nlp_hess_l")
+    assert quasi.stats["status"] == exact.stats["status"] == "Solve_Succeeded"
+    assert quasi.duration == pytest.approx(exact.duration, rel=1e-8)
+
+
 def test_point_compiler_quick_now_optimised_in_the_background(onelink, tmp_path):
     # casflex plan's and the design job's compile_function: the quick build at once, the
     # optimised one from a detached process, used by the next NLP that compiles; the

@@ -169,6 +169,26 @@ def test_plan_cli_bad_guess_exits_2(tmp_path, capsys):
     assert "--guess" in err and "goal [0.5] rad is not the move's [1.0] rad" in err
 
 
+def test_plan_cli_limited_memory_hessian(tmp_path, capsys):
+    # --hessian limited-memory: Ipopt's quasi-Newton Hessian, the same plan as the exact
+    # one's to Ipopt's tolerance on the one-link arm, and named in the JSON
+    moves = tmp_path / "moves.toml"
+    moves.write_text(ONELINK_MOVE)
+    common = ["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
+              "--end", "2e-3", "--json", "--dt", "1e-3", "--restarts", "0"]
+    got = {}
+    for hessian in ("exact", "limited-memory"):
+        assert main([*common, "--hessian", hessian]) == 0
+        got[hessian] = json.loads(capsys.readouterr().out)
+        assert got[hessian]["hessian"] == hessian
+    assert got["limited-memory"]["duration"] == pytest.approx(got["exact"]["duration"],
+                                                              rel=1e-6)
+    with pytest.raises(SystemExit) as exit_:  # argparse's choices: usage and exit 2
+        main([*common, "--hessian", "bfgs"])
+    assert exit_.value.code == 2
+    assert "--hessian" in capsys.readouterr().err
+
+
 def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
     moves = tmp_path / "moves.toml"
     moves.write_text(MOVE)
