@@ -151,19 +151,24 @@ def test_plans_with_block_derivatives_equal_casadi_s(onelink, kw):
         np.testing.assert_allclose(b.node_tau, a.node_tau, atol=1e-5 * 0.05)
 
 
+def _recording_compiler(cache_dir, built):
+    """A compile_function building at -O0 in ``cache_dir`` that records the names of the
+    functions of every library it builds in ``built``."""
+    from casflex.codegen import compile_cached
+
+    def compile_points(functions):
+        lib, _ = compile_cached(functions, "plan_points", cache_dir=cache_dir,
+                                flags=("-O0",))
+        built.append(sorted(lib))
+        return [lib[f.name()] for f in functions]
+    return compile_points
+
+
 def test_compiled_point_derivatives_give_casadi_s_plan(onelink, tmp_path):
     # the point function's Jacobian and Hessian compiled to C (as casflex plan
     # --derivatives points and benchmarks/bench_planning.py --compile do)
-    from casflex.codegen import compile_cached
-
     built = []
-
-    def compile_points(functions):
-        lib, info = compile_cached(functions, "plan_points", cache_dir=tmp_path,
-                                   flags=("-O0",))
-        built.append(sorted(lib))
-        return [lib[f.name()] for f in functions]
-
+    compile_points = _recording_compiler(tmp_path, built)
     move = Move([0.0], [1.0], 2.0, settle=1.0)
     common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, "end": 2e-3}
     a = plan_move(onelink, move, **common)
@@ -182,16 +187,8 @@ def test_a_limited_memory_hessian_compiles_no_hessian_and_finds_the_same_plan(on
     # Ipopt's quasi-Newton Hessian (casflex plan --hessian limited-memory): only the
     # point function and its Jacobian are compiled, and the plan is the exact-Hessian
     # one (measured 5e-11 apart in T: 28 iterations against 16)
-    from casflex.codegen import compile_cached
-
     built = []
-
-    def compile_points(functions):
-        lib, info = compile_cached(functions, "plan_points", cache_dir=tmp_path,
-                                   flags=("-O0",))
-        built.append(sorted(lib))
-        return [lib[f.name()] for f in functions]
-
+    compile_points = _recording_compiler(tmp_path, built)
     move = Move([0.0], [1.0], 2.0, settle=1.0)
     common = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24, "end": 2e-3,
               "derivatives": "points"}
