@@ -627,15 +627,16 @@ def map_kept(func: Callable, jobs: Iterable, client: Client, token: str,
             yield from zip(by_key[fut.key], results, strict=True)
 
 
-def _keep_one(func, packed_args, token, tag, client_pid):
+def _keep_one(func, packed_job, token, client_pid):
     """Worker side of :func:`map_keep_reduce_use`'s first stage: ``func(*args) ->
-    (summary, kept)``; the kept part stays in this process, the summary is the task's
-    result (for the reduction, on whichever worker runs it)."""
+    (summary, kept)`` of the pickled ``(tag, args)``; the kept part stays in this process,
+    the summary is the task's result (for the reduction, on whichever worker runs it)."""
     import pickle
 
     if os.getpid() != client_pid:
         single_threaded_blas()
-    summary, kept = func(*pickle.loads(packed_args))
+    tag, args = pickle.loads(packed_job)
+    summary, kept = func(*args)
     with _KEPT_LOCK:
         _KEPT.setdefault(token, {})[tag] = kept
         _KEPT.move_to_end(token)
@@ -649,21 +650,21 @@ def _reduce_summaries(func, tags, *summaries):
     return func(dict(zip(tags, summaries, strict=True)))
 
 
-def _use_one(func, packed_args, token, tag, client_pid, reduced):
+def _use_one(func, packed_job, token, client_pid, reduced):
     """Worker side of :func:`map_keep_reduce_use`'s last stage: ``func(kept, reduced,
-    *args)``, the kept part taken out of this worker's store (None when it is not here);
-    the result pickled into one buffer."""
+    *args)`` of the pickled ``(tag, args)``, the kept part taken out of this worker's store
+    (None when it is not here); the result pickled into one buffer."""
     import pickle
 
     if os.getpid() != client_pid:
         single_threaded_blas()
+    tag, args = pickle.loads(packed_job)
     with _KEPT_LOCK:
         store = _KEPT.get(token, {})
         kept = store.pop(tag, None)
         if not store:
             _KEPT.pop(token, None)
-    return pickle.dumps(func(kept, reduced, *pickle.loads(packed_args)),
-                        protocol=pickle.HIGHEST_PROTOCOL)
+    return pickle.dumps(func(kept, reduced, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def map_keep_reduce_use(keep: Callable, reduce: Callable, use: Callable, jobs: Iterable,
@@ -678,9 +679,9 @@ def map_keep_reduce_use(keep: Callable, reduce: Callable, use: Callable, jobs: I
     The client submits the graph once and gathers only the last stage's results: the
     summaries go from worker to worker to the reduction's task, ``reduced`` from there
     to the last stage's, and the client neither waits between the stages nor unpickles
-    the summaries (a table build by grid lines: two round trips and a third of the
-    client's CPU less, ``benchmarks/README_tables.md``). Each job's two tasks are bound
-    to one worker (``allow_other_workers``: where that worker has left, they run
+    the summaries (a table build by grid lines: two round trips and about a quarter of
+    the client's CPU less, ``benchmarks/README_tables.md``). Each job's two tasks are
+    bound to one worker (``allow_other_workers``: where that worker has left, they run
     elsewhere and ``use`` gets ``kept = None``, so it must be able to recompute it).
 
     Parameters
@@ -747,15 +748,17 @@ def map_keep_reduce_use(keep: Callable, reduce: Callable, use: Callable, jobs: I
     use_keys = [f"casflex-use-{token}-{i}" for i in range(len(jobs))]
     reduce_key = f"casflex-reduce-{token}"
     stage = {}  # (stage, worker) -> {key: task}
+
+    def packed(tag, args):  # tags and arguments inside bytes: not searched for keys
+        return pickle.dumps((tag, args), protocol=pickle.HIGHEST_PROTOCOL)
+
     for i, (tag, keep_args, use_args) in enumerate(jobs):
         worker = slots[i % len(slots)]
         stage.setdefault(("keep", worker), {})[keep_keys[i]] = (
-            _keep_one, keep, pickle.dumps(keep_args, protocol=pickle.HIGHEST_PROTOCOL),
-            token, tag, pid)
+            _keep_one, keep, packed(tag, keep_args), token, pid)
         stage.setdefault(("use", worker), {})[use_keys[i]] = (
-            _use_one, use, pickle.dumps(use_args, protocol=pickle.HIGHEST_PROTOCOL),
-            token, tag, pid, reduce_key)
-    # the tags inside a partial: a list in a task would be searched for keys
+            _use_one, use, packed(tag, use_args), token, pid, reduce_key)
+    # the tags inside a partial, for the same reason
     layers = {reduce_key: MaterializedLayer(
         {reduce_key: (functools.partial(_reduce_summaries, reduce, tags), *keep_keys)})}
     dependencies = {reduce_key: set()}
