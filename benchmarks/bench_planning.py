@@ -21,7 +21,8 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
     the process's CPU time of the two solves (the machine is shared: the CPU time is the
     figure that does not depend on the load);
 ``iterations`` / ``iterations_warm``, ``status`` / ``status_warm``, ``transcription``,
-``hessian`` / ``hessian_warm`` (exact or limited-memory, of each solve), ``dynamics``, ``residual_torque_driven``, ``residual_ocp``, ``robust``,
+``hessian`` / ``hessian_warm`` (exact or limited-memory, of each solve), ``dynamics``,
+``residual_torque_driven``, ``residual_ocp``, ``robust``,
 ``shortening``, ``run_cpu_s`` (model, shaper, plan and verification), ``max_rss_mb``,
 ``load``, ``dt`` (of the verification; 0.1 ms by default), ``progress_stop``,
 ``ocp_fit``, ``ocp_modes``, ``trace`` / ``trace_warm`` (T and the constraint violation
@@ -33,7 +34,8 @@ at every Ipopt iterate of the cold and the warm solve), ``derivatives``, ``compi
 Usage::
 
     python benchmarks/bench_planning.py [--json] [--intervals N] [--lbfgs]
-        [--warm-hessian exact|limited-memory] [--transcription collocation|shooting] [--dynamics implicit|explicit]
+        [--warm-hessian exact|limited-memory] [--transcription collocation|shooting]
+        [--dynamics implicit|explicit]
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
         [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop] [--restarts K]
