@@ -453,6 +453,25 @@ _KEPT_TOKENS = 4
 _KEPT_LOCK = threading.Lock()
 
 
+def _store_kept(token, tag, kept):
+    """Keep ``kept`` in this process under ``(token, tag)`` (the oldest tokens go)."""
+    with _KEPT_LOCK:
+        _KEPT.setdefault(token, {})[tag] = kept
+        _KEPT.move_to_end(token)
+        while len(_KEPT) > _KEPT_TOKENS:
+            _KEPT.popitem(last=False)
+
+
+def _take_kept(token, tag):
+    """The part kept under ``(token, tag)``, taken out of the store (None if absent)."""
+    with _KEPT_LOCK:
+        store = _KEPT.get(token, {})
+        kept = store.pop(tag, None)
+        if not store:
+            _KEPT.pop(token, None)
+    return kept
+
+
 def _keep_chunk(func, packed_jobs, token, client_pid):
     """Worker side of :func:`map_keep`: ``func(*args) -> (summary, kept)`` per pickled
     ``(tag, args)``; the kept parts stay here, the summaries and this worker's address go
@@ -466,11 +485,7 @@ def _keep_chunk(func, packed_jobs, token, client_pid):
     summaries = []
     for tag, args in pickle.loads(packed_jobs):
         summary, kept = func(*args)
-        with _KEPT_LOCK:
-            _KEPT.setdefault(token, {})[tag] = kept
-            _KEPT.move_to_end(token)
-            while len(_KEPT) > _KEPT_TOKENS:
-                _KEPT.popitem(last=False)
+        _store_kept(token, tag, kept)
         summaries.append(summary)
     return get_worker().address, pickle.dumps(summaries, protocol=pickle.HIGHEST_PROTOCOL)
 
@@ -484,12 +499,7 @@ def _on_kept_chunk(func, packed_jobs, token, client_pid):
         single_threaded_blas()
     results = []
     for tag, args in pickle.loads(packed_jobs):
-        with _KEPT_LOCK:
-            store = _KEPT.get(token, {})
-            kept = store.pop(tag, None)
-            if not store:
-                _KEPT.pop(token, None)
-        results.append(func(kept, *args))
+        results.append(func(_take_kept(token, tag), *args))
     return pickle.dumps(results, protocol=pickle.HIGHEST_PROTOCOL)
 
 
@@ -637,11 +647,7 @@ def _keep_one(func, packed_job, token, client_pid):
         single_threaded_blas()
     tag, args = pickle.loads(packed_job)
     summary, kept = func(*args)
-    with _KEPT_LOCK:
-        _KEPT.setdefault(token, {})[tag] = kept
-        _KEPT.move_to_end(token)
-        while len(_KEPT) > _KEPT_TOKENS:
-            _KEPT.popitem(last=False)
+    _store_kept(token, tag, kept)
     return summary
 
 
@@ -659,12 +665,8 @@ def _use_one(func, packed_job, token, client_pid, reduced):
     if os.getpid() != client_pid:
         single_threaded_blas()
     tag, args = pickle.loads(packed_job)
-    with _KEPT_LOCK:
-        store = _KEPT.get(token, {})
-        kept = store.pop(tag, None)
-        if not store:
-            _KEPT.pop(token, None)
-    return pickle.dumps(func(kept, reduced, *args), protocol=pickle.HIGHEST_PROTOCOL)
+    return pickle.dumps(func(_take_kept(token, tag), reduced, *args),
+                        protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def map_keep_reduce_use(keep: Callable, reduce: Callable, use: Callable, jobs: Iterable,
