@@ -168,9 +168,7 @@ def _block_tables(kept, base, point_kept, tracked_point, args, send_unit):
         values.append(got)
         if tracked is not None:
             features[p] = tracked
-    blank = np.full(m, np.nan)
-    block = {"transform": np.array(T), "order": order, "sign": sign,
-             "mac": np.array([blank if q is None else q for q in mac]),
+    block = {"transform": np.array(T), "order": order, "sign": sign, "mac": np.array(mac),
              "degenerate": np.array([bool(d) for d in degenerate]), "edges": edges,
              "shifted": np.array([bool(np.any(data["shift"] != 0.0)) for data, _ in kept]),
              "values": _stack_values(values),

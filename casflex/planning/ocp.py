@@ -783,6 +783,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.set_initial(opti.lam_g, duals["lam_g"])
         options.update(WARM_START_OPTIONS)
     options.update(ipopt_options or {})
+    hessian = ("limited-memory" if options.get("hessian_approximation") == "limited-memory"
+               else "exact")
     # from a neighbouring solution's iterate and multipliers the start is near the
     # optimum: the objective need not leave it before the rule may stop, and it settles
     # within a few Newton steps (ProgressStop.near_solution)
@@ -815,8 +817,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                         [0, 1], block_rows, [defect_scale, torque_scale], N,
                                         compile_function=compile_function,
                                         hessian=derivatives != "blocks-jacobian"
-                                        and options.get("hessian_approximation")
-                                        != "limited-memory",
+                                        and hessian == "exact",
                                         point=split if derivatives == "points" else None))
         if derivatives == "points" and compile_function:  # g has no derivatives of its own
             plugin.update(no_nlp_grad=True)
@@ -920,8 +921,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "transcription": transcription, "degree": degree if tc.size else None,
         "dynamics": dynamics if tc.size else None,
         "derivatives": derivatives, "solver": solver,
-        "hessian": "limited-memory" if options.get("hessian_approximation")
-        == "limited-memory" else "exact",
+        "hessian": hessian,
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
