@@ -33,13 +33,11 @@ True
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import casadi as ca
 
 from casflex.errors import ModelError
 
-__all__ = ["segmented", "pieces", "replay"]
+__all__ = ["segmented", "pieces"]
 
 #: default length of a piece [instructions]: gcc -O2 compiles pieces of this size at a
 #: near-constant time per line (benchmarks/README_codegen.md, issue 17)
@@ -159,59 +157,8 @@ def segmented(f: ca.Function, max_instructions: int = MAX_INSTRUCTIONS) -> ca.Fu
     return ca.Function(f.name(), mx_in, outputs, f.name_in(), f.name_out())
 
 
-def replay(f: ca.Function, inputs: list[ca.SX],
-           call: Callable[[ca.Function, list[ca.SX]], list[ca.SX]] | None = None
-           ) -> list[ca.SX]:
-    """The outputs of the SX function ``f`` at ``inputs``, its algorithm replayed
-    instruction by instruction (the same operations in the same order), each call node
-    through ``call`` when given.
-
-    Parameters
-    ----------
-    f : casadi.Function
-        An SX function.
-    inputs : list of casadi.SX
-        One per input of ``f``, of its sparsity.
-    call : callable, optional
-        ``call(function, args) -> outputs`` for every call node of ``f`` (``args`` and
-        ``outputs`` one SX each per port of ``function``, of its sparsities); default: a
-        call node of the same function, as in ``f``.
-
-    Returns
-    -------
-    list of casadi.SX
-        ``f``'s outputs.
-
-    Examples
-    --------
-    >>> x = ca.SX.sym("x", 2)
-    >>> g = ca.Function("g", [x], [x * x], {"never_inline": True})
-    >>> f = ca.Function("f", [x], [ca.sin(g(x)) + x])
-    >>> z = ca.SX.sym("z", 2)
-    >>> h = ca.Function("h", [z], replay(f, [z], lambda fn, args: [ca.exp(args[0])]))
-    >>> import numpy as np
-    >>> got = h([0.1, 0.2]).full().ravel()   # g replaced by exp
-    >>> bool(np.allclose(got, np.sin(np.exp([0.1, 0.2])) + [0.1, 0.2]))
-    True
-    """
-    n = f.n_instructions()
-    nodes = f.instructions_sx()
-    calls = {k: nodes[k].which_function() for k in range(n)
-             if f.instruction_id(k) == ca.OP_CALL}
-    work, produced = {}, []
-    for k in range(n):
-        _replay(f.instruction_id(k), f.instruction_input(k), f.instruction_output(k), k, f,
-                calls, inputs, work, produced, call)
-    outs = [[ca.SX(0)] * f.nnz_out(i) for i in range(f.n_out())]
-    for i, nz, v in produced:
-        outs[i][nz] = v
-    return [ca.SX(f.sparsity_out(i), ca.vertcat(*outs[i]) if outs[i] else ca.SX(0, 1))
-            for i in range(f.n_out())]
-
-
-def _replay(op, src, dst, k, f, calls, sx_in, work, produced, call=None):
-    """Instruction ``k`` of ``f`` on the values in ``work`` (slot -> SX scalar); a call
-    node through ``call(function, args)`` when given (:func:`replay`)."""
+def _replay(op, src, dst, k, f, calls, sx_in, work, produced):
+    """Instruction ``k`` of ``f`` on the values in ``work`` (slot -> SX scalar)."""
     if op == ca.OP_INPUT:
         work[dst[0]] = sx_in[src[0]].nz[src[1]]
     elif op == ca.OP_CONST:
@@ -226,8 +173,7 @@ def _replay(op, src, dst, k, f, calls, sx_in, work, produced, call=None):
             args.append(ca.SX(fn.sparsity_in(i), ca.vertcat(*[work[s] for s in
                                                               src[at:at + nnz]])))
             at += nnz
-        # a call node, as in f (never inlined), unless the caller replaces it
-        res = fn.call(args, False, True) if call is None else call(fn, args)
+        res = fn.call(args, False, True)  # a call node, as in f (never inlined)
         flat = [v for o in res for v in (o.nz[j] for j in range(o.nnz()))]
         for s, v in zip(dst, flat, strict=True):
             if s >= 0:

@@ -29,8 +29,6 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from casflex.planning.table_taylor import taylor_tables
-
 __all__ = ["block_derivatives", "PointSplit", "point_split", "point_values"]
 
 
@@ -386,16 +384,13 @@ def _interval_entries(G, outputs, hessian, compile_function):
             _entries(Hsp, lambda Z, mu, n: hess_f.map(n)(Z, mu)))
 
 
-def _derivative_functions(name, z, y, hessian, compile_function, bind=None):
+def _derivative_functions(name, z, y, hessian, compile_function):
     """Sparsities of ``∂y/∂z`` and of the upper triangle of ``∂²(μᵀy)/∂z²``, and the SX
     functions of their nonzeros, ``name_jac(z)`` and ``name_hess(z, μ)`` (compiled by
-    ``compile_function`` when given). ``bind(expr)``: the derivatives with ``y``'s other
-    symbols bound (:meth:`casflex.planning.table_taylor.TaylorTables.bind`)."""
+    ``compile_function`` when given)."""
     mu = ca.SX.sym("mu", y.shape[0])
     Jz = ca.jacobian(y, z)
     Hz = ca.triu(ca.hessian(ca.dot(mu, y), z)[0]) if hessian else ca.SX(z.shape[0], z.shape[0])
-    if bind is not None:
-        Jz, Hz = bind(Jz), bind(Hz)
     jac_f = ca.Function(f"{name}_jac", [z], [ca.vertcat(*Jz.nonzeros())])
     hess_f = ca.Function(f"{name}_hess", [z, mu], [ca.vertcat(*Hz.nonzeros())])
     if compile_function is not None:
@@ -418,18 +413,8 @@ def _point_entries(point, hessian, compile_function):
     K, nw = point.inputs.shape
     nyp = point.rows.shape[1]
     w = ca.SX.sym("w", nw)
-    # the tables as Taylor polynomials: no differentiation through their lookups
-    tables = taylor_tables(phi)
-    if tables is None:
-        y, bind = phi(w), None
-    else:
-        c, P = ca.SX.sym("c"), ca.SX.sym("P", tables.lookup.nnz_out(0))
-        y = tables.function.call([w, c, P])[0]
-
-        def bind(expr):
-            return tables.bind(expr, c, P, w)
-    Jsp, Hsp, jac_f, hess_f = _derivative_functions(phi.name(), w, y, hessian,
-                                                    compile_function, bind)
+    Jsp, Hsp, jac_f, hess_f = _derivative_functions(phi.name(), w, phi(w), hessian,
+                                                    compile_function)
     take = point.inputs.ravel().tolist()
     take_mu = point.rows.ravel().tolist()
 
