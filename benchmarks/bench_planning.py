@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import resource
 import sys
@@ -156,7 +155,9 @@ def main(argv: list[str] | None = None) -> dict:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     # what `casflex plan` runs: the model (study's options), the SI-shaped move, its
     # limits (held joints: no torque limit), the plan, the 1 ms verification
-    c = plan_robot_move(study.robot, move, 3, step=math.radians(study.model["grid_step"]),
+    # load_study gives the grid step in rad (before session 25 it was converted again:
+    # the bench ran on a 0.052° grid, 57 times finer than the study's 3°)
+    c = plan_robot_move(study.robot, move, 3, step=study.model["grid_step"],
                         delta_order=study.model["delta_order"], processes=1,
                         robust=args.robust, dt=args.dt, ocp_fit=args.ocp_fit,
                         ocp_modes=args.ocp_modes, restarts=args.restarts, **kw)
@@ -196,7 +197,8 @@ def main(argv: list[str] | None = None) -> dict:
            "status_warm": warm.stats["status"],
            "run_cpu_s": (after.ru_utime + after.ru_stime) - (usage.ru_utime + usage.ru_stime),
            "max_rss_mb": after.ru_maxrss / 1024.0, "load": os.getloadavg()[0],
-           "dt": args.dt, "progress_stop": not args.no_progress_stop,
+           "dt": args.dt, "grid_step_rad": study.model["grid_step"],
+           "progress_stop": not args.no_progress_stop,
            "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3,
            "derivatives": args.derivatives, "compiled": compiled or None,
            "solver": args.solver,

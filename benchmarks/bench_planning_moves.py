@@ -259,7 +259,9 @@ def run_move(name, args, study, out_path, robust_moves):
         first, restarts = {"guess": PlannedMove.load(saved)}, 0
         log(f"{name}: the nominal plan of {saved} as the guess (no restarts)")
     c0 = time.process_time()
-    c = plan_robot_move(study.robot, move, args.modes, step=math.radians(study.model["grid_step"]),
+    # the grid step of load_study is in rad already (sessions before 25 converted it again:
+    # the stored plans are of a 0.052° grid, 57 times finer than the study's 3°)
+    c = plan_robot_move(study.robot, move, args.modes, step=study.model["grid_step"],
                         delta_order=study.model["delta_order"], processes=1, dt=args.dt,
                         vtol=study.shaper["vtol"], margin=study.shaper["margin"],
                         max_iter=args.max_iter, log=log, restarts=restarts, **options,
