@@ -175,7 +175,7 @@ def test_measurement_jacobian_equals_central_differences(small, arm_model, accel
                                                          where):
     """The step's ``H`` (read off its update) against central differences of the
     kinematic measurement: at a deflected state and a moving arm, for the pointwise
-    model's step (its measurement differentiated with its own lookups) and the table
+    model's step (no table: the measurement is differentiated as it is) and the table
     model's default step (the measurement's entries and the plant's table from one
     shared lookup, ``jacobians="first_order"`` on a second-order plant: the bench's).
     1e-7 of the largest entry: measured 1e-12 (pointwise) and 1.5e-10 (table: the
