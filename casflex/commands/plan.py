@@ -2,7 +2,7 @@
 
 ``casflex plan ROBOT.toml --move FILE:NAME [--objective time|energy] [--duration T]
 [--robust R [--robust-steps K]] [--modes N] [--intervals N] [--transcription collocation|shooting]
-[--end rest|free|TOL] [--dt S] [--guess PLAN.npz] [--out DIR]
+[--end rest|free|TOL] [--dt S] [--guess PLAN.npz] [--fallback-guess rigid|none] [--out DIR]
 [--plot FILE.png] [--json]``
 
 runs :func:`casflex.planning.plan_robot_move`: the gravity-free modal model of the robot
@@ -19,6 +19,10 @@ torque-driven simulator.
 (by default each scenario's bound is the shaped move's residual at that frequency error),
 and evaluates both moves there; the robust plan is reached from the nominal plan through
 ``--robust-steps`` problems (4 by default: ``casflex.planning.solve_by_continuation``).
+A minimum-time plan from the shaped move that is not 10 % shorter than it (a solve that
+stalled near its start; Ipopt's path here hinges on the last digits) is solved again from
+the rigid bang-bang move, and the shorter plan kept (``--fallback-guess none``: one
+start; :func:`casflex.planning.solve_with_fallback`).
 ``--guess PLAN.npz`` starts from a plan an earlier run wrote (``--out``): a warm start
 from its iterate and multipliers, and with ``--robust`` the continuation starts there
 instead of solving the nominal problem again (the nominal plan of move 1 of the design
@@ -32,7 +36,8 @@ JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_pe
 ``limit_excess`` (per joint, how far the verified torque and velocity peaks pass the
 limits between the OCP's points, relative), ``end_bound_excess`` (how far the verified
 residual passes the end bound, relative),
-``solve_s``, ``status``, ``iterations``, ``intervals``, ``substeps``, ``objective``,
+``solve_s`` and ``iterations`` (over the restarts and starts), ``passes``, ``starts``
+(each start's, when the second was needed), ``status``, ``intervals``, ``substeps``, ``objective``,
 ``timings``. ``--out DIR`` writes ``trajectory.csv`` (t, q, q̇, q̈, τ), ``plan.npz``
 (the whole plan, :meth:`casflex.planning.PlannedMove.save`, for ``--guess``) and
 ``plan.png``; ``--plot FILE.png`` the same figure. Interrupted (Ctrl-C) with ``--out``, it
@@ -148,6 +153,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--restarts", type=int, default=2, metavar="K",
                         help="warm re-solves from the plan at most, while each shortens it "
                         "by at least 0.1 %% (default 2; 0: one solve)")
+    parser.add_argument("--fallback-guess", choices=("rigid", "none"), default="rigid",
+                        help="minimum time from the shaped move: when its plan is not "
+                        "10 %% shorter than the shaped move (or there is none), solve "
+                        "again from the rigid bang-bang move and keep the shorter plan "
+                        "(default rigid; none: one start)")
     parser.add_argument("--guess", default=None, metavar="PLAN.npz",
                         help="start from this plan of an earlier run (its --out's "
                         "plan.npz; the same move): a warm start, and with --robust the "
@@ -308,6 +318,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     guess = getattr(args, "guess", None)
     if guess is not None:
         options["guess"] = _saved_plan(guess, move)
+    if getattr(args, "fallback_guess", "rigid") == "none":
+        options["fallback_guess"] = None
     hessian = choice(getattr(args, "hessian", "exact"), "--hessian",
                      ("exact", "limited-memory"))
     if hessian != "exact":

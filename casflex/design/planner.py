@@ -124,6 +124,8 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                          weight=settings["weight"], intervals=settings["intervals"],
                          torque_limit=tau_lim, velocity_limit=v_lim, end=end, robust=robust,
                          guess=shaped, transcription=settings["transcription"],
+                         # a second start when the first stalls near the shaped move
+                         fallback_guess="rigid" if settings["objective"] == "time" else None,
                          robust_steps=steps, log=log,
                          duration_ceiling=continuation_ceiling(
                              settings["objective"], robust, steps, shaped.duration),

@@ -98,6 +98,11 @@ solve_with_restarts
     Re-solve a plan warm from itself while it gets shorter (``plan_move``'s ``restarts``).
 solve_from_plan
     One warm start from a plan: from its iterate and multipliers, else its iterate alone.
+solve_with_fallback
+    A second cold start when the first plan barely shortens its start (``plan_move``'s
+    ``fallback_guess``).
+FALLBACK_SHORTENING
+    The shortening below which the second start is tried.
 solve_by_continuation
     A robust plan through a path of problems from the nominal one (``plan_move``'s
     ``robust_steps``).
@@ -175,12 +180,14 @@ from casflex.planning.ocp import (
 from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import SolveProgress
 from casflex.planning.restarts import (
+    FALLBACK_SHORTENING,
     ROBUST_STEPS,
     continuation_ceiling,
     continuation_steps,
     plan_robustness,
     solve_by_continuation,
     solve_from_plan,
+    solve_with_fallback,
     solve_with_restarts,
 )
 from casflex.planning.scenarios import (
@@ -238,6 +245,8 @@ __all__ = [
     "Propagator",
     # restarts and continuation
     "solve_with_restarts",
+    "solve_with_fallback",
+    "FALLBACK_SHORTENING",
     "solve_from_plan",
     "solve_by_continuation",
     "continuation_steps",

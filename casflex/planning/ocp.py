@@ -61,7 +61,12 @@ from casflex.planning.guess import (
 from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import check_progress, progress_listener
-from casflex.planning.restarts import check_restarts, solve_by_continuation, solve_with_restarts
+from casflex.planning.restarts import (
+    check_restarts,
+    solve_by_continuation,
+    solve_with_fallback,
+    solve_with_restarts,
+)
 from casflex.planning.scenarios import (
     frequency_shifted_model,
     modal_guess,
@@ -292,6 +297,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               position_limits: tuple[ArrayLike, ArrayLike] | None = None,
               end: str | float = "rest", deflection_bound: float | None = None,
               robust: float = 0.0, guess: str | Any = "rigid",
+              fallback_guess: str | Any | None = None,
               transcription: str = "collocation", degree: int = 3,
               dynamics: str = "implicit",
               max_duration: float | None = None, duration_ceiling: float | None = None,
@@ -365,6 +371,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         intervals is taken node by node: a warm start; if its OCP had the same variables
         and constraints, e.g. another end bound or other limits, its multipliers too,
         with :data:`WARM_START_OPTIONS`).
+    fallback_guess : "rigid" or move-like, optional
+        A second cold start for a minimum-time plan from a move (``guess`` a move, not a
+        plan): solved too when the plan from ``guess`` (after its restarts) is less than
+        :data:`casflex.planning.FALLBACK_SHORTENING` shorter than that move, or found
+        none; the shorter plan is kept (:func:`casflex.planning.solve_with_fallback`,
+        ``stats["starts"]``). Default: none.
     max_duration : float, optional
         Upper bound on T [s] (default 20 times the guess's duration).
     duration_ceiling : float, optional
@@ -480,6 +492,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     """
     if robust_steps != 1 and number(robust, "robust", low=0.0) > 0.0:
         return solve_by_continuation(plan_move, {**locals()}, robust_steps)
+    if fallback_guess is not None:
+        return solve_with_fallback(plan_move, {**locals()}, fallback_guess)
     if check_restarts(restarts, restart_rtol)[0]:
         return solve_with_restarts(plan_move, {**locals()}, restarts, restart_rtol)
     n, m = model.n, model.m

@@ -276,9 +276,11 @@ class PlanComparison:
             (verified: prescribed-motion run, m), ``residual_torque_driven``,
             ``residual_ocp``, ``robust`` (residuals at the frequency errors), ``shaped``
             {``duration``, ``residual_tip_deflection``, ``torque_peak``, ...},
-            ``solve_s`` and ``iterations`` (totals over the restarts and a robust plan's
-            continuation), ``passes`` (each pass's, :mod:`casflex.planning.restarts`;
-            ``None`` without restarts), ``continuation`` (each problem's on a robust
+            ``solve_s`` and ``iterations`` (totals over the restarts, the starts and a
+            robust plan's continuation), ``passes`` (each pass's, :mod:`casflex.planning.restarts`;
+            ``None`` without restarts), ``starts`` (each cold start's, ``None`` when the
+            fallback start was not needed, :func:`casflex.planning.solve_with_fallback`),
+            ``continuation`` (each problem's on a robust
             plan's path; ``None`` without one),
             ``status`` (of the plan's pass), ``intervals``, ``substeps``,
             ``limits``, ``shortening`` (1 − planned / shaped duration), ``limit_excess``
@@ -344,6 +346,7 @@ class PlanComparison:
             "iterations": p.stats.get("continuation_iterations", p.stats.get(
                 "iterations_total", p.stats.get("iterations"))),
             "passes": p.stats.get("passes"),
+            "starts": p.stats.get("starts"),
             "continuation": p.stats.get("continuation"),
             "intervals": p.stats.get("intervals"),
             "substeps": p.stats.get("substeps"),
@@ -426,7 +429,10 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         in ``plan_options``): the continuation takes a shorter step.
     **plan_options
         More keywords of :func:`casflex.planning.plan_move` (``torque_limit``... override
-        the shaped move's).
+        the shaped move's). A minimum-time plan from the shaped move has
+        ``fallback_guess="rigid"`` unless given (``None``: one start): from the rigid
+        bang-bang move when the plan from the shaped one is not
+        :data:`casflex.planning.FALLBACK_SHORTENING` shorter.
 
     Returns
     -------
@@ -519,19 +525,24 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         duration = float(shaped.duration)
     plan_options.setdefault("duration_ceiling", continuation_ceiling(
         objective, robust, robust_steps, shaped.duration))
+    guess = plan_options.pop("guess", shaped)
+    if objective == "time" and not isinstance(guess, PlannedMove):
+        plan_options.setdefault("fallback_guess", "rigid")
     t0 = time.perf_counter()
     plan = plan_move(ocp_model, move, objective=objective, duration=duration,
                      intervals=intervals, torque_limit=limits["torque"],
                      velocity_limit=limits["velocity"], end=end, robust=robust,
-                     guess=plan_options.pop("guess", shaped), restarts=restarts,
+                     guess=guess, restarts=restarts,
                      robust_steps=robust_steps, log=log, progress=progress,
                      **plan_options)
     timings["plan_s"] = time.perf_counter() - t0
     say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s), Ipopt "
         f"{plan.stats['status']} in {plan.stats['iterations']} iterations, "
-        f"{plan.stats['solve_s']:.2f} s" + (f", {plan.stats['restarts']} restart(s): "
-                                             f"{plan.stats['solve_s_total']:.2f} s in all"
-                                             if plan.stats.get("passes") else ""))
+        f"{plan.stats['solve_s']:.2f} s"
+        + (f", {plan.stats['restarts']} restart(s)" if plan.stats.get("passes") else "")
+        + (f", {len(plan.stats['starts'])} starts" if plan.stats.get("starts") else "")
+        + (f": {plan.stats['solve_s_total']:.2f} s in all"
+           if "solve_s_total" in plan.stats else ""))
     t0 = time.perf_counter()
     say(f"verifying: prescribed-motion and torque-driven simulations at dt = {dt:g} s")
     verification = verify_plan(model, plan, dt=dt, errors=errors)
