@@ -119,14 +119,11 @@ _OMEGA_H = 0.25
 #: largest ω h of one collocation interval by default (3 Gauss points, order 6 at the
 #: nodes: the phase error per interval ~ (ω h)^7 / 100 000 ≈ 1e-5 at 1)
 _OMEGA_H_COLLOCATION = 1.0
-#: Ipopt options of a warm start from a neighbouring solution's iterate and multipliers.
-#: The iterate, its slacks and its bound multipliers are pushed 1e-4 off their bounds: at
-#: 1e-6 (before session 26) the fraction-to-the-boundary rule cut the first steps to
-#: α ≈ 1e-3 at the many active bounds of a bang-bang plan and the solve crept (move 1 of
-#: the design study, end bound 5 % tighter: 39 iterations against 14; over 15
-#: neighbouring problems of moves 1–3, a median of 32 iterations against 18, and one
-#: failure against none; benchmarks/README_planning.md, session 26). ``mu_init`` changed
-#: nothing there (1e-6 to 1e-3: the same iterates).
+#: Ipopt options of a warm start from a neighbouring solution's iterate and multipliers:
+#: the iterate, slacks and bound multipliers pushed 1e-4 off their bounds. At 1e-6 the
+#: fraction-to-the-boundary rule cut the first steps to α ≈ 1e-3 at the active bounds of
+#: a bang-bang plan: over 20 neighbouring problems of moves 1–3 of the design study a
+#: median of ~36 iterations against 21.5 (benchmarks/README_planning.md, session 26)
 WARM_START_OPTIONS = {"warm_start_init_point": "yes", "warm_start_bound_push": 1e-4,
                       "warm_start_slack_bound_push": 1e-4, "warm_start_mult_bound_push": 1e-4,
                       "mu_init": 1e-6}
