@@ -310,7 +310,10 @@ def run_move(name, args, study, out_path, robust_moves):
     log(f"{name}: evaluating the nominal plan at {errors}")
     ev, _ = evaluate(model, plan, plan.torque_function(), errors, args.dt)
     record["planned"] = plan_record(plan, limits, ev, model)
+    # starts: both cold starts' records when the first stalled (None if not needed); the
+    # passes and "cold" are then the kept start's
     record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts, guess=args.guess,
+                             starts=plan.stats.get("starts"),
                              cold={k: passes[0][k] for k in (
                                  "duration", "status", "iterations", "solve_cpu_s")})
     store(out_path, name, record)
