@@ -258,12 +258,15 @@ def solve_with_restarts(solve: Callable[..., Any], arguments: dict, restarts: in
 def _start_record(name: str, plan: Any = None, error: SolverError | None = None) -> dict:
     """One start of :func:`solve_with_fallback`: the plan's totals over its restarts, or
     the error's cost."""
-    if plan is None:
-        return {**_failed(error), "guess": name}
+    return {**(_failed(error) if plan is None else _pass_totals(plan)), "guess": name}
+
+
+def _pass_totals(plan) -> dict:
+    """A plan's pass record with its totals over its restarts (if any)."""
     record = _pass(plan)
     record.update({k: plan.stats.get(f"{k}_total", record[k])
                    for k in ("solve_s", "solve_cpu_s", "iterations")})
-    return {**record, "guess": name}
+    return record
 
 
 def _guess_name(guess: Any) -> str:
@@ -626,9 +629,7 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
             error.plan, error.continuation = plan, record  # what the path had reached
             raise error
         plan, reached = new, f
-        done = _pass(plan)  # with restarts: their totals
-        done.update({k: plan.stats.get(f"{k}_total", done[k])
-                     for k in ("solve_s", "solve_cpu_s", "iterations")})
+        done = _pass_totals(plan)  # with restarts: their totals
         say("  " + _line(plan.duration, done["status"], done["iterations"]))
         record.append({**done, "robust": r, "end_bounds": bounds})
         i += 1
