@@ -72,6 +72,11 @@ DurationCeiling
     (``plan_move``'s ``duration_ceiling``).
 CEILING_STATUS
     The status in the ``SolverError`` of a solve given up so.
+ViolationCeiling
+    Gives a solve up once its constraint violation rises above a ceiling
+    (``plan_move``'s ``violation_ceiling``; a restart's by default).
+VIOLATION_CEILING_STATUS
+    The status in the ``SolverError`` of a solve given up so.
 
 The result (:mod:`casflex.planning.planned`)
 --------------------------------------------
@@ -103,6 +108,8 @@ solve_with_fallback
     ``fallback_guess``).
 FALLBACK_SHORTENING
     The shortening below which the second start is tried.
+RESTART_VIOLATION_CEILING
+    The constraint violation at which a restart is given up.
 solve_by_continuation
     A robust plan through a path of problems from the nominal one (``plan_move``'s
     ``robust_steps``).
@@ -181,6 +188,7 @@ from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import SolveProgress
 from casflex.planning.restarts import (
     FALLBACK_SHORTENING,
+    RESTART_VIOLATION_CEILING,
     ROBUST_STEPS,
     continuation_ceiling,
     continuation_steps,
@@ -200,9 +208,11 @@ from casflex.planning.stopping import (
     CEILING_STATUS,
     INTERRUPTED_STATUS,
     PROGRESS_STATUS,
+    VIOLATION_CEILING_STATUS,
     DurationCeiling,
     PlanInterrupted,
     ProgressStop,
+    ViolationCeiling,
     iteration_callback,
 )
 from casflex.planning.verify import (
@@ -240,6 +250,8 @@ __all__ = [
     "INTERRUPTED_STATUS",
     "DurationCeiling",
     "CEILING_STATUS",
+    "ViolationCeiling",
+    "VIOLATION_CEILING_STATUS",
     # the result
     "PlannedMove",
     "Propagator",
@@ -247,6 +259,7 @@ __all__ = [
     "solve_with_restarts",
     "solve_with_fallback",
     "FALLBACK_SHORTENING",
+    "RESTART_VIOLATION_CEILING",
     "solve_from_plan",
     "solve_by_continuation",
     "continuation_steps",

@@ -8,7 +8,8 @@ the numbers that size the problem.
 * :func:`guess_on_grid`: a reference simulated with the joints on it, sampled at the
   nodes and the collocation points (states, torques, joint accelerations);
 * :func:`highest_free_frequency`: the highest frequency of the arm with its joints free,
-  which sets the default number of intervals and RK4 substeps.
+  which sets the default number of intervals and RK4 substeps;
+* :func:`warm_duals`: a neighbouring plan's NLP iterate and multipliers, when they fit.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from casflex.model import FlexibleModel
 from casflex.planning.scenarios import static_deflection
 
 __all__ = ["rigid_bang_bang_duration", "time_scaled", "guess_on_grid",
-           "highest_free_frequency"]
+           "highest_free_frequency", "warm_duals"]
 
 
 def rigid_bang_bang_duration(model: FlexibleModel, q0: ArrayLike, qf: ArrayLike,
@@ -210,3 +211,50 @@ def highest_free_frequency(model: FlexibleModel, q0: ArrayLike, qf: ArrayLike) -
         eig = np.linalg.eigvals(A(np.r_[q, d, np.zeros(n + m)], hold).full())
         top = max(top, float(np.max(np.abs(eig.imag))))
     return top
+
+
+def warm_duals(guess: Any, nx: int, ng: int, solver: str) -> dict | None:
+    """The NLP iterate and multipliers of the plan ``guess`` when its OCP has this one's
+    shape (``nx`` variables, ``ng`` constraints, the same solver's variable order: e.g.
+    another end bound or other limits), else ``None``.
+
+    Only the sizes are compared: a problem of the same sizes but other meaning (another
+    robust error, limits moved from one joint to another) gets a poor start, never a
+    wrong plan: the start only changes where Ipopt begins, not what it accepts.
+
+    Parameters
+    ----------
+    guess : PlannedMove or any
+        The start of the new solve (anything without a ``solution`` gives ``None``).
+    nx, ng : int
+        Variables and constraints of the new NLP.
+    solver : str
+        Its solver (``"ipopt"``; Fatrop takes none: below).
+
+    Returns
+    -------
+    dict or None
+        ``guess.solution`` (``x``, ``lam_g``, ``scales``) or ``None``.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.planning import plan_move
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> p = plan_move(model, [0.0], [1.0], torque_limit=0.1, intervals=20)
+    >>> nx, ng = p.solution["x"].size, p.solution["lam_g"].size
+    >>> warm_duals(p, nx, ng, "ipopt") is p.solution, warm_duals(p, nx, ng + 1, "ipopt")
+    (True, None)
+    """
+    solution = getattr(guess, "solution", None)
+    if not solution or solver != "ipopt":
+        # CasADi 3.8's Fatrop has no warm_start_init_point: from a neighbouring solution
+        # with its multipliers it took 133 iterations on the one-link arm (80 intervals,
+        # end bound 5 % tighter), from the iterate alone 33, cold 34
+        return None
+    if solution["x"].size != nx or solution["lam_g"].size != ng or \
+            guess.stats.get("solver", "ipopt") != solver:  # another variable order
+        return None
+    return solution

@@ -57,6 +57,7 @@ from casflex.planning.guess import (
     highest_free_frequency,
     rigid_bang_bang_duration,
     time_scaled,
+    warm_duals,
 )
 from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove, Propagator
@@ -82,12 +83,12 @@ from casflex.planning.staged import (
     state_scales,
 )
 from casflex.planning.stopping import (
-    CEILING_STATUS,
     INTERRUPTED_STATUS,
     PROGRESS_STATUS,
     DurationCeiling,
     PlanInterrupted,
     ProgressStop,
+    ViolationCeiling,
     iteration_callback,
 )
 from casflex.simulate.integrators import rk4_step
@@ -305,6 +306,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               transcription: str = "collocation", degree: int = 3,
               dynamics: str = "implicit",
               max_duration: float | None = None, duration_ceiling: float | None = None,
+              violation_ceiling: float | None = None,
               max_iter: int = 500, ipopt_options: dict | None = None, settle: float | None = None,
               name: str | None = None,
               progress_stop: ProgressStop | bool = True,
@@ -393,6 +395,12 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         shaped move meets their constraints at its own duration). With ``robust_steps >
         1`` it applies to the robust problems of the path, not to the nominal one solved
         first.
+    violation_ceiling : float, optional
+        Give the solve up (status :data:`casflex.planning.VIOLATION_CEILING_STATUS`) at the
+        first iterate whose largest constraint violation (the rows scaled as Ipopt sees
+        them) is above this (:class:`casflex.planning.ViolationCeiling`; no constraint
+        either). With ``restarts``, the restarts get
+        :data:`casflex.planning.RESTART_VIOLATION_CEILING` unless one is given.
     max_iter : int
         Ipopt iteration limit.
     ipopt_options : dict, optional
@@ -518,7 +526,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if duration_ceiling is not None and objective != "time":
         raise fail("duration_ceiling", duration_ceiling, "needs objective='time' (the "
                    "ceiling is on the objective, the duration)")
-    ceiling = None if duration_ceiling is None else DurationCeiling(duration_ceiling)
+    guards = [rule(value) for rule, value in ((DurationCeiling, duration_ceiling),
+                                              (ViolationCeiling, violation_ceiling))
+              if value is not None]
     if objective == "energy":
         if duration is None and move is not None:
             duration = float(move.duration)
@@ -546,9 +556,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if blocks and not implicit:
         raise fail("derivatives", derivatives, "needs transcription 'collocation' with "
                    "dynamics 'implicit'")
-    if fatrop and ceiling is not None:
-        raise fail("duration_ceiling", duration_ceiling, "needs solver 'ipopt' (CasADi's "
-                   "Fatrop calls no iteration callback)")
+    if fatrop and guards:
+        raise fail("solver", solver, "takes no duration_ceiling or violation_ceiling "
+                   "(CasADi's Fatrop calls no iteration callback)")
     tau_max = _limit(torque_limit, n, "torque_limit", "N m")
     v_max = _limit(velocity_limit, n, "velocity_limit", "rad/s")
     robust = number(robust, "robust", low=0.0, high=1.0, high_open=True)
@@ -792,7 +802,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                "acceptable_constr_viol_tol": 1e-6, "mu_strategy": "adaptive"}
     # Fatrop: the rows in stage order, before any multiplier is set
     equality = stage_order(opti, stages) if fatrop else None
-    duals = _warm_duals(opti, guess, solver) if warm else None
+    duals = warm_duals(guess, opti.nx, opti.ng, solver) if warm else None
     if duals is not None:
         # a neighbouring problem of the same shape: start from the guess's iterate with
         # its multipliers, and keep Ipopt near it (a barrier restarted at 0.1 and the
@@ -817,8 +827,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             raise fail("progress_stop", progress_stop, "must be a ProgressStop or a bool")
         rule = dataclasses.replace(rule)  # a fresh copy: no trace or history of a solve
         listeners.append(rule.update)
-    if ceiling is not None:
-        listeners.append(ceiling.update)
+    listeners += [guard.update for guard in guards]
     display, close_display = progress_listener(False if fatrop else progress,
                                                f"Ipopt {name}", objective)
     if display is not None:
@@ -871,9 +880,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             raise PlanInterrupted(None, "the interrupted solve's last iterate is not "
                                   "feasible") from error
         ok = True
-    # above the ceiling is no plan, even at a feasible iterate (a Ctrl-C wins)
-    escaped = ceiling is not None and ceiling.exceeded is not None and not interrupted
-    ok = ok and not escaped
+    # above a ceiling is no plan, even at a feasible iterate (a Ctrl-C wins)
+    escaped = None if interrupted else next((g for g in guards if g.exceeded is not None), None)
+    ok = ok and escaped is None
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
@@ -884,20 +893,16 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         status = PROGRESS_STATUS
     if interrupted:
         status = INTERRUPTED_STATUS
-    if escaped:
-        status = CEILING_STATUS
+    if escaped is not None:
+        status = escaped.status
     Tv = float(values(T)) if duration is None else float(T)
     Xv = np.asarray(values(X), dtype=float).reshape(nxa, N + 1)
     Uv = np.asarray(values(U), dtype=float).reshape(n, N)
     info_violation = _violation(opti, values)
     if not ok:
-        if escaped:
-            at, T_out = ceiling.exceeded
-            where = (f"rose to {T_out:.6g} s at iterate {at}, above duration_ceiling = "
-                     f"{ceiling.ceiling:.6g} s" if T_out > 0.0 else
-                     f"fell to {T_out:.6g} s at iterate {at}, not a duration")
+        if escaped is not None:
             error = SolverError(f"plan_move: {solver.capitalize()} found no plan ({status}): "
-                                f"the duration {where}")
+                                f"{escaped.reason()}")
         else:
             error = SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max,
                                                  v_max, n, m, N, duration,
@@ -979,21 +984,3 @@ def _violation(opti, values):
     excess = np.r_[lbg - g, g - ubg, 0.0]
     return float(np.max(excess[np.isfinite(excess)]))
 
-
-def _warm_duals(opti, guess, solver):
-    """The guess's NLP iterate and multipliers when its OCP has this one's shape (same
-    variables and constraints: e.g. another end bound or other limits), else ``None``.
-
-    Only the sizes are compared: a problem of the same sizes but other meaning (another
-    robust error, limits moved from one joint to another) gets a poor start, never a
-    wrong plan: the start only changes where Ipopt begins, not what it accepts."""
-    solution = getattr(guess, "solution", None)
-    if not solution or solver != "ipopt":
-        # CasADi 3.8's Fatrop has no warm_start_init_point: from a neighbouring solution
-        # with its multipliers it took 133 iterations on the one-link arm (80 intervals,
-        # end bound 5 % tighter), from the iterate alone 33, cold 34
-        return None
-    if solution["x"].size != opti.nx or solution["lam_g"].size != opti.ng or \
-            guess.stats.get("solver", "ipopt") != solver:  # another variable order
-        return None
-    return solution

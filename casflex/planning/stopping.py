@@ -23,6 +23,10 @@ measure.
 :meth:`ProgressStop.callback` makes it an Ipopt iteration callback (CasADi's
 ``iteration_callback``): Ipopt then ends with ``User_Requested_Stop`` and
 :func:`casflex.planning.plan_move` reports the status ``Stopped_On_Progress``.
+
+:class:`DurationCeiling` and :class:`ViolationCeiling` are listeners of the same kind that
+give a solve up once an iterate has left what is worth following: a duration above a
+ceiling, a constraint violation above one.
 """
 
 from __future__ import annotations
@@ -37,7 +41,8 @@ from numpy.typing import ArrayLike
 from casflex._validate import number
 
 __all__ = ["ProgressStop", "PROGRESS_STATUS", "INTERRUPTED_STATUS", "CEILING_STATUS",
-           "DurationCeiling", "PlanInterrupted", "iteration_callback"]
+           "DurationCeiling", "ViolationCeiling", "VIOLATION_CEILING_STATUS", "PlanInterrupted",
+           "iteration_callback"]
 
 #: ``stats["status"]`` of a plan that :class:`ProgressStop` ended
 PROGRESS_STATUS = "Stopped_On_Progress"
@@ -47,6 +52,9 @@ INTERRUPTED_STATUS = "Interrupted_By_User"
 
 #: the status in the ``SolverError`` of a solve that :class:`DurationCeiling` gave up
 CEILING_STATUS = "Duration_Out_Of_Range"
+
+#: the status in the ``SolverError`` of a solve that :class:`ViolationCeiling` gave up
+VIOLATION_CEILING_STATUS = "Violation_Out_Of_Range"
 
 
 class PlanInterrupted(KeyboardInterrupt):
@@ -286,9 +294,28 @@ class DurationCeiling:
     ceiling: float
     exceeded: tuple[int, float] | None = field(default=None, init=False)
     seen: int = field(default=0, init=False)
+    status = CEILING_STATUS
 
     def __post_init__(self) -> None:
         self.ceiling = number(self.ceiling, "duration_ceiling", low=0.0, low_open=True)
+
+    def reason(self) -> str:
+        """Where the solve left, in words (for the ``SolverError``; after an escape).
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> rule = DurationCeiling(3.2)
+        >>> rule.update(3.3, 0.0), rule.reason()
+        (True, 'the duration rose to 3.3 s at iterate 0, above duration_ceiling = 3.2 s')
+        """
+        at, T = self.exceeded
+        return (f"the duration rose to {T:.6g} s at iterate {at}, above duration_ceiling = "
+                f"{self.ceiling:.6g} s" if T > 0.0 else
+                f"the duration fell to {T:.6g} s at iterate {at}, not a duration")
 
     def update(self, objective: float, violation: float) -> bool:
         """Take one iterate (objective: its duration [s]); ``True`` once any iterate so
@@ -315,6 +342,97 @@ class DurationCeiling:
             self.exceeded = (self.seen, f)
         self.seen += 1
         return self.exceeded is not None
+
+
+@dataclass
+class ViolationCeiling:
+    """Give a solve up once an iterate's largest constraint violation rises above
+    ``ceiling``.
+
+    For a solve that starts at a feasible point of its own problem — a restart of
+    :func:`casflex.planning.solve_with_restarts` from the plan just found — an iterate
+    far outside the constraints is a path that has left, and on the planner's problems
+    such a path rarely comes back: on move 1 of the design study (153 intervals, the
+    derivatives perturbed by one part in 10⁹ to draw other paths) every restart that
+    reached a plan stayed below a violation of 0.11, while those that rose above 1 did
+    so within 25 iterates and were still above 0.1 after 500, without a plan
+    (benchmarks/README_planning.md, session 27). This listener (:func:`iteration_callback`;
+    ``plan_move``'s ``violation_ceiling``) stops Ipopt at the first iterate above the
+    ceiling, and :func:`casflex.planning.plan_move` raises a ``SolverError``
+    (:data:`VIOLATION_CEILING_STATUS`).
+
+    Parameters
+    ----------
+    ceiling : float
+        Largest constraint violation an iterate may have (> 0), as Ipopt sees the rows:
+        the planner's rows scaled by their magnitudes [1].
+
+    Attributes
+    ----------
+    exceeded : tuple of (int, float) or None
+        The first iterate (0: the start) whose violation was above the ceiling, and that
+        violation.
+
+    Examples
+    --------
+    >>> rule = ViolationCeiling(1.0)
+    >>> [rule.update(2.1, v) for v in (1e-8, 0.3, 1.7, 0.2)], rule.exceeded
+    ([False, False, True, True], (2, 1.7))
+    >>> rule.reason()
+    'the constraint violation rose to 1.7 at iterate 2, above violation_ceiling = 1'
+    """
+
+    ceiling: float
+    exceeded: tuple[int, float] | None = field(default=None, init=False)
+    seen: int = field(default=0, init=False)
+    status = VIOLATION_CEILING_STATUS
+
+    def __post_init__(self) -> None:
+        self.ceiling = number(self.ceiling, "violation_ceiling", low=0.0, low_open=True)
+
+    def update(self, objective: float, violation: float) -> bool:
+        """Take one iterate; ``True`` once any iterate so far has been above the ceiling.
+
+        Parameters
+        ----------
+        objective : float
+            The iterate's objective (not used).
+        violation : float
+            Its largest constraint violation [1]; NaN counts as above.
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> ViolationCeiling(1.0).update(2.0, 1.0)   # at the ceiling is not above it
+        False
+        """
+        v = float(violation)
+        if self.exceeded is None and not v <= self.ceiling:
+            self.exceeded = (self.seen, v)
+        self.seen += 1
+        return self.exceeded is not None
+
+    def reason(self) -> str:
+        """Where the solve left, in words (for the ``SolverError``; after an escape).
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> rule = ViolationCeiling(0.5)
+        >>> rule.update(2.0, 0.75)
+        True
+        >>> print(rule.reason())
+        the constraint violation rose to 0.75 at iterate 0, above violation_ceiling = 0.5
+        """
+        at, v = self.exceeded
+        return (f"the constraint violation rose to {v:.6g} at iterate {at}, above "
+                f"violation_ceiling = {self.ceiling:.6g}")
 
 
 def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,

@@ -97,7 +97,7 @@ def _stand_in_solver(calls, cost=None):
     """A stand-in for plan_move: from a plan with multipliers it fails (the error carrying
     ``cost`` as its solve's), from the iterate alone it shortens the plan by 10 %; a cold
     solve gives 3 s. Every guess is appended to ``calls``."""
-    def solve(guess, restarts):
+    def solve(guess, restarts, violation_ceiling=None):
         calls.append(guess)
         if isinstance(guess, _Plan) and guess.solution is not None:
             error = SolverError("plan_move: Ipopt found no plan (Maximum_Iterations_Exceeded)")
