@@ -399,8 +399,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         Give the solve up (status :data:`casflex.planning.VIOLATION_CEILING_STATUS`) at the
         first iterate whose largest constraint violation (the rows scaled as Ipopt sees
         them) is above this (:class:`casflex.planning.ViolationCeiling`; no constraint
-        either). With ``restarts``, the restarts get
-        :data:`casflex.planning.RESTART_VIOLATION_CEILING` unless one is given.
+        either). With ``restarts``, a restart from a plan's iterate and multipliers
+        gets :data:`casflex.planning.RESTART_VIOLATION_CEILING` unless one is given.
     max_iter : int
         Ipopt iteration limit.
     ipopt_options : dict, optional

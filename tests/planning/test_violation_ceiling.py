@@ -96,40 +96,51 @@ class _Plan:
     stats: dict = dataclasses.field(default_factory=dict)
 
 
-def _recording_solver(calls):
-    """A stand-in for plan_move recording each call's violation_ceiling; every pass
-    shortens the plan by 10 %."""
+def _recording_solver(calls, fail_with_multipliers=False):
+    """A stand-in for plan_move recording each call's (guess has multipliers,
+    violation_ceiling); every pass shortens the plan by 10 %, or fails from a plan with
+    multipliers if asked to."""
     def solve(guess, restarts, violation_ceiling=None):
-        calls.append(violation_ceiling)
+        with_multipliers = getattr(guess, "solution", None) is not None
+        calls.append((with_multipliers, violation_ceiling))
+        if with_multipliers and fail_with_multipliers:
+            raise SolverError(f"plan_move: Ipopt found no plan ({VIOLATION_CEILING_STATUS})")
         d = 3.0 if guess == "cold" else 0.9 * guess.duration
         return _Plan(d, {"x": None}, {"objective_value": d, "iterations": 5, "status": "ok",
                                       "solve_s": 1.0, "solve_cpu_s": 1.0})
     return solve
 
 
-def test_the_restarts_get_the_default_ceiling_and_the_first_pass_none():
+def test_the_restarts_from_multipliers_get_the_default_ceiling():
     calls = []
     solve_with_restarts(_recording_solver(calls), {"guess": "cold"}, restarts=2,
                         restart_rtol=1e-3)
-    assert calls == [None, RESTART_VIOLATION_CEILING, RESTART_VIOLATION_CEILING]
-    # a ceiling given is every pass's
+    ceiling = RESTART_VIOLATION_CEILING
+    assert calls == [(False, None), (True, ceiling), (True, ceiling)]
+    # the retry from the iterate alone gets none: its first steps jump and come back
     calls.clear()
-    solve_with_restarts(_recording_solver(calls), {"guess": "cold", "violation_ceiling": 5.0},
-                        restarts=1, restart_rtol=1e-3)
-    assert calls == [5.0, 5.0]
+    best = solve_with_restarts(_recording_solver(calls, fail_with_multipliers=True),
+                               {"guess": "cold"}, restarts=1, restart_rtol=1e-3)
+    assert calls == [(False, None), (True, ceiling), (False, None)]
+    assert best.stats["best_pass"] == 2
+    # a ceiling given is every attempt's
+    calls.clear()
+    solve_with_restarts(_recording_solver(calls, fail_with_multipliers=True),
+                        {"guess": "cold", "violation_ceiling": 5.0}, restarts=1,
+                        restart_rtol=1e-3)
+    assert calls == [(False, 5.0), (True, 5.0), (False, 5.0)]
 
 
 def test_a_restart_given_up_is_tried_from_the_iterate_alone(onelink, monkeypatch):
     # through plan_move, with the restarts' default ceiling below any start's violation
     # (a plan is feasible to Ipopt's tolerance, not exactly): the restart from the plan's
-    # iterate and multipliers is given up at its start, so is the retry from the iterate
-    # alone, and the first pass is the plan
+    # iterate and multipliers is given up at its start, the retry from the iterate alone
+    # is solved
     import casflex.planning.restarts as restarts
 
     monkeypatch.setattr(restarts, "RESTART_VIOLATION_CEILING", 1e-300)
     plan = plan_move(onelink, [0.0], [1.0], **COMMON, end=2e-3, restarts=1)
     passes = plan.stats["passes"]
-    assert len(passes) == 3 and passes[0]["duration"] == plan.duration
-    assert all(VIOLATION_CEILING_STATUS in p["status"] for p in passes[1:])
-    assert [p["iterations"] for p in passes[1:]] == [0, 0]
-    assert plan.stats["best_pass"] == 0
+    assert len(passes) == 3
+    assert VIOLATION_CEILING_STATUS in passes[1]["status"] and passes[1]["iterations"] == 0
+    assert passes[2]["duration"] == pytest.approx(passes[0]["duration"], rel=1e-6)
