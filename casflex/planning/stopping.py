@@ -249,7 +249,48 @@ class ProgressStop:
 
 
 @dataclass
-class DurationCeiling:
+class _Ceiling:
+    """What :class:`DurationCeiling` and :class:`ViolationCeiling` share: a listener that
+    remembers the first iterate whose watched value (``watched``) left its range
+    (``left``); subclasses name their ``status`` and their ``option`` of ``plan_move``."""
+
+    ceiling: float
+    exceeded: tuple[int, float] | None = field(default=None, init=False)
+    seen: int = field(default=0, init=False)
+    option = "ceiling"
+
+    def __post_init__(self) -> None:
+        self.ceiling = number(self.ceiling, self.option, low=0.0, low_open=True)
+
+    def update(self, objective: float, violation: float) -> bool:
+        """Take one iterate; ``True`` once any iterate so far has left the range (the
+        listener's answer: :func:`iteration_callback` then stops Ipopt).
+
+        Parameters
+        ----------
+        objective : float
+            The iterate's objective (T [s] for a minimum-time plan).
+        violation : float
+            Its largest constraint violation [1].
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> DurationCeiling(1.0).update(1.0, 5.0), ViolationCeiling(1.0).update(5.0, 1.0)
+        (False, False)
+        """
+        value = self.watched(objective, violation)
+        if self.exceeded is None and self.left(value):
+            self.exceeded = (self.seen, value)
+        self.seen += 1
+        return self.exceeded is not None
+
+
+@dataclass
+class DurationCeiling(_Ceiling):
     """Give a minimum-time solve up once an iterate's duration rises above ``ceiling``.
 
     Where a plan longer than some reference is worth nothing — the robust problems of a
@@ -291,13 +332,46 @@ class DurationCeiling:
     ([False, True, True], (1, -98.9))
     """
 
-    ceiling: float
-    exceeded: tuple[int, float] | None = field(default=None, init=False)
-    seen: int = field(default=0, init=False)
     status = CEILING_STATUS
+    option = "duration_ceiling"
 
-    def __post_init__(self) -> None:
-        self.ceiling = number(self.ceiling, "duration_ceiling", low=0.0, low_open=True)
+    def watched(self, objective: float, violation: float) -> float:
+        """The iterate's duration [s] (its objective, for a minimum-time plan).
+
+        Parameters
+        ----------
+        objective, violation : float
+            The iterate's objective [s] and its constraint violation (not used).
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> DurationCeiling(3.2).watched(2.5, 0.1)
+        2.5
+        """
+        return float(objective)
+
+    def left(self, value: float) -> bool:
+        """Whether a duration [s] is out of ``(0, ceiling]``.
+
+        Parameters
+        ----------
+        value : float
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> rule = DurationCeiling(3.2)
+        >>> rule.left(3.2), rule.left(3.3), rule.left(0.0)
+        (False, True, True)
+        """
+        return value > self.ceiling or value <= 0.0
 
     def reason(self) -> str:
         """Where the solve left, in words (for the ``SolverError``; after an escape).
@@ -317,35 +391,9 @@ class DurationCeiling:
                 f"{self.ceiling:.6g} s" if T > 0.0 else
                 f"the duration fell to {T:.6g} s at iterate {at}, not a duration")
 
-    def update(self, objective: float, violation: float) -> bool:
-        """Take one iterate (objective: its duration [s]); ``True`` once any iterate so
-        far has been above the ceiling or not positive.
-
-        Parameters
-        ----------
-        objective : float
-            The iterate's objective, T [s] for a minimum-time plan.
-        violation : float
-            Its largest constraint violation (not used: an escape is one at any iterate).
-
-        Returns
-        -------
-        bool
-
-        Examples
-        --------
-        >>> DurationCeiling(1.0).update(1.0, 0.0)   # at the ceiling is not above it
-        False
-        """
-        f = float(objective)
-        if self.exceeded is None and (f > self.ceiling or f <= 0.0):
-            self.exceeded = (self.seen, f)
-        self.seen += 1
-        return self.exceeded is not None
-
 
 @dataclass
-class ViolationCeiling:
+class ViolationCeiling(_Ceiling):
     """Give a solve up once an iterate's largest constraint violation rises above
     ``ceiling``.
 
@@ -382,23 +430,34 @@ class ViolationCeiling:
     'the constraint violation rose to 1.7 at iterate 2, above violation_ceiling = 1'
     """
 
-    ceiling: float
-    exceeded: tuple[int, float] | None = field(default=None, init=False)
-    seen: int = field(default=0, init=False)
     status = VIOLATION_CEILING_STATUS
+    option = "violation_ceiling"
 
-    def __post_init__(self) -> None:
-        self.ceiling = number(self.ceiling, "violation_ceiling", low=0.0, low_open=True)
-
-    def update(self, objective: float, violation: float) -> bool:
-        """Take one iterate; ``True`` once any iterate so far has been above the ceiling.
+    def watched(self, objective: float, violation: float) -> float:
+        """The iterate's largest constraint violation [1].
 
         Parameters
         ----------
-        objective : float
-            The iterate's objective (not used).
-        violation : float
-            Its largest constraint violation [1]; NaN counts as above.
+        objective, violation : float
+            The iterate's objective (not used) and its constraint violation.
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> ViolationCeiling(2.0).watched(2.5, 0.1)
+        0.1
+        """
+        return float(violation)
+
+    def left(self, value: float) -> bool:
+        """Whether a violation is above the ceiling (NaN counts as above).
+
+        Parameters
+        ----------
+        value : float
 
         Returns
         -------
@@ -406,14 +465,11 @@ class ViolationCeiling:
 
         Examples
         --------
-        >>> ViolationCeiling(1.0).update(2.0, 1.0)   # at the ceiling is not above it
-        False
+        >>> rule = ViolationCeiling(2.0)
+        >>> rule.left(2.0), rule.left(2.1), rule.left(float("nan"))
+        (False, True, True)
         """
-        v = float(violation)
-        if self.exceeded is None and not v <= self.ceiling:
-            self.exceeded = (self.seen, v)
-        self.seen += 1
-        return self.exceeded is not None
+        return not value <= self.ceiling
 
     def reason(self) -> str:
         """Where the solve left, in words (for the ``SolverError``; after an escape).
