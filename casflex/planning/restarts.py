@@ -63,9 +63,10 @@ FALLBACK_SHORTENING = 0.1
 #: ``violation_ceiling`` of a restart from the plan's iterate and multipliers
 #: (:class:`casflex.planning.ViolationCeiling`). On move 1 of the design study (15 cold
 #: solves, the derivatives perturbed by one part in 1e9) such restarts that found a plan
-#: stayed below a violation of 1.2, and every one that found none in 500 iterations (75 s)
-#: had risen above 2 within 40 iterates (benchmarks/README_planning.md, session 27). The
-#: retry from the iterate alone gets none: its first steps jump (up to 1.7) and come back
+#: stayed below a violation of 1.2; 8 of the 10 that found none in 500 iterations (75 s
+#: each) had risen above 2 within 40 iterates, the other two never did
+#: (benchmarks/README_planning.md, session 27). The retry from the iterate alone gets
+#: none: its first steps jump (up to 1.7) and come back
 RESTART_VIOLATION_CEILING = 2.0
 
 #: what every pass records in ``stats["passes"]``

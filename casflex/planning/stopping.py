@@ -401,12 +401,13 @@ class ViolationCeiling(_Ceiling):
     :func:`casflex.planning.solve_with_restarts` from the plan just found — an iterate
     far outside the constraints is a path that has left, and on the planner's problems
     such a path rarely comes back: on move 1 of the design study (153 intervals, the
-    derivatives perturbed by one part in 10⁹ to draw other paths) every restart that
-    reached a plan stayed below a violation of 0.11, while those that rose above 1 did
-    so within 25 iterates and were still above 0.1 after 500, without a plan
-    (benchmarks/README_planning.md, session 27). This listener (:func:`iteration_callback`;
-    ``plan_move``'s ``violation_ceiling``) stops Ipopt at the first iterate above the
-    ceiling, and :func:`casflex.planning.plan_move` raises a ``SolverError``
+    derivatives perturbed by one part in 10⁹ to draw other paths) the restarts from a
+    plan's multipliers that reached a plan stayed below a violation of 1.2, and none of
+    those that rose above 2 (8 of the 10 that found no plan, all within 40 iterates)
+    came back to a plan in 500 iterations (benchmarks/README_planning.md, session 27).
+    This listener (:func:`iteration_callback`; ``plan_move``'s ``violation_ceiling``)
+    stops Ipopt at the first iterate above the ceiling, and
+    :func:`casflex.planning.plan_move` raises a ``SolverError``
     (:data:`VIOLATION_CEILING_STATUS`).
 
     Parameters
