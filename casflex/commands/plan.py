@@ -35,8 +35,9 @@ JSON: ``duration`` (s), ``torque_peak`` (N m, joints on the plan), ``velocity_pe
 ``velocity_peak``}, ``shortening`` (1 − planned / shaped duration), ``limits``,
 ``limit_excess`` (per joint, how far the verified torque and velocity peaks pass the
 limits between the OCP's points, relative), ``end_bound_excess`` (how far the verified
-residual passes the end bound, relative),
-``solve_s`` and ``iterations`` (over the restarts and starts), ``passes``, ``starts``
+residual passes the end bound asked for, relative), ``bound_corrections`` (the re-solves
+with a tighter bound when the verified residual passed it, ``--bound-corrections``),
+``solve_s`` and ``iterations`` (over the restarts, starts and re-solves), ``passes``, ``starts``
 (each start's, when the second was needed), ``status``, ``intervals``, ``substeps``, ``objective``,
 ``timings``. ``--out DIR`` writes ``trajectory.csv`` (t, q, q̇, q̈, τ), ``plan.npz``
 (the whole plan, :meth:`casflex.planning.PlannedMove.save`, for ``--guess``) and
@@ -153,6 +154,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--restarts", type=int, default=2, metavar="K",
                         help="warm re-solves from the plan at most, while each shortens it "
                         "by at least 0.1 %% (default 2; 0: one solve)")
+    # the default is casflex.planning.BOUND_CORRECTIONS, read when the command runs
+    parser.add_argument("--bound-corrections", type=int, default=None, metavar="K",
+                        help="when the verified residual passes the end bound (the OCP's "
+                        "discretisation), solve again with the bound tightened by "
+                        "bound / verified, at most K times (default 2; 0: the plan as "
+                        "solved)")
     parser.add_argument("--fallback-guess", choices=("rigid", "none"), default="rigid",
                         help="minimum time from the shaped move: when its plan is not "
                         "10 %% shorter than the shaped move (or there is none), solve "
@@ -272,6 +279,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     """
     from casflex.moves import load_move
     from casflex.planning import (
+        BOUND_CORRECTIONS,
         DERIVATIVES,
         ROBUST_STEPS,
         SOLVERS,
@@ -291,6 +299,9 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     dt = number(float(getattr(args, "dt", DEFAULT_DT)), "--dt", low=0.0, low_open=True, high=0.1)
     max_iter = number(getattr(args, "max_iter", 500), "--max-iter", low=1, integer=True)
     restarts = number(getattr(args, "restarts", 2), "--restarts", low=0, integer=True)
+    corrections = getattr(args, "bound_corrections", None)
+    corrections = BOUND_CORRECTIONS if corrections is None else \
+        number(corrections, "--bound-corrections", low=0, integer=True)
     robust_steps = getattr(args, "robust_steps", None)
     robust_steps = ROBUST_STEPS if robust_steps is None else \
         number(robust_steps, "--robust-steps", low=1, integer=True)
@@ -333,7 +344,8 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
             processes=getattr(args, "processes", None), progress=True, log=log,
             max_iter=max_iter, transcription=transcription, derivatives=derivatives,
             compile_function=point_compiler(derivatives, cache_dir_of(args), log),
-            solver=solver, restarts=restarts, robust_steps=robust_steps, **options)
+            solver=solver, restarts=restarts, robust_steps=robust_steps,
+            bound_corrections=corrections, **options)
     except PlanInterrupted as exc:  # keep what the solve had reached, for --guess
         _keep_interrupted(exc, out, log)
         raise

@@ -51,7 +51,7 @@ _SECTIONS = {
     "planner": {"enabled": True, "objective": "time", "duration": None, "weight": 0.0,
                 "robust": 0.0, "robust_steps": None, "end": "shaped", "intervals": None,
                 "transcription": "collocation", "derivatives": None, "modes": None,
-                "max_iter": 500, "verify_dt": 1e-4},
+                "max_iter": 500, "verify_dt": 1e-4, "bound_corrections": None},
 }
 # sections that are off when the study file does not have them
 _OPTIONAL = ("planner",)
@@ -282,6 +282,7 @@ def _check_settings(path, settings, sensors, sensors_path, n_joints):
 def _check_planner(path, p, n_modes):
     """The ``[planner]`` section: checked in place; ``None`` when it is switched off."""
     from casflex.planning import (
+        BOUND_CORRECTIONS,
         DERIVATIVES,
         OBJECTIVES,
         ROBUST_STEPS,
@@ -329,6 +330,9 @@ def _check_planner(path, p, n_modes):
                            integer=True, path=path)
     p["verify_dt"] = number(p["verify_dt"], "planner.verify_dt", low=1e-6, high=1e-2,
                             path=path)
+    p["bound_corrections"] = BOUND_CORRECTIONS if p["bound_corrections"] is None else number(
+        p["bound_corrections"], "planner.bound_corrections", low=0, high=10, integer=True,
+        path=path)
     return p
 
 

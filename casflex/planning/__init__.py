@@ -140,6 +140,18 @@ shaped_reference
     The shaped move a plan is compared with: its residual (nominal and at frequency
     errors) and peaks.
 
+End bounds held by the verified residual (:mod:`casflex.planning.correction`)
+-----------------------------------------------------------------------------
+hold_verified_bounds
+    Re-solve a plan with tighter end bounds until its verified residuals meet the bounds
+    asked for (``plan_robot_move``'s ``bound_corrections``).
+tightened_bounds
+    The next bounds: each scaled by asked / verified where the verified residual passes.
+verified_residuals
+    A verification's residuals in the order of the plan's scenarios.
+BOUND_CORRECTIONS
+    The re-solves made at most by default.
+
 Models with shifted frequencies (:mod:`casflex.planning.scenarios`)
 -------------------------------------------------------------------
 frequency_shifted_model
@@ -166,6 +178,12 @@ Examples
 from __future__ import annotations
 
 from casflex.planning.assembly import block_derivatives
+from casflex.planning.correction import (
+    BOUND_CORRECTIONS,
+    hold_verified_bounds,
+    tightened_bounds,
+    verified_residuals,
+)
 from casflex.planning.derivatives import (
     OPTIMISED_FLAGS,
     QUICK_FLAGS,
@@ -274,6 +292,11 @@ __all__ = [
     "verify_plan",
     "plan_robot_move",
     "PlanComparison",
+    # end bounds held by the verified residual
+    "hold_verified_bounds",
+    "tightened_bounds",
+    "verified_residuals",
+    "BOUND_CORRECTIONS",
     "limit_excess",
     "shaped_reference",
     # models with shifted frequencies

@@ -28,6 +28,7 @@ import numpy as np
 
 from casflex._validate import fail, number
 from casflex.model import FlexibleModel
+from casflex.planning.correction import BOUND_CORRECTIONS, hold_verified_bounds
 from casflex.planning.limits import shaped_end, shaped_move_limits
 from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
@@ -45,6 +46,10 @@ __all__ = ["verify_plan", "plan_robot_move", "PlanComparison", "limit_excess",
 def _residual_after(t, deflection, t_from):
     sel = t >= t_from - 1e-12
     return float(np.max(np.linalg.norm(deflection[sel], axis=1)))
+
+
+def _plus(total, more):
+    return total if total is None or not more else total + sum(more)
 
 
 def _bound_excess(residual, end):
@@ -290,7 +295,10 @@ class PlanComparison:
             collocation points, and between them the motion may pass a limit slightly),
             ``end_bound_excess`` (how far the verified residual passes the plan's end
             bound, relative, 0 within it; ``None`` for ``end="rest"``/``"free"``: the
-            judge of a plan that Ipopt or :class:`~casflex.planning.ProgressStop` ended).
+            judge of a plan that Ipopt or :class:`~casflex.planning.ProgressStop` ended),
+            ``bound_corrections`` (the re-solves for the verified bound,
+            :func:`casflex.planning.hold_verified_bounds`; ``None`` without any: their
+            seconds and iterations are in ``solve_s`` and ``iterations``).
 
         Examples
         --------
@@ -317,6 +325,8 @@ class PlanComparison:
         0.0
         """
         v, s, p = self.verification, self.shaped_verification, self.plan
+        first = p.stats.get("first_solve", p.stats)  # the re-solves for the bound: below
+        again = p.stats.get("bound_corrections") or []
         return {
             "move": getattr(self.move, "name", None),
             "duration": p.duration,
@@ -338,16 +348,19 @@ class PlanComparison:
             "limits": {k: list(map(float, val)) for k, val in self.limits.items()},
             "limit_excess": {k: limit_excess(v[f"{k}_peak"], self.limits[k])
                              for k in ("torque", "velocity") if k in self.limits},
-            "end_bound_excess": _bound_excess(v["prescribed"], p.stats.get("end")),
-            "solve_s": p.stats.get("continuation_solve_s", p.stats.get(
-                "solve_s_total", p.stats.get("solve_s"))),
+            "end_bound_excess": _bound_excess(v["prescribed"], (p.stats.get("end_asked")
+                                                                or [p.stats.get("end")])[0]),
+            "solve_s": _plus(first.get("continuation_solve_s", first.get(
+                "solve_s_total", first.get("solve_s"))), [r["solve_s"] or 0.0 for r in again]),
             "status": p.stats.get("status"),
             "hessian": p.stats.get("hessian"),
-            "iterations": p.stats.get("continuation_iterations", p.stats.get(
-                "iterations_total", p.stats.get("iterations"))),
-            "passes": p.stats.get("passes"),
-            "starts": p.stats.get("starts"),
-            "continuation": p.stats.get("continuation"),
+            "iterations": _plus(first.get("continuation_iterations", first.get(
+                "iterations_total", first.get("iterations"))),
+                [r.get("iterations") or 0 for r in again]),
+            "passes": first.get("passes"),
+            "starts": first.get("starts"),
+            "continuation": first.get("continuation"),
+            "bound_corrections": p.stats.get("bound_corrections"),
             "intervals": p.stats.get("intervals"),
             "substeps": p.stats.get("substeps"),
             "objective": p.stats.get("objective"),
@@ -365,6 +378,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                     log: Callable[[str], None] | None = None,
                     ocp_modes: int | None = None, ocp_fit: str | None = None,
                     restarts: int = 2, robust_steps: int = ROBUST_STEPS,
+                    bound_corrections: int = BOUND_CORRECTIONS,
                     **plan_options: Any) -> PlanComparison:
     """Plan a move of a robot at the limits of its SI-shaped version and verify both.
 
@@ -427,6 +441,12 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         shaped move). A minimum-time robust problem of that path whose solve rises above
         the shaped move's duration counts as no plan (``duration_ceiling``, unless given
         in ``plan_options``): the continuation takes a shorter step.
+    bound_corrections : int
+        With a residual bound (``end`` not ``"rest"``/``"free"``): when a verified
+        residual passes its bound (the OCP's discretisation), the plan is solved again
+        with the bounds tightened by bound / verified residual, at most this many times,
+        warm from the last plan (:func:`casflex.planning.hold_verified_bounds`; the
+        re-solves in ``summary()["bound_corrections"]``); 0: the plan as solved.
     **plan_options
         More keywords of :func:`casflex.planning.plan_move` (``torque_limit``... override
         the shaped move's). A minimum-time plan from the shaped move has
@@ -547,6 +567,21 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
     say(f"verifying: prescribed-motion and torque-driven simulations at dt = {dt:g} s")
     verification = verify_plan(model, plan, dt=dt, errors=errors)
     timings["verify_s"] = time.perf_counter() - t0
+    if plan.stats.get("end_bounds") is not None and bound_corrections:
+        t0 = time.perf_counter()
+
+        def solve_again(bounds, last):
+            return plan_move(ocp_model, move, objective=objective, duration=duration,
+                             intervals=plan.stats["intervals"],
+                             torque_limit=limits["torque"], velocity_limit=limits["velocity"],
+                             end=bounds if robust else bounds[0], robust=robust, guess=last,
+                             log=log, progress=progress,
+                             **{**plan_options, "fallback_guess": None})
+
+        plan, verification, _ = hold_verified_bounds(
+            solve_again, lambda p: verify_plan(model, p, dt=dt, errors=errors), plan,
+            verification, bound_corrections, log)
+        timings["bound_corrections_s"] = time.perf_counter() - t0
     return PlanComparison(model=model, move=move, shaped=shaped, plan=plan,
                           limits=limits, verification=verification,
                           shaped_verification=shaped_check, timings=timings,
