@@ -79,7 +79,7 @@ DEFAULT_OUT = ROOT / "benchmarks" / "data" / "planning_moves.json"
 CURVE_DT = 5e-3
 #: version of what the script stores (raised with every change of a record's meaning;
 #: each run writes it into ``meta.runs``, tests/planning/test_plan_moves_data.py compares)
-FORMAT = 2
+FORMAT = 3
 
 
 def log(message: str) -> None:
@@ -172,7 +172,12 @@ def plan_record(plan, limits, evaluation, model):
     rec = {"duration": plan.duration, "status": st.get("status"),
            "iterations": st.get("iterations"), "solve_s": st.get("solve_s"),
            "solve_cpu_s": st.get("solve_cpu_s"), "intervals": st.get("intervals"),
-           "end_bound": st.get("end"), "end_bounds": st.get("end_bounds"),
+           # the bounds asked for; the OCP's own when it was solved again tighter for
+           # its verified residual (bound_corrections)
+           "end_bound": (st.get("end_asked") or [st.get("end")])[0],
+           "end_bounds": st.get("end_asked") or st.get("end_bounds"),
+           "ocp_end_bounds": st.get("end_bounds"),
+           "bound_corrections": st.get("bound_corrections"),
            "scenarios": st.get("scenarios"),
            "ocp_residual": st.get("ocp_residual"),
            "residual_bound": st.get("residual_bound"),
@@ -239,7 +244,14 @@ def run_move(name, args, study, out_path, robust_moves):
     """Shaped, nominal plan and (for ``robust_moves``) robust plan of one move."""
     from casflex.errors import SolverError
     from casflex.moves import load_move
-    from casflex.planning import ProgressStop, plan_move, plan_robot_move
+    from casflex.planning import (
+        ProgressStop,
+        continuation_ceiling,
+        hold_verified_bounds,
+        plan_move,
+        plan_robot_move,
+        verify_plan,
+    )
 
     move = load_move(f"problems/moves.toml:{name}")
     r = args.robust
@@ -271,10 +283,13 @@ def run_move(name, args, study, out_path, robust_moves):
         args.plans.mkdir(parents=True, exist_ok=True)
         plan.save(saved)
     limits = {k: np.asarray(v, dtype=float) for k, v in c.limits.items()}
-    passes = plan.stats.get("passes") or [{"duration": plan.duration,
-                                           "status": plan.stats["status"],
-                                           "iterations": plan.stats["iterations"],
-                                           "solve_cpu_s": plan.stats["solve_cpu_s"]}]
+    # the solve's figures are the first plan's (plan_robot_move may have solved it again
+    # with a tighter bound: bound_corrections in the record)
+    solved = plan.stats.get("first_solve", plan.stats)
+    passes = solved.get("passes") or [{"duration": plan.duration,
+                                       "status": solved["status"],
+                                       "iterations": solved["iterations"],
+                                       "solve_cpu_s": solved["solve_cpu_s"]}]
     restarts, best = [], passes[0]["duration"]
     for again in passes[1:]:
         restarts.append({"from": best, **{k: again[k] for k in (
@@ -313,7 +328,7 @@ def run_move(name, args, study, out_path, robust_moves):
     # starts: both cold starts' records when the first stalled (None if not needed); the
     # passes and "cold" are then the kept start's
     record["planned"].update(case_cpu_s=nominal_cpu, restarts=restarts, guess=args.guess,
-                             starts=plan.stats.get("starts"),
+                             starts=solved.get("starts"),
                              cold={k: passes[0][k] for k in (
                                  "duration", "status", "iterations", "solve_cpu_s")})
     store(out_path, name, record)
@@ -327,12 +342,27 @@ def run_move(name, args, study, out_path, robust_moves):
             f"(the shaped move's at 0, -r, +r), from the {args.robust_guess} move")
         c0 = time.process_time()
         try:
+            # as casflex plan --robust (plan_robot_move): a problem of the continuation
+            # that rises above the shaped move's duration has lost its way and is retried
+            # with a shorter step (without it, move 1's first problem went to 3.84 s)
             robust = plan_move(model, move, end=end, robust=r, guess=start,
                                robust_steps=args.robust_steps, log=log,
                                restarts=args.restarts,
+                               duration_ceiling=continuation_ceiling(
+                                   "time", r, args.robust_steps, shaped.duration),
                                torque_limit=limits["torque"],
                                velocity_limit=limits["velocity"], max_iter=args.max_iter,
                                progress_stop=ProgressStop(leave=0.0), **options)
+            # as casflex plan: a verified residual past its scenario's bound is solved
+            # again with the bounds tightened (hold_verified_bounds)
+            robust, _, _ = hold_verified_bounds(
+                lambda bounds, last: plan_move(
+                    model, move, end=bounds, robust=r, guess=last,
+                    intervals=robust.stats["intervals"], torque_limit=limits["torque"],
+                    velocity_limit=limits["velocity"], max_iter=args.max_iter, log=log,
+                    progress_stop=ProgressStop(leave=0.0), **options),
+                lambda p: verify_plan(model, p, dt=args.dt, errors=[-r, r]), robust,
+                verify_plan(model, robust, dt=args.dt, errors=[-r, r]), log=log)
         except SolverError as error:
             record["robust"] = {**_failure(error, time.process_time() - c0), "robust": r,
                                 "end_bounds": end, "guess": args.robust_guess,
@@ -350,8 +380,11 @@ def run_move(name, args, study, out_path, robust_moves):
             record["robust"] = plan_record(robust, limits, ev, model)
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
                                     robust_steps=args.robust_steps,
-                                    continuation=robust.stats.get("continuation"),
-                                    passes=robust.stats.get("passes"))
+                                    continuation=robust.stats.get("first_solve",
+                                                                  robust.stats).get(
+                                                                      "continuation"),
+                                    passes=robust.stats.get("first_solve",
+                                                            robust.stats).get("passes"))
         store(out_path, name, record)
         log(f"{name}: robust stored")
     if name in args.tradeoff_moves:
