@@ -362,6 +362,12 @@ def _planner_lines(p):
         "by the optimiser's discretisation error: the limit holds at its nodes.)",
         "",
     ]
+    again = [r for r in p.get("bound_corrections") or [] if "duration" in r]
+    if again:
+        lines += ["The first plan's verified residual exceeded the end bound (the "
+                  "optimiser's discretisation), so it was solved again with the bound "
+                  + ", then ".join(f"{_mm(r['end_bounds'][0])} mm" for r in again)
+                  + " (`bound_corrections`); the figures above are of the plan kept.", ""]
     if isinstance(bound, float) and p["residual_tip_deflection"] > bound:
         lines += [f"**The verified residual exceeds the end bound by "
                   f"{100 * (p['residual_tip_deflection'] / bound - 1):.1f} %**: the "

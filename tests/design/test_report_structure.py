@@ -214,7 +214,15 @@ def test_report_of_the_onelink_study_with_its_planned_move(tmp_path):
                                processes=1)
     check_report(out)
     p = result.summary["planner"]
-    assert p["success"] and p["status"] == "Solve_Succeeded"
+    # Ipopt's own convergence; when the verified residual passed the bound, the plan was
+    # solved again warm with a tighter bound (bound_corrections), which may stop on the
+    # progress of T; either way the simulated residual is within the bound asked for
+    assert p["success"]
+    assert p["status"] == "Solve_Succeeded" or (
+        p["bound_corrections"] and p["status"] == "Stopped_On_Progress"), p["status"]
+    assert p["residual_tip_deflection"] <= p["end_bound"]
+    if p["bound_corrections"]:  # the report says which plan its figures are of
+        assert "solved again with the bound" in (out / "report.md").read_text()
     # the comparison is with the job's own shaped move
     assert p["shaped"]["duration"] == pytest.approx(2.0 + result.summary["shaper_duration"],
                                                     rel=1e-12)
