@@ -237,6 +237,23 @@ def test_plan_cli_robust_steps_help_names_the_default():
     assert f"default {ROBUST_STEPS};" in action.help
 
 
+def test_plan_cli_bound_corrections_default_and_bad_value(capsys):
+    import argparse
+
+    from casflex.commands.plan import add_arguments
+    from casflex.planning import BOUND_CORRECTIONS
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    action = next(a for a in parser._actions if a.dest == "bound_corrections")
+    assert f"default {BOUND_CORRECTIONS};" in action.help
+    code = main(["plan", "problems/arm2link.toml", "--move", "problems/moves.toml:move1",
+                 "--bound-corrections", "-1"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--bound-corrections" in err and "-1" in err
+
+
 def test_plan_cli_goal_outside_the_joint_limits_exits_2(tmp_path, capsys):
     # problems/arm3_spatial.toml limits q2 to +-100 deg: a goal at 2 rad is refused with
     # one line naming the move, the joint and the limits, before any table is built
