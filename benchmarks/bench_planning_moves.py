@@ -166,7 +166,7 @@ def evaluate(model, reference, torque_law, errors, dt):
 
 def plan_record(plan, limits, evaluation, model):
     """The stored record of a plan: its statistics, limits, limit excess and evaluation."""
-    from casflex.planning import limit_excess
+    from casflex.planning import asked_bounds, limit_excess
 
     st = plan.stats
     rec = {"duration": plan.duration, "status": st.get("status"),
@@ -174,8 +174,8 @@ def plan_record(plan, limits, evaluation, model):
            "solve_cpu_s": st.get("solve_cpu_s"), "intervals": st.get("intervals"),
            # the bounds asked for; the OCP's own when it was solved again tighter for
            # its verified residual (bound_corrections)
-           "end_bound": (st.get("end_asked") or [st.get("end")])[0],
-           "end_bounds": st.get("end_asked") or st.get("end_bounds"),
+           "end_bound": (asked_bounds(st) or [st.get("end")])[0],
+           "end_bounds": asked_bounds(st),
            "ocp_end_bounds": st.get("end_bounds"),
            "bound_corrections": st.get("bound_corrections"),
            "scenarios": st.get("scenarios"),
@@ -378,13 +378,11 @@ def run_move(name, args, study, out_path, robust_moves):
                 robust.save(args.plans / f"{name}_robust.npz")
             ev, _ = evaluate(model, robust, robust.torque_function(), errors, args.dt)
             record["robust"] = plan_record(robust, limits, ev, model)
+            solved = robust.stats.get("first_solve", robust.stats)  # before a re-solve
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
                                     robust_steps=args.robust_steps,
-                                    continuation=robust.stats.get("first_solve",
-                                                                  robust.stats).get(
-                                                                      "continuation"),
-                                    passes=robust.stats.get("first_solve",
-                                                            robust.stats).get("passes"))
+                                    continuation=solved.get("continuation"),
+                                    passes=solved.get("passes"))
         store(out_path, name, record)
         log(f"{name}: robust stored")
     if name in args.tradeoff_moves:

@@ -202,9 +202,10 @@ def planner_summary(comparison: Any, end: str | float) -> dict:
                            "torque_peak": s["torque_peak"]}}
     summary = comparison.summary()
     summary.pop("timings", None)
+    from casflex.planning import asked_bounds
+
     stats = comparison.plan.stats
-    # the bounds asked for (a plan re-solved for its verified bound was solved tighter)
-    bounds = stats.get("end_asked") or stats.get("end_bounds")
+    bounds = asked_bounds(stats)  # a plan re-solved for its verified bound was solved tighter
     bound = bounds[0] if bounds else stats.get("end")
     summary["success"] = bool(stats.get("success", False))
     summary["end"] = end

@@ -149,6 +149,8 @@ tightened_bounds
     The next bounds: each scaled by asked / verified where the verified residual passes.
 verified_residuals
     A verification's residuals in the order of the plan's scenarios.
+asked_bounds
+    The end bounds a plan was asked to meet (not the tighter ones it was re-solved with).
 BOUND_CORRECTIONS
     The re-solves made at most by default.
 
@@ -180,6 +182,7 @@ from __future__ import annotations
 from casflex.planning.assembly import block_derivatives
 from casflex.planning.correction import (
     BOUND_CORRECTIONS,
+    asked_bounds,
     hold_verified_bounds,
     tightened_bounds,
     verified_residuals,
@@ -294,6 +297,7 @@ __all__ = [
     "PlanComparison",
     # end bounds held by the verified residual
     "hold_verified_bounds",
+    "asked_bounds",
     "tightened_bounds",
     "verified_residuals",
     "BOUND_CORRECTIONS",

@@ -20,7 +20,7 @@ from typing import Any
 from casflex._validate import number
 from casflex.errors import SolverError
 
-__all__ = ["verified_residuals", "tightened_bounds", "hold_verified_bounds",
+__all__ = ["verified_residuals", "tightened_bounds", "hold_verified_bounds", "asked_bounds",
            "BOUND_CORRECTIONS"]
 
 #: Re-solves :func:`hold_verified_bounds` makes at most by default (the first lands within
@@ -87,6 +87,32 @@ def tightened_bounds(bounds: Sequence[float], asked: Sequence[float],
     """
     return [b * min(1.0, a / v) if v > 0.0 else b
             for b, a, v in zip(bounds, asked, verified, strict=True)]
+
+
+def asked_bounds(stats: dict) -> list[float] | None:
+    """The end bounds a plan was asked to meet, one per scenario [m].
+
+    A plan re-solved by :func:`hold_verified_bounds` was solved with tighter bounds than
+    asked (``stats["end_bounds"]``); the ones asked for are ``stats["end_asked"]``.
+
+    Parameters
+    ----------
+    stats : dict
+        A :class:`~casflex.planning.PlannedMove`'s ``stats``.
+
+    Returns
+    -------
+    list of float or None
+        ``None`` for an end condition without a bound (``"rest"``, ``"free"``).
+
+    Examples
+    --------
+    >>> asked_bounds({"end_bounds": [0.0095], "end_asked": [0.01]})
+    [0.01]
+    >>> asked_bounds({"end_bounds": [0.01]}), asked_bounds({"end_bounds": None})
+    ([0.01], None)
+    """
+    return stats.get("end_asked") or stats.get("end_bounds")
 
 
 def _worst_excess(verified, asked):

@@ -28,7 +28,7 @@ import numpy as np
 
 from casflex._validate import fail, number
 from casflex.model import FlexibleModel
-from casflex.planning.correction import BOUND_CORRECTIONS, hold_verified_bounds
+from casflex.planning.correction import BOUND_CORRECTIONS, asked_bounds, hold_verified_bounds
 from casflex.planning.limits import shaped_end, shaped_move_limits
 from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
@@ -348,7 +348,7 @@ class PlanComparison:
             "limits": {k: list(map(float, val)) for k, val in self.limits.items()},
             "limit_excess": {k: limit_excess(v[f"{k}_peak"], self.limits[k])
                              for k in ("torque", "velocity") if k in self.limits},
-            "end_bound_excess": _bound_excess(v["prescribed"], (p.stats.get("end_asked")
+            "end_bound_excess": _bound_excess(v["prescribed"], (asked_bounds(p.stats)
                                                                 or [p.stats.get("end")])[0]),
             "solve_s": _plus(first.get("continuation_solve_s", first.get(
                 "solve_s_total", first.get("solve_s"))), [r["solve_s"] or 0.0 for r in again]),
