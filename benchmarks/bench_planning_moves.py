@@ -13,8 +13,10 @@ modes, 3° grid, ``delta_order`` 0, no gravity):
    the shaped move's residual at that error, as ``casflex plan --robust`` takes it),
    warm-started node by node from the nominal plan, or (``--robust-guess shaped``) cold
    from the SI-shaped move, which meets every scenario's bound and the limits already;
-   with ``--robust-steps K`` through K problems from the nominal one (r and the
-   scenarios' bounds moved together, :func:`casflex.planning.solve_by_continuation`);
+   with ``--robust-steps K`` through K problems from the nominal one along
+   ``--robust-path`` (default :func:`casflex.planning.robust_path_for`: the bound path,
+   every problem at ±r with the scenarios' bounds tightened from 10 times theirs; or r
+   and the bounds moved together; :func:`casflex.planning.solve_by_continuation`);
 3. each of them evaluated at the frequency errors −r, 0, +r
    (:func:`casflex.planning.frequency_shifted_model`) by the verification simulators at
    ``--dt`` (0.1 ms): the joints on the move (prescribed motion) and the move's torques
@@ -55,6 +57,7 @@ Usage::
         [--tolerances 2 0.5 0.25] [--dt 1e-4] [--onelink]
         [--derivatives casadi|blocks|blocks-jacobian|points] [--compile-flags FLAGS]
         [--guess shaped|rigid] [--robust-guess nominal|shaped] [--robust-steps K]
+        [--robust-path frequency|bounds]
         [--restarts K] [--plans DIR] [--redo]
         [--out benchmarks/data/planning_moves.json] [--json]
 """
@@ -250,6 +253,7 @@ def run_move(name, args, study, out_path, robust_moves):
         hold_verified_bounds,
         plan_move,
         plan_robot_move,
+        robust_path_for,
         verify_plan,
     )
 
@@ -338,18 +342,20 @@ def run_move(name, args, study, out_path, robust_moves):
         res = dict(zip(errors, shaped_eval["prescribed"], strict=True))
         end = [res[0.0], res[-r], res[r]]
         start = {"nominal": plan, "shaped": shaped}[args.robust_guess]
+        path = robust_path_for(end, args.robust_path)
         log(f"{name}: robust ±{r:g} plan, end bounds {[round(1e3 * b, 4) for b in end]} mm "
-            f"(the shaped move's at 0, -r, +r), from the {args.robust_guess} move")
+            f"(the shaped move's at 0, -r, +r), from the {args.robust_guess} move, "
+            f"{path} path")
         c0 = time.process_time()
         try:
             # as casflex plan --robust (plan_robot_move): a problem of the continuation
             # that rises above the shaped move's duration has lost its way and is retried
             # with a shorter step (without it, move 1's first problem went to 3.84 s)
             robust = plan_move(model, move, end=end, robust=r, guess=start,
-                               robust_steps=args.robust_steps, log=log,
+                               robust_steps=args.robust_steps, robust_path=path, log=log,
                                restarts=args.restarts,
                                duration_ceiling=continuation_ceiling(
-                                   "time", r, args.robust_steps, shaped.duration),
+                                   "time", r, args.robust_steps, shaped.duration, path),
                                torque_limit=limits["torque"],
                                velocity_limit=limits["velocity"], max_iter=args.max_iter,
                                progress_stop=ProgressStop(leave=0.0), **options)
@@ -366,7 +372,7 @@ def run_move(name, args, study, out_path, robust_moves):
         except SolverError as error:
             record["robust"] = {**_failure(error, time.process_time() - c0), "robust": r,
                                 "end_bounds": end, "guess": args.robust_guess,
-                                "robust_steps": args.robust_steps,
+                                "robust_steps": args.robust_steps, "robust_path": path,
                                 "continuation": getattr(error, "continuation", None)}
             log(f"{name}: robust plan failed: {error}")
         else:
@@ -380,7 +386,7 @@ def run_move(name, args, study, out_path, robust_moves):
             record["robust"] = plan_record(robust, limits, ev, model)
             solved = robust.stats.get("first_solve", robust.stats)  # before a re-solve
             record["robust"].update(robust=r, case_cpu_s=cpu, guess=args.robust_guess,
-                                    robust_steps=args.robust_steps,
+                                    robust_steps=args.robust_steps, robust_path=path,
                                     continuation=solved.get("continuation"),
                                     passes=solved.get("passes"))
         store(out_path, name, record)
@@ -509,6 +515,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--robust-steps", type=int, default=1, metavar="K",
                         help="reach the robust plan by a continuation of K problems from "
                              "the nominal one (plan_move's robust_steps)")
+    parser.add_argument("--robust-path", default=None, choices=["frequency", "bounds"],
+                        help="the path of those problems (plan_move's robust_path; "
+                             "default: bounds, the robust moves having end bounds)")
     parser.add_argument("--restarts", type=int, default=0, metavar="K",
                         help="solve the nominal plan again from where it stopped, up to K "
                              "times while it gets shorter")
@@ -535,6 +544,7 @@ def main(argv: list[str] | None = None) -> dict:
             "derivatives": args.derivatives, "compile_flags": args.compile_flags,
             "format": FORMAT, "restarts": args.restarts, "guess": args.guess,
             "robust_guess": args.robust_guess, "robust_steps": args.robust_steps,
+            "robust_path": args.robust_path,
             "command": "python benchmarks/bench_planning_moves.py "
                        + " ".join(sys.argv[1:] if argv is None else argv)}
     if args.onelink and (args.redo or not (out_path.exists() and "onelink"

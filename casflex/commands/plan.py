@@ -1,7 +1,8 @@
 """``casflex plan``: optimal point-to-point motion of a robot on its flexible model.
 
 ``casflex plan ROBOT.toml --move FILE:NAME [--objective time|energy] [--duration T]
-[--robust R [--robust-steps K]] [--modes N] [--intervals N] [--transcription collocation|shooting]
+[--robust R [--robust-steps K] [--robust-path frequency|bounds]] [--modes N] [--intervals N]
+[--transcription collocation|shooting]
 [--end rest|free|TOL] [--dt S] [--guess PLAN.npz] [--fallback-guess rigid|none] [--out DIR]
 [--plot FILE.png] [--json]``
 
@@ -18,7 +19,11 @@ torque-driven simulator.
 ``--robust R`` makes the plan meet the end condition with the frequencies off by ±R too
 (by default each scenario's bound is the shaped move's residual at that frequency error),
 and evaluates both moves there; the robust plan is reached from the nominal plan through
-``--robust-steps`` problems (4 by default: ``casflex.planning.solve_by_continuation``).
+``--robust-steps`` problems (4 by default: ``casflex.planning.solve_by_continuation``),
+along ``--robust-path``: by default, with end bounds, every problem at ±R with the
+scenarios' bounds tightened from 10 times theirs, the first started from the nominal plan
+lifted into the robust problem (``bounds``); with ``--end rest|free`` R and the bounds
+moved together (``frequency``).
 A minimum-time plan from the shaped move that is not 10 % shorter than it (a solve that
 stalled near its start; Ipopt's path here hinges on the last digits) is solved again from
 the rigid bang-bang move, and the shorter plan kept (``--fallback-guess none``: one
@@ -46,7 +51,8 @@ writes the plan reached so far to ``DIR/plan.npz`` (the solve's last feasible it
 best finished pass or the last finished problem of the robust path), and ``--guess
 DIR/plan.npz`` continues from there. A robust path that finds no plan at some problem
 writes its last plan there too; from a robust plan at ``±r`` the path resumes after
-``r`` (:func:`casflex.planning.plan_robustness`).
+``r`` (:func:`casflex.planning.plan_robustness`), on the bound path after that plan's
+bounds.
 """
 
 from __future__ import annotations
@@ -54,7 +60,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-from casflex._validate import choice, number, output_directory
+from casflex._validate import choice, fail, number, output_directory
 from casflex.commands.common import (
     add_cache_arguments,
     add_modes_argument,
@@ -110,6 +116,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --robust: reach the robust plan from the nominal plan "
                         "through K problems, R and the bounds moved together (default 4; "
                         "1: the robust problem directly from the shaped move)")
+    parser.add_argument("--robust-path", default=None, metavar="KIND",
+                        help="with --robust: the path of those problems, 'frequency' (the "
+                        "frequency error and the bounds moved together) or 'bounds' (the "
+                        "bounds tightened at the full error) (default bounds with end "
+                        "bounds, frequency with --end rest|free)")
     add_modes_argument(parser, 3, help="number of modes of the model (default 3)")
     parser.add_argument("--intervals", type=int, default=None, metavar="N",
                         help="intervals of the OCP (default 40 for shooting; for "
@@ -281,6 +292,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     from casflex.planning import (
         BOUND_CORRECTIONS,
         DERIVATIVES,
+        ROBUST_PATHS,
         ROBUST_STEPS,
         SOLVERS,
         PlanInterrupted,
@@ -309,6 +321,12 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
     if duration is not None:
         duration = number(float(duration), "--duration", low=0.0, low_open=True)
     end = _end(getattr(args, "end", None))
+    robust_path = getattr(args, "robust_path", None)
+    if robust_path is not None:
+        robust_path = choice(robust_path, "--robust-path", ROBUST_PATHS)
+    if robust and robust_path == "bounds" and isinstance(end, str):
+        raise fail("--robust-path", robust_path, f"needs end bounds to tighten (--end TOL, "
+                   f"or the shaped move's residuals by default), not --end {end}")
     solver = choice(getattr(args, "solver", "ipopt"), "--solver", SOLVERS)
     transcription = getattr(args, "transcription", "collocation")
     derivatives = getattr(args, "derivatives", None)
@@ -345,6 +363,7 @@ def run(args: argparse.Namespace, log: Callable[[str], None]) -> dict:
             max_iter=max_iter, transcription=transcription, derivatives=derivatives,
             compile_function=point_compiler(derivatives, cache_dir_of(args), log),
             solver=solver, restarts=restarts, robust_steps=robust_steps,
+            robust_path=robust_path,
             bound_corrections=corrections, **options)
     except PlanInterrupted as exc:  # keep what the solve had reached, for --guess
         _keep_interrupted(exc, out, log)

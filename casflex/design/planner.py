@@ -46,7 +46,8 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         The study's ``[planner]`` settings (:attr:`casflex.design.Study.planner`):
         ``objective``, ``duration`` [s], ``weight``, ``robust``, ``robust_steps`` (the
         robust plan through that many problems from the nominal one, default
-        :data:`casflex.planning.ROBUST_STEPS`), ``end`` (``"shaped"``:
+        :data:`casflex.planning.ROBUST_STEPS`), ``robust_path`` (their path, default
+        :func:`casflex.planning.robust_path_for`), ``end`` (``"shaped"``:
         the shaped move's residual, in each robust scenario its residual there;
         ``"rest"``, ``"free"`` or a bound [m]),
         ``intervals``, ``transcription``, ``derivatives`` (default ``"casadi"``;
@@ -99,6 +100,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
         hold_verified_bounds,
         plan_move,
         point_compiler,
+        robust_path_for,
         shaped_end,
         shaped_move_limits,
         shaped_reference,
@@ -121,6 +123,7 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
     limits = {"torque": tau_lim, "velocity": v_lim}
     derivatives = settings.get("derivatives", "casadi")
     steps = settings.get("robust_steps", ROBUST_STEPS)
+    path = robust_path_for(end, settings.get("robust_path"))
     try:
         plan = plan_move(model, move, objective=settings["objective"], duration=duration,
                          weight=settings["weight"], intervals=settings["intervals"],
@@ -128,9 +131,9 @@ def plan_next_to_shaped(model: FlexibleModel, move: Move, shaped: ShapedMove,
                          guess=shaped, transcription=settings["transcription"],
                          # a second start when the first stalls near the shaped move
                          fallback_guess="rigid" if settings["objective"] == "time" else None,
-                         robust_steps=steps, log=log,
+                         robust_steps=steps, robust_path=path, log=log,
                          duration_ceiling=continuation_ceiling(
-                             settings["objective"], robust, steps, shaped.duration),
+                             settings["objective"], robust, steps, shaped.duration, path),
                          max_iter=settings["max_iter"], progress=progress,
                          derivatives=derivatives,
                          compile_function=point_compiler(derivatives, cache_dir, say))

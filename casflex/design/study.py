@@ -49,7 +49,8 @@ _SECTIONS = {
                   "plant_region": "limits"},
     "codegen": {"name": "casflex", "compile": True, "guard": True, "torque_limits": None},
     "planner": {"enabled": True, "objective": "time", "duration": None, "weight": 0.0,
-                "robust": 0.0, "robust_steps": None, "end": "shaped", "intervals": None,
+                "robust": 0.0, "robust_steps": None, "robust_path": None, "end": "shaped",
+                "intervals": None,
                 "transcription": "collocation", "derivatives": None, "modes": None,
                 "max_iter": 500, "verify_dt": 1e-4, "bound_corrections": None},
 }
@@ -285,6 +286,7 @@ def _check_planner(path, p, n_modes):
         BOUND_CORRECTIONS,
         DERIVATIVES,
         OBJECTIVES,
+        ROBUST_PATHS,
         ROBUST_STEPS,
         TRANSCRIPTIONS,
         default_derivatives,
@@ -306,6 +308,9 @@ def _check_planner(path, p, n_modes):
     p["robust"] = number(p["robust"], "planner.robust", low=0.0, high=0.5, path=path)
     p["robust_steps"] = ROBUST_STEPS if p["robust_steps"] is None else number(
         p["robust_steps"], "planner.robust_steps", low=1, high=100, integer=True, path=path)
+    if p["robust_path"] is not None:
+        p["robust_path"] = choice(p["robust_path"], "planner.robust_path", ROBUST_PATHS,
+                                  path=path)
     end = p["end"]
     if isinstance(end, str):
         p["end"] = choice(end, "planner.end", ("shaped", "rest", "free"), path=path)

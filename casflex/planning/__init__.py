@@ -122,6 +122,26 @@ continuation_ceiling
     shaped move's, by default, for a minimum-time plan).
 ROBUST_STEPS
     The problems on that path in ``casflex plan --robust`` and the design job by default.
+ROBUST_PATHS
+    The paths: the frequency error and the bounds together, or the bounds alone at the
+    full error (``plan_move``'s ``robust_path``).
+LOOSE_BOUNDS
+    The bound path's first bounds, in multiples of those asked for.
+robust_path_for
+    The path for an end condition (``casflex plan --robust`` and the design job): the
+    bound path with end bounds.
+
+A nominal plan as the start of the robust problem (:mod:`casflex.planning.lifting`)
+-----------------------------------------------------------------------------------
+BlockLayout
+    Where each named block of variables and constraints lies in the planner's NLP (kept
+    with a plan).
+lifted_start
+    A nominal plan's iterate and multipliers in the robust NLP, the scenario rows added.
+lifted_scales
+    The scales of that NLP: the plan's on its rows.
+LIFTED_OPTIONS
+    Ipopt options of a solve from a lifted start (SPRAL).
 
 Verification (:mod:`casflex.planning.verify`)
 ---------------------------------------------
@@ -164,6 +184,10 @@ static_deflection
     Modal amplitudes of the arm at rest (zero without gravity).
 tip_jacobian
     ``∂tip/∂δ`` at δ = 0.
+modal_guess
+    A scenario's modal rows simulated under a move's joint motion.
+collocated_modal_guess
+    The scenarios' modal rows solved from the collocation equations under a plan's.
 
 Examples
 --------
@@ -193,6 +217,7 @@ from casflex.planning.derivatives import (
     default_derivatives,
     point_compiler,
 )
+from casflex.planning.lifting import LIFTED_OPTIONS, BlockLayout, lifted_scales, lifted_start
 from casflex.planning.limits import end_bounds, plan_limits, shaped_end, shaped_move_limits
 from casflex.planning.ocp import (
     DERIVATIVES,
@@ -209,11 +234,14 @@ from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import SolveProgress
 from casflex.planning.restarts import (
     FALLBACK_SHORTENING,
+    LOOSE_BOUNDS,
     RESTART_VIOLATION_CEILING,
+    ROBUST_PATHS,
     ROBUST_STEPS,
     continuation_ceiling,
     continuation_steps,
     plan_robustness,
+    robust_path_for,
     solve_by_continuation,
     solve_from_plan,
     solve_with_fallback,
@@ -221,7 +249,9 @@ from casflex.planning.restarts import (
 )
 from casflex.planning.scenarios import (
     ScaledFrequencyProvider,
+    collocated_modal_guess,
     frequency_shifted_model,
+    modal_guess,
     static_deflection,
     tip_jacobian,
 )
@@ -287,6 +317,14 @@ __all__ = [
     "continuation_ceiling",
     "plan_robustness",
     "ROBUST_STEPS",
+    "ROBUST_PATHS",
+    "LOOSE_BOUNDS",
+    "robust_path_for",
+    # a nominal plan lifted into the robust problem
+    "BlockLayout",
+    "lifted_start",
+    "lifted_scales",
+    "LIFTED_OPTIONS",
     # limits
     "shaped_move_limits",
     "end_bounds",
@@ -308,4 +346,6 @@ __all__ = [
     "ScaledFrequencyProvider",
     "static_deflection",
     "tip_jacobian",
+    "modal_guess",
+    "collocated_modal_guess",
 ]

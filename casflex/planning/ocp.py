@@ -59,6 +59,7 @@ from casflex.planning.guess import (
     time_scaled,
     warm_duals,
 )
+from casflex.planning.lifting import LIFTED_OPTIONS, BlockLayout, lifted_scales, lifted_start
 from casflex.planning.limits import diagnose_failure, end_bounds, joint_bounds
 from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import check_progress, progress_listener
@@ -69,6 +70,7 @@ from casflex.planning.restarts import (
     solve_with_restarts,
 )
 from casflex.planning.scenarios import (
+    collocated_modal_guess,
     frequency_shifted_model,
     modal_guess,
     static_deflection,
@@ -91,7 +93,11 @@ from casflex.planning.stopping import (
     ViolationCeiling,
     iteration_callback,
 )
-from casflex.simulate.integrators import rk4_step
+from casflex.planning.transcription import (
+    augmented_ode,
+    explicit_collocation_function,
+    shooting_interval_function,
+)
 
 __all__ = ["plan_move", "predicted_residual", "OBJECTIVES", "TRANSCRIPTIONS",
            "DYNAMICS", "DERIVATIVES", "SOLVERS", "WARM_START_OPTIONS", "LIMIT_STATUSES"]
@@ -160,78 +166,6 @@ def _limit(value, n, field, unit):
         raise fail(field, value, f"must be one value or {n} values > 0 [{unit}] "
                    "(inf: no limit)")
     return v
-
-
-def _augmented_ode(model, shifted):
-    """``ẋa = f(xa, τ)``: the nominal state and the modal state of every shifted model,
-    the latter driven by the nominal joint motion (prescribed-motion modal rows)."""
-    n, m = model.n, model.m
-    nx = 2 * (n + m)
-    f = model.functions()
-    rows = [s.functions()["dddelta"] for s in shifted]
-
-    def ode(xa, tau):
-        x = xa[:nx]
-        xdot = f["ode"](x, tau)
-        if not rows:
-            return xdot
-        q, dq = x[:n], x[n + m:2 * n + m]
-        ddq = xdot[n + m:2 * n + m]
-        out = [xdot]
-        for k, row in enumerate(rows):
-            z = xa[nx + 2 * m * k:nx + 2 * m * (k + 1)]
-            out += [z[m:], row(q, dq, ddq, z[:m], z[m:])]
-        return ca.vertcat(*out)
-
-    return ode
-
-
-def _interval_function(ode, nxa, n, substeps):
-    """``F(x, τ, h) -> (x_end, states)``: ``substeps`` RK4 steps of length ``h``.
-
-    One step is an SX function; the substeps are a ``mapaccum`` of it, so the
-    derivatives of the step are built once, not once per substep."""
-    x = ca.SX.sym("x", nxa)
-    u = ca.SX.sym("tau", n)
-    h = ca.SX.sym("h")
-    step = ca.Function("rk4", [x, u, h], [rk4_step(ode, x, h, u)])
-    try:  # the model's Functions are SX inside: one flat SX step is faster
-        step = step.expand()
-    except RuntimeError:
-        pass
-    acc = step.mapaccum("substeps", substeps, [0], [0])
-    xm = ca.MX.sym("x", nxa)
-    um = ca.MX.sym("tau", n)
-    hm = ca.MX.sym("h")
-    states = acc(xm, ca.repmat(um, 1, substeps), ca.repmat(hm, 1, substeps))
-    return ca.Function("interval", [xm, um, hm], [states[:, -1], states],
-                       ["x", "tau", "h"], ["xf", "states"])
-
-
-def _collocation_function(ode, nxa, n, degree):
-    """``G(x, Xc, τ, h) -> (defects, x_end)``: Gauss–Legendre collocation of ``degree``
-    points on one interval of length ``h`` (torque constant), expanded to one SX function
-    so that the NLP's derivatives come from one compact function mapped over the
-    intervals.
-
-    The state is the polynomial of ``degree`` through ``x`` at 0 and ``Xc`` at the
-    collocation points; ``defects`` are ``h ẋ(t_j) − p'(t_j)`` at those points and
-    ``x_end`` the polynomial at the end of the interval (order ``2 degree`` there)."""
-    tau_c = np.r_[0.0, ca.collocation_points(degree, "legendre")]
-    C, D = _collocation_matrices(degree)
-    x = ca.SX.sym("x", nxa)
-    Xc = ca.SX.sym("Xc", nxa, degree)
-    u = ca.SX.sym("tau", n)
-    h = ca.SX.sym("h")
-    P = ca.horzcat(x, Xc)
-    defects = [h * ode(Xc[:, j - 1], u) - P @ C[:, j] for j in range(1, degree + 1)]
-    G = ca.Function("collocation", [x, Xc, u, h], [ca.horzcat(*defects), P @ D],
-                    ["x", "Xc", "tau", "h"], ["defects", "xf"])
-    try:
-        G = G.expand()
-    except RuntimeError:
-        pass
-    return G, tau_c[1:]
 
 
 def _residual_terms(v_norm, omega, d, dd, d_static, eps):
@@ -314,6 +248,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               compile_function: Callable[[list], list] | None = None,
               solver: str = "ipopt", restarts: int = 0,
               restart_rtol: float = 1e-3, robust_steps: int = 1,
+              robust_path: str = "frequency",
               log: Callable[[str], None] | None = None,
               progress: bool | Callable[[int, float, float], Any] = False) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
@@ -458,6 +393,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         the plan before; the nominal problem solved first unless ``guess`` is a plan;
         :func:`casflex.planning.solve_by_continuation`, ``stats["continuation"]``).
         Default 1: the robust problem directly.
+    robust_path : {"frequency", "bounds"}
+        The continuation's path (:data:`casflex.planning.ROBUST_PATHS`): the frequency
+        error and the bounds moved together from the nominal problem, or (``"bounds"``,
+        with end bounds; a continuation even with ``robust_steps`` 1) every problem at
+        the full error, the scenarios' bounds tightened from loose ones, the first
+        problem started from the nominal plan lifted into the robust NLP with its
+        multipliers (:func:`casflex.planning.continuation_steps`,
+        :mod:`casflex.planning.lifting`).
     log : callable, optional
         ``log(message)``: one line per restart and per problem of a continuation.
     progress : bool or callable
@@ -502,8 +445,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     >>> p.stats["success"], round(p.duration, 2)
     (True, 1.29)
     """
-    if robust_steps != 1 and number(robust, "robust", low=0.0) > 0.0:
-        return solve_by_continuation(plan_move, {**locals()}, robust_steps)
+    if (robust_steps != 1 or robust_path != "frequency") and \
+            number(robust, "robust", low=0.0) > 0.0:
+        return solve_by_continuation(plan_move, {**locals()}, robust_steps, robust_path)
     if fallback_guess is not None:
         return solve_with_fallback(plan_move, {**locals()}, fallback_guess)
     if check_restarts(restarts, restart_rtol)[0]:
@@ -657,12 +601,25 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     times = ((np.arange(N)[:, None] + tc[None, :]) * (T_guess / N)).ravel()
     scenario_guess = [modal_guess(s, reference, T_guess, N * substeps,
                                   np.arange(N + 1) * substeps, times) for s in shifted]
+    if implicit:
+        G, split = implicit_collocation_function(
+            static_lookup(model) if compile_function and derivatives == "points"
+            else model, len(errors), degree)
+    # a nominal plan lifted into this robust NLP (casflex.planning.lifting), its scenario
+    # rows on the collocation grid under its joint motion
+    lifting = warm and implicit and bool(shifted) and not fatrop and solver == "ipopt" and \
+        (guess.solution or {}).get("layout") is not None and \
+        guess.solution["scales"]["x"].size == nx
+    if lifting:
+        scenario_guess = collocated_modal_guess(G, [1.0 + r for r in errors], X_guess,
+                                                Xc_guess, Ac_guess, U_guess, T_guess / N,
+                                                scenario_guess)
 
     def augmented(states, points=False):
         return np.hstack([states, *[g[int(points)] for g in scenario_guess]]).T
 
-    ode = _augmented_ode(model, shifted)
-    opti = ca.Opti()
+    ode = augmented_ode(model, shifted)
+    opti, layout = ca.Opti(), BlockLayout()
     # the modal states are orders of magnitude smaller than the joints': every state row,
     # the torques and T are scaled by their magnitude in the guess, and the dynamics
     # constraints of a row by the row's scale
@@ -674,6 +631,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # a warm start with the guess's multipliers solves in the guess's scales (kept_scales)
     kept = kept_scales(guess.solution, nxa, n, implicit) if warm and solver == "ipopt" and \
         guess.stats.get("solver", "ipopt") == "ipopt" else None
+    if lifting:
+        kept = lifted_scales(guess.solution, sx, n, implicit)
     sx, su, sa, sT = kept or (sx, su, sa, sT)
     if fatrop:  # stage order, T a state (casflex.planning.staged)
         sx, sT = power_of_two(sx), power_of_two(sT)
@@ -683,28 +642,25 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         T = Tk[0][0] if duration is None else duration
         h = Tk[0][:N] / N if duration is None else duration / N
     else:
-        X = opti.variable(nxa, N + 1)
-        U = opti.variable(n, N)
+        X = layout.variable(opti, "X", nxa, N + 1)
+        U = layout.variable(opti, "U", n, N)
         opti.set_linear_scale(X, np.repeat(sx[:, None], N + 1, axis=1))
         opti.set_linear_scale(U, np.repeat(su[:, None], N, axis=1))
-        T = opti.variable() if duration is None else duration
+        T = layout.variable(opti, "T") if duration is None else duration
         if duration is None:
             opti.set_linear_scale(T, sT)
         h = T / N
     if duration is None:
-        opti.subject_to(opti.bounded(1e-3, T, max_duration))
+        layout.subject_to(opti, "duration", opti.bounded(1e-3, T, max_duration))
         opti.set_initial(Tk[0] if fatrop else T, T_guess * np.ones((1, N + 1))
                          if fatrop else T_guess)
     if transcription == "collocation":
         if not fatrop:
-            Xc = opti.variable(nxa, N * degree)
+            Xc = layout.variable(opti, "Xc", nxa, N * degree)
             opti.set_linear_scale(Xc, np.repeat(sx[:, None], N * degree, axis=1))
         if implicit:
-            G, split = implicit_collocation_function(
-                static_lookup(model) if compile_function and derivatives == "points"
-                else model, len(errors), degree)
             if not fatrop:
-                Ac = opti.variable(n, N * degree)
+                Ac = layout.variable(opti, "Ac", n, N * degree)
                 opti.set_linear_scale(Ac, np.repeat(sa[:, None], N * degree, axis=1))
             opti.set_initial(Ac, Ac_guess.T)
             # the scenarios' frequency factors: an input of G, so that every problem of a
@@ -722,44 +678,48 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                                            for j in range(degree))
             torque_scale = np.repeat(su[:, None], N * degree, axis=1)
             block_rows = [opti.ng]
-            opti.subject_to(ca.vec(torque_defects / torque_scale) == 0)
+            layout.subject_to(opti, "torque defects", ca.vec(torque_defects / torque_scale)
+                              == 0, rows=n)
         else:
-            G, _ = _collocation_function(ode, nxa, n, degree)
+            G = explicit_collocation_function(ode, nxa, n, degree)
             defects, Xf = G.map(N)(X[:, :N], Xc, U, h)
         defect_scale = np.repeat(sx[:, None], N * degree, axis=1)
         if implicit:
             block_rows.insert(0, opti.ng)
-        opti.subject_to(ca.vec(defects / defect_scale) == 0)
+        layout.subject_to(opti, "defects", ca.vec(defects / defect_scale) == 0, rows=nxa)
         opti.set_initial(Xc, augmented(Xc_guess, points=True))
     else:
         Xc = None
-        F = _interval_function(ode, nxa, n, substeps)
+        F = shooting_interval_function(ode, nxa, n, substeps)
         Xf, _ = F.map(N)(X[:, :N], U, T / (N * substeps))
     # the gaps: with fatrop the identity on x_{k+1}, the scale being the variable's
-    opti.subject_to((X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0)
+    layout.subject_to(opti, "gaps", (X[:, 1:] - Xf) / np.repeat(sx[:, None], N, axis=1) == 0,
+                      rows=nxa)
     if fatrop and duration is None:
-        opti.subject_to((Tk[0][1:] - Tk[0][:N]) / sT == 0)
-    opti.subject_to(X[:, 0] == xa0)
-    opti.subject_to(X[:n, N] == qf)
-    opti.subject_to(X[n + m:2 * n + m, N] == 0)
+        layout.subject_to(opti, "duration gaps", (Tk[0][1:] - Tk[0][:N]) / sT == 0)
+    layout.subject_to(opti, "start", X[:, 0] == xa0)
+    layout.subject_to(opti, "goal", X[:n, N] == qf)
+    layout.subject_to(opti, "goal velocity", X[n + m:2 * n + m, N] == 0)
     finite_tau = np.isfinite(tau_max)
     for j in np.flatnonzero(finite_tau):
-        opti.subject_to(opti.bounded(-tau_max[j], U[int(j), :], tau_max[j]))
+        layout.subject_to(opti, f"torque {j}", opti.bounded(-tau_max[j], U[int(j), :],
+                                                              tau_max[j]))
     # velocity and position limits at the nodes and the collocation points. (On an arc at
     # the limit the node's bound follows from its interval's through the polynomial, so
     # the active bounds are linearly dependent; with the bounds at the collocation points
     # only, move 1 of the design study took Ipopt to T = 2.95 s in 30 iterations where
     # both reach 2.396 s in 32 (benchmarks/README_planning.md): both are kept.)
-    points = [X[:, 1:N]] + ([Xc] if Xc is not None else [])
+    points = {"nodes": X[:, 1:N], **({"points": Xc} if Xc is not None else {})}
     for j in np.flatnonzero(np.isfinite(v_max)):
-        for P in points:
-            opti.subject_to(opti.bounded(-v_max[j], P[n + m + int(j), :], v_max[j]))
+        for at, P in points.items():
+            layout.subject_to(opti, f"velocity {j} {at}",
+                              opti.bounded(-v_max[j], P[n + m + int(j), :], v_max[j]))
     for j in range(n):
-        for P in points:
+        for at, P in points.items():
             if np.isfinite(lo[j]):
-                opti.subject_to(P[j, :] >= lo[j])
+                layout.subject_to(opti, f"lower {j} {at}", P[j, :] >= lo[j])
             if np.isfinite(hi[j]):
-                opti.subject_to(P[j, :] <= hi[j])
+                layout.subject_to(opti, f"upper {j} {at}", P[j, :] <= hi[j])
     # end condition of the modes, in every scenario
     scen = [(model, X[n:n + m, N], X[2 * n + m:nx, N])] + [
         (s, X[nx + 2 * m * k:nx + 2 * m * k + m, N], X[nx + 2 * m * k + m:nx + 2 * m * (k + 1), N])
@@ -767,22 +727,22 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     v_norm = np.linalg.norm(tip_jacobian(model, qf), axis=0) if m else np.zeros(0)
     residual_cons = []
     if m and end != "free":
-        for s, d, dd in scen:
+        for k, (s, d, dd) in enumerate(scen):
             ds = static_deflection(s, qf)
             if end == "rest":
-                opti.subject_to(d == ds)
-                opti.subject_to(dd == 0)
+                layout.subject_to(opti, f"end {k} deflection", d == ds)
+                layout.subject_to(opti, f"end {k} rate", dd == 0)
             else:
                 omega = np.sqrt(np.diag(s.functions()["stiffness"](qf).full()))
                 b = end_list[len(residual_cons)]
                 residual_cons.append(_residual_terms(v_norm, omega, d, dd, ds, 1e-3 * b / m))
-                opti.subject_to(residual_cons[-1] <= b)
+                layout.subject_to(opti, f"end {k} residual", residual_cons[-1] <= b)
     if deflection_bound is not None and m:
         tip = f["tip"]
         for k in range(1, N + 1):
             qk, dk = X[:n, k], X[n:n + m, k]
             defl = tip(qk, dk) - tip(qk, ca.DM.zeros(m))
-            opti.subject_to(ca.sumsqr(defl) <= deflection_bound**2)
+            layout.subject_to(opti, f"deflection {k}", ca.sumsqr(defl) <= deflection_bound**2)
     energy = ca.sumsqr(U) * T / N
     if objective == "time":
         opti.minimize(T)
@@ -803,6 +763,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # Fatrop: the rows in stage order, before any multiplier is set
     equality = stage_order(opti, stages) if fatrop else None
     duals = warm_duals(guess, opti.nx, opti.ng, solver) if warm else None
+    if lifting and duals is None:
+        duals = lifted_start(guess.solution, layout, opti.value(opti.x, opti.initial()),
+                             opti.ng)
     if duals is not None:
         # a neighbouring problem of the same shape: start from the guess's iterate with
         # its multipliers, and keep Ipopt near it (a barrier restarted at 0.1 and the
@@ -810,6 +773,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.set_initial(opti.x, duals["x"])
         opti.set_initial(opti.lam_g, duals["lam_g"])
         options.update(WARM_START_OPTIONS)
+        options.update(LIFTED_OPTIONS if duals.get("lifted") else {})
     options.update(ipopt_options or {})
     hessian = ("limited-memory" if options.get("hessian_approximation") == "limited-memory"
                else "exact")
@@ -948,6 +912,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         "warm_start": warm,
     }
     info["warm_start_duals"] = duals is not None
+    info["lifted_start"] = duals is not None and bool(duals.get("lifted"))
     # CPU seconds and calls of every function Ipopt evaluated (t_proc_nlp_jac_g...)
     info["timings"] = {k: float(v) for k, v in stats.items()
                        if k.startswith(("t_proc_", "n_call_")) and np.isscalar(v)}
@@ -960,7 +925,8 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                 "lam_g": np.asarray(values(opti.lam_g), dtype=float).ravel(),
                 "scales": {"x": np.asarray(sx, dtype=float), "tau": np.asarray(su, dtype=float),
                            "ddq": None if sa is None else np.asarray(sa, dtype=float),
-                           "T": float(sT)}}
+                           "T": float(sT)},
+                "layout": None if fatrop else layout.to_dict()}
     plan = PlannedMove(
         t=t_dense, q=dense[:, :n], dq=dense[:, n + m:2 * n + m], ddq=ddq, tau=tau_dense,
         delta=dense[:, n:n + m], ddelta=dense[:, 2 * n + m:], node_t=np.linspace(0, Tv, N + 1),

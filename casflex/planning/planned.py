@@ -201,10 +201,13 @@ class PlannedMove:
         the design study (:meth:`save`, compressed), 50 kB for the one-link arm.
     solution : dict, optional
         The OCP's last iterate: ``x`` (all NLP variables), ``lam_g`` (the constraints'
-        multipliers) and ``scales`` (the scales of the NLP's rows: ``x`` states, ``tau``
-        torques [N m], ``ddq`` collocated accelerations or ``None``, ``T`` [s]), for a
+        multipliers), ``scales`` (the scales of the NLP's rows: ``x`` states, ``tau``
+        torques [N m], ``ddq`` collocated accelerations or ``None``, ``T`` [s]) and
+        ``layout`` (where each named block of variables and constraints lies:
+        :class:`casflex.planning.lifting.BlockLayout`; ``None`` for Fatrop's), for a
         warm start of a neighbouring problem (:func:`casflex.planning.plan_move` with
-        this plan as ``guess``, which solves it in the same scales).
+        this plan as ``guess``, which solves it in the same scales; a nominal plan also
+        starts the robust problem, lifted: :mod:`casflex.planning.lifting`).
 
     Examples
     --------
@@ -529,7 +532,8 @@ class PlannedMove:
         out = output_file(path, "path")
         arrays = {k: np.asarray(getattr(self, k), dtype=float) for k in _PLAN_ARRAYS}
         meta = {"format": PLAN_FORMAT, "settle": self.settle, "name": self.name,
-                "description": self.description, "stats": jsonable(self.stats)}
+                "description": self.description, "stats": jsonable(self.stats),
+                "layout": (self.solution or {}).get("layout")}
         arrays["meta"] = np.array(json.dumps(meta, default=repr))
         if self.solution:
             scales = self.solution["scales"]
@@ -606,7 +610,8 @@ class PlannedMove:
             solution = {"x": arrays["solution_x"], "lam_g": arrays["solution_lam_g"],
                         "scales": {"x": arrays["scales_x"], "tau": arrays["scales_tau"],
                                    "ddq": arrays.get("scales_ddq"),
-                                   "T": float(arrays["scales_T"])}}
+                                   "T": float(arrays["scales_T"])},
+                        "layout": meta.get("layout")}
         propagator = None
         if "propagator_ode" in arrays:
             try:

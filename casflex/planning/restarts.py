@@ -26,10 +26,11 @@ each warm-started from the plan of the one before.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any
 
-from casflex._validate import fail, number
+from casflex._validate import choice, fail, number
 from casflex.errors import SolverError
 from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
@@ -38,7 +39,7 @@ from casflex.planning.stopping import PlanInterrupted
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "solve_with_fallback",
            "FALLBACK_SHORTENING", "RESTART_VIOLATION_CEILING", "continuation_steps",
            "solve_by_continuation", "continuation_ceiling", "plan_robustness",
-           "ROBUST_STEPS",
+           "ROBUST_STEPS", "ROBUST_PATHS", "LOOSE_BOUNDS", "robust_path_for",
            "CONTINUATION_HALVINGS"]
 
 #: robust problems on the continuation path of ``casflex plan --robust`` and of the design
@@ -47,6 +48,18 @@ __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "solve_wi
 #: from the nominal plan, 2.39 s in one run and no plan at the last problem in another;
 #: through 8, a 3.74 s plan (benchmarks/README_planning.md, session 18)
 ROBUST_STEPS = 4
+
+#: the paths of a robust continuation (:func:`continuation_steps`): the frequency error
+#: and the scenarios' bounds moved together from the nominal problem, or the bounds
+#: alone tightened at the full error from a loose problem that the nominal plan starts
+ROBUST_PATHS = ("frequency", "bounds")
+
+#: the scenarios' end bounds of the bound path's first problem, in multiples of those
+#: asked for. The nominal plan of move 1 of the design study leaves 4.3 and 4.6 times the
+#: shaped move's residuals at ∓10 % (87.3 / 30.6 mm simulated, 103.9 / ~35 mm in the OCP's
+#: measure): at 10 times those bounds are inactive at the lifted start
+#: (benchmarks/README_planning.md, session 29)
+LOOSE_BOUNDS = 10.0
 
 #: shorter steps a continuation may take in all: a problem of the path that finds no plan
 #: from the last plan reached is retried after the problem half-way between them
@@ -402,17 +415,26 @@ def solve_with_fallback(solve: Callable[..., Any], arguments: dict, fallback: An
     return best
 
 
-def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float, Any]]:
-    """The problems of a continuation in the frequency error: ``(r_k, end_k)``, k = 1..K.
+def continuation_steps(robust: float, end: Any, steps: int,
+                       path: str = "frequency") -> list[tuple[float, Any]]:
+    """The robust problems of a continuation: ``(r_k, end_k)`` along ``path``.
 
-    Step k is the robust problem at ``r_k = robust k / K`` with every scenario's end bound
-    moved from the nominal bound by the fraction k / K towards its own: the path starts at
-    the nominal problem (k = 0: every scenario the nominal model, bounded as it) and ends
-    at the problem asked for. Fixed bounds would not do: with the bounds of ``±robust``
-    (e.g. the shaped move's residuals there, one of them below the nominal one) at a
-    smaller error, the near-nominal scenarios must meet the tighter bound, a harder
-    problem than the last (move 1 of the design study at r = 0.025: 3.97 s against
-    2.13 s nominal; benchmarks/README_planning.md, session 18).
+    ``"frequency"`` (k = 1..K): step k is the robust problem at ``r_k = robust k / K``
+    with every scenario's end bound moved from the nominal bound by the fraction k / K
+    towards its own: the path starts at the nominal problem (k = 0: every scenario the
+    nominal model, bounded as it) and ends at the problem asked for. Fixed bounds would
+    not do: with the bounds of ``±robust`` (e.g. the shaped move's residuals there, one
+    of them below the nominal one) at a smaller error, the near-nominal scenarios must
+    meet the tighter bound, a harder problem than the last (move 1 of the design study
+    at r = 0.025: 3.97 s against 2.13 s nominal; benchmarks/README_planning.md,
+    session 18).
+
+    ``"bounds"`` (k = 0..K): every step at the full error ``robust``, the scenarios'
+    bounds ``b L^(1 − k / K)`` with ``L =`` :data:`LOOSE_BOUNDS` (the nominal bound kept):
+    step 0 is loose enough that the nominal plan, lifted into the robust NLP with its
+    multipliers (:mod:`casflex.planning.lifting`), starts near its solution, and the
+    bounds then tighten geometrically to those asked for (the path that found move 1's
+    robust plan, session 29). Needs end bounds (not ``"rest"`` or ``"free"``).
 
     Parameters
     ----------
@@ -423,6 +445,8 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
         scenario: nominal, −r, +r) [m].
     steps : int
         K >= 1.
+    path : {"frequency", "bounds"}
+        :data:`ROBUST_PATHS`.
 
     Returns
     -------
@@ -431,7 +455,8 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
     Raises
     ------
     casflex.errors.ModelError
-        ``robust`` not in (0, 1), ``steps`` not an integer >= 1, a malformed ``end``.
+        ``robust`` not in (0, 1), ``steps`` not an integer >= 1, a malformed ``end``, an
+        unknown ``path``, or ``"bounds"`` without end bounds.
 
     Examples
     --------
@@ -439,15 +464,24 @@ def continuation_steps(robust: float, end: Any, steps: int) -> list[tuple[float,
     [(0.05, [0.01, 0.015, 0.008]), (0.1, [0.01, 0.02, 0.006])]
     >>> continuation_steps(0.1, "rest", 2)
     [(0.05, 'rest'), (0.1, 'rest')]
+    >>> [(r, [round(b, 4) for b in e])
+    ...  for r, e in continuation_steps(0.1, [0.01, 0.02, 0.006], 2, "bounds")]
+    [(0.1, [0.01, 0.2, 0.06]), (0.1, [0.01, 0.0632, 0.019]), (0.1, [0.01, 0.02, 0.006])]
     """
     robust = number(robust, "robust", low=0.0, high=1.0, low_open=True, high_open=True)
     steps = int(number(steps, "robust_steps", low=1, integer=True))
-    end_bounds(end, 3)  # checked
-    return [_on_path(robust, end, k / steps) for k in range(1, steps + 1)]
+    path = choice(path, "robust_path", ROBUST_PATHS)
+    _, bounds = end_bounds(end, 3)  # checked
+    if path == "bounds" and bounds is None:
+        raise fail("end", end, "must be end bounds [m] for robust_path='bounds' (the path "
+                   "tightens them)")
+    first = 0 if path == "bounds" else 1
+    return [_on_path(path, robust, end, k / steps) for k in range(first, steps + 1)]
 
 
 def continuation_ceiling(objective: str, robust: float, robust_steps: int,
-                         reference_duration: float) -> float | None:
+                         reference_duration: float,
+                         path: str = "frequency") -> float | None:
     """The ``duration_ceiling`` of a robust plan reached by continuation from a reference
     move that meets every problem's constraints (the shaped move: the planner's limits are
     its peaks and its end bounds its residuals): that move's duration, for a minimum-time
@@ -465,10 +499,12 @@ def continuation_ceiling(objective: str, robust: float, robust_steps: int,
     robust : float
         Its frequency error r.
     robust_steps : int
-        Problems on the path (1: the robust problem directly from the reference, which
-        starts at the ceiling: none).
+        Problems on the path (1 on the frequency path: the robust problem directly from
+        the reference, which starts at the ceiling: none).
     reference_duration : float
         The reference move's duration [s].
+    path : {"frequency", "bounds"}
+        The path (:data:`ROBUST_PATHS`; the bound path is one even with one step).
 
     Returns
     -------
@@ -480,10 +516,50 @@ def continuation_ceiling(objective: str, robust: float, robust_steps: int,
     (3.2, None)
     >>> continuation_ceiling("energy", 0.1, 4, 3.2) is None
     True
+    >>> continuation_ceiling("time", 0.1, 1, 3.2, "bounds")
+    3.2
     """
-    if objective != "time" or not robust or robust_steps <= 1:
+    if objective != "time" or not robust or (robust_steps <= 1 and path == "frequency"):
         return None
     return float(reference_duration)
+
+
+def robust_path_for(end: Any, path: str | None = None) -> str:
+    """The path of a robust continuation for the end condition ``end``: ``path`` if given,
+    else the bound path where ``end`` is end bounds and the frequency path for
+    ``"rest"`` or ``"free"`` (which have no bounds to tighten).
+
+    What ``casflex plan --robust`` and the design job's robust planner use. On move 1 of
+    the design study the frequency path reached a 2.39 s robust plan in one run and none
+    in another (session 18), 3.74 s through 8 problems; the bound path reached 2.2842 s
+    (benchmarks/README_planning.md, session 30).
+
+    Parameters
+    ----------
+    end : "rest" or "free" or float or sequence of float
+        The end condition (:func:`casflex.planning.plan_move`).
+    path : {"frequency", "bounds"}, optional
+        :data:`ROBUST_PATHS`.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    casflex.errors.ModelError
+        An unknown ``path``.
+
+    Examples
+    --------
+    >>> robust_path_for([0.01, 0.02, 0.006]), robust_path_for("rest")
+    ('bounds', 'frequency')
+    >>> robust_path_for(0.01, "frequency")
+    'frequency'
+    """
+    if path is not None:
+        return choice(path, "robust_path", ROBUST_PATHS)
+    return "frequency" if isinstance(end, str) else "bounds"
 
 
 def plan_robustness(plan: PlannedMove) -> float:
@@ -512,25 +588,45 @@ def plan_robustness(plan: PlannedMove) -> float:
     return float(max((abs(r) for r in plan.stats.get("scenarios", ())), default=0.0))
 
 
-def _on_path(robust, end, f):
-    """The problem at fraction ``f`` of the path: ``(f robust, end moved by f)``."""
+def _on_path(path, robust, end, f):
+    """The problem at fraction ``f`` of the path (``None``: the nominal problem)."""
     nominal, bounds = end_bounds(end, 3)
-    if f == 0.0:
+    if f is None or (path == "frequency" and f == 0.0):
         return 0.0, nominal
+    if path == "bounds":
+        return robust, end if f == 1.0 else \
+            [nominal, *(b * LOOSE_BOUNDS ** (1.0 - f) for b in bounds[1:])]
     if bounds is None or f == 1.0:
         return robust * f, end
     return robust * f, [nominal + f * (b - nominal) for b in bounds]
 
 
-def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int) -> Any:
+def _resumed(plan, path, robust, end):
+    """Where a path resumes from ``plan``: the fraction of the last problem it solved
+    (0 on the frequency path: the nominal problem), or ``None`` (the bound path's first
+    problem next)."""
+    r = plan_robustness(plan)
+    if path == "frequency":
+        return min(1.0, r / robust)
+    bounds, solved = end_bounds(end, 3)[1], plan.stats.get("end_bounds")
+    if not math.isclose(r, robust, rel_tol=1e-12) or not isinstance(solved, list) or \
+            len(solved) != 3:
+        return None
+    return min(1.0, max(0.0, min(1.0 - math.log(s / b) / math.log(LOOSE_BOUNDS)
+                                 for s, b in zip(solved[1:], bounds[1:], strict=True))))
+
+
+def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int,
+                          path: str = "frequency") -> Any:
     """The robust plan of ``arguments`` by a continuation of ``steps`` problems.
 
-    The path starts at the nominal problem (k = 0: ``robust = 0``, the nominal bound),
-    solved from ``arguments["guess"]`` unless that is already a plan (a
-    :class:`casflex.planning.PlannedMove`: the nominal plan, or a robust one at some
-    ``r' < robust`` — the last plan of a path that failed or was interrupted — after
-    which the path resumes, :func:`plan_robustness`), then goes through the
-    problems of :func:`continuation_steps`, each warm-started from the plan before
+    The path starts at the nominal problem (``robust = 0``, the nominal bound), solved
+    from ``arguments["guess"]`` unless that is already a plan (a
+    :class:`casflex.planning.PlannedMove`: the nominal plan, or a robust one further on
+    the path — the last plan of a path that failed or was interrupted — after which the
+    path resumes: :func:`plan_robustness`, and on the bound path the plan's end bounds),
+    then goes through the problems of :func:`continuation_steps` along ``path``, each
+    warm-started from the plan before
     (:func:`solve_from_plan`: its iterate and multipliers, or its iterate alone). A
     problem that finds no plan from the last plan reached is retried after the problem
     half-way between them, :data:`CONTINUATION_HALVINGS` times in all (on move 1 of the
@@ -551,7 +647,10 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     arguments : dict
         Its keyword arguments (``robust`` > 0, ``end``, ``guess``, ``restarts``...).
     steps : int
-        Robust problems on the path (>= 1; 1: the robust problem from the nominal plan).
+        Robust problems on the path after its first (>= 1; 1 on the frequency path: the
+        robust problem from the nominal plan).
+    path : {"frequency", "bounds"}
+        :data:`ROBUST_PATHS` (:func:`continuation_steps`).
 
     Returns
     -------
@@ -590,36 +689,40 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     >>> abs(p.duration - direct.duration) < 1e-6
     True
     """
-    arguments = {**arguments, "robust_steps": 1}
+    # every problem of the path solved directly
+    arguments = {**arguments, "robust_steps": 1, "robust_path": "frequency"}
     restarts = arguments.get("restarts", 0)
     end = arguments.get("end", "rest")
     robust = arguments["robust"]
     # the nominal problem starts from the caller's guess (the shaped move: at the ceiling)
     ceiling = arguments.get("duration_ceiling")
-    continuation_steps(robust, end, steps)  # the arguments checked
-    fractions = [k / steps for k in range(1, steps + 1)]
-    plan, record, reached = arguments.get("guess"), [], 0.0
+    problems = continuation_steps(robust, end, steps, path)  # the arguments checked
+    fractions = [k / steps for k in range(steps + 1 - len(problems), steps + 1)]
+    plan, record = arguments.get("guess"), []
+    # the fraction of the last problem solved (None: none on the path yet; the nominal
+    # problem is the frequency path's 0)
+    reached = None
     if isinstance(plan, PlannedMove):
         # a plan given: the nominal one, or the last plan of a path that failed or was
-        # interrupted further on (its frequency error in its scenarios): resume after it
-        reached = min(1.0, plan_robustness(plan) / robust)
-        fractions = [f for f in fractions if f > reached] or [1.0]
+        # interrupted further on: resume after it
+        reached = _resumed(plan, path, robust, end)
+        fractions = [f for f in fractions if reached is None or f > reached] or [1.0]
     else:  # the nominal problem from the guess first
-        fractions.insert(0, 0.0)
-        reached = None
+        fractions.insert(0, None)
     halvings = 0
     say = arguments.get("log") or (lambda message: None)
     i = 0
     while i < len(fractions):
         f = fractions[i]
-        r, end_k = _on_path(robust, end, f)
+        r, end_k = _on_path(path, robust, end, f)
         step = {**arguments, "robust": r, "end": end_k,
-                "restarts": restarts if f in (0.0, 1.0) else 0,
-                "duration_ceiling": ceiling if f > 0.0 else None,
+                "restarts": restarts if f in (None, 1.0) else 0,
+                "duration_ceiling": ceiling if f is not None else None,
                 # a second cold start is for the nominal problem (the others start warm)
-                "fallback_guess": arguments.get("fallback_guess") if f == 0.0 else None}
+                "fallback_guess": arguments.get("fallback_guess") if f is None else None}
         bounds = end_bounds(end_k, 3 if r > 0.0 else 1)[1] or end_k
-        say(f"continuation, problem at {f:.4g} of the path: robust {r:.6g}, end "
+        say(("continuation, the nominal problem" if f is None else
+             f"continuation, problem at {f:.4g} of the path") + f": robust {r:.6g}, end "
             + (end_k if isinstance(end_k, str) else
                f"{[float(f'{1e3 * b:.4g}') for b in bounds]} mm"))
         try:
@@ -631,12 +734,13 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
                 except SolverError as exc:
                     new, failures = None, [exc]
         except PlanInterrupted as exc:  # the interrupted problem's iterate, else the last
-            if exc.plan is not None or reached is None:  # problem finished (if any)
+            if exc.plan is not None or not isinstance(plan, PlannedMove):  # plan reached
                 raise
-            raise PlanInterrupted(plan, f"the plan of the last problem finished, at "
-                                  f"{reached:.4g} of the path") from exc
+            raise PlanInterrupted(plan, "the plan of the last problem finished" + (
+                f", at {reached:.4g} of the path" if reached is not None else
+                " (the nominal one)")) from exc
         record += [_failed(exc, robust=r, end_bounds=bounds) for exc in failures]
-        if new is None and reached is not None and reached < f \
+        if new is None and reached is not None and f is not None and reached < f \
                 and halvings < CONTINUATION_HALVINGS:
             # a shorter step from the last plan reached
             fractions.insert(i, 0.5 * (reached + f))
@@ -644,12 +748,15 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
             say(f"  no plan: {failures[-1]}; halving the step")
             continue
         if new is None:
-            error = SolverError(f"plan_move: the continuation found no plan at {f:.4g} of "
-                                f"its path (robust = {r:.6g}, end = {end_k}, after "
+            where = "the nominal problem" if f is None else f"{f:.4g} of its path"
+            error = SolverError(f"plan_move: the continuation found no plan at {where} "
+                                f"(robust = {r:.6g}, end = {end_k}, after "
                                 f"{halvings} halving(s)): {failures[-1]}")
             error.plan, error.continuation = plan, record  # what the path had reached
             raise error
-        plan, reached = new, f
+        plan = new
+        if f is not None or path == "frequency":
+            reached = f or 0.0
         done = _pass_totals(plan)  # with restarts: their totals
         say("  " + _line(plan.duration, done["status"], done["iterations"]))
         record.append({**done, "robust": r, "end_bounds": bounds})

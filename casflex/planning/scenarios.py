@@ -20,8 +20,8 @@ from numpy.typing import ArrayLike
 from casflex._validate import number
 from casflex.model import FlexibleModel
 
-__all__ = ["ScaledFrequencyProvider", "frequency_shifted_model", "modal_guess", "static_deflection",
-           "tip_jacobian", "with_provider"]
+__all__ = ["ScaledFrequencyProvider", "frequency_shifted_model", "modal_guess",
+           "collocated_modal_guess", "static_deflection", "tip_jacobian", "with_provider"]
 
 
 class ScaledFrequencyProvider:
@@ -305,3 +305,105 @@ def modal_guess(model: FlexibleModel, reference: Any, T: float, steps: int,
     points = np.stack([np.interp(times, run.t, col) for col in modal.T], axis=1) \
         if len(times) else np.zeros((0, modal.shape[1]))
     return nodes, points
+
+
+def collocated_modal_guess(G: ca.Function, factors: Sequence[float], nodes: np.ndarray,
+                           points: np.ndarray, accelerations: np.ndarray,
+                           torques: np.ndarray, h: float,
+                           guesses: Sequence[tuple[np.ndarray, np.ndarray]]
+                           ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The scenarios' modal rows that solve the collocation equations of ``G`` under the
+    given nominal rows: the start of a robust problem's scenario rows from a plan.
+
+    The prescribed-motion simulation (:func:`modal_guess`) is the exact motion of a
+    shifted model; on a plan's collocation grid (ω h up to 1) it misses the collocation
+    equations: on move 1 of the design study by 9 % of a row's scale. Here the scenario
+    rows are solved from the collocation equations instead, interval by interval
+    (Newton, started at ``guesses``; the initial state kept), so that from a plan (whose
+    nominal rows solve their own equations) every defect of the robust problem starts at
+    round-off (2e-11 on move 1, in 0.25 s; benchmarks/README_planning.md, session 29).
+
+    Parameters
+    ----------
+    G : casadi.Function
+        The interval function of
+        :func:`casflex.planning.derivatives.implicit_collocation_function` with the
+        scenarios (inputs ``x, Xc, Ac, tau, h, s``).
+    factors : sequence of float
+        Frequency factors ``1 + r`` of the scenarios (``G``'s input ``s``).
+    nodes : ndarray, shape (N + 1, 2 (n + m))
+        The nominal rows at the nodes.
+    points : ndarray, shape (N degree, 2 (n + m))
+        The nominal rows at the collocation points, interval by interval.
+    accelerations : ndarray, shape (N degree, n)
+        Joint accelerations at the points [rad/s²].
+    torques : ndarray, shape (N, n)
+        Torque of each interval [N m].
+    h : float
+        Interval length [s].
+    guesses : sequence of (ndarray, ndarray)
+        Per scenario its rows ``[δ, δ̇]`` at the nodes and at the points (as
+        :func:`modal_guess` returns them): Newton's start, the first node kept.
+
+    Returns
+    -------
+    list of (ndarray, ndarray)
+        Per scenario its rows at the nodes and at the points.
+
+    Raises
+    ------
+    RuntimeError
+        Newton did not converge on an interval (CasADi's rootfinder).
+
+    Examples
+    --------
+    A scenario at factor 1 is the nominal model: its rows are the plan's own modal rows.
+
+    >>> from casflex.model import PointwiseProvider
+    >>> from casflex.planning import plan_move
+    >>> from casflex.planning.derivatives import implicit_collocation_function
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> plan = plan_move(model, [0.0], [1.0], torque_limit=0.1, intervals=20, end=2e-3)
+    >>> G, _ = implicit_collocation_function(model, 1, 3)
+    >>> k, h = np.repeat(np.arange(20), 3), plan.duration / 20
+    >>> x, xdot = (np.asarray(a).T for a in plan.propagator(
+    ...     k, np.tile(ca.collocation_points(3, "legendre"), 20) * h))
+    >>> start = (np.zeros((21, 2)), np.zeros((60, 2)))
+    >>> [(rows_at_nodes, _)] = collocated_modal_guess(
+    ...     G, [1.0], plan.node_x, x, xdot[:, 2:3], plan.node_tau, h, [start])
+    >>> bool(np.allclose(rows_at_nodes, plan.node_x[:, [1, 3]], rtol=0, atol=1e-9))
+    True
+    """
+    degree, n = G.size2_in(1), G.size1_in(2)
+    nominal = nodes.shape[1]
+    rows = G.size1_in(0) - nominal
+    xs, xn = ca.SX.sym("xs", rows), ca.SX.sym("xn", nominal)
+    Xcn, Xcs = ca.SX.sym("Xcn", nominal, degree), ca.SX.sym("Xcs", rows, degree)
+    Ac, u, hs = ca.SX.sym("Ac", n, degree), ca.SX.sym("u", n), ca.SX.sym("h")
+    defects, _, end = G(ca.vertcat(xn, xs), ca.vertcat(Xcn, Xcs), Ac, u, hs,
+                        ca.DM(list(factors)))
+    given = ca.vertcat(xs, xn, ca.vec(Xcn), ca.vec(Ac), u, hs)
+    # the scenario rows' equations are linear in them but for the small velocity terms:
+    # Newton converges in a few steps from the simulated rows
+    solve = ca.rootfinder("scenario_points", "newton",
+                          ca.Function("defects", [ca.vec(Xcs), given],
+                                      [ca.vec(defects[nominal:, :])]),
+                          {"abstol": 1e-13, "max_iter": 30})
+    step_end = ca.Function("end", [ca.vec(Xcs), given], [end[nominal:]])
+    N = torques.shape[0]
+    start_nodes = np.hstack([g[0] for g in guesses])
+    start_points = np.hstack([g[1] for g in guesses])
+    out_nodes, out_points = np.empty((N + 1, rows)), np.empty((N * degree, rows))
+    out_nodes[0] = start_nodes[0]
+    for k in range(N):
+        at = slice(k * degree, (k + 1) * degree)
+        given_k = np.concatenate([out_nodes[k], nodes[k], points[at].ravel(),
+                                  accelerations[at].ravel(), torques[k], [h]])
+        z = solve(start_points[at].ravel(), given_k)
+        out_points[at] = np.asarray(z).reshape(degree, rows)
+        out_nodes[k + 1] = np.asarray(step_end(z, given_k)).ravel()
+    each = rows // len(guesses)
+    return [(out_nodes[:, each * i:each * (i + 1)], out_points[:, each * i:each * (i + 1)])
+            for i in range(len(guesses))]

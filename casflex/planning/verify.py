@@ -32,7 +32,7 @@ from casflex.planning.correction import BOUND_CORRECTIONS, asked_bounds, hold_ve
 from casflex.planning.limits import shaped_end, shaped_move_limits
 from casflex.planning.ocp import plan_move
 from casflex.planning.planned import PlannedMove
-from casflex.planning.restarts import ROBUST_STEPS, continuation_ceiling
+from casflex.planning.restarts import ROBUST_STEPS, continuation_ceiling, robust_path_for
 from casflex.planning.scenarios import frequency_shifted_model, static_deflection
 
 if TYPE_CHECKING:
@@ -378,6 +378,7 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                     log: Callable[[str], None] | None = None,
                     ocp_modes: int | None = None, ocp_fit: str | None = None,
                     restarts: int = 2, robust_steps: int = ROBUST_STEPS,
+                    robust_path: str | None = None,
                     bound_corrections: int = BOUND_CORRECTIONS,
                     **plan_options: Any) -> PlanComparison:
     """Plan a move of a robot at the limits of its SI-shaped version and verify both.
@@ -441,6 +442,10 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         shaped move). A minimum-time robust problem of that path whose solve rises above
         the shaped move's duration counts as no plan (``duration_ceiling``, unless given
         in ``plan_options``): the continuation takes a shorter step.
+    robust_path : {"frequency", "bounds"}, optional
+        The path of that continuation (:func:`casflex.planning.plan_move`'s
+        ``robust_path``; default :func:`casflex.planning.robust_path_for`: the bound path
+        with end bounds, the shaped move's by default).
     bound_corrections : int
         With a residual bound (``end`` not ``"rest"``/``"free"``): when a verified
         residual passes its bound (the OCP's discretisation), the plan is solved again
@@ -536,15 +541,18 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
         # every scenario's bound is the shaped move's residual there (nominal, -r, +r):
         # the plan leaves no more than the shaped move at each frequency error
         end = shaped_end(shaped_check)
+    path = robust_path_for(end, robust_path)
     say(f"planning {move.name}: objective {objective}, {intervals or 'default'} intervals, limits "
         f"torque {np.round(limits['torque'], 4).tolist()} N m, velocity "
         f"{np.round(limits['velocity'], 4).tolist()} rad/s, end {end}"
         + (f", robust ±{robust:g}" + (f" through {robust_steps} problems from the nominal"
-                                     if robust_steps > 1 else "") if robust else ""))
+                                     f" ({path} path)"
+                                     if robust_steps > 1 or path == "bounds" else "")
+           if robust else ""))
     if objective == "energy" and duration is None:
         duration = float(shaped.duration)
     plan_options.setdefault("duration_ceiling", continuation_ceiling(
-        objective, robust, robust_steps, shaped.duration))
+        objective, robust, robust_steps, shaped.duration, path))
     guess = plan_options.pop("guess", shaped)
     if objective == "time" and not isinstance(guess, PlannedMove):
         plan_options.setdefault("fallback_guess", "rigid")
@@ -553,7 +561,8 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                      intervals=intervals, torque_limit=limits["torque"],
                      velocity_limit=limits["velocity"], end=end, robust=robust,
                      guess=guess, restarts=restarts,
-                     robust_steps=robust_steps, log=log, progress=progress,
+                     robust_steps=robust_steps, robust_path=path, log=log,
+                     progress=progress,
                      **plan_options)
     timings["plan_s"] = time.perf_counter() - t0
     say(f"planned {plan.duration:.4f} s (shaped {shaped.duration:.4f} s), Ipopt "

@@ -33,7 +33,7 @@ def test_planner_is_off_unless_given():
     assert p["transcription"] == "collocation" and p["intervals"] is None
     from casflex.planning import ROBUST_STEPS
 
-    assert p["robust_steps"] == ROBUST_STEPS
+    assert p["robust_steps"] == ROBUST_STEPS and p["robust_path"] is None
 
 
 def test_planner_switched_off(tmp_path):
@@ -44,10 +44,10 @@ def test_planner_values(tmp_path):
     p = design.load_study(_study(tmp_path, "[planner]\nobjective = 'energy'\nduration = 2.5\n"
                                  "robust = 0.1\nend = 0.002\nintervals = 40\n"
                                  "transcription = 'shooting'\nmodes = 1\n"
-                                 "robust_steps = 2\n")).planner
+                                 "robust_steps = 2\nrobust_path = 'frequency'\n")).planner
     assert (p["objective"], p["duration"], p["robust"], p["end"], p["intervals"],
-            p["transcription"], p["modes"], p["robust_steps"]) == (
-        "energy", 2.5, 0.1, 0.002, 40, "shooting", 1, 2)
+            p["transcription"], p["modes"], p["robust_steps"], p["robust_path"]) == (
+        "energy", 2.5, 0.1, 0.002, 40, "shooting", 1, 2, "frequency")
 
 
 @pytest.mark.parametrize("lines, derivatives", [
@@ -69,6 +69,7 @@ def test_planner_derivatives(tmp_path, lines, derivatives):
     ("robust = 0.7", "planner.robust", "0.7", "must be"),
     ("robust_steps = 0", "planner.robust_steps", "0", "must be"),
     ("robust_steps = 2.5", "planner.robust_steps", "2.5", "whole number"),
+    ("robust_path = 'both'", "planner.robust_path", "both", "must be one of"),
     ("end = 'still'", "planner.end", "still", "must be one of"),
     ("end = 0.0", "planner.end", "0.0", "must be"),
     ("intervals = 2", "planner.intervals", "2", "must be"),

@@ -92,11 +92,15 @@ def test_the_default_ceiling_of_plan_robot_move(monkeypatch):
     monkeypatch.setattr(verify, "plan_move", _capture(seen))
     robot = load("problems/onelink.toml")
     move = Move([0.0], [1.0], 2.0, settle=1.0)
-    for robust, steps, expected in ((0.1, 3, True), (0.1, 1, False), (0.0, 3, False)):
+    # the default path with the shaped move's end bounds is the bound path: a path even
+    # with one step; the frequency path with one step is the robust problem directly
+    for robust, steps, path, expected in ((0.1, 3, None, True), (0.1, 1, None, True),
+                                          (0.1, 1, "frequency", False),
+                                          (0.0, 3, None, False)):
         seen.clear()
         with pytest.raises(_Stop):
             verify.plan_robot_move(robot, move, 1, robust=robust, robust_steps=steps,
-                                   intervals=20)
+                                   robust_path=path, intervals=20)
         shaped = seen["guess"].duration
         assert seen["duration_ceiling"] == (pytest.approx(shaped) if expected else None)
     assert continuation_ceiling("weighted", 0.1, 3, 2.0) is None

@@ -120,9 +120,9 @@ def test_plan_cli_robust_leaves_no_more_than_shaped_at_each_error(tmp_path, caps
     result = json.loads(capsys.readouterr().out)
     assert result["residual_tip_deflection"] <= \
         1.03 * result["shaped"]["residual_tip_deflection"]
-    # reached from the nominal plan through ROBUST_STEPS problems
-    assert [round(c["robust"], 6) for c in result["continuation"]] == [0.0, 0.025, 0.05,
-                                                                        0.075, 0.1]
+    # reached from the nominal plan through the bound path (end bounds: the default): its
+    # loose problem and ROBUST_STEPS tightening steps, all at the full error
+    assert [round(c["robust"], 6) for c in result["continuation"]] == [0.0] + [0.1] * 5
     assert [e["error"] for e in result["robust"]] == [-0.1, 0.1]
     for e in result["robust"]:
         assert e["residual_tip_deflection"] <= 1.03 * e["shaped_residual_tip_deflection"]
@@ -146,9 +146,8 @@ def test_plan_cli_robust_from_a_saved_nominal_plan(tmp_path, capsys):
     warm = json.loads(capsys.readouterr().out)
     assert main([*common, "--robust", "0.1"]) == 0
     cold = json.loads(capsys.readouterr().out)
-    assert [round(c["robust"], 6) for c in warm["continuation"]] == [0.025, 0.05, 0.075, 0.1]
-    assert [round(c["robust"], 6) for c in cold["continuation"]] == [0.0, 0.025, 0.05,
-                                                                     0.075, 0.1]
+    assert [round(c["robust"], 6) for c in warm["continuation"]] == [0.1] * 5
+    assert [round(c["robust"], 6) for c in cold["continuation"]] == [0.0] + [0.1] * 5
     assert cold["continuation"][0]["duration"] == pytest.approx(nominal["duration"],
                                                                 rel=1e-12)
     assert warm["duration"] == pytest.approx(cold["duration"], rel=1e-9)
@@ -223,6 +222,15 @@ def test_plan_cli_bad_input_exits_2(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err
     assert "--robust-steps" in err and "0" in err
+    code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small",
+                 "--robust", "0.1", "--robust-path", "both"])
+    assert code == 2
+    assert "--robust-path" in capsys.readouterr().err
+    code = main(["plan", "problems/arm2link.toml", "--move", f"{moves}:small",
+                 "--robust", "0.1", "--end", "rest", "--robust-path", "bounds"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--robust-path" in err and "--end rest" in err and "Traceback" not in err
 
 
 def test_plan_cli_robust_steps_help_names_the_default():
@@ -340,7 +348,8 @@ def test_plan_cli_failed_robust_path_keeps_its_last_plan_and_guess_resumes(
     moves = tmp_path / "moves.toml"
     moves.write_text(ONELINK_MOVE)
     common = ["plan", "problems/onelink.toml", "--move", f"{moves}:swing", "--modes", "1",
-              "--end", "2e-3", "--intervals", "30", "--json", "--dt", "1e-3"]
+              "--end", "2e-3", "--intervals", "30", "--json", "--dt", "1e-3",
+              "--robust-path", "frequency"]
     assert main([*common, "--robust", "0.05", "--robust-steps", "2",
                  "--out", str(tmp_path / "half")]) == 0
     capsys.readouterr()

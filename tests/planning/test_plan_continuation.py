@@ -72,7 +72,8 @@ def test_restarts_on_the_nominal_and_the_last_problem(onelink):
                   restarts=1, restart_rtol=0.0, log=lines.append)
     # one line per problem and its result, one per pass of the restarted ones
     assert [line.split(":")[0] for line in lines if line.startswith("continuation")] == [
-        f"continuation, problem at {f} of the path" for f in ("0", "0.5", "1")]
+        "continuation, the nominal problem"] + [
+        f"continuation, problem at {f} of the path" for f in ("0.5", "1")]
     assert sum(line.startswith("  restart 1") for line in lines) == 2
     assert lines[-4] == ("continuation, problem at 1 of the path: robust 0.1, end "
                          "[2.0, 2.0, 2.0] mm")
@@ -94,8 +95,8 @@ def test_no_robust_error_no_path(onelink):
 
 def test_a_step_without_plan_names_the_step(onelink):
     # 0.1 N m cannot move the arm 1 rad in 1 s (the rigid minimum is 1.29 s)
-    with pytest.raises(SolverError, match=r"continuation found no plan at 0 of its path "
-                                          r"\(robust = 0,"):
+    with pytest.raises(SolverError, match=r"continuation found no plan at the nominal "
+                                          r"problem \(robust = 0,"):
         plan_move(onelink, MOVE, **COMMON, end=2e-3, robust=0.1, robust_steps=2,
                   objective="energy", duration=1.0, max_iter=100)
 
@@ -107,12 +108,13 @@ def test_a_failed_path_keeps_what_it_reached(onelink):
     with pytest.raises(SolverError) as err:
         plan_move(onelink, MOVE, **COMMON, end=[2e-3, 1e-9, 2e-3], robust=0.1,
                   robust_steps=2, guess=nominal, max_iter=3)
-    # the first problem, then three halvings: 0.25, 0.125, 0.0625 of the path; one
-    # attempt each (the nominal plan's multipliers do not fit a robust problem, so there
-    # is no second attempt from its iterate alone: it would be the same solve)
+    # the first problem, then three halvings: 0.25, 0.125, 0.0625 of the path; two
+    # attempts each (the nominal plan's iterate and multipliers lifted into the robust
+    # NLP, then its iterate alone)
     assert "at 0.0625 of its path" in str(err.value) and "3 halving(s)" in str(err.value)
     assert err.value.plan is nominal
-    assert [c["robust"] for c in err.value.continuation] == [0.05, 0.025, 0.0125, 0.00625]
+    assert [c["robust"] for c in err.value.continuation] == [
+        r for r in (0.05, 0.025, 0.0125, 0.00625) for _ in range(2)]
     assert all(c["duration"] is None for c in err.value.continuation)
 
 
@@ -136,9 +138,17 @@ def test_a_failure_is_tried_again_from_the_iterate_alone_only_if_the_multipliers
     assert plan is None and starts == [True, False]
     assert failures[0].solve["used_guess_solution"]
     assert not failures[1].solve["used_guess_solution"]
-    # from the nominal plan: its multipliers and scales do not fit, one attempt
+    # from the nominal plan: lifted into the robust NLP with its multipliers, then from
+    # its iterate alone
     starts.clear()
     plan, failures = solve_from_plan(solve, hopeless, nominal)
+    assert plan is None and starts == [True, False]
+    assert failures[0].solve["used_guess_solution"]
+    # from a plan whose multipliers fit neither way (another number of intervals): one
+    starts.clear()
+    other = plan_move(onelink, MOVE, **{**COMMON, "intervals": COMMON["intervals"] + 2},
+                      end=2e-3)
+    plan, failures = solve_from_plan(solve, hopeless, other)
     assert plan is None and starts == [True] and len(failures) == 1
     assert not failures[0].solve["used_guess_solution"]
 

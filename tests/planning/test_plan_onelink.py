@@ -323,6 +323,10 @@ def test_warm_start_with_multipliers(flexible):
         assert plan.duration == pytest.approx(fresh.duration, rel=1e-8)
     # measured 3 iterations with the multipliers, 9 without, 20 fresh
     assert warm.stats["iterations"] < primal.stats["iterations"] < fresh.stats["iterations"]
-    # a problem of another shape (robust: more variables) takes the iterate only
+    # the robust problem (more variables and constraints) takes them lifted into its NLP
+    # (casflex.planning.lifting); another number of intervals takes neither
     other = plan_move(flexible, [0.0], [THETA], end=2e-3, robust=0.05, guess=first, **kw)
-    assert not other.stats["warm_start_duals"]
+    assert other.stats["warm_start_duals"] and other.stats["lifted_start"]
+    coarse = plan_move(flexible, [0.0], [THETA], end=2e-3, guess=first,
+                       intervals=first.stats["intervals"] - 2, **kw)
+    assert not coarse.stats["warm_start_duals"] and not coarse.stats["lifted_start"]
