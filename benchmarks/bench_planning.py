@@ -132,6 +132,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
 
     from casflex.design.study import load_study
+    from casflex.errors import SolverError
     from casflex.moves import load_move
     from casflex.planning import plan_move, plan_robot_move
 
@@ -165,10 +166,20 @@ def main(argv: list[str] | None = None) -> dict:
     # limits (held joints: no torque limit), the plan, the 1 ms verification
     # load_study gives the grid step in rad (before session 25 it was converted again:
     # the bench ran on a 0.052° grid, 57 times finer than the study's 3°)
-    c = plan_robot_move(study.robot, move, 3, step=study.model["grid_step"],
-                        delta_order=study.model["delta_order"], processes=1,
-                        robust=args.robust, dt=args.dt, ocp_fit=args.ocp_fit,
-                        ocp_modes=args.ocp_modes, restarts=args.restarts, **kw)
+    try:
+        c = plan_robot_move(study.robot, move, 3, step=study.model["grid_step"],
+                            delta_order=study.model["delta_order"], processes=1,
+                            robust=args.robust, dt=args.dt, ocp_fit=args.ocp_fit,
+                            ocp_modes=args.ocp_modes, restarts=args.restarts, **kw)
+    except SolverError as exc:  # no plan: the record of the failure (exit status 1)
+        spent = getattr(exc, "solve", None) or {}
+        _report({"failed": str(exc), "solve_s": spent.get("solve_s"),
+                 "solve_cpu_s": spent.get("solve_cpu_s"), "iterations": spent.get("iterations"),
+                 "solve_warm_s": None, "duration": None, "shaped_duration": None,
+                 "residual": None, "shaped_residual": None, "intervals": args.intervals,
+                 "move": args.move, "derivatives": args.derivatives, "solver": args.solver,
+                 "load": os.getloadavg()[0]}, args.json)
+        raise SystemExit(1) from exc
     after = resource.getrusage(resource.RUSAGE_SELF)
     plan, s = c.plan, c.summary()
     end = plan.stats["end"]
@@ -222,12 +233,17 @@ def main(argv: list[str] | None = None) -> dict:
                      for f, v in first.get("objective_trace", [])],
            "trace_warm": [[round(f, 7), float(f"{v:.1e}")]
                           for f, v in warm.stats.get("objective_trace", [])]}
-    if args.json:
+    _report(out, args.json)
+    return out
+
+
+def _report(out, as_json):
+    """The record on stdout: one JSON object, or one ``key: value`` line per key."""
+    if as_json:
         print(json.dumps(out))
     else:
         for key, value in out.items():
             print(f"{key:>18}: {value}", file=sys.stdout)
-    return out
 
 
 def _ipopt_option(text):

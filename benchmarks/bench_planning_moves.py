@@ -364,6 +364,7 @@ def run_move(name, args, study, out_path, robust_moves):
             robust, _, _ = hold_verified_bounds(
                 lambda bounds, last: plan_move(
                     model, move, end=bounds, robust=r, guess=last,
+                    elastic=last.stats.get("elastic"),
                     intervals=robust.stats["intervals"], torque_limit=limits["torque"],
                     velocity_limit=limits["velocity"], max_iter=args.max_iter, log=log,
                     progress_stop=ProgressStop(leave=0.0), **options),

@@ -152,6 +152,9 @@ _FEASIBLE = 1e-6
 #: returned, its status kept (``stats["success"]`` True, ``stats["converged"]`` False)
 LIMIT_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
                   "Maximum_WallTime_Exceeded")
+#: the excess over an elastic end bound that still counts as within it, relative to the
+#: bound (at an interior point's solution the excess is ~ its barrier over the price)
+_EXCESS_ALLOWED = 1e-3
 
 
 def _limit(value, n, field, unit):
@@ -248,7 +251,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
               compile_function: Callable[[list], list] | None = None,
               solver: str = "ipopt", restarts: int = 0,
               restart_rtol: float = 1e-3, robust_steps: int = 1,
-              robust_path: str = "frequency",
+              robust_path: str = "frequency", elastic: float | None = None,
               log: Callable[[str], None] | None = None,
               progress: bool | Callable[[int, float, float], Any] = False) -> PlannedMove:
     """Plan a rest-to-rest motion of the flexible arm with Ipopt (module docstring).
@@ -401,6 +404,15 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         problem started from the nominal plan lifted into the robust NLP with its
         multipliers (:func:`casflex.planning.continuation_steps`,
         :mod:`casflex.planning.lifting`).
+    elastic : float, optional
+        Price [objective units per m, s/m for ``"time"``] of an excess over the end bounds
+        of the robust scenarios (not the nominal one): each bound gets a variable
+        ``e >= 0`` (``residual <= bound + e``) and the objective ``elastic e``, and ``e``
+        starts at the start's excess, so a start beyond the bounds (a plan for looser ones)
+        is feasible (SNOPT's elastic mode). Above the bounds' multipliers the price makes
+        the excess zero at the solution; a solve that ends with an excess above 1e-3 of
+        a bound is no plan. With ``duration_ceiling`` the ceiling is raised by the start's
+        price (the objective is ``T`` plus it). Default: the bounds as constraints.
     log : callable, optional
         ``log(message)``: one line per restart and per problem of a continuation.
     progress : bool or callable
@@ -725,7 +737,7 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         (s, X[nx + 2 * m * k:nx + 2 * m * k + m, N], X[nx + 2 * m * k + m:nx + 2 * m * (k + 1), N])
         for k, s in enumerate(shifted)]
     v_norm = np.linalg.norm(tip_jacobian(model, qf), axis=0) if m else np.zeros(0)
-    residual_cons = []
+    residual_cons, excesses = [], []
     if m and end != "free":
         for k, (s, d, dd) in enumerate(scen):
             ds = static_deflection(s, qf)
@@ -736,7 +748,14 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                 omega = np.sqrt(np.diag(s.functions()["stiffness"](qf).full()))
                 b = end_list[len(residual_cons)]
                 residual_cons.append(_residual_terms(v_norm, omega, d, dd, ds, 1e-3 * b / m))
-                layout.subject_to(opti, f"end {k} residual", residual_cons[-1] <= b)
+                if elastic is None or k == 0:
+                    layout.subject_to(opti, f"end {k} residual", residual_cons[-1] <= b)
+                    continue
+                excess = layout.variable(opti, f"end {k} excess")
+                opti.set_linear_scale(excess, b)
+                layout.subject_to(opti, f"end {k} excess sign", excess >= 0)
+                layout.subject_to(opti, f"end {k} residual", residual_cons[-1] <= b + excess)
+                excesses.append((excess, residual_cons[-1], b))
     if deflection_bound is not None and m:
         tip = f["tip"]
         for k in range(1, N + 1):
@@ -744,12 +763,13 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
             defl = tip(qk, dk) - tip(qk, ca.DM.zeros(m))
             layout.subject_to(opti, f"deflection {k}", ca.sumsqr(defl) <= deflection_bound**2)
     energy = ca.sumsqr(U) * T / N
+    price = sum(elastic * e for e, _, _ in excesses)
     if objective == "time":
-        opti.minimize(T)
+        opti.minimize(T + price)
     elif objective == "energy":
-        opti.minimize(energy)
+        opti.minimize(energy + price)
     else:
-        opti.minimize(T + weight * energy)
+        opti.minimize(T + weight * energy + price)
     opti.set_initial(X, augmented(X_guess))
     opti.set_initial(U, np.clip(U_guess.T, -tau_max[:, None], tau_max[:, None]))
     # optimality to 1e-8, or to an acceptable 1e-2 over _ACCEPTABLE_ITER iterates in a row
@@ -774,6 +794,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         opti.set_initial(opti.lam_g, duals["lam_g"])
         options.update(WARM_START_OPTIONS)
         options.update(LIFTED_OPTIONS if duals.get("lifted") else {})
+    for e, residual, b in excesses:  # the start's excess: a feasible start
+        start_excess = max(float(opti.value(residual, opti.initial())) - b, 0.0) + 1e-3 * b
+        opti.set_initial(e, start_excess)
+        for guard in guards:
+            guard.ceiling += elastic * start_excess if isinstance(guard, DurationCeiling) else 0
     options.update(ipopt_options or {})
     hessian = ("limited-memory" if options.get("hessian_approximation") == "limited-memory"
                else "exact")
@@ -801,7 +826,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     if listeners:
         bounds = [np.asarray(opti.value(b, opti.initial()), dtype=float)
                   for b in (opti.lbg, opti.ubg)]
-        callback = iteration_callback(*bounds, opti.nx, listeners)
+        # the elastic excesses beyond the allowance count as violation, relative to their
+        # bounds (Ipopt's x is e / bound: set_linear_scale)
+        soft = ([o for name, o, _, _ in layout.x if name.endswith(" excess")],
+                np.ones(len(excesses)), _EXCESS_ALLOWED)
+        callback = iteration_callback(*bounds, opti.nx, listeners, soft=soft)
         plugin["iteration_callback"] = callback
     if blocks:
         plugin.update(block_derivatives(opti, G, block_args, [defects, torque_defects],
@@ -847,6 +876,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
     # above a ceiling is no plan, even at a feasible iterate (a Ctrl-C wins)
     escaped = None if interrupted else next((g for g in guards if g.exceeded is not None), None)
     ok = ok and escaped is None
+    # an excess left over an elastic bound: no plan within the bounds
+    over = [(k + 1, float(values(e)), b) for k, (e, _, b) in enumerate(excesses)
+            if float(values(e)) > _EXCESS_ALLOWED * b]
+    ok = ok and not over
     solve_s = time.perf_counter() - t_start
     solve_cpu_s = time.process_time() - c_start
     stats = opti.stats()
@@ -867,6 +900,10 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         if escaped is not None:
             error = SolverError(f"plan_move: {solver.capitalize()} found no plan ({status}): "
                                 f"{escaped.reason()}")
+        elif over:
+            error = SolverError("plan_move: no plan within the end bounds: " + ", ".join(
+                f"scenario {k} ends {1e3 * e:.4g} mm above its {1e3 * b:.4g} mm"
+                for k, e, b in over) + f" (elastic price {elastic:g}; {status})")
         else:
             error = SolverError(diagnose_failure(status, Tv, max_duration, Uv, Xv, tau_max,
                                                  v_max, n, m, N, duration,
@@ -921,6 +958,9 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
         info["objective_trace"] = [list(pair) for pair in rule.trace]
     if residual_cons:
         info["residual_bound"] = [float(values(e)) for e in residual_cons]
+    if excesses:  # [m], over the robust scenarios' bounds, and their price
+        info["end_excess"] = [float(values(e)) for e, _, _ in excesses]
+        info["elastic"] = elastic
     solution = {"x": np.asarray(values(opti.x), dtype=float).ravel(),
                 "lam_g": np.asarray(values(opti.lam_g), dtype=float).ravel(),
                 "scales": {"x": np.asarray(sx, dtype=float), "tau": np.asarray(su, dtype=float),

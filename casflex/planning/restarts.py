@@ -434,7 +434,10 @@ def continuation_steps(robust: float, end: Any, steps: int,
     step 0 is loose enough that the nominal plan, lifted into the robust NLP with its
     multipliers (:mod:`casflex.planning.lifting`), starts near its solution, and the
     bounds then tighten geometrically to those asked for (the path that found move 1's
-    robust plan, session 29). Needs end bounds (not ``"rest"`` or ``"free"``).
+    robust plan, session 29). Each problem starts beyond its bounds (at the plan of the
+    looser ones); ``plan_move``'s ``elastic`` softens them so that the start is
+    feasible (measured on move 1: not more reliable, benchmarks/README_planning.md,
+    session 30). Needs end bounds (not ``"rest"`` or ``"free"``).
 
     Parameters
     ----------

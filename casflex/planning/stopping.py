@@ -493,7 +493,8 @@ class ViolationCeiling(_Ceiling):
 
 
 def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
-                       listeners: list[Callable[[float, float], bool | None]]) -> Any:
+                       listeners: list[Callable[[float, float], bool | None]],
+                       soft: tuple[ArrayLike, ArrayLike, float] | None = None) -> Any:
     """CasADi's ``iteration_callback`` of an ``nlpsol`` (Ipopt) that hands every iterate's
     objective and largest constraint violation to ``listeners``.
 
@@ -508,6 +509,11 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
         also after one asked to stop); Ipopt stops (``User_Requested_Stop``) when one
         returns ``True``. The violation is ``max(lbg − g, g − ubg, 0)`` over the finite
         bounds, as the constraints are posed.
+    soft : (array_like of int, array_like, float), optional
+        Indices of variables that measure how far a softened constraint is exceeded
+        (``plan_move``'s elastic excesses, >= 0), their scales and an allowance:
+        ``x_i / scale_i − allowance`` counts as a violation too, so that the listeners
+        judge feasibility by the constraints as asked.
 
     Returns
     -------
@@ -530,6 +536,18 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
     ...                     "ipopt": {"print_level": 0, "sb": "yes"}})
     >>> round(float(solver(x0=3.0, lbg=1.0, ubg=np.inf)["x"]), 6), seen[0]
     (1.0, (9.0, 0.0))
+
+    With ``x`` an excess of scale 2 and allowance 0.5 it counts as violation
+    ``x / 2 − 0.5``:
+
+    >>> seen.clear()
+    >>> cb = iteration_callback([1.0], [np.inf], 1, [lambda f, v: seen.append((f, v))],
+    ...                         soft=([0], [2.0], 0.5))
+    >>> solver = ca.nlpsol("s", "ipopt", {"x": x, "f": x**2, "g": x},
+    ...                    {"iteration_callback": cb, "print_time": False,
+    ...                     "ipopt": {"print_level": 0, "sb": "yes"}})
+    >>> _ = solver(x0=3.0, lbg=1.0, ubg=np.inf); seen[0]
+    (9.0, 1.0)
     """
     import casadi as ca
 
@@ -537,6 +555,8 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
     upper = np.asarray(ubg, dtype=float).ravel()
     calls = list(listeners)
     names = ca.nlpsol_out()
+    soft_at, soft_scale = (np.asarray(a).ravel() for a in (soft or ([], []))[:2])
+    soft_at, allowance = soft_at.astype(int), float((soft or (0, 0, 0.0))[2])
 
     class _Callback(ca.Callback):
         def __init__(self) -> None:
@@ -570,6 +590,10 @@ def iteration_callback(lbg: ArrayLike, ubg: ArrayLike, nx: int,
             g = np.asarray(arg[names.index("g")], dtype=float).ravel()
             excess = np.r_[lower - g, g - upper, 0.0]
             violation = float(np.max(excess[np.isfinite(excess)]))
+            if soft_at.size:
+                x = np.asarray(arg[names.index("x")], dtype=float).ravel()
+                violation = max(violation,
+                                float(np.max(x[soft_at] / soft_scale)) - allowance)
             f = float(arg[names.index("f")])
             try:
                 stop = [bool(call(f, violation)) for call in calls]

@@ -585,7 +585,9 @@ def plan_robot_move(robot: Robot, move: Move, n_modes: int = 3, *, objective: st
                              torque_limit=limits["torque"], velocity_limit=limits["velocity"],
                              end=bounds if robust else bounds[0], robust=robust, guess=last,
                              log=log, progress=progress,
-                             **{**plan_options, "fallback_guess": None})
+                             # the NLP of the plan it starts from (its multipliers fit)
+                             **{**plan_options, "fallback_guess": None,
+                                "elastic": last.stats.get("elastic")})
 
         plan, verification, _ = hold_verified_bounds(
             solve_again, lambda p: verify_plan(model, p, dt=dt, errors=errors), plan,

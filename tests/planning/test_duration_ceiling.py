@@ -134,7 +134,7 @@ def test_a_duration_that_is_not_positive_ends_the_solve(onelink, monkeypatch):
 
     real = ocp.iteration_callback
 
-    def flipping(lbg, ubg, nx, listeners):
+    def flipping(lbg, ubg, nx, listeners, soft=None):
         count = {"n": 0}
 
         def flip(call):
@@ -143,7 +143,7 @@ def test_a_duration_that_is_not_positive_ends_the_solve(onelink, monkeypatch):
         def counter(f, v):
             count["n"] += 1
 
-        return real(lbg, ubg, nx, [flip(c) for c in listeners] + [counter])
+        return real(lbg, ubg, nx, [flip(c) for c in listeners] + [counter], soft=soft)
 
     monkeypatch.setattr(ocp, "iteration_callback", flipping)
     with pytest.raises(SolverError, match=r"the duration fell to -[0-9.]+ s at iterate 2, "

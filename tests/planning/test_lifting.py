@@ -186,3 +186,47 @@ def test_the_bound_path_resumes_after_its_plan(onelink, nominal):
 def test_bad_paths_are_refused(onelink, kw, field):
     with pytest.raises(ModelError, match=field):
         plan_move(onelink, MOVE, **{**COMMON, "robust": 0.1, "end": BOUND, **kw})
+
+
+def _violations(onelink, **kw):
+    seen = []
+    plan = plan_move(onelink, MOVE, **COMMON, robust=0.1,
+                     progress=lambda k, f, v: seen.append(v), **kw)
+    return plan, seen
+
+
+def test_elastic_bounds_start_feasible_and_end_at_the_plan_within_the_bounds(onelink,
+                                                                             nominal):
+    # from a plan for loose bounds, the tight bounds exceeded at the start: the elastic
+    # excesses start at the start's (plus the allowance, 1e-3 of the bound) and count as
+    # the violation the iterates report, relative to the bound, beyond the allowance;
+    # the elastic plan is the one within the bounds (no excess left)
+    tight = [BOUND, 2.5e-3, 1.5e-3]
+    loose = plan_move(onelink, MOVE, **COMMON, end=[BOUND, 0.1, 0.1], robust=0.1,
+                      guess=nominal, elastic=50.0)
+    direct = plan_move(onelink, MOVE, **COMMON, end=tight, robust=0.1)
+    hard, hard_seen = _violations(onelink, end=tight, guess=plan_move(
+        onelink, MOVE, **COMMON, end=[BOUND, 0.1, 0.1], robust=0.1, guess=nominal))
+    soft, soft_seen = _violations(onelink, end=tight, guess=loose, elastic=50.0)
+    start = max((r - b) / b for r, b in zip(loose.stats["residual_bound"][1:], tight[1:],
+                                            strict=True))
+    # (the residual's smoothing is 1e-3 of the bound per mode, so the loose plan's
+    # recorded residual is the tight problem's within ~1 %: 1.1801 against 1.1646)
+    assert start > 0.1 and soft_seen[0] == pytest.approx(start, rel=0.02)
+    assert hard_seen[0] > 1e-4 and soft_seen[-1] < 1e-6
+    assert soft.duration == pytest.approx(direct.duration, rel=1e-6)
+    assert hard.duration == pytest.approx(direct.duration, rel=1e-6)
+    assert max(soft.stats["end_excess"]) < 1e-3 * min(tight[1:])
+    for got, bound in zip(soft.stats["residual_bound"], tight, strict=True):
+        assert got <= bound + 1e-7  # Ipopt's constraint tolerance, in m
+
+
+def test_an_elastic_price_below_the_bounds_multipliers_is_no_plan(onelink, nominal):
+    # a price of 1e-3 s/m makes the excess cheaper than the time it saves
+    from casflex.errors import SolverError
+
+    loose = plan_move(onelink, MOVE, **COMMON, end=[BOUND, 0.1, 0.1], robust=0.1,
+                      guess=nominal, elastic=1e-3)
+    with pytest.raises(SolverError, match="no plan within the end bounds: scenario 1"):
+        plan_move(onelink, MOVE, **COMMON, end=[BOUND, 1e-4, 1e-4], robust=0.1,
+                  guess=loose, elastic=1e-3)
