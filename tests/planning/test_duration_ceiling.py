@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from casflex.errors import ModelError, SolverError
-from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
 from casflex.planning import CEILING_STATUS, continuation_ceiling, plan_move
 from casflex.robot import load
@@ -17,12 +16,6 @@ from casflex.robot import load
 # the 1.281 s plan (13 iterations)
 COMMON = {"torque_limit": 0.1, "intervals": 20, "end": 2e-3,
           "guess": Move([0.0], [1.0], 1.1)}
-
-
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
 
 
 def _trace(onelink, **kw):

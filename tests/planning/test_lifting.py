@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from casflex.errors import ModelError
-from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
 from casflex.planning import (
     LOOSE_BOUNDS,
@@ -21,17 +20,10 @@ from casflex.planning import (
     solve_by_continuation,
 )
 from casflex.planning.derivatives import implicit_collocation_function
-from casflex.robot import load
 
 MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
 COMMON = {"torque_limit": 0.1, "intervals": 40}
 BOUND = 2e-3
-
-
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
 
 
 @pytest.fixture(scope="module")

@@ -122,12 +122,6 @@ def test_point_split_derivatives_equal_casadi_s_own(onelink):
         block_derivatives(opti, G, args, [defects], [0], rows[:1], [sd], N, point=split)
 
 
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
-
-
 @pytest.mark.parametrize("kw", [
     {"end": 2e-3},
     {"end": "rest", "robust": 0.1},

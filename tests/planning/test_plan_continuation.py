@@ -6,7 +6,6 @@ from __future__ import annotations
 import pytest
 
 from casflex.errors import ModelError, SolverError
-from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
 from casflex.planning import (
     CEILING_STATUS,
@@ -17,16 +16,9 @@ from casflex.planning import (
     solve_by_continuation,
     verify_plan,
 )
-from casflex.robot import load
 
 MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
 COMMON = {"torque_limit": 0.1, "intervals": 40}
-
-
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
 
 
 @pytest.mark.parametrize("end", [2e-3, [2e-3, 3e-3, 1.5e-3]])

@@ -13,7 +13,6 @@ from types import SimpleNamespace
 import pytest
 
 from casflex.errors import ModelError, SolverError
-from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
 from casflex.planning import (
     FALLBACK_SHORTENING,
@@ -21,7 +20,6 @@ from casflex.planning import (
     plan_move,
     solve_with_fallback,
 )
-from casflex.robot import load
 
 SHAPED = Move([0.0], [1.0], 3.0, name="shaped")
 
@@ -125,12 +123,6 @@ def test_an_interrupted_second_start_keeps_the_shorter_plan():
 def test_the_fallback_needs_a_minimum_time_plan_from_a_move(arguments):
     with pytest.raises(ModelError, match="fallback_guess"):
         _solve(Planner(), **arguments)
-
-
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
 
 
 def test_plan_move_takes_the_fallback_with_its_restarts(onelink):

@@ -8,15 +8,7 @@ import numpy as np
 import pytest
 
 from casflex.errors import ModelError
-from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.planning import iteration_callback, plan_move
-from casflex.robot import load
-
-
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
 
 
 def test_progress_callable_sees_every_iterate_and_ends_on_the_plan(onelink):

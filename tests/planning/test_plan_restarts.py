@@ -8,20 +8,12 @@ import numpy as np
 import pytest
 
 from casflex.errors import ModelError, SolverError
-from casflex.model import FlexibleModel, PointwiseProvider
 from casflex.moves import Move
 from casflex.planning import plan_move
 from casflex.planning.restarts import solve_with_restarts
-from casflex.robot import load
 
 MOVE = Move([0.0], [1.0], 2.0, settle=1.0)
 COMMON = {"torque_limit": 0.05, "velocity_limit": 1.0, "intervals": 24}
-
-
-@pytest.fixture(scope="module")
-def onelink():
-    robot = load("problems/onelink.toml")
-    return FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
 
 
 @pytest.mark.parametrize("kw", [{"end": 2e-3}, {"end": "rest", "robust": 0.1}])
