@@ -534,8 +534,9 @@ def robust_path_for(end: Any, path: str | None = None) -> str:
 
     What ``casflex plan --robust`` and the design job's robust planner use. On move 1 of
     the design study the frequency path reached a 2.39 s robust plan in one run and none
-    in another (session 18), 3.74 s through 8 problems; the bound path reached 2.2842 s
-    (benchmarks/README_planning.md, session 30).
+    in another (session 18), none in the stored run (session 28); the bound path found
+    one in two runs of seven, 2.2842 and 2.6271 s (benchmarks/README_planning.md,
+    session 30): neither is reliable there yet.
 
     Parameters
     ----------
