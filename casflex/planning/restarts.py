@@ -595,7 +595,7 @@ def plan_robustness(plan: PlannedMove) -> float:
 def _on_path(path, robust, end, f):
     """The problem at fraction ``f`` of the path (``None``: the nominal problem)."""
     nominal, bounds = end_bounds(end, 3)
-    if f is None or (path == "frequency" and f == 0.0):
+    if f is None:
         return 0.0, nominal
     if path == "bounds":
         return robust, end if f == 1.0 else \
@@ -700,8 +700,9 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     robust = arguments["robust"]
     # the nominal problem starts from the caller's guess (the shaped move: at the ceiling)
     ceiling = arguments.get("duration_ceiling")
-    problems = continuation_steps(robust, end, steps, path)  # the arguments checked
-    fractions = [k / steps for k in range(steps + 1 - len(problems), steps + 1)]
+    continuation_steps(robust, end, steps, path)  # the arguments checked
+    # the bound path's problem 0 is its loose one (the frequency path's, the nominal one)
+    fractions = [k / steps for k in range(0 if path == "bounds" else 1, steps + 1)]
     plan, record = arguments.get("guess"), []
     # the fraction of the last problem solved (None: none on the path yet; the nominal
     # problem is the frequency path's 0)
