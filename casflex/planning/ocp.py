@@ -131,9 +131,12 @@ _OMEGA_H_COLLOCATION = 1.0
 #: fraction-to-the-boundary rule cut the first steps to α ≈ 1e-3 at the active bounds of
 #: a bang-bang plan: over 20 neighbouring problems of moves 1–3 of the design study a
 #: median of ~36 iterations against 21.5 (benchmarks/README_planning.md, session 26)
+#: ``perturb_always_cd``: the constraint rows regularised at every factorisation; near a
+#: solution active bounds are linearly dependent (velocity at a node and its points) and
+#: a Hessian regularisation cannot fix that inertia (it rose to 1e9, multipliers to 1e11)
 WARM_START_OPTIONS = {"warm_start_init_point": "yes", "warm_start_bound_push": 1e-4,
                       "warm_start_slack_bound_push": 1e-4, "warm_start_mult_bound_push": 1e-4,
-                      "mu_init": 1e-6}
+                      "mu_init": 1e-6, "perturb_always_cd": "yes"}
 
 #: iterates in a row that must pass Ipopt's acceptable test (optimality 1e-2, constraints
 #: 1e-6) before it stops there. A feasible guess on its own limits (the shaped move at its
@@ -709,9 +712,11 @@ def plan_move(model: FlexibleModel, start: ArrayLike | Move, goal: ArrayLike | N
                       rows=nxa)
     if fatrop and duration is None:
         layout.subject_to(opti, "duration gaps", (Tk[0][1:] - Tk[0][:N]) / sT == 0)
-    layout.subject_to(opti, "start", X[:, 0] == xa0)
-    layout.subject_to(opti, "goal", X[:n, N] == qf)
-    layout.subject_to(opti, "goal velocity", X[n + m:2 * n + m, N] == 0)
+    # the end points' rows in the states' scales, as the gaps: in the states' units a modal
+    # start row's coefficient was its scale (2e-4 on move 1), an ill-conditioned Jacobian
+    layout.subject_to(opti, "start", (X[:, 0] - xa0) / sx == 0)
+    layout.subject_to(opti, "goal", (X[:n, N] - qf) / sx[:n] == 0)
+    layout.subject_to(opti, "goal velocity", X[n + m:2 * n + m, N] / sx[n + m:2 * n + m] == 0)
     finite_tau = np.isfinite(tau_max)
     for j in np.flatnonzero(finite_tau):
         layout.subject_to(opti, f"torque {j}", opti.bounded(-tau_max[j], U[int(j), :],

@@ -31,8 +31,10 @@ from casflex.moves import reference_sampler
 
 __all__ = ["PlannedMove", "Propagator", "PLAN_FORMAT"]
 
-#: format version of :meth:`PlannedMove.save`'s files
-PLAN_FORMAT = 1
+#: format version of :meth:`PlannedMove.save`'s files. 2: the NLP's start and goal rows
+#: divided by the state scales (format 1's, in the states' units, are still read: their
+#: multipliers are converted, :meth:`PlannedMove.load`)
+PLAN_FORMAT = 2
 
 #: the arrays of a :class:`PlannedMove`, as :meth:`PlannedMove.save` stores them
 _PLAN_ARRAYS = ("t", "q", "dq", "ddq", "tau", "delta", "ddelta", "node_t", "node_x",
@@ -588,9 +590,9 @@ class PlannedMove:
             meta = json.loads(str(arrays.pop("meta")))
         except json.JSONDecodeError as exc:
             raise bad("meta", "...", f"is not JSON: {exc}") from exc
-        if meta.get("format") != PLAN_FORMAT:
+        if meta.get("format") not in (1, PLAN_FORMAT):
             raise bad("meta.format", meta.get("format"),
-                      f"this casflex reads plans of format {PLAN_FORMAT}")
+                      f"this casflex reads plans of formats 1 and {PLAN_FORMAT}")
         for k in _PLAN_ARRAYS:
             if k not in arrays:
                 raise bad(k, None, "missing")
@@ -612,6 +614,8 @@ class PlannedMove:
                                    "ddq": arrays.get("scales_ddq"),
                                    "T": float(arrays["scales_T"])},
                         "layout": meta.get("layout")}
+            if meta["format"] == 1:
+                solution = _format1_solution(solution, n, m)
         propagator = None
         if "propagator_ode" in arrays:
             try:
@@ -696,3 +700,24 @@ def _hermite_reference(t, start, end, q0, qf):
     dq = ca.if_else(ca.logic_or(before, after), zero, dq)
     ddq = ca.if_else(ca.logic_or(before, after), zero, ddq)
     return ca.Function("reference", [tt], [q, dq, ddq], ["t"], ["qd", "dqd", "ddqd"])
+
+
+def _format1_solution(solution: dict, n: int, m: int) -> dict | None:
+    """A format-1 plan's NLP solution with the start and goal rows of format 2.
+
+    Format 1 posed ``X[:, 0] = x0``, ``q(T) = qf`` and ``q̇(T) = 0`` in the states' units;
+    format 2 divides each row by its state's scale, which multiplies its multiplier by the
+    scale. Without a layout (plans saved before it was recorded) the rows cannot be found:
+    no solution (a guess by its trajectory, not its multipliers).
+    """
+    layout = solution.get("layout")
+    if not layout:
+        return None
+    sx = np.asarray(solution["scales"]["x"], dtype=float)
+    lam = np.array(solution["lam_g"], dtype=float)
+    scales = {"start": sx, "goal": sx[:n], "goal velocity": sx[n + m:2 * n + m]}
+    for name, offset, rows, columns in layout["g"]:
+        if name in scales:
+            lam[offset:offset + rows * columns] *= scales[name][:rows * columns]
+    return {**solution, "lam_g": lam}
+

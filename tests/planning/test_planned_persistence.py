@@ -114,7 +114,7 @@ def test_bad_plan_files_name_the_file_and_the_field(plan, tmp_path):
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays["meta"]))
     for change, match in [({"meta": np.array(json.dumps({**meta, "format": 99}))},
-                           "'meta.format' = 99: this casflex reads plans of format 1"),
+                           "'meta.format' = 99: this casflex reads plans of formats 1 and 2"),
                           ({"node_tau": arrays["node_tau"][:-1]},
                            r"'node_t.shape' = \(25,\): must be \(24,\)"),
                           ({"dq": arrays["dq"][:, :0]},
