@@ -92,9 +92,9 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 # ## 7.2 Stored results: the two-link arm's moves 1–3 and the one-link cases
 #
 # A solve of one of the design study's moves costs tens of seconds to minutes of CPU (move
-# 1: 124 Ipopt iterations over a cold solve and two restarts, ~20 s on the project's
-# 2-core machine, each verification 10–20 s at 0.1 ms; a robust plan several minutes;
-# `benchmarks/README_planning.md`), too long for a notebook.
+# 1: 110–490 Ipopt iterations over a cold solve and two restarts, 15–80 s on the
+# project's 2-core machine, each verification 10–20 s at 0.1 ms; a robust plan one to
+# seven minutes more; `benchmarks/README_planning.md`), too long for a notebook.
 # The rest of this chapter reads the results of
 # `benchmarks/bench_planning_moves.py` (`benchmarks/data/planning_moves.json`),
 # checked against its SHA-256 so that what is shown is what the benchmark stored. For
@@ -109,7 +109,7 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "5d5867fa2a5482af87c9fd7a529b5f538144b980bc078d5706e395dfe293fcbc"
+DATA_SHA256 = "8f1e2c6329969b59a71fab06d2a4e4718d916ae9c62ec7f91e0ef00102c05894"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
@@ -265,22 +265,17 @@ plt.show()
 # sensitivity is the same or worse (85 / 2.2 / 82 mm on move 1).
 #
 # The robust plan of move 1 (`--robust 0.1`, one bound per scenario: the shaped move's
-# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %) is **not** in this file: on the study's model
-# (3° tables) the bound path from the nominal plan (the default of `casflex plan --robust`
-# since session 30: the robust problem at ±10 % with the scenarios' bounds ten times the
-# shaped move's, started from the nominal plan lifted into it with its multipliers, then
-# the bounds tightened geometrically in four problems, each warm from the last) solved
-# its loose problem at the nominal plan's 2.1334 s but rose above the shaped move's
-# duration at its first tightening (113 / 38 mm) and at each of three halvings, and the
-# run stored the failure (printed above as "no plan"). The same code found a robust plan
-# in another run, from the nominal plan re-solved once more: **2.2842 s** (29 % shorter
-# than the shaped move; 19.5 / 10.7 / 4.7 mm at −10 / 0 / +10 %, below the shaped move at
-# every error); of six runs whose derivatives were perturbed by one part in 1e9, one
-# found a robust plan (2.627 s, 18 % shorter, below the shaped move at every error), five
-# none.
-# Session 29 reached 2.3121 s by hand along the same path. The robust path is a lottery
-# on this model; the issue that tracks it (15) says so, and
-# benchmarks/README_planning.md (sessions 18–30) has the runs.
+# 11.0 / 20.1 / 6.7 mm at 0 / −10 % / +10 %), on the study's model (3° tables), by the
+# bound path from the nominal plan (the default of `casflex plan --robust`: the robust
+# problem at ±10 % with the scenarios' bounds ten times the shaped move's, started from
+# the nominal plan lifted into it with its multipliers, then the bounds tightened
+# geometrically in four problems, each warm from the last): **2.145 s, 33 % shorter than
+# the shaped move**, leaving 13.9 / 10.9 / 6.6 mm at −10 / 0 / +10 %, below the shaped
+# move at every error. Until session 31 this path was a lottery (two plans in seven runs,
+# 2.28 and 2.63 s, and no plan in the stored run); with the NLP's start rows in the
+# states' scales and the constraint rows regularised in every warm start it reached this
+# same plan in seven runs of seven whose derivatives were perturbed by one part in 1e9
+# (benchmarks/README_planning.md, sessions 18–31).
 #
 # A robust plan's torques open loop are another matter than its joint motion: the torques
 # are planned for the nominal model, and on the arm a joint controller tracks the planned

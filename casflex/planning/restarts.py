@@ -535,8 +535,9 @@ def robust_path_for(end: Any, path: str | None = None) -> str:
     What ``casflex plan --robust`` and the design job's robust planner use. On move 1 of
     the design study the frequency path reached a 2.39 s robust plan in one run and none
     in another (session 18), none in the stored run (session 28); the bound path found
-    one in two runs of seven, 2.2842 and 2.6271 s (benchmarks/README_planning.md,
-    session 30): neither is reliable there yet.
+    one in two runs of seven (session 30), and since warm starts regularise the
+    constraint rows (:data:`casflex.planning.WARM_START_OPTIONS`) the same 2.1448 s plan
+    in seven of seven (benchmarks/README_planning.md, session 31).
 
     Parameters
     ----------
