@@ -720,4 +720,3 @@ def _format1_solution(solution: dict, n: int, m: int) -> dict | None:
         if name in scales:
             lam[offset:offset + rows * columns] *= scales[name][:rows * columns]
     return {**solution, "lam_g": lam}
-
