@@ -44,7 +44,7 @@ Usage::
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
         [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop] [--restarts K]
-        [--ipopt-option KEY=VALUE ...] [--degree K]
+        [--ipopt-option KEY=VALUE ...] [--degree K] [--perturb SEED]
 
 The cold plan is ``casflex plan``'s, with its second start from the rigid move when the
 first ends less than 10 % shorter than the shaped move (``starts``: each start's record,
@@ -127,9 +127,16 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--restarts", type=int, default=0, metavar="K",
                         help="warm re-solves of the cold plan (plan_move's restarts; "
                              "default 0: one solve)")
+    parser.add_argument("--perturb", type=float, default=None, metavar="SEED",
+                        help="with --compile: every nonzero of the compiled point Jacobian "
+                             "and Hessian times 1 + 1e-9 sin(0.7 k + SEED), a draw of the "
+                             "rounding-level differences between machines and builds "
+                             "(default: none)")
     parser.add_argument("--ipopt-option", action="append", default=[],
                         metavar="KEY=VALUE", help="an Ipopt option (repeatable)")
     args = parser.parse_args(argv)
+    if args.perturb is not None and not args.compile:
+        parser.error("--perturb needs --compile (it perturbs the compiled derivatives)")
 
     from casflex.design.study import load_study
     from casflex.errors import SolverError
@@ -158,7 +165,11 @@ def main(argv: list[str] | None = None) -> dict:
                                        flags=tuple(args.compile_flags.split()), cse=True)
             compiled.setdefault("compile_s", []).append(info["seconds"])
             compiled.setdefault("built", []).append(info["built"])
-            return [lib[f.name()] for f in functions]
+            built = [lib[f.name()] for f in functions]
+            if args.perturb is None:
+                return built
+            return [_perturbed(g, args.perturb) if any(k in f.name() for k in ("jac", "hess"))
+                    else g for f, g in zip(functions, built, strict=True)]
 
         kw["compile_function"] = compile_blocks
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -226,7 +237,7 @@ def main(argv: list[str] | None = None) -> dict:
            "progress_stop": not args.no_progress_stop,
            "ocp_fit": args.ocp_fit, "ocp_modes": args.ocp_modes or 3,
            "derivatives": args.derivatives, "compiled": compiled or None,
-           "solver": args.solver,
+           "solver": args.solver, "perturb": args.perturb,
            "timings": first.get("timings"),
            "timings_warm": warm.stats.get("timings"),
            "trace": [[round(f, 5), float(f"{v:.1e}")]
@@ -235,6 +246,25 @@ def main(argv: list[str] | None = None) -> dict:
                           for f, v in warm.stats.get("objective_trace", [])]}
     _report(out, args.json)
     return out
+
+
+def _perturbed(function, seed):
+    """``function`` with every nonzero ``k`` of its outputs times ``1 + 1e-9 sin(0.7 k +
+    seed)``: the cold solve's path changes with differences of this size (another
+    compiler, BLAS or machine), so one seed is one draw of its spread
+    (benchmarks/README_planning.md, sessions 25-32)."""
+    import casadi as ca
+    import numpy as np
+
+    inputs = [ca.MX.sym(function.name_in(i), function.sparsity_in(i))
+              for i in range(function.n_in())]
+    outputs = function.call(inputs)
+    factors = [ca.DM(o.sparsity(), 1 + 1e-9 * np.sin(0.7 * np.arange(o.nnz()) + seed))
+               for o in outputs]
+    return ca.Function(function.name() + "_perturbed", inputs,
+                       [o * f for o, f in zip(outputs, factors, strict=True)],
+                       function.name_in(),
+                       function.name_out())
 
 
 def _report(out, as_json):
