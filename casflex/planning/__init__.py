@@ -173,6 +173,8 @@ asked_bounds
     The end bounds a plan was asked to meet (not the tighter ones it was re-solved with).
 BOUND_CORRECTIONS
     The re-solves made at most by default.
+BOUND_MARGIN
+    How far below the bound asked for a re-solve aims (relative).
 
 Models with shifted frequencies (:mod:`casflex.planning.scenarios`)
 -------------------------------------------------------------------
@@ -206,6 +208,7 @@ from __future__ import annotations
 from casflex.planning.assembly import block_derivatives
 from casflex.planning.correction import (
     BOUND_CORRECTIONS,
+    BOUND_MARGIN,
     asked_bounds,
     hold_verified_bounds,
     tightened_bounds,
@@ -339,6 +342,7 @@ __all__ = [
     "tightened_bounds",
     "verified_residuals",
     "BOUND_CORRECTIONS",
+    "BOUND_MARGIN",
     "limit_excess",
     "shaped_reference",
     # models with shifted frequencies

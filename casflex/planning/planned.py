@@ -323,7 +323,10 @@ class PlannedMove:
             q, dq, ddq = reference_sampler(self._samples(), self.n_joints).sample(tt)
         else:
             q, dq, ddq = self._propagated(tt)
-        before, after = tt < 0.0, tt > self.duration
+        # the arm rests from the end on: at ``duration`` itself (within the nodes'
+        # round-off) q̈ is the right limit, 0, as at a node the next interval's
+        eps = 1e-12 * max(float(self.duration), 1.0)
+        before, after = tt < 0.0, tt >= self.duration - eps
         q[before], dq[before], ddq[before] = self.q[0], 0.0, 0.0
         q[after], dq[after], ddq[after] = self.q[-1], 0.0, 0.0
         if scalar:
@@ -334,8 +337,10 @@ class PlannedMove:
         """Index of the OCP interval that starts at or before each time of ``t`` (the
         right limit at a node). A time within round-off of a node belongs to the interval
         the node starts: dense sample times and node times are computed apart and differ
-        in the last digits, and the interval before would be propagated past its end."""
-        eps = 1e-9 * max(float(self.node_t[-1]), 1.0)
+        in the last digits, and the interval before would be propagated past its end. The
+        tolerance (1e-12 of the duration) stays below a simulator's left limit
+        (:data:`casflex.simulate.integrators.LEFT_LIMIT` of a step)."""
+        eps = 1e-12 * max(float(self.node_t[-1]), 1.0)
         k = np.searchsorted(self.node_t, np.asarray(t, dtype=float) + eps, side="right") - 1
         return np.clip(k, 0, self.node_tau.shape[0] - 1)
 

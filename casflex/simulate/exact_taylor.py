@@ -43,7 +43,7 @@ import numpy as np
 
 from casflex.errors import ModelError
 from casflex.moves import reference_sampler
-from casflex.simulate.integrators import rk4_step, step_cache, time_grid
+from casflex.simulate.integrators import LEFT_LIMIT, rk4_step, step_cache, time_grid
 
 if TYPE_CHECKING:
     from casflex.model import FlexibleModel
@@ -171,7 +171,7 @@ def simulate_taylor(model: FlexibleModel, reference: Move | ShapedMove, order: i
     t, _ = time_grid(t0, t_last if t_end is None else float(t_end), float(dt))
     q, dq, ddq = sampler(t)
     qh, dqh, ddqh = sampler(t[:-1] + 0.5 * dt)
-    ddq_end = sampler(t[1:] - 1e-9 * dt)[2]  # the left limit, as method="rk4"
+    ddq_end = sampler(t[1:] - LEFT_LIMIT * dt)[2]  # the left limit, as method="rk4"
     P = np.hstack([q[:-1], dq[:-1], ddq[:-1], qh, dqh, ddqh, q[1:], dq[1:], ddq_end])
     z = ca.SX.sym("z", 2 * m)
     p = ca.SX.sym("p", 9 * n)

@@ -31,7 +31,16 @@ if TYPE_CHECKING:
     from casflex.model import FlexibleModel
 
 __all__ = ["rk4_step", "rk4_interval", "time_grid", "casadi_integrator", "integrate",
-           "call_buffered", "STEP_CACHE", "step_cache"]
+           "call_buffered", "STEP_CACHE", "step_cache", "LEFT_LIMIT"]
+
+#: where the end stage of a step ``[t, t + dt]`` samples a prescribed reference: at
+#: ``t + dt − LEFT_LIMIT dt``, so that a switch of q̈ on the grid belongs to the next step
+#: (the left limit). Larger than the samplers' round-off tolerance at a switch
+#: (:class:`casflex.planning.PlannedMove`: 1e-12 of the duration, which a step of 1e-4 s
+#: with 1e-9 of it did not pass: every OCP node on the grid then took the next interval's
+#: q̈ into the step before, 1 % off the residual of move 1 of the design study), and small
+#: enough to be the left limit of a smooth q̈ to round-off
+LEFT_LIMIT = 1e-5
 
 #: model -> dict of the step Functions built for it by casflex.simulate (weak keys: the
 #: entry goes with the model)

@@ -39,7 +39,7 @@ from casflex.errors import ModelError
 from casflex.moves import reference_sampler
 from casflex.simulate import exact_poly
 from casflex.simulate.chebyshev import breaks, interpolants, piece_index, values_at
-from casflex.simulate.integrators import call_buffered, rk4_step, step_cache
+from casflex.simulate.integrators import LEFT_LIMIT, call_buffered, rk4_step, step_cache
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -743,7 +743,7 @@ def simulate(model: FlexibleModel, reference: Move | ShapedMove, t: np.ndarray, 
     th = t[:-1] + 0.5 * dt
     ddq = sampler(t)[2]
     ddqh = sampler(th)[2]
-    ddq_end = sampler(t[1:] - 1e-9 * dt)[2]  # the end stage takes q̈ from the left
+    ddq_end = sampler(t[1:] - LEFT_LIMIT * dt)[2]  # the end stage takes q̈ from the left
     ia = piece_index(pieces, t, ddq, piece_ddq)
     ib = piece_index(pieces, th, ddqh, piece_ddq)
     ic = piece_index(pieces, t[1:], ddq_end, piece_ddq, left=True)

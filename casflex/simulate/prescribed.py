@@ -28,6 +28,7 @@ from casflex.errors import ModelError
 from casflex.moves import Move, ShapedMove, reference_function, reference_sampler
 from casflex.simulate import poly
 from casflex.simulate.integrators import (
+    LEFT_LIMIT,
     casadi_integrator,
     integrate,
     rk4_step,
@@ -265,7 +266,7 @@ def simulate_prescribed(model: FlexibleModel, reference: Reference, dt: float = 
         qh, dqh, ddqh = sampler(t[:-1] + 0.5 * dt)
         # the last stage of a step takes the left limit of q̈ (a bang-bang switch on a
         # node belongs to the next step); q and q̇ are continuous
-        ddq_end = sampler(t[1:] - 1e-9 * dt)[2]
+        ddq_end = sampler(t[1:] - LEFT_LIMIT * dt)[2]
         P = np.hstack([q[:-1], dq[:-1], ddq[:-1], qh, dqh, ddqh, q[1:], dq[1:], ddq_end])
         acc = _rk4_steps(model, f, float(dt), steps)
         zs, taus, ddds = acc(z0, P.T)

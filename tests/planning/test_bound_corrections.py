@@ -12,7 +12,12 @@ from __future__ import annotations
 import pytest
 
 from casflex.errors import ModelError, SolverError
-from casflex.planning import hold_verified_bounds, tightened_bounds, verified_residuals
+from casflex.planning import (
+    BOUND_MARGIN,
+    hold_verified_bounds,
+    tightened_bounds,
+    verified_residuals,
+)
 
 
 class _Plan:
@@ -55,8 +60,11 @@ def test_only_the_scenarios_past_their_bounds_are_tightened():
 
     kept, v, record = hold_verified_bounds(solve, verify, first, verify(first))
     assert len(solved) == 1 and solved[0][1] is first  # warm from the last plan
-    assert solved[0][0] == pytest.approx([0.010, 0.020 / 1.1, 0.005 / 1.25], rel=1e-15)
-    assert verified_residuals(v) == pytest.approx([0.0095, 0.020, 0.005], rel=1e-12)
+    aim = 1.0 - BOUND_MARGIN
+    assert solved[0][0] == pytest.approx([0.010, aim * 0.020 / 1.1, aim * 0.005 / 1.25],
+                                         rel=1e-15)
+    assert verified_residuals(v) == pytest.approx([0.0095, aim * 0.020, aim * 0.005],
+                                                  rel=1e-12)
     assert kept.stats["end_asked"] == [0.010, 0.020, 0.005]
     assert record[0]["verified"] == verified_residuals(v)
     assert kept.duration > first.duration
@@ -98,8 +106,10 @@ def test_corrections_must_be_a_count():
 
 
 def test_tightened_bounds_rule():
+    # a residual above its bound: the bound scaled to aim BOUND_MARGIN below; at or
+    # below it: kept
     assert tightened_bounds([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [2.0, 1.0, 3.0]) == \
-        [0.5, 2.0, 3.0]
+        [0.5 * (1.0 - BOUND_MARGIN), 2.0, 3.0]
 
 
 def test_one_link_coarse_plan_meets_its_bound_once_simulated():
