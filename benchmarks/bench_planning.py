@@ -34,7 +34,14 @@ actuator inertias, 3 modes, 3° grid, ``delta_order`` 0, no gravity); move 1 of
 at every Ipopt iterate of the cold and the warm solve), ``derivatives``, ``compiled``
 (seconds of each ``compile_cached`` call and whether it built), ``solver``, ``timings`` /
 ``timings_warm`` (CasADi's CPU seconds and calls per NLP function: ``t_proc_nlp_jac_g``,
-``t_proc_nlp_hess_l``...).
+``t_proc_nlp_hess_l``...), ``perturb`` (``--perturb``'s seed or None).
+
+The cold solve's path changes with rounding-level differences (another compiler, BLAS or
+machine: 110 to 489 iterations on move 1, README_planning.md), so one run is one draw.
+``--perturb SEED`` multiplies the compiled point derivatives by ``1 + 1e-9 sin(0.7 k +
+SEED)``; ``--draws K`` runs the first ``K`` of :data:`DRAW_SEEDS` and adds ``draws`` (each
+draw's figures), ``solve_s_range`` and ``solve_warm_s_range`` ([min, max] over the draws
+with a plan) and ``failed_draws`` to the unperturbed draw's record.
 
 Usage::
 
@@ -44,7 +51,7 @@ Usage::
         [--max-iter K] [--move NAME] [--robust R] [--dt DT] [--ocp-fit chebyshev]
         [--ocp-modes N] [--no-progress-stop] [--derivatives casadi|blocks|blocks-jacobian|points]
         [--compile [--compile-flags FLAGS]] [--solver ipopt|fatrop] [--restarts K]
-        [--ipopt-option KEY=VALUE ...] [--degree K] [--perturb SEED]
+        [--ipopt-option KEY=VALUE ...] [--degree K] [--perturb SEED] [--draws K]
 
 The cold plan is ``casflex plan``'s, with its second start from the rigid move when the
 first ends less than 10 % shorter than the shaped move (``starts``: each start's record,
@@ -66,6 +73,14 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+#: the perturbations of ``--draws`` (``--perturb SEED``; None: none), those of the
+#: spread tables in benchmarks/README_planning.md since session 25
+DRAW_SEEDS = (None, 0.5, 1.1, 1.9, 2.7, 3.3)
+#: the figures of each draw kept in the record of ``--draws``
+DRAW_KEYS = ("perturb", "solve_s", "solve_warm_s", "iterations", "iterations_warm",
+             "duration", "residual", "status", "status_warm", "passes", "bound_corrections",
+             "failed")
 
 
 
@@ -132,11 +147,22 @@ def main(argv: list[str] | None = None) -> dict:
                              "and Hessian times 1 + 1e-9 sin(0.7 k + SEED), a draw of the "
                              "rounding-level differences between machines and builds "
                              "(default: none)")
+    parser.add_argument("--draws", type=int, default=1, metavar="K",
+                        help="with --compile: the run repeated for the first K of "
+                             f"{DRAW_SEEDS} as --perturb SEED (None: unperturbed), one "
+                             "process each; the unperturbed draw's record with the draws' "
+                             "figures and ranges added (default 1: one run)")
     parser.add_argument("--ipopt-option", action="append", default=[],
                         metavar="KEY=VALUE", help="an Ipopt option (repeatable)")
     args = parser.parse_args(argv)
     if args.perturb is not None and not args.compile:
         parser.error("--perturb needs --compile (it perturbs the compiled derivatives)")
+    if not 1 <= args.draws <= len(DRAW_SEEDS):
+        parser.error(f"--draws {args.draws}: must be 1 to {len(DRAW_SEEDS)}")
+    if args.draws > 1:
+        if not args.compile or args.perturb is not None:
+            parser.error("--draws needs --compile and no --perturb (it sets the draws')")
+        return _draws(list(sys.argv[1:] if argv is None else argv), args.draws, args.json)
 
     from casflex.design.study import load_study
     from casflex.errors import SolverError
@@ -245,6 +271,40 @@ def main(argv: list[str] | None = None) -> dict:
            "trace_warm": [[round(f, 7), float(f"{v:.1e}")]
                           for f, v in warm.stats.get("objective_trace", [])]}
     _report(out, args.json)
+    return out
+
+
+def _draws(argv, count, as_json):
+    """The run once per draw of :data:`DRAW_SEEDS` (a process each, ``--json``): the
+    unperturbed draw's record plus ``draws`` (each draw's :data:`DRAW_KEYS`) and the
+    ranges ``solve_s_range`` / ``solve_warm_s_range`` ([min, max] over the draws that
+    found a plan; ``failed_draws`` counts the others)."""
+    import subprocess
+
+    drop = {i for i, a in enumerate(argv) if a == "--draws"}
+    argv = [a for i, a in enumerate(argv)
+            if i not in drop and i - 1 not in drop and not a.startswith("--draws=")]
+    argv = argv + ["--json"] if "--json" not in argv else argv
+    records = []
+    for seed in DRAW_SEEDS[:count]:
+        extra = [] if seed is None else ["--perturb", str(seed)]
+        run = subprocess.run([sys.executable, __file__, *argv, *extra], capture_output=True,
+                             text=True, check=False)
+        lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
+        if not lines:  # neither a record nor a failure's record: the run itself broke
+            raise SystemExit(f"bench_planning.py draw {seed}: no record "
+                             f"(exit {run.returncode}):\n{run.stderr[-2000:]}")
+        record = json.loads(lines[-1])
+        record["perturb"] = seed
+        records.append(record)
+    out = dict(records[0])
+    out["draws"] = [{k: r.get(k) for k in DRAW_KEYS} for r in records]
+    found = [r for r in records if r.get("duration") is not None]
+    for key in ("solve_s", "solve_warm_s"):
+        values = [r[key] for r in found if r.get(key) is not None]
+        out[key + "_range"] = [min(values), max(values)] if values else None
+    out["failed_draws"] = len(records) - len(found)
+    _report(out, as_json)
     return out
 
 
