@@ -134,9 +134,11 @@ def evaluate(model, reference, torque_law, errors, dt):
     Returns the record of one move: ``errors``, ``prescribed`` and ``torque`` residuals
     [m] per error, the joint end error of the torque runs [rad], the nominal run's
     torque and velocity peaks, and its curves every ``CURVE_DT``."""
-    from casflex.planning import frequency_shifted_model, static_deflection
+    from casflex.planning import PlannedMove, frequency_shifted_model, node_step, static_deflection
     from casflex.simulate import simulate_prescribed, simulate_torque
 
+    if isinstance(reference, PlannedMove):  # steps on its nodes, as verify_plan's
+        dt = node_step(reference, dt)
     T, t_end = float(reference.duration), float(reference.t_end)
     out = {"errors": [float(r) for r in errors], "prescribed": [], "torque": [],
            "torque_end_error": []}

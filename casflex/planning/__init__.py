@@ -148,6 +148,9 @@ Verification (:mod:`casflex.planning.verify`)
 verify_plan
     Residual tip deflections of a plan simulated with the joints on it and under its
     torques, nominal and at frequency errors.
+node_step
+    The largest simulation step up to a given one that puts every node of a plan on a
+    step (the plan's q̈ jumps there).
 plan_robot_move
     Build the model of a robot, shape the move, plan it at the shaped move's limits and
     verify both (what ``casflex plan`` runs).
@@ -272,6 +275,7 @@ from casflex.planning.stopping import (
 from casflex.planning.verify import (
     PlanComparison,
     limit_excess,
+    node_step,
     plan_robot_move,
     shaped_reference,
     verify_plan,
@@ -334,6 +338,7 @@ __all__ = [
     "shaped_end",
     # verification
     "verify_plan",
+    "node_step",
     "plan_robot_move",
     "PlanComparison",
     # end bounds held by the verified residual

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from casflex.robot import Robot
 
 __all__ = ["verify_plan", "plan_robot_move", "PlanComparison", "limit_excess",
-           "shaped_reference"]
+           "shaped_reference", "node_step"]
 
 
 def _residual_after(t, deflection, t_from):
@@ -146,9 +146,39 @@ def limit_excess(peak: Sequence[float], limit: Sequence[float]) -> list[float | 
             for a, b in zip(peak, limit, strict=True)]
 
 
-def _aligned_step(plan: PlannedMove, dt: float) -> float:
-    """The largest step ``<= dt`` [s] that divides the plan's (equal) intervals; ``dt``
-    when the nodes are not equally spaced."""
+def node_step(plan: PlannedMove, dt: float) -> float:
+    """The largest simulation step ``<= dt`` that divides the plan's (equal) intervals.
+
+    A plan's q̈ jumps at every node (its torques are constant over the intervals), and a
+    fixed step that straddles a jump integrates it to first order; on the nodes the
+    simulators take it exactly (:func:`verify_plan` steps so; session 32 of
+    ``benchmarks/README_planning.md``).
+
+    Parameters
+    ----------
+    plan : PlannedMove
+    dt : float
+        Largest step [s] (> 0).
+
+    Returns
+    -------
+    float
+        ``h / ceil(h / dt)`` [s], ``h`` the plan's interval; ``dt`` when its nodes are not
+        equally spaced.
+
+    Examples
+    --------
+    >>> from casflex.model import FlexibleModel, PointwiseProvider
+    >>> from casflex.robot import load
+    >>> robot = load("problems/onelink.toml")
+    >>> model = FlexibleModel(robot, PointwiseProvider(robot, [0.0], count=1), gravity=None)
+    >>> plan = plan_move(model, [0.0], [0.5], torque_limit=0.5, intervals=12)
+    >>> h = plan.node_t[1] - plan.node_t[0]
+    >>> step = node_step(plan, 1e-3)
+    >>> bool(step <= 1e-3), bool(round(h / step, 9) == np.ceil(h / 1e-3))
+    (True, True)
+    """
+    dt = number(dt, "dt", low=0.0, low_open=True)
     h = np.diff(np.asarray(plan.node_t, dtype=float))
     if h.size == 0 or not np.allclose(h, h[0], rtol=1e-9, atol=0.0):
         return dt
@@ -203,7 +233,7 @@ def verify_plan(model: FlexibleModel, plan: PlannedMove, *, dt: float = 1e-3,
     """
     from casflex.simulate import simulate_prescribed, simulate_torque
 
-    dt = _aligned_step(plan, number(dt, "dt", low=0.0, low_open=True))
+    dt = node_step(plan, dt)
     T = plan.duration
     t_end = T + (plan.settle if settle is None else number(settle, "settle", low=0.0))
     n = model.n
