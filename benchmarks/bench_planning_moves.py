@@ -81,8 +81,9 @@ DEFAULT_OUT = ROOT / "benchmarks" / "data" / "planning_moves.json"
 #: sampling of the stored curves (joint motion, tip deflection) [s]
 CURVE_DT = 5e-3
 #: version of what the script stores (raised with every change of a record's meaning;
-#: each run writes it into ``meta.runs``, tests/planning/test_plan_moves_data.py compares)
-FORMAT = 3
+#: each run writes it into ``meta.runs``, tests/planning/test_plan_moves_data.py compares;
+#: 4: plans evaluated on steps that divide their intervals, casflex.planning.node_step)
+FORMAT = 4
 
 
 def log(message: str) -> None:

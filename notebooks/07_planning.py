@@ -107,17 +107,15 @@ print(f"open loop at 1 ms: the joint ends {1e3 * s['end_error_torque_driven']:.2
 # it (prescribed motion) and under its torques open loop (torque-driven), on the nominal
 # model and with every natural frequency 10 % lower and higher.
 #
-# The file was written before the verification's fix of session 32 (above): its planned
-# residuals are off by up to 3 %. Move 1's two stored plans, verified again since: the
-# nominal plan 10.929 mm (stored 10.854), the robust plan 10.943 / 14.372 / 6.466 mm at
-# 0 / −10 / +10 % (stored 10.850 / 13.929 / 6.622) — still within the shaped move's
-# 10.975 / 20.137 / 6.670 mm (`benchmarks/README_planning.md`, session 32). The shaped
-# moves' figures are good to 3e-4. Writing the file again is left to the next run of the
-# benchmark.
+# Since session 32 the plans are simulated on steps that divide their intervals
+# (`casflex.planning.node_step`): their joint acceleration jumps at every interval
+# boundary, and a step that straddles a jump integrates it to first order (the file
+# before held figures up to 9 % off: move 2's plan 4.516 mm where it leaves 4.148). The
+# shaped moves, with a few switches off the grid, are good to 3e-4 at 0.1 ms.
 
 # %%
 DATA = ROOT / "benchmarks" / "data" / "planning_moves.json"
-DATA_SHA256 = "8f1e2c6329969b59a71fab06d2a4e4718d916ae9c62ec7f91e0ef00102c05894"
+DATA_SHA256 = "ccbfa278081d1743d181326e5bb1d19480b2ab01f5dfe79fb6aa51f29fd572ac"
 raw = DATA.read_bytes()
 if hashlib.sha256(raw).hexdigest() != DATA_SHA256:
     raise RuntimeError(f"{DATA} is not the file this notebook was written for: rerun "
@@ -169,27 +167,26 @@ for col, name in enumerate(moves):
 plt.show()
 
 # %% [markdown]
-# Move 1 (all three joints 0 → −1 rad): the cold solve from the shaped move stopped on
-# the progress of T at 2.363 s (26 % shorter, 76 Ipopt iterations); solved again from that
-# iterate and its multipliers it reached 2.1333 s (43 iterations), and a second restart
-# moved it by 2e-9 s. Simulated with the joints on it at 0.1 ms, that plan left 10.990 mm,
-# 0.13 % more than the shaped move's 10.975 mm — the bound it was solved for: the OCP's
-# discretisation — so it was solved once more, warm, with the bound 10.961 mm:
-# **2.1334 s, 33.5 % shorter** than the shaped 3.208 s, with a residual of **10.854 mm**
-# against the shaped move's 10.975 mm. The plan is bang-bang-like at the shaped move's
-# torque peaks; between the collocation points the verified torques pass them by up to
-# 0.65 % (the velocities by ≤ 0.15 %), reported next to the limits, not constrained
-# (`limit_excess`).
+# Move 1 (all three joints 0 → −1 rad): from the shaped move the cold solve stops on the
+# progress of T near 2.35 s, and a restart from that iterate and its multipliers reaches
+# 2.1333 s (`benchmarks/bench_planning.py`: 234 + 48 + 5 iterations; 110 to 489 over the
+# rounding-level draws of `--draws 6`). The stored run solved it warm from that plan
+# (`--plans`, 5 iterations). Simulated with the joints on it at 0.1 ms it leaves
+# **10.943 mm** against the shaped move's 10.975 mm, the bound it was solved for, so no
+# re-solve was needed: **2.1333 s, 33.5 % shorter** than the shaped 3.208 s. The plan is
+# bang-bang-like at the shaped move's torque peaks; between the collocation points the
+# verified torques pass them by at most 8e-5 and the velocities by 0.15 %, reported next
+# to the limits, not constrained (`limit_excess`).
 #
-# Move 2 (the planar move): 1.899 s against 2.807 s shaped (32.4 % shorter); the cold
-# solve stopped on the progress of T after 63 iterations and a restart moved it by 0.04 ms.
-# Its simulated residual, 4.516 mm, passed the bound (the shaped move's 4.160 mm) by
-# 8.6 %; solved again with the bound 3.832 mm it leaves 3.615 mm for 0.9 ms more. Torques
-# over the limits by up to 1.2 % between the collocation points.
+# Move 2 (the planar move): **1.898 s against 2.807 s shaped (32.4 % shorter)**, residual
+# 4.148 against 4.160 mm (61 iterations warm from the stored plan; the cold solve stopped
+# on the progress of T after 63 iterations). Before the verification stepped on the
+# plan's nodes this plan was verified at 4.516 mm and solved again with a tighter bound.
 #
 # Move 3 (the base joint 0 → −π, joints 2 and 3 held): **2.063 s against 2.867 s shaped
-# (28.0 % shorter)**, residual 11.34 against 11.38 mm (157 + 22 iterations, no re-solve
-# needed), at the base joint's torque limit (passed by 0.14 % between the points); the
+# (28.0 % shorter)**, residual 11.36 against 11.38 mm (64 iterations warm from the stored
+# plan, no re-solve needed), at the base joint's torque limit (passed by 2e-5 between the
+# points); the
 # held joints' velocities stay below 1.17 times their 2.4 mrad/s limit (1e-3 of the
 # moving joint's). Until the planner's scaling was fixed this move
 # ended at a poor local optimum of 5.96 s: the held joints leave the second mode's rows of
@@ -265,8 +262,8 @@ plt.show()
 # %% [markdown]
 # The nominal plans meet their bound on the nominal model only. Move 1's 2.133 s plan
 # leaves 10.9 mm there (shaped 11.0 mm) but 87 mm at −10 % and 31 mm at +10 %, where the
-# SI-shaped move leaves 20.1 and 6.7 mm: 4.3 and 4.6 times as much. Move 2's plan: 11.3
-# and 12.1 mm against 6.1 and 2.3 mm; move 3's: 29.0 and 69.5 mm against 3.1 and 8.1 mm.
+# SI-shaped move leaves 20.1 and 6.7 mm: 4.3 and 4.6 times as much. Move 2's plan: 11.2
+# and 11.8 mm against 6.1 and 2.3 mm; move 3's: 29.2 and 69.4 mm against 3.1 and 8.1 mm.
 # A minimum-time plan ends its motion exactly
 # where the modes it excited cancel at the nominal frequencies; the SI shaper spends its
 # extra 1.2 s on insensitivity. Open loop (each move's torques, no feedback) the
@@ -278,7 +275,7 @@ plt.show()
 # problem at ±10 % with the scenarios' bounds ten times the shaped move's, started from
 # the nominal plan lifted into it with its multipliers, then the bounds tightened
 # geometrically in four problems, each warm from the last): **2.145 s, 33 % shorter than
-# the shaped move**, leaving 13.9 / 10.9 / 6.6 mm at −10 / 0 / +10 %, below the shaped
+# the shaped move**, leaving 14.4 / 10.9 / 6.5 mm at −10 / 0 / +10 %, below the shaped
 # move at every error. Until session 31 this path was a lottery (two plans in seven runs,
 # 2.28 and 2.63 s, and no plan in the stored run); with the NLP's start rows in the
 # states' scales and the constraint rows regularised in every warm start it reached this
@@ -365,7 +362,8 @@ else:
 #
 # The same curve for move 1 (right; nominal plans at 2, 0.5 and 0.25 times the plan's
 # bound next to the plan itself, each warm from the previous one: `--tradeoff-moves
-# move1`; their verified residuals within 2 % of the bounds) is much flatter: from 21.8 to
+# move1`; their verified residuals within 2.6 % of the bounds, the tighter ones above
+# them: the optimiser's discretisation, not corrected there) is much flatter: from 21.8 to
 # 2.8 mm the plan lengthens from 2.098 to 2.161 s, 3 %, and even the tightest bound leaves
 # a plan 33 % shorter than the SI-shaped move with about a quarter of its residual. On
 # this arm the plan's time goes to the torque and velocity limits; the
