@@ -2,11 +2,11 @@
 
 The OCP bounds the residual tip deflection it predicts with its own discretisation; the
 verification (:func:`casflex.planning.verify_plan`) simulates the plan with the simulators
-at their own step, and the two differ by the discretisation error of both (design study,
-3° tables, verified at 0.1 ms: move 1 10.990 mm for a bound of 10.975 mm, +0.13 %; move 2
-4.516 mm for 4.160 mm, +8.6 %; ``benchmarks/README_planning.md``, session 28). A plan
-whose bound is the shaped move's residual then leaves *more* than the shaped move once
-simulated. :func:`hold_verified_bounds` re-solves such a plan, warm from itself, with
+at their own step, and the two differ by the discretisation error of both (move 1 of the
+design study at 0.1 ms on the plan's nodes: 10.9286 mm against the OCP's 10.9275; the
+one-link arm at 20 intervals, 3 %; ``benchmarks/README_planning.md``). A plan whose bound
+is the shaped move's residual can then leave *more* than the shaped move once simulated.
+:func:`hold_verified_bounds` re-solves such a plan, warm from itself, with
 each scenario's bound scaled by (bound asked for) / (verified residual), and keeps the
 first plan whose verified residuals are all within the bounds asked for.
 """
