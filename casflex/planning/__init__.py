@@ -127,6 +127,12 @@ ROBUST_PATHS
     full error (``plan_move``'s ``robust_path``).
 LOOSE_BOUNDS
     The bound path's first bounds, in multiples of those asked for.
+PATH_RISE
+    The largest rise of a minimum-time plan from one problem of that path to the next.
+PATH_STATUSES
+    The statuses of a plan that path takes for a problem before its last (converged).
+CONTINUATION_HALVINGS
+    The shorter steps that path may take in all where a problem finds no plan.
 robust_path_for
     The path for an end condition (``casflex plan --robust`` and the design job): the
     bound path with end bounds.
@@ -239,8 +245,11 @@ from casflex.planning.ocp import (
 from casflex.planning.planned import PlannedMove, Propagator
 from casflex.planning.progress import SolveProgress
 from casflex.planning.restarts import (
+    CONTINUATION_HALVINGS,
     FALLBACK_SHORTENING,
     LOOSE_BOUNDS,
+    PATH_RISE,
+    PATH_STATUSES,
     RESTART_VIOLATION_CEILING,
     ROBUST_PATHS,
     ROBUST_STEPS,
@@ -326,6 +335,9 @@ __all__ = [
     "ROBUST_STEPS",
     "ROBUST_PATHS",
     "LOOSE_BOUNDS",
+    "PATH_RISE",
+    "PATH_STATUSES",
+    "CONTINUATION_HALVINGS",
     "robust_path_for",
     # a nominal plan lifted into the robust problem
     "BlockLayout",

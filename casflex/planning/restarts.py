@@ -34,13 +34,13 @@ from casflex._validate import choice, fail, number
 from casflex.errors import SolverError
 from casflex.planning.limits import end_bounds
 from casflex.planning.planned import PlannedMove
-from casflex.planning.stopping import PlanInterrupted
+from casflex.planning.stopping import PROGRESS_STATUS, PlanInterrupted
 
 __all__ = ["check_restarts", "solve_from_plan", "solve_with_restarts", "solve_with_fallback",
            "FALLBACK_SHORTENING", "RESTART_VIOLATION_CEILING", "continuation_steps",
            "solve_by_continuation", "continuation_ceiling", "plan_robustness",
            "ROBUST_STEPS", "ROBUST_PATHS", "LOOSE_BOUNDS", "robust_path_for",
-           "CONTINUATION_HALVINGS"]
+           "CONTINUATION_HALVINGS", "PATH_RISE", "PATH_STATUSES"]
 
 #: robust problems on the continuation path of ``casflex plan --robust`` and of the design
 #: job's robust planner by default. Move 1 of the design study at r = 0.1: solved directly
@@ -62,8 +62,31 @@ ROBUST_PATHS = ("frequency", "bounds")
 LOOSE_BOUNDS = 10.0
 
 #: shorter steps a continuation may take in all: a problem of the path that finds no plan
-#: from the last plan reached is retried after the problem half-way between them
-CONTINUATION_HALVINGS = 3
+#: from the last plan reached is retried after the problem half-way between them. On move 1
+#: of the design study the bound path's problem at 0.5 (the first where the scenarios'
+#: bounds hold the plan) needed two halvings in two draws of seven (session 31) and in the
+#: regeneration of session 32, three in session 32's CI rehearsal (benchmarks/
+#: README_planning.md, session 33)
+CONTINUATION_HALVINGS = 5
+
+#: the largest rise of a minimum-time plan's duration from one problem of a continuation to
+#: the next, relative to the last plan reached: a solve whose iterate rises above it has
+#: left the path (``duration_ceiling``, :class:`casflex.planning.DurationCeiling`), and
+#: the continuation takes a shorter step. Along move 1's bound path the plans rise by
+#: 0.002-0.25 % a problem (2.13331 to 2.14482 s in all) and the successful solves' iterates
+#: by at most 1.6 %; in session 32's CI rehearsal a solve that had left rose to 2.65 s
+#: (+24 %) and was taken, and the path failed two problems later
+#: (benchmarks/README_planning.md, session 33)
+PATH_RISE = 0.1
+
+#: the statuses of a plan that a continuation takes for a problem before its last: Ipopt
+#: converged, or the progress rule stopped it at a feasible iterate. A plan that ended at
+#: Ipopt's acceptable level or at an iteration limit counts as a step too long: on move 1
+#: every plan that left the bound path for a longer one of the same problem (2.24, 2.28,
+#: 2.30, 2.65 s where the path's are 2.135-2.140 s) ended at the acceptable level, every
+#: plan of a successful path in one of these two (benchmarks/README_planning.md,
+#: session 33). The last problem's plan is the result and is taken as any plan is.
+PATH_STATUSES = ("Solve_Succeeded", PROGRESS_STATUS)
 
 #: a minimum-time plan from a cold start (a move as ``guess``) less than this fraction
 #: shorter than that move is taken for a solve that stalled near its start, and
@@ -606,6 +629,15 @@ def _on_path(path, robust, end, f):
     return robust * f, [nominal + f * (b - nominal) for b in bounds]
 
 
+def _path_ceiling(ceiling, plan, arguments):
+    """The ``duration_ceiling`` of a problem of the path after ``plan``: ``ceiling`` or
+    :data:`PATH_RISE` above ``plan``, the lower (a minimum-time plan; else ``ceiling``)."""
+    if arguments.get("objective", "time") != "time" or not isinstance(plan, PlannedMove):
+        return ceiling
+    rise = (1.0 + PATH_RISE) * float(plan.duration)
+    return rise if ceiling is None else min(float(ceiling), rise)
+
+
 def _resumed(plan, path, robust, end):
     """Where a path resumes from ``plan``: the fraction of the last problem it solved
     (0 on the frequency path: the nominal problem), or ``None`` (the bound path's first
@@ -643,7 +675,12 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
     applies to every problem but the nominal one: a robust problem whose solve rises
     above it counts as finding no plan, so the path takes a shorter step instead of
     following Ipopt to long plans (move 1 of the design study: 5.37 s from one nominal
-    plan where another led to 2.31 s, session 19).
+    plan where another led to 2.31 s, session 19). A minimum-time problem's ceiling is
+    besides :data:`PATH_RISE` above the last plan reached, and a problem before the last
+    whose plan did not converge (its status not in :data:`PATH_STATUSES`) counts as
+    finding no plan too: a solve that leaves the path for a longer plan of the same
+    problem (move 1: 2.24 and 2.65 s where the path's plan is 2.135 s, session 33) is not
+    taken for the path's.
 
     Parameters
     ----------
@@ -723,7 +760,8 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
         r, end_k = _on_path(path, robust, end, f)
         step = {**arguments, "robust": r, "end": end_k,
                 "restarts": restarts if f in (None, 1.0) else 0,
-                "duration_ceiling": ceiling if f is not None else None,
+                "duration_ceiling": None if f is None else _path_ceiling(ceiling, plan,
+                                                                         arguments),
                 # a second cold start is for the nominal problem (the others start warm)
                 "fallback_guess": arguments.get("fallback_guess") if f is None else None}
         bounds = end_bounds(end_k, 3 if r > 0.0 else 1)[1] or end_k
@@ -745,6 +783,15 @@ def solve_by_continuation(solve: Callable[..., Any], arguments: dict, steps: int
             raise PlanInterrupted(plan, "the plan of the last problem finished" + (
                 f", at {reached:.4g} of the path" if reached is not None else
                 " (the nominal one)")) from exc
+        if new is not None and f not in (None, 1.0) and \
+                new.stats.get("status") not in PATH_STATUSES:
+            # not converged: taken for a solve that left the path (its time counted)
+            error = SolverError(f"plan_move: the plan ended {new.stats.get('status')} at "
+                                f"{new.duration:.6g} s, not converged (PATH_STATUSES)")
+            error.solve = {k: v for k, v in _pass_totals(new).items()
+                           if k in ("iterations", "solve_s", "solve_cpu_s")}
+            failures.append(error)
+            new = None
         record += [_failed(exc, robust=r, end_bounds=bounds) for exc in failures]
         if new is None and reached is not None and f is not None and reached < f \
                 and halvings < CONTINUATION_HALVINGS:
