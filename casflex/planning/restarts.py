@@ -64,9 +64,10 @@ LOOSE_BOUNDS = 10.0
 #: shorter steps a continuation may take in all: a problem of the path that finds no plan
 #: from the last plan reached is retried after the problem half-way between them. On move 1
 #: of the design study the bound path's problem at 0.5 (the first where the scenarios'
-#: bounds hold the plan) needed two halvings in two draws of seven (session 31) and in the
-#: regeneration of session 32, three in session 32's CI rehearsal (benchmarks/
-#: README_planning.md, session 33)
+#: bounds hold the plan) needed two halvings in two draws of seven (session 31), and in
+#: thirteen draws of session 33 none in eight, one or two in four and all five in one;
+#: session 32's CI rehearsal spent its three and failed (benchmarks/README_planning.md,
+#: session 33)
 CONTINUATION_HALVINGS = 5
 
 #: the largest rise of a minimum-time plan's duration from one problem of a continuation to
