@@ -16,6 +16,7 @@ from casflex.planning import (
     PlannedMove,
     continuation_steps,
     plan_move,
+    plan_robustness,
     solve_by_continuation,
     verify_plan,
 )
@@ -99,8 +100,6 @@ def test_a_step_without_plan_names_the_step(onelink):
 def test_a_failed_path_keeps_what_it_reached(onelink):
     # from the nominal plan at 0.1 N m, a robust plan whose -r scenario must stop dead
     # (bound 1e-9 m) at the same 0.1 N m within max_iter = 3: step 1 fails
-    from casflex.planning import plan_robustness
-
     nominal = plan_move(onelink, MOVE, **COMMON, end=2e-3)
     with pytest.raises(SolverError) as err:
         plan_move(onelink, MOVE, **COMMON, end=[2e-3, 1e-9, 2e-3], robust=0.1,
